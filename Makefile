@@ -1,0 +1,43 @@
+# The two commands that matter: `make demo` and `make test`. Each installs what it needs first.
+SHELL := /bin/bash
+ROOT := $(abspath .)
+PY := $(ROOT)/.venv/bin/python
+SETUP := bash package-config/setup.sh
+export XDG_RUNTIME_DIR ?= /tmp/worldsplat-xdg
+export PATH := $(ROOT)/.tools/bin:$(PATH)
+
+.PHONY: demo test setup test-python test-rust test-wasm test-browser wasm bench lock clean
+
+demo: setup wasm
+	$(ROOT)/.venv/bin/worldsplat serve --host 127.0.0.1 --port 8000
+
+setup:
+	@mkdir -p $(XDG_RUNTIME_DIR) && chmod 700 $(XDG_RUNTIME_DIR)
+	@$(SETUP) all
+
+test: setup
+	@$(MAKE) --no-print-directory test-python test-rust test-wasm test-browser
+
+test-python:
+	$(PY) -m pytest
+
+test-rust:
+	@if [ -f wasm/Cargo.toml ]; then cd wasm && cargo test --workspace; else echo "wasm/: no workspace yet"; fi
+
+wasm:
+	@if [ -f wasm/build.sh ]; then bash wasm/build.sh; fi
+
+test-wasm: wasm
+
+test-browser:
+	@if [ -d tests/browser ] && ls tests/browser/*.test.mjs >/dev/null 2>&1; then \
+	  NODE_PATH=$(ROOT)/package-config/node_modules node --test tests/browser/; else echo "tests/browser: none yet"; fi
+
+bench: setup
+	$(ROOT)/.venv/bin/worldsplat bench --out web/docs/bench
+
+lock:
+	$(ROOT)/.venv/bin/pip freeze --exclude-editable > package-config/requirements.lock
+
+clean:
+	rm -rf wasm/target .venv .tools package-config/node_modules

@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# One idempotent set-up for every ecosystem the project uses. Each step checks
+# first, so the second run takes a few seconds. Usage: setup.sh [python|rust|browser|all]
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+HERE="$ROOT/package-config"
+source "$HERE/versions.env"
+WHAT="${1:-all}"
+log() { printf '[setup] %s\n' "$*" >&2; }
+
+setup_apt() {
+  local missing=()
+  while read -r pkg; do
+    [[ -z "$pkg" || "$pkg" == \#* ]] && continue
+    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
+  done < "$HERE/apt-packages.txt"
+  if ((${#missing[@]})); then
+    log "apt: installing ${missing[*]}"
+    local sudo=""; [[ $(id -u) -ne 0 ]] && sudo="sudo"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${missing[@]}" >/dev/null
+  fi
+}
+
+setup_python() {
+  local venv="$ROOT/.venv" stamp="$ROOT/.venv/.lock-stamp"
+  [[ -x "$venv/bin/python" ]] || { log "python: creating .venv"; python3 -m venv "$venv"; }
+  if ! cmp -s "$HERE/requirements.lock" "$stamp" 2>/dev/null; then
+    log "python: installing pinned dependencies"
+    "$venv/bin/pip" install -q --upgrade pip
+    "$venv/bin/pip" install -q -r "$HERE/requirements.lock"
+    cp "$HERE/requirements.lock" "$stamp"
+  fi
+  # The project itself, editable, so `worldsplat` runs the working tree.
+  if ! "$venv/bin/python" -c "import worldsplat" 2>/dev/null; then
+    log "python: installing worldsplat (editable)"
+    "$venv/bin/pip" install -q --no-deps --no-build-isolation -e "$ROOT"
+  fi
+}
+
+setup_rust() {
+  command -v cargo >/dev/null || { log "rust: cargo missing; install rustup first"; exit 1; }
+  rustup target list --installed | grep -qx "$RUST_WASM_TARGET" || rustup target add "$RUST_WASM_TARGET"
+  local wbg="$ROOT/.tools/bin/wasm-bindgen"
+  if ! [[ -x "$wbg" ]] || ! "$wbg" --version | grep -q "$WASM_BINDGEN_VERSION"; then
+    log "rust: installing wasm-bindgen-cli $WASM_BINDGEN_VERSION (a few minutes, once)"
+    cargo install -q wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION" --locked --root "$ROOT/.tools"
+  fi
+}
+
+setup_browser() {
+  if ! [[ -d "$HERE/node_modules/playwright-core" ]]; then
+    log "browser: npm install playwright-core"
+    (cd "$HERE" && npm install --no-audit --no-fund --silent)
+  fi
+}
+
+case "$WHAT" in
+  python) setup_python ;;
+  rust) setup_rust ;;
+  browser) setup_apt; setup_browser ;;
+  apt) setup_apt ;;
+  all) setup_apt; setup_python; setup_rust; setup_browser ;;
+  *) log "unknown target '$WHAT' (python|rust|browser|apt|all)"; exit 2 ;;
+esac

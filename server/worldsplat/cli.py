@@ -1,0 +1,58 @@
+"""`worldsplat` console script: one sub-command per concern, each living beside the code it drives.
+
+Each command module exposes `configure(parser)` and `run(args) -> int`; they are imported lazily so that a quick
+command (`presets`) never pays for importing torch.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# command -> (module, help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "presets": ("worldsplat.world.commands_presets", "list the shipped scenario presets"),
+    "sim": ("worldsplat.world.commands_sim", "render a scenario's exact ground truth (RGB, depth, masks, conditions)"),
+    "dataset": ("worldsplat.world.commands_dataset", "write a sharded, resumable training dataset"),
+    "generate": ("worldsplat.pipeline_cli", "scenario -> 4D Gaussian scene (.wsplat)"),
+    "render": ("worldsplat.gaussians.commands_render", "render a .wsplat/.ply at a rig camera or any camera"),
+    "export": ("worldsplat.gaussians.commands_ply", "export a .wsplat to a standard 3DGS .ply"),
+    "import": ("worldsplat.gaussians.commands_ply", "import a standard 3DGS .ply to .wsplat"),
+    "serve": ("worldsplat.api.commands_serve", "serve the playground (page, wasm viewer, API)"),
+    "train": ("worldsplat_models.commands_train", "train a model (vae, dit, decoder, enhancer)"),
+    "eval": ("worldsplat.evaluation.commands_eval", "evaluate against the world's exact ground truth"),
+    "bench": ("worldsplat.bench.commands_bench", "speed-against-error benchmark report"),
+}
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="worldsplat", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if only is None or name == only:
+            mod = importlib.import_module(module)
+            configure = getattr(mod, f"configure_{name}", None) or mod.configure
+            configure(p)
+            p.set_defaults(_run=getattr(mod, f"run_{name}", None) or mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    first = next((a for a in argv if not a.startswith("-")), None)
+    only = first if first in COMMANDS else None
+    if only is None:
+        # Help or an unknown command: argparse reports it without importing every command module.
+        build_parser(only="__none__").parse_args(argv)
+        return 2
+    args = build_parser(only=only).parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"worldsplat {only}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,210 @@
+"""4D-aware diffusion transformer with a ControlNet branch (paper §3.2, Appendix A).
+
+Input latents x: (B, T, V, C, h, w) for T frames of V views. Patchified to tokens of width `dim`; each block
+- cross-view spatial attention: tokens of all V views of one frame attend to each other,
+  (B, V, T, h, w, C) -> (B*T, V*h*w, C) (the paper's reordering);
+- temporal attention: each view/position attends over the T frames, (B*V*h*w, T, C);
+- cross-attention to the fused condition tokens of its frame (boxes, trajectory, caption; conditions.py);
+- an MLP.
+Self-attention and MLP are modulated by adaLN-zero from the flow time s. A ControlNet branch (copies of the first
+`control_depth` blocks) reads the per-camera control latents (the sketch latent for generation; render + sketch
+latents for the enhancement model), and adds its outputs to the main stream through zero-initialised projections,
+so a fresh ControlNet leaves the base model unchanged.
+
+The backbone is generic in `in_channels`, `control_channels` and `out_channels` (DiTConfig), so the enhancement
+model (issue 7) is `DiT4D(DiTConfig(in_channels=4, control_channels=8, out_channels=4), num_classes)`.
+"""
+from __future__ import annotations
+
+import copy
+import math
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from .conditions import ConditionEncoder
+from .configs import DiTConfig
+
+
+def sincos_1d(n: int, dim: int, device=None) -> torch.Tensor:
+    pos = torch.arange(n, dtype=torch.float32, device=device)[:, None]
+    freq = torch.exp(-math.log(10000.0) * torch.arange(dim // 2, dtype=torch.float32, device=device) / (dim // 2))
+    return torch.cat([torch.sin(pos * freq), torch.cos(pos * freq)], dim=1)
+
+
+def sincos_2d(h: int, w: int, dim: int, device=None) -> torch.Tensor:
+    """(h*w, dim) fixed 2D position embedding (half the channels for rows, half for columns)."""
+    ey = sincos_1d(h, dim // 2, device)[:, None, :].expand(h, w, -1)
+    ex = sincos_1d(w, dim // 2, device)[None, :, :].expand(h, w, -1)
+    return torch.cat([ey, ex], dim=-1).reshape(h * w, dim)
+
+
+def timestep_embedding(s: torch.Tensor, dim: int) -> torch.Tensor:
+    """Sinusoidal embedding of the flow time s in [0, 1] (scaled to 0..1000 like DiT/OpenSora), float32."""
+    half = dim // 2
+    freq = torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32, device=s.device) / half)
+    a = (s.float() * 1000.0)[:, None] * freq[None]
+    return torch.cat([torch.cos(a), torch.sin(a)], dim=-1)
+
+
+class Attention(nn.Module):
+    """Multi-head attention with LayerNorm on queries and keys (qk-norm, for bf16 stability)."""
+
+    def __init__(self, dim: int, heads: int, kv_dim: int | None = None):
+        super().__init__()
+        if dim % heads:
+            raise ValueError(f"attention: dim {dim} not divisible by heads {heads}")
+        self.heads = heads
+        self.q = nn.Linear(dim, dim)
+        self.kv = nn.Linear(kv_dim or dim, 2 * dim)
+        self.q_norm = nn.LayerNorm(dim // heads, eps=1e-6)
+        self.k_norm = nn.LayerNorm(dim // heads, eps=1e-6)
+        self.proj = nn.Linear(dim, dim)
+
+    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
+                key_mask: torch.Tensor | None = None) -> torch.Tensor:
+        B, N, D = x.shape
+        ctx = x if context is None else context
+        M = ctx.shape[1]
+        hd = D // self.heads
+        q = self.q_norm(self.q(x).reshape(B, N, self.heads, hd)).transpose(1, 2)
+        k, v = self.kv(ctx).reshape(B, M, 2, self.heads, hd).unbind(2)
+        k = self.k_norm(k).transpose(1, 2)
+        v = v.transpose(1, 2)
+        mask = None if key_mask is None else key_mask[:, None, None, :]
+        o = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
+        return self.proj(o.transpose(1, 2).reshape(B, N, D))
+
+
+def modulate(x, shift, scale):
+    return x * (1 + scale) + shift
+
+
+class DiTBlock(nn.Module):
+    """Cross-view spatial attn -> temporal attn -> cross-attn to conditions -> MLP; adaLN-zero on s."""
+
+    def __init__(self, dim: int, heads: int, mlp_ratio: float):
+        super().__init__()
+        self.norm_s = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        self.spatial = Attention(dim, heads)
+        self.norm_t = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        self.temporal = Attention(dim, heads)
+        self.norm_c = nn.LayerNorm(dim, eps=1e-6)
+        self.cross = Attention(dim, heads)
+        self.norm_m = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        hidden = int(dim * mlp_ratio)
+        self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, dim))
+        self.ada = nn.Sequential(nn.SiLU(), nn.Linear(dim, 9 * dim))
+        nn.init.zeros_(self.ada[1].weight)
+        nn.init.zeros_(self.ada[1].bias)
+
+    def forward(self, x, t_emb, cond_tokens, cond_mask, T: int, V: int):
+        """x (B, T, V*S, D); t_emb (B, D); cond_tokens (B*T, N, D); cond_mask (B*T, N)."""
+        B, _, VS, D = x.shape
+        m = self.ada(t_emb)[:, None, None, :].chunk(9, dim=-1)
+        # cross-view spatial attention: one sequence of V*S tokens per frame
+        h = modulate(self.norm_s(x), m[0], m[1]).reshape(B * T, VS, D)
+        x = x + m[2] * self.spatial(h).reshape(B, T, VS, D)
+        # temporal attention: one sequence of T tokens per view/position
+        h = modulate(self.norm_t(x), m[3], m[4]).transpose(1, 2).reshape(B * VS, T, D)
+        x = x + m[5] * self.temporal(h).reshape(B, VS, T, D).transpose(1, 2)
+        # cross-attention to this frame's condition tokens
+        h = self.norm_c(x).reshape(B * T, VS, D)
+        x = x + self.cross(h, cond_tokens, cond_mask).reshape(B, T, VS, D)
+        h = modulate(self.norm_m(x), m[6], m[7])
+        return x + m[8] * self.mlp(h)
+
+
+class DiT4D(nn.Module):
+    def __init__(self, cfg: DiTConfig, num_classes: int = 17):
+        super().__init__()
+        self.cfg = cfg
+        p, D = cfg.patch, cfg.dim
+        self.patch_embed = nn.Linear(cfg.in_channels * p * p, D)
+        self.view_embed = nn.Parameter(torch.zeros(cfg.max_views, D))
+        self.frame_embed = nn.Parameter(torch.zeros(cfg.max_frames, D))
+        nn.init.normal_(self.view_embed, std=0.02)
+        nn.init.normal_(self.frame_embed, std=0.02)
+        self.t_embed = nn.Sequential(nn.Linear(256, D), nn.SiLU(), nn.Linear(D, D))
+        self.conditions = ConditionEncoder(num_classes, cfg.cond_dim, D, cfg.caption_dim, cfg.box_fourier)
+        self.blocks = nn.ModuleList(DiTBlock(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.depth))
+        # ControlNet branch
+        if cfg.control_depth > cfg.depth:
+            raise ValueError("DiTConfig: control_depth cannot exceed depth")
+        self.control_embed = nn.Linear(cfg.control_channels * p * p, D)
+        self.control_in = nn.Linear(D, D)
+        self.control_blocks = nn.ModuleList(copy.deepcopy(self.blocks[i]) for i in range(cfg.control_depth))
+        self.control_out = nn.ModuleList(nn.Linear(D, D) for _ in range(cfg.control_depth))
+        for lin in [self.control_in, *self.control_out]:
+            nn.init.zeros_(lin.weight)
+            nn.init.zeros_(lin.bias)
+        # output
+        self.final_norm = nn.LayerNorm(D, elementwise_affine=False, eps=1e-6)
+        self.final_ada = nn.Sequential(nn.SiLU(), nn.Linear(D, 2 * D))
+        self.final = nn.Linear(D, cfg.out_channels * p * p)
+        for lin in (self.final_ada[1], self.final):
+            nn.init.zeros_(lin.weight)
+            nn.init.zeros_(lin.bias)
+
+    def _tokens(self, x: torch.Tensor, embed: nn.Linear) -> torch.Tensor:
+        B, T, V, C, h, w = x.shape
+        p = self.cfg.patch
+        if h % p or w % p:
+            raise ValueError(f"DiT: latent size {h}x{w} not divisible by patch {p}")
+        x = x.reshape(B, T, V, C, h // p, p, w // p, p).permute(0, 1, 2, 4, 6, 3, 5, 7)
+        return embed(x.reshape(B, T, V, (h // p) * (w // p), C * p * p))
+
+    def forward(self, x: torch.Tensor, s: torch.Tensor, cond: dict) -> torch.Tensor:
+        """x (B,T,V,C,h,w) noisy latents, s (B,) flow time in [0,1], cond: the ConditionEncoder fields plus
+        "control" (B,T,V,Cc,h,w) and optional "drop" (B,) bool -> velocity (B,T,V,C_out,h,w)."""
+        cfg = self.cfg
+        B, T, V, C, h, w = x.shape
+        if C != cfg.in_channels:
+            raise ValueError(f"DiT: expected {cfg.in_channels} latent channels, got {C}")
+        if V > cfg.max_views or T > cfg.max_frames:
+            raise ValueError(f"DiT: {V} views x {T} frames exceeds max {cfg.max_views} x {cfg.max_frames}")
+        p, D = cfg.patch, cfg.dim
+        hp, wp = h // p, w // p
+        S = hp * wp
+        drop = cond.get("drop")
+        pos = (sincos_2d(hp, wp, D, x.device)[None, None, None]
+               + self.view_embed[:V][None, None, :, None] + self.frame_embed[:T][None, :, None, None])
+        tok = (self._tokens(x, self.patch_embed) + pos.to(x.dtype)).reshape(B, T, V * S, D)
+        t_emb = self.t_embed(timestep_embedding(s, 256).to(tok.dtype))
+        c_tok, c_mask = self.conditions(cond, drop)
+        c_tok = c_tok.reshape(B * T, -1, D)
+        c_mask = c_mask.reshape(B * T, -1)
+
+        control = cond["control"]
+        if drop is not None:
+            control = torch.where(drop.bool().view(B, 1, 1, 1, 1, 1), torch.zeros_like(control), control)
+        ctl = tok + self.control_in(self._tokens(control, self.control_embed).reshape(B, T, V * S, D))
+        residuals = []
+        for blk, out in zip(self.control_blocks, self.control_out):
+            ctl = blk(ctl, t_emb, c_tok, c_mask, T, V)
+            residuals.append(out(ctl))
+
+        for i, blk in enumerate(self.blocks):
+            tok = blk(tok, t_emb, c_tok, c_mask, T, V)
+            if i < len(residuals):
+                tok = tok + residuals[i]
+
+        shift, scale = self.final_ada(t_emb)[:, None, None, :].chunk(2, dim=-1)
+        out = self.final(modulate(self.final_norm(tok), shift, scale))
+        Co = cfg.out_channels
+        out = out.reshape(B, T, V, hp, wp, Co, p, p).permute(0, 1, 2, 5, 3, 6, 4, 7)
+        return out.reshape(B, T, V, Co, h, w)
+
+    def init_control_from_base(self) -> None:
+        """ControlNet convention: the control blocks start as copies of the base blocks."""
+        for i, blk in enumerate(self.control_blocks):
+            blk.load_state_dict(self.blocks[i].state_dict())
+
+
+def dropped(cond: dict) -> dict:
+    """The unconditional branch of classifier-free guidance: the same inputs with every condition dropped."""
+    B = cond["box_mask"].shape[0]
+    out = dict(cond)
+    out["drop"] = torch.ones(B, dtype=torch.bool, device=cond["box_mask"].device)
+    return out

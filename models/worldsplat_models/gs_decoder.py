@@ -1,0 +1,191 @@
+"""Latent Gaussian decoder (paper §3.3): multi-modal latent L + Plucker ray map -> pixel-aligned 3D Gaussians.
+
+Tokens on the latent grid (one per latent pixel, L concatenated with the Plucker rays of that pixel) pass through
+blocks of cross-view spatial attention (all views of a frame), temporal attention (all frames of a view/position)
+and an MLP; then up-sampling conv blocks (each re-reads the Plucker rays at its resolution) lead to one Gaussian
+per pixel of a grid at image/`gaussian_stride` resolution, with bounded, documented activations:
+
+| output | activation | bound |
+|---|---|---|
+| depth d | exp(log near + sigmoid(x) (log far - log near)) | [near, far] = [0.5, 80] m |
+| offset | max_offset * tanh(x) | |offset_i| < 0.5 m |
+| scale | clamp(footprint(d) * (a + (b - a) sigmoid(x)), scale_min, scale_max) | [1e-3, 3] m; footprint = d / f_grid |
+| rotation | q = x + (1, 0, 0, 0), q / max(norm q, 1e-6), predicted in the camera frame then rotated to world | unit |
+| opacity | sigmoid(x + 2) | (0, 1) |
+| colour | sigmoid(x) | (0, 1) |
+| dynamic logit | clamp(x, -15, 15) | |
+Non-finite raw outputs are zeroed before activation. Mean = ray origin + d * ray direction (unit camera z, so d is
+camera-z depth as in the world's depth maps) + offset.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from .configs import GSDecoderConfig
+from .dit import Attention, sincos_2d
+from .vae import ResBlock
+
+HEAD_CHANNELS = {"offset": 3, "quat": 4, "scale": 3, "opacity": 1, "color": 3, "depth": 1, "dynamic": 1}
+
+
+def pixel_rays(intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: tuple[int, int],
+               grid_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Ray origins (..., 3) and directions (..., gh, gw, 3) with unit camera-z component, for the centres of a
+    gh x gw grid covering an image of image_hw pixels. intrinsics (..., 4) = fx, fy, cx, cy in image pixels."""
+    H, W = image_hw
+    gh, gw = grid_hw
+    dev = intrinsics.device
+    u = (torch.arange(gw, dtype=torch.float32, device=dev) + 0.5) * (W / gw)
+    v = (torch.arange(gh, dtype=torch.float32, device=dev) + 0.5) * (H / gh)
+    fx, fy, cx, cy = [intrinsics[..., i, None, None].float() for i in range(4)]
+    x = (u[None, :] - cx) / fx
+    y = (v[:, None] - cy) / fy
+    x, y = torch.broadcast_tensors(x, y)
+    d_cam = torch.stack([x, y, torch.ones_like(x)], dim=-1)
+    R = cam_to_world[..., :3, :3].float()
+    dirs = torch.einsum("...ij,...hwj->...hwi", R, d_cam)
+    return cam_to_world[..., :3, 3].float(), dirs
+
+
+def plucker(origins: torch.Tensor, dirs: torch.Tensor, ray_scale: float) -> torch.Tensor:
+    """(..., 3), (..., h, w, 3) -> (..., 6, h, w): [o x d, d] with d normalised and o in units of ray_scale."""
+    d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    o = (origins / ray_scale)[..., None, None, :].expand_as(d)
+    return torch.cat([torch.cross(o, d, dim=-1), d], dim=-1).movedim(-1, -3)
+
+
+def matrix_to_quaternion(R: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) wxyz (branch-free, stable for any rotation)."""
+    m = R.float()
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    w = torch.sqrt((1 + m00 + m11 + m22).clamp_min(0)) / 2
+    x = torch.sqrt((1 + m00 - m11 - m22).clamp_min(0)) / 2
+    y = torch.sqrt((1 - m00 + m11 - m22).clamp_min(0)) / 2
+    z = torch.sqrt((1 - m00 - m11 + m22).clamp_min(0)) / 2
+    x = torch.copysign(x, m[..., 2, 1] - m[..., 1, 2])
+    y = torch.copysign(y, m[..., 0, 2] - m[..., 2, 0])
+    z = torch.copysign(z, m[..., 1, 0] - m[..., 0, 1])
+    q = torch.stack([w, x, y, z], dim=-1)
+    return q / q.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+
+
+def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw], dim=-1)
+
+
+def safe_normalize_quaternion(q: torch.Tensor) -> torch.Tensor:
+    """Bias towards identity then normalise; a zero or non-finite input becomes the identity rotation."""
+    q = torch.nan_to_num(q.float(), nan=0.0, posinf=0.0, neginf=0.0)
+    q = q + torch.tensor([1.0, 0.0, 0.0, 0.0], device=q.device)
+    n = q.norm(dim=-1, keepdim=True)
+    ident = torch.tensor([1.0, 0.0, 0.0, 0.0], device=q.device).expand_as(q)
+    return torch.where(n > 1e-6, q / n.clamp_min(1e-6), ident)
+
+
+class Block(nn.Module):
+    """Pre-LN cross-view spatial attention, temporal attention and MLP."""
+
+    def __init__(self, dim: int, heads: int, mlp_ratio: float):
+        super().__init__()
+        self.norm_s, self.spatial = nn.LayerNorm(dim), Attention(dim, heads)
+        self.norm_t, self.temporal = nn.LayerNorm(dim), Attention(dim, heads)
+        hidden = int(dim * mlp_ratio)
+        self.norm_m = nn.LayerNorm(dim)
+        self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, dim))
+
+    def forward(self, x: torch.Tensor, T: int) -> torch.Tensor:
+        B, _, VS, D = x.shape
+        x = x + self.spatial(self.norm_s(x).reshape(B * T, VS, D)).reshape(B, T, VS, D)
+        h = self.norm_t(x).transpose(1, 2).reshape(B * VS, T, D)
+        x = x + self.temporal(h).reshape(B, VS, T, D).transpose(1, 2)
+        return x + self.mlp(self.norm_m(x))
+
+
+class GaussianDecoder(nn.Module):
+    def __init__(self, cfg: GSDecoderConfig):
+        super().__init__()
+        self.cfg = cfg
+        D = cfg.dim
+        self.embed = nn.Linear(cfg.in_channels + 6, D)
+        self.view_embed = nn.Parameter(torch.zeros(cfg.max_views, D))
+        self.frame_embed = nn.Parameter(torch.zeros(cfg.max_frames, D))
+        nn.init.normal_(self.view_embed, std=0.02)
+        nn.init.normal_(self.frame_embed, std=0.02)
+        self.blocks = nn.ModuleList(Block(D, cfg.heads, cfg.mlp_ratio) for _ in range(cfg.depth))
+        self.norm = nn.LayerNorm(D)
+        ups = []
+        cin = D
+        for c in cfg.up_channels:
+            ups.append(nn.ModuleDict({"conv": nn.Conv2d(cin + 6, c, 3, padding=1), "res": ResBlock(c, c)}))
+            cin = c
+        self.ups = nn.ModuleList(ups)
+        self.head = nn.Conv2d(cin, sum(HEAD_CHANNELS.values()), 3, padding=1)
+        nn.init.normal_(self.head.weight, std=1e-3)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, L: torch.Tensor, intrinsics: torch.Tensor, cam_to_world: torch.Tensor,
+                image_hw: tuple[int, int]) -> dict[str, torch.Tensor]:
+        """L (B,T,V,C,h,w) normalised latents; intrinsics (B,T,V,4) fx,fy,cx,cy of the image_hw image;
+        cam_to_world (B,T,V,4,4) -> Gaussian fields, each (B,T,V,gh,gw,k) (k dropped when 1), in world metres."""
+        cfg = self.cfg
+        B, T, V, C, h, w = L.shape
+        if C != cfg.in_channels:
+            raise ValueError(f"Gaussian decoder: expected {cfg.in_channels} latent channels, got {C}")
+        if V > cfg.max_views or T > cfg.max_frames:
+            raise ValueError(f"Gaussian decoder: {V} views x {T} frames exceeds max {cfg.max_views} x {cfg.max_frames}")
+        D = cfg.dim
+        o, d = pixel_rays(intrinsics, cam_to_world, image_hw, (h, w))
+        rays = plucker(o, d, cfg.ray_scale).to(L.dtype)                        # (B,T,V,6,h,w)
+        x = torch.cat([L, rays], dim=3).permute(0, 1, 2, 4, 5, 3)               # (B,T,V,h,w,C+6)
+        pos = (sincos_2d(h, w, D, L.device).reshape(1, 1, 1, h, w, D)
+               + self.view_embed[:V].reshape(1, 1, V, 1, 1, D) + self.frame_embed[:T].reshape(1, T, 1, 1, 1, D))
+        tok = (self.embed(x) + pos.to(x.dtype)).reshape(B, T, V * h * w, D)
+        for blk in self.blocks:
+            tok = blk(tok, T)
+        f = self.norm(tok).reshape(B * T * V, h, w, D).permute(0, 3, 1, 2)
+        gh, gw = h, w
+        for up in self.ups:
+            gh, gw = gh * 2, gw * 2
+            f = F.interpolate(f, scale_factor=2.0, mode="nearest")
+            o_g, d_g = pixel_rays(intrinsics, cam_to_world, image_hw, (gh, gw))
+            r = plucker(o_g, d_g, cfg.ray_scale).reshape(B * T * V, 6, gh, gw).to(f.dtype)
+            f = up["res"](up["conv"](torch.cat([f, r], dim=1)))
+        raw = self.head(f).reshape(B, T, V, -1, gh, gw).permute(0, 1, 2, 4, 5, 3)
+        o_g, d_g = pixel_rays(intrinsics, cam_to_world, image_hw, (gh, gw))
+        fx_grid = intrinsics[..., 0].float() * (gw / image_hw[1])
+        return self.activate(raw, o_g, d_g, fx_grid, cam_to_world)
+
+    def activate(self, raw: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, fx_grid: torch.Tensor,
+                 cam_to_world: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Raw head output (B,T,V,gh,gw,16) -> bounded Gaussian parameters (float32)."""
+        cfg = self.cfg
+        raw = torch.nan_to_num(raw.float(), nan=0.0, posinf=0.0, neginf=0.0)
+        parts = dict(zip(HEAD_CHANNELS, raw.split(list(HEAD_CHANNELS.values()), dim=-1)))
+        ln, lf = math.log(cfg.depth_near), math.log(cfg.depth_far)
+        depth = torch.exp(ln + torch.sigmoid(parts["depth"][..., 0]) * (lf - ln))
+        offset = cfg.max_offset * torch.tanh(parts["offset"])
+        means = origins[..., None, None, :] + depth[..., None] * dirs + offset
+        a, b = cfg.pixel_scale_range
+        footprint = depth / fx_grid[..., None, None]
+        scales = (footprint[..., None] * (a + (b - a) * torch.sigmoid(parts["scale"]))).clamp(cfg.scale_min,
+                                                                                               cfg.scale_max)
+        q_cam = safe_normalize_quaternion(parts["quat"])
+        q_c2w = matrix_to_quaternion(cam_to_world[..., :3, :3])[..., None, None, :].expand_as(q_cam)
+        quats = quaternion_multiply(q_c2w, q_cam)
+        quats = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        return {
+            "means": means, "quats": quats, "scales": scales,
+            "opacities": torch.sigmoid(parts["opacity"][..., 0] + cfg.opacity_bias),
+            "colors": torch.sigmoid(parts["color"]),
+            "depth": depth,
+            "dynamic_logit": parts["dynamic"][..., 0].clamp(-15.0, 15.0),
+        }

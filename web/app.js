@@ -1,0 +1,489 @@
+// The playground page: scenario panel -> POST /api/scenes -> progress (SSE) -> .wsplat stream into the wasm viewer;
+// timeline, cameras, track shift, track videos (raw and refined), share links, drag-and-drop, stats.
+// No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
+import { decodeShare, shareUrl } from "./share.js";
+
+const $ = (id) => document.getElementById(id);
+const CAMERAS = ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT"];
+
+const state = {
+  presets: [], modes: null, base: null,             // base: the scenario the form edits (a preset or a shared one)
+  scenario: null, sceneId: null, sceneMode: null,   // what is loaded
+  viewer: null, backend: null, loaded: false, source: null,
+  frames: 0, fps: 4, frame: 0, playing: false, shift: 0, camera: "CAM_FRONT",
+  dirty: true, events: [], errors: [], lastError: null, genJobId: null, videoJobId: null,
+  videos: {}, streamBytes: 0,
+};
+
+// ---- errors -----------------------------------------------------------------------------------------------------
+function showError(message, fields = []) {
+  state.lastError = message;
+  state.errors.push(message);
+  $("error-text").textContent = message;
+  $("error").hidden = false;
+  for (const f of fields) {
+    const el = document.querySelector(`[data-field="${CSS.escape(f)}"]`);
+    if (el) el.classList.add("invalid");
+  }
+}
+
+function clearError() {
+  $("error").hidden = true;
+  state.lastError = null;
+  document.querySelectorAll(".invalid").forEach((el) => el.classList.remove("invalid"));
+}
+
+/** The fields a 422 names, relative to the scenario (for highlighting form inputs). */
+function errorFields(body) {
+  const out = [];
+  for (const d of Array.isArray(body.detail) ? body.detail : []) {
+    let f = String(d.field || "").replace(/^scenario\.?/, "");
+    if (!f) f = (String(d.message || "").match(/^([a-z_]+\.[a-z_.]+):/) || [])[1] || "";
+    if (f) out.push(f);
+  }
+  return out;
+}
+
+async function apiJson(url, options = {}) {
+  const resp = await fetch(url, options);
+  let body = null;
+  try { body = await resp.json(); } catch { body = null; }
+  if (!resp.ok) {
+    const message = (body && (body.error || (typeof body.detail === "string" && body.detail))) || resp.statusText;
+    const err = new Error(`${message} (HTTP ${resp.status})`);
+    err.status = resp.status;
+    err.fields = body ? errorFields(body) : [];
+    throw err;
+  }
+  return { status: resp.status, body };
+}
+
+// ---- scenario form ------------------------------------------------------------------------------------------------
+function getPath(obj, path) { return path.split(".").reduce((o, k) => (o == null ? o : o[k]), obj); }
+function setPath(obj, path, value) {
+  const keys = path.split(".");
+  let o = obj;
+  for (const k of keys.slice(0, -1)) o = o[k] ?? (o[k] = {});
+  o[keys.at(-1)] = value;
+}
+
+function fillForm(scenario) {
+  state.base = structuredClone(scenario);
+  for (const el of document.querySelectorAll("[data-field]")) {
+    const v = getPath(scenario, el.dataset.field);
+    el.value = v == null ? "" : String(v);
+  }
+}
+
+/** The scenario the form describes: the base scenario with every form field applied (numbers stay numbers). */
+function readForm() {
+  const s = structuredClone(state.base || {});
+  for (const el of document.querySelectorAll("[data-field]")) {
+    const raw = el.value.trim();
+    const value = el.type === "number" ? (raw === "" ? null : Number(raw)) : raw;
+    setPath(s, el.dataset.field, Number.isNaN(value) ? raw : value);
+  }
+  return s;
+}
+
+async function loadPresets() {
+  const [{ body: presets }, { body: modes }] = await Promise.all([apiJson("/api/presets"), apiJson("/api/modes")]);
+  state.presets = presets;
+  state.modes = modes;
+  $("preset").innerHTML = presets.map((p) => `<option value="${p.name}">${p.name.replaceAll("_", " ")}</option>`).join("");
+  $("mode").innerHTML = modes.modes.map((m) => `<option value="${m}">${m}</option>`).join("");
+  $("mode").value = modes.default;
+  $("refine-note").textContent = modes.refine ? "raw and refined, side by side"
+    : `raw render only: ${modes.refine_reason || "refinement unavailable"}`;
+  $("video-btn").textContent = modes.refine ? "Refined video" : "Track video";
+}
+
+function selectPreset(name) {
+  const p = state.presets.find((x) => x.name === name) || state.presets[0];
+  $("preset").value = p.name;
+  $("preset-desc").textContent = p.description;
+  fillForm(p.scenario);
+}
+
+// ---- jobs and progress ---------------------------------------------------------------------------------------------
+function setProgress(prefix, job) {
+  $(`${prefix}-progress`).hidden = false;
+  $(`${prefix}-fill`).style.width = `${Math.round(100 * (job.fraction || 0))}%`;
+  $(`${prefix}-stage`).textContent = `${job.stage || job.status}${job.fraction ? ` · ${Math.round(100 * job.fraction)}%` : ""}`;
+}
+
+/** Follow a job's SSE stream until it ends; resolves with the final job, rejects when it failed or was cancelled. */
+function followEvents(url, onProgress) {
+  return new Promise((resolve, reject) => {
+    const es = new EventSource(url);
+    const finish = (ev, ok) => {
+      es.close();
+      const job = JSON.parse(ev.data);
+      state.events.push({ url, type: ev.type, stage: job.stage, fraction: job.fraction });
+      ok ? resolve(job) : reject(Object.assign(new Error(job.error || `job ${ev.type}`), { job }));
+    };
+    es.addEventListener("progress", (ev) => {
+      const job = JSON.parse(ev.data);
+      state.events.push({ url, type: "progress", stage: job.stage, fraction: job.fraction });
+      onProgress(job);
+    });
+    es.addEventListener("done", (ev) => finish(ev, true));
+    es.addEventListener("failed", (ev) => finish(ev, false));
+    es.addEventListener("cancelled", (ev) => finish(ev, false));
+    // EventSource reconnects by itself after a network error; the server replays the current state on connect.
+  });
+}
+
+// ---- scenes --------------------------------------------------------------------------------------------------------
+async function generate(scenario, mode, view = null) {
+  clearError();
+  $("generate-btn").disabled = true;
+  try {
+    const { body } = await apiJson("/api/scenes", {
+      method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify({ scenario, mode }),
+    });
+    state.sceneId = body.scene_id;
+    $("scene-badge").textContent = `scene: ${body.scene_id.slice(0, 12)}`;
+    $("scene-badge").title = body.scene_id;
+    if (body.status !== "ready") {
+      state.genJobId = body.job && body.job.id;
+      setProgress("gen", body.job || body);
+      await followEvents(`/api/scenes/${body.scene_id}/events`, (job) => setProgress("gen", job));
+    }
+    const { body: scene } = await apiJson(`/api/scenes/${body.scene_id}`);
+    setProgress("gen", { stage: "streaming", fraction: 1 });
+    state.scenario = scene.scenario || scenario;
+    state.sceneMode = scene.mode;
+    $("mode-badge").textContent = `mode: ${scene.mode}`;
+    $("mode-badge").classList.add("ok");
+    await streamScene(`/api/scenes/${body.scene_id}/wsplat`);
+    if (view) applyView(view);
+    $("gen-progress").hidden = true;
+    return body.scene_id;
+  } catch (e) {
+    $("gen-progress").hidden = true;
+    showError(`Generate: ${e.message}`, e.fields || []);
+    throw e;
+  } finally {
+    $("generate-btn").disabled = false;
+    state.genJobId = null;
+  }
+}
+
+function parseJson(x) { return typeof x === "string" ? JSON.parse(x) : x; }
+
+/** Fetch a .wsplat and feed the viewer as the bytes arrive: it draws from the first static chunk on. */
+async function streamScene(url) {
+  const v = requireViewer();
+  const resp = await fetch(url);
+  if (!resp.ok) {
+    let msg = resp.statusText;
+    try { msg = (await resp.json()).error || msg; } catch { /* not JSON */ }
+    throw new Error(`${msg} (HTTP ${resp.status})`);
+  }
+  const total = Number(resp.headers.get("x-content-length")) || 0;
+  const reader = resp.body.getReader();
+  let got = 0;
+  state.loaded = false;
+  v.begin_stream();
+  for (;;) {
+    const { done, value } = await reader.read();
+    if (done) break;
+    got += value.length;
+    const p = parseJson(v.push_bytes(value));
+    $("load-state").textContent = `streaming ${fmtBytes(got)}${total ? ` / ${fmtBytes(total)}` : ""}` +
+      (p && p.static_loaded != null ? ` · ${p.static_loaded} static` : "");
+    if (!state.loaded && v.num_frames() > 0) onSceneReady(false);
+    state.dirty = true;
+  }
+  v.end_stream();
+  state.streamBytes = got;
+  $("load-state").textContent = "";
+  onSceneReady(true);
+  state.source = url;
+}
+
+function onSceneReady(complete) {
+  const v = state.viewer;
+  state.frames = Math.max(1, v.num_frames());
+  state.fps = v.fps() || 4;
+  state.frame = Math.min(state.frame, state.frames - 1);
+  state.loaded = true;
+  $("placeholder").hidden = true;
+  $("timeline").max = String(state.frames - 1);
+  $("timeline").disabled = $("play-btn").disabled = false;
+  $("share-btn").disabled = !state.sceneId;
+  $("video-btn").disabled = !state.sceneId;
+  v.set_shift(state.shift);
+  v.set_camera(state.camera);
+  v.set_frame(state.frame);
+  state.dirty = true;
+  if (complete) render();
+}
+
+function requireViewer() {
+  if (!state.viewer) throw new Error("the viewer is not loaded (build it with wasm/build.sh, then reload)");
+  return state.viewer;
+}
+
+// ---- view state ------------------------------------------------------------------------------------------------------
+function setFrame(t) {
+  state.frame = Math.max(0, Math.min(state.frames - 1, Math.round(t)));
+  $("timeline").value = String(state.frame);
+  $("frame-label").textContent = `${state.frame + 1} / ${state.frames}`;
+  if (state.viewer && state.loaded) state.viewer.set_frame(state.frame);
+  state.dirty = true;
+}
+
+function setShift(m) {
+  state.shift = Math.max(-8, Math.min(8, Math.round(Number(m) * 10) / 10));
+  $("shift").value = String(state.shift);
+  $("shift-label").textContent = `${state.shift >= 0 ? "+" : ""}${state.shift.toFixed(1)} m`;
+  document.querySelectorAll("#shift-quick button").forEach((b) => b.classList.toggle("active", Number(b.dataset.shift) === state.shift));
+  if (state.viewer && state.loaded) state.viewer.set_shift(state.shift);
+  state.dirty = true;
+}
+
+function setCamera(name) {
+  state.camera = name;
+  $("camera").value = name;
+  if (state.viewer && state.loaded) state.viewer.set_camera(name);
+  state.dirty = true;
+}
+
+function setPlaying(on) {
+  state.playing = on && state.loaded;
+  $("play-btn").textContent = state.playing ? "❚❚" : "▶";
+}
+
+function applyView(view) {
+  setShift(view.shift_m);
+  setCamera(view.camera);
+  setFrame(view.frame);
+  if (view.camera_state && state.viewer) state.viewer.set_camera_state(JSON.stringify(view.camera_state));
+  render();
+}
+
+function currentView() {
+  let cameraState = null;
+  if (state.camera === "free" && state.viewer) cameraState = parseJson(state.viewer.camera_state());
+  return { shift_m: state.shift, camera: state.camera, frame: state.frame, camera_state: cameraState };
+}
+
+// ---- render loop and stats ------------------------------------------------------------------------------------------
+function render() {
+  if (!state.viewer || !state.loaded) return;
+  state.viewer.render();
+  state.dirty = false;
+}
+
+let lastTick = performance.now();
+let playClock = 0;
+let lastStats = 0;
+function tick(now) {
+  const dt = (now - lastTick) / 1000;
+  lastTick = now;
+  if (state.playing && state.loaded) {
+    playClock += dt * state.fps;
+    if (playClock >= 1) {
+      const steps = Math.floor(playClock);
+      playClock -= steps;
+      setFrame((state.frame + steps) % state.frames);
+    }
+  }
+  if (state.loaded && (state.dirty || state.camera === "free")) {
+    try { render(); } catch (e) { showError(`render: ${e.message}`); state.loaded = false; }
+  }
+  if (now - lastStats > 500 && state.viewer && state.loaded) {
+    lastStats = now;
+    const s = parseJson(state.viewer.stats());
+    $("stats").textContent = `${(s.gaussians || 0).toLocaleString()} Gaussians\n${(s.fps || 0).toFixed(0)} fps · ` +
+      `${(s.frame_ms || 0).toFixed(1)} ms\n${fmtBytes(s.bytes || state.streamBytes)}`;
+  }
+  requestAnimationFrame(tick);
+}
+
+function fmtBytes(n) {
+  if (n < 1024) return `${n} B`;
+  if (n < 1 << 20) return `${(n / 1024).toFixed(1)} KiB`;
+  return `${(n / (1 << 20)).toFixed(2)} MiB`;
+}
+
+// ---- track videos ----------------------------------------------------------------------------------------------------
+async function requestVideos() {
+  clearError();
+  if (!state.sceneId) return;
+  const cameras = CAMERAS.includes(state.camera) ? [state.camera] : CAMERAS;
+  const kinds = state.modes && state.modes.refine ? [["raw", false], ["refined", true]] : [["raw", false]];
+  $("video-btn").disabled = true;
+  try {
+    for (const [name, refine] of kinds) {
+      const { body } = await apiJson(`/api/scenes/${state.sceneId}/videos`, {
+        method: "POST", headers: { "content-type": "application/json" },
+        body: JSON.stringify({ shift_m: state.shift, cameras, refine, format: "mp4" }),
+      });
+      let video = body;
+      if (body.status !== "ready") {
+        state.videoJobId = body.job.id;
+        setProgress("video", { ...body.job, stage: `${name}: ${body.job.stage}` });
+        await followEvents(`/api/jobs/${body.job.id}/events`,
+          (job) => setProgress("video", { ...job, stage: `${name}: ${job.stage}` }));
+        video = (await apiJson(`/api/videos/${body.video_id}/status`)).body;
+      }
+      showVideo(name, video);
+    }
+  } catch (e) {
+    showError(`Video: ${e.message}`);
+  } finally {
+    $("video-progress").hidden = true;
+    $("video-btn").disabled = false;
+    state.videoJobId = null;
+  }
+}
+
+function showVideo(name, video) {
+  state.videos[name] = video;
+  const el = $(`${name}-video`);
+  el.src = video.url;
+  $(`${name}-dl`).href = video.url;
+  $(`${name}-dl`).download = `worldsplat-${name}-${state.shift >= 0 ? "+" : ""}${state.shift}m.mp4`;
+  $(`${name}-fig`).hidden = false;
+  el.play().catch(() => { /* autoplay may be refused; the controls are there */ });
+}
+
+// ---- local files (drag and drop) -------------------------------------------------------------------------------------
+async function openLocalFile(file) {
+  clearError();
+  if (!/\.(wsplat|ply)$/i.test(file.name)) {
+    showError(`open: ${file.name} is not a .wsplat or .ply file`);
+    return;
+  }
+  try {
+    const v = requireViewer();
+    const bytes = new Uint8Array(await file.arrayBuffer());
+    v.load_bytes(bytes);
+    state.sceneId = null;
+    state.streamBytes = bytes.length;
+    $("scene-badge").textContent = `file: ${file.name}`;
+    $("mode-badge").textContent = "mode: local file";
+    onSceneReady(true);
+    state.source = file.name;
+  } catch (e) {
+    showError(`open ${file.name}: ${e.message}`);
+  }
+}
+
+// ---- share links ---------------------------------------------------------------------------------------------------
+function share() {
+  const url = shareUrl(location.href, { scenario: state.scenario, mode: state.sceneMode, view: currentView() });
+  $("share-url").value = url;
+  $("share-copied").textContent = "";
+  if (navigator.clipboard) {
+    navigator.clipboard.writeText(url).then(() => { $("share-copied").textContent = "copied to the clipboard"; },
+      () => {});
+  }
+  if (typeof $("share-dialog").showModal === "function") $("share-dialog").showModal();
+  $("share-url").select();
+  return url;
+}
+
+// ---- wiring ----------------------------------------------------------------------------------------------------------
+function wire() {
+  $("error-close").onclick = clearError;
+  $("preset").onchange = (e) => selectPreset(e.target.value);
+  $("scenario-form").onsubmit = (e) => {
+    e.preventDefault();
+    generate(readForm(), $("mode").value).catch(() => {});
+  };
+  $("gen-cancel").onclick = () => state.genJobId && fetch(`/api/jobs/${state.genJobId}`, { method: "DELETE" });
+  $("video-cancel").onclick = () => state.videoJobId && fetch(`/api/jobs/${state.videoJobId}`, { method: "DELETE" });
+  $("timeline").oninput = (e) => { setPlaying(false); setFrame(Number(e.target.value)); };
+  $("play-btn").onclick = () => setPlaying(!state.playing);
+  $("camera").onchange = (e) => setCamera(e.target.value);
+  $("shift").oninput = (e) => setShift(e.target.value);
+  document.querySelectorAll("#shift-quick button").forEach((b) => { b.onclick = () => setShift(b.dataset.shift); });
+  $("video-btn").onclick = () => requestVideos();
+  $("share-btn").onclick = () => share();
+  document.addEventListener("keydown", (e) => {
+    if (e.target.closest("input, select, textarea")) return;
+    if (e.code === "Space") { e.preventDefault(); setPlaying(!state.playing); }
+    if (e.code === "ArrowRight") setFrame(state.frame + 1);
+    if (e.code === "ArrowLeft") setFrame(state.frame - 1);
+  });
+  const vp = $("viewport");
+  vp.addEventListener("dragover", (e) => { e.preventDefault(); vp.classList.add("dragging"); $("drop-hint").hidden = false; });
+  vp.addEventListener("dragleave", () => { vp.classList.remove("dragging"); $("drop-hint").hidden = true; });
+  vp.addEventListener("drop", (e) => {
+    e.preventDefault();
+    vp.classList.remove("dragging");
+    $("drop-hint").hidden = true;
+    const file = e.dataTransfer.files[0];
+    if (file) openLocalFile(file);
+  });
+  new ResizeObserver(() => fitCanvas()).observe(vp);
+}
+
+/** Match the canvas's pixel size to its box (the viewer renders at the canvas size). */
+function fitCanvas() {
+  const c = $("canvas");
+  const r = c.getBoundingClientRect();
+  const w = Math.max(64, Math.round(r.width)), h = Math.max(64, Math.round(r.height));
+  if (c.width !== w || c.height !== h) {
+    c.width = w;
+    c.height = h;
+    state.dirty = true;
+  }
+}
+
+async function initViewer() {
+  const backend = new URLSearchParams(location.search).get("backend") || "auto";
+  try {
+    const mod = await import("/pkg/splat_web.js");
+    await mod.default();
+    state.viewer = await mod.Viewer.create($("canvas"), { backend });
+    state.backend = state.viewer.backend();
+    $("backend-badge").textContent = `viewer: ${state.backend}`;
+    $("backend-badge").classList.add("ok");
+  } catch (e) {
+    showError(`viewer: ${e.message || e} — build the bundle with wasm/build.sh and reload`);
+  }
+}
+
+async function main() {
+  wire();
+  fitCanvas();
+  requestAnimationFrame(tick);
+  const viewerReady = initViewer();
+  let shared = null;
+  try {
+    shared = decodeShare(location.hash);
+  } catch (e) {
+    showError(e.message);
+  }
+  try {
+    await loadPresets();
+  } catch (e) {
+    showError(`server: ${e.message}`);
+    return;
+  }
+  const fallback = state.presets.find((p) => p.default) || state.presets[0];
+  selectPreset(fallback.name);
+  if (shared) {
+    const match = state.presets.find((p) => JSON.stringify(p.scenario) === JSON.stringify(shared.scenario));
+    if (match) $("preset").value = match.name;
+    fillForm(shared.scenario);
+    if (shared.mode && state.modes.modes.includes(shared.mode)) $("mode").value = shared.mode;
+  }
+  await viewerReady;
+  if (!state.viewer) return;
+  const view = shared ? shared.view : { shift_m: 0, camera: "CAM_FRONT", frame: 0, camera_state: null };
+  await generate(shared ? shared.scenario : readForm(), $("mode").value, view).catch(() => {});
+}
+
+// Test and console hooks: the state, the viewer and a few actions (used by tests/browser/playground*.test.mjs).
+window.playground = {
+  state, generate: (s, m, v) => generate(s, m, v), readForm, fillForm, setShift, setFrame, setCamera, share,
+  requestVideos, openLocalFile, render,
+  ready: null,
+};
+window.playground.ready = main();

@@ -1,0 +1,75 @@
+// Headless Debian Chromium through playwright-core (never a downloaded browser), flags per
+// /work/shared/notes/toolchain.md §4. The WebGL2 path (ANGLE on SwiftShader) is the reliable headless one.
+import { createRequire } from "node:module";
+import { mkdtempSync, rmSync, mkdirSync } from "node:fs";
+import { tmpdir } from "node:os";
+import { join } from "node:path";
+import { ROOT } from "./playground-server.mjs";
+
+const require = createRequire(import.meta.url);
+const { chromium } = require(join(ROOT, "package-config/node_modules/playwright-core"));
+
+export const ARTIFACTS = join(ROOT, "tests/artifacts");
+mkdirSync(ARTIFACTS, { recursive: true });
+
+const BASE_ARGS = ["--no-sandbox", "--no-first-run", "--disable-background-networking", "--disable-component-update",
+  "--disable-sync", "--disable-quic", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+  "--autoplay-policy=no-user-gesture-required"];
+
+/** A fresh browser profile; returns {context, close}. */
+export async function launch() {
+  const profile = mkdtempSync(join(tmpdir(), "ws-chromium-"));
+  const context = await chromium.launchPersistentContext(profile, {
+    executablePath: "/usr/bin/chromium", headless: true, args: BASE_ARGS,
+    ignoreDefaultArgs: ["--enable-unsafe-swiftshader"], viewport: { width: 1280, height: 800 },
+  });
+  return {
+    context,
+    async close() {
+      await context.close();
+      rmSync(profile, { recursive: true, force: true });
+    },
+  };
+}
+
+/** Open the playground (WebGL2 viewer path) and collect console errors. */
+export async function openPage(context, url) {
+  const page = await context.newPage();
+  const errors = [];
+  page.on("pageerror", (e) => errors.push(String(e)));
+  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
+  await page.goto(url);
+  return { page, errors };
+}
+
+/** Render the current view and read its pixels through the Viewer API; returns a compact signature. */
+export async function snapshot(page) {
+  return page.evaluate(async () => {
+    const pg = window.playground;
+    pg.render();
+    const px = await pg.state.viewer.read_pixels();
+    const c = document.getElementById("canvas");
+    const w = c.width, h = c.height;
+    let sum = 0, lit = 0;
+    const bw = 16, bh = 9, blocks = new Array(bw * bh).fill(0), counts = new Array(bw * bh).fill(0);
+    for (let y = 0; y < h; y++) {
+      for (let x = 0; x < w; x++) {
+        const i = 4 * (y * w + x);
+        const v = px[i] + px[i + 1] + px[i + 2];
+        sum += v;
+        if (v > 24) lit++;
+        const b = Math.min(bh - 1, Math.floor((y * bh) / h)) * bw + Math.min(bw - 1, Math.floor((x * bw) / w));
+        blocks[b] += v / 3;
+        counts[b]++;
+      }
+    }
+    return { width: w, height: h, length: px.length, mean: sum / (3 * w * h), litFraction: lit / (w * h),
+      blocks: blocks.map((b, i) => b / Math.max(1, counts[i])) };
+  });
+}
+
+export function blockDiff(a, b) {
+  let d = 0;
+  for (let i = 0; i < a.blocks.length; i++) d += Math.abs(a.blocks[i] - b.blocks[i]);
+  return d / a.blocks.length;
+}

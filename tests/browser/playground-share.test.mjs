@@ -1,0 +1,36 @@
+// Share-link encoding (web/share.js) on its own: round trip, and broken links rejected with a message.
+import { test } from "node:test";
+import assert from "node:assert/strict";
+import { decodeShare, encodeShare, shareUrl } from "../../web/share.js";
+
+const scenario = { version: 1, seed: 7, road: { kind: "curve", curvature: 0.01 }, clip: { frames: 8, fps: 4.0 },
+  environment: { time_of_day: "night", weather: "rain" } };
+
+test("share link round-trips scenario, mode and view", () => {
+  const view = { shift_m: -2.5, camera: "free", frame: 5, camera_state: { yaw: 0.5, eye: [1, 2, 3] } };
+  const url = shareUrl("http://127.0.0.1:8000/?backend=webgl2#old", { scenario, mode: "oracle", view });
+  const u = new URL(url);
+  assert.equal(u.search, "?backend=webgl2");
+  const back = decodeShare(u.hash);
+  assert.deepEqual(back, { scenario, mode: "oracle", view });
+  // unicode in strings survives, and the fragment is URL-safe
+  const s2 = { ...scenario, note: "straße ✓" };
+  const frag = encodeShare({ scenario: s2, view: { camera: "mosaic" } });
+  assert.match(frag, /^share=[A-Za-z0-9_-]+$/);
+  assert.equal(decodeShare(frag).scenario.note, "straße ✓");
+  assert.deepEqual(decodeShare(frag).view, { shift_m: 0, camera: "mosaic", frame: 0, camera_state: null });
+});
+
+test("no share state -> null; broken share state -> an error naming the problem", () => {
+  assert.equal(decodeShare(""), null);
+  assert.equal(decodeShare("#other=1"), null);
+  assert.throws(() => decodeShare("#share=***"), /base64url/);
+  assert.throws(() => decodeShare("#share=" + Buffer.from("{").toString("base64url")), /cannot decode/);
+  const enc = (obj) => "#share=" + Buffer.from(JSON.stringify(obj)).toString("base64url");
+  assert.throws(() => decodeShare(enc({ v: 9, scenario })), /version/);
+  assert.throws(() => decodeShare(enc({ v: 1 })), /no scenario/);
+  assert.throws(() => decodeShare(enc({ v: 1, scenario, view: { shift_m: 12, camera: "mosaic", frame: 0 } })), /shift_m/);
+  assert.throws(() => decodeShare(enc({ v: 1, scenario, view: { shift_m: 0, camera: "CAM_UP", frame: 0 } })), /camera/);
+  assert.throws(() => decodeShare(enc({ v: 1, scenario, view: { shift_m: 0, camera: "bev", frame: 1.5 } })), /frame/);
+  assert.throws(() => encodeShare({}), /scenario/);
+});

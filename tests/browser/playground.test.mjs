@@ -1,0 +1,141 @@
+// The playground end to end in headless Chromium (WebGL2 viewer path): load the page, generate the default
+// scenario with visible progress, the viewer renders a non-blank image, the track slider changes the image
+// consistently, a track video is playable with the expected frames, a share link reproduces the scene id and the
+// render in a fresh page, and a bad scenario shows its error naming the field. Screenshots go to tests/artifacts/.
+import { test, before, after } from "node:test";
+import assert from "node:assert/strict";
+import { copyFileSync, existsSync, mkdirSync } from "node:fs";
+import { join } from "node:path";
+import { startServer, ROOT } from "./lib/playground-server.mjs";
+import { launch, openPage, snapshot, blockDiff, ARTIFACTS } from "./lib/playground-browser.mjs";
+
+const HAVE_BUNDLE = existsSync(join(ROOT, "web/pkg/splat_web.js"));
+const HAVE_PIPELINE = existsSync(join(ROOT, "server/worldsplat/pipeline.py"))
+  || existsSync(join(ROOT, "server/worldsplat/pipeline/__init__.py"));
+const skip = !HAVE_BUNDLE ? "web/pkg not built (wasm/build.sh)" : !HAVE_PIPELINE ? "worldsplat.pipeline not landed" : false;
+
+let server, browser, page, errors;
+const T = { timeout: 240_000 };
+
+before(async () => {
+  if (skip) return;
+  server = await startServer({ warm: false });
+  browser = await launch();
+  ({ page, errors } = await openPage(browser.context, `${server.url}/?backend=webgl2`));
+}, T);
+
+after(async () => {
+  if (browser) await browser.close();
+  if (server) await server.stop();
+});
+
+async function waitFor(fn, what, timeoutMs = 180_000) {
+  const end = Date.now() + timeoutMs;
+  for (;;) {
+    const v = await page.evaluate(fn);
+    if (v) return v;
+    if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
+    await new Promise((r) => setTimeout(r, 200));
+  }
+}
+
+test("page loads, generates the default scenario with progress, and renders a non-blank image", { skip, ...T }, async () => {
+  await page.evaluate(() => window.playground.ready);
+  const st = await page.evaluate(() => {
+    const s = window.playground.state;
+    return { sceneId: s.sceneId, loaded: s.loaded, backend: s.backend, events: s.events, err: s.lastError,
+      frames: s.frames, mode: s.sceneMode, preset: document.getElementById("preset").value };
+  });
+  assert.equal(st.err, null, `page error: ${st.err} ${errors.join("\n")}`);
+  assert.match(st.sceneId, /^[0-9a-f]{32}$/);
+  assert.ok(st.loaded, "scene loaded into the viewer");
+  assert.equal(st.backend, "webgl2");
+  const presets = await (await fetch(`${server.url}/api/presets`)).json();
+  assert.equal(st.preset, presets.find((p) => p.default).name, "the page opens on the default scenario");
+  const progress = st.events.filter((e) => e.type === "progress");
+  assert.ok(progress.length >= 2, `progress events seen: ${JSON.stringify(st.events)}`);
+  assert.ok(new Set(progress.map((e) => e.stage)).size >= 2, "progress names more than one stage");
+  assert.equal(st.events.at(-1).type, "done");
+  assert.equal(st.frames, presets.find((p) => p.default).scenario.clip.frames);
+  const snap = await snapshot(page);
+  assert.equal(snap.length, 4 * snap.width * snap.height);
+  assert.ok(snap.litFraction > 0.3, `non-blank render (lit fraction ${snap.litFraction})`);
+  await page.screenshot({ path: join(ARTIFACTS, "playground-default.png") });
+});
+
+test("moving the track slider changes the image, consistently", { skip, ...T }, async () => {
+  const at = async (m) => { await page.evaluate((x) => window.playground.setShift(x), m); return snapshot(page); };
+  const s0 = await at(0);
+  const s2 = await at(2);
+  const sm4 = await at(-4);
+  const s2again = await at(2);
+  const s0again = await at(0);
+  assert.ok(blockDiff(s0, s2) > 2, `+2 m differs from 0 m (${blockDiff(s0, s2)})`);
+  assert.ok(blockDiff(s0, sm4) > blockDiff(s0, s2) * 0.5, "-4 m differs from 0 m");
+  assert.ok(blockDiff(s2, s2again) < 0.5, `the same shift renders the same image (${blockDiff(s2, s2again)})`);
+  assert.ok(blockDiff(s0, s0again) < 0.5, "back to 0 m renders the original");
+  // the slider input itself drives the shift
+  await page.locator("#shift").fill("2");
+  assert.equal(await page.evaluate(() => window.playground.state.shift), 2);
+  assert.ok(blockDiff(await snapshot(page), s2) < 0.5, "the slider at +2 renders the +2 m view");
+  await page.screenshot({ path: join(ARTIFACTS, "playground-shift-2m.png") });
+});
+
+test("a track video request yields a playable video with the expected frames", { skip, ...T }, async () => {
+  await page.evaluate(() => window.playground.setCamera("mosaic"));
+  await page.click("#video-btn");
+  await waitFor(() => window.playground.state.videos.raw || window.playground.state.lastError, "the raw video");
+  const { video, refine, err } = await page.evaluate(() => ({ video: window.playground.state.videos.raw,
+    refine: window.playground.state.modes.refine, err: window.playground.state.lastError }));
+  assert.equal(err, null);
+  const frames = await page.evaluate(() => window.playground.state.frames);
+  assert.equal(video.frames, frames);
+  assert.equal(video.shift_m, 2);
+  const played = await page.evaluate(async () => {
+    const v = document.getElementById("raw-video");
+    if (v.readyState < 2) await new Promise((res, rej) => { v.onloadeddata = res; v.onerror = () => rej(new Error("video error")); });
+    return { w: v.videoWidth, h: v.videoHeight, duration: v.duration, error: v.error && v.error.code };
+  });
+  assert.equal(played.error, null);
+  assert.equal(played.w, video.width);
+  assert.ok(Math.abs(played.duration - video.frames / video.fps) < 0.6, `duration ${played.duration}`);
+  if (refine) {
+    await waitFor(() => window.playground.state.videos.refined || window.playground.state.lastError, "the refined video");
+    assert.equal(await page.evaluate(() => window.playground.state.videos.refined.frames), frames);
+  }
+  await page.screenshot({ path: join(ARTIFACTS, "playground-video.png") });
+  const good = join(ROOT, "web/docs/img");
+  mkdirSync(good, { recursive: true });
+  copyFileSync(join(ARTIFACTS, "playground-video.png"), join(good, "playground.png"));
+});
+
+test("a share link opened in a fresh page gives the same scene id and an equal render", { skip, ...T }, async () => {
+  await page.evaluate(() => { const p = window.playground; p.setCamera("CAM_FRONT_LEFT"); p.setShift(-1); p.setFrame(3); });
+  const url = await page.evaluate(() => window.playground.share());
+  const here = await snapshot(page);
+  const sceneId = await page.evaluate(() => window.playground.state.sceneId);
+  const fresh = await browser.context.newPage();
+  await fresh.goto(url);
+  await fresh.evaluate(() => window.playground.ready);
+  const there = await fresh.evaluate(() => {
+    const s = window.playground.state;
+    return { sceneId: s.sceneId, shift: s.shift, camera: s.camera, frame: s.frame, err: s.lastError };
+  });
+  assert.deepEqual(there, { sceneId, shift: -1, camera: "CAM_FRONT_LEFT", frame: 3, err: null });
+  const snap = await snapshot(fresh);
+  assert.ok(blockDiff(here, snap) < 0.5, `equal render (${blockDiff(here, snap)})`);
+  await fresh.screenshot({ path: join(ARTIFACTS, "playground-shared.png") });
+  await fresh.close();
+});
+
+test("a bad scenario shows its error naming the field", { skip, ...T }, async () => {
+  await page.keyboard.press("Escape");
+  await page.locator('[data-field="clip.frames"]').fill("99");
+  await page.click("#generate-btn");
+  await page.waitForSelector("#error:not([hidden])");
+  const text = await page.textContent("#error-text");
+  assert.match(text, /clip\.frames/);
+  assert.match(text, /422/);
+  assert.ok(await page.locator('[data-field="clip.frames"].invalid').count() === 1, "the field is highlighted");
+  await page.screenshot({ path: join(ARTIFACTS, "playground-error.png") });
+});

@@ -87,10 +87,12 @@ function readForm() {
 }
 
 async function loadPresets() {
-  const [{ body: presets }, { body: modes }] = await Promise.all([apiJson("/api/presets"), apiJson("/api/modes")]);
+  const { body: presets } = await apiJson("/api/presets");
   state.presets = presets;
-  state.modes = modes;
   $("preset").innerHTML = presets.map((p) => `<option value="${p.name}">${p.name.replaceAll("_", " ")}</option>`).join("");
+  selectPreset((presets.find((p) => p.default) || presets[0]).name);
+  const { body: modes } = await apiJson("/api/modes");  // waits for the server to load the pipeline
+  state.modes = modes;
   $("mode").innerHTML = modes.modes.map((m) => `<option value="${m}">${m}</option>`).join("");
   $("mode").value = modes.default;
   $("refine-note").textContent = modes.refine ? "raw and refined, side by side"
@@ -466,8 +468,6 @@ async function main() {
     showError(`server: ${e.message}`);
     return;
   }
-  const fallback = state.presets.find((p) => p.default) || state.presets[0];
-  selectPreset(fallback.name);
   if (shared) {
     const match = state.presets.find((p) => JSON.stringify(p.scenario) === JSON.stringify(shared.scenario));
     if (match) $("preset").value = match.name;

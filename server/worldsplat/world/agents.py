@@ -1,0 +1,394 @@
+"""Agents (vehicles, pedestrians, cyclists, parked cars) and the ego: sizes, colours, per-frame poses.
+
+Traffic moves along lanes in road coordinates: a lane is (road, direction, lane index), positions are road `s`
+values, and a follower never gets closer than a safe gap to its leader (ego included). A final check in the
+plane (each footprint covered by circles) rejects any spawn that would overlap another agent in any frame,
+so agents never drive through each other.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from worldsplat.world.classes import BUS, CAR, CYCLIST, PEDESTRIAN, TRUCK
+from worldsplat.world.prims import (M_CABIN, M_CAR_BODY, M_BUS, M_PERSON, M_PLAIN, PrimBuilder, Prims)
+from worldsplat.world.road import RoadGeometry
+
+VEHICLE_COLOURS = (("white", (0.82, 0.83, 0.84)), ("black", (0.05, 0.05, 0.06)), ("silver", (0.58, 0.6, 0.63)),
+                   ("grey", (0.32, 0.33, 0.35)), ("red", (0.62, 0.07, 0.06)), ("blue", (0.1, 0.2, 0.55)),
+                   ("green", (0.12, 0.34, 0.16)), ("yellow", (0.86, 0.68, 0.1)), ("brown", (0.36, 0.22, 0.12)))
+BUS_COLOURS = (("red", (0.7, 0.08, 0.06)), ("yellow", (0.9, 0.7, 0.08)), ("blue", (0.1, 0.25, 0.6)),
+               ("white", (0.85, 0.86, 0.88)))
+TRUCK_COLOURS = (("white", (0.85, 0.85, 0.86)), ("orange", (0.85, 0.4, 0.08)), ("green", (0.15, 0.4, 0.2)),
+                 ("blue", (0.12, 0.22, 0.5)))
+CLOTHES = ((0.7, 0.1, 0.1), (0.1, 0.3, 0.7), (0.9, 0.9, 0.85), (0.15, 0.15, 0.15), (0.85, 0.65, 0.1),
+           (0.2, 0.5, 0.3), (0.6, 0.3, 0.5))
+EGO_LENGTH, EGO_WIDTH, EGO_REAR_OVERHANG = 4.6, 1.9, 1.0   # ego origin is the rear axle
+
+
+@dataclass
+class Agent:
+    track_id: int
+    cls: int
+    size: tuple[float, float, float]       # length, width, height (m)
+    color: tuple[float, float, float]
+    color_name: str
+    moving: bool                           # a moving agent (its pixels are dynamic)
+    poses: np.ndarray                      # (T,3) x, y, yaw of the footprint centre (z = 0 is the ground)
+    where: tuple                           # ("lane", road, direction, lane) | ("sidewalk", side) | ("parked", side)
+
+    def box_corners(self, t: int) -> np.ndarray:
+        """(8,3) world corners at frame t: bottom face then top face, each counter-clockwise from rear-right."""
+        x, y, yaw = self.poses[t]
+        l, w, h = self.size
+        local = np.array([[-l / 2, -w / 2, 0], [l / 2, -w / 2, 0], [l / 2, w / 2, 0], [-l / 2, w / 2, 0]])
+        local = np.concatenate([local, local + [0, 0, h]])
+        c, s = math.cos(yaw), math.sin(yaw)
+        return local @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]]) + [x, y, 0]
+
+
+# -- parts in agent-local coordinates (x forward, z up, origin at the footprint centre) --------------------------
+def agent_parts(agent: Agent, index: int, key: float) -> Prims:
+    b = PrimBuilder()
+    l, w, h = agent.size
+    col = agent.color
+    if agent.cls == CAR:
+        zb = 0.12
+        zt = 0.56 * h
+        b.box((0, 0, (zb + zt) / 2), 0, (l / 2, w / 2, (zt - zb) / 2), CAR, col, M_CAR_BODY, key, index)
+        b.box((-0.06 * l, 0, (zt + h) / 2), 0, (0.27 * l, 0.44 * w, (h - zt) / 2), CAR, col, M_CABIN, key, index)
+    elif agent.cls == BUS:
+        b.box((0, 0, (0.25 + h) / 2), 0, (l / 2, w / 2, (h - 0.25) / 2), BUS, col, M_BUS, key, index)
+    elif agent.cls == TRUCK:
+        cab = 2.3
+        b.box((l / 2 - cab / 2, 0, (0.3 + 0.85 * h) / 2), 0, (cab / 2, w / 2, (0.85 * h - 0.3) / 2), TRUCK, col,
+              M_CAR_BODY, key, index)
+        b.box((-cab / 2 - 0.1, 0, (0.5 + h) / 2), 0, ((l - cab - 0.2) / 2, w / 2, (h - 0.5) / 2), TRUCK,
+              (0.78, 0.78, 0.76), M_PLAIN, key, index)
+    elif agent.cls == PEDESTRIAN:
+        b.box((0, 0, 0.435 * h), 0, (0.14, 0.23, 0.435 * h), PEDESTRIAN, col, M_PERSON, key, index)
+        b.sphere((0.0, 0, 0.93 * h), 0.075 * h, PEDESTRIAN, (0.85, 0.65, 0.5), M_PLAIN, key, index)
+    elif agent.cls == CYCLIST:
+        b.box((0, 0, 0.5), 0, (l / 2, 0.07, 0.45), CYCLIST, (0.1, 0.1, 0.1), M_PLAIN, key, index)
+        b.box((-0.1, 0, 1.3), 0.0, (0.2, 0.21, 0.37), CYCLIST, col, M_PLAIN, key, index)
+        b.sphere((-0.05, 0, 1.78), 0.13, CYCLIST, (0.9, 0.9, 0.2), M_PLAIN, key, index)
+    return b.build()
+
+
+def place_parts(template: Prims, poses_t: np.ndarray) -> Prims:
+    """Move agent-local parts to the world for one frame; `poses_t` is (num_agents, 3)."""
+    if not len(template):
+        return template
+    a = template.agent
+    x, y, yaw = poses_t[a, 0], poses_t[a, 1], poses_t[a, 2]
+    c, s = np.cos(yaw), np.sin(yaw)
+    lx, ly, lz = template.center.T
+    center = np.stack([x + c * lx - s * ly, y + s * lx + c * ly, lz], -1)
+    return Prims(center, yaw + template.yaw, template.half, template.shape, template.cls, template.color,
+                 template.material, template.key, template.agent)
+
+
+# -- the ego's path ---------------------------------------------------------------------------------------------
+class Polyline:
+    """A densely sampled 2D path parametrised by arc length (extrapolated straight past its ends)."""
+
+    def __init__(self, xy: np.ndarray):
+        seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+        keep = np.concatenate([[True], seg > 1e-9])
+        self.xy = xy[keep]
+        self.cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.xy, axis=0), axis=1))])
+        d = np.diff(self.xy, axis=0)
+        self.heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+
+    def pose(self, dist: np.ndarray) -> np.ndarray:
+        dist = np.asarray(dist, np.float64)
+        x = np.interp(dist, self.cum, self.xy[:, 0])
+        y = np.interp(dist, self.cum, self.xy[:, 1])
+        mids = 0.5 * (self.cum[1:] + self.cum[:-1])
+        yaw = np.interp(dist, mids, self.heading)
+        end = self.cum[-1]
+        over = dist > end
+        x = np.where(over, self.xy[-1, 0] + (dist - end) * np.cos(self.heading[-1]), x)
+        y = np.where(over, self.xy[-1, 1] + (dist - end) * np.sin(self.heading[-1]), y)
+        return np.stack([x, y, yaw], -1)
+
+
+def _smoothstep(u: np.ndarray) -> np.ndarray:
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * (3 - 2 * u)
+
+
+def ego_path(road: RoadGeometry, scenario, travel: float) -> Polyline:
+    m = scenario.ego.manoeuvre
+    lane = scenario.ego.start_lane
+    d0 = road.lane_center_d(lane, 1)
+    s = np.arange(0.0, travel + 60.0, 0.25)
+    if m in ("keep_lane", "lane_change_left", "lane_change_right"):
+        d1 = d0
+        if m == "lane_change_left":
+            d1 = road.lane_center_d(lane + 1, 1)
+        elif m == "lane_change_right":
+            d1 = road.lane_center_d(lane - 1, 1)
+        start = 0.1 * travel
+        length = float(np.clip(0.7 * travel, 10.0, 60.0))
+        d = d0 + (d1 - d0) * _smoothstep((s - start) / length)
+        x, y, _ = road.xy(s, d)
+        return Polyline(np.stack([x, y], -1))
+    # Turns: straight to the junction, a cubic Bezier through it, then along the cross road.
+    left = m == "turn_left"
+    direction = 1 if left else -1                    # cross road travel direction (+y for a left turn)
+    d2 = road.lane_center_d(lane, direction)
+    x_exit = road.cross_s - d2
+    x_entry = road.cross_s - road.road_half - 0.5
+    y_entry = road.y0 + d0
+    y_exit = road.y0 + direction * (road.road_half + 0.5)
+    s_in = np.arange(0.0, x_entry, 0.25)
+    p0, p3 = np.array([x_entry, y_entry]), np.array([x_exit, y_exit])
+    l1, l2 = 0.55 * abs(x_exit - x_entry), 0.55 * abs(y_exit - y_entry)
+    p1, p2 = p0 + [l1, 0.0], p3 - [0.0, direction * l2]
+    u = np.linspace(0.0, 1.0, 200)[:, None]
+    bez = (1 - u) ** 3 * p0 + 3 * (1 - u) ** 2 * u * p1 + 3 * (1 - u) * u ** 2 * p2 + u ** 3 * p3
+    s_out = np.arange(0.25, travel + 80.0, 0.25)
+    out = np.stack([np.full_like(s_out, x_exit), y_exit + direction * s_out], -1)
+    xy = np.concatenate([np.stack([s_in, np.full_like(s_in, y_entry)], -1), bez, out])
+    return Polyline(xy)
+
+
+def ego_footprint(pose: np.ndarray) -> np.ndarray:
+    """Ego footprint centre pose from the rear-axle pose."""
+    x, y, yaw = pose[..., 0], pose[..., 1], pose[..., 2]
+    off = EGO_LENGTH / 2 - EGO_REAR_OVERHANG
+    return np.stack([x + off * np.cos(yaw), y + off * np.sin(yaw), yaw], -1)
+
+
+# -- collision check ----------------------------------------------------------------------------------------------
+def _circles(poses: np.ndarray, length: float, width: float, margin: float) -> tuple[np.ndarray, float]:
+    """Circle centres (T,n,2) covering a footprint and their radius."""
+    n = max(1, int(math.ceil(length / width)))
+    offs = np.linspace(-length / 2 + width / 2, length / 2 - width / 2, n) if n > 1 else np.zeros(1)
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    cx = poses[:, 0:1] + c[:, None] * offs[None]
+    cy = poses[:, 1:2] + s[:, None] * offs[None]
+    r = math.hypot(width / 2, (length / n) / 2) if n > 1 else max(length, width) / 2
+    return np.stack([cx, cy], -1), r + margin
+
+
+class Occupancy:
+    """Footprints accepted so far (as circles per frame); `free` tests a candidate against all of them."""
+
+    def __init__(self) -> None:
+        self.centers: list[np.ndarray] = []
+        self.radii: list[float] = []
+
+    def add(self, poses: np.ndarray, length: float, width: float, margin: float) -> None:
+        c, r = _circles(poses, length, width, margin)
+        self.centers.append(c)
+        self.radii.append(r)
+
+    def free(self, poses: np.ndarray, length: float, width: float, margin: float) -> bool:
+        if not self.centers:
+            return True
+        c, r = _circles(poses, length, width, margin)
+        for oc, orad in zip(self.centers, self.radii):
+            d = np.linalg.norm(c[:, :, None, :] - oc[:, None, :, :], axis=-1)
+            if np.any(d < r + orad):
+                return False
+        return True
+
+
+# -- spawning -----------------------------------------------------------------------------------------------------
+def _colour(rng: np.random.Generator, table) -> tuple[str, tuple[float, float, float]]:
+    name, c = table[int(rng.integers(len(table)))]
+    return name, c
+
+
+class TrafficBuilder:
+    """Spawns agents one at a time with car following per lane and the planar overlap check."""
+
+    def __init__(self, road: RoadGeometry, scenario, rng: np.random.Generator, times: np.ndarray,
+                 ego_rear: np.ndarray, travel: float):
+        self.road, self.sc, self.rng, self.times = road, scenario, rng, times
+        self.travel = travel
+        self.agents: list[Agent] = []
+        self.occ = Occupancy()
+        ego_fp = ego_footprint(ego_rear)
+        self.occ.add(ego_fp, EGO_LENGTH, EGO_WIDTH, 0.4)
+        # Ego as a leader in its lanes (road s of the ego per frame).
+        s_ego, _ = road.sd(ego_rear[:, 0], ego_rear[:, 1])
+        self.lane_members: dict[tuple, list[tuple[np.ndarray, float]]] = {}
+        lanes = {scenario.ego.start_lane}
+        m = scenario.ego.manoeuvre
+        if m == "lane_change_left":
+            lanes.add(scenario.ego.start_lane + 1)
+        if m == "lane_change_right":
+            lanes.add(scenario.ego.start_lane - 1)
+        self.ego_lanes = lanes
+        for ln in lanes:
+            self.lane_members[("main", 1, ln)] = [(s_ego + (EGO_LENGTH / 2 - EGO_REAR_OVERHANG), EGO_LENGTH)]
+        self.ego_speed = scenario.ego.speed
+
+    def _lane_pose(self, road_name: str, direction: int, s: np.ndarray, d: float) -> np.ndarray:
+        fn = self.road.xy if road_name == "main" else self.road.cross_xy
+        x, y, yaw = fn(s, np.full_like(s, d))
+        if direction < 0:
+            yaw = yaw + math.pi
+        return np.stack([x, y, yaw], -1)
+
+    def _follow(self, key: tuple, s_free: np.ndarray, direction: int, length: float) -> np.ndarray:
+        """Limit a free trajectory so it stays a safe gap behind every lane member ahead of it."""
+        s = s_free.copy()
+        for s_other, l_other in self.lane_members.get(key, []):
+            gap = (length + l_other) / 2 + 2.5
+            ahead = (s_other[0] - s_free[0]) * direction > 0
+            if ahead:
+                s = np.minimum(s, s_other - gap) if direction > 0 else np.maximum(s, s_other + gap)
+        return s
+
+    def _accept(self, agent: Agent, margin: float, key: tuple | None, s_traj: np.ndarray | None) -> None:
+        self.agents.append(agent)
+        l, w, _ = agent.size
+        self.occ.add(agent.poses, l, w, margin)
+        if key is not None:
+            self.lane_members.setdefault(key, []).append((s_traj, l))
+
+    def _s_range(self) -> tuple[float, float]:
+        return -45.0, self.travel + 80.0
+
+    def _blocked_s(self, s: float, half_len: float) -> bool:
+        return bool(self.road.in_junction_zone(np.array([s]), half_len + 1.0)[0])
+
+    def add_moving_vehicle(self, track_id: int) -> bool:
+        rng, road = self.rng, self.road
+        setting = road.setting
+        for _ in range(16):
+            u = rng.random()
+            if setting == "highway":
+                cls = CAR if u < 0.7 else TRUCK
+            else:
+                cls = CAR if u < 0.82 else (BUS if u < 0.92 and setting == "urban" else TRUCK)
+            if cls == CAR:
+                size = (float(rng.uniform(4.1, 4.9)), float(rng.uniform(1.75, 1.95)), float(rng.uniform(1.4, 1.65)))
+                name, col = _colour(rng, VEHICLE_COLOURS)
+            elif cls == BUS:
+                size = (float(rng.uniform(10.5, 12.0)), 2.55, float(rng.uniform(3.0, 3.3)))
+                name, col = _colour(rng, BUS_COLOURS)
+            else:
+                size = (float(rng.uniform(6.5, 9.0)), 2.45, float(rng.uniform(3.0, 3.6)))
+                name, col = _colour(rng, TRUCK_COLOURS)
+            on_cross = road.cross_s is not None and rng.random() < 0.3
+            direction = 1 if rng.random() < 0.55 else -1
+            lane = int(rng.integers(road.lanes))
+            road_name = "cross" if on_cross else "main"
+            if setting == "highway":
+                speed = float(rng.uniform(18.0, 30.0))
+            else:
+                speed = float(rng.uniform(5.0, 13.0))
+            if on_cross:
+                s0 = float(rng.uniform(-70.0, 70.0))
+            else:
+                lo, hi = self._s_range()
+                s0 = float(rng.uniform(lo, hi))
+                if self._blocked_s(s0, size[0] / 2):
+                    continue
+                if direction == 1 and lane in self.ego_lanes:
+                    # Faster than the ego when ahead of it, slower when behind (the overlap check has the last word).
+                    speed = max(speed, self.ego_speed + 1.0) if s0 > 0 else min(speed, self.ego_speed)
+            d = road.lane_center_d(lane, direction)
+            k = road.curvature if road_name == "main" else 0.0
+            ds_dt = speed / max(0.2, 1.0 - k * d)
+            s_free = s0 + direction * ds_dt * self.times
+            key = (road_name, direction, lane)
+            s_traj = self._follow(key, s_free, direction, size[0])
+            poses = self._lane_pose(road_name, direction, s_traj, d)
+            if not self.occ.free(poses, size[0], size[1], 0.35):
+                continue
+            agent = Agent(track_id, cls, size, col, name, True, poses, ("lane", road_name, direction, lane))
+            self._accept(agent, 0.35, key, s_traj)
+            return True
+        return False
+
+    def add_cyclist(self, track_id: int) -> bool:
+        rng, road = self.rng, self.road
+        for _ in range(16):
+            direction = 1 if rng.random() < 0.6 else -1
+            road_name = "cross" if road.cross_s is not None and rng.random() < 0.25 else "main"
+            d = -direction * (road.median / 2 + road.lane_width - 0.75)
+            s0 = float(rng.uniform(-70, 70)) if road_name == "cross" else float(rng.uniform(*self._s_range()))
+            if road_name == "main" and self._blocked_s(s0, 1.0):
+                continue
+            speed = float(rng.uniform(3.5, 6.5))
+            key = (road_name, direction, 0)
+            s_traj = self._follow(key, s0 + direction * speed * self.times, direction, 1.8)
+            poses = self._lane_pose(road_name, direction, s_traj, d)
+            if not self.occ.free(poses, 1.8, 0.6, 0.3):
+                continue
+            self._accept(Agent(track_id, CYCLIST, (1.8, 0.6, 1.85), CLOTHES[int(rng.integers(len(CLOTHES)))],
+                               "", True, poses, ("lane", road_name, direction, 0)), 0.3, key, s_traj)
+            return True
+        return False
+
+    def add_pedestrian(self, track_id: int) -> bool:
+        rng, road = self.rng, self.road
+        for _ in range(16):
+            side = 1 if rng.random() < 0.5 else -1
+            road_name = "cross" if road.cross_s is not None and rng.random() < 0.3 else "main"
+            if road.setting == "highway":
+                dd = road.road_half + float(rng.uniform(1.0, 3.0))
+            else:
+                dd = road.curb_out + float(rng.uniform(0.5, max(0.6, road.sidewalk_width - 0.5)))
+            d = side * dd
+            s0 = float(rng.uniform(-60, 60)) if road_name == "cross" else float(rng.uniform(-30.0, self.travel + 60))
+            walking = rng.random() < 0.8
+            speed = float(rng.uniform(0.9, 1.6)) if walking else 0.0
+            direction = 1 if rng.random() < 0.5 else -1
+            s_traj = s0 + direction * speed * self.times
+            poses = self._lane_pose(road_name, direction, s_traj, d)
+            if not walking:
+                poses[:, 2] += float(rng.uniform(-1.5, 1.5))
+            h = float(rng.uniform(1.55, 1.9))
+            if not self.occ.free(poses, 0.5, 0.5, 0.15):
+                continue
+            col = CLOTHES[int(rng.integers(len(CLOTHES)))]
+            self._accept(Agent(track_id, PEDESTRIAN, (0.5, 0.6, h), col, "", walking, poses,
+                               ("sidewalk", road_name, side)), 0.15, None, None)
+            return True
+        return False
+
+    def add_parked(self, track_id: int) -> bool:
+        rng, road = self.rng, self.road
+        if road.setting == "highway":
+            return False
+        for _ in range(24):
+            side = -1 if rng.random() < 0.6 else 1
+            size = (float(rng.uniform(4.1, 4.9)), float(rng.uniform(1.75, 1.95)), float(rng.uniform(1.4, 1.65)))
+            d = side * (road.lanes_edge + road.shoulder / 2 + 0.1)
+            s0 = float(rng.uniform(-40.0, self.travel + 70.0))
+            if self._blocked_s(s0, size[0] / 2 + 1.0):
+                continue
+            if any(abs(s0 - c) < 5.0 for c in road.crosswalks_on_main()):
+                continue
+            direction = 1 if side < 0 else -1
+            poses = self._lane_pose("main", direction, np.full(len(self.times), s0), d)
+            if not self.occ.free(poses, size[0], size[1], 0.3):
+                continue
+            name, col = _colour(rng, VEHICLE_COLOURS)
+            self._accept(Agent(track_id, CAR, size, col, name, False, poses, ("parked", "main", side)), 0.3,
+                         None, None)
+            return True
+        return False
+
+
+def build_agents(road: RoadGeometry, scenario, rng: np.random.Generator, times: np.ndarray,
+                 ego_rear: np.ndarray, travel: float) -> list[Agent]:
+    tb = TrafficBuilder(road, scenario, rng, times, ego_rear, travel)
+    t = scenario.traffic
+    track = 1
+    for n, add in ((t.parked_vehicles, tb.add_parked), (t.moving_vehicles, tb.add_moving_vehicle),
+                   (t.cyclists, tb.add_cyclist), (t.pedestrians, tb.add_pedestrian)):
+        for _ in range(n):
+            if add(track):
+                track += 1
+    return tb.agents
+

@@ -44,7 +44,7 @@ setup_rust() {
   local wbg="$ROOT/.tools/bin/wasm-bindgen"
   if ! [[ -x "$wbg" ]] || ! "$wbg" --version | grep -q "$WASM_BINDGEN_VERSION"; then
     log "rust: installing wasm-bindgen-cli $WASM_BINDGEN_VERSION (a few minutes, once)"
-    cargo install -q wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION" --locked --root "$ROOT/.tools"
+    cargo install -q wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION" --root "$ROOT/.tools"
   fi
 }
 

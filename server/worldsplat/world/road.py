@@ -259,3 +259,24 @@ def make_road(scenario, rng: np.random.Generator, s_max: float, turn_entry: floa
     return RoadGeometry(kind=r.kind, setting=r.setting, lanes=lanes, lane_width=w, curvature=k, y0=-lane_d,
                         cross_s=cross_s, crosswalks_s=crosswalks, lamp_spacing=spacing, lamp_phase=phase,
                         median=median)
+
+
+def bev_layers(road: RoadGeometry, x: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
+    """Region masks for the BEV raster: drivable area, crosswalk areas (whole, not striped), sidewalks."""
+    s, d = road.sd(x, y)
+    ad = np.abs(d)
+    drivable = ad < road.road_half
+    sidewalk = (ad >= road.road_half) & (ad < road.walk_out) & (road.setting != "highway")
+    crosswalk = np.zeros(x.shape, bool)
+    for c in road.crosswalks_on_main():
+        crosswalk |= (np.abs(s - c) < 1.6) & (ad < road.lanes_edge)
+    if road.cross_s is not None:
+        s2, d2 = road.cross_sd(x, y)
+        ad2 = np.abs(d2)
+        drivable2 = ad2 < road.road_half
+        sidewalk2 = (ad2 >= road.road_half) & (ad2 < road.walk_out) & (road.setting != "highway")
+        for c in road.crosswalks_on_cross():
+            crosswalk |= (np.abs(s2 - c) < 1.6) & (ad2 < road.lanes_edge)
+        sidewalk = (sidewalk & ~drivable2) | (sidewalk2 & ~drivable)
+        drivable = drivable | drivable2
+    return {"drivable": drivable, "crosswalk": crosswalk & drivable, "sidewalk": sidewalk}

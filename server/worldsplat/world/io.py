@@ -1,0 +1,138 @@
+"""Writing a simulated clip to disk (`worldsplat sim`): PNGs, lossless depth, masks, conditions, meta JSON.
+
+Layout of an output directory (documented in web/docs/world.md):
+    rgb/<CAM>_<t>.png            8-bit RGB
+    depth.npz                    depth (T,V,H,W) float32 camera z in metres, +inf for sky (lossless)
+    dynamic/<CAM>_<t>.png        0/255 mask of moving-agent pixels
+    semantic/<CAM>_<t>.png       8-bit class ids (worldsplat.world.classes.CLASS_NAMES)
+    conditions/bev.npz           bev (T,C,200,200) float32 + channel names; bev_<t>.png colour previews
+    conditions/sketch/<CAM>_<t>.png   RGB sketch (lane lines R, vehicle boxes G, pedestrian/cyclist boxes B)
+    conditions/boxes.json        per frame: corners (8,3) world m, cls, cls_name, track_id, moving
+    meta.json                    scenario, id, caption, fps, times, rig intrinsics/extrinsics, poses, cameras
+    mosaic.png, bev.png          frame-0 six-camera mosaic and BEV preview
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+
+from worldsplat.scenario import scenario_id
+from worldsplat.world.classes import CLASS_NAMES
+from worldsplat.world.layout import shifted_ego
+
+MOSAIC_ORDER = (("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT"), ("CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT"))
+
+
+def save_png(path: Path, array: np.ndarray) -> None:
+    """Write a PNG atomically (temporary file + rename) with deterministic bytes."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    os.close(fd)
+    Image.fromarray(array).save(tmp, format="PNG", optimize=False, compress_level=6)
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True, allow_nan=False))
+    os.replace(tmp, path)
+
+
+def save_npz(path: Path, **arrays) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    os.replace(tmp, path)
+
+
+def mosaic(images: np.ndarray, names: list[str]) -> np.ndarray:
+    """(V,H,W,3) -> 2x3 nuScenes-style mosaic (front row, back row); missing cameras are black."""
+    h, w = images.shape[1:3]
+    rows = []
+    for row in MOSAIC_ORDER:
+        tiles = [images[names.index(n)] if n in names else np.zeros((h, w, 3), images.dtype) for n in row]
+        rows.append(np.concatenate(tiles, axis=1))
+    return np.concatenate(rows, axis=0)
+
+
+BEV_COLOURS = {"drivable": (90, 90, 95), "sidewalk": (200, 130, 180), "crosswalk": (230, 220, 120),
+               "lane_divider": (255, 255, 255), "vehicle": (40, 110, 255), "vulnerable": (255, 60, 60)}
+
+
+def bev_image(bev: np.ndarray, channels: tuple[str, ...], scale: int = 2) -> np.ndarray:
+    """(C,H,W) BEV raster -> RGB preview with the ego drawn as a green box at the centre (ego +x up)."""
+    h, w = bev.shape[1:]
+    img = np.zeros((h, w, 3), np.uint8)
+    for name in ("drivable", "sidewalk", "crosswalk", "lane_divider", "vehicle", "vulnerable"):
+        img[bev[channels.index(name)] > 0.5] = BEV_COLOURS[name]
+    # Ego footprint (rear axle at the centre, 4.6 m x 1.9 m at 0.5 m/px).
+    img[h // 2 - 7:h // 2 + 2, w // 2 - 2:w // 2 + 2] = (60, 220, 90)
+    return np.kron(img, np.ones((scale, scale, 1), np.uint8))
+
+
+def depth_preview(depth: np.ndarray) -> np.ndarray:
+    """Depth (H,W) -> 8-bit inverse-depth preview (sky black)."""
+    inv = np.where(np.isfinite(depth), 1.0 / np.maximum(depth, 0.5), 0.0)
+    return np.round(np.clip(inv * 2.0, 0, 1) * 255).astype(np.uint8)
+
+
+def meta_dict(world, clip, shift_m: float) -> dict:
+    poses_shifted = shifted_ego(clip.ego_to_world, shift_m)
+    return {
+        "format": "worldsplat-sim-v1",
+        "scenario": json.loads(world.scenario.normalized_json()),
+        "scenario_id": scenario_id(world.scenario),
+        "caption": clip.caption,
+        "shift_m": float(shift_m),
+        "fps": clip.fps,
+        "frame_times": clip.frame_times.tolist(),
+        "frames": list(clip.frame_indices),
+        "depth": {"file": "depth.npz", "key": "depth", "dtype": "float32", "unit": "metres (camera z)",
+                  "sky": "inf", "shape": "T,V,H,W"},
+        "classes": list(CLASS_NAMES),
+        "cameras": [c.to_json() for c in clip.rig],
+        "ego_to_world": clip.ego_to_world.tolist(),
+        "ego_to_world_shifted": poses_shifted.tolist(),
+        "world_to_camera": [[clip.camera(t, v).world_to_camera.tolist() for v in range(len(clip.rig))]
+                            for t in range(len(clip.frame_times))],
+        "conventions": "web/docs/conventions.md (world FLU, camera OpenCV, pixel centres at +0.5)",
+    }
+
+
+def write_sim(out: Path, world, clip, cond: dict | None) -> None:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = clip.camera_names
+    T = clip.rgb.shape[0]
+    for t in range(T):
+        for v, name in enumerate(names):
+            stem = f"{name}_{t:02d}.png"
+            save_png(out / "rgb" / stem, clip.rgb[t, v])
+            save_png(out / "dynamic" / stem, clip.dynamic[t, v].astype(np.uint8) * 255)
+            save_png(out / "semantic" / stem, clip.semantic[t, v])
+            save_png(out / "depth_preview" / stem, depth_preview(clip.depth[t, v]))
+    save_npz(out / "depth.npz", depth=clip.depth, cameras=np.array(names))
+    save_png(out / "mosaic.png", mosaic(clip.rgb[0], names))
+    if cond is not None:
+        save_npz(out / "conditions" / "bev.npz", bev=cond["bev"], channels=np.array(cond["bev_channels"]),
+                 ego_traj=cond["ego_traj"])
+        for t in range(T):
+            save_png(out / "conditions" / f"bev_{t:02d}.png", bev_image(cond["bev"][t], cond["bev_channels"]))
+            for v, name in enumerate(names):
+                save_png(out / "conditions" / "sketch" / f"{name}_{t:02d}.png",
+                         np.round(cond["sketch"][t, v] * 255).astype(np.uint8))
+        write_json(out / "conditions" / "boxes.json",
+                   [[{**b, "corners": np.round(b["corners"], 6).tolist()} for b in frame] for frame in cond["boxes"]])
+        save_png(out / "bev.png", bev_image(cond["bev"][0], cond["bev_channels"]))
+    write_json(out / "meta.json", meta_dict(world, clip, clip.shift_m))
+
+
+

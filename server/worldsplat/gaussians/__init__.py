@@ -1,0 +1,16 @@
+"""Gaussian core: one splatting math (web/docs/splatting-math.md), the torch reference rasterizer, oracle lifting,
+4D aggregation (paper eq. 3), the .wsplat v1 stream format and PLY interop. See web/docs/gaussians.md."""
+from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.gaussians.raster import rasterize
+
+__all__ = ["Gaussians", "Scene4D", "rasterize", "lift", "aggregate"]
+
+
+def __getattr__(name):  # lazy: lifting/aggregation pull in more than the rasterizer needs
+    if name == "lift":
+        from worldsplat.gaussians.lift import lift
+        return lift
+    if name == "aggregate":
+        from worldsplat.gaussians.aggregate import aggregate
+        return aggregate
+    raise AttributeError(name)

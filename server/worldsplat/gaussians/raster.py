@@ -1,0 +1,118 @@
+"""Stage 3 of the reference rasterizer (compositing) and the single entry point `rasterize`.
+
+`rasterize(g, camera)` -> {"rgb" (H,W,3), "depth" (H,W), "alpha" (H,W), "extras" (H,W,K)}, differentiable with
+autograd, on the device of the Gaussians. Two paths share `composite`: "tiled" (default; per-tile depth-sorted lists,
+Gaussians processed in chunks of CHUNK so memory is bounded by TILE_SIZE^2 * CHUNK per tensor) and "brute"
+(every pixel against every projected Gaussian; for tests).
+"""
+from __future__ import annotations
+
+import torch
+
+from worldsplat.camera import Camera
+from worldsplat.gaussians import constants as C
+from worldsplat.gaussians.project import Projected, depth_order, project, tile_intersect
+from worldsplat.gaussians.types import Gaussians
+
+
+def composite(pixels: torch.Tensor, ids: torch.Tensor, proj: Projected, chunk: int = C.CHUNK
+              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Front-to-back compositing of the depth-sorted Gaussians `ids` at pixel centres `pixels` (P,2).
+
+    Returns features (P,F), expected depth (P,) and alpha (P,). `Tv` is the transmittance of the pixel as if every
+    touching Gaussian were added; because it never increases, "stop before a Gaussian whose T' < T_MIN" is exactly
+    "include a Gaussian only while Tv' >= T_MIN", which lets a whole chunk be composited with one cumprod.
+    Chunks grow geometrically up to `chunk` and finished pixels leave the active set, so dense scenes stop early.
+    """
+    P = pixels.shape[0]
+    dt, dev = proj.uv.dtype, proj.uv.device
+    feats = torch.zeros(P, proj.features.shape[1], dtype=dt, device=dev)
+    depth = torch.zeros(P, dtype=dt, device=dev)
+    weight_sum = torch.zeros(P, dtype=dt, device=dev)
+    Tv = torch.ones(P, dtype=dt, device=dev)
+    active = torch.arange(P, device=dev)
+    support = C.EXTENT_SIGMA ** 2
+    s, step = 0, min(256, chunk)
+    while s < ids.shape[0] and active.numel() > 0:
+        k = ids[s:s + step]
+        s, step = s + step, min(chunk, 2 * step)
+        px, T0 = pixels[active], Tv[active]
+        uv, con, r = proj.uv[k], proj.conic[k], proj.radius[k]
+        dx = px[:, None, 0] - uv[None, :, 0]
+        dy = px[:, None, 1] - uv[None, :, 1]
+        d = (con[None, :, 0] * dx + (2 * con[None, :, 1]) * dy) * dx + con[None, :, 2] * dy * dy
+        with torch.no_grad():
+            touch = d <= support
+            if bool((r >= C.RADIUS_MAX).any()):  # the square test only bites for capped radii
+                rf = r.to(dt)
+                touch &= (dx.abs() <= rf) & (dy.abs() <= rf)
+        alpha = torch.clamp_max(proj.opacity[k][None, :] * torch.exp(-0.5 * d), C.ALPHA_MAX)
+        alpha = alpha * (touch & (alpha >= C.ALPHA_MIN))
+        T_after = T0[:, None] * torch.cumprod(1 - alpha, dim=1)
+        T_before = torch.cat([T0[:, None], T_after[:, :-1]], dim=1)
+        with torch.no_grad():
+            included = T_after >= C.T_MIN
+        w = torch.where(included, alpha * T_before, torch.zeros_like(alpha))
+        feats = feats.index_add(0, active, w @ proj.features[k])
+        depth = depth.index_add(0, active, w @ proj.depth[k])
+        weight_sum = weight_sum.index_add(0, active, w.sum(1))
+        Tv = Tv.index_copy(0, active, T_after[:, -1])
+        with torch.no_grad():
+            active = active[T_after[:, -1] >= C.T_MIN]
+    return feats, depth, weight_sum  # alpha = 1 - T = sum of weights (telescoping)
+
+
+def pixel_centres(x0: int, x1: int, y0: int, y1: int, dtype, device) -> torch.Tensor:
+    ys, xs = torch.meshgrid(torch.arange(y0, y1, device=device, dtype=dtype),
+                            torch.arange(x0, x1, device=device, dtype=dtype), indexing="ij")
+    return torch.stack([xs.reshape(-1) + 0.5, ys.reshape(-1) + 0.5], -1)
+
+
+def rasterize(g: Gaussians, camera: Camera, *, method: str = "tiled", tile_size: int = C.TILE_SIZE,
+              chunk: int = C.CHUNK) -> dict[str, torch.Tensor]:
+    """Render Gaussians at a camera per web/docs/splatting-math.md (black background).
+
+    Returns rgb (H,W,3), depth (H,W) expected camera z (not normalized), alpha (H,W), extras (H,W,K) (K may be 0)
+    and visible (int: Gaussians that survived projection). Never returns NaN/Inf.
+    """
+    if method not in ("tiled", "brute"):
+        raise ValueError(f"rasterize: method must be 'tiled' or 'brute', got {method!r}")
+    W, H = camera.width, camera.height
+    proj = project(g, camera)
+    dt, dev = proj.uv.dtype, proj.uv.device
+    nf = proj.features.shape[1]
+    if method == "brute":
+        order = depth_order(proj)
+        pix = pixel_centres(0, W, 0, H, dt, dev)
+        parts = [composite(pix[s:s + 4096], order, proj, chunk) for s in range(0, pix.shape[0], 4096)]
+        feats = torch.cat([p[0] for p in parts]).reshape(H, W, nf)
+        depth = torch.cat([p[1] for p in parts]).reshape(H, W)
+        alpha = torch.cat([p[2] for p in parts]).reshape(H, W)
+    else:
+        tl = tile_intersect(proj, W, H, tile_size)
+        rows_f, rows_d, rows_a = [], [], []
+        offsets = tl.offsets.tolist()
+        for ty in range(tl.tiles_y):
+            y0, y1 = ty * tile_size, min(H, (ty + 1) * tile_size)
+            tf, td, ta = [], [], []
+            for tx in range(tl.tiles_x):
+                x0, x1 = tx * tile_size, min(W, (tx + 1) * tile_size)
+                k = ty * tl.tiles_x + tx
+                pix = pixel_centres(x0, x1, y0, y1, dt, dev)
+                f, d, a = composite(pix, tl.ids[offsets[k]:offsets[k + 1]], proj, chunk)
+                tf.append(f.reshape(y1 - y0, x1 - x0, nf))
+                td.append(d.reshape(y1 - y0, x1 - x0))
+                ta.append(a.reshape(y1 - y0, x1 - x0))
+            rows_f.append(torch.cat(tf, 1))
+            rows_d.append(torch.cat(td, 1))
+            rows_a.append(torch.cat(ta, 1))
+        feats, depth, alpha = torch.cat(rows_f, 0), torch.cat(rows_d, 0), torch.cat(rows_a, 0)
+    return {"rgb": feats[..., :3], "depth": depth, "alpha": alpha, "extras": feats[..., 3:],
+            "visible": len(proj)}
+
+
+def render_uint8(g: Gaussians, camera: Camera) -> "np.ndarray":  # noqa: F821
+    """Inference helper: (H,W,3) uint8, colour clamped to [0,1], round(255 c) (the shared-vector convention)."""
+    with torch.no_grad():
+        rgb = rasterize(g, camera)["rgb"]
+    return torch.round(rgb.clamp(0, 1) * 255).to(torch.uint8).cpu().numpy()

@@ -1,0 +1,496 @@
+"""The playground's FastAPI app: the page (web/), the wasm viewer bundle (/pkg), the API (/api/...), OpenAPI (/docs).
+
+Routes only; the work is in runners.py (pipeline calls), jobs.py (queue, worker, records) and cache.py (artifacts).
+Every client error is a 4xx with a message naming what is wrong; ids are validated before any path is formed.
+See web/docs/playground.md for the API walk-through.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import re
+import threading
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Annotated, Literal
+
+from fastapi import Body, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, StreamingResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+import worldsplat
+from worldsplat.camera import CAMERA_NAMES
+from worldsplat.scenario import Scenario, ScenarioError, default_preset_name, list_presets, load_preset
+
+from . import runners
+from .cache import ArtifactCache, InvalidId, validate_id
+from .jobs import ACTIVE, Job, JobManager, QueueFull
+
+WEB_DIR = Path(__file__).resolve().parents[3] / "web"
+MAX_BODY = 64 * 1024
+STREAM_CHUNK = 64 * 1024
+SSE_POLL = 0.1
+SSE_HEARTBEAT = 10.0
+
+
+class ApiError(Exception):
+    def __init__(self, status: int, message: str, headers: dict | None = None, field: str | None = None):
+        super().__init__(message)
+        self.status, self.message, self.headers, self.field = status, message, headers or {}, field
+
+
+# -- request models ------------------------------------------------------------------------------------------------
+class SceneRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    scenario: Scenario | None = Field(None, description="the scenario (see GET /api/schema); default: the default "
+                                                       "preset, or `preset` if given")
+    preset: str | None = Field(None, max_length=64, description="start from this preset when `scenario` is absent")
+    mode: str | None = Field(None, max_length=32, description="oracle | reconstruct | generate (GET /api/modes); "
+                                                             "default: the best mode whose weights exist")
+
+
+class VideoRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    shift_m: float = Field(0.0, ge=-8.0, le=8.0, allow_inf_nan=False,
+                           description="lateral track shift in metres, left positive")
+    cameras: list[str] = Field(default_factory=lambda: list(CAMERA_NAMES), min_length=1, max_length=6,
+                               description="cameras to render; several make a 2x3 mosaic")
+    refine: bool = Field(False, description="run the enhanced-diffusion refinement (issue 7) on the renders")
+    format: Literal["mp4", "webm"] = "mp4"
+
+    @field_validator("cameras")
+    @classmethod
+    def _known(cls, v: list[str]) -> list[str]:
+        unknown = [c for c in v if c not in CAMERA_NAMES]
+        if unknown:
+            raise ValueError(f"unknown camera(s) {unknown}; choose from {list(CAMERA_NAMES)}")
+        return [c for c in CAMERA_NAMES if c in v]
+
+
+# -- helpers -----------------------------------------------------------------------------------------------------------
+def checked_id(value: str, what: str) -> str:
+    try:
+        return validate_id(value)
+    except InvalidId:
+        raise ApiError(404, f"no such {what}: ids are 32 lower-case hex digits") from None
+
+
+def job_view(job: Job) -> dict:
+    d = job.public()
+    d["events"] = f"/api/jobs/{job.id}/events"
+    return d
+
+
+def parse_range(header: str, size: int) -> tuple[int, int] | None:
+    """A single `bytes=a-b` range -> (start, end exclusive); None means serve the whole file; raises on 416."""
+    m = re.fullmatch(r"\s*bytes\s*=\s*(\d*)\s*-\s*(\d*)\s*", header)
+    if not m or (not m.group(1) and not m.group(2)):
+        return None  # malformed or multi-range: RFC 9110 lets us ignore it and send 200
+    if m.group(1):
+        start = int(m.group(1))
+        end = min(size, int(m.group(2)) + 1) if m.group(2) else size
+    else:
+        start, end = max(0, size - int(m.group(2))), size
+    if start >= size or end <= start:
+        raise ApiError(416, f"range {header.strip()!r} not satisfiable for {size} bytes",
+                       {"Content-Range": f"bytes */{size}"})
+    return start, end
+
+
+def file_response(path: Path, media_type: str, request: Request, filename: str) -> StreamingResponse:
+    """Stream a cached artifact: chunked when whole (so a viewer can start on the first chunks), 206 for a Range.
+    The file is opened before responding, so a concurrent eviction cannot tear the response."""
+    try:
+        f = open(path, "rb")  # noqa: SIM115 - closed by the generator
+    except FileNotFoundError:
+        raise ApiError(404, "the artifact was evicted from the cache; request it again") from None
+    size = os.fstat(f.fileno()).st_size
+    try:
+        rng = parse_range(request.headers.get("range", ""), size) if request.headers.get("range") else None
+    except ApiError:
+        f.close()
+        raise
+    start, end = rng or (0, size)
+
+    def body():
+        try:
+            f.seek(start)
+            left = end - start
+            while left > 0:
+                chunk = f.read(min(STREAM_CHUNK, left))
+                if not chunk:
+                    break
+                left -= len(chunk)
+                yield chunk
+        finally:
+            f.close()
+
+    headers = {"Accept-Ranges": "bytes", "Content-Disposition": f'inline; filename="{filename}"',
+               "Cache-Control": "public, max-age=31536000, immutable"}  # content-addressed: never changes
+    if rng is None:
+        return StreamingResponse(body(), media_type=media_type, headers=headers | {"X-Content-Length": str(size)})
+    headers |= {"Content-Range": f"bytes {start}-{end - 1}/{size}", "Content-Length": str(end - start)}
+    return StreamingResponse(body(), status_code=206, media_type=media_type, headers=headers)
+
+
+class BundleFiles(StaticFiles):
+    """Static files from a directory that may not exist yet (web/pkg before `wasm/build.sh`): 404, not 500."""
+
+    async def check_config(self) -> None:
+        return None
+
+
+class BodyLimit:
+    """ASGI middleware: request bodies over `max_bytes` get 413 before the app sees them (declared or streamed)."""
+
+    def __init__(self, app, max_bytes: int):
+        self.app, self.max_bytes = app, max_bytes
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or scope["method"] in ("GET", "HEAD", "OPTIONS", "DELETE"):
+            return await self.app(scope, receive, send)
+        declared = dict(scope["headers"]).get(b"content-length")
+        if declared is not None:
+            if not declared.isdigit():
+                return await self._reply(send, 400, "invalid Content-Length header")
+            if int(declared) > self.max_bytes:
+                return await self._reply(send, 413, f"request body over {self.max_bytes} bytes")
+        body, more = b"", True
+        while more:
+            msg = await receive()
+            if msg["type"] == "http.disconnect":
+                return
+            body += msg.get("body", b"")
+            more = msg.get("more_body", False)
+            if len(body) > self.max_bytes:
+                return await self._reply(send, 413, f"request body over {self.max_bytes} bytes")
+        sent = False
+
+        async def replay():
+            nonlocal sent
+            if not sent:
+                sent = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()
+
+        return await self.app(scope, replay, send)
+
+    @staticmethod
+    async def _reply(send, status: int, message: str):
+        data = json.dumps({"detail": message, "error": message}).encode()
+        await send({"type": "http.response.start", "status": status,
+                    "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())]})
+        await send({"type": "http.response.body", "body": data})
+
+
+# -- the app -----------------------------------------------------------------------------------------------------------
+class Playground:
+    """The server's state: cache, jobs and the pipeline facts (modes, versions) discovered at start."""
+
+    def __init__(self, cache_dir: Path, max_cache_bytes: int, max_queued: int):
+        self.cache = ArtifactCache(cache_dir, max_cache_bytes)
+        self.jobs = JobManager(cache_dir / "state", {
+            "scene": lambda ctx: runners.run_scene(self.cache, ctx),
+            "video": lambda ctx: runners.run_video(self.cache, ctx),
+        }, max_queued=max_queued)
+        self.ready = threading.Event()  # the pipeline is importable and modes are known
+        self.startup_error: str | None = None
+        self.modes: list[str] = []
+        self.default_mode = "oracle"
+        self.warm_scene: str | None = None
+
+    def discover(self, warm: bool) -> None:
+        """Import the pipeline (torch) once, learn the modes, and queue the default scene (background thread)."""
+        try:
+            self.modes = runners.available_modes()
+            self.default_mode = runners.default_mode()
+            if warm:
+                scenario = load_preset(default_preset_name())
+                self.warm_scene = self.submit_scene(scenario, self.default_mode)["scene_id"]
+        except Exception as e:  # noqa: BLE001 - reported by /api/health and every scene request
+            self.startup_error = f"{type(e).__name__}: {e}"
+        finally:
+            self.ready.set()
+
+    def require_ready(self) -> None:
+        if not self.ready.wait(120):
+            raise ApiError(503, "the server is still loading the pipeline; retry shortly", {"Retry-After": "5"})
+        if self.startup_error:
+            raise ApiError(503, f"the pipeline failed to load: {self.startup_error}")
+
+    def scene_state(self, scene_id: str) -> dict | None:
+        meta = self.cache.meta("scenes", scene_id)
+        job = self.jobs.latest_for("scene", scene_id)
+        if meta is not None:
+            return {"scene_id": scene_id, "status": "ready", "mode": meta["mode"],
+                    "model_version": meta["model_version"], "bytes": meta["bytes"], "frames": meta.get("frames"),
+                    "cameras": meta.get("cameras"), "scenario": meta.get("scenario"),
+                    "wsplat": f"/api/scenes/{scene_id}/wsplat", "job": job_view(job) if job else None}
+        if job is None:
+            return None
+        status = job.status if job.status in ACTIVE else ("failed" if job.status != "done" else "missing")
+        return {"scene_id": scene_id, "status": status, "mode": job.params.get("mode"),
+                "model_version": job.params.get("model_version"), "error": job.error, "job": job_view(job)}
+
+    def submit_scene(self, scenario: Scenario, mode: str) -> dict:
+        scene_id = runners.scene_id_for(scenario, mode)
+        state = self.scene_state(scene_id)
+        if state is not None and state["status"] in ("ready", "queued", "running"):
+            return state
+        params = {"scenario": scenario.model_dump(mode="json"), "mode": mode,
+                  "model_version": runners.model_version(mode)}
+        try:
+            self.jobs.submit("scene", scene_id, params)
+        except QueueFull as e:
+            raise ApiError(429, str(e), {"Retry-After": str(e.retry_after)}) from None
+        return self.scene_state(scene_id)
+
+
+def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = None,
+               max_cache_bytes: int = 2 << 30, max_queued: int = 16, warm: bool = True) -> FastAPI:
+    web = Path(web_dir) if web_dir else WEB_DIR
+    pg = Playground(Path(cache_dir), max_cache_bytes, max_queued)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        pg.jobs.start()
+        threading.Thread(target=pg.discover, args=(warm,), name="worldsplat-warm", daemon=True).start()
+        yield
+        await asyncio.to_thread(pg.jobs.stop)
+
+    app = FastAPI(title="WorldSplat Playground API", version=worldsplat.__version__, lifespan=lifespan,
+                  description="Scenario -> 4D Gaussian scene (.wsplat stream) -> track videos. "
+                              "See web/docs/playground.md.")
+    app.state.playground = pg
+    app.add_middleware(BodyLimit, max_bytes=MAX_BODY)
+
+    @app.exception_handler(ApiError)
+    async def _api_error(request: Request, e: ApiError):
+        body = {"detail": e.message, "error": e.message}
+        if e.field:
+            body["field"] = e.field
+        return JSONResponse(body, status_code=e.status, headers=e.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation_error(request: Request, e: RequestValidationError):
+        problems = []
+        for err in e.errors():
+            loc = [str(p) for p in err.get("loc", ()) if p not in ("body", "query", "path")]
+            msg = str(err.get("msg", "invalid"))
+            msg = "unknown field" if err.get("type") == "extra_forbidden" else msg.removeprefix("Value error, ")
+            problems.append({"field": ".".join(loc), "message": msg})
+        text = "; ".join(f"{p['field']}: {p['message']}" if p["field"] else p["message"] for p in problems)
+        return JSONResponse({"detail": problems, "error": text or "invalid request",
+                             "field": problems[0]["field"] if problems else None}, status_code=422)
+
+    # -- meta ------------------------------------------------------------------------------------------------------
+    @app.get("/api/health", tags=["meta"])
+    def health() -> dict:
+        return {"ok": pg.startup_error is None, "ready": pg.ready.is_set(), "error": pg.startup_error,
+                "version": worldsplat.__version__, "queued": pg.jobs.queued_count(),
+                "cache_bytes": pg.cache.total_bytes(), "cache_cap": pg.cache.max_bytes,
+                "recovered": {"cache": pg.cache.recovered, "jobs": pg.jobs.recovered}}
+
+    @app.get("/api/modes", tags=["meta"])
+    def modes() -> dict:
+        pg.require_ready()
+        refine, why = runners.refinement_status()
+        return {"modes": pg.modes, "default": pg.default_mode, "refine": refine, "refine_reason": why or None,
+                "versions": {m: runners.model_version(m) for m in pg.modes}, "warm_scene": pg.warm_scene}
+
+    @app.get("/api/presets", tags=["scenario"])
+    def presets() -> list[dict]:
+        return [dict(p, scenario=load_preset(p["name"]).model_dump(mode="json")) for p in list_presets()]
+
+    @app.get("/api/presets/{name}", tags=["scenario"])
+    def preset(name: str) -> dict:
+        names = {p["name"] for p in list_presets()}
+        if name not in names:
+            raise ApiError(404, f"unknown preset {name[:64]!r}; choose from {sorted(names)}")
+        return load_preset(name).model_dump(mode="json")
+
+    @app.get("/api/schema", tags=["scenario"])
+    def schema() -> dict:
+        return Scenario.model_json_schema()
+
+    # -- scenes ----------------------------------------------------------------------------------------------------
+    @app.post("/api/scenes", tags=["scenes"], status_code=202,
+              responses={200: {"description": "already cached"}, 422: {"description": "invalid scenario or mode"},
+                         429: {"description": "queue full (Retry-After)"}})
+    def create_scene(req: Annotated[SceneRequest, Body()]) -> JSONResponse:
+        pg.require_ready()
+        if req.scenario is not None:
+            scenario = req.scenario
+        else:
+            try:
+                scenario = load_preset(req.preset or default_preset_name())
+            except (ValueError, ScenarioError) as e:
+                raise ApiError(422, f"preset: {e}", field="preset") from None
+        mode = req.mode or pg.default_mode
+        if mode not in pg.modes:
+            raise ApiError(422, f"mode: {mode[:32]!r} is not available here; available modes: {pg.modes}",
+                           field="mode")
+        state = pg.submit_scene(scenario, mode)
+        return JSONResponse(state, status_code=200 if state["status"] == "ready" else 202)
+
+    @app.get("/api/scenes/{scene_id}", tags=["scenes"])
+    def scene_status(scene_id: str) -> dict:
+        state = pg.scene_state(checked_id(scene_id, "scene"))
+        if state is None:
+            raise ApiError(404, f"no such scene {scene_id}")
+        return state
+
+    @app.get("/api/scenes/{scene_id}/wsplat", tags=["scenes"],
+             responses={200: {"content": {"application/octet-stream": {}}}, 206: {"description": "Range"},
+                        409: {"description": "not generated yet"}})
+    def scene_wsplat(scene_id: str, request: Request):
+        checked_id(scene_id, "scene")
+        opened = pg.cache.open_artifact("scenes", scene_id)
+        if opened is None:
+            state = pg.scene_state(scene_id)
+            if state is None:
+                raise ApiError(404, f"no such scene {scene_id}")
+            raise ApiError(409, f"scene {scene_id} is {state['status']}; wait for its events to say done",
+                           {"Retry-After": "2"})
+        return file_response(opened[0], "application/octet-stream", request, f"{scene_id}.wsplat")
+
+    @app.get("/api/scenes/{scene_id}/events", tags=["scenes"],
+             responses={200: {"content": {"text/event-stream": {}}}})
+    async def scene_events(scene_id: str, request: Request):
+        checked_id(scene_id, "scene")
+        job = pg.jobs.latest_for("scene", scene_id)
+        if job is None:
+            if pg.cache.meta("scenes", scene_id) is None:
+                raise ApiError(404, f"no such scene {scene_id}")
+            return sse_once({"status": "done", "stage": "done", "fraction": 1.0, "target": scene_id})
+        return sse_job(job.id, request)
+
+    # -- videos ----------------------------------------------------------------------------------------------------
+    @app.post("/api/scenes/{scene_id}/videos", tags=["videos"], status_code=202,
+              responses={409: {"description": "refinement unavailable / scene not ready"},
+                         429: {"description": "queue full"}})
+    def create_video(scene_id: str, req: Annotated[VideoRequest, Body()]) -> JSONResponse:
+        checked_id(scene_id, "scene")
+        meta = pg.cache.meta("scenes", scene_id)
+        if meta is None:
+            state = pg.scene_state(scene_id)
+            if state is None:
+                raise ApiError(404, f"no such scene {scene_id}")
+            raise ApiError(409, f"scene {scene_id} is {state['status']}, not ready", {"Retry-After": "2"})
+        if req.refine:
+            ok, why = runners.refinement_status()
+            if not ok:
+                raise ApiError(409, why, field="refine")
+        video_id = runners.video_id_for(scene_id, req.shift_m, req.cameras, req.refine, req.format)
+        vmeta = pg.cache.meta("videos", video_id)
+        if vmeta is not None:
+            return JSONResponse(video_state(video_id, vmeta, pg.jobs.latest_for("video", video_id)), 200)
+        params = {"scene_id": scene_id, "shift_m": req.shift_m, "cameras": req.cameras, "refine": req.refine,
+                  "format": req.format}
+        try:
+            job, _ = pg.jobs.submit("video", video_id, params)
+        except QueueFull as e:
+            raise ApiError(429, str(e), {"Retry-After": str(e.retry_after)}) from None
+        return JSONResponse(video_state(video_id, None, job), 202)
+
+    @app.get("/api/videos/{video_id}", tags=["videos"],
+             responses={200: {"content": {"video/mp4": {}, "video/webm": {}}}, 206: {"description": "Range"}})
+    def video_file(video_id: str, request: Request):
+        checked_id(video_id, "video")
+        opened = pg.cache.open_artifact("videos", video_id)
+        if opened is None:
+            job = pg.jobs.latest_for("video", video_id)
+            if job is None:
+                raise ApiError(404, f"no such video {video_id}")
+            raise ApiError(409, f"video {video_id} is {job.status}", {"Retry-After": "2"})
+        path, meta = opened
+        media = "video/webm" if meta["ext"] == ".webm" else "video/mp4"
+        return file_response(path, media, request, f"worldsplat-{video_id[:8]}{meta['ext']}")
+
+    @app.get("/api/videos/{video_id}/status", tags=["videos"])
+    def video_status(video_id: str) -> dict:
+        checked_id(video_id, "video")
+        meta = pg.cache.meta("videos", video_id)
+        job = pg.jobs.latest_for("video", video_id)
+        if meta is None and job is None:
+            raise ApiError(404, f"no such video {video_id}")
+        return video_state(video_id, meta, job)
+
+    # -- jobs ------------------------------------------------------------------------------------------------------
+    def get_job(job_id: str) -> Job:
+        job = pg.jobs.get(checked_id(job_id, "job"))
+        if job is None:
+            raise ApiError(404, f"no such job {job_id}")
+        return job
+
+    @app.get("/api/jobs/{job_id}", tags=["jobs"])
+    def job_status(job_id: str) -> dict:
+        return job_view(get_job(job_id))
+
+    @app.delete("/api/jobs/{job_id}", tags=["jobs"])
+    def job_cancel(job_id: str) -> dict:
+        get_job(job_id)
+        return job_view(pg.jobs.cancel(job_id))
+
+    @app.post("/api/jobs/{job_id}/cancel", tags=["jobs"])
+    def job_cancel_post(job_id: str) -> dict:
+        return job_cancel(job_id)
+
+    @app.get("/api/jobs/{job_id}/events", tags=["jobs"], responses={200: {"content": {"text/event-stream": {}}}})
+    async def job_events(job_id: str, request: Request):
+        return sse_job(get_job(job_id).id, request)
+
+    def sse_job(job_id: str, request: Request) -> StreamingResponse:
+        async def events():
+            version, idle = -1, 0.0
+            while True:
+                job = pg.jobs.jobs.get(job_id)
+                if job is None:
+                    return
+                if job.version != version:
+                    version, idle = job.version, 0.0
+                    kind = job.status if job.status not in ACTIVE else "progress"
+                    yield f"event: {kind}\ndata: {json.dumps(job_view(job))}\n\n"
+                    if job.status not in ACTIVE:
+                        return
+                elif idle >= SSE_HEARTBEAT:
+                    idle = 0.0
+                    yield ": keep-alive\n\n"
+                if await request.is_disconnected():
+                    return
+                await asyncio.sleep(SSE_POLL)
+                idle += SSE_POLL
+
+        return StreamingResponse(events(), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+    def sse_once(data: dict) -> StreamingResponse:
+        async def one():
+            yield f"event: done\ndata: {json.dumps(data)}\n\n"
+        return StreamingResponse(one(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"})
+
+    # -- the page and the viewer bundle ------------------------------------------------------------------------------
+    @app.get("/", include_in_schema=False)
+    def index():
+        if not (web / "index.html").is_file():
+            return RedirectResponse("/docs")
+        return FileResponse(web / "index.html", headers={"Cache-Control": "no-cache"})
+
+    # the wasm bundle (built by wasm/build.sh into web/pkg, git-ignored): may appear after the server started
+    app.mount("/pkg", BundleFiles(directory=web / "pkg", check_dir=False), name="pkg")
+    if web.is_dir():
+        app.mount("/", StaticFiles(directory=web, html=True), name="web")
+    return app
+
+
+def video_state(video_id: str, meta: dict | None, job: Job | None) -> dict:
+    if meta is not None:
+        return {"video_id": video_id, "status": "ready", "url": f"/api/videos/{video_id}",
+                **{k: meta.get(k) for k in ("bytes", "frames", "width", "height", "fps", "refine", "shift_m",
+                                            "cameras", "scene_id")},
+                "job": job_view(job) if job else None}
+    return {"video_id": video_id, "status": job.status if job else "missing", "error": job.error if job else None,
+            "job": job_view(job) if job else None, "url": f"/api/videos/{video_id}"}

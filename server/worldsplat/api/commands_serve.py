@@ -1,0 +1,36 @@
+"""`worldsplat serve [--host] [--port] [--cache-dir]`: the playground (page, wasm viewer, API) with uvicorn."""
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+DEFAULT_CACHE = Path(__file__).resolve().parents[3] / "cache"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: loopback only)")
+    parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 picks a free one)")
+    parser.add_argument("--cache-dir", type=Path, default=Path(os.environ.get("WORLDSPLAT_CACHE", DEFAULT_CACHE)),
+                        help=f"scene/video store and job records (default $WORLDSPLAT_CACHE or {DEFAULT_CACHE})")
+    parser.add_argument("--cache-max-mb", type=int, default=2048, help="cache size cap in MiB (LRU eviction)")
+    parser.add_argument("--max-queued", type=int, default=16, help="queued jobs before 429 (default 16)")
+    parser.add_argument("--web-dir", type=Path, default=None, help="serve the page from here (default: repo web/)")
+    parser.add_argument("--no-warm", action="store_true", help="do not generate the default scene at start-up")
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn  # noqa: PLC0415
+
+    from worldsplat.api.app import create_app  # noqa: PLC0415
+
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"--port must be in 0..65535, got {args.port}")
+    if args.cache_max_mb <= 0 or args.max_queued <= 0:
+        raise ValueError("--cache-max-mb and --max-queued must be positive")
+    app = create_app(args.cache_dir, web_dir=args.web_dir, max_cache_bytes=args.cache_max_mb << 20,
+                     max_queued=args.max_queued, warm=not args.no_warm)
+    print(f"worldsplat serve: http://{args.host}:{args.port}/ (API docs at /docs, cache {args.cache_dir})",
+          flush=True)
+    uvicorn.run(app, host=args.host, port=args.port, log_level="warning", timeout_graceful_shutdown=5)
+    return 0

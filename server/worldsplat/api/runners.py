@@ -1,0 +1,163 @@
+"""The heavy work behind the server's jobs: scenario -> .wsplat scene, scene + track -> video. One home for how ids are
+formed (content hashes) and for what the pipeline offers (modes, refinement), so the app only routes.
+
+The pipeline (torch) is imported lazily: `worldsplat serve` starts in a fraction of a second and imports it in the
+background while warming the default scene.
+"""
+from __future__ import annotations
+
+import hashlib
+import time
+
+import numpy as np
+
+import worldsplat
+from worldsplat.camera import CAMERA_NAMES
+from worldsplat.scenario import Scenario
+
+from .cache import ArtifactCache
+from .jobs import JobContext, JobError
+
+# Mosaic layout (rows of camera names), as the nuScenes viewers show the rig: the front half on top.
+MOSAIC_ROWS = (("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT"), ("CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT"))
+VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
+
+
+def _pipeline():
+    import worldsplat.pipeline as pipeline  # noqa: PLC0415 - heavy (torch), imported on first use
+    return pipeline
+
+
+def available_modes() -> list[str]:
+    return list(_pipeline().MODES)
+
+
+def default_mode() -> str:
+    """The best mode that exists: generate once its weights ship, else reconstruct, else oracle."""
+    modes = available_modes()
+    for m in ("generate", "reconstruct", "oracle"):
+        if m in modes:
+            return m
+    return modes[0]
+
+
+def model_version(mode: str) -> str:
+    """The version string that, with the scenario and mode, determines a scene (part of the content hash)."""
+    p = _pipeline()
+    fn = getattr(p, "model_version", None)
+    if callable(fn):
+        return str(fn(mode))
+    return f"{mode}-worldsplat-{worldsplat.__version__}"
+
+
+def refinement_status() -> tuple[bool, str]:
+    """(available, why not): refinement needs worldsplat.pipeline to offer it (issue 7's enhancer weights)."""
+    p = _pipeline()
+    probe = getattr(p, "refinement_available", None)
+    if probe is None:
+        return False, "refinement is not available: worldsplat.pipeline offers no refinement_available() yet"
+    ok = probe() if callable(probe) else bool(probe)
+    if not ok:
+        return False, "refinement is not available: worldsplat.pipeline.refinement_available() is False " \
+                      "(no enhancer weights)"
+    return True, ""
+
+
+def content_id(*parts: str) -> str:
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
+
+
+def scene_id_for(scenario: Scenario, mode: str) -> str:
+    """id = content hash of the normalized scenario + model version + mode."""
+    return content_id("scene", scenario.normalized_json(), model_version(mode), mode)
+
+
+def video_id_for(scene_id: str, shift_m: float, cameras: list[str], refine: bool, fmt: str) -> str:
+    refine_version = model_version("refine") if refine else "raw"
+    return content_id("video", scene_id, f"{float(shift_m):.4f}", ",".join(cameras), refine_version, fmt)
+
+
+# -- jobs ---------------------------------------------------------------------------------------------------------
+def run_scene(cache: ArtifactCache, ctx: JobContext) -> dict:
+    from worldsplat.gaussians import wsplat  # noqa: PLC0415
+
+    p = ctx.params
+    scenario, mode, scene_id = Scenario.parse(p["scenario"]), p["mode"], ctx.job.target
+    t0 = time.monotonic()
+    ctx.progress("loading models", 0.0)
+    scene = _pipeline().generate_scene(scenario, mode=mode, progress=ctx.progress, cancelled=ctx.cancelled)
+    ctx.check()
+    ctx.progress("writing .wsplat", 0.0)
+    with cache.writer("scenes", scene_id, ".wsplat") as tmp:
+        wsplat.write(scene, tmp)
+    ctx.check()
+    meta = cache.commit_meta("scenes", scene_id, {
+        "ext": ".wsplat", "mode": mode, "model_version": p["model_version"], "scenario": scenario.model_dump(
+            mode="json"), "frames": int(scenario.clip.frames), "cameras": list(scenario.rig.cameras),
+        "seconds": round(time.monotonic() - t0, 3),
+    })
+    return {"scene_id": scene_id, "bytes": meta["bytes"], "mode": mode, "seconds": meta["seconds"]}
+
+
+def mosaic(frames: np.ndarray, cameras: list[str]) -> np.ndarray:
+    """(T,V,H,W,3) -> (T,H',W',3): one camera as is, several in the rig's 2x3 layout (missing cells black)."""
+    t, v, h, w, _ = frames.shape
+    if v == 1:
+        return frames[:, 0]
+    index = {c: i for i, c in enumerate(cameras)}
+    rows = [r for r in MOSAIC_ROWS if any(c in index for c in r)]
+    out = np.zeros((t, h * len(rows), w * 3, 3), np.uint8)
+    for r, row in enumerate(rows):
+        for c, name in enumerate(row):
+            if name in index:
+                out[:, r * h:(r + 1) * h, c * w:(c + 1) * w] = frames[:, index[name]]
+    return out
+
+
+def even(frames: np.ndarray) -> np.ndarray:
+    """H.264 with yuv420p needs even sizes: pad one black row/column where needed."""
+    _, h, w, _ = frames.shape
+    if h % 2 == 0 and w % 2 == 0:
+        return frames
+    return np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)))
+
+
+def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
+    from worldsplat.gaussians import wsplat  # noqa: PLC0415
+    from worldsplat.video import write_video  # noqa: PLC0415
+
+    p = ctx.params
+    scene_id, video_id = p["scene_id"], ctx.job.target
+    with cache.pinned("scenes", scene_id):
+        opened = cache.open_artifact("scenes", scene_id)
+        if opened is None:
+            raise JobError(f"scene {scene_id} is no longer in the cache; generate it again")
+        ctx.progress("reading scene", 0.0)
+        scene = wsplat.read(opened[0])
+    cameras = [c for c in CAMERA_NAMES if c in p["cameras"]]
+    pipeline = _pipeline()
+    if p["refine"]:
+        ok, why = refinement_status()
+        if not ok:
+            raise JobError(why)
+        frames = pipeline.render_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled,
+                                       refine=True)
+    else:
+        frames = pipeline.render_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled)
+    ctx.check()
+    frames = np.asarray(frames)
+    if frames.ndim != 5 or frames.dtype != np.uint8:
+        raise RuntimeError(f"render_track returned {frames.dtype} {frames.shape}, expected uint8 (T,V,H,W,3)")
+    video = even(mosaic(frames, cameras))
+    ctx.progress("encoding video", 0.0)
+    ext = VIDEO_FORMATS[p["format"]]
+    fps = float(getattr(scene, "meta", {}).get("fps", 0) or p.get("fps") or 4.0)
+    with cache.writer("videos", video_id, ext) as tmp:
+        write_video(video, tmp, fps=fps)
+    ctx.progress("encoding video", 1.0)
+    meta = cache.commit_meta("videos", video_id, {
+        "ext": ext, "scene_id": scene_id, "shift_m": p["shift_m"], "cameras": cameras, "refine": p["refine"],
+        "frames": int(video.shape[0]), "width": int(video.shape[2]), "height": int(video.shape[1]), "fps": fps,
+    })
+    return {"video_id": video_id, "bytes": meta["bytes"], "frames": meta["frames"], "width": meta["width"],
+            "height": meta["height"], "format": p["format"]}

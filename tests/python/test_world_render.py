@@ -29,6 +29,15 @@ def test_same_scenario_gives_byte_identical_outputs():
     assert ca["bev"].tobytes() == cb["bev"].tobytes() and ca["sketch"].tobytes() == cb["sketch"].tobytes()
 
 
+def test_threaded_render_equals_serial(monkeypatch):
+    w = build_world(small("urban_straight", frames=4))
+    monkeypatch.setenv("WORLDSPLAT_RENDER_THREADS", "1")
+    serial = simulate(w)
+    monkeypatch.setenv("WORLDSPLAT_RENDER_THREADS", "2")
+    threaded = simulate(w)
+    assert serial.rgb.tobytes() == threaded.rgb.tobytes() and serial.depth.tobytes() == threaded.depth.tobytes()
+
+
 def test_different_seeds_give_different_worlds():
     w1, w2 = build_world(small("urban_straight", seed=1)), build_world(small("urban_straight", seed=2))
     assert len(w1.static) != len(w2.static) or not np.allclose(w1.static.center, w2.static.center)

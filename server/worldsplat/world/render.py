@@ -483,23 +483,27 @@ def _artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.nd
     """Street lights (warm pools under lamps) and the ego's headlights."""
     out = np.zeros((p.shape[0], 3), np.float32)
     lamps = world.lamps
+    ego_xyz = ego_to_world[:3, 3]
+    rel = (p - ego_xyz).astype(np.float32)           # small magnitudes: float32 is plenty for lighting
     if len(lamps):
-        ego_xy = ego_to_world[:3, 3][:2]
-        near = lamps[np.linalg.norm(lamps[:, :2] - ego_xy, axis=1) < 90.0]
-        strength = 1.0 if world.lighting.night else 0.4
-        for lp in near:
-            v = lp - p
-            dist2 = np.einsum("ij,ij->i", v, v)
-            cosn = np.clip(np.einsum("ij,ij->i", v, nrm) / np.sqrt(dist2), 0, 1)
-            out += (strength * 30.0 * cosn / (dist2 + 12.0))[:, None].astype(np.float32) * \
-                np.array([1.0, 0.78, 0.5], np.float32)
+        near = lamps[np.linalg.norm(lamps[:, :2] - ego_xyz[:2], axis=1) < 90.0]
+        if len(near):
+            lrel = (near - ego_xyz).astype(np.float32)                         # (L,3)
+            strength = np.float32(30.0 if world.lighting.night else 12.0)
+            dist2 = (np.einsum("ij,ij->i", rel, rel)[:, None] - 2 * rel @ lrel.T
+                     + np.einsum("ij,ij->i", lrel, lrel)[None])                 # (N,L)
+            dist2 = np.maximum(dist2, 1e-4)
+            vdotn = nrm @ lrel.T - np.einsum("ij,ij->i", rel, nrm)[:, None]
+            cosn = np.clip(vdotn / np.sqrt(dist2), 0, 1)
+            total = (strength * cosn / (dist2 + 12.0)).sum(axis=1)
+            out += total[:, None] * np.array([1.0, 0.78, 0.5], np.float32)
     if world.lighting.night:
-        inv = np.linalg.inv(ego_to_world)
-        pe = p @ inv[:3, :3].T + inv[:3, 3]
+        r = ego_to_world[:3, :3]
+        pe = rel @ r.astype(np.float32)                                     # world offset -> ego axes
         xe, ye = pe[:, 0] - 2.0, pe[:, 1]
-        cone = (xe > 0) & (np.abs(ye) < 0.3 * xe + 1.0)
-        soft = np.clip(1.0 - np.abs(ye) / (0.3 * np.maximum(xe, 0) + 1.0), 0, 1)
-        inten = np.where(cone, 1.4 * soft * np.exp(-xe / 22.0) * np.clip(xe / 3.0, 0, 1), 0.0)
+        width = 0.3 * np.maximum(xe, 0) + 1.0
+        soft = np.clip(1.0 - np.abs(ye) / width, 0, 1)
+        inten = np.where(xe > 0, 1.4 * soft * np.exp(-xe / 22.0) * np.clip(xe / 3.0, 0, 1), 0.0)
         out += inten[:, None].astype(np.float32) * np.array([1.0, 0.97, 0.9], np.float32)
     return out
 

@@ -1,6 +1,8 @@
 """`simulate(world, shift_m, cameras, frames)`: render a world's exact ground truth into a `Clip`."""
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +35,13 @@ class Clip:
         return self.rig[v].at(self.ego_to_world[t], self.shift_m)
 
 
+def render_threads() -> int:
+    env = os.environ.get("WORLDSPLAT_RENDER_THREADS")
+    if env:
+        return max(1, int(env))
+    return min(2, os.cpu_count() or 1)
+
+
 def simulate(world: World, shift_m: float = 0.0, cameras: list[str] | None = None,
              frames: list[int] | None = None) -> Clip:
     """Render RGB, depth, dynamic mask and semantics for every camera and frame (the track shifted left by
@@ -48,10 +57,19 @@ def simulate(world: World, shift_m: float = 0.0, cameras: list[str] | None = Non
     names = [c.name for c in world.rig]
     view_ids = [names.index(c.name) for c in rig]
     poses = shifted_ego(world.ego_to_world, shift_m)
-    outs = []
-    for t in frames:
+
+    def one(t: int) -> dict:
         cams = [rc.at(world.ego_to_world[t], shift_m) for rc in rig]
-        outs.append(render_frame(world, t, cams, view_ids, poses[t]))
+        return render_frame(world, t, cams, view_ids, poses[t])
+
+    # Frames are independent and numpy releases the GIL: render them on a couple of threads (results are
+    # identical to a serial run; `WORLDSPLAT_RENDER_THREADS=1` forces serial).
+    threads = min(render_threads(), len(frames))
+    if threads > 1:
+        with ThreadPoolExecutor(threads) as pool:
+            outs = list(pool.map(one, frames))
+    else:
+        outs = [one(t) for t in frames]
     return Clip(rig=list(rig), ego_to_world=world.ego_to_world[frames].copy(),
                 frame_times=world.frame_times[frames].copy(), fps=world.fps,
                 rgb=np.stack([o["rgb"] for o in outs]), depth=np.stack([o["depth"] for o in outs]),

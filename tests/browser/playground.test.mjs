@@ -123,6 +123,7 @@ test("a share link opened in a fresh page gives the same scene id and an equal r
   });
   assert.deepEqual(there, { sceneId, shift: -1, camera: "CAM_FRONT_LEFT", frame: 3, err: null });
   const snap = await snapshot(fresh);
+  assert.deepEqual([snap.width, snap.height], [here.width, here.height], "same canvas size");
   assert.ok(blockDiff(here, snap) < 0.5, `equal render (${blockDiff(here, snap)})`);
   await fresh.screenshot({ path: join(ARTIFACTS, "playground-shared.png") });
   await fresh.close();

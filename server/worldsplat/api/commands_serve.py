@@ -15,7 +15,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"scene/video store and job records (default $WORLDSPLAT_CACHE or {DEFAULT_CACHE})")
     parser.add_argument("--cache-max-mb", type=int, default=2048, help="cache size cap in MiB (LRU eviction)")
     parser.add_argument("--max-queued", type=int, default=16, help="queued jobs before 429 (default 16)")
-    parser.add_argument("--web-dir", type=Path, default=None, help="serve the page from here (default: repo web/)")
+    parser.add_argument("--web-dir", type=Path, default=os.environ.get("WORLDSPLAT_WEB_DIR") or None,
+                        help="serve the page from here (default $WORLDSPLAT_WEB_DIR or the repository's web/)")
     parser.add_argument("--no-warm", action="store_true", help="do not generate the default scene at start-up")
 
 

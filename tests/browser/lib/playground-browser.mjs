@@ -21,7 +21,7 @@ export async function launch() {
   const profile = mkdtempSync(join(tmpdir(), "ws-chromium-"));
   const context = await chromium.launchPersistentContext(profile, {
     executablePath: "/usr/bin/chromium", headless: true, args: BASE_ARGS,
-    ignoreDefaultArgs: ["--enable-unsafe-swiftshader"], viewport: { width: 1280, height: 800 },
+    ignoreDefaultArgs: ["--enable-unsafe-swiftshader"], viewport: { width: 1400, height: 940 },
   });
   return {
     context,

@@ -129,6 +129,37 @@ test("a share link opened in a fresh page gives the same scene id and an equal r
   await fresh.close();
 });
 
+test("a local .wsplat dropped on the viewer renders, and the stats overlay counts it", { skip, ...T }, async () => {
+  await page.keyboard.press("Escape");
+  const before = await snapshot(page);
+  const name = await page.evaluate(async () => {
+    const id = window.playground.state.sceneId;
+    const bytes = new Uint8Array(await (await fetch(`/api/scenes/${id}/wsplat`)).arrayBuffer());
+    const file = new File([bytes], "dropped.wsplat");
+    const dt = new DataTransfer();
+    dt.items.add(file);
+    const vp = document.getElementById("viewport");
+    vp.dispatchEvent(new DragEvent("dragover", { dataTransfer: dt, bubbles: true, cancelable: true }));
+    vp.dispatchEvent(new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+    return file.name;
+  });
+  await waitFor(() => window.playground.state.source === "dropped.wsplat" || window.playground.state.lastError,
+    "the dropped file to load");
+  assert.equal(await page.evaluate(() => window.playground.state.lastError), null);
+  assert.equal(name, "dropped.wsplat");
+  assert.match(await page.textContent("#scene-badge"), /dropped\.wsplat/);
+  const after = await snapshot(page);
+  assert.ok(after.litFraction > 0.3, "the dropped scene renders");
+  assert.ok(blockDiff(before, after) < 0.5, "the same scene from a file renders the same view");
+  await new Promise((r) => setTimeout(r, 700));  // the overlay refreshes every 0.5 s
+  const stats = await page.textContent("#stats");
+  const n = Number((stats.match(/([\d,]+) Gaussians/) || [])[1]?.replaceAll(",", ""));
+  assert.ok(n > 0, `stats overlay: ${stats}`);
+  // something that is not a scene is refused with a message
+  await page.evaluate(() => window.playground.openLocalFile(new File(["x"], "notes.txt")));
+  assert.match(await page.textContent("#error-text"), /not a \.wsplat or \.ply/);
+});
+
 test("a bad scenario shows its error naming the field", { skip, ...T }, async () => {
   await page.keyboard.press("Escape");
   await page.locator('[data-field="clip.frames"]').fill("99");

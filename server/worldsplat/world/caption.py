@@ -85,7 +85,7 @@ def compose_caption(world) -> str:
         dist = math.hypot(x, y)
         if dist > 60:
             continue
-        score = dist - (40 if a.cls in (BUS, TRUCK) else 0) - (10 if x > 0 and a.moving else 0)
+        score = dist - (40 if a.cls in (BUS, TRUCK) else 0) - (10 if x > 0 and a.moving else 0) + (0 if a.moving else 30)
         scored.append((score, a.track_id, a))
     scored.sort(key=lambda t: (t[0], t[1]))
     notes = []

@@ -12,6 +12,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shift-m", type=float, default=0.0, help="lateral shift of the ego track, metres, left positive")
     p.add_argument("--cameras", default=None, help="comma-separated camera names (default: the scenario's rig)")
     p.add_argument("--no-conditions", action="store_true", help="skip BEV, sketches and boxes")
+    p.add_argument("--width", type=int, help="override the scenario's image width")
+    p.add_argument("--height", type=int, help="override the scenario's image height")
+    p.add_argument("--frames", type=int, help="override the scenario's number of frames")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -20,6 +23,9 @@ def run(args: argparse.Namespace) -> int:
     from worldsplat.world.io import write_sim
 
     scenario = resolve_scenario(args.scenario)
+    image = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
+    if image or args.frames is not None:
+        scenario = scenario.with_updates(image=image, clip={"frames": args.frames} if args.frames else {})
     cameras = args.cameras.split(",") if args.cameras else None
     t0 = time.perf_counter()
     world = build_world(scenario)

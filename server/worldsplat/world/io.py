@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -32,8 +31,7 @@ MOSAIC_ORDER = (("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT"), ("CAM_BACK_L
 def save_png(path: Path, array: np.ndarray) -> None:
     """Write a PNG atomically (temporary file + rename) with deterministic bytes."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    os.close(fd)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     Image.fromarray(array).save(tmp, format="PNG", optimize=False, compress_level=6)
     os.replace(tmp, path)
 

@@ -348,7 +348,7 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
             glass = win | shop
             roof = axis[bi] == 2
             cb = col[bi]
-            cb = cb * (0.92 + 0.08 * hash01(np.floor(z[bi] * 4), np.floor(along[bi] * 4), 5))[:, None]
+            cb = cb * (0.95 + 0.05 * hash01(np.floor(z[bi] * 2), np.floor(along[bi] * 2), 5))[:, None]
             cb[roof] = np.where(house[roof, None], np.array([0.42, 0.2, 0.15], np.float32),
                                 np.array([0.36, 0.36, 0.37], np.float32))
             reflect = (0.1 + 0.25 * hash01(fl, cl, (key[bi] * 1000).astype(np.int64)))
@@ -357,9 +357,9 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
             col[bi] = cb
             if L.lights_on:
                 lit = glass & (hash01(fl, cl, (key[bi] * 7919).astype(np.int64) + 11) < (0.45 if L.night else 0.25))
-                lit |= shop & L.night
+                lit |= shop & L.night & (hash01(np.floor(along[bi] / 5.0), fl, 23) < 0.5)
                 e = em[bi]
-                e[lit] = np.array([1.0, 0.82, 0.5], np.float32) * (0.75 if L.night else 0.45)
+                e[lit] = np.array([1.0, 0.82, 0.5], np.float32) * (0.6 if L.night else 0.35)
                 em[bi] = e
         veh = mat == M_CAR_BODY
         if veh.any():
@@ -388,9 +388,12 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         cab = mat == M_CABIN
         if cab.any():
             ci = np.nonzero(cab)[0]
-            glass = side_face[ci]
+            # Windows on every vertical face, framed by a thin band of body colour (pillars, sills).
+            a_ci = np.abs(along[ci])
+            glass = side_face[ci] & (a_ci < face_half[ci] - 0.12) & (lz[ci] > -0.75 * half[ci, 2]) & \
+                (lz[ci] < 0.8 * half[ci, 2])
             cc = col[ci]
-            cc[glass] = np.array([0.06, 0.08, 0.11], np.float32) + 0.2 * L.sky_horizon.astype(np.float32)
+            cc[glass] = np.array([0.12, 0.15, 0.19], np.float32) + 0.3 * L.sky_horizon.astype(np.float32)
             col[ci] = cc
         bus = mat == M_BUS
         if bus.any():

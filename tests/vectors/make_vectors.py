@@ -220,13 +220,149 @@ def write_raster(out_dir: Path = HERE / "raster") -> list[str]:
     return names
 
 
+# ---------------------------------------------------------------------------------------------- wsplat vectors
+def _scene(rng, n_static, n_dyn, frames, iso, extra_meta=None):
+    import torch
+    from worldsplat.camera import default_rig, yaw_pose
+    from worldsplat.gaussians import Gaussians, Scene4D
+
+    def gs(n, centre):
+        s = np.exp(rng.uniform(np.log(0.01), np.log(0.5), (n, 1 if iso else 3)))
+        return Gaussians.from_numpy(rng.uniform(-5, 5, (n, 3)) + centre, rng.normal(size=(n, 4)),
+                                    np.broadcast_to(s, (n, 3)), rng.uniform(0.05, 1, n), rng.uniform(0, 1, (n, 3)))
+    meta = {"scenario_id": "vec", "mode": "oracle", "model_version": "test", "caption": "test vector", "fps": 10.0}
+    meta.update(extra_meta or {})
+    return Scene4D(gs(n_static, np.array([10.0, 0, 1])), [gs(n, np.array([12.0 + t, 2, 1])) if n else Gaussians.empty()
+                                                         for t, n in enumerate(n_dyn)],
+                   np.arange(frames) / 10.0, default_rig(64, 36), np.stack([yaw_pose(t, 0, 0, 0) for t in range(frames)]),
+                   meta)
+
+
+def split_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
+    import struct
+    out, pos = [], 12
+    while pos < len(data):
+        tag, (length,) = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)
+        out.append((tag, data[pos + 8:pos + 8 + length]))
+        pos += 12 + length
+    return out
+
+
+def join_chunks(chunks, head: bytes = b"WSPLAT\r\n\x01\x00\x00\x00") -> bytes:
+    import struct
+    import zlib
+    out = bytearray(head)
+    for tag, payload in chunks:
+        h = tag + struct.pack("<I", len(payload))
+        out += h + payload + struct.pack("<I", zlib.crc32(h + payload))
+    return bytes(out)
+
+
+def chunk_offset(chunks, index: int) -> int:
+    return 12 + sum(12 + len(p) for _, p in chunks[:index])
+
+
+def write_wsplat(out_dir: Path) -> list[str]:
+    import struct
+    from worldsplat.gaussians import wsplat
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(7)
+    names = []
+
+    def valid(name, scene, **kw):
+        data = wsplat.encode(scene, **kw)
+        back = wsplat.decode(data)
+        g = back.static.numpy()
+        first = ({"mean": g["means"][0].tolist(), "quat": g["quats"][0].tolist(), "scale": g["scales"][0].tolist(),
+                  "opacity": float(g["opacities"][0]), "color": g["colors"][0].tolist()} if len(back.static) else None)
+        exp = {"ok": True, "num_static": len(back.static), "num_dynamic": [len(d) for d in back.dynamic],
+               "frames": back.num_frames, "first_static": first,
+               "static_mean_sum": g["means"].astype(np.float64).sum(0).tolist(),
+               "tolerance": {"mean": 1e-4, "quat": 1e-5, "scale": 1e-5, "opacity": 1e-6, "color": 1e-6,
+                             "static_mean_sum": 1e-2}}
+        (out_dir / f"{name}.wsplat").write_bytes(data)
+        (out_dir / f"{name}.json").write_text(json.dumps(exp, indent=1) + "\n")
+        names.append(name)
+        return data
+
+    def bad(name, data, kind, offset, field):
+        (out_dir / f"{name}.wsplat").write_bytes(data)
+        (out_dir / f"{name}.json").write_text(json.dumps({"ok": False, "error_kind": kind, "offset": offset,
+                                                          "field": field}, indent=1) + "\n")
+        names.append(name)
+
+    base = valid("valid_iso", _scene(rng, 300, [20, 0, 35], 3, iso=True), block_size=128)
+    valid("valid_aniso", _scene(rng, 700, [40, 41], 2, iso=False))
+    valid("valid_static_only", _scene(rng, 50, [0], 1, iso=True))
+    valid("valid_empty", _scene(rng, 0, [0, 0], 2, iso=True))
+    valid("valid_multi_chunk", _scene(rng, 5000, [3], 1, iso=True, extra_meta={"future_field": {"x": 1}}))
+    valid("valid_custom_layout", _scene(rng, 100, [5], 1, iso=False), block_size=7,
+          static_layout=[["r", 8], ["px", 14], ["py", 14], ["pz", 14], ["qi", 2], ["qa", 9], ["qb", 9],
+                         ["qc", 9], ["sx", 7], ["sy", 7], ["sz", 7], ["o", 8], ["g", 7], ["b", 9]])
+
+    ch = split_chunks(base)
+    head = json.loads(ch[0][1])
+    stat_at, end_at = chunk_offset(ch, 1), chunk_offset(ch, len(ch) - 1)
+    assert [t for t, _ in ch] == [b"HEAD", b"STAT", b"DYNA", b"DYNA", b"END!"], [t for t, _ in ch]
+
+    def with_head(**changes):
+        h = dict(head)
+        h.update(changes)
+        return join_chunks([(b"HEAD", json.dumps(h).encode())] + ch[1:])
+
+    bad("bad_magic", b"WSPLAT\n\n" + base[8:], "bad_magic", 0, "magic")
+    bad("bad_version", base[:8] + struct.pack("<I", 2) + base[12:], "bad_version", 8, "version")
+    bad("truncated_file_header", base[:10], "truncated", 0, "file")
+    bad("truncated_in_stat", base[:stat_at + 100], "truncated", stat_at, "file")
+    bad("truncated_before_end", base[:end_at], "truncated", end_at, "file")
+    big = bytearray(base)
+    struct.pack_into("<I", big, stat_at + 4, (64 << 20) + 1)
+    bad("chunk_too_large", bytes(big), "chunk_too_large", stat_at + 4, "chunk.length")
+    flip = bytearray(base)
+    flip[stat_at + 8 + 40] ^= 0x10
+    bad("bad_crc", bytes(flip), "bad_crc", stat_at + 8 + len(ch[1][1]), "chunk.crc")
+    bad("bad_tag", join_chunks(ch[:1] + [(b"STAX", ch[1][1])] + ch[2:]), "bad_tag", stat_at, "chunk.tag")
+    bad("bad_order_stat_after_dyna", join_chunks(ch[:1] + ch[2:3] + ch[1:2] + ch[3:]), "bad_order",
+        chunk_offset(ch[:1] + ch[2:3], 2), "chunk.tag")
+    bad("bad_order_no_head", join_chunks(ch[1:]), "bad_order", 12, "chunk.tag")
+    bad("bad_order_two_heads", join_chunks(ch[:1] + ch[:1] + ch[1:]), "bad_order", chunk_offset(ch, 1), "chunk.tag")
+    bad("bad_header_fps", with_head(fps=-1), "bad_header", 20, "HEAD.fps")
+    bad("bad_header_json", join_chunks([(b"HEAD", b"{not json")] + ch[1:]), "bad_header", 20, "HEAD")
+    bad("bad_header_frame_times", with_head(frame_times=[0.0, 0.2, 0.1]), "bad_header", 20, "HEAD.frame_times")
+    bad("bad_header_rig", with_head(rig=[{"name": "C", "width": 0}]), "bad_header", 20, "HEAD.rig[0].width")
+    bad("bad_header_missing_block_size", with_head(block_size=None), "bad_header", 20, "HEAD.block_size")
+    bad("bad_layout_missing_o", with_head(static_layout=[f for f in head["static_layout"] if f[0] != "o"]),
+        "bad_layout", 20, "HEAD.static_layout")
+    bad("bad_layout_too_wide", with_head(dynamic_layout=[["px", 24], ["py", 24], ["pz", 24], ["s", 24], ["o", 9],
+                                                         ["r", 8], ["g", 8], ["b", 8]]),
+        "bad_layout", 20, "HEAD.dynamic_layout")
+    # count claims more records than the bytes present (a decoder must not allocate for it)
+    p = bytearray(ch[1][1])
+    struct.pack_into("<I", p, 0, 0x7FFFFFFF)
+    bad("bad_payload_count", join_chunks(ch[:1] + [(b"STAT", bytes(p))] + ch[2:]), "bad_payload",
+        stat_at + 8, "STAT.count")
+    p = bytearray(ch[1][1])
+    struct.pack_into("<f", p, 4, float("nan"))
+    bad("bad_payload_box", join_chunks(ch[:1] + [(b"STAT", bytes(p))] + ch[2:]), "bad_payload",
+        stat_at + 8 + 4, "STAT.block")
+    p = bytearray(ch[2][1])
+    struct.pack_into("<I", p, 0, 9)
+    bad("bad_payload_frame", join_chunks(ch[:2] + [(b"DYNA", bytes(p))] + ch[3:]), "bad_payload",
+        chunk_offset(ch, 2) + 8, "DYNA.frame")
+    d = with_head(num_static=head["num_static"] + 1)
+    bad("count_mismatch_static", d, "count_mismatch", chunk_offset(split_chunks(d), 4), "HEAD.num_static")
+    d = with_head(num_dynamic=[20, 0, 30])  # the frame-2 DYNA chunk (index 3) holds 35
+    bad("count_mismatch_dynamic_excess", d, "count_mismatch", chunk_offset(split_chunks(d), 3) + 8 + 4, "DYNA.count")
+    bad("trailing_data", base + b"\x00", "trailing_data", len(base), "file")
+    bad("bad_end_payload", join_chunks(ch[:-1] + [(b"END!", b"x")]), "bad_payload", end_at + 8, "END!.length")
+    return names
+
+
 def main(argv: list[str]) -> int:
     which = argv[1:] or ["raster", "wsplat"]
     if "raster" in which:
         print("raster:", ", ".join(write_raster()))
     if "wsplat" in which:
-        sys.path.insert(0, str(HERE))
-        from make_wsplat_vectors import write_wsplat  # noqa: E402 (kept beside this script)
         print("wsplat:", ", ".join(write_wsplat(HERE / "wsplat")))
     return 0
 

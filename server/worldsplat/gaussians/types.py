@@ -46,7 +46,7 @@ class Gaussians:
 
     @staticmethod
     def from_numpy(means, quats, scales, opacities, colors, extras=None, dtype=torch.float32) -> "Gaussians":
-        t = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype)  # noqa: E731
+        t = lambda a: torch.as_tensor(np.array(a), dtype=dtype)  # noqa: E731 (copy: inputs may be read-only)
         return Gaussians(t(means).reshape(-1, 3), t(quats).reshape(-1, 4), t(scales).reshape(-1, 3),
                          t(opacities).reshape(-1), t(colors).reshape(-1, 3),
                          None if extras is None else t(extras).reshape(len(np.asarray(means).reshape(-1, 3)), np.asarray(extras).shape[-1]))

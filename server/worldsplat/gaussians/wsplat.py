@@ -1,0 +1,611 @@
+""".wsplat v1 encoder and decoders (web/docs/wsplat-v1.md).
+
+`encode(scene) -> bytes` / `write(scene, path)` (atomic) choose the record layouts ("model only what a scene needs":
+isotropic Gaussians do not pay for a rotation, constant opacity costs one bit). `decode(data) -> Scene4D` /
+`read(path)` validate everything and raise `WsplatError(kind, offset, field)`. `ProgressiveDecoder` takes bytes as
+they arrive and yields chunks; it never trusts a count before the bytes behind it are present.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import tempfile
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from worldsplat.camera import RigCamera
+from worldsplat.gaussians import constants as C
+from worldsplat.gaussians.types import Gaussians, Scene4D
+
+MAGIC = b"WSPLAT\r\n"
+VERSION = 1
+MAX_CHUNK = 64 << 20
+MAX_HEAD = 1 << 20
+MAX_FRAMES = 1024
+BLOCK_HEADER = 32
+TAGS = (b"HEAD", b"STAT", b"DYNA", b"END!")
+FIELDS = ("px", "py", "pz", "qi", "qa", "qb", "qc", "sx", "sy", "sz", "s", "o", "r", "g", "b")
+ERROR_KINDS = ("bad_magic", "bad_version", "truncated", "chunk_too_large", "bad_crc", "bad_tag", "bad_order",
+               "bad_header", "bad_layout", "bad_payload", "count_mismatch", "trailing_data")
+
+# Default layouts (measured in web/docs/gaussians.md): bytes per Gaussian incl. the 32-byte block headers at
+# DEFAULT_BLOCK_SIZE = 256 records: static iso 10.125, static aniso 11.125, dynamic iso 7.125, dynamic aniso 8.125.
+STATIC_ISO = [["px", 14], ["py", 14], ["pz", 14], ["s", 8], ["o", 6], ["r", 8], ["g", 8], ["b", 8]]
+STATIC_ANISO = [["px", 10], ["py", 10], ["pz", 10], ["qi", 2], ["qa", 7], ["qb", 7], ["qc", 7],
+                ["sx", 5], ["sy", 5], ["sz", 5], ["o", 5], ["r", 5], ["g", 5], ["b", 5]]
+DYNAMIC_ISO = [["px", 10], ["py", 10], ["pz", 10], ["s", 6], ["o", 4], ["r", 5], ["g", 6], ["b", 5]]
+DYNAMIC_ANISO = [["px", 10], ["py", 10], ["pz", 10], ["qi", 2], ["qa", 6], ["qb", 6], ["qc", 6],
+                 ["sx", 4], ["sy", 4], ["sz", 4], ["o", 2], ["r", 2], ["g", 2], ["b", 2]]  # 8 bytes
+DEFAULT_BLOCK_SIZE = 256
+FIRST_CHUNK = 4096       # the first static chunk is small so a browser draws early; chunks then double
+MAX_CHUNK_RECORDS = 262144
+ISOTROPY_TOL = 1e-3
+
+
+class WsplatError(ValueError):
+    """A malformed .wsplat: `kind` (one of ERROR_KINDS), byte `offset`, the `field` at fault."""
+
+    def __init__(self, kind: str, offset: int, field: str, message: str):
+        assert kind in ERROR_KINDS
+        self.kind, self.offset, self.field = kind, offset, field
+        super().__init__(f"offset {offset}: {field}: {message} ({kind})")
+
+
+# ---------------------------------------------------------------------------------------------- layouts
+@dataclass(frozen=True)
+class Layout:
+    fields: tuple[tuple[str, int], ...]
+
+    @property
+    def bits(self) -> int:
+        return sum(b for _, b in self.fields)
+
+    @property
+    def record_size(self) -> int:
+        return (self.bits + 7) // 8
+
+    @property
+    def isotropic(self) -> bool:
+        return any(f == "s" for f, _ in self.fields)
+
+    def to_json(self) -> list:
+        return [[f, b] for f, b in self.fields]
+
+
+def parse_layout(obj, offset: int, name: str) -> Layout:
+    def bad(msg):
+        raise WsplatError("bad_layout", offset, f"HEAD.{name}", msg)
+    if not isinstance(obj, list) or not obj:
+        bad("expected a non-empty list of [field, bits]")
+    fields = []
+    for item in obj:
+        if (not isinstance(item, list) or len(item) != 2 or not isinstance(item[0], str)
+                or not isinstance(item[1], int) or isinstance(item[1], bool)):
+            bad(f"entry {item!r} is not [field, bits]")
+        f, b = item
+        if f not in FIELDS:
+            bad(f"unknown field {f!r}")
+        if not 1 <= b <= 24:
+            bad(f"field {f!r}: bits {b} not in 1..24")
+        if f == "qi" and b != 2:
+            bad("field 'qi' must have 2 bits")
+        fields.append((f, b))
+    names = [f for f, _ in fields]
+    if len(set(names)) != len(names):
+        bad("a field appears twice")
+    have = set(names)
+    for need in ("px", "py", "pz", "o", "r", "g", "b"):
+        if need not in have:
+            bad(f"missing field {need!r}")
+    aniso = {"sx", "sy", "sz", "qi", "qa", "qb", "qc"}
+    if "s" in have:
+        if have & aniso:
+            bad("isotropic 's' excludes sx/sy/sz and qi/qa/qb/qc")
+    elif not aniso <= have:
+        bad("needs 's' or all of sx sy sz qi qa qb qc")
+    lay = Layout(tuple(fields))
+    if lay.record_size > 16:
+        bad(f"record size {lay.record_size} bytes > 16")
+    return lay
+
+
+def pack_records(values: dict[str, np.ndarray], layout: Layout) -> bytes:
+    """Integers per field (n,) -> little-endian bit-packed records."""
+    n = len(next(iter(values.values())))
+    words = np.zeros((n, 2), dtype=np.uint64)
+    off = 0
+    for f, b in layout.fields:
+        x = values[f].astype(np.uint64)
+        for w in (0, 1):
+            lo = off - 64 * w  # bit position of this field inside word w
+            if lo >= 64 or lo + b <= 0:
+                continue
+            words[:, w] |= (x << np.uint64(lo)) if lo >= 0 else (x >> np.uint64(-lo))
+        off += b
+    return words.view(np.uint8).reshape(n, 16)[:, :layout.record_size].tobytes()
+
+
+def unpack_records(raw: bytes | memoryview, n: int, layout: Layout) -> dict[str, np.ndarray]:
+    buf = np.zeros((n, 16), dtype=np.uint8)
+    buf[:, :layout.record_size] = np.frombuffer(raw, dtype=np.uint8).reshape(n, layout.record_size)
+    words = buf.view(np.uint64).reshape(n, 2)
+    out, off = {}, 0
+    for f, b in layout.fields:
+        x = np.zeros(n, dtype=np.uint64)
+        for w in (0, 1):
+            lo = off - 64 * w
+            if lo >= 64 or lo + b <= 0:
+                continue
+            x |= (words[:, w] >> np.uint64(lo)) if lo >= 0 else (words[:, w] << np.uint64(-lo))
+        out[f] = x & np.uint64((1 << b) - 1)
+        off += b
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- encoder
+def _quantize(v: np.ndarray, lo: float, hi: float, bits: int) -> np.ndarray:
+    n = (1 << bits) - 1
+    span = hi - lo
+    if not span > 0:
+        return np.zeros(len(v), dtype=np.uint64)
+    return np.clip(np.round((v - lo) / span * n), 0, n).astype(np.uint64)
+
+
+def _smallest_three(q: np.ndarray, bits: dict) -> dict[str, np.ndarray]:
+    """Unit quaternions (wxyz) -> qi (index of the largest |component|, made positive) + the other three."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    qi = np.argmax(np.abs(q), axis=1)
+    q = q * np.where(q[np.arange(len(q)), qi] < 0, -1.0, 1.0)[:, None]
+    rest = np.array([[j for j in range(4) if j != i] for i in range(4)])[qi]
+    others = np.take_along_axis(q, rest, axis=1)
+    out = {"qi": qi.astype(np.uint64)}
+    for k, f in enumerate(("qa", "qb", "qc")):
+        n = (1 << bits[f]) - 1
+        out[f] = np.clip(np.round((others[:, k] * math.sqrt(2) + 1) / 2 * n), 0, n).astype(np.uint64)
+    return out
+
+
+def _sanitized_numpy(g: Gaussians) -> dict[str, np.ndarray]:
+    """Drop rows with non-finite fields or opacity < ALPHA_MIN (the renderer drops them too); clamp the rest."""
+    a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
+    keep = np.ones(len(g), dtype=bool)
+    for v in a.values():
+        keep &= np.isfinite(v if v.ndim == 2 else v[:, None]).all(1)
+    keep &= np.clip(np.nan_to_num(a["opacities"]), 0, 1) >= C.ALPHA_MIN
+    a = {k: v[keep] for k, v in a.items()}
+    a["scales"] = np.clip(a["scales"], C.SCALE_MIN, C.SCALE_MAX)
+    a["opacities"] = np.clip(a["opacities"], 0, 1)
+    a["colors"] = np.clip(a["colors"], 0, 1)
+    qn = np.linalg.norm(a["quats"], axis=1, keepdims=True)
+    a["quats"] = np.where(qn >= C.QUAT_EPS, a["quats"] / np.maximum(qn, C.QUAT_EPS), [1.0, 0, 0, 0])
+    return a
+
+
+def is_isotropic(g: Gaussians) -> bool:
+    if len(g) == 0:
+        return True
+    s = g.scales.detach().double().clamp(C.SCALE_MIN, C.SCALE_MAX)
+    return bool((s.max(1).values / s.min(1).values <= 1 + ISOTROPY_TOL).all())
+
+
+def _morton_order(p: np.ndarray) -> np.ndarray:
+    """Order points along a 3D Morton curve so consecutive blocks are spatially compact (small boxes)."""
+    if len(p) == 0:
+        return np.zeros(0, dtype=np.int64)
+    lo, hi = p.min(0), p.max(0)
+    q = ((p - lo) / np.maximum(hi - lo, 1e-9) * 1023).astype(np.uint64)
+    code = np.zeros(len(p), dtype=np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable")
+
+
+def encode_blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int) -> bytes:
+    out = bytearray()
+    bits = dict(layout.fields)
+    for s in range(0, len(a["means"]), block_size):
+        blk = {k: v[s:s + block_size] for k, v in a.items()}
+        p = blk["means"].astype(np.float32)
+        plo, phi = p.min(0), p.max(0)
+        ls = np.log(blk["scales"][:, :1] if layout.isotropic else blk["scales"]).astype(np.float32)
+        llo, lhi = np.float32(ls.min()), np.float32(ls.max())
+        out += struct.pack("<8f", *plo, *phi, llo, lhi)
+        vals = {}
+        for i, f in enumerate(("px", "py", "pz")):
+            vals[f] = _quantize(p[:, i].astype(np.float64), float(plo[i]), float(phi[i]), bits[f])
+        if layout.isotropic:
+            vals["s"] = _quantize(ls[:, 0].astype(np.float64), float(llo), float(lhi), bits["s"])
+        else:
+            for i, f in enumerate(("sx", "sy", "sz")):
+                vals[f] = _quantize(ls[:, i].astype(np.float64), float(llo), float(lhi), bits[f])
+            vals.update(_smallest_three(blk["quats"], bits))
+        vals["o"] = _quantize(blk["opacities"], 0.0, 1.0, bits["o"])
+        for i, f in enumerate("rgb"):
+            vals[f] = _quantize(blk["colors"][:, i], 0.0, 1.0, bits[f])
+        out += pack_records(vals, layout)
+    return bytes(out)
+
+
+def _chunk(tag: bytes, payload: bytes) -> bytes:
+    if len(payload) > MAX_CHUNK:
+        raise ValueError(f"wsplat: {tag.decode()} payload {len(payload)} bytes exceeds MAX_CHUNK")
+    head = tag + struct.pack("<I", len(payload))
+    return head + payload + struct.pack("<I", zlib.crc32(head + payload))
+
+
+def choose_layouts(scene: Scene4D) -> tuple[Layout, Layout]:
+    dyn = Gaussians.cat(scene.dynamic) if any(len(d) for d in scene.dynamic) else Gaussians.empty()
+    static = Layout(tuple(map(tuple, STATIC_ISO if is_isotropic(scene.static) else STATIC_ANISO)))
+    dynamic = Layout(tuple(map(tuple, DYNAMIC_ISO if is_isotropic(dyn) else DYNAMIC_ANISO)))
+    return static, dynamic
+
+
+def encode(scene: Scene4D, *, block_size: int = DEFAULT_BLOCK_SIZE, static_layout: list | None = None,
+           dynamic_layout: list | None = None) -> bytes:
+    """Scene4D -> .wsplat bytes. Static Gaussians keep their (importance) order at chunk granularity: chunk k holds
+    the next FIRST_CHUNK * 2^k of them, Morton-ordered inside so block boxes stay small."""
+    sl, dl = choose_layouts(scene)
+    if static_layout is not None:
+        sl = parse_layout(static_layout, 0, "static_layout")
+    if dynamic_layout is not None:
+        dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
+    if not 1 <= block_size <= 65536:
+        raise ValueError("wsplat: block_size must be in 1..65536")
+    st = _sanitized_numpy(scene.static)
+    dyn = [_sanitized_numpy(d) for d in scene.dynamic]
+    if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
+        raise ValueError(f"wsplat: 1..{MAX_FRAMES} frames required, got {len(scene.frame_times)}")
+    allm = np.concatenate([st["means"]] + [d["means"] for d in dyn]) if len(st["means"]) + sum(
+        len(d["means"]) for d in dyn) else np.zeros((1, 3))
+    meta = scene.meta
+    head = {
+        "format": "wsplat", "version": VERSION, "scenario_id": str(meta.get("scenario_id", "")),
+        "mode": str(meta.get("mode", "")), "model_version": str(meta.get("model_version", "")),
+        "caption": str(meta.get("caption", "")), "num_static": int(len(st["means"])),
+        "num_dynamic": [int(len(d["means"])) for d in dyn], "frame_times": [float(t) for t in scene.frame_times],
+        "fps": float(scene.fps), "bounds": {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()},
+        "rig": [c.to_json() for c in scene.rig], "ego_to_world": scene.ego_to_world.tolist(),
+        "block_size": block_size, "static_layout": sl.to_json(), "dynamic_layout": dl.to_json(), "sh_degree": 0,
+    }
+    for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields
+        if k not in head and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
+            head[k] = v
+    out = bytearray(MAGIC + struct.pack("<I", VERSION))
+    out += _chunk(b"HEAD", json.dumps(head, separators=(",", ":")).encode())
+    n, s, size = len(st["means"]), 0, FIRST_CHUNK
+    while s < n:
+        part = {k: v[s:s + size] for k, v in st.items()}
+        order = _morton_order(part["means"])
+        part = {k: v[order] for k, v in part.items()}
+        out += _chunk(b"STAT", struct.pack("<I", len(order)) + encode_blocks(part, sl, block_size))
+        s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
+    for t, d in enumerate(dyn):
+        for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
+            part = {k: v[s:s + MAX_CHUNK_RECORDS] for k, v in d.items()}
+            order = _morton_order(part["means"])
+            part = {k: v[order] for k, v in part.items()}
+            out += _chunk(b"DYNA", struct.pack("<II", t, len(order)) + encode_blocks(part, dl, block_size))
+    out += _chunk(b"END!", b"")
+    return bytes(out)
+
+
+def write(scene: Scene4D, path: str | Path, **kwargs) -> int:
+    """Encode and write atomically (temporary file + rename). Returns the byte count."""
+    data = encode(scene, **kwargs)
+    atomic_write_bytes(Path(path), data)
+    return len(data)
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+# ---------------------------------------------------------------------------------------------- decoder
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _matrix(v, rows: int, cols: int) -> bool:
+    return (isinstance(v, list) and len(v) == rows
+            and all(isinstance(r, list) and len(r) == cols and all(_is_num(x) for x in r) for r in v))
+
+
+def parse_head(payload: bytes, offset: int) -> dict:
+    def bad(field, msg):
+        raise WsplatError("bad_header", offset, f"HEAD.{field}", msg)
+    if len(payload) > MAX_HEAD:
+        bad("payload", f"{len(payload)} bytes > {MAX_HEAD}")
+    try:
+        h = json.loads(payload.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise WsplatError("bad_header", offset, "HEAD", f"not UTF-8 JSON: {e}") from None
+    if not isinstance(h, dict):
+        bad("", "not a JSON object")
+    if h.get("format") != "wsplat":
+        bad("format", "must be 'wsplat'")
+    if not _is_int(h.get("version")) or h["version"] != VERSION:
+        bad("version", f"must be {VERSION}")
+    for k in ("scenario_id", "mode", "model_version", "caption"):
+        if not isinstance(h.get(k), str):
+            bad(k, "must be a string")
+    ft = h.get("frame_times")
+    if not isinstance(ft, list) or not 1 <= len(ft) <= MAX_FRAMES or not all(_is_num(x) for x in ft):
+        bad("frame_times", f"must be 1..{MAX_FRAMES} finite numbers")
+    if any(b < a for a, b in zip(ft, ft[1:])):
+        bad("frame_times", "must be non-decreasing")
+    T = len(ft)
+    if not _is_int(h.get("num_static")) or h["num_static"] < 0:
+        bad("num_static", "must be an integer >= 0")
+    nd = h.get("num_dynamic")
+    if not isinstance(nd, list) or len(nd) != T or not all(_is_int(x) and x >= 0 for x in nd):
+        bad("num_dynamic", f"must be {T} integers >= 0")
+    if not _is_num(h.get("fps")) or not h["fps"] > 0:
+        bad("fps", "must be a number > 0")
+    b = h.get("bounds")
+    if not isinstance(b, dict) or not all(isinstance(b.get(k), list) and len(b[k]) == 3 and all(
+            _is_num(x) for x in b[k]) for k in ("min", "max")):
+        bad("bounds", "must be {min: [3 numbers], max: [3 numbers]}")
+    rig = h.get("rig")
+    if not isinstance(rig, list):
+        bad("rig", "must be a list of cameras")
+    for i, c in enumerate(rig):
+        if not isinstance(c, dict) or not isinstance(c.get("name"), str):
+            bad(f"rig[{i}].name", "must be a string")
+        for k in ("width", "height"):
+            if not _is_int(c.get(k)) or not 1 <= c[k] <= 8192:
+                bad(f"rig[{i}].{k}", "must be an integer in 1..8192")
+        for k in ("fx", "fy", "cx", "cy"):
+            if not _is_num(c.get(k)) or (k in ("fx", "fy") and not c[k] > 0):
+                bad(f"rig[{i}].{k}", "must be a finite number (fx, fy > 0)")
+        if not _matrix(c.get("camera_to_ego"), 4, 4):
+            bad(f"rig[{i}].camera_to_ego", "must be a 4x4 matrix of finite numbers")
+    e = h.get("ego_to_world")
+    if not isinstance(e, list) or len(e) != T or not all(_matrix(m, 4, 4) for m in e):
+        bad("ego_to_world", f"must be {T} 4x4 matrices of finite numbers")
+    if not _is_int(h.get("block_size")) or not 1 <= h["block_size"] <= 65536:
+        bad("block_size", "must be an integer in 1..65536")
+    if not _is_int(h.get("sh_degree")) or h["sh_degree"] != 0:
+        bad("sh_degree", "must be 0")
+    for k in ("static_layout", "dynamic_layout"):
+        if k not in h:
+            bad(k, "missing")
+        h[k] = parse_layout(h[k], offset, k)
+    return h
+
+
+def decode_blocks(payload: memoryview, pos: int, count: int, layout: Layout, block_size: int, base: int,
+                  name: str) -> dict[str, np.ndarray]:
+    """Decode `count` records from payload[pos:] (length already checked exactly). `base` = absolute offset of
+    payload[0] for error messages."""
+    rs, bits = layout.record_size, dict(layout.fields)
+    means, scales, quats, opac, cols = [], [], [], [], []
+    left = count
+    while left > 0:
+        n = min(block_size, left)
+        box = np.frombuffer(payload[pos:pos + BLOCK_HEADER], dtype="<f4").astype(np.float64)
+        if not np.all(np.isfinite(box)) or np.any(box[0:3] > box[3:6]) or box[6] > box[7]:
+            raise WsplatError("bad_payload", base + pos, f"{name}.block", "box not finite or lo > hi")
+        pos += BLOCK_HEADER
+        v = unpack_records(payload[pos:pos + n * rs], n, layout)
+        pos += n * rs
+        deq = lambda f, lo, hi: lo + (hi - lo) * v[f].astype(np.float64) / ((1 << bits[f]) - 1)  # noqa: E731
+        means.append(np.stack([deq(f, box[i], box[3 + i]) for i, f in enumerate(("px", "py", "pz"))], 1))
+        if layout.isotropic:
+            s = np.exp(deq("s", box[6], box[7]))
+            scales.append(np.stack([s, s, s], 1))
+            quats.append(np.tile([1.0, 0, 0, 0], (n, 1)))
+        else:
+            scales.append(np.exp(np.stack([deq(f, box[6], box[7]) for f in ("sx", "sy", "sz")], 1)))
+            three = np.stack([(v[f].astype(np.float64) / ((1 << bits[f]) - 1) * 2 - 1) / math.sqrt(2)
+                              for f in ("qa", "qb", "qc")], 1)
+            largest = np.sqrt(np.maximum(0.0, 1 - (three ** 2).sum(1)))
+            qi = v["qi"].astype(np.int64)
+            q = np.zeros((n, 4))
+            q[np.arange(n), qi] = largest
+            rest = np.array([[j for j in range(4) if j != i] for i in range(4)])[qi]
+            np.put_along_axis(q, rest, three, axis=1)
+            quats.append(q)
+        opac.append(deq("o", 0.0, 1.0))
+        cols.append(np.stack([deq(f, 0.0, 1.0) for f in "rgb"], 1))
+        left -= n
+    if not means:
+        return {"means": np.zeros((0, 3)), "quats": np.zeros((0, 4)), "scales": np.zeros((0, 3)),
+                "opacities": np.zeros(0), "colors": np.zeros((0, 3))}
+    return {"means": np.concatenate(means), "quats": np.concatenate(quats), "scales": np.concatenate(scales),
+            "opacities": np.concatenate(opac), "colors": np.concatenate(cols)}
+
+
+def _payload_size(count: int, layout: Layout, block_size: int) -> int:
+    return math.ceil(count / block_size) * BLOCK_HEADER + count * layout.record_size
+
+
+class ProgressiveDecoder:
+    """Feed bytes as they arrive; `feed` returns the events completed by them:
+    ("header", dict), ("static", Gaussians), ("dynamic", (frame, Gaussians)), ("end", None).
+    Malformed input raises WsplatError at the first bad byte; an unfinished stream is simply incomplete."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.base = 0             # absolute offset of buf[0]
+        self.header: dict | None = None
+        self.static: list[Gaussians] = []
+        self.dynamic: dict[int, list[Gaussians]] = {}
+        self.num_static = 0
+        self.num_dynamic: list[int] = []
+        self.stage = "magic"      # magic -> head -> stat -> dyna -> done
+        self.bytes_fed = 0
+
+    @property
+    def done(self) -> bool:
+        return self.stage == "done"
+
+    def feed(self, data: bytes) -> list[tuple[str, object]]:
+        if self.stage == "done" and data:
+            raise WsplatError("trailing_data", self.bytes_fed, "file", "bytes after END!")
+        self.buf += data
+        self.bytes_fed += len(data)
+        events = []
+        while True:
+            ev = self._step()
+            if ev is None:
+                break
+            if ev[0] != "":
+                events.append(ev)
+        return events
+
+    def _consume(self, n: int) -> None:
+        del self.buf[:n]
+        self.base += n
+
+    def _step(self):
+        if self.stage == "magic":
+            if len(self.buf) >= 8 and bytes(self.buf[:8]) != MAGIC:
+                raise WsplatError("bad_magic", 0, "magic", "not a .wsplat file")
+            if len(self.buf) < 8 and bytes(self.buf) != MAGIC[:len(self.buf)]:
+                raise WsplatError("bad_magic", 0, "magic", "not a .wsplat file")
+            if len(self.buf) < 12:
+                return None
+            (ver,) = struct.unpack_from("<I", self.buf, 8)
+            if ver != VERSION:
+                raise WsplatError("bad_version", 8, "version", f"version {ver}, this decoder reads {VERSION}")
+            self._consume(12)
+            self.stage = "head"
+            return ("", None)
+        if self.stage == "done":
+            if self.buf:
+                raise WsplatError("trailing_data", self.base, "file", "bytes after END!")
+            return None
+        if len(self.buf) < 8:
+            return None
+        tag = bytes(self.buf[:4])
+        (length,) = struct.unpack_from("<I", self.buf, 4)
+        at = self.base
+        if tag not in TAGS:
+            raise WsplatError("bad_tag", at, "chunk.tag", f"unknown chunk tag {tag!r}")
+        if length > MAX_CHUNK:
+            raise WsplatError("chunk_too_large", at + 4, "chunk.length", f"{length} bytes > MAX_CHUNK")
+        expect = {"head": (b"HEAD",), "stat": (b"STAT", b"DYNA", b"END!"), "dyna": (b"DYNA", b"END!")}[self.stage]
+        if tag not in expect:
+            raise WsplatError("bad_order", at, "chunk.tag",
+                              f"{tag.decode(errors='replace')} not allowed here (expected {'/'.join(t.decode() for t in expect)})")
+        if tag == b"HEAD" and length > MAX_HEAD:
+            raise WsplatError("bad_header", at + 4, "HEAD.length", f"{length} bytes > {MAX_HEAD}")
+        if len(self.buf) < 12 + length:
+            return None
+        payload = memoryview(bytes(self.buf[8:8 + length]))
+        (crc,) = struct.unpack_from("<I", self.buf, 8 + length)
+        if crc != zlib.crc32(bytes(self.buf[:8 + length])):
+            raise WsplatError("bad_crc", at + 8 + length, "chunk.crc", f"CRC mismatch in {tag.decode()} chunk")
+        pbase = at + 8
+        ev = self._chunk(tag, payload, pbase, at)
+        self._consume(12 + length)
+        return ev
+
+    def _chunk(self, tag: bytes, payload: memoryview, pbase: int, at: int):
+        if tag == b"HEAD":
+            self.header = parse_head(bytes(payload), pbase)
+            self.num_dynamic = [0] * len(self.header["frame_times"])
+            self.stage = "stat"
+            return ("header", self.header)
+        h = self.header
+        if tag == b"END!":
+            if len(payload) != 0:
+                raise WsplatError("bad_payload", pbase, "END!.length", "END! payload must be empty")
+            if self.num_static != h["num_static"]:
+                raise WsplatError("count_mismatch", at, "HEAD.num_static",
+                                  f"STAT chunks hold {self.num_static}, header says {h['num_static']}")
+            for t, (got, want) in enumerate(zip(self.num_dynamic, h["num_dynamic"])):
+                if got != want:
+                    raise WsplatError("count_mismatch", at, f"HEAD.num_dynamic[{t}]",
+                                      f"DYNA chunks hold {got}, header says {want}")
+            self.stage = "done"
+            return ("end", None)
+        if tag == b"STAT":
+            layout, head_len, name = h["static_layout"], 4, "STAT"
+            if len(payload) < 4:
+                raise WsplatError("bad_payload", pbase, "STAT.count", "payload shorter than its count")
+            (count,) = struct.unpack_from("<I", payload, 0)
+        else:
+            self.stage = "dyna"
+            layout, head_len, name = h["dynamic_layout"], 8, "DYNA"
+            if len(payload) < 8:
+                raise WsplatError("bad_payload", pbase, "DYNA.frame", "payload shorter than frame + count")
+            frame, count = struct.unpack_from("<II", payload, 0)
+            if frame >= len(h["frame_times"]):
+                raise WsplatError("bad_payload", pbase, "DYNA.frame", f"frame {frame} >= {len(h['frame_times'])}")
+        coff = pbase + head_len - 4
+        if count < 1:
+            raise WsplatError("bad_payload", coff, f"{name}.count", "count must be >= 1")
+        # Check the length implied by count against the bytes present before decoding anything.
+        need = head_len + _payload_size(count, layout, h["block_size"])
+        if len(payload) != need:
+            raise WsplatError("bad_payload", coff, f"{name}.count",
+                              f"count {count} implies {need} payload bytes, chunk has {len(payload)}")
+        if tag == b"STAT":
+            if self.num_static + count > h["num_static"]:
+                raise WsplatError("count_mismatch", coff, "STAT.count", "more static Gaussians than HEAD.num_static")
+        elif self.num_dynamic[frame] + count > h["num_dynamic"][frame]:
+            raise WsplatError("count_mismatch", coff, "DYNA.count", f"more dynamic Gaussians than "
+                              f"HEAD.num_dynamic[{frame}]")
+        a = decode_blocks(payload, head_len, count, layout, h["block_size"], pbase, name)
+        g = Gaussians.from_numpy(**a)
+        if tag == b"STAT":
+            self.num_static += count
+            self.static.append(g)
+            return ("static", g)
+        self.num_dynamic[frame] += count
+        self.dynamic.setdefault(frame, []).append(g)
+        return ("dynamic", (frame, g))
+
+    def scene(self) -> Scene4D:
+        """The scene decoded so far (static prefix + complete dynamic chunks); requires the header."""
+        if self.header is None:
+            raise WsplatError("truncated", self.bytes_fed, "HEAD", "stream ended before the header")
+        h = self.header
+        rig = [RigCamera.from_json(c) for c in h["rig"]]
+        dyn = [Gaussians.cat(self.dynamic.get(t, [])) for t in range(len(h["frame_times"]))]
+        meta = {k: v for k, v in h.items() if k not in ("static_layout", "dynamic_layout", "rig", "ego_to_world",
+                                                         "frame_times", "num_dynamic", "bounds")}
+        meta["static_layout"] = h["static_layout"].to_json()
+        meta["dynamic_layout"] = h["dynamic_layout"].to_json()
+        meta["bounds"] = h["bounds"]
+        return Scene4D(Gaussians.cat(self.static), dyn, np.asarray(h["frame_times"]), rig,
+                       np.asarray(h["ego_to_world"], dtype=np.float64), meta)
+
+    def finish(self) -> Scene4D:
+        if self.stage != "done":
+            where = {"magic": "file header", "head": "HEAD chunk", "stat": "END! chunk", "dyna": "END! chunk"}
+            raise WsplatError("truncated", self.base, "file", f"stream ended before the {where[self.stage]}")
+        return self.scene()
+
+
+def decode(data: bytes) -> Scene4D:
+    dec = ProgressiveDecoder()
+    dec.feed(bytes(data))
+    return dec.finish()
+
+
+def read(path: str | Path) -> Scene4D:
+    return decode(Path(path).read_bytes())

@@ -1,0 +1,186 @@
+""".wsplat v1: shared vectors (valid + malformed), round trip, progressive decoding, bounded fuzzing."""
+import json
+import struct
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from worldsplat.camera import default_rig, yaw_pose
+from worldsplat.gaussians import Gaussians, Scene4D, wsplat
+from worldsplat.gaussians.wsplat import Layout, ProgressiveDecoder, WsplatError, pack_records, unpack_records
+
+VECTORS = Path(__file__).resolve().parents[1] / "vectors" / "wsplat"
+sys.path.insert(0, str(VECTORS.parent))
+from make_vectors import split_chunks  # noqa: E402
+
+NAMES = sorted(p.stem for p in VECTORS.glob("*.wsplat"))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_shared_wsplat_vector(name):
+    data = (VECTORS / f"{name}.wsplat").read_bytes()
+    exp = json.loads((VECTORS / f"{name}.json").read_text())
+    if not exp["ok"]:
+        with pytest.raises(WsplatError) as e:
+            wsplat.decode(data)
+        assert (e.value.kind, e.value.offset, e.value.field) == (exp["error_kind"], exp["offset"], exp["field"])
+        assert f"offset {exp['offset']}" in str(e.value)
+        return
+    scene = wsplat.decode(data)
+    assert len(scene.static) == exp["num_static"] and scene.num_frames == exp["frames"]
+    assert [len(d) for d in scene.dynamic] == exp["num_dynamic"]
+    tol = exp["tolerance"]
+    if exp["first_static"] is not None:
+        g = scene.static.numpy()
+        for key, field in (("mean", "means"), ("quat", "quats"), ("scale", "scales"), ("opacity", "opacities"),
+                           ("color", "colors")):
+            assert np.allclose(g[field][0], exp["first_static"][key], atol=tol[key], rtol=0), key
+        assert np.allclose(g["means"].astype(np.float64).sum(0), exp["static_mean_sum"], atol=tol["static_mean_sum"])
+
+
+def test_vectors_cover_every_error_kind():
+    kinds = {json.loads((VECTORS / f"{n}.json").read_text()).get("error_kind") for n in NAMES}
+    assert set(wsplat.ERROR_KINDS) <= kinds
+
+
+def make_scene(n_static=500, n_dyn=(30, 0, 12), iso=True, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+
+    def gs(n):
+        s = torch.rand(n, 1 if iso else 3, generator=gen) * 0.3 + 0.01
+        return Gaussians(torch.rand(n, 3, generator=gen) * 20, torch.randn(n, 4, generator=gen), s.expand(n, 3).clone(),
+                         torch.rand(n, generator=gen) * 0.9 + 0.05, torch.rand(n, 3, generator=gen))
+    T = len(n_dyn)
+    return Scene4D(gs(n_static), [gs(n) for n in n_dyn], np.arange(T) * 0.1, default_rig(32, 18),
+                   np.stack([yaw_pose(t, 0.1 * t, 0, 0.01 * t) for t in range(T)]),
+                   {"scenario_id": "abc", "mode": "oracle", "model_version": "v", "caption": "a street", "fps": 10.0})
+
+
+def matched_error(a: Gaussians, b: Gaussians) -> dict:
+    """Encoding reorders within chunks: match by nearest mean and compare fields."""
+    am, bm = a.means.double(), b.means.double()
+    idx = torch.cdist(am, bm).argmin(1)
+    return {"means": float((am - bm[idx]).abs().max()),
+            "scales": float((a.scales.double().log() - b.scales.double()[idx].log()).abs().max()),
+            "opacities": float((a.opacities.double() - b.opacities.double()[idx]).abs().max()),
+            "colors": float((a.colors.double() - b.colors.double()[idx]).abs().max())}
+
+
+@pytest.mark.parametrize("iso", [True, False])
+def test_round_trip_within_quantization(iso):
+    sc = make_scene(iso=iso)
+    back = wsplat.decode(wsplat.encode(sc))
+    assert len(back.static) == 500 and [len(d) for d in back.dynamic] == [30, 0, 12]
+    assert np.allclose(back.ego_to_world, sc.ego_to_world) and np.allclose(back.frame_times, sc.frame_times)
+    assert [c.name for c in back.rig] == [c.name for c in sc.rig] and back.meta["caption"] == "a street"
+    assert back.meta["static_layout"][3][0] == ("s" if iso else "qi")
+    err = matched_error(sc.static, back.static)
+    assert err["means"] < 0.05 and err["scales"] < 0.3 and err["opacities"] < 0.04 and err["colors"] < 0.04, err
+    if not iso:  # rotation survives smallest-three (compare rotation matrices: q and -q are the same rotation)
+        from worldsplat.gaussians.project import quat_to_rotmat
+        idx = torch.cdist(sc.static.means.double(), back.static.means.double()).argmin(1)
+        qa = sc.static.quats / sc.static.quats.norm(dim=1, keepdim=True)
+        d = (quat_to_rotmat(qa) - quat_to_rotmat(back.static.quats[idx])).abs().max()
+        assert float(d) < 0.05
+
+
+def test_bytes_per_gaussian_of_default_layouts():
+    sc = make_scene(n_static=4096, n_dyn=(1024,), iso=True)
+    data = wsplat.encode(sc)
+    sizes = {bytes(t): len(p) for t, p in split_chunks(data)}
+    ch = split_chunks(data)
+    stat = sum(len(p) - 4 for t, p in ch if t == b"STAT")
+    dyna = sum(len(p) - 8 for t, p in ch if t == b"DYNA")
+    assert stat / 4096 <= 12 and dyna / 1024 <= 8, (stat / 4096, dyna / 1024, sizes)
+    aniso = wsplat.encode(make_scene(n_static=4096, n_dyn=(1,), iso=False))
+    stat = sum(len(p) - 4 for t, p in split_chunks(aniso) if t == b"STAT")
+    assert stat / 4096 <= 12
+
+
+def test_static_chunks_keep_importance_order_as_prefixes():
+    sc = make_scene(n_static=10000, n_dyn=(1,))
+    data = wsplat.encode(sc)
+    dec = ProgressiveDecoder()
+    sizes = []
+    for s in range(0, len(data), 997):  # odd-sized pieces, as from a network stream
+        for kind, payload in dec.feed(data[s:s + 997]):
+            if kind == "static":
+                sizes.append(len(payload))
+    assert dec.done and sizes == [4096, 5904]
+    first = dec.static[0].means.double()
+    # the first chunk holds exactly the first 4096 input Gaussians (in Morton order)
+    d = torch.cdist(sc.static.means[:4096].double(), first).min(1).values
+    assert float(d.max()) < 0.01
+
+
+def test_progressive_decoder_reports_partial_scene():
+    data = wsplat.encode(make_scene(n_static=6000))
+    ch = split_chunks(data)
+    cut = 12 + sum(12 + len(p) for _, p in ch[:2]) + 5  # HEAD + first STAT + 5 bytes
+    dec = ProgressiveDecoder()
+    ev = dec.feed(data[:cut])
+    assert [k for k, _ in ev] == ["header", "static"] and not dec.done
+    assert len(dec.scene().static) == 4096
+    with pytest.raises(WsplatError) as e:
+        dec.finish()
+    assert e.value.kind == "truncated"
+
+
+def test_count_is_not_trusted_before_bytes_arrive():
+    data = bytearray((VECTORS / "valid_iso.wsplat").read_bytes())
+    ch = split_chunks(bytes(data))
+    at = 12 + 12 + len(ch[0][1])
+    dec = ProgressiveDecoder()
+    # a STAT chunk that claims 60 MiB of payload: the decoder waits (no allocation), then reports truncation
+    dec.feed(bytes(data[:at]) + b"STAT" + struct.pack("<I", 60 << 20) + b"\x01\x00\x00\x00")
+    assert len(dec.buf) < 100 and not dec.static
+    with pytest.raises(WsplatError) as e:
+        dec.finish()
+    assert e.value.kind == "truncated" and e.value.offset == at
+
+
+def test_bit_packing_round_trip_across_word_boundary():
+    lay = Layout((("px", 24), ("py", 24), ("pz", 24), ("s", 7), ("o", 1), ("r", 13), ("g", 17), ("b", 18)))
+    rng = np.random.default_rng(3)
+    vals = {f: rng.integers(0, 1 << b, 50).astype(np.uint64) for f, b in lay.fields}
+    raw = pack_records(vals, lay)
+    assert len(raw) == 50 * 16
+    back = unpack_records(raw, 50, lay)
+    for f, _ in lay.fields:
+        assert np.array_equal(back[f], vals[f]), f
+
+
+def test_write_is_atomic(tmp_path):
+    p = tmp_path / "s.wsplat"
+    n = wsplat.write(make_scene(), p)
+    assert p.stat().st_size == n and not list(tmp_path.glob(".*tmp"))
+    assert len(wsplat.read(p).static) == 500
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_fuzz_mutations_raise_wsplat_error_only(data):
+    base = (VECTORS / "valid_iso.wsplat").read_bytes()
+    buf = bytearray(base)
+    for _ in range(data.draw(st.integers(1, 4))):
+        op = data.draw(st.sampled_from(["flip", "cut", "insert", "u32"]))
+        pos = data.draw(st.integers(0, max(0, len(buf) - 1)))
+        if op == "flip" and buf:
+            buf[pos] ^= 1 << data.draw(st.integers(0, 7))
+        elif op == "cut":
+            del buf[pos:]
+        elif op == "insert":
+            buf[pos:pos] = data.draw(st.binary(min_size=1, max_size=8))
+        elif op == "u32" and pos + 4 <= len(buf):
+            struct.pack_into("<I", buf, pos, data.draw(st.sampled_from([0, 1, 0xFFFFFFFF, 1 << 26, 1 << 31])))
+    try:
+        sc = wsplat.decode(bytes(buf))
+    except WsplatError as e:
+        assert 0 <= e.offset <= len(buf) and e.kind in wsplat.ERROR_KINDS
+    else:
+        for g in [sc.static] + sc.dynamic:
+            assert bool(torch.isfinite(g.means).all())

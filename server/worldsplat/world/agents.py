@@ -314,7 +314,7 @@ class TrafficBuilder:
         for _ in range(16):
             direction = 1 if rng.random() < 0.6 else -1
             road_name = "cross" if road.cross_s is not None and rng.random() < 0.25 else "main"
-            d = -direction * (road.median / 2 + road.lane_width - 0.75)
+            d = -direction * (road.lanes_edge - 0.75)      # the kerb side of lane 0
             s0 = float(rng.uniform(-70, 70)) if road_name == "cross" else float(rng.uniform(*self._s_range()))
             if road_name == "main" and self._blocked_s(s0, 1.0):
                 continue

@@ -175,7 +175,7 @@ class ShadowMap:
         iv = np.clip(v.astype(np.int64), 0, n - 1)
         dist = -(rel @ self.light)
         occ = self.depth[iv, iu]
-        return np.where(inside & (occ < dist - 0.15), 0.0, 1.0).astype(np.float32)
+        return np.where(inside & (occ < dist - 0.3), 0.0, 1.0).astype(np.float32)
 
 
 def shadow_map(prims: Prims, light: np.ndarray, center: np.ndarray, extent: float = 70.0,
@@ -447,7 +447,8 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         sun = L.sun_dir.astype(np.float32)
         lambert = np.clip(nrm @ sun, 0.0, None)
         if smap is not None and L.shadows:
-            lambert = lambert * smap.lit(si.p[hi], 0.05 * nrm)
+            # Normal offset of about one shadow-map texel avoids self-shadowing ("acne") at grazing light.
+            lambert = lambert * smap.lit(si.p[hi], 0.4 * nrm)
         light = L.ambient.astype(np.float32)[None] * (0.75 + 0.25 * nrm[:, 2:3]) + \
             lambert[:, None] * L.sun_color.astype(np.float32)[None]
         if L.lights_on:

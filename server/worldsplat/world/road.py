@@ -64,7 +64,7 @@ class RoadGeometry:
 
     def lane_center_d(self, lane: int, direction: int = 1) -> float:
         """d of lane `lane` (0 = kerb side) for traffic along +s (direction 1) or against it (-1)."""
-        return -direction * (self.median / 2 + (lane + 0.5) * self.lane_width)
+        return -direction * (self.median / 2 + (self.lanes - lane - 0.5) * self.lane_width)
 
     # -- main road coordinates ----------------------------------------------------------------------------------
     def sd(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -241,7 +241,7 @@ def make_road(scenario, rng: np.random.Generator, s_max: float, turn_entry: floa
     r = scenario.road
     median = 2.6 if r.setting == "highway" else 0.0
     lanes, w = r.lanes_per_direction, r.lane_width
-    lane_d = -(median / 2 + (scenario.ego.start_lane + 0.5) * w)
+    lane_d = -(median / 2 + (lanes - scenario.ego.start_lane - 0.5) * w)
     k = r.curvature if r.kind == "curve" else 0.0
     cross_s = None
     if r.kind == "intersection":

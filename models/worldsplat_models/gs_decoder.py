@@ -36,6 +36,11 @@ def pixel_rays(intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: t
                grid_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
     """Ray origins (..., 3) and directions (..., gh, gw, 3) with unit camera-z component, for the centres of a
     gh x gw grid covering an image of image_hw pixels. intrinsics (..., 4) = fx, fy, cx, cy in image pixels."""
+    with torch.autocast(device_type=intrinsics.device.type, enabled=False):  # geometry stays float32
+        return _pixel_rays(intrinsics.float(), cam_to_world.float(), image_hw, grid_hw)
+
+
+def _pixel_rays(intrinsics, cam_to_world, image_hw, grid_hw):
     H, W = image_hw
     gh, gw = grid_hw
     dev = intrinsics.device
@@ -53,6 +58,7 @@ def pixel_rays(intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: t
 
 def plucker(origins: torch.Tensor, dirs: torch.Tensor, ray_scale: float) -> torch.Tensor:
     """(..., 3), (..., h, w, 3) -> (..., 6, h, w): [o x d, d] with d normalised and o in units of ray_scale."""
+    dirs, origins = dirs.float(), origins.float()
     d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
     o = (origins / ray_scale)[..., None, None, :].expand_as(d)
     return torch.cat([torch.cross(o, d, dim=-1), d], dim=-1).movedim(-1, -3)
@@ -166,7 +172,11 @@ class GaussianDecoder(nn.Module):
 
     def activate(self, raw: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, fx_grid: torch.Tensor,
                  cam_to_world: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Raw head output (B,T,V,gh,gw,16) -> bounded Gaussian parameters (float32)."""
+        """Raw head output (B,T,V,gh,gw,16) -> bounded Gaussian parameters (float32, autocast off)."""
+        with torch.autocast(device_type=raw.device.type, enabled=False):
+            return self._activate(raw.float(), origins.float(), dirs.float(), fx_grid.float(), cam_to_world.float())
+
+    def _activate(self, raw, origins, dirs, fx_grid, cam_to_world):
         cfg = self.cfg
         raw = torch.nan_to_num(raw.float(), nan=0.0, posinf=0.0, neginf=0.0)
         parts = dict(zip(HEAD_CHANNELS, raw.split(list(HEAD_CHANNELS.values()), dim=-1)))

@@ -1,0 +1,391 @@
+"""Training of the Enhanced Diffusion Model (paper §3.4; enhancer.py): a plain loop with fixed seeds, checkpoints,
+resume and tqdm.
+
+    python -m worldsplat_models.train_enhancer --size small --out models/weights      # the one reproducible command
+
+Phases (all run by default; each resumes):
+1. pairs: for each train-split seed, the world's ground truth of a track shifted by a seeded +-1..4 m, its
+   reprojected conditions, and the 4D-aggregated ORACLE lifting of the original track rendered on it (real holes,
+   disocclusions and splat blur: the degraded input); plus the clean pair at 0 m (the true view's own render).
+   Cached as .npz under --cache (default runs/enhancer_pairs, git-ignored).
+2. train: VAE-encode the pairs once (the frozen VAE of models/weights, or --vae), then rectified-flow training of
+   the enhancer. With mixed conditioning (the shipped model, ablation E) a step uses the clean pair with
+   probability `clean_prob`; `--no-mix` trains on degraded renders only (ablation B/C's model).
+3. export: fp32 safetensors with config + provenance in the metadata, and held-out metrics in a JSON beside it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_CACHE = REPO / "runs" / "enhancer_pairs"
+TRAIN_SHIFTS = (-4.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 4.0)
+
+
+# --- phase 1: pairs --------------------------------------------------------------------------------------------------
+
+def train_shift(seed: int) -> float:
+    """The shift of a training seed's degraded pair (deterministic)."""
+    return TRAIN_SHIFTS[np.random.default_rng(seed + 17).integers(len(TRAIN_SHIFTS))]
+
+
+def has_clean_pair(seed: int) -> bool:
+    """Every other pair of seeds also gets a clean pair (renders cost; the mix needs only clean_prob of them)."""
+    return (seed // 2) % 2 == 0
+
+
+def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset: int = 0, size=(112, 64),
+               frames: int = 4, progress: bool = True) -> list[Path]:
+    """Write the training pairs of train seeds [start, start+count) (every `stride`-th from `offset`, so several
+    processes can share the work); existing files are kept (resume)."""
+    from worldsplat.evaluation.novel_track import oracle_scene
+    from worldsplat.evaluation.pairs import make_sample, sample_path, sample_scenario, save_sample, split_seeds
+    from worldsplat.world import build_world, simulate
+    seeds = split_seeds("train", count, start)[offset::stride]
+    it = seeds
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(seeds, desc=f"pairs {offset}/{stride}", mininterval=10)
+    paths = []
+    for seed in it:
+        shift = train_shift(seed)
+        p_deg = sample_path(cache, "train", seed, shift)
+        p_clean = sample_path(cache, "train", seed, 0.0, "_clean") if has_clean_pair(seed) else None
+        if not (p_deg.exists() and (p_clean is None or p_clean.exists())):
+            world = build_world(sample_scenario(seed, size[0], size[1], frames))
+            source = simulate(world, 0.0)
+            if not p_deg.exists():
+                save_sample(p_deg, make_sample(world, shift, ("4d",), source=source, scene=oracle_scene(source)))
+            if p_clean is not None and not p_clean.exists():
+                save_sample(p_clean, make_sample(world, 0.0, ("3d",), source=source))
+        paths += [p for p in (p_deg, p_clean) if p is not None]
+    return paths
+
+
+def make_val_pairs(cache: Path, count: int = 3, shifts=(2.0, 4.0), size=(112, 64), frames: int = 4) -> list[Path]:
+    """Held-out (val-split) pairs for the metrics written beside the weights."""
+    from worldsplat.evaluation.novel_track import oracle_scene
+    from worldsplat.evaluation.pairs import make_sample, sample_path, sample_scenario, save_sample, split_seeds
+    from worldsplat.world import build_world, simulate
+    paths = []
+    for seed in split_seeds("val", count):
+        todo = [s for s in shifts if not sample_path(cache, "val", seed, s).exists()]
+        if todo:
+            world = build_world(sample_scenario(seed, size[0], size[1], frames))
+            source = simulate(world, 0.0)
+            scene = oracle_scene(source)
+            for s in todo:
+                save_sample(sample_path(cache, "val", seed, s), make_sample(world, s, ("4d",), source, scene))
+        paths += [sample_path(cache, "val", seed, s) for s in shifts]
+    return paths
+
+
+# --- phase 2: train --------------------------------------------------------------------------------------------------
+
+def default_vae_path() -> Path:
+    return REPO / "models" / "weights" / "vae_small.safetensors"
+
+
+def load_vae(path: Path | None = None):
+    from worldsplat_models.weights import load_weights
+    return load_weights(path or default_vae_path(), expect_kind="vae")
+
+
+@torch.no_grad()
+def encode_pair(vae, sample: dict, render_key: str, max_boxes: int, caption_emb: torch.Tensor) -> dict:
+    """A novel-view sample -> the enhancer's tensors (latents (T,V,c,h,w), coverage, conditions)."""
+    from worldsplat_models.enhancer import coverage, encode_images
+    T, V, H, W = sample["target"].shape[:4]
+    f = vae.cfg.downsample
+
+    def lat(images):
+        z = encode_images(vae, images.reshape(T * V, H, W, 3))
+        return z.reshape(T, V, *z.shape[1:])
+
+    cover = coverage(np.asarray(sample[f"alpha_{render_key}"], np.float32).reshape(T * V, H, W), f)
+    return {
+        "target": lat(sample["target"]), "render": lat(sample[f"render_{render_key}"]),
+        "sketch": lat(sample["sketch"].astype(np.float32)), "cover": cover.reshape(T, V, *cover.shape[1:]),
+        "box_corners": torch.from_numpy(sample["box_corners"][:, :max_boxes]),
+        "box_cls": torch.from_numpy(sample["box_cls"][:, :max_boxes]),
+        "box_moving": torch.from_numpy(sample["box_moving"][:, :max_boxes]),
+        "box_mask": torch.from_numpy(sample["box_mask"][:, :max_boxes]),
+        "traj": torch.from_numpy(sample["traj"]), "caption": caption_emb.float(),
+    }
+
+
+COND_KEYS = ("box_corners", "box_cls", "box_moving", "box_mask", "traj", "caption")
+
+
+def batch_of(items: list[dict], use_render: torch.Tensor | bool = True) -> tuple[torch.Tensor, dict]:
+    """Encoded pairs -> (target (B,T,V,c,h,w), cond for Enhancer) with the ControlNet input assembled."""
+    from worldsplat_models.enhancer import Enhancer
+    st = lambda k: torch.stack([it[k] for it in items])  # noqa: E731
+    cond = {k: st(k) for k in COND_KEYS}
+    cond["control"] = Enhancer.control(st("render"), st("sketch"), st("cover"), use_render)
+    return st("target"), cond
+
+
+def lr_at(step: int, steps: int, lr: float, warmup: int = 100) -> float:
+    """Linear warm-up then cosine decay to 10 %."""
+    import math
+    if step < warmup:
+        return lr * (step + 1) / warmup
+    p = min(1.0, (step - warmup) / max(1, steps - warmup))
+    return lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * p)))
+
+
+def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: Path, name: str, lr: float = 3e-4,
+          seed: int = 0, ckpt_every: int = 100, minutes: float | None = None, progress: bool = True,
+          log_every: int = 10) -> list[dict]:
+    """Plain rectified-flow loop, batch 1 clip (T x V images). Each step's randomness comes from a generator seeded
+    by (seed, step), so a resumed run sees the same stream. Resumes from out_dir/<name>.ckpt.pt."""
+    cfg = model.cfg
+    torch.manual_seed(seed)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ckpt = out_dir / f"{name}.ckpt.pt"
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=0.01, betas=(0.9, 0.99))
+    start = 0
+    if ckpt.exists():
+        state = torch.load(ckpt, map_location="cpu", weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        start = state["step"]
+    history, t0 = [], time.time()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=steps, initial=start, desc=name, mininterval=10, dynamic_ncols=True)
+    model.train()
+
+    def save(step):
+        tmp = ckpt.with_suffix(".tmp")
+        torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step}, tmp)
+        tmp.replace(ckpt)
+
+    step = start
+    for step in range(start, steps):
+        gen = torch.Generator().manual_seed(seed * 1_000_003 + step)
+        use_clean = cfg.mixed and clean and float(torch.rand(1, generator=gen)) < cfg.clean_prob
+        pool = clean if use_clean else degraded
+        item = pool[int(torch.randint(len(pool), (1,), generator=gen))]
+        use_render = torch.rand(1, generator=gen) >= cfg.render_drop
+        x, cond = batch_of([item], use_render)
+        cond["drop"] = torch.rand(1, generator=gen) < cfg.dit.cond_drop
+        for g in opt.param_groups:
+            g["lr"] = lr_at(step, steps, lr)
+        loss = model.loss(x, cond, generator=gen)
+        opt.zero_grad(set_to_none=True)
+        if torch.isfinite(loss):
+            loss.backward()
+            norm = torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+            if torch.isfinite(norm):
+                opt.step()
+        rec = {"step": step + 1, "loss": float(loss), "clean": bool(use_clean), "render": bool(use_render),
+               "time": round(time.time() - t0, 1)}
+        history.append(rec)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{rec['loss']:.3f}")
+        if (step + 1) % log_every == 0:
+            with open(out_dir / f"{name}.log.jsonl", "a") as f:
+                f.write(json.dumps(rec) + "\n")
+        if (step + 1) % ckpt_every == 0:
+            save(step + 1)
+        if minutes is not None and time.time() - t0 > 60 * minutes:
+            break
+    save(step + 1 if history else start)
+    if bar is not None:
+        bar.close()
+    model.eval()
+    return history
+
+
+# --- the frozen VAE -----------------------------------------------------------------------------------------------
+
+def train_fallback_vae(out: Path, steps: int = 1500, seed: int = 0, clips: int = 48, minutes: float | None = None,
+                       progress: bool = True):
+    """Used only when the models engineer's VAE (models/weights/vae_small.safetensors) is absent: the same
+    MultiModalVAE (small config) trained on RGB and sketch images of train-split world clips (the enhancer uses
+    only those two modalities), L1 + 0.5 (1 - SSIM) + KL, random 32x56 crops. The enhancer bundles whichever VAE it
+    was trained against, so the two can never drift apart."""
+    from worldsplat.evaluation.pairs import conditions_for_track, sample_scenario, split_seeds
+    from worldsplat.world import build_world, simulate
+    from worldsplat_models.configs import get_config
+    from worldsplat_models.metrics import ssim
+    from worldsplat_models.vae import MultiModalVAE
+    torch.manual_seed(seed)
+    vae = MultiModalVAE(get_config("small").vae)
+    images, sketches = [], []
+    it = split_seeds("train", clips, start=500_000)
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(it, desc="vae clips", mininterval=10)
+    for s in it:
+        w = build_world(sample_scenario(s))
+        images.append(torch.from_numpy(simulate(w).rgb.reshape(-1, 64, 112, 3)))
+        sketches.append(torch.from_numpy(conditions_for_track(w, 0.0)["sketch"].reshape(-1, 64, 112, 3)))
+    images = torch.cat(images).permute(0, 3, 1, 2).float() / 127.5 - 1
+    sketches = torch.cat(sketches).permute(0, 3, 1, 2).float() * 2 - 1
+    opt = torch.optim.AdamW(vae.parameters(), lr=1e-3, weight_decay=0.0)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=steps, desc="vae", mininterval=10)
+    t0 = time.time()
+    for step in range(steps):
+        gen = torch.Generator().manual_seed(seed * 7919 + step)
+        for g in opt.param_groups:
+            g["lr"] = lr_at(step, steps, 1e-3, warmup=50)
+        xs = []
+        for pool, k in ((images, 6), (sketches, 2)):
+            idx = torch.randint(len(pool), (k,), generator=gen)
+            y = int(torch.randint(0, 5, (1,), generator=gen)) * 8
+            x = int(torch.randint(0, 8, (1,), generator=gen)) * 8
+            xs.append(pool[idx, :, y:y + 32, x:x + 56])
+        x = torch.cat(xs)
+        recon, kl = vae(x, generator=gen)
+        s = ssim(((recon + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((x + 1) / 2).permute(0, 2, 3, 1))
+        loss = (recon - x).abs().mean() + 0.5 * (1 - s) + vae.cfg.kl_weight * kl
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(vae.parameters(), 1.0)
+        opt.step()
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{float(loss):.3f}")
+        if minutes is not None and time.time() - t0 > 60 * minutes:
+            break
+    vae.eval()
+    with torch.no_grad():  # latent statistics of the RGB channels (the only ones the enhancer reads)
+        z = torch.cat([vae.encode(images[i:i + 64]) for i in range(0, len(images), 64)])
+        c = vae.cfg.latent_channels
+        vae.latent_mean[:c] = z.mean(dim=(0, 2, 3))
+        vae.latent_std[:c] = z.std(dim=(0, 2, 3)).clamp_min(1e-3)
+        psnr = -10 * torch.log10(((vae.decode(z[:64]).clamp(-1, 1) - images[:64]) ** 2).mean() / 4)
+    from worldsplat_models.weights import save_weights
+    save_weights(vae, out, "vae", {"trained_by": "train_enhancer.train_fallback_vae", "steps": step + 1,
+                                   "rgb_psnr_train": round(float(psnr), 2), "wall_s": round(time.time() - t0)})
+    return vae
+
+
+# --- phase 3: held-out metrics and export ----------------------------------------------------------------------------
+
+@torch.no_grad()
+def heldout_metrics(model, vae, samples: list[dict], steps: int = 8) -> dict:
+    """PSNR of the raw render vs the refined output (model only, and holes-only blend) on held-out pairs."""
+    from worldsplat.evaluation.nvs import image_metrics
+    from worldsplat_models.conditions import encode_captions
+    from worldsplat_models.enhancer import enhance
+    rows = {"raw": [], "refined": [], "refined_holes": []}
+    for s in samples:
+        cap = encode_captions([s["caption"]])[0]
+        a = s["alpha_4d"].astype(np.float32)
+        T, V, H, W, _ = s["target"].shape
+        gt = s["target"].reshape(-1, H, W, 3)
+        holes = a.reshape(-1, H, W) < 0.5
+        out = enhance(model, vae, s["render_4d"], a, s["sketch"], s, s["traj"], cap, steps=steps)
+        blend = np.round(a[..., None] * s["render_4d"] + (1 - a[..., None]) * out).astype(np.uint8)
+        for k, img in (("raw", s["render_4d"]), ("refined", out), ("refined_holes", blend)):
+            rows[k].append(image_metrics(img.reshape(-1, H, W, 3), gt, holes))
+    return {k: {m: round(float(np.nanmean([r[m] for r in v])), 3) for m in ("psnr", "ssim", "psnr_holes")}
+            for k, v in rows.items()}
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--size", default="small", choices=("tiny", "small", "paper"))
+    parser.add_argument("--out", type=Path, default=REPO / "models" / "weights", help="where the weights go")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="pair cache (git-ignored)")
+    parser.add_argument("--work", type=Path, default=REPO / "runs" / "enhancer", help="checkpoints and logs")
+    parser.add_argument("--pairs", type=int, default=240, help="train-split clips to make pairs from")
+    parser.add_argument("--use-pairs", type=int, default=None, help="train on at most this many clips' pairs")
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--minutes", type=float, default=None, help="stop training after this wall time")
+    parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-mix", action="store_true", help="degraded renders only (ablation B/C's model)")
+    parser.add_argument("--vae", type=Path, default=None, help="frozen VAE (default models/weights/vae_small."
+                        "safetensors, else the fallback trained here)")
+    parser.add_argument("--skip-pairs", action="store_true", help="train on the pairs already cached")
+    parser.add_argument("--threads", type=int, default=1)
+
+
+def resolve_vae(args) -> Path:
+    if args.vae is not None:
+        return args.vae
+    if default_vae_path().exists():
+        return default_vae_path()
+    fallback = args.work / "vae_fallback.safetensors"
+    if not fallback.exists():
+        train_fallback_vae(fallback)
+    return fallback
+
+
+def run(args: argparse.Namespace) -> int:
+    from worldsplat.evaluation.pairs import load_sample
+    from worldsplat_models.conditions import encode_captions
+    from worldsplat_models.enhancer import Enhancer, enhancer_config, save_enhancer
+    torch.set_num_threads(args.threads)
+    cfg = enhancer_config(args.size)
+    cfg.mixed = not args.no_mix
+    name = f"enhancer_{args.size}{'' if cfg.mixed else '_nomix'}"
+    if not args.skip_pairs:
+        make_pairs(args.cache, args.pairs)
+    val_paths = make_val_pairs(args.cache)
+    vae_path = resolve_vae(args)
+    vae = load_vae(vae_path)
+    if vae.cfg.latent_channels != cfg.latent_channels:
+        raise ValueError(f"VAE {vae_path} has {vae.cfg.latent_channels} latent channels; the {args.size} enhancer "
+                         f"expects {cfg.latent_channels}")
+    files = sorted((args.cache / "train").glob("seed*.npz"))
+    seeds = sorted({f.name[4:12] for f in files})[:args.use_pairs]
+    files = [f for f in files if f.name[4:12] in seeds]
+    if not files:
+        raise FileNotFoundError(f"no training pairs under {args.cache / 'train'}")
+    samples = [load_sample(f) for f in files]
+    caps = encode_captions([s["caption"] for s in samples])
+    from tqdm import tqdm
+    degraded, clean = [], []
+    for f, s, c in tqdm(list(zip(files, samples, caps)), desc="encode pairs", mininterval=10):
+        is_clean = f.name.endswith("_clean.npz")
+        (clean if is_clean else degraded).append(encode_pair(vae, s, "3d" if is_clean else "4d",
+                                                             cfg.data.max_boxes, c))
+    print(f"{len(degraded)} degraded and {len(clean)} clean pairs from {len(seeds)} clips; mixed={cfg.mixed}")
+    torch.manual_seed(args.seed)
+    model = Enhancer(cfg)
+    t0 = time.time()
+    hist = train(model, degraded, clean, args.steps, args.work, name, lr=args.lr, seed=args.seed,
+                 minutes=args.minutes)
+    wall = time.time() - t0
+    val = [load_sample(p) for p in val_paths]
+    metrics = heldout_metrics(model, vae, val)
+    state = torch.load(args.work / f"{name}.ckpt.pt", map_location="cpu", weights_only=False)
+    prov = {"size": args.size, "mixed": cfg.mixed, "steps": int(state["step"]), "train_clips": len(seeds),
+            "degraded_pairs": len(degraded), "clean_pairs": len(clean), "seed": args.seed, "lr": args.lr,
+            "vae": str(vae_path.name), "vae_meta": {k: v for k, v in vae.meta.items() if k != "config"},
+            "wall_s_this_run": round(wall), "threads": args.threads,
+            "heldout_val": {"seeds": sorted({s["seed"] for s in val}), "shifts": sorted({s["shift_m"] for s in val}),
+                            **metrics},
+            "command": f"python -m worldsplat_models.train_enhancer --size {args.size}"
+                       f"{' --no-mix' if not cfg.mixed else ''} --out {args.out}"}
+    path = save_enhancer(model, vae, args.out / f"{name}.safetensors", {"provenance": prov})
+    (args.work / f"{name}.metrics.json").write_text(json.dumps(prov, indent=1) + "\n")
+    print(json.dumps(prov["heldout_val"], indent=1))
+    print(f"wrote {path} ({len(hist)} steps this run)")
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m worldsplat_models.train_enhancer", description=__doc__.splitlines()[0])
+    configure(ap)
+    return run(ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,72 @@
+"""Weight files: safetensors with the model kind and its config (JSON) in the metadata, so a file is self-describing.
+
+`models/weights/<kind>_<size>.safetensors` for kind in vae | decoder | dit.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+
+from .configs import DiTConfig, GSDecoderConfig, VAEConfig, from_dict
+
+KINDS = {"vae": VAEConfig, "decoder": GSDecoderConfig, "dit": DiTConfig}
+DEFAULT_DIR = Path(__file__).resolve().parent.parent / "weights"
+
+
+def build(kind: str, cfg, num_classes: int = 17) -> torch.nn.Module:
+    if kind == "vae":
+        from .vae import MultiModalVAE
+        return MultiModalVAE(cfg)
+    if kind == "decoder":
+        from .gs_decoder import GaussianDecoder
+        return GaussianDecoder(cfg)
+    if kind == "dit":
+        from .dit import DiT4D
+        return DiT4D(cfg, num_classes)
+    raise ValueError(f"unknown model kind {kind!r}; expected one of {', '.join(KINDS)}")
+
+
+def save_weights(model: torch.nn.Module, path: str | Path, kind: str, meta: dict | None = None) -> Path:
+    """Atomic write of fp32 weights + metadata {kind, config, **meta}."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().float().contiguous().clone() for k, v in model.state_dict().items()}
+    md = {"kind": kind, "config": json.dumps(dataclasses.asdict(model.cfg))}
+    md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
+    tmp = path.with_suffix(".tmp")
+    save_file(state, str(tmp), metadata=md)
+    tmp.replace(path)
+    return path
+
+
+def read_metadata(path: str | Path) -> dict:
+    with safe_open(str(path), framework="pt") as f:
+        md = dict(f.metadata() or {})
+    if "kind" not in md or "config" not in md:
+        raise ValueError(f"{path}: not a worldsplat weight file (metadata lacks kind/config)")
+    out = {k: (v if k == "kind" else json.loads(v)) for k, v in md.items()}
+    return out
+
+
+def load_weights(path: str | Path, expect_kind: str | None = None) -> torch.nn.Module:
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"weights {path} not found")
+    md = read_metadata(path)
+    kind = md["kind"]
+    if expect_kind is not None and kind != expect_kind:
+        raise ValueError(f"{path}: holds a {kind} model, expected {expect_kind}")
+    cfg = from_dict(KINDS[kind], md["config"])
+    model = build(kind, cfg, md.get("num_classes", 17))
+    tensors = {}
+    with safe_open(str(path), framework="pt") as f:
+        for k in f.keys():
+            tensors[k] = f.get_tensor(k)
+    model.load_state_dict(tensors)
+    model.meta = md
+    return model.eval()

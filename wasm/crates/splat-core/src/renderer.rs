@@ -1,0 +1,661 @@
+//! The wgpu splat renderer (platform-independent): premultiplied instanced quads composited front to back into
+//! a float accumulation target, then copied to the output. Two draw paths share one projection shader:
+//! - `DrawPath::Storage` (compute available: Vulkan, Metal, DX12, WebGPU): records stay resident in a storage
+//!   buffer, a GPU radix sort (`gpu_sort`) writes the draw order and the visible count (indirect draw);
+//! - `DrawPath::Instanced` (WebGL2: no compute, no storage buffers): a CPU sort, records uploaded in draw order
+//!   as instance attributes.
+
+use crate::camera::Camera;
+use crate::cpu_sort::CpuSorter;
+use crate::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
+use crate::gpu_sort::GpuSort;
+use bytemuck::{Pod, Zeroable};
+
+pub const SHADER_CONSTANTS: &str = include_str!("shaders/constants.wgsl");
+pub const SHADER_VIEW: &str = include_str!("shaders/view.wgsl");
+pub const SHADER_SPLAT: &str = include_str!("shaders/splat.wgsl");
+pub const SHADER_SPLAT_STORAGE: &str = include_str!("shaders/splat_storage.wgsl");
+pub const SHADER_SPLAT_INSTANCED: &str = include_str!("shaders/splat_instanced.wgsl");
+pub const SHADER_BLIT: &str = include_str!("shaders/blit.wgsl");
+
+/// Full WGSL source of the splat draw for a path (what the renderer compiles and the naga test validates).
+pub fn splat_shader_source(path: DrawPath) -> String {
+    let tail = match path {
+        DrawPath::Storage => SHADER_SPLAT_STORAGE,
+        DrawPath::Instanced => SHADER_SPLAT_INSTANCED,
+    };
+    [SHADER_CONSTANTS, SHADER_VIEW, SHADER_SPLAT, tail].join("\n")
+}
+
+/// Most views one `render` call composes (the 6-camera mosaic needs 6).
+pub const MAX_VIEWS: usize = 8;
+const UNIFORM_STRIDE: u64 = 256;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DrawPath {
+    Storage,
+    Instanced,
+}
+
+/// Mirrors `struct View` in `shaders/view.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ViewUniform {
+    pub row0: [f32; 4],
+    pub row1: [f32; 4],
+    pub row2: [f32; 4],
+    pub intrinsics: [f32; 4],
+    pub size: [f32; 2],
+    pub origin: [f32; 2],
+    pub count: u32,
+    pub num_blocks: u32,
+    pub pad: [u32; 2],
+}
+
+impl ViewUniform {
+    pub fn new(cam: &Camera, origin: [u32; 2], count: u32) -> ViewUniform {
+        let m = &cam.world_to_camera;
+        let row = |i: usize| [m[i][0] as f32, m[i][1] as f32, m[i][2] as f32, m[i][3] as f32];
+        ViewUniform {
+            row0: row(0),
+            row1: row(1),
+            row2: row(2),
+            intrinsics: [cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32],
+            size: [cam.width as f32, cam.height as f32],
+            origin: [origin[0] as f32, origin[1] as f32],
+            count,
+            num_blocks: count.div_ceil(crate::gpu_sort::BLOCK),
+            pad: [0; 2],
+        }
+    }
+}
+
+/// One view of a frame: a camera drawn into the viewport at `origin` (its size is the camera's).
+#[derive(Clone, Debug)]
+pub struct ViewRect {
+    pub camera: Camera,
+    pub origin: [u32; 2],
+}
+
+/// The device and what it can do.
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    pub path: DrawPath,
+    pub accum_format: wgpu::TextureFormat,
+}
+
+impl Gpu {
+    /// Request a device with the adapter's own limits and pick the draw path and accumulation format.
+    pub async fn new(adapter: &wgpu::Adapter) -> Result<Gpu, String> {
+        let caps = adapter.get_downlevel_capabilities();
+        let limits = adapter.limits();
+        let compute = caps.flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+            && caps.flags.contains(wgpu::DownlevelFlags::VERTEX_STORAGE)
+            && caps.flags.contains(wgpu::DownlevelFlags::INDIRECT_EXECUTION)
+            && limits.max_storage_buffers_per_shader_stage >= 5
+            && limits.max_compute_workgroup_storage_size >= 8192
+            && limits.max_compute_invocations_per_workgroup >= 256;
+        let f16 = adapter.get_texture_format_features(wgpu::TextureFormat::Rgba16Float);
+        let accum_format = if f16.allowed_usages.contains(wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING)
+            && f16.flags.contains(wgpu::TextureFormatFeatureFlags::BLENDABLE)
+        {
+            wgpu::TextureFormat::Rgba16Float
+        } else {
+            wgpu::TextureFormat::Rgba8Unorm
+        };
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("splat device"),
+                required_features: wgpu::Features::empty(),
+                required_limits: limits,
+                experimental_features: Default::default(),
+                memory_hints: wgpu::MemoryHints::Performance,
+                trace: Default::default(),
+            })
+            .await
+            .map_err(|e| format!("request_device failed: {e}"))?;
+        Ok(Gpu {
+            device,
+            queue,
+            info: adapter.get_info(),
+            path: if compute { DrawPath::Storage } else { DrawPath::Instanced },
+            accum_format,
+        })
+    }
+
+    /// Force the CPU-sorted instanced path (to test it on adapters that have compute).
+    pub fn with_path(mut self, path: DrawPath) -> Gpu {
+        self.path = path;
+        self
+    }
+}
+
+/// Timing and size figures of the last `render` call.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RenderStats {
+    pub gaussians: u32,
+    pub resident_bytes: u64,
+    pub cpu_sort_ms: f64,
+}
+
+pub struct Renderer {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub path: DrawPath,
+    accum_format: wgpu::TextureFormat,
+    output_format: wgpu::TextureFormat,
+    splat_pipeline: wgpu::RenderPipeline,
+    splat_bgl: wgpu::BindGroupLayout,
+    blit_pipeline: wgpu::RenderPipeline,
+    blit_bgl: wgpu::BindGroupLayout,
+    view_buf: wgpu::Buffer,
+    splat_buf: wgpu::Buffer,
+    capacity: u32,
+    num_static: u32,
+    count: u32,
+    gpu_sort: Option<GpuSort>,
+    // Instanced path: the records (static then dynamic) and the sorted copy uploaded per view.
+    cpu_records: Vec<PackedSplat>,
+    sorted: Vec<PackedSplat>,
+    cpu_sorter: CpuSorter,
+    accum: Option<(wgpu::Texture, wgpu::TextureView, [u32; 2])>,
+    pub clock: fn() -> f64,
+}
+
+fn std_clock() -> f64 {
+    0.0
+}
+
+impl Renderer {
+    pub fn new(gpu: &Gpu, output_format: wgpu::TextureFormat) -> Renderer {
+        let device = &gpu.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("splat.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(splat_shader_source(gpu.path).into()),
+        });
+        let uniform_entry = wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: true,
+                min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
+            },
+            count: None,
+        };
+        let storage_entry = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = match gpu.path {
+            DrawPath::Storage => vec![uniform_entry, storage_entry(1), storage_entry(2)],
+            DrawPath::Instanced => vec![uniform_entry],
+        };
+        let splat_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("splat bgl"), entries: &entries });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("splat layout"),
+            bind_group_layouts: &[Some(&splat_bgl)],
+            immediate_size: 0,
+        });
+        let instance_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32x3, 2 => Uint32];
+        let instance_layout = wgpu::VertexBufferLayout {
+            array_stride: PACKED_SPLAT_BYTES as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &instance_attrs,
+        };
+        let buffers: Vec<Option<wgpu::VertexBufferLayout>> = match gpu.path {
+            DrawPath::Storage => vec![],
+            DrawPath::Instanced => vec![Some(instance_layout)],
+        };
+        let front_to_back = wgpu::BlendComponent {
+            src_factor: wgpu::BlendFactor::OneMinusDstAlpha,
+            dst_factor: wgpu::BlendFactor::One,
+            operation: wgpu::BlendOperation::Add,
+        };
+        let splat_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("splat pipeline"),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState { module: &module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &buffers },
+            primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleStrip, ..Default::default() },
+            depth_stencil: None,
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: gpu.accum_format,
+                    blend: Some(wgpu::BlendState { color: front_to_back, alpha: front_to_back }),
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let blit_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("blit.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(SHADER_BLIT.into()),
+        });
+        let blit_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("blit bgl"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
+            }],
+        });
+        let blit_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("blit layout"),
+            bind_group_layouts: &[Some(&blit_bgl)],
+            immediate_size: 0,
+        });
+        let blit_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("blit pipeline"),
+            layout: Some(&blit_layout),
+            vertex: wgpu::VertexState { module: &blit_module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &[] },
+            primitive: Default::default(),
+            depth_stencil: None,
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &blit_module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState { format: output_format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let view_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("view uniforms"),
+            size: UNIFORM_STRIDE * MAX_VIEWS as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut r = Renderer {
+            device: gpu.device.clone(),
+            queue: gpu.queue.clone(),
+            path: gpu.path,
+            accum_format: gpu.accum_format,
+            output_format,
+            splat_pipeline,
+            splat_bgl,
+            blit_pipeline,
+            blit_bgl,
+            view_buf,
+            splat_buf: Self::make_splat_buffer(&gpu.device, gpu.path, 1),
+            capacity: 1,
+            num_static: 0,
+            count: 0,
+            gpu_sort: None,
+            cpu_records: Vec::new(),
+            sorted: Vec::new(),
+            cpu_sorter: CpuSorter::default(),
+            accum: None,
+            clock: std_clock,
+        };
+        if r.path == DrawPath::Storage {
+            r.gpu_sort = Some(GpuSort::new(&r.device, 1));
+        }
+        r
+    }
+
+    fn make_splat_buffer(device: &wgpu::Device, path: DrawPath, capacity: u32) -> wgpu::Buffer {
+        let usage = match path {
+            DrawPath::Storage => wgpu::BufferUsages::STORAGE,
+            DrawPath::Instanced => wgpu::BufferUsages::VERTEX,
+        } | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("splats"),
+            size: capacity.max(1) as u64 * PACKED_SPLAT_BYTES as u64,
+            usage,
+            mapped_at_creation: false,
+        })
+    }
+
+    pub fn output_format(&self) -> wgpu::TextureFormat {
+        self.output_format
+    }
+    pub fn accum_format(&self) -> wgpu::TextureFormat {
+        self.accum_format
+    }
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// GPU bytes held per scene: records + draw order (+ sort scratch on the compute path).
+    pub fn resident_bytes(&self) -> u64 {
+        let records = self.capacity as u64 * PACKED_SPLAT_BYTES as u64;
+        records + self.gpu_sort.as_ref().map_or(0, |s| s.bytes())
+    }
+
+    /// Forget the scene.
+    pub fn clear(&mut self) {
+        self.num_static = 0;
+        self.count = 0;
+        self.cpu_records.clear();
+    }
+
+    /// Make the resident set `statics ++ dynamic`. `statics` may only have grown since the last call (streaming
+    /// appends); only the new static tail and the dynamic set are uploaded.
+    pub fn update(&mut self, statics: &[PackedSplat], dynamic: &[PackedSplat]) {
+        if (statics.len() as u32) < self.num_static {
+            self.clear();
+        }
+        let total = (statics.len() + dynamic.len()) as u32;
+        let mut from = self.num_static as usize;
+        if total > self.capacity {
+            let capacity = total.max(self.capacity.saturating_mul(3) / 2).max(1024);
+            self.splat_buf = Self::make_splat_buffer(&self.device, self.path, capacity);
+            self.capacity = capacity;
+            from = 0;
+            if let Some(s) = self.gpu_sort.as_mut() {
+                s.ensure_capacity(&self.device, capacity);
+            }
+        }
+        match self.path {
+            DrawPath::Storage => {
+                if from < statics.len() {
+                    self.queue.write_buffer(&self.splat_buf, (from * PACKED_SPLAT_BYTES) as u64, bytemuck::cast_slice(&statics[from..]));
+                }
+                if !dynamic.is_empty() {
+                    self.queue.write_buffer(&self.splat_buf, (statics.len() * PACKED_SPLAT_BYTES) as u64, bytemuck::cast_slice(dynamic));
+                }
+            }
+            DrawPath::Instanced => {
+                self.cpu_records.truncate(self.num_static as usize);
+                self.cpu_records.extend_from_slice(&statics[self.num_static as usize..]);
+                self.cpu_records.extend_from_slice(dynamic);
+            }
+        }
+        self.num_static = statics.len() as u32;
+        self.count = total;
+    }
+
+    fn ensure_accum(&mut self, size: [u32; 2]) {
+        if self.accum.as_ref().is_some_and(|a| a.2 == size) {
+            return;
+        }
+        let tex = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("accumulation"),
+            size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: self.accum_format,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let view = tex.create_view(&Default::default());
+        self.accum = Some((tex, view, size));
+    }
+
+    fn splat_pass(&self, encoder: &mut wgpu::CommandEncoder, accum: &wgpu::TextureView, clear: bool) -> wgpu::RenderPass<'static> {
+        encoder
+            .begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("splats"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: accum,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: if clear { wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT) } else { wgpu::LoadOp::Load },
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            })
+            .forget_lifetime()
+    }
+
+    /// Render `views` into `target` (of `size`, in `output_format`). Each view is sorted for its own camera.
+    pub fn render(&mut self, views: &[ViewRect], target: &wgpu::TextureView, size: [u32; 2]) -> Result<RenderStats, String> {
+        if views.len() > MAX_VIEWS {
+            return Err(format!("render: at most {MAX_VIEWS} views, got {}", views.len()));
+        }
+        for v in views {
+            if v.origin[0] + v.camera.width > size[0] || v.origin[1] + v.camera.height > size[1] {
+                return Err(format!(
+                    "render: view {}x{} at {:?} does not fit the {}x{} target",
+                    v.camera.width, v.camera.height, v.origin, size[0], size[1]
+                ));
+            }
+        }
+        self.ensure_accum(size);
+        let accum_view = self.accum.as_ref().unwrap().1.clone();
+        for (i, v) in views.iter().enumerate() {
+            let u = ViewUniform::new(&v.camera, v.origin, self.count);
+            self.queue.write_buffer(&self.view_buf, i as u64 * UNIFORM_STRIDE, bytemuck::bytes_of(&u));
+        }
+        let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), cpu_sort_ms: 0.0 };
+        let view_binding = wgpu::BufferBinding {
+            buffer: &self.view_buf,
+            offset: 0,
+            size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
+        };
+        match self.path {
+            DrawPath::Storage => {
+                let sort = self.gpu_sort.as_ref().unwrap();
+                let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("splat bind"),
+                    layout: &self.splat_bgl,
+                    entries: &[
+                        wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::Buffer(view_binding.clone()) },
+                        wgpu::BindGroupEntry { binding: 1, resource: self.splat_buf.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 2, resource: sort.order().as_entire_binding() },
+                    ],
+                });
+                let sort_bind = sort.bind_groups(&self.device, &self.view_buf, &self.splat_buf);
+                let mut encoder = self.device.create_command_encoder(&Default::default());
+                {
+                    let _clear = self.splat_pass(&mut encoder, &accum_view, true);
+                }
+                for (i, v) in views.iter().enumerate() {
+                    let offset = (i as u64 * UNIFORM_STRIDE) as u32;
+                    if self.count > 0 {
+                        sort.encode(&mut encoder, &sort_bind, offset, self.count);
+                    }
+                    let mut pass = self.splat_pass(&mut encoder, &accum_view, false);
+                    pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
+                    pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
+                    pass.set_pipeline(&self.splat_pipeline);
+                    pass.set_bind_group(0, &bind, &[offset]);
+                    if self.count > 0 {
+                        pass.draw_indirect(sort.draw_args(), 0);
+                    }
+                }
+                self.blit(&mut encoder, &accum_view, target);
+                self.queue.submit([encoder.finish()]);
+            }
+            DrawPath::Instanced => {
+                let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("splat bind"),
+                    layout: &self.splat_bgl,
+                    entries: &[wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::Buffer(view_binding) }],
+                });
+                let mut encoder = self.device.create_command_encoder(&Default::default());
+                {
+                    let _clear = self.splat_pass(&mut encoder, &accum_view, true);
+                }
+                self.queue.submit([encoder.finish()]);
+                for (i, v) in views.iter().enumerate() {
+                    let t0 = (self.clock)();
+                    let u = ViewUniform::new(&v.camera, v.origin, self.count);
+                    let order = self.cpu_sorter.sort(&self.cpu_records, u.row2);
+                    self.sorted.clear();
+                    self.sorted.extend(order.iter().map(|&i| self.cpu_records[i as usize]));
+                    stats.cpu_sort_ms += (self.clock)() - t0;
+                    let visible = self.sorted.len() as u32;
+                    if visible > 0 {
+                        self.queue.write_buffer(&self.splat_buf, 0, bytemuck::cast_slice(&self.sorted));
+                    }
+                    let mut encoder = self.device.create_command_encoder(&Default::default());
+                    {
+                        let mut pass = self.splat_pass(&mut encoder, &accum_view, false);
+                        pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
+                        pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
+                        pass.set_pipeline(&self.splat_pipeline);
+                        pass.set_bind_group(0, &bind, &[(i as u64 * UNIFORM_STRIDE) as u32]);
+                        if visible > 0 {
+                            pass.set_vertex_buffer(0, self.splat_buf.slice(..));
+                            pass.draw(0..4, 0..visible);
+                        }
+                    }
+                    self.queue.submit([encoder.finish()]);
+                }
+                let mut encoder = self.device.create_command_encoder(&Default::default());
+                self.blit(&mut encoder, &accum_view, target);
+                self.queue.submit([encoder.finish()]);
+            }
+        }
+        Ok(stats)
+    }
+
+    /// Only the depth sort for one view (benchmarks): the GPU sort is submitted (poll to wait), the CPU sort
+    /// runs here. Returns the CPU milliseconds spent (0 for the GPU path).
+    pub fn sort_only(&mut self, view: &ViewRect) -> f64 {
+        let u = ViewUniform::new(&view.camera, view.origin, self.count);
+        match self.path {
+            DrawPath::Storage => {
+                self.queue.write_buffer(&self.view_buf, 0, bytemuck::bytes_of(&u));
+                let sort = self.gpu_sort.as_ref().unwrap();
+                let bind = sort.bind_groups(&self.device, &self.view_buf, &self.splat_buf);
+                let mut encoder = self.device.create_command_encoder(&Default::default());
+                if self.count > 0 {
+                    sort.encode(&mut encoder, &bind, 0, self.count);
+                }
+                self.queue.submit([encoder.finish()]);
+                0.0
+            }
+            DrawPath::Instanced => {
+                let t0 = (self.clock)();
+                self.cpu_sorter.sort(&self.cpu_records, u.row2);
+                (self.clock)() - t0
+            }
+        }
+    }
+
+    fn blit(&self, encoder: &mut wgpu::CommandEncoder, accum: &wgpu::TextureView, target: &wgpu::TextureView) {
+        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("blit bind"),
+            layout: &self.blit_bgl,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(accum) }],
+        });
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("blit"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: target,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(&self.blit_pipeline);
+        pass.set_bind_group(0, &bind, &[]);
+        pass.draw(0..3, 0..1);
+    }
+}
+
+/// An offscreen RGBA8 target that can be read back (tests, the native CLI, `read_pixels` in the browser).
+pub struct Offscreen {
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    pub size: [u32; 2],
+}
+
+impl Offscreen {
+    pub fn new(device: &wgpu::Device, size: [u32; 2]) -> Offscreen {
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("offscreen"),
+            size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&Default::default());
+        Offscreen { texture, view, size }
+    }
+
+    /// Copy to a mappable buffer and request the map; `receiver` fires once the device has been polled.
+    pub fn start_readback(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Readback {
+        let [w, h] = self.size;
+        let padded = (w * 4).div_ceil(256) * 256;
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: padded as u64 * h as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo { texture: &self.texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded), rows_per_image: Some(h) },
+            },
+            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        );
+        queue.submit([encoder.finish()]);
+        let (tx, rx) = futures_channel::oneshot::channel();
+        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        Readback { buffer, receiver: rx, size: self.size, padded }
+    }
+}
+
+pub struct Readback {
+    buffer: wgpu::Buffer,
+    receiver: futures_channel::oneshot::Receiver<Result<(), wgpu::BufferAsyncError>>,
+    size: [u32; 2],
+    padded: u32,
+}
+
+impl Readback {
+    /// Tightly packed RGBA8 rows once the map callback has fired (`None` until then; keep polling the device).
+    pub fn try_finish(&mut self) -> Option<Result<Vec<u8>, String>> {
+        let result = match self.receiver.try_recv() {
+            Ok(None) => return None,
+            Ok(Some(r)) => r,
+            Err(_) => return Some(Err("readback: map request was dropped".into())),
+        };
+        Some(self.copy_out(result))
+    }
+
+    fn copy_out(&self, map_result: Result<(), wgpu::BufferAsyncError>) -> Result<Vec<u8>, String> {
+        map_result.map_err(|e| format!("readback map failed: {e}"))?;
+        let [w, h] = self.size;
+        let data = self.buffer.get_mapped_range(..).map_err(|e| format!("readback range: {e:?}"))?;
+        let mut out = Vec::with_capacity((w * h * 4) as usize);
+        for row in 0..h as usize {
+            let start = row * self.padded as usize;
+            out.extend_from_slice(&data[start..start + w as usize * 4]);
+        }
+        drop(data);
+        self.buffer.unmap();
+        Ok(out)
+    }
+}

@@ -1,0 +1,111 @@
+//! A loaded 4D scene: the static base plus per-frame dynamic Gaussians (packed for the GPU), frame times, rig and
+//! ego poses. Built progressively from .wsplat events, or at once from a PLY / raster-vector JSON.
+
+use crate::camera::{Mat4, RigCamera, IDENTITY};
+use crate::gaussians::{Gaussian, PackedSplat};
+use crate::wsplat::{Decoder, Event, Header, Progress, WsplatError};
+
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    pub statics: Vec<PackedSplat>,
+    pub dynamic: Vec<Vec<PackedSplat>>,
+    pub frame_times: Vec<f64>,
+    pub fps: f64,
+    pub rig: Vec<RigCamera>,
+    pub ego_to_world: Vec<Mat4>,
+    pub caption: String,
+    pub scenario_id: String,
+    pub mode: String,
+    pub bounds: Option<([f64; 3], [f64; 3])>,
+    /// Gaussians the spec's sanitizing dropped while loading.
+    pub dropped: u64,
+}
+
+impl Scene {
+    /// A single-frame scene without a rig (PLY, raster vectors).
+    pub fn from_gaussians(gs: &[Gaussian]) -> Scene {
+        let mut s = Scene { frame_times: vec![0.0], fps: 10.0, ego_to_world: vec![IDENTITY], dynamic: vec![Vec::new()], ..Default::default() };
+        s.add_static(gs);
+        s
+    }
+
+    pub fn num_frames(&self) -> usize {
+        self.frame_times.len().max(1)
+    }
+
+    pub fn ego_pose(&self, frame: usize) -> Mat4 {
+        self.ego_to_world.get(frame.min(self.ego_to_world.len().saturating_sub(1))).copied().unwrap_or(IDENTITY)
+    }
+
+    pub fn dynamic_at(&self, frame: usize) -> &[PackedSplat] {
+        self.dynamic.get(frame).map_or(&[], |d| d.as_slice())
+    }
+
+    fn add_static(&mut self, gs: &[Gaussian]) {
+        let before = self.statics.len();
+        self.statics.extend(gs.iter().filter_map(Gaussian::pack));
+        self.dropped += (gs.len() - (self.statics.len() - before)) as u64;
+    }
+
+    fn apply_header(&mut self, h: &Header) {
+        self.frame_times = h.frame_times.clone();
+        self.fps = h.fps;
+        self.rig = h.rig.clone();
+        self.ego_to_world = h.ego_to_world.clone();
+        self.caption = h.caption.clone();
+        self.scenario_id = h.scenario_id.clone();
+        self.mode = h.mode.clone();
+        self.bounds = Some((h.bounds_min, h.bounds_max));
+        self.dynamic = vec![Vec::new(); h.frame_times.len()];
+    }
+
+    /// Apply decoded events; returns true if Gaussians were added.
+    pub fn apply(&mut self, events: Vec<Event>) -> bool {
+        let mut added = false;
+        for e in events {
+            match e {
+                Event::Header(h) => self.apply_header(&h),
+                Event::Static(gs) => {
+                    self.add_static(&gs);
+                    added = true;
+                }
+                Event::Dynamic { frame, gaussians } => {
+                    let before = gaussians.len();
+                    let packed: Vec<PackedSplat> = gaussians.iter().filter_map(Gaussian::pack).collect();
+                    self.dropped += (before - packed.len()) as u64;
+                    self.dynamic[frame].extend(packed);
+                    added = true;
+                }
+                Event::End => {}
+            }
+        }
+        added
+    }
+}
+
+/// A scene fed from a byte stream.
+#[derive(Default)]
+pub struct StreamingScene {
+    pub decoder: Decoder,
+    pub scene: Scene,
+}
+
+impl StreamingScene {
+    pub fn push(&mut self, bytes: &[u8]) -> Result<Progress, WsplatError> {
+        let events = self.decoder.push(bytes)?;
+        self.scene.apply(events);
+        Ok(self.decoder.progress())
+    }
+    pub fn finish(&mut self) -> Result<Progress, WsplatError> {
+        self.decoder.finish()?;
+        Ok(self.decoder.progress())
+    }
+}
+
+/// Decode a whole .wsplat file.
+pub fn read_wsplat(bytes: &[u8]) -> Result<Scene, WsplatError> {
+    let mut s = StreamingScene::default();
+    s.push(bytes)?;
+    s.finish()?;
+    Ok(s.scene)
+}

@@ -1,0 +1,106 @@
+// Gaussian splat quads (web/docs/splatting-math.md). Prepended: constants.wgsl, view.wgsl. Appended: one of
+// splat_storage.wgsl (WebGPU/Vulkan: sorted index into a storage buffer) or splat_instanced.wgsl (WebGL2:
+// the records themselves arrive sorted as instance attributes).
+
+@group(0) @binding(0) var<uniform> view: View;
+
+struct VsOut {
+    @builtin(position) position: vec4<f32>,
+    @location(0) @interpolate(flat) center: vec2<f32>,
+    @location(1) @interpolate(flat) conic: vec3<f32>,
+    @location(2) @interpolate(flat) color: vec4<f32>,
+}
+
+fn unorm8(x: u32, byte: u32) -> f32 {
+    return f32((x >> (8u * byte)) & 0xffu) / 255.0;
+}
+
+fn culled() -> VsOut {
+    var o: VsOut;
+    o.position = vec4<f32>(2.0, 2.0, 2.0, 1.0); // outside the clip volume: the quad vanishes
+    o.center = vec2<f32>(0.0);
+    o.conic = vec3<f32>(0.0);
+    o.color = vec4<f32>(0.0);
+    return o;
+}
+
+// M = R(q) diag(s), the factor of the world covariance (Sigma = M M^T), from the packed shape words.
+fn unpack_shape(shape0: u32, shape1: u32, shape2: u32) -> mat3x3<f32> {
+    let span = LOG_SCALE_HI - LOG_SCALE_LO;
+    let s = exp(vec3<f32>(f32(shape0 & 0xffffu), f32(shape0 >> 16u), f32(shape1 & 0xffffu)) / 65535.0 * span
+        + vec3<f32>(LOG_SCALE_LO));
+    let small = (vec3<f32>(f32((shape1 >> 16u) & 0x7fffu), f32(shape2 & 0x7fffu), f32((shape2 >> 15u) & 0x7fffu))
+        / 32767.0 * 2.0 - 1.0) * 0.70710678;
+    let big = sqrt(max(0.0, 1.0 - dot(small, small)));
+    let qi = shape2 >> 30u;
+    var q = vec4<f32>(big, small);                              // (w, x, y, z) with w largest
+    if qi == 1u { q = vec4<f32>(small.x, big, small.y, small.z); }
+    if qi == 2u { q = vec4<f32>(small.x, small.y, big, small.z); }
+    if qi == 3u { q = vec4<f32>(small.x, small.y, small.z, big); }
+    let w = q.x; let x = q.y; let y = q.z; let z = q.w;
+    // Columns of R(q) scaled by s.
+    return mat3x3<f32>(
+        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)) * s.x,
+        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)) * s.y,
+        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)) * s.z);
+}
+
+// Project one Gaussian and emit corner `corner` (0..3, triangle strip) of its screen-space square.
+fn splat_vertex(mean: vec3<f32>, shape0: u32, shape1: u32, shape2: u32, rgba: u32, corner: u32) -> VsOut {
+    let w = mat3x3<f32>(
+        vec3<f32>(view.row0.x, view.row1.x, view.row2.x),
+        vec3<f32>(view.row0.y, view.row1.y, view.row2.y),
+        vec3<f32>(view.row0.z, view.row1.z, view.row2.z));
+    let p = w * mean + vec3<f32>(view.row0.w, view.row1.w, view.row2.w);
+    if !(p.z > NEAR) { return culled(); }
+    let fx = view.intrinsics.x; let fy = view.intrinsics.y;
+    let width = view.size.x; let height = view.size.y;
+
+    let wm = w * unpack_shape(shape0, shape1, shape2); // camera-space factor: Sigma_c = wm wm^T
+    let lim_x = CLAMP * 0.5 * width / fx;
+    let lim_y = CLAMP * 0.5 * height / fy;
+    let tx = p.z * clamp(p.x / p.z, -lim_x, lim_x);
+    let ty = p.z * clamp(p.y / p.z, -lim_y, lim_y);
+    let iz = 1.0 / p.z;
+    // Rows of T = J wm (2x3); J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]].
+    let j0 = vec3<f32>(fx * iz, 0.0, -fx * tx * iz * iz);
+    let j1 = vec3<f32>(0.0, fy * iz, -fy * ty * iz * iz);
+    let t0 = j0 * wm;
+    let t1 = j1 * wm;
+    let a0 = dot(t0, t0);
+    let c0 = dot(t1, t1);
+    let a = a0 + DILATION;
+    let b = dot(t0, t1);
+    let c = c0 + DILATION;
+    // det(cov2d) by Cauchy-Binet: |t0 x t1|^2 + DILATION (a0 + c0) + DILATION^2; equal to a c - b^2 without its
+    // catastrophic cancellation for needle Gaussians (as the reference computes it).
+    let cr = cross(t0, t1);
+    let det = dot(cr, cr) + DILATION * (a0 + c0) + DILATION * DILATION;
+    if !(det > DET_MIN) { return culled(); }
+    let mid = 0.5 * (a + c);
+    let lambda_max = mid + sqrt(max(EIG_FLOOR, mid * mid - det));
+    let radius = min(ceil(EXTENT_SIGMA * sqrt(lambda_max)), RADIUS_MAX);
+    let center = vec2<f32>(fx * p.x * iz + view.intrinsics.z, fy * p.y * iz + view.intrinsics.w);
+    if center.x + radius < 0.0 || center.x - radius > width || center.y + radius < 0.0 || center.y - radius > height {
+        return culled();
+    }
+    let offset = vec2<f32>(f32(corner & 1u) * 2.0 - 1.0, f32(corner >> 1u) * 2.0 - 1.0) * radius;
+    let pixel = center + offset;
+    var o: VsOut;
+    o.position = vec4<f32>(pixel.x / width * 2.0 - 1.0, 1.0 - pixel.y / height * 2.0, 0.0, 1.0);
+    o.center = center;
+    o.conic = vec3<f32>(c, -b, a) / det;
+    o.color = vec4<f32>(unorm8(rgba, 0u), unorm8(rgba, 1u), unorm8(rgba, 2u), unorm8(rgba, 3u));
+    return o;
+}
+
+// Premultiplied output; the pipeline blends front to back (src * (1 - dst.a) + dst).
+@fragment
+fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
+    let d = in.position.xy - view.origin - in.center; // position.xy is the pixel centre (i + 0.5, j + 0.5)
+    let m = in.conic.x * d.x * d.x + 2.0 * in.conic.y * d.x * d.y + in.conic.z * d.y * d.y;
+    if !(m <= D_MAX) { discard; }
+    let alpha = min(ALPHA_MAX, in.color.a * exp(-0.5 * m));
+    if alpha < ALPHA_MIN { discard; }
+    return vec4<f32>(in.color.rgb * alpha, alpha);
+}

@@ -1,0 +1,36 @@
+// The per-view uniform shared by the splat draw and the sort (mirrors `renderer::ViewUniform`).
+struct View {
+    // Rows of world_to_camera (rotation in xyz, translation in w).
+    row0: vec4<f32>,
+    row1: vec4<f32>,
+    row2: vec4<f32>,
+    // fx, fy, cx, cy
+    intrinsics: vec4<f32>,
+    // image width, height; viewport origin in framebuffer pixels
+    size: vec2<f32>,
+    origin: vec2<f32>,
+    // number of Gaussians, sort blocks, unused, unused
+    count: u32,
+    num_blocks: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+// One Gaussian as resident on the GPU: 28 bytes (mirrors `gaussians::PackedSplat`).
+struct Splat {
+    mx: f32,
+    my: f32,
+    mz: f32,
+    // Shape: log-scale x, y, z as unorm16 over [LOG_SCALE_LO, LOG_SCALE_HI]; rotation as smallest-three
+    // (three 15-bit components in [-1/sqrt2, 1/sqrt2] and the 2-bit index of the dropped largest one).
+    // shape0 = lsx | lsy << 16; shape1 = lsz | qa << 16; shape2 = qb | qc << 15 | qi << 30.
+    shape0: u32,
+    shape1: u32,
+    shape2: u32,
+    // r g b opacity as unorm8 (r in the low byte)
+    rgba: u32,
+}
+
+fn camera_z(v: View, m: vec3<f32>) -> f32 {
+    return dot(v.row2.xyz, m) + v.row2.w;
+}

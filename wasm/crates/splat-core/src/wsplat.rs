@@ -1,0 +1,690 @@
+//! Progressive .wsplat v1 decoder (web/docs/wsplat-v1.md). Feed bytes as they arrive (`push`); each complete
+//! chunk becomes an `Event`. Never reads past the bytes present, buffers only the incomplete chunk, and
+//! allocates decoded records only for chunks whose bytes (and CRC) have arrived. Every error names the byte
+//! offset and the field, with a kind from the spec's list.
+
+use crate::camera::{mat4_from_json, Mat4, RigCamera};
+use crate::gaussians::Gaussian;
+use serde_json::Value;
+
+pub const MAGIC: &[u8; 8] = b"WSPLAT\r\n";
+pub const VERSION: u32 = 1;
+pub const MAX_CHUNK: u32 = 64 << 20;
+pub const MAX_HEAD: u32 = 1 << 20;
+pub const MAX_FRAMES: usize = 1024;
+const BLOCK_HEADER: usize = 32;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ErrorKind {
+    BadMagic,
+    BadVersion,
+    Truncated,
+    ChunkTooLarge,
+    BadCrc,
+    BadTag,
+    BadOrder,
+    BadHeader,
+    BadLayout,
+    BadPayload,
+    CountMismatch,
+    TrailingData,
+}
+
+impl ErrorKind {
+    /// The spec's name (shared vectors use these).
+    pub fn name(self) -> &'static str {
+        match self {
+            ErrorKind::BadMagic => "bad_magic",
+            ErrorKind::BadVersion => "bad_version",
+            ErrorKind::Truncated => "truncated",
+            ErrorKind::ChunkTooLarge => "chunk_too_large",
+            ErrorKind::BadCrc => "bad_crc",
+            ErrorKind::BadTag => "bad_tag",
+            ErrorKind::BadOrder => "bad_order",
+            ErrorKind::BadHeader => "bad_header",
+            ErrorKind::BadLayout => "bad_layout",
+            ErrorKind::BadPayload => "bad_payload",
+            ErrorKind::CountMismatch => "count_mismatch",
+            ErrorKind::TrailingData => "trailing_data",
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct WsplatError {
+    pub kind: ErrorKind,
+    pub offset: u64,
+    pub message: String,
+}
+
+impl std::fmt::Display for WsplatError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "wsplat {} at offset {}: {}", self.kind.name(), self.offset, self.message)
+    }
+}
+
+impl std::error::Error for WsplatError {}
+
+fn err<T>(kind: ErrorKind, offset: u64, message: impl Into<String>) -> Result<T, WsplatError> {
+    Err(WsplatError { kind, offset, message: message.into() })
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Field {
+    Px, Py, Pz, Qi, Qa, Qb, Qc, Sx, Sy, Sz, S, O, R, G, B,
+}
+
+impl Field {
+    fn parse(name: &str) -> Option<Field> {
+        Some(match name {
+            "px" => Field::Px, "py" => Field::Py, "pz" => Field::Pz,
+            "qi" => Field::Qi, "qa" => Field::Qa, "qb" => Field::Qb, "qc" => Field::Qc,
+            "sx" => Field::Sx, "sy" => Field::Sy, "sz" => Field::Sz, "s" => Field::S,
+            "o" => Field::O, "r" => Field::R, "g" => Field::G, "b" => Field::B,
+            _ => return None,
+        })
+    }
+}
+
+/// A self-describing bit-packed record layout.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Layout {
+    fields: Vec<(Field, u32, u32)>, // field, bit offset, bits
+    pub record_bytes: usize,
+    isotropic: bool,
+}
+
+impl Layout {
+    fn from_json(v: &Value, what: &str, offset: u64) -> Result<Layout, WsplatError> {
+        let bad = |m: String| err::<Layout>(ErrorKind::BadLayout, offset, format!("HEAD.{what}: {m}"));
+        let Some(list) = v.as_array() else { return bad("expected a list of [field, bits]".into()) };
+        let mut fields = Vec::new();
+        let mut bit = 0u32;
+        for item in list {
+            let pair = item.as_array().filter(|p| p.len() == 2);
+            let (Some(name), Some(bits)) = (pair.and_then(|p| p[0].as_str()), pair.and_then(|p| p[1].as_u64())) else {
+                return bad(format!("entry {item} is not [field, bits]"));
+            };
+            let Some(f) = Field::parse(name) else { return bad(format!("unknown field {name:?}")) };
+            if !(1..=24).contains(&bits) {
+                return bad(format!("field {name}: bits {bits} not in 1..24"));
+            }
+            if f == Field::Qi && bits != 2 {
+                return bad(format!("field qi must have 2 bits, got {bits}"));
+            }
+            if fields.iter().any(|&(g, _, _)| g == f) {
+                return bad(format!("field {name} appears twice"));
+            }
+            fields.push((f, bit, bits as u32));
+            bit += bits as u32;
+        }
+        let has = |f: Field| fields.iter().any(|&(g, _, _)| g == f);
+        let all = |fs: &[Field]| fs.iter().all(|&f| has(f));
+        let any = |fs: &[Field]| fs.iter().any(|&f| has(f));
+        let aniso = [Field::Sx, Field::Sy, Field::Sz, Field::Qi, Field::Qa, Field::Qb, Field::Qc];
+        if !all(&[Field::Px, Field::Py, Field::Pz]) {
+            return bad("must contain px py pz".into());
+        }
+        if !all(&[Field::O, Field::R, Field::G, Field::B]) {
+            return bad("must contain o r g b".into());
+        }
+        let isotropic = has(Field::S);
+        if isotropic && any(&aniso) {
+            return bad("s excludes sx sy sz qi qa qb qc".into());
+        }
+        if !isotropic && !all(&aniso) {
+            return bad("needs s, or all of sx sy sz qi qa qb qc".into());
+        }
+        let record_bytes = bit.div_ceil(8) as usize;
+        if record_bytes > 16 {
+            return bad(format!("record size {record_bytes} bytes exceeds 16"));
+        }
+        Ok(Layout { fields, record_bytes, isotropic })
+    }
+
+    fn decode(&self, rec: &[u8], pos_lo: [f32; 3], pos_hi: [f32; 3], lsc: [f32; 2]) -> Gaussian {
+        let mut word = [0u8; 16];
+        word[..rec.len()].copy_from_slice(rec);
+        let bits = u128::from_le_bytes(word);
+        let mut g = Gaussian { quat: [1.0, 0.0, 0.0, 0.0], ..Default::default() };
+        let mut small = [0f64; 3];
+        let mut qi = 0usize;
+        for &(f, off, n) in &self.fields {
+            let x = ((bits >> off) & ((1u128 << n) - 1)) as f64;
+            let t = x / ((1u64 << n) - 1) as f64;
+            let lerp = |lo: f32, hi: f32| (lo as f64 + (hi as f64 - lo as f64) * t) as f32;
+            let scale = || (lsc[0] as f64 + (lsc[1] as f64 - lsc[0] as f64) * t).exp() as f32;
+            match f {
+                Field::Px => g.mean[0] = lerp(pos_lo[0], pos_hi[0]),
+                Field::Py => g.mean[1] = lerp(pos_lo[1], pos_hi[1]),
+                Field::Pz => g.mean[2] = lerp(pos_lo[2], pos_hi[2]),
+                Field::Qi => qi = x as usize,
+                Field::Qa => small[0] = (t * 2.0 - 1.0) / std::f64::consts::SQRT_2,
+                Field::Qb => small[1] = (t * 2.0 - 1.0) / std::f64::consts::SQRT_2,
+                Field::Qc => small[2] = (t * 2.0 - 1.0) / std::f64::consts::SQRT_2,
+                Field::Sx => g.scale[0] = scale(),
+                Field::Sy => g.scale[1] = scale(),
+                Field::Sz => g.scale[2] = scale(),
+                Field::S => g.scale = [scale(); 3],
+                Field::O => g.opacity = t as f32,
+                Field::R => g.color[0] = t as f32,
+                Field::G => g.color[1] = t as f32,
+                Field::B => g.color[2] = t as f32,
+            }
+        }
+        if !self.isotropic {
+            let big = (1.0 - small.iter().map(|v| v * v).sum::<f64>()).max(0.0).sqrt();
+            let mut it = small.iter();
+            for k in 0..4 {
+                g.quat[k] = if k == qi { big } else { *it.next().unwrap() } as f32;
+            }
+        }
+        g
+    }
+}
+
+/// The HEAD chunk.
+#[derive(Clone, Debug)]
+pub struct Header {
+    pub scenario_id: String,
+    pub mode: String,
+    pub model_version: String,
+    pub caption: String,
+    pub num_static: u64,
+    pub num_dynamic: Vec<u64>,
+    pub frame_times: Vec<f64>,
+    pub fps: f64,
+    pub bounds_min: [f64; 3],
+    pub bounds_max: [f64; 3],
+    pub rig: Vec<RigCamera>,
+    pub ego_to_world: Vec<Mat4>,
+    pub block_size: usize,
+    pub static_layout: Layout,
+    pub dynamic_layout: Layout,
+}
+
+impl Header {
+    fn from_json(v: &Value, offset: u64) -> Result<Header, WsplatError> {
+        let bad = |m: String| WsplatError { kind: ErrorKind::BadHeader, offset, message: format!("HEAD.{m}") };
+        if !v.is_object() {
+            return Err(bad("payload is not a JSON object".into()));
+        }
+        let get = |k: &str| v.get(k).ok_or_else(|| bad(format!("{k}: missing")));
+        let string = |k: &str| get(k)?.as_str().map(str::to_string).ok_or_else(|| bad(format!("{k}: expected a string")));
+        let uint = |k: &str| get(k)?.as_u64().ok_or_else(|| bad(format!("{k}: expected an integer >= 0")));
+        let num = |k: &str, x: &Value| x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| bad(format!("{k}: expected finite numbers")));
+        let vec3 = |k: &str, x: Option<&Value>| -> Result<[f64; 3], WsplatError> {
+            let a = x.and_then(Value::as_array).filter(|a| a.len() == 3).ok_or_else(|| bad(format!("{k}: expected 3 numbers")))?;
+            Ok([num(k, &a[0])?, num(k, &a[1])?, num(k, &a[2])?])
+        };
+        if get("format")?.as_str() != Some("wsplat") {
+            return Err(bad("format: must be \"wsplat\"".into()));
+        }
+        if get("version")?.as_u64() != Some(VERSION as u64) {
+            return Err(bad(format!("version: must be {VERSION}")));
+        }
+        let frame_times: Vec<f64> = get("frame_times")?
+            .as_array()
+            .ok_or_else(|| bad("frame_times: expected a list".into()))?
+            .iter()
+            .map(|x| num("frame_times", x))
+            .collect::<Result<_, _>>()?;
+        let t = frame_times.len();
+        if !(1..=MAX_FRAMES).contains(&t) {
+            return Err(bad(format!("frame_times: length {t} not in 1..{MAX_FRAMES}")));
+        }
+        if frame_times.windows(2).any(|w| w[1] < w[0]) {
+            return Err(bad("frame_times: must be non-decreasing".into()));
+        }
+        let num_dynamic: Vec<u64> = get("num_dynamic")?
+            .as_array()
+            .ok_or_else(|| bad("num_dynamic: expected a list".into()))?
+            .iter()
+            .map(|x| x.as_u64().ok_or_else(|| bad("num_dynamic: expected integers >= 0".into())))
+            .collect::<Result<_, _>>()?;
+        if num_dynamic.len() != t {
+            return Err(bad(format!("num_dynamic: length {} != {t} frames", num_dynamic.len())));
+        }
+        let fps = num("fps", get("fps")?)?;
+        if fps <= 0.0 {
+            return Err(bad("fps: must be > 0".into()));
+        }
+        let bounds = get("bounds")?;
+        let bounds_min = vec3("bounds.min", bounds.get("min"))?;
+        let bounds_max = vec3("bounds.max", bounds.get("max"))?;
+        let rig = get("rig")?
+            .as_array()
+            .ok_or_else(|| bad("rig: expected a list".into()))?
+            .iter()
+            .enumerate()
+            .map(|(i, c)| RigCamera::from_json(c, &format!("rig[{i}]")).map_err(|m| bad(m)))
+            .collect::<Result<Vec<_>, _>>()?;
+        let ego_to_world = get("ego_to_world")?
+            .as_array()
+            .ok_or_else(|| bad("ego_to_world: expected a list".into()))?
+            .iter()
+            .map(|m| mat4_from_json(m, "ego_to_world").map_err(|m| bad(m)))
+            .collect::<Result<Vec<_>, _>>()?;
+        if ego_to_world.len() != t {
+            return Err(bad(format!("ego_to_world: length {} != {t} frames", ego_to_world.len())));
+        }
+        let block_size = uint("block_size")?;
+        if !(1..=65536).contains(&block_size) {
+            return Err(bad(format!("block_size: {block_size} not in 1..65536")));
+        }
+        if get("sh_degree")?.as_u64() != Some(0) {
+            return Err(bad("sh_degree: must be 0".into()));
+        }
+        Ok(Header {
+            scenario_id: string("scenario_id")?,
+            mode: string("mode")?,
+            model_version: string("model_version")?,
+            caption: string("caption")?,
+            num_static: uint("num_static")?,
+            num_dynamic,
+            frame_times,
+            fps,
+            bounds_min,
+            bounds_max,
+            rig,
+            ego_to_world,
+            block_size: block_size as usize,
+            static_layout: Layout::from_json(get("static_layout")?, "static_layout", offset)?,
+            dynamic_layout: Layout::from_json(get("dynamic_layout")?, "dynamic_layout", offset)?,
+        })
+    }
+}
+
+/// What a complete chunk yields.
+#[derive(Debug)]
+pub enum Event {
+    Header(Box<Header>),
+    Static(Vec<Gaussian>),
+    Dynamic { frame: usize, gaussians: Vec<Gaussian> },
+    End,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    Magic,
+    Head,
+    Static,
+    Dynamic,
+    Done,
+}
+
+/// Progress so far (bytes consumed, Gaussians decoded).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Progress {
+    pub bytes: u64,
+    pub static_decoded: u64,
+    pub static_total: u64,
+    pub dynamic_decoded: u64,
+    pub dynamic_total: u64,
+    pub done: bool,
+}
+
+pub struct Decoder {
+    pending: Vec<u8>,
+    base: u64, // absolute offset of pending[0]
+    stage: Stage,
+    header: Option<Header>,
+    static_count: u64,
+    dynamic_counts: Vec<u64>,
+    failed: Option<WsplatError>,
+}
+
+impl Default for Decoder {
+    fn default() -> Self {
+        Decoder::new()
+    }
+}
+
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(b[at..at + 4].try_into().unwrap())
+}
+
+fn f32_at(b: &[u8], at: usize) -> f32 {
+    f32::from_le_bytes(b[at..at + 4].try_into().unwrap())
+}
+
+impl Decoder {
+    pub fn new() -> Decoder {
+        Decoder { pending: Vec::new(), base: 0, stage: Stage::Magic, header: None, static_count: 0, dynamic_counts: Vec::new(), failed: None }
+    }
+
+    pub fn header(&self) -> Option<&Header> {
+        self.header.as_ref()
+    }
+
+    pub fn progress(&self) -> Progress {
+        let h = self.header.as_ref();
+        Progress {
+            bytes: self.base,
+            static_decoded: self.static_count,
+            static_total: h.map_or(0, |h| h.num_static),
+            dynamic_decoded: self.dynamic_counts.iter().sum(),
+            dynamic_total: h.map_or(0, |h| h.num_dynamic.iter().sum()),
+            done: self.stage == Stage::Done,
+        }
+    }
+
+    /// Append bytes and decode every chunk they complete. After an error the decoder stays failed.
+    pub fn push(&mut self, bytes: &[u8]) -> Result<Vec<Event>, WsplatError> {
+        if let Some(e) = &self.failed {
+            return Err(e.clone());
+        }
+        let result = self.push_inner(bytes);
+        if let Err(e) = &result {
+            self.failed = Some(e.clone());
+            self.pending = Vec::new();
+        }
+        result
+    }
+
+    /// The stream ended: an error if it stopped before `END!`.
+    pub fn finish(&mut self) -> Result<(), WsplatError> {
+        if let Some(e) = &self.failed {
+            return Err(e.clone());
+        }
+        if self.stage != Stage::Done {
+            let e = WsplatError {
+                kind: ErrorKind::Truncated,
+                offset: self.base,
+                message: format!("stream ended {} bytes into an incomplete {}", self.pending.len(), self.expecting()),
+            };
+            self.failed = Some(e.clone());
+            return Err(e);
+        }
+        Ok(())
+    }
+
+    fn expecting(&self) -> &'static str {
+        match self.stage {
+            Stage::Magic => "file header (magic + version)",
+            Stage::Head => "HEAD chunk",
+            Stage::Static | Stage::Dynamic => "chunk (no END! yet)",
+            Stage::Done => "nothing",
+        }
+    }
+
+    fn push_inner(&mut self, bytes: &[u8]) -> Result<Vec<Event>, WsplatError> {
+        if self.stage == Stage::Done {
+            if bytes.is_empty() {
+                return Ok(Vec::new());
+            }
+            return err(ErrorKind::TrailingData, self.base, format!("{} bytes after END!", bytes.len()));
+        }
+        self.pending.extend_from_slice(bytes);
+        let mut events = Vec::new();
+        let mut at = 0usize;
+        loop {
+            let avail = &self.pending[at..];
+            let off = self.base + at as u64;
+            if self.stage == Stage::Magic {
+                let n = avail.len().min(8);
+                if avail[..n] != MAGIC[..n] {
+                    return err(ErrorKind::BadMagic, 0, "magic: not a .wsplat file (expected \"WSPLAT\\r\\n\")");
+                }
+                if avail.len() < 12 {
+                    break;
+                }
+                let version = u32_at(avail, 8);
+                if version != VERSION {
+                    return err(ErrorKind::BadVersion, 8, format!("version: {version}, this decoder reads {VERSION}"));
+                }
+                at += 12;
+                self.stage = Stage::Head;
+                continue;
+            }
+            if self.stage == Stage::Done {
+                if !avail.is_empty() {
+                    return err(ErrorKind::TrailingData, off, format!("{} bytes after END!", avail.len()));
+                }
+                break;
+            }
+            if avail.len() < 8 {
+                // Validate a partial tag early so garbage fails fast.
+                break;
+            }
+            let tag: [u8; 4] = avail[..4].try_into().unwrap();
+            let len = u32_at(avail, 4);
+            if !matches!(&tag, b"HEAD" | b"STAT" | b"DYNA" | b"END!") {
+                return err(ErrorKind::BadTag, off, format!("chunk tag: {:?} is not HEAD, STAT, DYNA or END!", String::from_utf8_lossy(&tag)));
+            }
+            if len > MAX_CHUNK {
+                return err(ErrorKind::ChunkTooLarge, off + 4, format!("chunk length: {len} bytes exceeds {MAX_CHUNK}"));
+            }
+            let total = 12 + len as usize;
+            if avail.len() < total {
+                break; // wait for the rest of the chunk (buffered, proportional to bytes present)
+            }
+            let payload = &avail[8..8 + len as usize];
+            let crc = u32_at(avail, 8 + len as usize);
+            let mut hasher = crc32fast::Hasher::new();
+            hasher.update(&avail[..8 + len as usize]);
+            let want = hasher.finalize();
+            if crc != want {
+                return err(ErrorKind::BadCrc, off + 8 + len as u64, format!("chunk crc: stored {crc:#010x}, computed {want:#010x}"));
+            }
+            let payload_off = off + 8;
+            match (&tag, self.stage) {
+                (b"HEAD", Stage::Head) => {
+                    if len > MAX_HEAD {
+                        return err(ErrorKind::BadHeader, off + 4, format!("HEAD length: {len} bytes exceeds {MAX_HEAD}"));
+                    }
+                    let v: Value = serde_json::from_slice(payload)
+                        .map_err(|e| WsplatError { kind: ErrorKind::BadHeader, offset: payload_off, message: format!("HEAD: invalid JSON: {e}") })?;
+                    let h = Header::from_json(&v, payload_off)?;
+                    self.dynamic_counts = vec![0; h.frame_times.len()];
+                    self.header = Some(h.clone());
+                    self.stage = Stage::Static;
+                    events.push(Event::Header(Box::new(h)));
+                }
+                (b"STAT", Stage::Static) => {
+                    let h = self.header.as_ref().unwrap();
+                    let (gs, _) = decode_records(payload, payload_off, 0, h.block_size, &h.static_layout)?;
+                    self.static_count += gs.len() as u64;
+                    if self.static_count > h.num_static {
+                        return err(ErrorKind::CountMismatch, payload_off, format!("STAT count: {} static Gaussians exceed HEAD.num_static {}", self.static_count, h.num_static));
+                    }
+                    events.push(Event::Static(gs));
+                }
+                (b"DYNA", Stage::Static | Stage::Dynamic) => {
+                    let h = self.header.as_ref().unwrap();
+                    if payload.len() < 4 {
+                        return err(ErrorKind::BadPayload, payload_off, "DYNA frame: payload shorter than 4 bytes");
+                    }
+                    let frame = u32_at(payload, 0) as usize;
+                    if frame >= h.frame_times.len() {
+                        return err(ErrorKind::BadPayload, payload_off, format!("DYNA frame: {frame} >= {} frames", h.frame_times.len()));
+                    }
+                    let (gs, _) = decode_records(payload, payload_off, 4, h.block_size, &h.dynamic_layout)?;
+                    self.dynamic_counts[frame] += gs.len() as u64;
+                    if self.dynamic_counts[frame] > h.num_dynamic[frame] {
+                        return err(ErrorKind::CountMismatch, payload_off + 4, format!("DYNA count: frame {frame} exceeds HEAD.num_dynamic[{frame}] = {}", h.num_dynamic[frame]));
+                    }
+                    self.stage = Stage::Dynamic;
+                    events.push(Event::Dynamic { frame, gaussians: gs });
+                }
+                (b"END!", Stage::Static | Stage::Dynamic) => {
+                    let h = self.header.as_ref().unwrap();
+                    if len != 0 {
+                        return err(ErrorKind::BadPayload, payload_off, format!("END! payload: {len} bytes, must be empty"));
+                    }
+                    if self.static_count != h.num_static {
+                        return err(ErrorKind::CountMismatch, off, format!("END!: {} static Gaussians, HEAD.num_static says {}", self.static_count, h.num_static));
+                    }
+                    if let Some(f) = (0..h.num_dynamic.len()).find(|&f| self.dynamic_counts[f] != h.num_dynamic[f]) {
+                        return err(ErrorKind::CountMismatch, off, format!("END!: frame {f} has {} dynamic Gaussians, HEAD.num_dynamic[{f}] says {}", self.dynamic_counts[f], h.num_dynamic[f]));
+                    }
+                    self.stage = Stage::Done;
+                    events.push(Event::End);
+                }
+                _ => {
+                    return err(ErrorKind::BadOrder, off, format!("chunk order: {} not allowed {}", String::from_utf8_lossy(&tag), match self.stage {
+                        Stage::Head => "before HEAD",
+                        Stage::Static => "here (after HEAD/STAT)",
+                        Stage::Dynamic => "after DYNA",
+                        _ => "here",
+                    }));
+                }
+            }
+            at += total;
+        }
+        self.pending.drain(..at);
+        self.base += at as u64;
+        Ok(events)
+    }
+}
+
+/// Decode `count` + blocks starting at `start` of a STAT/DYNA payload.
+fn decode_records(payload: &[u8], payload_off: u64, start: usize, block_size: usize, layout: &Layout) -> Result<(Vec<Gaussian>, usize), WsplatError> {
+    let name = if start == 0 { "STAT" } else { "DYNA" };
+    if payload.len() < start + 4 {
+        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name} count: payload too short"));
+    }
+    let count = u32_at(payload, start) as usize;
+    if count == 0 {
+        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name} count: must be >= 1"));
+    }
+    let blocks = count.div_ceil(block_size);
+    let want = (start as u64 + 4) + blocks as u64 * BLOCK_HEADER as u64 + count as u64 * layout.record_bytes as u64;
+    if payload.len() as u64 != want {
+        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name} count: {count} records need a {want}-byte payload, got {}", payload.len()));
+    }
+    let mut out = Vec::with_capacity(count); // bounded: the payload holding them is present
+    let mut at = start + 4;
+    for b in 0..blocks {
+        let lo = [f32_at(payload, at), f32_at(payload, at + 4), f32_at(payload, at + 8)];
+        let hi = [f32_at(payload, at + 12), f32_at(payload, at + 16), f32_at(payload, at + 20)];
+        let lsc = [f32_at(payload, at + 24), f32_at(payload, at + 28)];
+        let ok = (0..3).all(|k| lo[k].is_finite() && hi[k].is_finite() && lo[k] <= hi[k]) && lsc[0].is_finite() && lsc[1].is_finite() && lsc[0] <= lsc[1];
+        if !ok {
+            return err(ErrorKind::BadPayload, payload_off + at as u64, format!("{name} block {b}: box must be finite with lo <= hi"));
+        }
+        at += BLOCK_HEADER;
+        let n = block_size.min(count - b * block_size);
+        for _ in 0..n {
+            out.push(layout.decode(&payload[at..at + layout.record_bytes], lo, hi, lsc));
+            at += layout.record_bytes;
+        }
+    }
+    Ok((out, count))
+}
+
+/// A minimal encoder (one STAT chunk per `static_chunk` Gaussians, one DYNA chunk per frame) with fixed layouts:
+/// for tests, the property test and the fuzz corpus. The project's encoder is the Python one.
+pub mod encode {
+    use super::*;
+    use serde_json::json;
+
+    pub const STATIC_LAYOUT: &[(&str, u32)] = &[
+        ("px", 15), ("py", 15), ("pz", 15), ("qi", 2), ("qa", 9), ("qb", 9), ("qc", 9),
+        ("sx", 6), ("sy", 6), ("sz", 6), ("o", 8), ("r", 8), ("g", 8), ("b", 8),
+    ];
+    pub const DYNAMIC_LAYOUT: &[(&str, u32)] = &[("px", 16), ("py", 16), ("pz", 16), ("s", 8), ("o", 6), ("r", 6), ("g", 6), ("b", 6)];
+
+    fn chunk(out: &mut Vec<u8>, tag: &[u8; 4], payload: &[u8]) {
+        let start = out.len();
+        out.extend_from_slice(tag);
+        out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+        out.extend_from_slice(payload);
+        let crc = crc32fast::hash(&out[start..]);
+        out.extend_from_slice(&crc.to_le_bytes());
+    }
+
+    fn quantize(v: f64, lo: f64, hi: f64, bits: u32) -> u128 {
+        let n = ((1u64 << bits) - 1) as f64;
+        let t = if hi > lo { ((v - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
+        (t * n).round() as u128
+    }
+
+    fn records(gs: &[Gaussian], layout: &[(&str, u32)], block_size: usize, out: &mut Vec<u8>) {
+        let bytes = layout.iter().map(|l| l.1).sum::<u32>().div_ceil(8) as usize;
+        for block in gs.chunks(block_size) {
+            let mut lo = [f32::INFINITY; 3];
+            let mut hi = [f32::NEG_INFINITY; 3];
+            let (mut llo, mut lhi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for g in block {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(g.mean[k]);
+                    hi[k] = hi[k].max(g.mean[k]);
+                    llo = llo.min(g.scale[k].ln());
+                    lhi = lhi.max(g.scale[k].ln());
+                }
+            }
+            for v in lo.iter().chain(&hi).chain([&llo, &lhi]) {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+            for g in block {
+                let g = g.sanitized().unwrap_or(*g);
+                let qi = (0..4).max_by(|&a, &b| g.quat[a].abs().total_cmp(&g.quat[b].abs())).unwrap();
+                let sign = if g.quat[qi] < 0.0 { -1.0 } else { 1.0 };
+                let small: Vec<f64> = (0..4).filter(|&k| k != qi).map(|k| sign * g.quat[k] as f64 * std::f64::consts::SQRT_2).collect();
+                let mut word = 0u128;
+                let mut bit = 0;
+                for &(f, n) in layout {
+                    let x = match f {
+                        "px" => quantize(g.mean[0] as f64, lo[0] as f64, hi[0] as f64, n),
+                        "py" => quantize(g.mean[1] as f64, lo[1] as f64, hi[1] as f64, n),
+                        "pz" => quantize(g.mean[2] as f64, lo[2] as f64, hi[2] as f64, n),
+                        "qi" => qi as u128,
+                        "qa" => quantize(small[0], -1.0, 1.0, n),
+                        "qb" => quantize(small[1], -1.0, 1.0, n),
+                        "qc" => quantize(small[2], -1.0, 1.0, n),
+                        "sx" => quantize((g.scale[0] as f64).ln(), llo as f64, lhi as f64, n),
+                        "sy" => quantize((g.scale[1] as f64).ln(), llo as f64, lhi as f64, n),
+                        "sz" => quantize((g.scale[2] as f64).ln(), llo as f64, lhi as f64, n),
+                        "s" => quantize((g.scale[0] as f64).ln(), llo as f64, lhi as f64, n),
+                        "o" => quantize(g.opacity as f64, 0.0, 1.0, n),
+                        "r" => quantize(g.color[0] as f64, 0.0, 1.0, n),
+                        "g" => quantize(g.color[1] as f64, 0.0, 1.0, n),
+                        _ => quantize(g.color[2] as f64, 0.0, 1.0, n),
+                    };
+                    word |= x << bit;
+                    bit += n;
+                }
+                out.extend_from_slice(&word.to_le_bytes()[..bytes]);
+            }
+        }
+    }
+
+    /// Encode a scene: statics in chunks of `static_chunk`, `dynamic[f]` as frame f's DYNA chunk (if non-empty).
+    pub fn encode(statics: &[Gaussian], dynamic: &[Vec<Gaussian>], fps: f64, block_size: usize, static_chunk: usize) -> Vec<u8> {
+        let t = dynamic.len().max(1);
+        let rig: Vec<Value> = crate::camera::default_rig(160, 90)
+            .iter()
+            .map(|c| json!({"name": c.name, "width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+                             "camera_to_ego": crate::camera::mat4_to_json(&c.camera_to_ego)}))
+            .collect();
+        let ego: Vec<Value> = (0..t).map(|f| crate::camera::mat4_to_json(&crate::camera::translation(f as f64 * 0.5, 0.0, 0.0))).collect();
+        let layout = |l: &[(&str, u32)]| json!(l.iter().map(|(f, b)| json!([f, b])).collect::<Vec<_>>());
+        let head = json!({
+            "format": "wsplat", "version": 1, "scenario_id": "test", "mode": "test", "model_version": "0", "caption": "a test scene",
+            "num_static": statics.len(), "num_dynamic": (0..t).map(|f| dynamic.get(f).map_or(0, |d| d.len())).collect::<Vec<_>>(),
+            "frame_times": (0..t).map(|f| f as f64 / fps).collect::<Vec<_>>(), "fps": fps,
+            "bounds": {"min": [-50.0, -50.0, -5.0], "max": [50.0, 50.0, 20.0]}, "rig": rig, "ego_to_world": ego,
+            "block_size": block_size, "static_layout": layout(STATIC_LAYOUT), "dynamic_layout": layout(DYNAMIC_LAYOUT), "sh_degree": 0,
+        });
+        let mut out = MAGIC.to_vec();
+        out.extend_from_slice(&VERSION.to_le_bytes());
+        chunk(&mut out, b"HEAD", head.to_string().as_bytes());
+        for part in statics.chunks(static_chunk.max(1)) {
+            let mut p = (part.len() as u32).to_le_bytes().to_vec();
+            records(part, STATIC_LAYOUT, block_size, &mut p);
+            chunk(&mut out, b"STAT", &p);
+        }
+        for (f, d) in dynamic.iter().enumerate() {
+            if d.is_empty() {
+                continue;
+            }
+            let mut p = (f as u32).to_le_bytes().to_vec();
+            p.extend_from_slice(&(d.len() as u32).to_le_bytes());
+            records(d, DYNAMIC_LAYOUT, block_size, &mut p);
+            chunk(&mut out, b"DYNA", &p);
+        }
+        chunk(&mut out, b"END!", &[]);
+        out
+    }
+}

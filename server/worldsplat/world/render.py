@@ -490,7 +490,9 @@ def _artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.nd
     ego_xyz = ego_to_world[:3, 3]
     rel = (p - ego_xyz).astype(np.float32)           # small magnitudes: float32 is plenty for lighting
     if len(lamps):
-        near = lamps[np.linalg.norm(lamps[:, :2] - ego_xyz[:2], axis=1) < 90.0]
+        dist = np.linalg.norm(lamps[:, :2] - ego_xyz[:2], axis=1)
+        near = lamps[np.argsort(dist, kind="stable")[:10]]        # the 10 nearest lamps light the scene
+        near = near[np.linalg.norm(near[:, :2] - ego_xyz[:2], axis=1) < 70.0]
         if len(near):
             lrel = (near - ego_xyz).astype(np.float32)                         # (L,3)
             strength = np.float32(30.0 if world.lighting.night else 12.0)

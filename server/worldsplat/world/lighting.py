@@ -46,7 +46,7 @@ def make_lighting(time_of_day: str, weather: str, rng: np.random.Generator) -> L
         sun, amb = np.array([1.0, 0.55, 0.28]) * 0.9, np.array([0.3, 0.26, 0.34])
         zen, hor = np.array([0.16, 0.2, 0.42]), np.array([0.95, 0.55, 0.3])
     else:
-        sun, amb = np.array([0.5, 0.55, 0.7]) * 0.12, np.array([0.05, 0.06, 0.09])
+        sun, amb = np.array([0.5, 0.55, 0.7]) * 0.12, np.array([0.07, 0.08, 0.11])
         zen, hor = np.array([0.01, 0.015, 0.04]), np.array([0.06, 0.07, 0.11])
     fog_distance = {"clear": 900.0, "overcast": 450.0, "rain": 140.0, "fog": 38.0}[weather]
     shadows = weather == "clear" and time_of_day != "night"

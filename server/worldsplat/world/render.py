@@ -357,7 +357,7 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
             col[bi] = cb
             if L.lights_on:
                 lit = glass & (hash01(fl, cl, (key[bi] * 7919).astype(np.int64) + 11) < (0.45 if L.night else 0.25))
-                lit |= shop & L.night & (hash01(np.floor(along[bi] / 5.0), fl, 23) < 0.5)
+                lit |= shop & L.night & (hash01(np.floor(along[bi] / 5.0), fl, 23) < 0.35)
                 e = em[bi]
                 e[lit] = np.array([1.0, 0.82, 0.5], np.float32) * (0.6 if L.night else 0.35)
                 em[bi] = e
@@ -495,13 +495,16 @@ def _artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.nd
         near = near[np.linalg.norm(near[:, :2] - ego_xyz[:2], axis=1) < 70.0]
         if len(near):
             lrel = (near - ego_xyz).astype(np.float32)                         # (L,3)
-            strength = np.float32(30.0 if world.lighting.night else 12.0)
+            strength = np.float32(40.0 if world.lighting.night else 15.0)
             dist2 = (np.einsum("ij,ij->i", rel, rel)[:, None] - 2 * rel @ lrel.T
                      + np.einsum("ij,ij->i", lrel, lrel)[None])                 # (N,L)
             dist2 = np.maximum(dist2, 1e-4)
             vdotn = nrm @ lrel.T - np.einsum("ij,ij->i", rel, nrm)[:, None]
-            cosn = np.clip(vdotn / np.sqrt(dist2), 0, 1)
-            total = (strength * cosn / (dist2 + 12.0)).sum(axis=1)
+            inv_len = 1.0 / np.sqrt(dist2)
+            cosn = np.clip(vdotn * inv_len, 0, 1)
+            # Lamps shine downwards: a spot factor on the angle below the lamp.
+            down = np.clip((lrel[None, :, 2] - rel[:, 2:3]) * inv_len, 0, 1)
+            total = (strength * cosn * down * down / (dist2 + 12.0)).sum(axis=1)
             out += total[:, None] * np.array([1.0, 0.78, 0.5], np.float32)
     if world.lighting.night:
         r = ego_to_world[:3, :3]

@@ -97,7 +97,7 @@ class ConditionEncoder(nn.Module):
             tokens = torch.cat([torch.where(d[..., None], null, tokens[:, :, :1]), tokens[:, :, 1:]], dim=2)
             keep_rest = torch.zeros_like(mask)
             keep_rest[:, :, 0] = True
-            mask = torch.where(d, keep_rest, mask)
+            mask = (mask & ~d) | (keep_rest & d)  # bool logic, not where(): ORT lacks Where on bool
         return tokens, mask
 
 

@@ -61,7 +61,9 @@ def plucker(origins: torch.Tensor, dirs: torch.Tensor, ray_scale: float) -> torc
     dirs, origins = dirs.float(), origins.float()
     d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
     o = (origins / ray_scale)[..., None, None, :].expand_as(d)
-    return torch.cat([torch.cross(o, d, dim=-1), d], dim=-1).movedim(-1, -3)
+    out = torch.cat([torch.cross(o, d, dim=-1), d], dim=-1)
+    n = out.dim()
+    return out.permute(*range(n - 3), n - 1, n - 3, n - 2)  # explicit perm (ONNX rejects negative ones)
 
 
 def matrix_to_quaternion(R: torch.Tensor) -> torch.Tensor:
@@ -72,9 +74,9 @@ def matrix_to_quaternion(R: torch.Tensor) -> torch.Tensor:
     x = torch.sqrt((1 + m00 - m11 - m22).clamp_min(0)) / 2
     y = torch.sqrt((1 - m00 + m11 - m22).clamp_min(0)) / 2
     z = torch.sqrt((1 - m00 - m11 + m22).clamp_min(0)) / 2
-    x = torch.copysign(x, m[..., 2, 1] - m[..., 1, 2])
-    y = torch.copysign(y, m[..., 0, 2] - m[..., 2, 0])
-    z = torch.copysign(z, m[..., 1, 0] - m[..., 0, 1])
+    x = torch.where(m[..., 2, 1] - m[..., 1, 2] < 0, -x, x)  # copysign (not exportable to ONNX)
+    y = torch.where(m[..., 0, 2] - m[..., 2, 0] < 0, -y, y)
+    z = torch.where(m[..., 1, 0] - m[..., 0, 1] < 0, -z, z)
     q = torch.stack([w, x, y, z], dim=-1)
     return q / q.norm(dim=-1, keepdim=True).clamp_min(1e-8)
 

@@ -187,7 +187,7 @@ def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: P
             norm = torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
             if torch.isfinite(norm):
                 opt.step()
-        rec = {"step": step + 1, "loss": float(loss), "clean": bool(use_clean), "render": bool(use_render),
+        rec = {"step": step + 1, "loss": float(loss.detach()), "clean": bool(use_clean), "render": bool(use_render),
                "time": round(time.time() - t0, 1)}
         history.append(rec)
         if bar is not None:

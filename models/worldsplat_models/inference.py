@@ -1,0 +1,316 @@
+"""Inference API used by `worldsplat.pipeline` (modes "reconstruct" and "generate").
+
+Contract
+--------
+    models = load_models(weights_dir=None)           # models/weights by default; cached per directory
+    available_modes(weights_dir=None) -> ["reconstruct", "generate"] subset whose weights exist
+    dec = reconstruct(clip, models=None)              # clip: worldsplat.world.simulate(...) output (rgb, depth,
+                                                      #   dynamic, rig, ego_to_world, frame_times, caption)
+    dec = generate(conditions, steps=8, seed=0, models=None, rig=None, frame_times=None, progress=None)
+                                                      # conditions: world.conditions() (sketch, boxes, ego_traj,
+                                                      #   caption); rig: list[RigCamera] (default: default_rig)
+    scene = to_scene4d(dec, meta=None)                # paper eq. 3: static = every frame's Gaussians with
+                                                      #   p_dynamic < 0.5, dynamic[t] = frame t's with p >= 0.5
+`dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
+probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
+
+The models run at their trained geometry (DataConfig: 64x112 per view, 6 views, 4-frame windows): inputs of other
+sizes are resampled to it (the Gaussians live in world metres, so they render at any resolution), and longer clips
+are processed in consecutive 4-frame windows (the last one padded by repeating its final frame). The rig must have
+the 6 default cameras in order. Deterministic for a given seed; float32 on CPU; `torch.no_grad` throughout.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from . import rflow
+from .configs import DataConfig, get_config
+from .data import pack_boxes, sketch_rgb
+from .dit import dropped
+from .vae import normalize_depth
+from .weights import DEFAULT_DIR, load_weights
+
+SIZE = "small"
+
+
+@dataclass
+class Models:
+    vae: torch.nn.Module | None
+    decoder: torch.nn.Module | None
+    dit: torch.nn.Module | None
+    data: DataConfig
+    version: str                     # short hash of the weight files (for cache keys)
+    weights_dir: Path
+
+    @property
+    def modes(self) -> list[str]:
+        out = []
+        if self.vae is not None and self.decoder is not None:
+            out.append("reconstruct")
+            if self.dit is not None:
+                out.append("generate")
+        return out
+
+
+@dataclass
+class DecodedFrames:
+    gaussians: list[list]            # [t][v] Gaussians
+    dynamic_logits: list[list]       # [t][v] (N,) tensors
+    frame_times: np.ndarray
+    rig: list
+    ego_to_world: np.ndarray
+    latents: torch.Tensor            # (T, V, C, h, w) normalised L
+    meta: dict = field(default_factory=dict)
+
+    def frame(self, t: int):
+        from worldsplat.gaussians import Gaussians
+        return Gaussians.cat(self.gaussians[t])
+
+
+_CACHE: dict[str, Models] = {}
+
+
+def weight_paths(weights_dir: str | Path | None = None) -> dict[str, Path]:
+    d = Path(weights_dir) if weights_dir is not None else DEFAULT_DIR
+    return {k: d / f"{k}_{SIZE}.safetensors" for k in ("vae", "decoder", "dit")}
+
+
+def available_modes(weights_dir: str | Path | None = None) -> list[str]:
+    p = weight_paths(weights_dir)
+    out = []
+    if p["vae"].exists() and p["decoder"].exists():
+        out.append("reconstruct")
+        if p["dit"].exists():
+            out.append("generate")
+    return out
+
+
+def load_models(weights_dir: str | Path | None = None) -> Models:
+    """Load whichever of vae / decoder / dit exist (missing ones are None; `Models.modes` says what works)."""
+    paths = weight_paths(weights_dir)
+    key = str(paths["vae"].parent.resolve())
+    if key in _CACHE:
+        return _CACHE[key]
+    h = hashlib.sha256()
+    loaded = {}
+    for k, p in paths.items():
+        if p.exists():
+            loaded[k] = load_weights(p, k)
+            h.update(p.read_bytes())
+        else:
+            loaded[k] = None
+    m = Models(loaded["vae"], loaded["decoder"], loaded["dit"], get_config(SIZE).data, h.hexdigest()[:12],
+               paths["vae"].parent)
+    _CACHE[key] = m
+    return m
+
+
+def _require(models: Models | None, mode: str) -> Models:
+    models = models or load_models()
+    if mode not in models.modes:
+        raise FileNotFoundError(f"{mode} mode needs weights that are missing in {models.weights_dir} "
+                                f"(have modes: {models.modes or 'none'})")
+    return models
+
+
+# --- geometry helpers ----------------------------------------------------------------------------------------------
+
+def _resize(x: torch.Tensor, hw: tuple[int, int], mode: str) -> torch.Tensor:
+    """(N, C, H, W) -> (N, C, h, w). mode: area | nearest | max (thin sketch lines survive down-sampling)."""
+    if tuple(x.shape[-2:]) == tuple(hw):
+        return x
+    if mode == "max" and x.shape[-2] >= hw[0]:
+        return F.adaptive_max_pool2d(x, hw)
+    if mode == "area" and x.shape[-2] >= hw[0]:
+        return F.adaptive_avg_pool2d(x, hw)
+    return F.interpolate(x, size=hw, mode="nearest" if mode in ("nearest", "max") else "bilinear",
+                         align_corners=False)
+
+
+def _cameras(rig, ego_to_world: np.ndarray, native_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """intrinsics (T,V,4) rescaled to the native image size, cam_to_world (T,V,4,4)."""
+    H, W = native_hw
+    T = len(ego_to_world)
+    intr = np.zeros((T, len(rig), 4), np.float32)
+    c2w = np.zeros((T, len(rig), 4, 4), np.float32)
+    for v, rc in enumerate(rig):
+        sx, sy = W / rc.width, H / rc.height
+        intr[:, v] = (rc.fx * sx, rc.fy * sy, rc.cx * sx, rc.cy * sy)
+        for t in range(T):
+            c2w[t, v] = np.asarray(ego_to_world[t]) @ rc.camera_to_ego
+    return torch.from_numpy(intr), torch.from_numpy(c2w)
+
+
+def _windows(T: int, F_: int) -> list[list[int]]:
+    """Consecutive windows of F_ frame indices covering 0..T-1; the last is padded with its final frame."""
+    out = []
+    for s in range(0, T, F_):
+        idx = list(range(s, min(T, s + F_)))
+        out.append(idx + [idx[-1]] * (F_ - len(idx)))
+    return out
+
+
+def _check_rig(rig, V: int) -> None:
+    from worldsplat.camera import CAMERA_NAMES
+    names = tuple(rc.name for rc in rig)
+    if len(rig) != V or names != CAMERA_NAMES[:V]:
+        raise ValueError(f"the models were trained on the default {V}-camera rig {CAMERA_NAMES}; got {names}")
+
+
+def _decode_gaussians(models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times,
+                      meta: dict) -> DecodedFrames:
+    """L (T,V,C,h,w) normalised -> DecodedFrames (window by window)."""
+    from worldsplat.gaussians import Gaussians
+    d = models.data
+    T = L.shape[0]
+    intr, c2w = _cameras(rig, ego_to_world, (d.height, d.width))
+    gs, logits = [[None] * len(rig) for _ in range(T)], [[None] * len(rig) for _ in range(T)]
+    for win in _windows(T, d.frames):
+        out = models.decoder(L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
+        for i, t in enumerate(win):
+            for v in range(len(rig)):
+                f = {k: x[0, i, v].reshape(-1, x.shape[-1]) if x.dim() == 6 else x[0, i, v].reshape(-1)
+                     for k, x in out.items()}
+                p = torch.sigmoid(f["dynamic_logit"])
+                gs[t][v] = Gaussians(f["means"], f["quats"], f["scales"], f["opacities"], f["colors"], p[:, None])
+                logits[t][v] = f["dynamic_logit"]
+    return DecodedFrames(gs, logits, np.asarray(frame_times, np.float64), list(rig),
+                         np.asarray(ego_to_world, np.float64), L, meta)
+
+
+# --- modes -----------------------------------------------------------------------------------------------------------
+
+@torch.no_grad()
+def encode_clip(models: Models, rgb, depth, dynamic) -> torch.Tensor:
+    """(T,V,H,W,3) uint8, (T,V,H,W) metres, (T,V,H,W) bool -> normalised L (T,V,C,h,w) at the native size."""
+    d = models.data
+    rgb = torch.as_tensor(np.asarray(rgb))
+    T, V = rgb.shape[:2]
+    hw = (d.height, d.width)
+    x = _resize(rgb.reshape(T * V, *rgb.shape[2:]).permute(0, 3, 1, 2).float() / 127.5 - 1, hw, "area")
+    dn = normalize_depth(torch.as_tensor(np.asarray(depth, np.float32)), d.depth_near, d.depth_far)
+    dn = _resize(dn.reshape(T * V, 1, *dn.shape[2:]), hw, "area")
+    m = torch.as_tensor(np.asarray(dynamic, bool)).reshape(T * V, 1, *rgb.shape[2:4]).float()
+    m = (_resize(m, hw, "area") > 0.5).float()
+    L = models.vae.encode_joint(x, dn, m)
+    return L.reshape(T, V, *L.shape[1:])
+
+
+@torch.no_grad()
+def reconstruct(clip, models: Models | None = None) -> DecodedFrames:
+    """Reconstruct mode (paper §3.5): multi-view video + depth + dynamic masks -> VAE encoder -> Gaussian decoder,
+    bypassing diffusion. The world supplies exact depth and masks where the paper used Metric3D and SegFormer."""
+    models = _require(models, "reconstruct")
+    for k in ("rgb", "depth", "dynamic", "rig", "ego_to_world"):
+        if getattr(clip, k, None) is None:
+            raise ValueError(f"reconstruct: the clip has no {k!r}")
+    _check_rig(clip.rig, models.data.views)
+    L = encode_clip(models, clip.rgb, clip.depth, clip.dynamic)
+    return _decode_gaussians(models, L, clip.rig, clip.ego_to_world, clip.frame_times,
+                             {"mode": "reconstruct", "model_version": models.version,
+                              "caption": getattr(clip, "caption", "")})
+
+
+def condition_tensors(models: Models, conditions: dict, ego_to_world: np.ndarray, caption_emb: torch.Tensor | None
+                      = None) -> dict:
+    """world.conditions() -> the DiT's condition dict for all T frames (control = sketch latent)."""
+    d = models.data
+    for k in ("sketch", "boxes", "caption"):
+        if k not in conditions:
+            raise ValueError(f"generate: conditions lack {k!r}")
+    sk = torch.from_numpy(sketch_rgb(conditions["sketch"]))
+    T, V = sk.shape[:2]
+    if V != d.views:
+        raise ValueError(f"generate: {V} sketch views, the models expect {d.views}")
+    if len(conditions["boxes"]) != T:
+        raise ValueError(f"generate: boxes for {len(conditions['boxes'])} frames, sketch has {T}")
+    sk = _resize(sk.reshape(T * V, *sk.shape[2:]).permute(0, 3, 1, 2), (d.height, d.width), "max") * 2 - 1
+    c = models.vae.cfg.latent_channels
+    vae = models.vae
+    ctl = (vae.encode(sk) - vae.latent_mean[:c].view(1, -1, 1, 1)) / vae.latent_std[:c].view(1, -1, 1, 1)
+    corners, cls, moving, mask = pack_boxes(conditions["boxes"], ego_to_world, d.max_boxes)
+    if caption_emb is None:
+        from .conditions import encode_captions
+        caption_emb = encode_captions([str(conditions["caption"])])[0]
+    traj = np.asarray(conditions.get("ego_traj", ego_to_world), np.float32)
+    return {"box_corners": torch.from_numpy(corners), "box_cls": torch.from_numpy(cls),
+            "box_moving": torch.from_numpy(moving), "box_mask": torch.from_numpy(mask),
+            "traj": torch.from_numpy(traj), "caption": caption_emb.float(),
+            "control": ctl.reshape(T, V, *ctl.shape[1:])}
+
+
+def window_cond(cond: dict, win: list[int]) -> dict:
+    out = {k: v[win][None] for k, v in cond.items() if k != "caption"}
+    out["caption"] = cond["caption"][None]
+    return out
+
+
+@torch.no_grad()
+def sample_latents(models: Models, cond: dict, steps: int = 8, seed: int = 0, cfg_scale: float | None = None,
+                   shift: float | None = None, progress: Callable[[float], None] | None = None) -> torch.Tensor:
+    """Rectified-flow sampling of L (T,V,C,h,w), window by window; the noise depends only on (seed, window)."""
+    d, dcfg = models.data, models.dit.cfg
+    T = cond["control"].shape[0]
+    cfg_scale = dcfg.cfg_scale if cfg_scale is None else cfg_scale
+    shift = dcfg.sampler_shift if shift is None else shift
+    wins = _windows(T, d.frames)
+    L = torch.zeros(T, d.views, dcfg.out_channels, *cond["control"].shape[-2:])
+    for wi, win in enumerate(wins):
+        c = window_cond(cond, win)
+        g = torch.Generator().manual_seed(int(seed) * 1000 + wi)
+        noise = torch.randn(1, len(win), d.views, dcfg.in_channels, *L.shape[-2:], generator=g)
+        cb = None if progress is None else (lambda k, n, wi=wi: progress((wi + k / n) / len(wins)))
+        z = rflow.sample(models.dit, noise, c, steps=steps, shift=shift, cfg_scale=cfg_scale, uncond=dropped(c),
+                         callback=cb)
+        L[win] = z[0]
+    return L
+
+
+@torch.no_grad()
+def generate(conditions: dict, steps: int = 8, seed: int = 0, models: Models | None = None, rig=None,
+             frame_times=None, cfg_scale: float | None = None, progress: Callable[[float], None] | None = None,
+             caption_embedding: torch.Tensor | None = None) -> DecodedFrames:
+    """Generate mode: conditions -> DiT (rectified flow, `steps` Euler steps) -> Gaussian decoder."""
+    models = _require(models, "generate")
+    if not isinstance(steps, int) or not 1 <= steps <= 256:
+        raise ValueError(f"generate: steps must be an integer in 1..256, got {steps!r}")
+    d = models.data
+    ego = np.asarray(conditions.get("ego_traj"), np.float64) if conditions.get("ego_traj") is not None else None
+    T = np.asarray(conditions["sketch"]).shape[0]
+    if ego is None:
+        raise ValueError("generate: conditions lack 'ego_traj'")
+    if rig is None:
+        from worldsplat.camera import default_rig
+        h, w = np.asarray(conditions["sketch"]).shape[2:4]
+        rig = default_rig(w, h)
+    _check_rig(rig, d.views)
+    cond = condition_tensors(models, conditions, ego, caption_embedding)
+    L = sample_latents(models, cond, steps, seed, cfg_scale, progress=progress)
+    ft = np.arange(T, dtype=np.float64) if frame_times is None else frame_times
+    return _decode_gaussians(models, L, rig, ego, ft, {"mode": "generate", "steps": steps, "seed": seed,
+                                                      "model_version": models.version,
+                                                      "caption": str(conditions["caption"])})
+
+
+def to_scene4d(dec: DecodedFrames, threshold: float = 0.5, min_opacity: float = 1.0 / 255, meta: dict | None = None):
+    """Paper eq. 3 with hard masks: static = union over frames of Gaussians with p_dynamic < threshold,
+    dynamic[t] = frame t's Gaussians with p_dynamic >= threshold. Near-transparent Gaussians are dropped."""
+    from worldsplat.gaussians import Gaussians, Scene4D
+    static, dynamic = [], []
+    for t in range(len(dec.gaussians)):
+        g = Gaussians.cat(dec.gaussians[t])
+        p = g.extras[:, 0]
+        vis = g.opacities >= min_opacity
+        static.append(g.subset(vis & (p < threshold)))
+        dynamic.append(g.subset(vis & (p >= threshold)))
+    m = dict(dec.meta)
+    m.update(meta or {})
+    return Scene4D(Gaussians.cat(static), dynamic, dec.frame_times, dec.rig, dec.ego_to_world, m)

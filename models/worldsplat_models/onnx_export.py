@@ -1,0 +1,184 @@
+"""ONNX export of the serving graphs and an onnxruntime runner, with parity and speed helpers.
+
+Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V views):
+    vae_encoder   image (N,3,H,W) in [-1,1]                         -> posterior mean (N,c,H/8,W/8)
+    vae_decoder   latent (N,c,h,w)                                  -> image (N,3,H,W)
+    dit_step      z, s, box_corners, box_cls, box_moving, box_mask, traj, caption, control, drop -> velocity
+    gs_decoder    L (1,T,V,C,h,w), intrinsics (1,T,V,4), cam_to_world (1,T,V,4,4) -> means, quats, scales,
+                  opacities, colors, depth, dynamic_logit
+Parity tolerance (documented in web/docs/models.md): max |ORT - torch| <= 1e-3 (absolute) on every output at
+float32, checked by tests/python/test_models_onnx.py; `speed_ratio` times both side by side.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+PARITY_ATOL = 1e-3
+GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder")
+
+
+class _Enc(torch.nn.Module):
+    def __init__(self, vae):
+        super().__init__()
+        self.vae = vae
+
+    def forward(self, image):
+        return self.vae.encode(image)
+
+
+class _Dec(torch.nn.Module):
+    def __init__(self, vae):
+        super().__init__()
+        self.vae = vae
+
+    def forward(self, latent):
+        return self.vae.decode(latent)
+
+
+class _DiTStep(torch.nn.Module):
+    KEYS = ("box_corners", "box_cls", "box_moving", "box_mask", "traj", "caption", "control", "drop")
+
+    def __init__(self, dit):
+        super().__init__()
+        self.dit = dit
+
+    def forward(self, z, s, box_corners, box_cls, box_moving, box_mask, traj, caption, control, drop):
+        cond = dict(box_corners=box_corners, box_cls=box_cls, box_moving=box_moving, box_mask=box_mask, traj=traj,
+                    caption=caption, control=control, drop=drop)
+        return self.dit(z, s, cond)
+
+
+class _GSDec(torch.nn.Module):
+    def __init__(self, dec, image_hw):
+        super().__init__()
+        self.dec, self.image_hw = dec, image_hw
+
+    def forward(self, L, intrinsics, cam_to_world):
+        out = self.dec(L, intrinsics, cam_to_world, self.image_hw)
+        return tuple(out[k] for k in OUT_KEYS)
+
+
+OUT_KEYS = ("means", "quats", "scales", "opacities", "colors", "depth", "dynamic_logit")
+
+
+def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
+    """Representative inputs for graph `kind` at the models' trained geometry."""
+    d = models.data
+    g = torch.Generator().manual_seed(seed)
+    T, V, H, W = d.frames, d.views, d.height, d.width
+    h, w = H // 8, W // 8
+    if kind == "vae_encoder":
+        return {"image": torch.rand(2, 3, H, W, generator=g) * 2 - 1}
+    if kind == "vae_decoder":
+        return {"latent": torch.randn(2, models.vae.cfg.latent_channels, h, w, generator=g)}
+    if kind == "dit_step":
+        c = models.dit.cfg
+        N = d.max_boxes
+        return {"z": torch.randn(1, T, V, c.in_channels, h, w, generator=g), "s": torch.tensor([0.4]),
+                "box_corners": torch.randn(1, T, N, 8, 3, generator=g) * 10,
+                "box_cls": torch.randint(0, d.num_classes, (1, T, N), generator=g),
+                "box_moving": torch.rand(1, T, N, generator=g) > 0.5,
+                "box_mask": torch.rand(1, T, N, generator=g) > 0.5, "traj": torch.eye(4).repeat(1, T, 1, 1),
+                "caption": torch.nn.functional.normalize(torch.randn(1, 384, generator=g), dim=-1),
+                "control": torch.randn(1, T, V, c.control_channels, h, w, generator=g),
+                "drop": torch.tensor([False])}
+    if kind == "gs_decoder":
+        from worldsplat.camera import default_rig
+        from .inference import _cameras
+        rig = default_rig(W, H)[:V]
+        ego = np.stack([np.eye(4)] * T)
+        ego[:, 0, 3] = np.arange(T) * 2.0
+        intr, c2w = _cameras(rig, ego, (H, W))
+        return {"L": torch.randn(1, T, V, models.decoder.cfg.in_channels, h, w, generator=g),
+                "intrinsics": intr[None], "cam_to_world": c2w[None]}
+    raise ValueError(f"unknown graph {kind!r}; expected one of {', '.join(GRAPHS)}")
+
+
+def wrapper(models, kind: str) -> torch.nn.Module:
+    d = models.data
+    return {"vae_encoder": lambda: _Enc(models.vae), "vae_decoder": lambda: _Dec(models.vae),
+            "dit_step": lambda: _DiTStep(models.dit),
+            "gs_decoder": lambda: _GSDec(models.decoder, (d.height, d.width))}[kind]().eval()
+
+
+def output_names(kind: str) -> list[str]:
+    return {"vae_encoder": ["mean"], "vae_decoder": ["image"], "dit_step": ["velocity"],
+            "gs_decoder": list(OUT_KEYS)}[kind]
+
+
+def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
+    """Write <out_dir>/<kind>.onnx for each graph whose model is loaded."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    need = {"vae_encoder": models.vae, "vae_decoder": models.vae, "dit_step": models.dit,
+            "gs_decoder": models.decoder}
+    paths = {}
+    for kind in kinds:
+        if need[kind] is None:
+            continue
+        inputs = example_inputs(models, kind)
+        path = out_dir / f"{kind}.onnx"
+        tmp = path.with_suffix(".tmp.onnx")
+        with torch.no_grad():
+            torch.onnx.export(wrapper(models, kind), tuple(inputs.values()), str(tmp),
+                              input_names=list(inputs), output_names=output_names(kind), opset_version=18,
+                              dynamo=False)
+        tmp.replace(path)
+        paths[kind] = path
+    return paths
+
+
+def session(path: str | Path, threads: int = 2):
+    import onnxruntime as ort
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+
+def run_ort(sess, inputs: dict[str, torch.Tensor]) -> list[np.ndarray]:
+    feed = {k: v.numpy() for k, v in inputs.items() if k in {i.name for i in sess.get_inputs()}}
+    return sess.run(None, feed)
+
+
+def run_torch(models, kind: str, inputs: dict[str, torch.Tensor]) -> list[np.ndarray]:
+    with torch.no_grad():
+        out = wrapper(models, kind)(*inputs.values())
+    out = out if isinstance(out, tuple) else (out,)
+    return [o.numpy() for o in out]
+
+
+def parity(models, onnx_dir: str | Path, kind: str, seed: int = 0) -> float:
+    """max |ORT - torch| over all outputs of graph `kind` for representative inputs."""
+    inputs = example_inputs(models, kind, seed)
+    a = run_torch(models, kind, inputs)
+    b = run_ort(session(Path(onnx_dir) / f"{kind}.onnx"), inputs)
+    return max(float(np.max(np.abs(x - y))) for x, y in zip(a, b))
+
+
+def speed_ratio(models, onnx_dir: str | Path, kind: str, repeats: int = 5, threads: int = 2) -> dict:
+    """Time torch eager and onnxruntime side by side (interleaved, best of `repeats`) on the same inputs.
+    Returns {"torch_s", "ort_s", "ratio" (= torch_s / ort_s, > 1 means ORT is faster), "max_abs_diff"}."""
+    torch.set_num_threads(threads)
+    inputs = example_inputs(models, kind)
+    sess = session(Path(onnx_dir) / f"{kind}.onnx", threads)
+    mod = wrapper(models, kind)
+    tt, to = [], []
+    with torch.no_grad():
+        mod(*inputs.values())
+        run_ort(sess, inputs)
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            mod(*inputs.values())
+            tt.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            run_ort(sess, inputs)
+            to.append(time.perf_counter() - t0)
+    a = run_torch(models, kind, inputs)
+    b = run_ort(sess, inputs)
+    diff = max(float(np.max(np.abs(x - y))) for x, y in zip(a, b))
+    return {"graph": kind, "torch_s": min(tt), "ort_s": min(to), "ratio": min(tt) / min(to), "max_abs_diff": diff}

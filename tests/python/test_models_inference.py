@@ -1,0 +1,135 @@
+"""The inference API used by worldsplat.pipeline (tiny random models) and the ONNX serving graphs' parity."""
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from worldsplat_models import inference as inf
+from worldsplat_models import onnx_export as ox
+from worldsplat_models.configs import get_config
+from worldsplat_models.data import synthetic_sample
+from worldsplat_models.weights import build, load_weights, save_weights
+
+torch.set_num_threads(1)
+CFG = get_config("tiny")
+
+
+@pytest.fixture(scope="module")
+def models():
+    torch.manual_seed(0)
+    m = inf.Models(build("vae", CFG.vae).eval(), build("decoder", CFG.decoder).eval(), build("dit", CFG.dit).eval(),
+                   CFG.data, "test", Path("."))
+    with torch.no_grad():
+        for p in list(m.dit.parameters()) + list(m.decoder.head.parameters()):
+            p.add_(0.05 * torch.randn_like(p))
+    return m
+
+
+def tiny_clip(T=3, seed=0):
+    from worldsplat.camera import default_rig
+    d = CFG.data
+    s = synthetic_sample(d, seed)
+    rig = default_rig(d.width, d.height)[: d.views]
+    ego = np.stack([np.eye(4)] * T)
+    ego[:, 0, 3] = np.arange(T)
+    rep = lambda a: np.concatenate([a] * 2)[:T]  # noqa: E731
+    return SimpleNamespace(rgb=rep(s["rgb"]), depth=rep(s["depth"]), dynamic=rep(s["dynamic"]), rig=rig,
+                           ego_to_world=ego, frame_times=np.arange(T) / 4.0, caption="tiny"), s
+
+
+def test_reconstruct_windows_and_scene(models):
+    clip, _ = tiny_clip(T=3)  # 3 frames with 2-frame windows: the last window is padded
+    dec = inf.reconstruct(clip, models)
+    d = CFG.data
+    gh, gw = d.height // 8 * CFG.decoder.upsample, d.width // 8 * CFG.decoder.upsample
+    assert len(dec.gaussians) == 3 and len(dec.gaussians[0]) == d.views
+    assert len(dec.gaussians[2][1]) == gh * gw and dec.dynamic_logits[2][1].shape == (gh * gw,)
+    assert dec.latents.shape == (3, d.views, CFG.vae.joint_channels, d.height // 8, d.width // 8)
+    scene = inf.to_scene4d(dec, meta={"fps": 4})
+    assert scene.num_frames == 3
+    vis = sum(int((inf.to_scene4d(dec, threshold=2.0).dynamic[t].opacities >= 0).sum()) for t in range(3))
+    assert vis == 0  # threshold above 1: nothing is dynamic
+    total = sum(len(g) for t in range(3) for g in dec.gaussians[t])
+    assert len(scene.static) + sum(len(x) for x in scene.dynamic) <= total
+    assert torch.isfinite(scene.static.means).all()
+
+
+def test_reconstruct_is_deterministic_and_resamples_input_size(models):
+    clip, _ = tiny_clip(T=2)
+    a = inf.reconstruct(clip, models)
+    b = inf.reconstruct(clip, models)
+    assert torch.equal(a.frame(1).means, b.frame(1).means)
+    big = SimpleNamespace(**vars(clip))
+    big.rgb = clip.rgb.repeat(2, axis=2).repeat(2, axis=3)
+    big.depth = clip.depth.repeat(2, axis=2).repeat(2, axis=3)
+    big.dynamic = clip.dynamic.repeat(2, axis=2).repeat(2, axis=3)
+    c = inf.reconstruct(big, models)  # 2x input resolution is area-resampled to the trained size
+    assert torch.allclose(c.latents, a.latents, atol=1e-4)
+
+
+def test_generate_seed_steps_and_errors(models):
+    clip, s = tiny_clip(T=2)
+    boxes = [[{"corners": s["box_corners"][t, k], "cls": 12, "moving": True} for k in range(2)] for t in range(2)]
+    cond = {"sketch": s["sketch"], "boxes": boxes, "ego_traj": clip.ego_to_world, "caption": "x"}
+    emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
+    a = inf.generate(cond, steps=2, seed=1, models=models, rig=clip.rig, caption_embedding=emb)
+    b = inf.generate(cond, steps=2, seed=1, models=models, rig=clip.rig, caption_embedding=emb)
+    c = inf.generate(cond, steps=2, seed=2, models=models, rig=clip.rig, caption_embedding=emb)
+    assert torch.equal(a.latents, b.latents) and not torch.equal(a.latents, c.latents)
+    with pytest.raises(ValueError, match="steps"):
+        inf.generate(cond, steps=0, models=models, rig=clip.rig, caption_embedding=emb)
+    with pytest.raises(ValueError, match="boxes for"):
+        inf.generate(dict(cond, boxes=boxes[:1]), steps=1, models=models, rig=clip.rig, caption_embedding=emb)
+    with pytest.raises(ValueError, match="default"):
+        inf.generate(cond, steps=1, models=models, rig=clip.rig[::-1], caption_embedding=emb)
+
+
+def test_missing_weights_say_which_modes_exist(tmp_path):
+    assert inf.available_modes(tmp_path) == []
+    m = inf.load_models(tmp_path)
+    assert m.modes == []
+    clip, _ = tiny_clip()
+    with pytest.raises(FileNotFoundError, match="reconstruct mode needs weights"):
+        inf.reconstruct(clip, m)
+
+
+def test_weight_files_round_trip(tmp_path, models):
+    p = save_weights(models.decoder, tmp_path / "decoder_small.safetensors", "decoder", {"steps": 3})
+    back = load_weights(p, "decoder")
+    assert back.meta["steps"] == 3 and back.cfg == models.decoder.cfg
+    for k, v in models.decoder.state_dict().items():
+        assert torch.equal(v, back.state_dict()[k])
+    with pytest.raises(ValueError, match="holds a decoder"):
+        load_weights(p, "vae")
+
+
+@pytest.fixture(scope="module")
+def onnx_dir(models, tmp_path_factory):
+    out = tmp_path_factory.mktemp("onnx")
+    ox.export(models, out)
+    return out
+
+
+@pytest.mark.parametrize("kind", ox.GRAPHS)
+def test_onnx_parity(models, onnx_dir, kind):
+    assert (onnx_dir / f"{kind}.onnx").exists()
+    assert ox.parity(models, onnx_dir, kind, seed=3) <= ox.PARITY_ATOL
+
+
+def test_onnx_dit_step_parity_with_dropped_conditions(models, onnx_dir):
+    inputs = ox.example_inputs(models, "dit_step", 5)
+    inputs["drop"] = torch.tensor([True])
+    a = ox.run_torch(models, "dit_step", inputs)[0]
+    b = ox.run_ort(ox.session(onnx_dir / "dit_step.onnx", 1), inputs)[0]
+    assert np.abs(a - b).max() <= ox.PARITY_ATOL
+    inputs2 = dict(inputs, box_corners=inputs["box_corners"] + 5)  # dropped: boxes must not matter in ORT either
+    c = ox.run_ort(ox.session(onnx_dir / "dit_step.onnx", 1), inputs2)[0]
+    assert np.abs(b - c).max() <= 1e-5
+
+
+def test_speed_ratio_reports_both_times(models, onnx_dir):
+    r = ox.speed_ratio(models, onnx_dir, "vae_decoder", repeats=1, threads=1)
+    assert r["torch_s"] > 0 and r["ort_s"] > 0 and r["ratio"] == pytest.approx(r["torch_s"] / r["ort_s"])
+    assert r["max_abs_diff"] <= ox.PARITY_ATOL

@@ -1,0 +1,142 @@
+"""Refined novel-track video (paper §3.4-3.5): render the 4D Gaussians from the shifted track, reproject the
+conditions (S', B', T') for the shifted rig from the world, VAE-encode the render, denoise with the Enhanced Diffusion
+Model (worldsplat_models.enhancer), VAE-decode.
+
+    from worldsplat.refine import refine_available, refine_track
+    frames = refine_track(scene, shift_m=4.0, cameras=["CAM_FRONT"], steps=8, progress=cb, cancelled=fn)
+
+The scenario that produced the scene is needed for the conditions: it is read from `scene.meta["scenario"]` (a dict
+or JSON string; the pipeline stores it there, and it travels in the .wsplat header) or passed as `scenario=`.
+See web/docs/refinement.md.
+"""
+from __future__ import annotations
+
+import json
+import time
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+WEIGHTS = Path(__file__).resolve().parents[2] / "models" / "weights" / "enhancer_small.safetensors"
+DEFAULT_BLEND = "holes"
+
+
+def refine_available(weights: Path | None = None) -> bool:
+    """True when the enhancer weights (which bundle their VAE) are installed."""
+    return Path(weights or WEIGHTS).exists()
+
+
+@lru_cache(maxsize=2)
+def load_refiner(weights: str | None = None):
+    """(enhancer, vae) in eval mode, loaded once per process."""
+    from worldsplat_models.enhancer import load_enhancer
+    return load_enhancer(weights or WEIGHTS)
+
+
+def scenario_of(scene, scenario=None):
+    """The Scenario behind a scene: the argument, else scene.meta["scenario"]; a clear error otherwise."""
+    from worldsplat.scenario import Scenario
+    if scenario is not None:
+        return scenario if isinstance(scenario, Scenario) else Scenario.parse(scenario)
+    s = scene.meta.get("scenario")
+    if s is None:
+        raise ValueError("refinement needs the scene's scenario (for the reprojected sketch and boxes): the scene's "
+                         "meta has no 'scenario'; pass scenario=")
+    return Scenario.parse(json.loads(s) if isinstance(s, str) else s)
+
+
+def _check_rig(scene, world) -> None:
+    names = [c.name for c in scene.rig]
+    if names != [c.name for c in world.rig]:
+        raise ValueError(f"scene rig {names} does not match its scenario's rig {[c.name for c in world.rig]}")
+    a, b = scene.rig[0], world.rig[0]
+    if (a.width, a.height) != (b.width, b.height):
+        raise ValueError(f"scene images are {a.width}x{a.height} but its scenario says {b.width}x{b.height}")
+
+
+def track_conditions(world, shift_m: float, max_boxes: int) -> dict:
+    """Reprojected conditions of the shifted track (S', B', T', caption) from the world's layout."""
+    from worldsplat.evaluation.pairs import conditions_for_track
+    return conditions_for_track(world, shift_m, max_boxes)
+
+
+def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps: int = 8, progress=None,
+                 cancelled=None, scenario=None, blend: str = DEFAULT_BLEND, seed: int = 0,
+                 weights: Path | None = None, timings: dict | None = None, render=None) -> np.ndarray:
+    """Refined frames (T,V',H,W,3) uint8 of the scene seen from the track shifted `shift_m` m left, for `cameras`
+    (names, rig order; None = all). progress(stage, fraction) with stages "render", "conditions", "refine";
+    cancelled() is checked between stages (raises worldsplat.evaluation.Cancelled). blend "holes" (default) keeps the
+    render where it covers the pixel and fills its holes with the model's output; "none" returns the model's output
+    everywhere (the paper's form). `render` (a TrackRender of the full rig) skips the render stage."""
+    from worldsplat.evaluation import Cancelled
+    from worldsplat.evaluation.novel_track import render_scene_track
+    from worldsplat.world import build_world
+    from worldsplat_models.conditions import encode_captions
+    from worldsplat_models.enhancer import enhance
+    if not np.isfinite(shift_m) or abs(shift_m) > 50:
+        raise ValueError(f"shift_m must be finite and within +-50 m, got {shift_m}")
+    if not isinstance(steps, int) or not 1 <= steps <= 64:
+        raise ValueError(f"steps must be an integer in 1..64, got {steps!r}")
+    names = [c.name for c in scene.rig]
+    cameras = names if cameras is None else list(cameras)
+    unknown = [c for c in cameras if c not in names]
+    if unknown or not cameras:
+        raise ValueError(f"unknown camera(s) {unknown or cameras}; the scene's rig has {', '.join(names)}")
+    prog = progress or (lambda stage, frac: None)
+    check = cancelled or (lambda: False)
+    tm = timings if timings is not None else {}
+    world = build_world(scenario_of(scene, scenario))
+    _check_rig(scene, world)
+    model, vae = load_refiner(None if weights is None else str(weights))
+
+    t0 = time.perf_counter()
+    if render is None:
+        render = render_scene_track(scene, shift_m, progress=progress, cancelled=cancelled)
+    tm["render"] = time.perf_counter() - t0
+    if check():
+        raise Cancelled("cancelled after rendering")
+    prog("conditions", 0.0)
+    t0 = time.perf_counter()
+    cond = track_conditions(world, shift_m, model.cfg.data.max_boxes)
+    cap = encode_captions([cond["caption"]])[0]
+    tm["conditions"] = time.perf_counter() - t0
+    prog("conditions", 1.0)
+    if check():
+        raise Cancelled("cancelled after the conditions")
+    out = enhance(model, vae, render.rgb, render.alpha, cond["sketch"], cond, cond["traj"], cap, steps=steps,
+                  seed=seed, blend=blend, callback=lambda f: prog("refine", f), timings=tm)
+    prog("refine", 1.0)
+    return out[:, [names.index(c) for c in cameras]]
+
+
+def stage_timings(scene=None, shift_m: float = 4.0, scenario=None, steps: int = 8, cameras: list[str] | None = None,
+                  blend: str = DEFAULT_BLEND, weights: Path | None = None) -> dict:
+    """Seconds per stage of one refined video (render, conditions, encode, denoise, decode, video) and per
+    camera-frame, for the bench. Without a scene: the oracle scene of the default preset (its scenario)."""
+    import tempfile
+
+    from worldsplat.video import write_video
+    if scene is None:
+        from worldsplat.evaluation.novel_track import oracle_scene
+        from worldsplat.scenario import default_scenario
+        from worldsplat.world import build_world, simulate
+        scenario = scenario or default_scenario()
+        scene = oracle_scene(simulate(build_world(scenario)), {"scenario": scenario.model_dump(mode="json")})
+    tm: dict = {}
+    t0 = time.perf_counter()
+    frames = refine_track(scene, shift_m, cameras, steps=steps, scenario=scenario, blend=blend, weights=weights,
+                          timings=tm)
+    t1 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        T, V, H, W, _ = frames.shape
+        mosaic = frames.transpose(0, 2, 1, 3, 4).reshape(T, H, V * W, 3)
+        mosaic = np.pad(mosaic, ((0, 0), (0, H % 2), (0, (V * W) % 2), (0, 0)))
+        write_video(mosaic, Path(d) / "refined.mp4", fps=scene.fps)
+    tm["video"] = time.perf_counter() - t1
+    tm["total"] = time.perf_counter() - t0
+    cf = frames.shape[0] * len(scene.rig)
+    tm["camera_frames"] = cf
+    tm["per_camera_frame"] = (tm["total"] - tm["video"]) / cf
+    tm["steps"] = steps
+    return tm

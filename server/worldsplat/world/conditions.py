@@ -15,6 +15,7 @@ import numpy as np
 from worldsplat.camera import Camera, rigid_inverse
 from worldsplat.world.classes import CLASS_NAMES, CYCLIST, PEDESTRIAN, VEHICLE_CLASSES
 from worldsplat.world.layout import World, shifted_ego
+from worldsplat.world.render import single_threaded_blas
 from worldsplat.world.road import bev_layers
 
 BEV_CHANNELS = ("drivable", "lane_divider", "crosswalk", "sidewalk", "vehicle", "vulnerable")
@@ -165,6 +166,11 @@ def sketch(world: World, t: int, cams: list[Camera], seg: tuple[np.ndarray, np.n
 
 
 def world_conditions(world: World, shift_m: float = 0.0, cameras: list[str] | None = None) -> dict:
+    with single_threaded_blas():
+        return _world_conditions(world, shift_m, cameras)
+
+
+def _world_conditions(world: World, shift_m: float, cameras: list[str] | None) -> dict:
     rig = world.rig if cameras is None else [world.rig_camera(n) for n in cameras]
     poses = shifted_ego(world.ego_to_world, shift_m)
     seg = lane_segments(world)

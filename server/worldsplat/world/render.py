@@ -9,6 +9,7 @@ streaks, and exponential fog by depth. Sky pixels have depth +inf and class SKY.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -23,6 +24,17 @@ from worldsplat.world.prims import (BOX, SPHERE, M_BUILDING, M_BUS, M_CABIN, M_C
 NEAR = 0.05
 FAR = 250.0
 PID_SKY, PID_GROUND = -1, -2
+
+
+def single_threaded_blas():
+    """Context: one BLAS thread. The renderer's matrix products are tall and skinny ((N,3) x (3,k)); a
+    multi-threaded OpenBLAS spin-waits on them and runs ~25x slower when the cores are busy. We parallelise over
+    frames instead (worldsplat.world.simulate)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:      # pragma: no cover - threadpoolctl ships with the pinned environment
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 # -- hashing noise (deterministic, vectorized) --------------------------------------------------------------------
@@ -304,25 +316,29 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
     if len(h):
         k = si.pid[h]
         sem[h] = prims.cls[k]
-        c, s = np.cos(prims.yaw[k]), np.sin(prims.yaw[k])
-        rel = si.p[h] - prims.center[k]
+        c, s = np.cos(prims.yaw[k]).astype(np.float32), np.sin(prims.yaw[k]).astype(np.float32)
+        rel = (si.p[h] - prims.center[k]).astype(np.float32)      # small offsets: float32 is exact enough
         lx, ly, lz = c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1], rel[:, 2]
-        half = prims.half[k]
+        half = prims.half[k].astype(np.float32)
         sphere = prims.shape[k] == SPHERE
         # Box normal: the local axis where the hit point is closest to the face.
-        q = np.abs(np.stack([lx, ly, lz], -1)) / half
-        axis = np.argmax(q, axis=1)
-        sign = np.sign(np.stack([lx, ly, lz], -1)[np.arange(len(h)), axis])
-        nl = np.zeros((len(h), 3))
-        nl[np.arange(len(h)), axis] = sign
-        nw = np.stack([c * nl[:, 0] - s * nl[:, 1], s * nl[:, 0] + c * nl[:, 1], nl[:, 2]], -1)
-        nsph = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-9)
-        normal[h] = np.where(sphere[:, None], nsph, nw)
+        ax, ay, az = np.abs(lx) / half[:, 0], np.abs(ly) / half[:, 1], np.abs(lz) / half[:, 2]
+        on_x = (ax >= ay) & (ax >= az)
+        on_y = ~on_x & (ay >= az)
+        axis = np.where(on_x, 0, np.where(on_y, 1, 2)).astype(np.int8)
+        sign = np.where(on_x, np.sign(lx), np.where(on_y, np.sign(ly), np.sign(lz)))
+        nlx, nly = np.where(on_x, sign, 0).astype(np.float32), np.where(on_y, sign, 0).astype(np.float32)
+        nlz = np.where(axis == 2, sign, 0).astype(np.float32)
+        nw = np.stack([c * nlx - s * nly, s * nlx + c * nly, nlz], -1)
+        if sphere.any():
+            nsph = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-9)
+            nw = np.where(sphere[:, None], nsph, nw)
+        normal[h] = nw
         col = prims.color[k].copy()
         em = np.zeros_like(col)
         mat = prims.material[k]
         key = prims.key[k]
-        z = si.p[h, 2]
+        z = si.p[h, 2].astype(np.float32)
         side_face = axis < 2
         along = np.where(axis == 0, ly, lx)             # horizontal coordinate on a vertical face
         face_half = np.where(axis == 0, half[:, 1], half[:, 0])
@@ -447,8 +463,10 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         sun = L.sun_dir.astype(np.float32)
         lambert = np.clip(nrm @ sun, 0.0, None)
         if smap is not None and L.shadows:
-            # Normal offset of about one shadow-map texel avoids self-shadowing ("acne") at grazing light.
-            lambert = lambert * smap.lit(si.p[hi], 0.4 * nrm)
+            # Only sunlit-facing points need the lookup; a normal offset of about one shadow-map texel avoids
+            # self-shadowing ("acne") at grazing light.
+            facing = np.nonzero(lambert > 0)[0]
+            lambert[facing] *= smap.lit(si.p[hi[facing]], 0.4 * nrm[facing])
         light = L.ambient.astype(np.float32)[None] * (0.75 + 0.25 * nrm[:, 2:3]) + \
             lambert[:, None] * L.sun_color.astype(np.float32)[None]
         if L.lights_on:

@@ -9,7 +9,7 @@ import numpy as np
 
 from worldsplat.camera import Camera, RigCamera
 from worldsplat.world.layout import World, shifted_ego
-from worldsplat.world.render import render_frame
+from worldsplat.world.render import render_frame, single_threaded_blas
 
 
 @dataclass
@@ -65,11 +65,12 @@ def simulate(world: World, shift_m: float = 0.0, cameras: list[str] | None = Non
     # Frames are independent and numpy releases the GIL: render them on a couple of threads (results are
     # identical to a serial run; `WORLDSPLAT_RENDER_THREADS=1` forces serial).
     threads = min(render_threads(), len(frames))
-    if threads > 1:
-        with ThreadPoolExecutor(threads) as pool:
-            outs = list(pool.map(one, frames))
-    else:
-        outs = [one(t) for t in frames]
+    with single_threaded_blas():
+        if threads > 1:
+            with ThreadPoolExecutor(threads) as pool:
+                outs = list(pool.map(one, frames))
+        else:
+            outs = [one(t) for t in frames]
     return Clip(rig=list(rig), ego_to_world=world.ego_to_world[frames].copy(),
                 frame_times=world.frame_times[frames].copy(), fps=world.fps,
                 rgb=np.stack([o["rgb"] for o in outs]), depth=np.stack([o["depth"] for o in outs]),

@@ -6,6 +6,7 @@ background while warming the default scene.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import time
 
@@ -51,16 +52,25 @@ def model_version(mode: str) -> str:
 
 
 def refinement_status() -> tuple[bool, str]:
-    """(available, why not): refinement needs worldsplat.pipeline to offer it (issue 7's enhancer weights)."""
-    p = _pipeline()
-    probe = getattr(p, "refinement_available", None)
-    if probe is None:
-        return False, "refinement is not available: worldsplat.pipeline offers no refinement_available() yet"
-    ok = probe() if callable(probe) else bool(probe)
-    if not ok:
-        return False, "refinement is not available: worldsplat.pipeline.refinement_available() is False " \
-                      "(no enhancer weights)"
+    """(available, why not): refinement (issue 7) needs `worldsplat.refine` and its enhancer weights."""
+    try:
+        from worldsplat.refine import WEIGHTS, refine_available  # noqa: PLC0415
+    except ImportError as e:
+        return False, f"refinement is not available: worldsplat.refine cannot be imported ({e})"
+    if not refine_available():
+        return False, f"refinement is not available: the enhancer weights ({WEIGHTS.name}) are not installed"
     return True, ""
+
+
+@functools.lru_cache(maxsize=1)
+def refiner_version() -> str:
+    """The enhancer weights' content hash: a new model gives new video ids."""
+    from worldsplat.refine import WEIGHTS  # noqa: PLC0415
+    h = hashlib.sha256()
+    with open(WEIGHTS, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return f"enhancer-{h.hexdigest()[:16]}"
 
 
 def content_id(*parts: str) -> str:
@@ -73,7 +83,7 @@ def scene_id_for(scenario: Scenario, mode: str) -> str:
 
 
 def video_id_for(scene_id: str, shift_m: float, cameras: list[str], refine: bool, fmt: str) -> str:
-    refine_version = model_version("refine") if refine else "raw"
+    refine_version = refiner_version() if refine else "raw"
     return content_id("video", scene_id, f"{float(shift_m):.4f}", ",".join(cameras), refine_version, fmt)
 
 
@@ -140,8 +150,9 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
         ok, why = refinement_status()
         if not ok:
             raise JobError(why)
-        frames = pipeline.render_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled,
-                                       refine=True)
+        from worldsplat.refine import refine_track  # noqa: PLC0415
+        frames = refine_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled,
+                              scenario=opened[1].get("scenario"))
     else:
         frames = pipeline.render_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled)
     ctx.check()
@@ -151,7 +162,7 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
     video = even(mosaic(frames, cameras))
     ctx.progress("encoding video", 0.0)
     ext = VIDEO_FORMATS[p["format"]]
-    fps = float(getattr(scene, "meta", {}).get("fps", 0) or p.get("fps") or 4.0)
+    fps = float(scene.fps)
     with cache.writer("videos", video_id, ext) as tmp:
         write_video(video, tmp, fps=fps)
     ctx.progress("encoding video", 1.0)

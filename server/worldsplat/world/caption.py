@@ -46,13 +46,14 @@ def compose_caption(world) -> str:
     time = {"day": "day", "dusk": "dusk", "night": "night"}[env.time_of_day]
     shape = {"straight": "straight", "curve": ("left-curving" if road.curvature > 0 else "right-curving")
              if road.curvature != 0 else "straight", "intersection": "four-way intersection"}[road.kind]
-    noun = "road" if road.kind != "intersection" else "road at a"
     if road.kind == "intersection":
-        road_text = f"an {road.setting} road at a four-way intersection"
+        road_text = f"{_article(road.setting)} {road.setting} road at a four-way intersection"
+    elif road.setting == "highway":
+        road_text = f"{_article(shape)} {shape} highway"
     else:
-        road_text = f"{_article(shape)} {shape} {road.setting} {noun}"
+        road_text = f"{_article(shape)} {shape} {road.setting} road"
     lanes = _count(road.lanes_per_direction, "lane")
-    first = f"A {weather} {time} on {road_text} with {lanes} in each direction."
+    first = f"{_article(weather).capitalize()} {weather} {time} on {road_text} with {lanes} in each direction."
     man = {"keep_lane": "keeps its lane", "lane_change_left": "changes lane to the left",
            "lane_change_right": "changes lane to the right", "turn_left": "turns left", "turn_right": "turns right"}
     kmh = round(sc.ego.speed * 3.6)

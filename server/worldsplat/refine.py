@@ -73,7 +73,7 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
     from worldsplat.evaluation.novel_track import render_scene_track
     from worldsplat.world import build_world
     from worldsplat_models.conditions import encode_captions
-    from worldsplat_models.enhancer import enhance
+    from worldsplat_models.enhancer import enhance, finish
     if not np.isfinite(shift_m) or abs(shift_m) > 50:
         raise ValueError(f"shift_m must be finite and within +-50 m, got {shift_m}")
     if not isinstance(steps, int) or not 1 <= steps <= 64:
@@ -90,10 +90,21 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
     _check_rig(scene, world)
     model, vae = load_refiner(None if weights is None else str(weights))
 
+    H, W = scene.rig[0].height, scene.rig[0].width
+    h, w = model.cfg.data.height, model.cfg.data.width
+    idx = [names.index(c) for c in cameras]
     t0 = time.perf_counter()
+    # the model reads every view at its own resolution; the output keeps the requested cameras at full size
     if render is None:
-        render = render_scene_track(scene, shift_m, progress=progress, cancelled=cancelled)
+        low = render_scene_track(scene, shift_m, cancelled=cancelled, size=(w, h),
+                                 progress=lambda st, f: prog("render", f * (0.5 if (H, W) != (h, w) else 1.0)))
+        full = low if (H, W) == (h, w) else render_scene_track(
+            scene, shift_m, views=idx, cancelled=cancelled, progress=lambda st, f: prog("render", 0.5 + 0.5 * f))
+        full_idx = idx if full is low else list(range(len(idx)))
+    else:
+        low, full, full_idx = render, render, idx
     tm["render"] = time.perf_counter() - t0
+    prog("render", 1.0)
     if check():
         raise Cancelled("cancelled after rendering")
     prog("conditions", 0.0)
@@ -104,10 +115,13 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
     prog("conditions", 1.0)
     if check():
         raise Cancelled("cancelled after the conditions")
-    out = enhance(model, vae, render.rgb, render.alpha, cond["sketch"], cond, cond["traj"], cap, steps=steps,
-                  seed=seed, blend=blend, callback=lambda f: prog("refine", f), timings=tm)
+    refined = enhance(model, vae, low.rgb, low.alpha, cond["sketch"], cond, cond["traj"], cap, steps=steps,
+                      seed=seed, blend="none", callback=lambda f: prog("refine", f), timings=tm)
+    t0 = time.perf_counter()
+    out = finish(refined[:, idx], full.rgb[:, full_idx], full.alpha[:, full_idx], blend)
+    tm["decode"] = tm.get("decode", 0.0) + time.perf_counter() - t0
     prog("refine", 1.0)
-    return out[:, [names.index(c) for c in cameras]]
+    return out
 
 
 def stage_timings(scene=None, shift_m: float = 4.0, scenario=None, steps: int = 8, cameras: list[str] | None = None,

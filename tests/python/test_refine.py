@@ -1,4 +1,6 @@
 """Refined novel-track video (issue 7): novel-track renders, reprojected conditions, refine_track."""
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -109,3 +111,16 @@ def test_refine_track_rejects_bad_input(small_world, tiny_weights, no_minilm):
     refine_track(bare, 0.0, ["CAM_FRONT"], steps=1, weights=tiny_weights, scenario=sc)  # passed explicitly: fine
     with pytest.raises(Cancelled):
         refine_track(scene, 1.0, steps=1, weights=tiny_weights, cancelled=lambda: True)
+
+
+def test_refine_track_at_another_resolution_than_the_model(tiny_weights, no_minilm):
+    from worldsplat.refine import refine_track
+    sc = load_preset("urban_straight").with_updates(image={"width": 64, "height": 40}, clip={"frames": 3},
+                                                    rig={"cameras": CAMS})
+    clip = simulate(build_world(sc), 0.0)
+    scene = oracle_scene(clip, {"scenario": json.dumps(sc.model_dump(mode="json"))})
+    out = refine_track(scene, 2.0, ["CAM_FRONT"], steps=1, weights=tiny_weights)
+    assert out.shape == (3, 1, 40, 64, 3) and out.dtype == np.uint8
+    raw = render_scene_track(scene, 2.0, views=[0])
+    covered = raw.alpha > 0.999
+    assert np.array_equal(out[covered], raw.rgb[covered])      # default blend keeps the full-size render

@@ -24,8 +24,8 @@ from worldsplat.gaussians import Gaussians, Scene4D, rasterize
 
 def _core_lift():
     """The core engineer's oracle lifting when it is installed (worldsplat.gaussians.lift), else None."""
-    try:
-        from worldsplat.gaussians import lift
+    try:  # the submodule, not the package attribute (importing the submodule rebinds that name to the module)
+        from worldsplat.gaussians.lift import lift
         return lift
     except (ImportError, AttributeError):
         return None
@@ -120,9 +120,20 @@ def _stack(views: list[list[tuple]]) -> TrackRender:
     return TrackRender(*(np.stack([np.stack([v[i] for v in row]) for row in views]) for i in range(3)))
 
 
+def resized(cam: Camera, size: tuple[int, int] | None) -> Camera:
+    """The same camera with an image of size (width, height) (intrinsics scaled)."""
+    if size is None or (cam.width, cam.height) == tuple(size):
+        return cam
+    sx, sy = size[0] / cam.width, size[1] / cam.height
+    return Camera(int(size[0]), int(size[1]), cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy,
+                  cam.world_to_camera, cam.name)
+
+
 def render_scene_track(scene: Scene4D, shift_m: float, views: list[int] | None = None,
-                       frames: list[int] | None = None, progress=None, cancelled=None) -> TrackRender:
-    """Render a Scene4D (static + frame t's dynamic Gaussians) from the track shifted `shift_m` m to the left."""
+                       frames: list[int] | None = None, progress=None, cancelled=None,
+                       size: tuple[int, int] | None = None) -> TrackRender:
+    """Render a Scene4D (static + frame t's dynamic Gaussians) from the track shifted `shift_m` m to the left,
+    optionally at another image size (width, height)."""
     if not np.isfinite(shift_m):
         raise ValueError(f"shift_m must be finite, got {shift_m}")
     views = list(range(len(scene.rig))) if views is None else views
@@ -133,7 +144,7 @@ def render_scene_track(scene: Scene4D, shift_m: float, views: list[int] | None =
             from worldsplat.evaluation import Cancelled
             raise Cancelled("cancelled while rendering the novel track")
         g = scene.at_frame(t)
-        out.append([render_view(g, scene.camera(t, v, shift_m)) for v in views])
+        out.append([render_view(g, resized(scene.camera(t, v, shift_m), size)) for v in views])
         if progress is not None:
             progress("render", (i + 1) / len(frames))
     return _stack(out)

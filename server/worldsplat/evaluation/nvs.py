@@ -95,14 +95,28 @@ def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int 
     return out
 
 
+def prepare_samples(cache: Path, split: str, seed: int, shifts) -> list[Path]:
+    """The cached evaluation samples (4D and 3D renders) of one held-out clip at each shift, made when missing."""
+    from worldsplat.evaluation.novel_track import oracle_scene
+    from worldsplat.evaluation.pairs import make_sample, sample_path, sample_scenario, save_sample
+    from worldsplat.world import build_world, simulate
+    paths = [sample_path(cache, split, seed, s, "_eval") for s in shifts]
+    world = source = scene = None
+    for s, path in zip(shifts, paths):
+        if not path.exists():
+            if world is None:
+                world = build_world(sample_scenario(seed))
+                source = simulate(world, 0.0)
+                scene = oracle_scene(source)
+            save_sample(path, make_sample(world, s, ("4d", "3d"), source=source, scene=scene))
+    return paths
+
+
 def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, steps: int = 8,
              weights_dir: Path | None = None, cache: Path | None = None, out: Path | None = None,
              progress: bool = True, keep_frames: bool = False) -> dict:
     """Scores of every version per shift, averaged over `count` held-out clips of `split`."""
-    from worldsplat.evaluation.novel_track import oracle_scene
-    from worldsplat.evaluation.pairs import load_sample, make_sample, sample_path, sample_scenario, save_sample, \
-        split_seeds
-    from worldsplat.world import build_world, simulate
+    from worldsplat.evaluation.pairs import load_sample, split_seeds
     from worldsplat_models.conditions import encode_captions
     repo = Path(__file__).resolve().parents[3]
     weights_dir = Path(weights_dir or repo / "models" / "weights")
@@ -119,15 +133,7 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
         from tqdm import tqdm
         bar = tqdm(total=len(it), desc=f"eval nvs {split}", mininterval=5)
     for seed in seeds:
-        world = source = scene = None
-        for s in shifts:
-            path = sample_path(cache, split, seed, s, "_eval")
-            if not path.exists():
-                if world is None:
-                    world = build_world(sample_scenario(seed))
-                    source = simulate(world, 0.0)
-                    scene = oracle_scene(source)
-                save_sample(path, make_sample(world, s, ("4d", "3d"), source=source, scene=scene))
+        for s, path in zip(shifts, prepare_samples(cache, split, seed, shifts)):
             sample = load_sample(path)
             cap = encode_captions([sample["caption"]])[0]
             frames = run_versions(models, sample, cap, steps, seed=seed)

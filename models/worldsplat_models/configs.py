@@ -33,7 +33,7 @@ class VAEConfig:
     """Convolutional KL-VAE shared by the RGB, depth and mask modalities (3 input channels, 8x down-sampling)."""
     in_channels: int = 3
     latent_channels: int = 4                 # per modality; L has 3x this
-    channels: tuple[int, ...] = (32, 64, 96)  # one level per 2x down-sampling
+    channels: tuple[int, ...] = (16, 32, 64)  # one level per 2x down-sampling
     kl_weight: float = 1e-6
     modalities: tuple[str, ...] = ("rgb", "depth", "mask")
 
@@ -81,7 +81,7 @@ class GSDecoderConfig:
     depth: int = 4
     heads: int = 4
     mlp_ratio: float = 4.0
-    up_channels: tuple[int, ...] = (96, 64)   # one 2x up-sampling block each, from the latent grid
+    up_channels: tuple[int, ...] = (64, 32)   # one 2x up-sampling block each, from the latent grid
     max_views: int = 6
     max_frames: int = 8
     # Activation bounds (documented in web/docs/models.md).

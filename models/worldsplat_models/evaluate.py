@@ -1,0 +1,266 @@
+"""Held-out evaluation of the shipped models against the world's exact ground truth (issue 6 report).
+
+    python -m worldsplat_models.evaluate --data runs/data --split test --out runs/eval/models.json
+
+- VAE: RGB PSNR, depth AbsRel (decoded depth vs GT, pixels with GT < 80 m), dynamic-mask IoU, per held-out clip.
+- Reconstruct mode: the decoded 4D Gaussians (paper eq. 3) rendered with the reference rasterizer at the rig
+  cameras shifted by 0, +-1, +-2, +-4 m; PSNR / SSIM vs the exact shifted ground truth (the dataset's
+  `--shifts` renders); the oracle lifting (GT RGB + depth, worldsplat.gaussians.lift) aggregated the same way,
+  beside it; and the VAE's own reconstruction PSNR at 0 m for the "within 2 dB" target.
+- Generate mode: DiT (8 steps) -> decoder -> rendered at the rig cameras; dynamic-mask IoU vs the moving boxes
+  projected into each camera (filled hull of the 8 corners), vs the GT dynamic mask too, and depth AbsRel vs the
+  GT depth (pixels with GT < 80 m).
+- Steps vs error: N-step samples vs a 64-step sample from the same noise, PSNR of the VAE-decoded RGB, and time.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .data import ShardDataset
+from .inference import (Models, condition_tensors, load_models, reconstruct, sample_latents, to_scene4d, _decode_gaussians)
+from .metrics import depth_abs_rel, mask_iou, psnr, ssim
+from .vae import denormalize_depth
+
+SHIFTS = (0.0, -1.0, 1.0, -2.0, 2.0, -4.0, 4.0)
+
+
+def clip_view(sample: dict, rig) -> object:
+    """A shard sample as the attribute object reconstruct() takes."""
+    from types import SimpleNamespace
+    return SimpleNamespace(rgb=sample["rgb"], depth=sample["depth"], dynamic=sample["dynamic"], rig=rig,
+                           ego_to_world=sample["ego_to_world"].astype(np.float64),
+                           frame_times=np.arange(sample["rgb"].shape[0]) / 4.0, caption=sample["caption"])
+
+
+def rig_of(sample: dict):
+    from worldsplat.camera import default_rig
+    H, W = sample["rgb"].shape[2:4]
+    return default_rig(W, H)
+
+
+def render(g, cam) -> dict:
+    from worldsplat.gaussians import rasterize
+    from .train import cull_to_camera
+    with torch.no_grad():
+        return rasterize(cull_to_camera(g, cam, margin=0.5), cam)
+
+
+def oracle_scene(sample: dict, rig):
+    """Oracle lifting of every GT frame/view, aggregated like the model: static = non-dynamic pixels of all
+    frames, dynamic[t] = frame t's dynamic pixels."""
+    from worldsplat.gaussians import Gaussians, Scene4D, lift
+    T, V = sample["rgb"].shape[:2]
+    ego = sample["ego_to_world"].astype(np.float64)
+    static, dynamic = [], []
+    for t in range(T):
+        dyn_t = []
+        for v in range(V):
+            g = lift(sample["rgb"][t, v], sample["depth"][t, v], sample["dynamic"][t, v], rig[v].at(ego[t]))
+            m = g.extras[:, 0] > 0.5
+            static.append(g.subset(~m))
+            dyn_t.append(g.subset(m))
+        dynamic.append(Gaussians.cat(dyn_t))
+    return Scene4D(Gaussians.cat(static), dynamic, np.arange(T) / 4.0, rig, ego)
+
+
+def _img(x) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(x)).float() / 255.0
+
+
+@torch.no_grad()
+def eval_vae(models: Models, ds: ShardDataset, n: int) -> dict:
+    from .inference import encode_clip
+    d = models.data
+    ps, ab, iou = [], [], []
+    for i in range(min(n, len(ds))):
+        s = ds[i]
+        L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
+        T, V = L.shape[:2]
+        rgb, dn, m = models.vae.decode_joint(L.flatten(0, 1))
+        rgb = ((rgb + 1) / 2).permute(0, 2, 3, 1).reshape(T, V, d.height, d.width, 3)
+        ps.append(psnr(rgb, _img(s["rgb"])))
+        depth = denormalize_depth(dn[:, 0], d.depth_near, d.depth_far).reshape(T, V, d.height, d.width)
+        ab.append(depth_abs_rel(depth, torch.as_tensor(s["depth"])))
+        iou.append(mask_iou(m[:, 0].reshape(T, V, d.height, d.width) > 0.5, torch.as_tensor(s["dynamic"])))
+    return {"clips": len(ps), "rgb_psnr": float(np.mean(ps)), "depth_absrel": float(np.nanmean(ab)),
+            "mask_iou": float(np.mean(iou)), "per_clip_psnr": [round(p, 2) for p in ps]}
+
+
+@torch.no_grad()
+def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int, ...] | None = None,
+                     shifts=SHIFTS, oracle: bool = True) -> dict:
+    """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips."""
+    res = {s: {"model_psnr": [], "model_ssim": [], "oracle_psnr": [], "oracle_ssim": []} for s in shifts}
+    for i in range(min(n, len(ds))):
+        base = ds[i]
+        by_shift = {0.0: base}
+        for s in ds.shifted(i):
+            by_shift[float(s["shift_m"])] = s
+        rig = rig_of(base)
+        scene = to_scene4d(reconstruct(clip_view(base, rig), models))
+        scenes = {"model": scene}
+        if oracle:
+            scenes["oracle"] = oracle_scene(base, rig)
+        T, V = base["rgb"].shape[:2]
+        for sh in shifts:
+            if sh not in by_shift:
+                continue
+            gt = by_shift[sh]
+            for name, sc in scenes.items():
+                pv, sv = [], []
+                for t in (frames or range(T)):
+                    g = sc.at_frame(t)
+                    for v in range(V):
+                        out = render(g, sc.camera(t, v, sh))
+                        tgt = _img(gt["rgb"][t, v])
+                        pv.append(psnr(out["rgb"].clamp(0, 1), tgt))
+                        sv.append(float(ssim(out["rgb"].clamp(0, 1), tgt)))
+                res[sh][f"{name}_psnr"].append(float(np.mean(pv)))
+                res[sh][f"{name}_ssim"].append(float(np.mean(sv)))
+    return {str(sh): {k: (float(np.mean(v)) if v else None) for k, v in r.items()} for sh, r in res.items()}
+
+
+def projected_box_mask(corners_world: np.ndarray, cam) -> np.ndarray:
+    """(K,8,3) world corners of moving boxes -> (H,W) bool: union of the filled hulls of their projections
+    (corners behind the camera are dropped; boxes with fewer than 3 corners in front are skipped)."""
+    from matplotlib.path import Path as MPath
+    H, W = cam.height, cam.width
+    ys, xs = np.mgrid[0:H, 0:W]
+    pix = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], -1)
+    out = np.zeros(H * W, bool)
+    for c in corners_world:
+        uv, z = cam.project(c)
+        ok = z > 0.2
+        if ok.sum() < 3:
+            continue
+        pts = uv[ok]
+        if (pts[:, 0].max() < 0) or (pts[:, 0].min() > W) or (pts[:, 1].max() < 0) or (pts[:, 1].min() > H):
+            continue
+        hull = _hull(pts)
+        out |= MPath(hull).contains_points(pix)
+    return out.reshape(H, W)
+
+
+def _hull(p: np.ndarray) -> np.ndarray:
+    """2D convex hull (monotone chain)."""
+    pts = sorted(map(tuple, p))
+    if len(pts) < 3:
+        return np.asarray(pts)
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    lower, upper = [], []
+    for q in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], q) <= 0:
+            lower.pop()
+        lower.append(q)
+    for q in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], q) <= 0:
+            upper.pop()
+        upper.append(q)
+    return np.asarray(lower[:-1] + upper[:-1])
+
+
+@torch.no_grad()
+def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed: int = 0,
+                  frames: tuple[int, ...] | None = None) -> dict:
+    iou_box, iou_gt, absrel = [], [], []
+    for i in range(min(n, len(ds))):
+        s = ds[i]
+        z = ds.load(i)
+        rig = rig_of(s)
+        ego = s["ego_to_world"].astype(np.float64)
+        T, V = s["rgb"].shape[:2]
+        boxes = [[{"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+                  for k in range(z["box_corners"].shape[1])] for t in range(T)]
+        cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
+                                          "ego_traj": s["traj"]}, ego)
+        L = sample_latents(models, cond, steps=steps, seed=seed)
+        scene = to_scene4d(_decode_gaussians(models, L, rig, ego, np.arange(T) / 4.0, {}))
+        moving = np.asarray(z["box_moving"], bool)
+        for t in (frames or range(T)):
+            g = scene.at_frame(t)
+            for v in range(V):
+                cam = scene.camera(t, v)
+                out = render(g, cam)
+                pred_dyn = (out["extras"][..., 0] / out["alpha"].clamp_min(1e-3)) > 0.5
+                pred_dyn &= out["alpha"] > 0.5
+                box_mask = projected_box_mask(np.asarray(z["box_corners"][t][moving], np.float64), cam)
+                iou_box.append(mask_iou(pred_dyn, torch.from_numpy(box_mask)))
+                iou_gt.append(mask_iou(pred_dyn, torch.as_tensor(s["dynamic"][t, v])))
+                rd = out["depth"] / out["alpha"].clamp_min(1e-3)
+                absrel.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v])))
+    return {"clips": min(n, len(ds)), "steps": steps, "dynamic_iou_vs_projected_boxes": float(np.mean(iou_box)),
+            "dynamic_iou_vs_gt_mask": float(np.mean(iou_gt)), "depth_absrel": float(np.nanmean(absrel))}
+
+
+@torch.no_grad()
+def steps_vs_error(models: Models, ds: ShardDataset, n: int = 1, steps_list=(1, 2, 4, 8, 16, 32), ref_steps: int = 64,
+                   seed: int = 0) -> list[dict]:
+    """Error of N-step samples against a ref_steps sample from the same noise: PSNR of the VAE-decoded RGB
+    (range [0,1]) and latent RMSE; plus the sampling time (torch eager, this machine)."""
+    rows = {k: {"psnr": [], "latent_rmse": [], "time_s": []} for k in steps_list}
+    for i in range(min(n, len(ds))):
+        s = ds[i]
+        ego = s["ego_to_world"].astype(np.float64)
+        z = ds.load(i)
+        T = s["rgb"].shape[0]
+        boxes = [[{"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+                  for k in range(z["box_corners"].shape[1])] for t in range(T)]
+        cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
+                                          "ego_traj": s["traj"]}, ego)
+        ref = sample_latents(models, cond, steps=ref_steps, seed=seed)
+        ref_rgb = (models.vae.decode_joint(ref.flatten(0, 1))[0] + 1) / 2
+        for k in steps_list:
+            t0 = time.perf_counter()
+            L = sample_latents(models, cond, steps=k, seed=seed)
+            rows[k]["time_s"].append(time.perf_counter() - t0)
+            rgb = (models.vae.decode_joint(L.flatten(0, 1))[0] + 1) / 2
+            rows[k]["psnr"].append(psnr(rgb, ref_rgb))
+            rows[k]["latent_rmse"].append(float(torch.sqrt(torch.mean((L - ref) ** 2))))
+    return [{"steps": k, **{m: float(np.mean(v)) for m, v in r.items()}} for k, r in rows.items()]
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--data", type=Path, required=True)
+    p.add_argument("--split", default="test")
+    p.add_argument("--weights", type=Path, default=None)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--clips", type=int, default=4)
+    p.add_argument("--parts", default="vae,reconstruct,generate,steps")
+    p.add_argument("--threads", type=int, default=2)
+    a = p.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    models = load_models(a.weights)
+    ds = ShardDataset(a.data, a.split, models.data.max_boxes)
+    out = json.loads(a.out.read_text()) if a.out.exists() else {}
+    out["weights_version"] = models.version
+    parts = a.parts.split(",")
+    t0 = time.time()
+    if "vae" in parts:
+        out["vae"] = eval_vae(models, ds, a.clips)
+        print("vae", out["vae"], flush=True)
+    if "reconstruct" in parts:
+        out["reconstruct"] = eval_reconstruct(models, ds, a.clips)
+        print("reconstruct", out["reconstruct"], flush=True)
+    if "generate" in parts and "generate" in models.modes:
+        out["generate"] = eval_generate(models, ds, a.clips)
+        print("generate", out["generate"], flush=True)
+    if "steps" in parts and "generate" in models.modes:
+        out["steps_vs_error"] = steps_vs_error(models, ds, max(1, min(2, a.clips)))
+        print("steps", out["steps_vs_error"], flush=True)
+    out["eval_wall_s"] = round(time.time() - t0, 1)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -87,14 +87,18 @@ def test_tile_lists_are_exact_and_depth_sorted():
     for k in range(tl.tiles_x * tl.tiles_y):
         ids = tl.ids[tl.offsets[k]:tl.offsets[k + 1]]
         tx, ty = k % tl.tiles_x, k // tl.tiles_x
-        # expected: Gaussians whose square contains some pixel centre of this tile
-        cx = torch.arange(tx * 8, min(CAM.width, tx * 8 + 8)) + 0.5
-        cy = torch.arange(ty * 8, min(CAM.height, ty * 8 + 8)) + 0.5
+        # expected: Gaussians that touch (d <= 9, inside the square) some pixel centre of this tile
+        xs = torch.arange(tx * 8, min(CAM.width, tx * 8 + 8)) + 0.5
+        ys = torch.arange(ty * 8, min(CAM.height, ty * 8 + 8)) + 0.5
+        pix = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2)
+        dx = pix[:, None, 0] - p.uv[None, :, 0]
+        dy = pix[:, None, 1] - p.uv[None, :, 1]
+        d = p.conic[:, 0] * dx * dx + 2 * p.conic[:, 1] * dx * dy + p.conic[:, 2] * dy * dy
         r = p.radius.float()
-        hit_x = ((cx[None] - p.uv[:, :1]).abs() <= r[:, None]).any(1)
-        hit_y = ((cy[None] - p.uv[:, 1:]).abs() <= r[:, None]).any(1)
-        expected = set((hit_x & hit_y).nonzero().squeeze(1).tolist())
-        assert expected <= set(ids.tolist())  # the tile list may only over-approximate the square
+        touch = (d <= 9) & (dx.abs() <= r) & (dy.abs() <= r)
+        expected = set(touch.any(0).nonzero().squeeze(1).tolist())
+        assert expected <= set(ids.tolist())  # the tile list may only over-approximate the support
+        assert len(ids) <= 2 * len(expected) + 8  # ... but not by much
         d = p.depth[ids]
         assert bool((d[1:] >= d[:-1]).all())
 
@@ -148,13 +152,15 @@ BRUTE_CASES = [c for c in CASES if c not in ("random_dense_2000", "street_shift_
 
 
 @pytest.mark.parametrize("name", BRUTE_CASES)
-def test_tiled_matches_brute_force(name):
+def test_tiled_and_pairs_match_brute_force(name):
     g, cam = load_case(name)
     with torch.no_grad():
-        out, brute = rasterize(g, cam), rasterize(g, cam, method="brute")
-    assert psnr(out["rgb"], brute["rgb"]) >= 50 and psnr(out["alpha"], brute["alpha"]) >= 50, name
-    scale = max(1.0, float(out["depth"].abs().max()))
-    assert psnr(out["depth"] / scale, brute["depth"] / scale) >= 50, name
+        brute = rasterize(g, cam, method="brute")
+        for method in ("tiled", "pairs"):
+            out = rasterize(g, cam, method=method)
+            assert psnr(out["rgb"], brute["rgb"]) >= 50 and psnr(out["alpha"], brute["alpha"]) >= 50, (name, method)
+            scale = max(1.0, float(out["depth"].abs().max()))
+            assert psnr(out["depth"] / scale, brute["depth"] / scale) >= 50, (name, method)
 
 
 def test_expected_outcomes_of_named_hard_cases():
@@ -186,22 +192,24 @@ def test_gradcheck_float64():
     cols = torch.rand(n, 3, dtype=torch.float64).requires_grad_()
     extras = torch.rand(n, 1, dtype=torch.float64).requires_grad_()
 
-    def f(m, q, s, o, c, e):
-        out = rasterize(Gaussians(m, q, s, o, c, e), cam, tile_size=4)
-        return out["rgb"], out["depth"], out["alpha"], out["extras"]
-    assert torch.autograd.gradcheck(f, (means, quats, scales, opac, cols, extras), eps=1e-6, atol=1e-5)
+    for method in ("tiled", "pairs"):
+        def f(m, q, s, o, c, e):
+            out = rasterize(Gaussians(m, q, s, o, c, e), cam, tile_size=4, method=method)
+            return out["rgb"], out["depth"], out["alpha"], out["extras"]
+        assert torch.autograd.gradcheck(f, (means, quats, scales, opac, cols, extras), eps=1e-6, atol=1e-5, fast_mode=True)
 
 
 @pytest.mark.parametrize("name", ["nonfinite_inputs", "anisotropy_1e-6_1e3", "camera_inside", "near_plane",
                                   "nan_quaternion", "zero_quaternion", "screen_covering", "opaque_stack"])
 def test_gradients_stay_finite_on_hard_cases(name):
     g, cam = load_case(name)
-    g = g.to(torch.float32).map(lambda t: t.detach().requires_grad_())
-    out = rasterize(g, cam)
-    (out["rgb"].sum() + out["depth"].sum() * 0.01 + out["alpha"].sum()).backward()
-    for k in ("means", "quats", "scales", "opacities", "colors"):
-        grad = getattr(g, k).grad
-        assert grad is not None and bool(torch.isfinite(grad).all()), f"{name}: non-finite grad of {k}"
+    for method in ("tiled", "pairs"):
+        g = g.to(torch.float32).map(lambda t: t.detach().requires_grad_())
+        out = rasterize(g, cam, method=method)
+        (out["rgb"].sum() + out["depth"].sum() * 0.01 + out["alpha"].sum()).backward()
+        for k in ("means", "quats", "scales", "opacities", "colors"):
+            grad = getattr(g, k).grad
+            assert grad is not None and bool(torch.isfinite(grad).all()), f"{name} {method}: non-finite grad of {k}"
 
 
 def test_fuzz_no_nan_or_inf_leaves_the_rasterizer():
@@ -216,9 +224,10 @@ def test_fuzz_no_nan_or_inf_leaves_the_rasterizer():
             return torch.where(mask, pick, t)
         g = Gaussians(noisy(n, 3) + torch.tensor([0, 0, 3.0]), noisy(n, 4), noisy(n, 3).abs(), torch.rand(n, generator=gen),
                       noisy(n, 3).abs(), noisy(n, 2))
-        out = rasterize(g, CAM)
-        for k in ("rgb", "depth", "alpha", "extras"):
-            assert bool(torch.isfinite(out[k]).all()), (trial, k)
+        for method in ("tiled", "pairs"):
+            out = rasterize(g, CAM, method=method)
+            for k in ("rgb", "depth", "alpha", "extras"):
+                assert bool(torch.isfinite(out[k]).all()), (trial, method, k)
 
 
 def test_extras_composite_like_colour():

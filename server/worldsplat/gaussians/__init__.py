@@ -2,15 +2,13 @@
 4D aggregation (paper eq. 3), the .wsplat v1 stream format and PLY interop. See web/docs/gaussians.md."""
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.gaussians.raster import rasterize
+from worldsplat.gaussians.lift import lift
 
 __all__ = ["Gaussians", "Scene4D", "rasterize", "lift", "aggregate"]
 
 
-def __getattr__(name):  # lazy: lifting/aggregation pull in more than the rasterizer needs
-    if name == "lift":
-        from worldsplat.gaussians.lift import lift
-        return lift
+def __getattr__(name):  # aggregation is imported on first use
     if name == "aggregate":
-        from worldsplat.gaussians.aggregate import aggregate
-        return aggregate
+        from worldsplat.gaussians.aggregate import aggregate as fn
+        return fn
     raise AttributeError(name)

@@ -25,6 +25,7 @@ class Projected:
     conic: torch.Tensor      # (M,3) inverse 2D covariance (A, B, C): d = A dx^2 + 2 B dx dy + C dy^2
     depth: torch.Tensor      # (M,) camera z
     radius: torch.Tensor     # (M,) int64 px
+    extent: torch.Tensor     # (M,2) px: half-size of the support's bounding box, min(radius, 3 sqrt(cov_xx|yy))
     opacity: torch.Tensor    # (M,)
     features: torch.Tensor   # (M,3+K) colour then extras, composited alike
 
@@ -119,7 +120,10 @@ def project(g: Gaussians, camera: Camera) -> Projected:
     feats = f["colors"][keep]
     if "extras" in f:
         feats = torch.cat([feats, f["extras"][keep]], -1)
-    return Projected(index[keep], torch.stack([u[keep], v[keep]], -1), conic, z[keep], radius[keep],
+    with torch.no_grad():  # the ellipse d <= 9 lies within +-3 sqrt(cov_xx) in x (likewise y): a tight box
+        ext = torch.stack([C.EXTENT_SIGMA * torch.sqrt(a[keep]), C.EXTENT_SIGMA * torch.sqrt(c[keep])], -1)
+        ext = torch.minimum(torch.nan_to_num(ext, nan=0.0, posinf=C.RADIUS_MAX), radius[keep, None].to(ext.dtype))
+    return Projected(index[keep], torch.stack([u[keep], v[keep]], -1), conic, z[keep], radius[keep], ext,
                      f["opacities"][keep], feats)
 
 
@@ -138,18 +142,19 @@ class TileLists:
 
 
 def tile_intersect(proj: Projected, width: int, height: int, tile_size: int = C.TILE_SIZE) -> TileLists:
-    """Per-tile, depth-sorted lists of the Gaussians whose square [u-r,u+r]x[v-r,v+r] overlaps the tile."""
+    """Per-tile, depth-sorted lists of the Gaussians whose support box (`extent`, within the square
+    [u-r,u+r]x[v-r,v+r]) overlaps the tile."""
     tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
     ntiles = tiles_x * tiles_y
     dev = proj.uv.device
     with torch.no_grad():
         order = depth_order(proj)
-        uv, r = proj.uv.detach()[order], proj.radius[order].to(proj.uv.dtype)
-        # Tiles whose pixel-centre range can hold a pixel centre inside the square.
-        x0 = torch.floor((uv[:, 0] - r) / tile_size).clamp(0, tiles_x - 1).to(torch.int64)
-        x1 = torch.floor((uv[:, 0] + r) / tile_size).clamp(0, tiles_x - 1).to(torch.int64)
-        y0 = torch.floor((uv[:, 1] - r) / tile_size).clamp(0, tiles_y - 1).to(torch.int64)
-        y1 = torch.floor((uv[:, 1] + r) / tile_size).clamp(0, tiles_y - 1).to(torch.int64)
+        uv, e = proj.uv.detach()[order], proj.extent[order]
+        # Tiles that can hold a pixel centre inside the support's bounding box.
+        x0 = torch.floor((uv[:, 0] - e[:, 0]) / tile_size).clamp(0, tiles_x - 1).to(torch.int64)
+        x1 = torch.floor((uv[:, 0] + e[:, 0]) / tile_size).clamp(0, tiles_x - 1).to(torch.int64)
+        y0 = torch.floor((uv[:, 1] - e[:, 1]) / tile_size).clamp(0, tiles_y - 1).to(torch.int64)
+        y1 = torch.floor((uv[:, 1] + e[:, 1]) / tile_size).clamp(0, tiles_y - 1).to(torch.int64)
         nx, ny = x1 - x0 + 1, y1 - y0 + 1
         counts = nx * ny
         rank = torch.repeat_interleave(torch.arange(len(order), device=dev), counts)

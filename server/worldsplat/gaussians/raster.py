@@ -62,10 +62,89 @@ def composite(pixels: torch.Tensor, ids: torch.Tensor, proj: Projected, chunk: i
     return feats, depth, weight_sum  # alpha = 1 - T = sum of weights (telescoping)
 
 
+def composite_pairs(proj: Projected, width: int, height: int, pair_budget: int = 1 << 22
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Sparse compositing over (pixel, Gaussian) pairs: each Gaussian meets only the pixel centres inside its
+    support's bounding box. Gaussians are taken in depth order in batches of <= `pair_budget` pairs (memory bound); within a batch
+    pairs are grouped by pixel and composited with a segmented (float64 log-space) scan, carrying each pixel's
+    transmittance `Tv` between batches exactly like `composite` carries it between chunks."""
+    dt, dev = proj.uv.dtype, proj.uv.device
+    P, nf = width * height, proj.features.shape[1]
+    feats = torch.zeros(P, nf, dtype=dt, device=dev)
+    depth = torch.zeros(P, dtype=dt, device=dev)
+    wsum = torch.zeros(P, dtype=dt, device=dev)
+    Tv = torch.ones(P, dtype=dt, device=dev)
+    if len(proj) == 0:
+        return feats, depth, wsum
+    with torch.no_grad():
+        order = depth_order(proj)
+        uv, e = proj.uv.detach()[order], proj.extent[order].to(dt)
+        # pixel i is a candidate when its centre i + 0.5 lies in [u - ex, u + ex] (the support's box)
+        x0 = torch.ceil(uv[:, 0] - e[:, 0] - 0.5).clamp(0, width).to(torch.int64)
+        x1 = torch.floor(uv[:, 0] + e[:, 0] - 0.5).clamp(-1, width - 1).to(torch.int64)
+        y0 = torch.ceil(uv[:, 1] - e[:, 1] - 0.5).clamp(0, height).to(torch.int64)
+        y1 = torch.floor(uv[:, 1] + e[:, 1] - 0.5).clamp(-1, height - 1).to(torch.int64)
+        nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
+        counts = nx * ny
+        ends = torch.cumsum(counts, 0)
+    support = C.EXTENT_SIGMA ** 2
+    start = 0
+    while start < len(order):
+        with torch.no_grad():
+            base = 0 if start == 0 else int(ends[start - 1])
+            stop = int(torch.searchsorted(ends, base + pair_budget, right=True))
+            stop = max(stop, start + 1)
+            sel = torch.arange(start, stop, device=dev)
+            c = counts[sel]
+            rank = torch.repeat_interleave(sel, c)
+            local = torch.arange(int(c.sum()), device=dev) - torch.repeat_interleave(ends[sel] - c - base, c)
+            px = x0[rank] + local % nx[rank]
+            py = y0[rank] + local // nx[rank]
+            pix = py * width + px
+            live = Tv.detach()[pix] >= C.T_MIN
+            rank, pix, px, py = rank[live], pix[live], px[live], py[live]
+        start = stop
+        if rank.numel() == 0:
+            continue
+        k = order[rank]
+        dx = (px.to(dt) + 0.5) - proj.uv[k, 0]
+        dy = (py.to(dt) + 0.5) - proj.uv[k, 1]
+        con = proj.conic[k]
+        d = (con[:, 0] * dx + 2 * con[:, 1] * dy) * dx + con[:, 2] * dy * dy
+        alpha = torch.clamp_max(proj.opacity[k] * torch.exp(-0.5 * d), C.ALPHA_MAX)
+        with torch.no_grad():
+            hit = ((d <= support) & (alpha >= C.ALPHA_MIN)).nonzero().squeeze(1)
+            pix_h = pix[hit]
+            grouped = torch.sort(pix_h, stable=True).indices   # by pixel, depth order kept inside
+            idx = hit[grouped]
+            pix_s = pix_h[grouped]
+            first = torch.ones_like(pix_s, dtype=torch.bool)
+            first[1:] = pix_s[1:] != pix_s[:-1]
+            seg_start = torch.cummax(torch.where(first, torch.arange(len(pix_s), device=dev), 0), 0).values
+        a = alpha[idx]
+        la = torch.log1p(-a.to(torch.float64))
+        cs = torch.cumsum(la, 0)
+        excl = cs - la - (cs - la)[seg_start]            # sum of log(1 - alpha) before this pair, within its pixel
+        T_before = Tv[pix_s] * torch.exp(excl).to(dt)
+        T_after = T_before * (1 - a)
+        with torch.no_grad():
+            included = T_after >= C.T_MIN
+        w = torch.where(included, a * T_before, torch.zeros_like(a))
+        kk = k[idx]
+        feats = feats.index_add(0, pix_s, w[:, None] * proj.features[kk])
+        depth = depth.index_add(0, pix_s, w * proj.depth[kk])
+        wsum = wsum.index_add(0, pix_s, w)
+        Tv = Tv * torch.exp(torch.zeros(P, dtype=torch.float64, device=dev).index_add(0, pix_s, la)).to(dt)
+    return feats, depth, wsum
+
+
 def pixel_centres(x0: int, x1: int, y0: int, y1: int, dtype, device) -> torch.Tensor:
     ys, xs = torch.meshgrid(torch.arange(y0, y1, device=device, dtype=dtype),
                             torch.arange(x0, x1, device=device, dtype=dtype), indexing="ij")
     return torch.stack([xs.reshape(-1) + 0.5, ys.reshape(-1) + 0.5], -1)
+
+
+METHODS = ("tiled", "pairs", "brute")
 
 
 def rasterize(g: Gaussians, camera: Camera, *, method: str = "tiled", tile_size: int = C.TILE_SIZE,
@@ -75,13 +154,16 @@ def rasterize(g: Gaussians, camera: Camera, *, method: str = "tiled", tile_size:
     Returns rgb (H,W,3), depth (H,W) expected camera z (not normalized), alpha (H,W), extras (H,W,K) (K may be 0)
     and visible (int: Gaussians that survived projection). Never returns NaN/Inf.
     """
-    if method not in ("tiled", "brute"):
-        raise ValueError(f"rasterize: method must be 'tiled' or 'brute', got {method!r}")
+    if method not in METHODS:
+        raise ValueError(f"rasterize: method must be one of {', '.join(METHODS)}, got {method!r}")
     W, H = camera.width, camera.height
     proj = project(g, camera)
     dt, dev = proj.uv.dtype, proj.uv.device
     nf = proj.features.shape[1]
-    if method == "brute":
+    if method == "pairs":
+        feats, depth, alpha = composite_pairs(proj, W, H)
+        feats, depth, alpha = feats.reshape(H, W, nf), depth.reshape(H, W), alpha.reshape(H, W)
+    elif method == "brute":
         order = depth_order(proj)
         pix = pixel_centres(0, W, 0, H, dt, dev)
         parts = [composite(pix[s:s + 4096], order, proj, chunk) for s in range(0, pix.shape[0], 4096)]

@@ -10,7 +10,7 @@ from worldsplat.cli import main as cli_main
 from worldsplat.scenario import Scenario, list_presets, load_preset
 from worldsplat.world import build_world, simulate
 from worldsplat.world.agents import EGO_LENGTH, EGO_WIDTH, ego_footprint
-from worldsplat.world.classes import AGENT_CLASSES, CAR, ROAD, SKY
+from worldsplat.world.classes import AGENT_CLASSES, CAR, CYCLIST, ROAD, SKY
 
 SMALL = {"width": 96, "height": 54}
 
@@ -158,3 +158,48 @@ def test_sim_command_writes_everything(tmp_path: Path):
     clip = simulate(build_world(sc), shift_m=2.0)
     assert np.array_equal(depth, clip.depth), "depth is stored losslessly"
     assert cli_main(["sim", "no_such_preset", "--out", str(tmp_path / "x")]) == 2
+
+
+def test_render_views_matches_simulate_for_rig_cameras_and_takes_any_camera():
+    from worldsplat.camera import Camera
+    from worldsplat.world import render_views
+    w = build_world(small("urban_straight", frames=2))
+    clip = simulate(w, shift_m=1.5, frames=[1])
+    cams = [clip.camera(0, v) for v in range(6)]
+    out = render_views(w, 1, cams, shift_m=1.5)
+    assert out["rgb"].tobytes() == clip.rgb[0].tobytes() and out["depth"].tobytes() == clip.depth[0].tobytes()
+    # A free camera 30 m above the ego looking straight down sees only ground and objects, no sky.
+    down = np.array([[1.0, 0, 0, 0], [0, -1.0, 0, 0], [0, 0, -1.0, 30.0], [0, 0, 0, 1]])
+    top = Camera(64, 64, 40.0, 40.0, 32.0, 32.0, down, "top")
+    o = render_views(w, 0, [top])
+    assert not (o["semantic"] == SKY).any() and np.all(o["depth"] <= 30.0 + 1e-4)
+
+
+def test_lane_indices_match_geometry():
+    """Lane 0 is at the kerb; an agent "in the left lane" really is one lane width left of the ego."""
+    for name in ("urban_straight", "highway", "night_rain"):
+        w = build_world(load_preset(name))
+        sc = w.scenario
+        _, d_ego = w.road.sd(np.array([0.0]), np.array([0.0]))
+        assert abs(d_ego[0] - (-(w.road.median / 2 + (sc.road.lanes_per_direction - sc.ego.start_lane - 0.5)
+                                 * sc.road.lane_width))) < 1e-9
+        for a in w.agents:
+            if a.where[0] != "lane" or a.where[1] != "main" or a.cls == CYCLIST:   # cyclists ride at the kerb
+                continue
+            direction, lane = a.where[2], a.where[3]
+            _, d = w.road.sd(a.poses[:1, 0], a.poses[:1, 1])
+            if direction == 1:
+                assert abs(d[0] - d_ego[0] - (lane - sc.ego.start_lane) * sc.road.lane_width) < 1e-6
+            else:
+                assert d[0] > 0
+
+
+@pytest.mark.parametrize("seed", [3, 1000004, 2000007, 123457])
+def test_random_scenarios_build_and_render(seed):
+    from worldsplat.scenario import random_scenario
+    sc = random_scenario(seed, width=40, height=32, frames=2)
+    w = build_world(sc)
+    clip = simulate(w, shift_m=-2.0)
+    assert np.all(np.isfinite(clip.depth[clip.semantic != SKY]))
+    cond = w.conditions(-2.0)
+    assert cond["bev"].shape[0] == 2

@@ -5,6 +5,6 @@
     cond = world.conditions(shift_m)     # BEV, sketches, 3D boxes, ego trajectory, caption
 """
 from worldsplat.world.layout import World, build_world
-from worldsplat.world.simulate import Clip, simulate
+from worldsplat.world.simulate import Clip, render_views, simulate
 
-__all__ = ["World", "build_world", "Clip", "simulate"]
+__all__ = ["World", "build_world", "Clip", "simulate", "render_views"]

@@ -35,6 +35,15 @@ class Clip:
         return self.rig[v].at(self.ego_to_world[t], self.shift_m)
 
 
+def render_views(world: World, t: int, cameras: list[Camera], shift_m: float = 0.0) -> dict:
+    """Render any cameras (e.g. from a camera JSON) against the world at frame t: rgb (V,H,W,3), depth, dynamic,
+    semantic. The ego (headlights, shadow-map centre) is the track shifted by `shift_m`."""
+    names = [c.name for c in world.rig]
+    view_ids = [names.index(c.name) if c.name in names else len(names) + i for i, c in enumerate(cameras)]
+    with single_threaded_blas():
+        return render_frame(world, t, cameras, view_ids, shifted_ego(world.ego_to_world, shift_m)[t])
+
+
 def render_threads() -> int:
     env = os.environ.get("WORLDSPLAT_RENDER_THREADS")
     if env:

@@ -203,3 +203,26 @@ def test_random_scenarios_build_and_render(seed):
     assert np.all(np.isfinite(clip.depth[clip.semantic != SKY]))
     cond = w.conditions(-2.0)
     assert cond["bev"].shape[0] == 2
+
+
+def test_every_agent_part_lies_inside_its_3d_box():
+    w = build_world(load_preset("four_way_intersection").with_updates(clip={"frames": 2}))
+    parts = w.prims_at(1)
+    for idx in np.unique(parts.agent[parts.agent >= 0]):
+        a = w.agents[idx]
+        corners = a.box_corners(1)
+        x, y, yaw = a.poses[1]
+        c, s = np.cos(yaw), np.sin(yaw)
+        sel = parts.agent == idx
+        for center, half, pyaw in zip(parts.center[sel], parts.half[sel], parts.yaw[sel]):
+            pc, ps = np.cos(pyaw), np.sin(pyaw)
+            for sx in (-1, 1):
+                for sy in (-1, 1):
+                    for sz in (-1, 1):
+                        lx, ly, lz = sx * half[0], sy * half[1], sz * half[2]
+                        p = center + [pc * lx - ps * ly, ps * lx + pc * ly, lz]
+                        dx, dy = p[0] - x, p[1] - y
+                        ex, ey = c * dx + s * dy, -s * dx + c * dy
+                        assert abs(ex) <= a.size[0] / 2 + 1e-6 and abs(ey) <= a.size[1] / 2 + 1e-6
+                        assert -1e-6 <= p[2] <= a.size[2] + 1e-6, (a.cls, p[2], a.size)
+        assert np.isclose(corners[4:, 2], a.size[2]).all()

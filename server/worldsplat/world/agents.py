@@ -69,7 +69,7 @@ def agent_parts(agent: Agent, index: int, key: float) -> Prims:
               (0.78, 0.78, 0.76), M_PLAIN, key, index)
     elif agent.cls == PEDESTRIAN:
         b.box((0, 0, 0.435 * h), 0, (0.14, 0.23, 0.435 * h), PEDESTRIAN, col, M_PERSON, key, index)
-        b.sphere((0.0, 0, 0.93 * h), 0.075 * h, PEDESTRIAN, (0.85, 0.65, 0.5), M_PLAIN, key, index)
+        b.sphere((0.0, 0, 0.92 * h), 0.075 * h, PEDESTRIAN, (0.85, 0.65, 0.5), M_PLAIN, key, index)
     elif agent.cls == CYCLIST:
         b.box((0, 0, 0.5), 0, (l / 2, 0.07, 0.45), CYCLIST, (0.1, 0.1, 0.1), M_PLAIN, key, index)
         b.box((-0.1, 0, 1.3), 0.0, (0.2, 0.21, 0.37), CYCLIST, col, M_PLAIN, key, index)
@@ -324,7 +324,7 @@ class TrafficBuilder:
             poses = self._lane_pose(road_name, direction, s_traj, d)
             if not self.occ.free(poses, 1.8, 0.6, 0.3):
                 continue
-            self._accept(Agent(track_id, CYCLIST, (1.8, 0.6, 1.85), CLOTHES[int(rng.integers(len(CLOTHES)))],
+            self._accept(Agent(track_id, CYCLIST, (1.8, 0.6, 1.92), CLOTHES[int(rng.integers(len(CLOTHES)))],
                                "", True, poses, ("lane", road_name, direction, 0)), 0.3, key, s_traj)
             return True
         return False

@@ -483,6 +483,12 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         if L.weather in ("clear",) and L.time_of_day != "night":
             cosang = np.clip(dn @ L.sun_dir, 0, 1).astype(np.float32)
             sky = sky + L.sun_color.astype(np.float32)[None] * (0.5 * cosang ** 48 + (cosang > 0.9995))[:, None]
+            # A few fair-weather clouds on a virtual plane above the scene.
+            px, py = dn[:, 0] / (dn[:, 2] + 0.05), dn[:, 1] / (dn[:, 2] + 0.05)
+            cl = 0.65 * value_noise(px, py, 0.9, 31) + 0.35 * value_noise(px, py, 0.3, 32)
+            cover = (np.clip((cl - 0.58) * 4.0, 0, 1) * np.clip(el * 8.0, 0, 1))[:, None]
+            cloud = np.float32(0.92) * (L.ambient.astype(np.float32) + L.sun_color.astype(np.float32) * 0.6)
+            sky = sky * (1 - cover) + np.clip(cloud, 0, 1)[None] * cover
         elif L.weather in ("overcast", "rain"):
             cl = value_noise(dn[:, 0] / (dn[:, 2] + 0.08), dn[:, 1] / (dn[:, 2] + 0.08), 0.6, 21)
             sky = sky * (0.88 + 0.2 * cl)[:, None]

@@ -128,6 +128,11 @@ class RoadGeometry:
             keep = np.abs(s - cross_along) >= self._other_walk_out() + 1.0
             yellow &= keep
             lines &= keep
+        if cross_along is not None and self.setting != "highway":
+            # Stop lines across the approaching lanes, just before the crosswalk.
+            stop = self._other_walk_out() + 0.6
+            lines |= (np.abs(s - (cross_along - stop)) < 0.2) & (d < 0) & (d > -self.lanes_edge)
+            lines |= (np.abs(s - (cross_along + stop)) < 0.2) & (d > 0) & (d < self.lanes_edge)
         out[lines] = MARK_WHITE
         out[yellow] = MARK_YELLOW
         zebra = (np.mod(d, 1.0) < 0.5) & (ad < self.lanes_edge)

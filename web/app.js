@@ -315,7 +315,7 @@ function fmtBytes(n) {
 async function requestVideos() {
   clearError();
   if (!state.sceneId) return;
-  const cameras = CAMERAS.includes(state.camera) ? [state.camera] : CAMERAS;
+  const cameras = CAMERAS.includes(state.camera) ? [state.camera] : null;  // null: the scene's whole rig (mosaic)
   const kinds = state.modes && state.modes.refine ? [["raw", false], ["refined", true]] : [["raw", false]];
   $("video-btn").disabled = true;
   try {

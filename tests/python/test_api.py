@@ -80,6 +80,13 @@ def test_cross_field_error_names_the_field(client):
     assert r.status_code == 422 and "ego.start_lane" in r.json()["error"]
 
 
+@needs_pipeline
+def test_oversize_scene_is_422(client):
+    huge = load_preset("urban_straight").with_updates(image={"width": 1600, "height": 900}, clip={"frames": 32})
+    r = client.post("/api/scenes", json={"scenario": huge.model_dump(mode="json")})
+    assert r.status_code == 422 and r.json()["field"] == "scenario.image" and "limit" in r.json()["error"]
+
+
 def test_bad_requests_never_500(client):
     assert client.post("/api/scenes", content=b"{not json", headers={"content-type": "application/json"}
                        ).status_code == 422
@@ -188,11 +195,13 @@ def test_video_job_and_refine_gate(client):
     assert bad.status_code == 422 and bad.json()["field"] == "shift_m"
     bad = client.post(f"/api/scenes/{scene_id}/videos", json={"cameras": ["CAM_UP"]})
     assert bad.status_code == 422 and bad.json()["field"] == "cameras"
+    bad = client.post(f"/api/scenes/{scene_id}/videos", json={"cameras": ["CAM_FRONT_LEFT"]})  # not in this rig
+    assert bad.status_code == 422 and bad.json()["field"] == "cameras" and "rig" in bad.json()["error"]
     modes = client.get("/api/modes").json()
     refine = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0, "refine": True})
     if not modes["refine"]:
         assert refine.status_code == 409 and "refinement" in refine.json()["error"]
-    r = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0, "cameras": ["CAM_FRONT", "CAM_BACK"]})
+    r = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0})  # default: the scene's rig
     assert r.status_code == 202, r.text
     job = r.json()["job"]
     done = client.app_state.jobs.wait_done(job["id"], 120)

@@ -93,10 +93,10 @@ def hashing_runner(cache: ArtifactCache, gate: threading.Event | None = None):
     def run(ctx):
         n, h = ctx.params["blocks"], hashlib.sha256()
         for i in range(n):
-            if gate is not None:
-                gate.wait(5)
             h.update(i.to_bytes(4, "little") * 1024)
             ctx.progress("hash", (i + 1) / n)
+            if gate is not None:
+                gate.wait(5)
         if ctx.params.get("fail"):
             raise JobError("asked to fail")
         ctx.progress("write", 0.0)
@@ -107,18 +107,21 @@ def hashing_runner(cache: ArtifactCache, gate: threading.Event | None = None):
 
 def test_job_runs_reports_stages_and_result(tmp_path):
     cache = ArtifactCache(tmp_path / "c")
-    m = JobManager(tmp_path / "s", {"hash": hashing_runner(cache)})
+    gate = threading.Event()  # holds the job in its "hash" stage until the test has seen it
+    m = JobManager(tmp_path / "s", {"hash": hashing_runner(cache, gate)})
     m.start()
     try:
         job, created = m.submit("hash", ID_A, {"blocks": 50})
         assert created
         again, created2 = m.submit("hash", ID_A, {"blocks": 50})
-        assert again.id == job.id and not created2 or again.status == "done"
+        assert again.id == job.id and not created2
         stages, v, cur = [], -1, job
         while cur.status not in ("done", "failed", "cancelled"):
             cur = m.wait_change(job.id, v, 5)
             v = cur.version
             stages.append(cur.stage)
+            if cur.stage == "hash":
+                gate.set()
         assert cur.status == "done", cur.error
         assert "hash" in stages and stages[-1] == "done"
         expected = hashlib.sha256(b"".join(i.to_bytes(4, "little") * 1024 for i in range(50))).hexdigest()

@@ -31,6 +31,9 @@ from .jobs import ACTIVE, Job, JobManager, QueueFull
 
 WEB_DIR = Path(__file__).resolve().parents[3] / "web"
 MAX_BODY = 64 * 1024
+# frames x cameras x width x height a scene may have: the scenario allows 1600x900 x 32 x 6 (276M pixels), far more
+# than 2 CPU cores can lift, render or hold; 16M is 15x the default preset (8 x 6 x 200x112).
+MAX_SCENE_PIXELS = 16_000_000
 STREAM_CHUNK = 64 * 1024
 SSE_POLL = 0.1
 SSE_HEARTBEAT = 10.0
@@ -56,14 +59,17 @@ class VideoRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     shift_m: float = Field(0.0, ge=-8.0, le=8.0, allow_inf_nan=False,
                            description="lateral track shift in metres, left positive")
-    cameras: list[str] = Field(default_factory=lambda: list(CAMERA_NAMES), min_length=1, max_length=6,
-                               description="cameras to render; several make a 2x3 mosaic")
+    cameras: list[str] | None = Field(None, min_length=1, max_length=6,
+                                      description="cameras to render (default: the scene's whole rig); several "
+                                                  "make a 2x3 mosaic")
     refine: bool = Field(False, description="run the enhanced-diffusion refinement (issue 7) on the renders")
     format: Literal["mp4", "webm"] = "mp4"
 
     @field_validator("cameras")
     @classmethod
-    def _known(cls, v: list[str]) -> list[str]:
+    def _known(cls, v: list[str] | None) -> list[str] | None:
+        if v is None:
+            return v
         unknown = [c for c in v if c not in CAMERA_NAMES]
         if unknown:
             raise ValueError(f"unknown camera(s) {unknown}; choose from {list(CAMERA_NAMES)}")
@@ -190,8 +196,9 @@ class BodyLimit:
 class Playground:
     """The server's state: cache, jobs and the pipeline facts (modes, versions) discovered at start."""
 
-    def __init__(self, cache_dir: Path, max_cache_bytes: int, max_queued: int):
+    def __init__(self, cache_dir: Path, max_cache_bytes: int, max_queued: int, max_scene_pixels: int):
         self.cache = ArtifactCache(cache_dir, max_cache_bytes)
+        self.max_scene_pixels = max_scene_pixels
         self.jobs = JobManager(cache_dir / "state", {
             "scene": lambda ctx: runners.run_scene(self.cache, ctx),
             "video": lambda ctx: runners.run_video(self.cache, ctx),
@@ -250,9 +257,10 @@ class Playground:
 
 
 def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = None,
-               max_cache_bytes: int = 2 << 30, max_queued: int = 16, warm: bool = True) -> FastAPI:
+               max_cache_bytes: int = 2 << 30, max_queued: int = 16, warm: bool = True,
+               max_scene_pixels: int = MAX_SCENE_PIXELS) -> FastAPI:
     web = Path(web_dir) if web_dir else WEB_DIR
-    pg = Playground(Path(cache_dir), max_cache_bytes, max_queued)
+    pg = Playground(Path(cache_dir), max_cache_bytes, max_queued, max_scene_pixels)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -329,6 +337,13 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
                 scenario = load_preset(req.preset or default_preset_name())
             except (ValueError, ScenarioError) as e:
                 raise ApiError(422, f"preset: {e}", field="preset") from None
+        pixels = scenario.clip.frames * len(scenario.rig.cameras) * scenario.image.width * scenario.image.height
+        if pixels > pg.max_scene_pixels:
+            raise ApiError(422, f"scenario.image: {scenario.image.width}x{scenario.image.height} x "
+                                f"{scenario.clip.frames} frames x {len(scenario.rig.cameras)} cameras = "
+                                f"{pixels / 1e6:.1f}M pixels is over this server's limit of "
+                                f"{pg.max_scene_pixels / 1e6:.1f}M (worldsplat serve --max-scene-mpix)",
+                           field="scenario.image")
         mode = req.mode or pg.default_mode
         if mode not in pg.modes:
             raise ApiError(422, f"mode: {mode[:32]!r} is not available here; available modes: {pg.modes}",
@@ -384,11 +399,16 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
             ok, why = runners.refinement_status()
             if not ok:
                 raise ApiError(409, why, field="refine")
-        video_id = runners.video_id_for(scene_id, req.shift_m, req.cameras, req.refine, req.format)
+        rig = meta.get("cameras") or list(CAMERA_NAMES)
+        cameras = req.cameras or rig
+        missing = [c for c in cameras if c not in rig]
+        if missing:
+            raise ApiError(422, f"cameras: {missing} not in this scene's rig {rig}", field="cameras")
+        video_id = runners.video_id_for(scene_id, req.shift_m, cameras, req.refine, req.format)
         vmeta = pg.cache.meta("videos", video_id)
         if vmeta is not None:
             return JSONResponse(video_state(video_id, vmeta, pg.jobs.latest_for("video", video_id)), 200)
-        params = {"scene_id": scene_id, "shift_m": req.shift_m, "cameras": req.cameras, "refine": req.refine,
+        params = {"scene_id": scene_id, "shift_m": req.shift_m, "cameras": cameras, "refine": req.refine,
                   "format": req.format}
         try:
             job, _ = pg.jobs.submit("video", video_id, params)

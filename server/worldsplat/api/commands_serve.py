@@ -17,6 +17,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-queued", type=int, default=16, help="queued jobs before 429 (default 16)")
     parser.add_argument("--web-dir", type=Path, default=os.environ.get("WORLDSPLAT_WEB_DIR") or None,
                         help="serve the page from here (default $WORLDSPLAT_WEB_DIR or the repository's web/)")
+    parser.add_argument("--max-scene-mpix", type=float, default=16.0,
+                        help="largest scene accepted, in million pixels (frames x cameras x width x height)")
     parser.add_argument("--no-warm", action="store_true", help="do not generate the default scene at start-up")
 
 
@@ -27,10 +29,11 @@ def run(args: argparse.Namespace) -> int:
 
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in 0..65535, got {args.port}")
-    if args.cache_max_mb <= 0 or args.max_queued <= 0:
-        raise ValueError("--cache-max-mb and --max-queued must be positive")
+    if args.cache_max_mb <= 0 or args.max_queued <= 0 or not args.max_scene_mpix > 0:
+        raise ValueError("--cache-max-mb, --max-queued and --max-scene-mpix must be positive")
     app = create_app(args.cache_dir, web_dir=args.web_dir, max_cache_bytes=args.cache_max_mb << 20,
-                     max_queued=args.max_queued, warm=not args.no_warm)
+                     max_queued=args.max_queued, warm=not args.no_warm,
+                     max_scene_pixels=int(args.max_scene_mpix * 1e6))
     print(f"worldsplat serve: http://{args.host}:{args.port}/ (API docs at /docs, cache {args.cache_dir})",
           flush=True)
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning", timeout_graceful_shutdown=5)

@@ -31,6 +31,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--ckpt-every", type=int, default=100)
     p.add_argument("--bf16", action="store_true", help="bf16 autocast")
+    p.add_argument("--render-views", type=int, default=2, help="decoder: target views rendered per step")
+    p.add_argument("--render-down", type=int, default=2, help="decoder: render at image size / this")
     p.add_argument("--no-progress", action="store_true")
 
 
@@ -82,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
         meta["vae"] = str(args.vae)
         if args.kind == "decoder":
             model = build("decoder", cfg.decoder)
-            step = decoder_step_fn(samples, dcfg)
+            step = decoder_step_fn(samples, dcfg, render_views=args.render_views, render_down=args.render_down)
+            meta.update(render_views=args.render_views, render_down=args.render_down)
         else:
             model = build("dit", cfg.dit, dcfg.num_classes)
             step = dit_step_fn(samples, batch=args.batch)

@@ -227,6 +227,45 @@ def steps_vs_error(models: Models, ds: ShardDataset, n: int = 1, steps_list=(1, 
     return [{"steps": k, **{m: float(np.mean(v)) for m, v in r.items()}} for k, r in rows.items()]
 
 
+@torch.no_grad()
+def figure(models: Models, ds: ShardDataset, index: int, out_png: Path, t: int = 1, views=(5, 0, 1),
+           shift_m: float = 2.0, steps: int = 8, seed: int = 0) -> Path:
+    """One PNG, a row per source and a column per camera (FRONT_LEFT, FRONT, FRONT_RIGHT by default):
+    GT | VAE decode | reconstruct render | GT at +shift | reconstruct render at +shift | generated render."""
+    from PIL import Image
+    from .inference import encode_clip
+    d = models.data
+    s = ds[index]
+    rig = rig_of(s)
+    T, V = s["rgb"].shape[:2]
+    rows = [[s["rgb"][t, v] for v in views]]
+    L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
+    rgb = (models.vae.decode_joint(L[t])[0] + 1) / 2
+    rows.append([(rgb[v].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8) for v in views])
+    scene = to_scene4d(reconstruct(clip_view(s, rig), models))
+    to8 = lambda x: (x.clamp(0, 1).numpy() * 255).round().astype(np.uint8)  # noqa: E731
+    rows.append([to8(render(scene.at_frame(t), scene.camera(t, v))["rgb"]) for v in views])
+    shifted = {float(x["shift_m"]): x for x in ds.shifted(index)}
+    if shift_m in shifted:
+        rows.append([shifted[shift_m]["rgb"][t, v] for v in views])
+        rows.append([to8(render(scene.at_frame(t), scene.camera(t, v, shift_m))["rgb"]) for v in views])
+    if "generate" in models.modes:
+        z = ds.load(index)
+        ego = s["ego_to_world"].astype(np.float64)
+        boxes = [[{"corners": z["box_corners"][tt, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+                  for k in range(z["box_corners"].shape[1])] for tt in range(T)]
+        cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
+                                          "ego_traj": s["traj"]}, ego)
+        Lg = sample_latents(models, cond, steps=steps, seed=seed)
+        gscene = to_scene4d(_decode_gaussians(models, Lg, rig, ego, np.arange(T) / 4.0, {}))
+        rows.append([(s["sketch"][t, v] * 255).astype(np.uint8) for v in views])
+        rows.append([to8(render(gscene.at_frame(t), gscene.camera(t, v))["rgb"]) for v in views])
+    grid = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(grid).resize((grid.shape[1] * 2, grid.shape[0] * 2), Image.NEAREST).save(out_png)
+    return out_png
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", type=Path, required=True)
@@ -236,7 +275,10 @@ def main(argv=None) -> int:
     p.add_argument("--clips", type=int, default=4)
     p.add_argument("--parts", default="vae,reconstruct,generate,steps")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
+    p.add_argument("--figure", type=Path, default=None, help="also write the qualitative PNG of test clip 0")
     a = p.parse_args(argv)
+    frames = tuple(int(x) for x in a.frames.split(","))
     torch.set_num_threads(a.threads)
     models = load_models(a.weights)
     ds = ShardDataset(a.data, a.split, models.data.max_boxes)
@@ -248,14 +290,16 @@ def main(argv=None) -> int:
         out["vae"] = eval_vae(models, ds, a.clips)
         print("vae", out["vae"], flush=True)
     if "reconstruct" in parts:
-        out["reconstruct"] = eval_reconstruct(models, ds, a.clips)
+        out["reconstruct"] = eval_reconstruct(models, ds, a.clips, frames=frames)
         print("reconstruct", out["reconstruct"], flush=True)
     if "generate" in parts and "generate" in models.modes:
-        out["generate"] = eval_generate(models, ds, a.clips)
+        out["generate"] = eval_generate(models, ds, a.clips, frames=frames)
         print("generate", out["generate"], flush=True)
     if "steps" in parts and "generate" in models.modes:
         out["steps_vs_error"] = steps_vs_error(models, ds, max(1, min(2, a.clips)))
         print("steps", out["steps_vs_error"], flush=True)
+    if a.figure is not None:
+        figure(models, ds, 0, a.figure)
     out["eval_wall_s"] = round(time.time() - t0, 1)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(out, indent=1))

@@ -158,7 +158,8 @@ def pick(samples: list, gen: torch.Generator, k: int = 1) -> list:
 
 def vae_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4, crop: tuple[int, int] = (32, 56)):
     """Each step: `images_per_step` random (clip, frame, view) images, each modality a separate VAE input,
-    random crops (the VAE is fully convolutional). Loss: L1 + 0.5 * (1 - SSIM) on RGB + KL."""
+    random crops (the VAE is fully convolutional). Loss: L1 (dynamic pixels of the mask weighted 10x)
+    + 0.5 * (1 - SSIM) on RGB + KL."""
     def step(vae, step_i, gen):
         model = unwrap(vae)
         xs = []
@@ -175,7 +176,11 @@ def vae_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4,
         x = torch.cat(xs)
         recon, kl = vae(x, generator=gen)
         n = images_per_step
-        l1 = (recon.float() - x).abs().mean()
+        err = (recon.float() - x).abs()
+        # dynamic pixels are rare: weight them 10x in the mask modality so the mask latent is not ignored
+        w = torch.ones_like(err)
+        w[2::3] = 1.0 + 9.0 * (x[2::3] > 0).float()
+        l1 = (err * w).sum() / w.sum()
         rgb_r, rgb_x = recon[0::3].float(), x[0::3]
         s = ssim(((rgb_r + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((rgb_x + 1) / 2).permute(0, 2, 3, 1))
         loss = l1 + 0.5 * (1 - s) + model.cfg.kl_weight * kl

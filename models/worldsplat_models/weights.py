@@ -31,11 +31,13 @@ def build(kind: str, cfg, num_classes: int = 17) -> torch.nn.Module:
     raise ValueError(f"unknown model kind {kind!r}; expected one of {', '.join(KINDS)}")
 
 
-def save_weights(model: torch.nn.Module, path: str | Path, kind: str, meta: dict | None = None) -> Path:
-    """Atomic write of fp32 weights + metadata {kind, config, **meta}."""
+def save_weights(model: torch.nn.Module, path: str | Path, kind: str, meta: dict | None = None,
+                 dtype: torch.dtype = torch.float32) -> Path:
+    """Atomic write of the weights (stored as `dtype`; loading always gives float32) + metadata
+    {kind, config, **meta}."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().float().contiguous().clone() for k, v in model.state_dict().items()}
+    state = {k: v.detach().to(dtype).contiguous().clone() for k, v in model.state_dict().items()}
     md = {"kind": kind, "config": json.dumps(dataclasses.asdict(model.cfg))}
     md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
     tmp = path.with_suffix(".tmp")
@@ -67,6 +69,27 @@ def load_weights(path: str | Path, expect_kind: str | None = None) -> torch.nn.M
     with safe_open(str(path), framework="pt") as f:
         for k in f.keys():
             tensors[k] = f.get_tensor(k)
-    model.load_state_dict(tensors)
+    model.load_state_dict({k: v.float() for k, v in tensors.items()})
     model.meta = md
     return model.eval()
+
+
+def ship(run_dir: str | Path, out_dir: str | Path = DEFAULT_DIR, kinds=("vae", "decoder", "dit"),
+         size: str = "small", onnx: bool = True) -> list[Path]:
+    """Copy trained weights from a run directory into the shipped set: float16 safetensors (half the bytes;
+    loaded as float32) and the ONNX serving graphs exported from exactly those (rounded) weights."""
+    run_dir, out_dir = Path(run_dir), Path(out_dir)
+    written = []
+    for kind in kinds:
+        src = run_dir / f"{kind}_{size}.safetensors"
+        if not src.exists():
+            continue
+        m = load_weights(src, kind)
+        meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
+        written.append(save_weights(m, out_dir / src.name, kind, meta, dtype=torch.float16))
+    if onnx:
+        from .inference import _CACHE, load_models
+        from .onnx_export import export
+        _CACHE.clear()
+        written += list(export(load_models(out_dir), out_dir / "onnx").values())
+    return written

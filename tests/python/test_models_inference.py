@@ -133,3 +133,12 @@ def test_speed_ratio_reports_both_times(models, onnx_dir):
     r = ox.speed_ratio(models, onnx_dir, "vae_decoder", repeats=1, threads=1)
     assert r["torch_s"] > 0 and r["ort_s"] > 0 and r["ratio"] == pytest.approx(r["torch_s"] / r["ort_s"])
     assert r["max_abs_diff"] <= ox.PARITY_ATOL
+
+
+def test_float16_weight_files_load_as_float32(tmp_path, models):
+    p = save_weights(models.dit, tmp_path / "dit_small.safetensors", "dit", dtype=torch.float16)
+    back = load_weights(p, "dit")
+    assert p.stat().st_size < 0.6 * sum(v.numel() * 4 for v in models.dit.state_dict().values())
+    for k, v in models.dit.state_dict().items():
+        w = back.state_dict()[k]
+        assert w.dtype == v.dtype and torch.allclose(w, v, atol=1e-3, rtol=1e-3), k

@@ -1,0 +1,245 @@
+"""4D aggregation (paper eq. 3) and the economy that makes a scene carry only what it needs.
+
+Eq. 3: the per-frame, per-view Gaussians (already in the world frame, or moved there by the ego poses) split by
+their dynamic mask into a static union over all frames and views, plus each frame's own dynamic set:
+
+    G(t) = U_{t', v} G_static(t', v)  +  U_v G_dynamic(t, v)
+
+The naive union repeats every surface once per frame and view that sees it. The economy then
+1. drops Gaussians that cannot show (transparent: opacity < `min_opacity`; out of range: farther than `max_range`
+   from every camera position; non-finite);
+2. merges repeats with one resolution per place: a voxel hash whose cell is `cell_factor` x the pixel footprint
+   seen from the nearest camera of the track (distance / focal), rounded to a power of two. Every observation of a
+   surface (any frame, view or depth) lands in the same cell; the members of a cell become one Gaussian (mean and
+   colour averaged with finer observations weighing more, scale grown to cover the members' spread);
+3. orders by importance (opacity x scale^2 x (1 + log merged count): big, solid, often-seen first, so any prefix of
+   the stream is a coarser whole scene) and caps by a budget.
+`python -m worldsplat.gaussians.economy` measures kept Gaussians and PSNR change against exact ground truth.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from worldsplat.camera import RigCamera
+from worldsplat.gaussians import constants as C
+from worldsplat.gaussians.types import Gaussians, Scene4D
+
+DYNAMIC_THRESHOLD = 0.5   # extras[:, 0] (dynamic probability / mask) above this -> dynamic
+
+
+@dataclass
+class Economy:
+    """Thresholds of the economy (defaults measured in web/docs/gaussians.md)."""
+
+    enabled: bool = True
+    min_opacity: float = 0.02          # "transparent": below this a Gaussian barely shows
+    max_range: float = 150.0           # m from the nearest camera position ("out of range")
+    cell_factor: float = 2.0           # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
+    static_budget: int | None = None   # cap on static Gaussians (most important kept)
+    dynamic_budget: int | None = None  # cap per frame
+
+
+@dataclass
+class AggregateStats:
+    naive: int = 0                     # V * T * H * W (every pixel of every view and frame)
+    lifted: int = 0                    # Gaussians handed to aggregate (e.g. non-sky pixels)
+    static_union: int = 0
+    dynamic_union: int = 0
+    static_kept: int = 0
+    dynamic_kept: int = 0
+    dropped_transparent: int = 0
+    dropped_range: int = 0
+    merged_away: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def kept(self) -> int:
+        return self.static_kept + self.dynamic_kept
+
+    def as_dict(self) -> dict:
+        d = {k: v for k, v in self.__dict__.items() if k != "extra"}
+        d["kept"] = self.kept
+        d["kept_fraction_of_naive"] = self.kept / max(1, self.naive)
+        d.update(self.extra)
+        return d
+
+
+def quat_from_matrix(R: np.ndarray) -> np.ndarray:
+    """3x3 rotation -> wxyz unit quaternion."""
+    m = np.asarray(R, dtype=np.float64)
+    t = np.trace(m)
+    if t > 0:
+        s = math.sqrt(t + 1.0) * 2
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
+        q = [0.0] * 4
+        q[0] = (m[k, j] - m[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (m[j, i] + m[i, j]) / s
+        q[1 + k] = (m[k, i] + m[i, k]) / s
+    q = np.asarray(q)
+    return q / np.linalg.norm(q)
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+def transform(g: Gaussians, m: np.ndarray) -> Gaussians:
+    """Apply a rigid 4x4 transform (e.g. ego_to_world[t]) to Gaussians: means and rotations."""
+    R = torch.as_tensor(np.asarray(m)[:3, :3], dtype=g.means.dtype)
+    t = torch.as_tensor(np.asarray(m)[:3, 3], dtype=g.means.dtype)
+    qr = torch.as_tensor(quat_from_matrix(np.asarray(m)[:3, :3]), dtype=g.quats.dtype).expand_as(g.quats)
+    return Gaussians(g.means @ R.T + t, quat_mul(qr, g.quats), g.scales, g.opacities, g.colors, g.extras)
+
+
+def split_dynamic(g: Gaussians, threshold: float = DYNAMIC_THRESHOLD) -> tuple[Gaussians, Gaussians]:
+    if g.extras is None or g.extras.shape[1] == 0:
+        return g, g.subset(torch.zeros(len(g), dtype=torch.bool))
+    dyn = g.extras[:, 0] > threshold
+    return g.subset(~dyn), g.subset(dyn)
+
+
+# ---------------------------------------------------------------------------------------------- economy
+def _finite_rows(a: dict[str, np.ndarray]) -> np.ndarray:
+    keep = np.ones(len(a["means"]), dtype=bool)
+    for v in a.values():
+        keep &= np.isfinite(v if v.ndim == 2 else v[:, None]).all(1)
+    return keep
+
+
+def _cell_keys(p: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Hash (level, voxel of size 2^level m) to int64: 16 bits level, 16 bits per axis (voxel indices wrap;
+    a collision needs the same level 65536 cells apart and is harmless: it only merges two far Gaussians' counts
+    into one cell... so the wrap distance is kept far beyond any scene extent at the levels used)."""
+    ijk = np.floor(p / np.exp2(level.astype(np.float64))[:, None]).astype(np.int64) & 0xFFFF
+    return (((level.astype(np.int64) + 64) & 0xFFFF) << 48) | (ijk[:, 0] << 32) | (ijk[:, 1] << 16) | ijk[:, 2]
+
+
+def nearest_distance(p: np.ndarray, centres: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
+    out = np.full(len(p), np.inf)
+    for s in range(0, len(p), chunk):
+        q = p[s:s + chunk]
+        for c in centres:
+            out[s:s + chunk] = np.minimum(out[s:s + chunk], np.sqrt(((q - c) ** 2).sum(1)))
+    return out
+
+
+def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: float,
+              stats: AggregateStats | None = None, budget: int | None = None) -> Gaussians:
+    """Drop, merge, order by importance, cap (see the module docstring). Works on detached numpy copies; the
+    result is a new Gaussians (isotropic inputs stay isotropic; a merged cell takes the rotation of its most
+    opaque member)."""
+    stats = stats or AggregateStats()
+    a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
+    if len(a["means"]) == 0:
+        return g.detach()
+    keep = _finite_rows(a)
+    a["opacities"] = np.clip(np.nan_to_num(a["opacities"]), 0, 1)
+    transparent = keep & (a["opacities"] < max(eco.min_opacity, C.ALPHA_MIN))
+    stats.dropped_transparent += int(transparent.sum())
+    keep &= ~transparent
+    a = {k: v[keep] for k, v in a.items()}
+    dist = nearest_distance(a["means"], camera_centres)
+    far = dist > eco.max_range
+    stats.dropped_range += int(far.sum())
+    a = {k: v[~far] for k, v in a.items()}
+    dist = dist[~far]
+    n = len(a["means"])
+    if n == 0:
+        return Gaussians.empty(0 if g.extras is None else g.extras.shape[1])
+    s = np.clip(a["scales"], C.SCALE_MIN, C.SCALE_MAX)
+    # One resolution per place: the pixel footprint from the nearest camera, times cell_factor, rounded to a
+    # power of two. Every observation of a surface (any frame, any view, any depth) lands in the same cell.
+    cell = eco.cell_factor * np.maximum(dist, 0.1) / focal
+    level = np.round(np.log2(cell)).astype(np.int64)
+    keys = _cell_keys(a["means"], level)
+    uniq, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    m = len(uniq)
+    stats.merged_away += n - m
+    w = a["opacities"] / np.exp(2 * np.log(s).mean(1))   # finer observations weigh more
+    wsum = np.bincount(inv, weights=w, minlength=m)
+
+    def wmean(x):
+        if x.ndim == 1:
+            return np.bincount(inv, weights=x * w, minlength=m) / wsum
+        return np.stack([np.bincount(inv, weights=x[:, j] * w, minlength=m) for j in range(x.shape[1])], 1) / \
+            wsum[:, None]
+    means = wmean(a["means"])
+    spread = wmean(((a["means"] - means[inv]) ** 2).sum(1)) / 3.0   # per-axis variance of the member centres
+    scales = np.sqrt(np.exp(2 * wmean(np.log(s))) + spread[:, None])
+    colors = wmean(a["colors"])
+    opac = np.bincount(inv, weights=a["opacities"], minlength=m) / counts
+    order = np.lexsort((-a["opacities"], inv))
+    first = order[np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]]
+    quats = a["quats"][first]
+    extras = wmean(a["extras"]) if "extras" in a else None
+    importance = opac * np.exp(2 * np.log(scales).mean(1)) * (1 + np.log(counts))
+    idx = np.argsort(-importance, kind="stable")
+    if budget is not None:
+        idx = idx[:budget]
+    out = {"means": means[idx], "quats": quats[idx], "scales": scales[idx], "opacities": opac[idx],
+           "colors": colors[idx]}
+    if extras is not None:
+        out["extras"] = extras[idx]
+    return Gaussians.from_numpy(**out, dtype=torch.float64 if g.means.dtype == torch.float64 else torch.float32)
+
+
+def importance_order(g: Gaussians) -> Gaussians:
+    s = g.scales.detach().double().clamp(C.SCALE_MIN, C.SCALE_MAX)
+    imp = g.opacities.detach().double().clamp(0, 1) * torch.exp(2 * s.log().mean(1))
+    return g.subset(torch.argsort(-imp, stable=True))
+
+
+def aggregate(per_view: list[list[Gaussians]], frame_times, rig: list[RigCamera], ego_to_world: np.ndarray, *,
+              in_ego_frame: bool = False, economy: Economy | None = None, meta: dict | None = None,
+              image_size: tuple[int, int] | None = None) -> tuple[Scene4D, AggregateStats]:
+    """Paper eq. 3. `per_view[t][v]`: Gaussians of frame t, view v, with extras[:, 0] = dynamic probability
+    (> 0.5 = dynamic); in world coordinates, or in the ego frame of frame t when `in_ego_frame`.
+    Returns the Scene4D (static in importance order) and the statistics of the economy."""
+    economy = economy or Economy()
+    ego_to_world = np.asarray(ego_to_world, dtype=np.float64)
+    T = len(per_view)
+    if T != len(ego_to_world) or T != len(frame_times):
+        raise ValueError(f"aggregate: {T} frames of Gaussians, {len(ego_to_world)} ego poses, "
+                         f"{len(frame_times)} frame times")
+    stats = AggregateStats()
+    if image_size is not None:
+        stats.naive = T * len(rig) * image_size[0] * image_size[1]
+    statics, dynamics = [], []
+    for t, views in enumerate(per_view):
+        dyn_t = []
+        for g in views:
+            stats.lifted += len(g)
+            if in_ego_frame:
+                g = transform(g, ego_to_world[t])
+            st, dy = split_dynamic(g)
+            statics.append(st)
+            dyn_t.append(dy)
+        dynamics.append(Gaussians.cat(dyn_t) if dyn_t else Gaussians.empty())
+    static = Gaussians.cat(statics) if statics else Gaussians.empty()
+    stats.static_union = len(static)
+    stats.dynamic_union = sum(len(d) for d in dynamics)
+    centres = np.array([[rc.at(e).position for rc in rig] for e in ego_to_world])   # (T,V,3)
+    focal = float(np.median([np.sqrt(rc.fx * rc.fy) for rc in rig])) if rig else 1.0
+    if economy.enabled:
+        static = economize(static, economy, centres.reshape(-1, 3), focal, stats, economy.static_budget)
+        dynamics = [economize(d, economy, centres[t], focal, stats, economy.dynamic_budget) if len(d)
+                    else d.detach() for t, d in enumerate(dynamics)]
+    else:
+        static = importance_order(static.detach())
+        dynamics = [d.detach() for d in dynamics]
+    stats.static_kept = len(static)
+    stats.dynamic_kept = sum(len(d) for d in dynamics)
+    return Scene4D(static, dynamics, np.asarray(frame_times, dtype=np.float64), list(rig), ego_to_world,
+                   dict(meta or {})), stats

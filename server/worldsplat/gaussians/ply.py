@@ -1,0 +1,94 @@
+"""Standard 3DGS PLY interop (the INRIA / gsplat vertex layout), binary little-endian.
+
+Per vertex: x y z, optional nx ny nz (written as 0), f_dc_0..2 (colour = 0.5 + SH_C0 * f_dc), optional f_rest_*
+(higher SH degrees: read and ignored, never written), opacity (logit), scale_0..2 (natural log of the std in m),
+rot_0..3 (quaternion w x y z, not necessarily normalized).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from worldsplat.gaussians.types import Gaussians
+
+SH_C0 = 0.28209479177387814
+_TYPES = {"float": "f4", "float32": "f4", "double": "f8", "float64": "f8", "uchar": "u1", "uint8": "u1",
+          "char": "i1", "int8": "i1", "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+          "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4"}
+REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+            "rot_0", "rot_1", "rot_2", "rot_3"]
+MAX_HEADER = 64 * 1024
+
+
+def write_ply(g: Gaussians, path: str | Path) -> Path:
+    from worldsplat.gaussians.wsplat import atomic_write_bytes
+    a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
+    n = len(a["means"])
+    o = np.clip(a["opacities"], 1e-6, 1 - 1e-6)
+    cols = {"x": a["means"][:, 0], "y": a["means"][:, 1], "z": a["means"][:, 2],
+            "nx": np.zeros(n), "ny": np.zeros(n), "nz": np.zeros(n)}
+    for i in range(3):
+        cols[f"f_dc_{i}"] = (a["colors"][:, i] - 0.5) / SH_C0
+    cols["opacity"] = np.log(o / (1 - o))
+    for i in range(3):
+        cols[f"scale_{i}"] = np.log(np.maximum(a["scales"][:, i], 1e-12))
+    for i in range(4):
+        cols[f"rot_{i}"] = a["quats"][:, i]
+    dtype = np.dtype([(k, "<f4") for k in cols])
+    rec = np.empty(n, dtype=dtype)
+    for k, v in cols.items():
+        rec[k] = v
+    header = "ply\nformat binary_little_endian 1.0\ncomment worldsplat 3DGS export\n"
+    header += f"element vertex {n}\n" + "".join(f"property float {k}\n" for k in cols) + "end_header\n"
+    atomic_write_bytes(Path(path), header.encode("ascii") + rec.tobytes())
+    return Path(path)
+
+
+def read_ply(path: str | Path) -> Gaussians:
+    data = Path(path).read_bytes()
+    end = data.find(b"end_header\n", 0, MAX_HEADER)
+    if not data.startswith(b"ply\n") or end < 0:
+        raise ValueError(f"{path}: not a PLY file (missing 'ply' magic or 'end_header' in the first 64 KiB)")
+    lines = data[:end].decode("ascii", errors="replace").splitlines()
+    fmt, count, props, element = None, None, [], None
+    for ln in lines[1:]:
+        parts = ln.split()
+        if not parts or parts[0] in ("comment", "obj_info"):
+            continue
+        if parts[0] == "format":
+            fmt = parts[1] if len(parts) > 1 else None
+        elif parts[0] == "element":
+            element = parts[1] if len(parts) > 1 else None
+            if element == "vertex":
+                try:
+                    count = int(parts[2])
+                except (IndexError, ValueError):
+                    raise ValueError(f"{path}: bad vertex element line {ln!r}") from None
+        elif parts[0] == "property" and element == "vertex":
+            if len(parts) != 3 or parts[1] not in _TYPES:
+                raise ValueError(f"{path}: unsupported vertex property {ln!r} (lists are not 3DGS)")
+            props.append((parts[2], "<" + _TYPES[parts[1]]))
+        elif parts[0] == "property":
+            raise ValueError(f"{path}: elements after 'vertex' are not supported ({element})")
+    if fmt != "binary_little_endian":
+        raise ValueError(f"{path}: format {fmt!r} not supported (3DGS files are binary_little_endian)")
+    if count is None or count < 0:
+        raise ValueError(f"{path}: no vertex element")
+    names = [p for p, _ in props]
+    missing = [k for k in REQUIRED if k not in names]
+    if missing:
+        raise ValueError(f"{path}: missing 3DGS vertex properties: {', '.join(missing)}")
+    dtype = np.dtype(props)
+    body = data[end + len(b"end_header\n"):]
+    if len(body) < count * dtype.itemsize:
+        raise ValueError(f"{path}: {count} vertices need {count * dtype.itemsize} bytes, file has {len(body)}")
+    rec = np.frombuffer(body, dtype=dtype, count=count)
+    f = lambda k: rec[k].astype(np.float64)  # noqa: E731
+    means = np.stack([f("x"), f("y"), f("z")], 1)
+    colors = np.clip(0.5 + SH_C0 * np.stack([f(f"f_dc_{i}") for i in range(3)], 1), 0, 1)
+    with np.errstate(over="ignore"):
+        opac = 1 / (1 + np.exp(-f("opacity")))
+        scales = np.exp(np.stack([f(f"scale_{i}") for i in range(3)], 1))
+    quats = np.stack([f(f"rot_{i}") for i in range(4)], 1)
+    return Gaussians.from_numpy(means, quats, scales, opac, colors)

@@ -1,0 +1,85 @@
+"""Video files from frames: H.264 MP4 (yuv420p, faststart: plays in Chromium) or VP9 WebM, written atomically
+through imageio-ffmpeg's bundled ffmpeg binary (no system ffmpeg needed)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+CODECS = {
+    ".mp4": ["-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-pix_fmt", "yuv420p", "-movflags", "+faststart"],
+    ".webm": ["-c:v", "libvpx-vp9", "-b:v", "0", "-crf", "32", "-row-mt", "1", "-pix_fmt", "yuv420p"],
+}
+
+
+def ffmpeg_exe() -> str:
+    import imageio_ffmpeg
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+def even_pad(frames: np.ndarray) -> np.ndarray:
+    """yuv420p needs even width and height: pad the last row/column by edge replication."""
+    T, H, W, _ = frames.shape
+    ph, pw = H % 2, W % 2
+    if ph or pw:
+        frames = np.pad(frames, ((0, 0), (0, ph), (0, pw), (0, 0)), mode="edge")
+    return frames
+
+
+def mosaic(views: np.ndarray, cols: int = 3) -> np.ndarray:
+    """(T,V,H,W,3) -> (T, rows*H, cols*W, 3): the 6-camera rig as 2x3 (front row, back row)."""
+    T, V, H, W, Cc = views.shape
+    rows = -(-V // cols)
+    out = np.zeros((T, rows * H, cols * W, Cc), dtype=views.dtype)
+    for v in range(V):
+        r, c = divmod(v, cols)
+        out[:, r * H:(r + 1) * H, c * W:(c + 1) * W] = views[:, v]
+    return out
+
+
+def write_video(frames: np.ndarray, path: str | Path, fps: float = 10.0) -> Path:
+    """Write (T,H,W,3) uint8 frames to `path` (.mp4 H.264 or .webm VP9), atomically (temp file + rename)."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in CODECS:
+        raise ValueError(f"write_video: unsupported extension {ext!r} (use .mp4 or .webm)")
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or frames.shape[0] < 1:
+        raise ValueError(f"write_video: expected (T,H,W,3) uint8 with T >= 1, got {frames.shape} {frames.dtype}")
+    if not (fps > 0 and np.isfinite(fps)):
+        raise ValueError(f"write_video: fps must be > 0, got {fps}")
+    frames = np.ascontiguousarray(even_pad(frames))
+    T, H, W, _ = frames.shape
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=ext)
+    os.close(fd)
+    cmd = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{W}x{H}",
+           "-r", f"{fps:g}", "-i", "-", "-an", *CODECS[ext], "-threads", "1", tmp]
+    try:
+        proc = subprocess.run(cmd, input=frames.tobytes(), capture_output=True, timeout=600)
+        if proc.returncode != 0:
+            raise RuntimeError(f"ffmpeg failed ({proc.returncode}): {proc.stderr.decode(errors='replace')[-500:]}")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def probe(path: str | Path) -> dict:
+    """Codec, size and frame count of a video, read by decoding it with the same ffmpeg (for tests)."""
+    cmd = [ffmpeg_exe(), "-hide_banner", "-i", str(path), "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-"]
+    proc = subprocess.run(cmd, capture_output=True, timeout=120)
+    err = proc.stderr.decode(errors="replace")
+    import re
+    m = re.search(r"Video: (\w+).*?, (\d+)x(\d+)", err)
+    if proc.returncode != 0 or not m:
+        raise RuntimeError(f"probe failed: {err[-300:]}")
+    w, h = int(m.group(2)), int(m.group(3))
+    n = len(proc.stdout) // (w * h * 3)
+    pix = m.group(0)
+    return {"codec": m.group(1), "width": w, "height": h, "frames": n, "yuv420p": "yuv420p" in err,
+            "data": np.frombuffer(proc.stdout, dtype=np.uint8).reshape(n, h, w, 3), "stream": pix}

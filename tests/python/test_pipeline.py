@@ -1,0 +1,104 @@
+"""The pipeline (oracle mode), render_track, videos and the generate/render/export/import commands."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from worldsplat.cli import main as cli
+from worldsplat.gaussians import wsplat
+from worldsplat.pipeline import JobCancelled, MODES, generate_scene, render_track
+from worldsplat.scenario import load_preset
+from worldsplat.video import probe, write_video
+
+TINY = {"clip": {"frames": 2}, "image": {"width": 64, "height": 36}}
+
+
+@pytest.fixture(scope="module")
+def tiny_scene():
+    return generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="oracle")
+
+
+def test_oracle_scene_metadata_and_rerender(tiny_scene):
+    from worldsplat.world import build_world, simulate
+    s = tiny_scene
+    assert s.meta["mode"] == "oracle" and len(s.meta["scenario_id"]) == 16 and s.num_frames == 2
+    assert s.meta["aggregate"]["kept"] < s.meta["aggregate"]["naive"]
+    frames = render_track(s, 0.0, ["CAM_FRONT", "CAM_BACK"])
+    assert frames.shape == (2, 2, 36, 64, 3) and frames.dtype == np.uint8
+    clip = simulate(build_world(load_preset("urban_straight").with_updates(**TINY)), cameras=["CAM_FRONT"])
+    fg = np.isfinite(clip.depth[:, 0])
+    err = np.abs(frames[:, 0].astype(float) - clip.rgb[:, 0].astype(float))[fg].mean()
+    assert err < 20  # mean abs error on non-sky pixels, 8-bit levels, at the lifted views themselves
+
+
+def test_modes_and_errors():
+    assert "oracle" in list(MODES)
+    with pytest.raises(ValueError, match="unknown mode"):
+        generate_scene(load_preset("urban_straight"), mode="dream")
+    with pytest.raises(JobCancelled):
+        generate_scene(load_preset("urban_straight").with_updates(**TINY), cancelled=lambda: True)
+    stages = []
+    with pytest.raises(JobCancelled):
+        generate_scene(load_preset("urban_straight").with_updates(**TINY), progress=lambda s, f: stages.append(s),
+                       cancelled=lambda: "lift" in stages)
+    assert stages[:3] == ["world", "simulate", "lift"]
+
+
+def test_model_modes_say_what_is_missing(monkeypatch):
+    import worldsplat.pipeline as pl
+    monkeypatch.setattr(pl, "_models_inference", lambda: None)
+    assert list(pl.MODES) == ["oracle"]
+    with pytest.raises(FileNotFoundError, match="worldsplat_models"):
+        generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="reconstruct")
+
+
+def test_write_video_mp4_and_webm(tmp_path):
+    frames = np.zeros((5, 35, 61, 3), np.uint8)       # odd size: padded to even for yuv420p
+    frames[:, :, :30, 0] = 255
+    frames[2:, 10:20, 40:50, 1] = 200
+    p = write_video(frames, tmp_path / "a.mp4", fps=4)
+    info = probe(p)
+    assert info["codec"] == "h264" and info["yuv420p"] and (info["width"], info["height"]) == (62, 36)
+    assert info["frames"] == 5
+    assert abs(float(info["data"][3, 15, 45, 1]) - 200) < 20 and info["data"][0, 15, 10, 0] > 230
+    w = write_video(frames, tmp_path / "a.webm", fps=4)
+    assert probe(w)["codec"] == "vp9"
+    assert not list(tmp_path.glob(".*"))                # no temp files left
+    with pytest.raises(ValueError):
+        write_video(frames.astype(np.float32), tmp_path / "b.mp4")
+    with pytest.raises(ValueError):
+        write_video(frames, tmp_path / "b.avi")
+
+
+def test_cli_generate_render_export_import(tmp_path, capsys):
+    scen = tmp_path / "s.json"
+    scen.write_text(load_preset("empty_road").with_updates(**TINY).normalized_json())
+    out = tmp_path / "s.wsplat"
+    assert cli(["generate", str(scen), "--mode", "oracle", "--out", str(out), "--quiet"]) == 0
+    scene = wsplat.read(out)
+    assert scene.meta["mode"] == "oracle" and scene.num_frames == 2
+    assert cli(["render", str(out), "--shift-m", "2", "--out", str(tmp_path / "f.png")]) == 0
+    assert cli(["render", str(out), "--shift-m", "2", "--camera", "all", "--out", str(tmp_path / "m.mp4")]) == 0
+    info = probe(tmp_path / "m.mp4")
+    assert (info["width"], info["height"], info["frames"]) == (3 * 64, 2 * 36, 2)
+    assert cli(["render", str(out), "--camera", "CAM_BACK", "--frame", "1", "--out", str(tmp_path / "d")]) == 0
+    assert [p.name for p in (tmp_path / "d").iterdir()] == ["001_CAM_BACK.png"]
+    cam = scene.camera(0, 0, 1.0).to_json()
+    (tmp_path / "cam.json").write_text(json.dumps(cam))
+    assert cli(["render", str(out), "--camera-json", str(tmp_path / "cam.json"), "--out", str(tmp_path / "c.png")]) == 0
+    from PIL import Image
+    a = np.asarray(Image.open(tmp_path / "c.png"))
+    assert cli(["render", str(out), "--shift-m", "1", "--out", str(tmp_path / "r.png")]) == 0
+    b = np.asarray(Image.open(tmp_path / "r.png"))
+    assert np.array_equal(a, b)                        # camera JSON == rig camera at +1 m
+    assert cli(["export", str(out), "--out", str(tmp_path / "s.ply")]) == 0
+    assert cli(["import", str(tmp_path / "s.ply"), "--out", str(tmp_path / "back.wsplat")]) == 0
+    back = wsplat.read(tmp_path / "back.wsplat")
+    assert len(back.static) == len(scene.static) and back.meta["mode"] == "import"
+    assert cli(["render", str(tmp_path / "s.ply"), "--camera-json", str(tmp_path / "cam.json"),
+                "--out", str(tmp_path / "p.png")]) == 0
+    c = np.asarray(Image.open(tmp_path / "p.png"))
+    assert np.abs(a.astype(int) - c.astype(int)).mean() < 1.0   # the PLY renders like the .wsplat
+    assert cli(["render", str(out), "--camera", "NOPE", "--out", str(tmp_path / "x.png")]) == 2
+    assert "unknown camera" in capsys.readouterr().err

@@ -22,7 +22,7 @@ pub fn gpu(path: Option<DrawPath>) -> Result<Gpu, String> {
 /// Render into an offscreen RGBA8 image of `size` and read it back.
 pub fn render_rgba(renderer: &mut Renderer, views: &[ViewRect], size: [u32; 2]) -> Result<(Vec<u8>, RenderStats), String> {
     let target = Offscreen::new(&renderer.device, size);
-    let stats = renderer.render(views, &target.view, size)?;
+    let stats = renderer.render(views, &target.view, wgpu::TextureFormat::Rgba8Unorm, size)?;
     let mut readback = target.start_readback(&renderer.device, &renderer.queue);
     renderer.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| format!("device poll: {e}"))?;
     let rgba = readback.try_finish().ok_or("readback: map callback did not fire")??;

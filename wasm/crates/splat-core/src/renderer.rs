@@ -145,10 +145,11 @@ pub struct Renderer {
     pub queue: wgpu::Queue,
     pub path: DrawPath,
     accum_format: wgpu::TextureFormat,
-    output_format: wgpu::TextureFormat,
+    blit_module: wgpu::ShaderModule,
+    blit_layout: wgpu::PipelineLayout,
+    blit_pipelines: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
     splat_pipeline: wgpu::RenderPipeline,
     splat_bgl: wgpu::BindGroupLayout,
-    blit_pipeline: wgpu::RenderPipeline,
     blit_bgl: wgpu::BindGroupLayout,
     view_buf: wgpu::Buffer,
     splat_buf: wgpu::Buffer,
@@ -169,7 +170,7 @@ fn std_clock() -> f64 {
 }
 
 impl Renderer {
-    pub fn new(gpu: &Gpu, output_format: wgpu::TextureFormat) -> Renderer {
+    pub fn new(gpu: &Gpu) -> Renderer {
         let device = &gpu.device;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("splat.wgsl"),
@@ -262,22 +263,6 @@ impl Renderer {
             bind_group_layouts: &[Some(&blit_bgl)],
             immediate_size: 0,
         });
-        let blit_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("blit pipeline"),
-            layout: Some(&blit_layout),
-            vertex: wgpu::VertexState { module: &blit_module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &[] },
-            primitive: Default::default(),
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &blit_module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState { format: output_format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
         let view_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("view uniforms"),
             size: UNIFORM_STRIDE * MAX_VIEWS as u64,
@@ -289,10 +274,11 @@ impl Renderer {
             queue: gpu.queue.clone(),
             path: gpu.path,
             accum_format: gpu.accum_format,
-            output_format,
+            blit_module,
+            blit_layout,
+            blit_pipelines: Vec::new(),
             splat_pipeline,
             splat_bgl,
-            blit_pipeline,
             blit_bgl,
             view_buf,
             splat_buf: Self::make_splat_buffer(&gpu.device, gpu.path, 1),
@@ -326,8 +312,28 @@ impl Renderer {
         })
     }
 
-    pub fn output_format(&self) -> wgpu::TextureFormat {
-        self.output_format
+    fn blit_pipeline(&mut self, format: wgpu::TextureFormat) -> wgpu::RenderPipeline {
+        if let Some((_, p)) = self.blit_pipelines.iter().find(|(f, _)| *f == format) {
+            return p.clone();
+        }
+        let p = self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("blit pipeline"),
+            layout: Some(&self.blit_layout),
+            vertex: wgpu::VertexState { module: &self.blit_module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &[] },
+            primitive: Default::default(),
+            depth_stencil: None,
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &self.blit_module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        self.blit_pipelines.push((format, p.clone()));
+        p
     }
     pub fn accum_format(&self) -> wgpu::TextureFormat {
         self.accum_format
@@ -424,8 +430,9 @@ impl Renderer {
             .forget_lifetime()
     }
 
-    /// Render `views` into `target` (of `size`, in `output_format`). Each view is sorted for its own camera.
-    pub fn render(&mut self, views: &[ViewRect], target: &wgpu::TextureView, size: [u32; 2]) -> Result<RenderStats, String> {
+    /// Render `views` into `target` (of `size` and `format`; sRGB formats are not corrected, use a unorm one).
+    /// Each view is sorted for its own camera.
+    pub fn render(&mut self, views: &[ViewRect], target: &wgpu::TextureView, format: wgpu::TextureFormat, size: [u32; 2]) -> Result<RenderStats, String> {
         if views.len() > MAX_VIEWS {
             return Err(format!("render: at most {MAX_VIEWS} views, got {}", views.len()));
         }
@@ -438,6 +445,7 @@ impl Renderer {
             }
         }
         self.ensure_accum(size);
+        let blit = self.blit_pipeline(format);
         let accum_view = self.accum.as_ref().unwrap().1.clone();
         for (i, v) in views.iter().enumerate() {
             let u = ViewUniform::new(&v.camera, v.origin, self.count);
@@ -480,7 +488,7 @@ impl Renderer {
                         pass.draw_indirect(sort.draw_args(), 0);
                     }
                 }
-                self.blit(&mut encoder, &accum_view, target);
+                self.blit(&mut encoder, &blit, &accum_view, target);
                 self.queue.submit([encoder.finish()]);
             }
             DrawPath::Instanced => {
@@ -520,7 +528,7 @@ impl Renderer {
                     self.queue.submit([encoder.finish()]);
                 }
                 let mut encoder = self.device.create_command_encoder(&Default::default());
-                self.blit(&mut encoder, &accum_view, target);
+                self.blit(&mut encoder, &blit, &accum_view, target);
                 self.queue.submit([encoder.finish()]);
             }
         }
@@ -551,7 +559,7 @@ impl Renderer {
         }
     }
 
-    fn blit(&self, encoder: &mut wgpu::CommandEncoder, accum: &wgpu::TextureView, target: &wgpu::TextureView) {
+    fn blit(&self, encoder: &mut wgpu::CommandEncoder, pipeline: &wgpu::RenderPipeline, accum: &wgpu::TextureView, target: &wgpu::TextureView) {
         let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("blit bind"),
             layout: &self.blit_bgl,
@@ -570,7 +578,7 @@ impl Renderer {
             occlusion_query_set: None,
             multiview_mask: None,
         });
-        pass.set_pipeline(&self.blit_pipeline);
+        pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &bind, &[]);
         pass.draw(0..3, 0..1);
     }

@@ -19,6 +19,8 @@ pub enum CameraMode {
     Mosaic,
     Free,
     Bev,
+    /// Any camera given by the shared camera JSON (fit into the target keeping its aspect).
+    Custom(Camera),
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -55,6 +57,7 @@ impl ViewState {
             CameraMode::Mosaic => "mosaic".into(),
             CameraMode::Free => "free".into(),
             CameraMode::Bev => "bev".into(),
+            CameraMode::Custom(_) => "custom".into(),
         }
     }
 
@@ -96,6 +99,7 @@ impl ViewState {
         match &self.mode {
             CameraMode::Rig(n) => rig.iter().find(|c| &c.name == n).map_or([front.width, front.height], |c| [c.width, c.height]),
             CameraMode::Mosaic => [front.width * 3, front.height * 2],
+            CameraMode::Custom(c) => [c.width, c.height],
             _ => [front.width.max(640), front.height.max(360)],
         }
     }
@@ -121,6 +125,7 @@ impl ViewState {
                     .collect()
             }
             CameraMode::Free => vec![ViewRect { camera: self.free.camera(size[0], size[1]), origin: [0, 0] }],
+            CameraMode::Custom(c) => vec![fit(c, [0, 0], size)],
             CameraMode::Bev => {
                 let pose = mat_mul(&ego, &translation(0.0, self.shift_m, 0.0));
                 vec![ViewRect { camera: bev_camera(&pose, size[0], size[1], BEV_HEIGHT_M, BEV_HFOV_DEG), origin: [0, 0] }]
@@ -152,14 +157,22 @@ impl ViewState {
     }
 
     pub fn to_json(&self) -> Value {
-        json!({"camera": self.mode_name(), "frame": self.frame, "shift_m": self.shift_m, "free": self.free.to_json()})
+        let mut v = json!({"camera": self.mode_name(), "frame": self.frame, "shift_m": self.shift_m, "free": self.free.to_json()});
+        if let CameraMode::Custom(c) = &self.mode {
+            v["view"] = c.to_json();
+        }
+        v
     }
 
     /// Parse a camera state (from `to_json`); errors name the field. Frame and camera are checked against the scene.
     pub fn from_json(scene: &Scene, v: &Value) -> Result<ViewState, String> {
         let mut s = ViewState::default();
         let cam = v.get("camera").and_then(Value::as_str).ok_or("camera state: missing string field camera")?;
-        s.set_camera(scene, cam)?;
+        if cam == "custom" {
+            s.mode = CameraMode::Custom(Camera::from_json(v.get("view").ok_or("camera state: custom needs field view")?)?);
+        } else {
+            s.set_camera(scene, cam)?;
+        }
         let frame = v.get("frame").map_or(Some(0), Value::as_u64).ok_or("camera state: frame must be an integer >= 0")?;
         s.set_frame(scene, frame as usize)?;
         let shift = v.get("shift_m").map_or(Some(0.0), Value::as_f64).ok_or("camera state: shift_m must be a number")?;
@@ -169,6 +182,19 @@ impl ViewState {
         }
         Ok(s)
     }
+}
+
+/// A free camera looking at the centre of the static Gaussians from a distance that frames them.
+pub fn orbit_around(scene: &Scene) -> FreeCamera {
+    let step = (scene.statics.len() / 20_000).max(1);
+    let pts: Vec<[f32; 3]> = scene.statics.iter().step_by(step).map(|s| s.mean).collect();
+    if pts.is_empty() {
+        return FreeCamera::default();
+    }
+    let n = pts.len() as f64;
+    let c: [f64; 3] = [0, 1, 2].map(|k| pts.iter().map(|p| p[k] as f64).sum::<f64>() / n);
+    let spread = (pts.iter().map(|p| (0..3).map(|k| (p[k] as f64 - c[k]).powi(2)).sum::<f64>()).sum::<f64>() / n).sqrt();
+    FreeCamera { target: c, yaw: 0.0, pitch: -0.3, distance: (2.5 * spread).clamp(1.0, 2000.0), hfov_deg: 60.0 }
 }
 
 #[cfg(test)]

@@ -38,7 +38,7 @@ fn run(path: DrawPath) {
     assert!(!cases.is_empty(), "no raster vectors in {}", dir.display());
     let gpu = headless::gpu(Some(path)).expect("adapter");
     println!("adapter: {} ({:?}), path {:?}, accumulation {:?}", gpu.info.name, gpu.info.backend, path, gpu.accum_format);
-    let mut renderer = Renderer::new(&gpu, wgpu::TextureFormat::Rgba8Unorm);
+    let mut renderer = Renderer::new(&gpu);
     let mut failures = Vec::new();
     for case in &cases {
         let name = case.file_stem().unwrap().to_string_lossy().to_string();

@@ -13,7 +13,10 @@ use std::time::Instant;
 const USAGE: &str = "usage:
   splat-render SCENE.wsplat|SCENE.ply|VECTOR.json --out FILE.png [--camera NAME|mosaic|bev|free] [--frame T]
                [--shift-m M] [--camera-json CAM.json] [--size WxH] [--path storage|instanced]
-  splat-render bench [--counts 100000,500000,1000000] [--size 1280x720] [--frames 3] [--path storage|instanced]";
+  splat-render bench [--counts 100000,500000,1000000] [--size 1280x720] [--frames 3] [--path storage|instanced]
+  splat-render synth --count N --out FILE.ply           (the benchmark's synthetic street cloud)
+  splat-render fixture4d VECTOR.json --out FILE.wsplat [--frames 4] [--chunk 500]
+               (test fixture: the vector's Gaussians as the static base, a moving cluster as per-frame dynamics)";
 
 struct Args {
     flags: Vec<(String, String)>,
@@ -118,7 +121,7 @@ fn render(a: &Args) -> Result<(), String> {
         }
     };
     let gpu = headless::gpu(parse_path(a)?)?;
-    let mut renderer = Renderer::new(&gpu, wgpu::TextureFormat::Rgba8Unorm);
+    let mut renderer = Renderer::new(&gpu);
     renderer.update(&scene.statics, scene.dynamic_at(state.frame));
     let (rgba, _) = headless::render_rgba(&mut renderer, &views, size)?;
     image::RgbaImage::from_raw(size[0], size[1], rgba).unwrap().save(out).map_err(|e| format!("{out}: {e}"))?;
@@ -167,7 +170,7 @@ fn bench(a: &Args) -> Result<(), String> {
     let gpu = headless::gpu(parse_path(a)?)?;
     println!("adapter: {} ({:?}); draw path {:?}; {}x{}; {frames} frames per size, camera moves every frame", gpu.info.name, gpu.info.backend, gpu.path, size[0], size[1]);
     println!("{:>9} {:>10} {:>12} {:>12} {:>14} {:>12}", "gaussians", "MB gpu", "frame ms", "sort ms", "sort/frame", "cpu sort ms");
-    let mut renderer = Renderer::new(&gpu, wgpu::TextureFormat::Rgba8Unorm);
+    let mut renderer = Renderer::new(&gpu);
     let wait = |r: &Renderer| r.device.poll(wgpu::PollType::wait_indefinitely()).map(|_| ()).map_err(|e| format!("poll: {e}"));
     for &n in &counts {
         let gs = synthetic(n, 0x9e3779b97f4a7c15 ^ n as u64);
@@ -217,8 +220,51 @@ fn bench(a: &Args) -> Result<(), String> {
     Ok(())
 }
 
+fn synth(a: &Args) -> Result<(), String> {
+    a.check_known(&["count", "out"])?;
+    let n: usize = a.get("count").ok_or("--count N is required")?.parse().map_err(|_| "--count: expected an integer")?;
+    let out = a.get("out").ok_or("--out FILE.ply is required")?;
+    let gs = synthetic(n, 0x9e3779b97f4a7c15 ^ n as u64);
+    std::fs::write(out, splat_core::ply::write_ply(&gs)).map_err(|e| format!("{out}: {e}"))
+}
+
+fn fixture4d(a: &Args) -> Result<(), String> {
+    a.check_known(&["out", "frames", "chunk"])?;
+    let input = a.positional.get(1).ok_or_else(|| USAGE.to_string())?;
+    let out = a.get("out").ok_or("--out FILE.wsplat is required")?;
+    let frames: usize = a.get("frames").unwrap_or("4").parse().map_err(|_| "--frames: expected an integer")?;
+    let chunk: usize = a.get("chunk").unwrap_or("500").parse().map_err(|_| "--chunk: expected an integer")?;
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(input).map_err(|e| format!("{input}: {e}"))?).map_err(|e| format!("{input}: {e}"))?;
+    let gs = gaussians_from_json(&v["gaussians"])?;
+    let statics: Vec<Gaussian> = gs.iter().filter_map(Gaussian::sanitized).collect();
+    // A bright cluster in front of the vector's camera that moves sideways frame by frame.
+    let cam = Camera::from_json(&v["camera"])?;
+    let c2w = splat_core::camera::rigid_inverse(&cam.world_to_camera);
+    let at = |x: f64, z: f64| [0, 1, 2].map(|k| (c2w[k][0] * x + c2w[k][2] * z + c2w[k][3]) as f32);
+    let dynamic: Vec<Vec<Gaussian>> = (0..frames)
+        .map(|f| {
+            (0..40)
+                .map(|i| Gaussian {
+                    mean: at(-2.0 + f as f64 * 1.2 + (i % 5) as f64 * 0.1, 8.0 + (i / 5) as f64 * 0.05),
+                    quat: [1.0, 0.0, 0.0, 0.0],
+                    scale: [0.15; 3],
+                    opacity: 0.9,
+                    color: [1.0, 0.2 + 0.1 * f as f32, 0.1],
+                })
+                .collect()
+        })
+        .collect();
+    let bytes = splat_core::wsplat::encode::encode(&statics, &dynamic, 4.0, 256, chunk.max(1));
+    std::fs::write(out, bytes).map_err(|e| format!("{out}: {e}"))
+}
+
 fn main() {
-    let result = Args::parse().and_then(|a| if a.positional.first().map(String::as_str) == Some("bench") { bench(&a) } else { render(&a) });
+    let result = Args::parse().and_then(|a| match a.positional.first().map(String::as_str) {
+        Some("bench") => bench(&a),
+        Some("synth") => synth(&a),
+        Some("fixture4d") => fixture4d(&a),
+        _ => render(&a),
+    });
     if let Err(e) = result {
         eprintln!("splat-render: {e}");
         std::process::exit(2);

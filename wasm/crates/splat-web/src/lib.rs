@@ -1,2 +1,562 @@
-//! The Viewer JS API (see web/docs/viewer.md) over splat-core.
-pub use splat_core;
+//! The Viewer JS API (web/docs/viewer.md) over splat-core: WebGPU or WebGL2 through wgpu, progressive .wsplat
+//! streaming, 4D playback, rig / mosaic / free / BEV cameras with a lateral track shift, pixel readback.
+//! Every error reaches JS as an `Error` with a message; nothing panics on bad input.
+#![cfg(target_arch = "wasm32")]
+
+use splat_core::ply::{is_ply, read_ply};
+use splat_core::renderer::{DrawPath, Gpu, Offscreen, Renderer};
+use splat_core::scene::{read_wsplat, Scene, StreamingScene};
+use splat_core::view_state::{rig_of, CameraMode, ViewState};
+use std::cell::RefCell;
+use std::rc::{Rc, Weak};
+use wasm_bindgen::prelude::*;
+use wasm_bindgen::JsCast;
+use web_sys::HtmlCanvasElement;
+
+fn now_ms() -> f64 {
+    web_sys::window().and_then(|w| w.performance()).map_or(0.0, |p| p.now())
+}
+
+fn js_err(msg: impl std::fmt::Display) -> JsError {
+    JsError::new(&msg.to_string())
+}
+
+async fn sleep_ms(ms: i32) {
+    let p = js_sys::Promise::new(&mut |resolve, _| {
+        if let Some(w) = web_sys::window() {
+            let _ = w.set_timeout_with_callback_and_timeout_and_arguments_0(&resolve, ms);
+        }
+    });
+    let _ = wasm_bindgen_futures::JsFuture::from(p).await;
+}
+
+#[derive(Default)]
+struct Input {
+    pointers: Vec<(i32, f64, f64)>,
+    keys: Vec<String>,
+    pan_button: bool,
+}
+
+#[derive(Default, Clone, Copy)]
+struct Stats {
+    frame_ms: f64,
+    sort_ms: f64,
+    fps: f64,
+    last_render: f64,
+}
+
+struct Inner {
+    canvas: HtmlCanvasElement,
+    // Kept alive: on WebGPU, buffer maps fail once the instance is gone.
+    _instance: wgpu::Instance,
+    _adapter: wgpu::Adapter,
+    surface: wgpu::Surface<'static>,
+    surface_format: wgpu::TextureFormat,
+    configured: [u32; 2],
+    renderer: Renderer,
+    backend: &'static str,
+    adapter_name: String,
+    scene: Scene,
+    stream: Option<StreamingScene>,
+    uploaded: Option<(usize, usize)>, // (static count, frame) resident on the GPU
+    state: ViewState,
+    stats: Stats,
+    input: Input,
+    playing: bool,
+    play_clock: f64,
+    last_key_time: f64,
+}
+
+impl Inner {
+    fn scene(&self) -> &Scene {
+        self.stream.as_ref().map_or(&self.scene, |s| &s.scene)
+    }
+
+    fn reset_scene(&mut self) {
+        self.renderer.clear();
+        self.uploaded = None;
+        self.playing = false;
+        self.play_clock = 0.0;
+        self.state.frame = 0;
+    }
+
+    fn sync_gpu(&mut self) {
+        let frame = self.state.frame;
+        let scene = self.stream.as_ref().map_or(&self.scene, |s| &s.scene);
+        let key = (scene.statics.len(), frame);
+        if self.uploaded != Some(key) {
+            self.renderer.update(&scene.statics, scene.dynamic_at(frame));
+            self.uploaded = Some(key);
+        }
+    }
+
+    fn size(&self) -> [u32; 2] {
+        [self.canvas.width().max(1), self.canvas.height().max(1)]
+    }
+
+    fn configure(&mut self) {
+        let size = self.size();
+        if self.configured != size {
+            self.surface.configure(
+                &self.renderer.device,
+                &wgpu::SurfaceConfiguration {
+                    usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+                    format: self.surface_format,
+                    width: size[0],
+                    height: size[1],
+                    present_mode: wgpu::PresentMode::Fifo,
+                    desired_maximum_frame_latency: 2,
+                    alpha_mode: wgpu::CompositeAlphaMode::Opaque,
+                    view_formats: vec![],
+                    color_space: wgpu::SurfaceColorSpace::Auto,
+                },
+            );
+            self.configured = size;
+        }
+    }
+
+    /// Held WASD/QE keys move the free camera by elapsed time (5 m/s, x4 with Shift).
+    fn apply_keys(&mut self) {
+        let t = now_ms();
+        let dt = ((t - self.last_key_time) / 1000.0).clamp(0.0, 0.1);
+        self.last_key_time = t;
+        if self.state.mode != CameraMode::Free || self.input.keys.is_empty() {
+            return;
+        }
+        let fast = self.input.keys.iter().any(|k| k == "Shift");
+        let speed = 5.0 * dt * if fast { 4.0 } else { 1.0 };
+        let held = |k: &str| self.input.keys.iter().any(|x| x.eq_ignore_ascii_case(k));
+        let axis = |pos: &str, neg: &str| (held(pos) as i32 - held(neg) as i32) as f64 * speed;
+        let (f, r, u) = (axis("w", "s"), axis("d", "a"), axis("e", "q"));
+        self.state.free.fly(f, r, u);
+    }
+
+    fn render_to(&mut self, target: &wgpu::TextureView, format: wgpu::TextureFormat) -> Result<(), JsError> {
+        self.sync_gpu();
+        let size = self.size();
+        let views = self.state.views(self.scene(), size);
+        let t0 = now_ms();
+        let stats = self.renderer.render(&views, target, format, size).map_err(js_err)?;
+        let t1 = now_ms();
+        let dt = t1 - self.stats.last_render;
+        if self.stats.last_render > 0.0 && dt > 0.0 {
+            let inst = 1000.0 / dt;
+            self.stats.fps = if self.stats.fps > 0.0 { 0.9 * self.stats.fps + 0.1 * inst } else { inst };
+        }
+        self.stats.last_render = t1;
+        self.stats.frame_ms = t1 - t0;
+        self.stats.sort_ms = stats.cpu_sort_ms;
+        Ok(())
+    }
+
+    fn render(&mut self) -> Result<(), JsError> {
+        self.apply_keys();
+        self.configure();
+        let frame = match self.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+                self.configured = [0, 0];
+                return Ok(()); // reconfigured on the next call
+            }
+            _ => return Ok(()), // occluded / timeout: skip this frame
+        };
+        let view = frame.texture.create_view(&Default::default());
+        self.render_to(&view, self.surface_format)?;
+        self.renderer.queue.present(frame);
+        Ok(())
+    }
+
+    fn on_pointer(&mut self, kind: &str, e: &web_sys::PointerEvent) {
+        let id = e.pointer_id();
+        let (x, y) = (e.client_x() as f64, e.client_y() as f64);
+        match kind {
+            "down" => {
+                self.input.pointers.retain(|p| p.0 != id);
+                self.input.pointers.push((id, x, y));
+                self.input.pan_button = e.button() == 2 || e.shift_key();
+                let _ = self.canvas.set_pointer_capture(id);
+            }
+            "move" => {
+                let Some(i) = self.input.pointers.iter().position(|p| p.0 == id) else { return };
+                let (_, px, py) = self.input.pointers[i];
+                if self.state.mode != CameraMode::Free {
+                    self.input.pointers[i] = (id, x, y);
+                    return;
+                }
+                let free = &mut self.state.free;
+                if self.input.pointers.len() >= 2 {
+                    // Pinch: zoom by the change of the distance between the first two pointers.
+                    let other = self.input.pointers[1 - i.min(1)];
+                    let d0 = ((px - other.1).powi(2) + (py - other.2).powi(2)).sqrt();
+                    let d1 = ((x - other.1).powi(2) + (y - other.2).powi(2)).sqrt();
+                    if d0 > 1.0 && d1 > 1.0 {
+                        free.zoom(d0 / d1);
+                    }
+                } else if self.input.pan_button {
+                    let k = free.distance * 0.002;
+                    free.fly(0.0, -(x - px) * k, (y - py) * k);
+                } else {
+                    free.orbit(-(x - px) * 0.005, -(y - py) * 0.005);
+                }
+                self.input.pointers[i] = (id, x, y);
+            }
+            _ => self.input.pointers.retain(|p| p.0 != id),
+        }
+    }
+}
+
+fn progress_json(p: &splat_core::wsplat::Progress, frames: usize) -> String {
+    serde_json::json!({
+        "bytes": p.bytes, "static_loaded": p.static_decoded, "static_total": p.static_total,
+        "dynamic_loaded": p.dynamic_decoded, "dynamic_total": p.dynamic_total, "frames": frames, "done": p.done,
+    })
+    .to_string()
+}
+
+#[wasm_bindgen]
+pub struct Viewer {
+    inner: Rc<RefCell<Inner>>,
+}
+
+async fn make_gpu(canvas: &HtmlCanvasElement, backend: &str) -> Result<(wgpu::Instance, wgpu::Surface<'static>, wgpu::Adapter, &'static str), String> {
+    let backends = match backend {
+        "webgpu" => wgpu::Backends::BROWSER_WEBGPU,
+        "webgl2" => wgpu::Backends::GL,
+        "auto" => wgpu::Backends::BROWSER_WEBGPU | wgpu::Backends::GL,
+        b => return Err(format!("Viewer.create: backend {b:?} must be \"auto\", \"webgpu\" or \"webgl2\"")),
+    };
+    let desc = wgpu::InstanceDescriptor { backends, ..wgpu::InstanceDescriptor::new_without_display_handle() };
+    // Drops BROWSER_WEBGPU when the browser has no usable WebGPU adapter (then "auto" falls back to WebGL2).
+    let instance = wgpu::util::new_instance_with_webgpu_detection(desc).await;
+    let surface = instance
+        .create_surface(wgpu::SurfaceTarget::Canvas(canvas.clone()))
+        .map_err(|e| format!("Viewer.create: cannot create a {backend} surface on the canvas: {e}"))?;
+    let adapter = instance
+        .request_adapter(&wgpu::RequestAdapterOptions { compatible_surface: Some(&surface), ..Default::default() })
+        .await
+        .map_err(|e| format!("Viewer.create: no {backend} adapter: {e}"))?;
+    let name = match adapter.get_info().backend {
+        wgpu::Backend::BrowserWebGpu => "webgpu",
+        _ => "webgl2",
+    };
+    Ok((instance, surface, adapter, name))
+}
+
+#[wasm_bindgen]
+impl Viewer {
+    /// `Viewer.create(canvas, {backend: "auto" | "webgpu" | "webgl2"})`.
+    pub async fn create(canvas: HtmlCanvasElement, options: JsValue) -> Result<Viewer, JsError> {
+        console_error_panic_hook::set_once();
+        let backend = js_sys::Reflect::get(&options, &"backend".into()).ok().and_then(|v| v.as_string()).unwrap_or_else(|| "auto".into());
+        let (instance, surface, adapter, backend) = make_gpu(&canvas, &backend).await.map_err(js_err)?;
+        let gpu = Gpu::new(&adapter).await.map_err(js_err)?;
+        let caps = surface.get_capabilities(&adapter);
+        let surface_format = [wgpu::TextureFormat::Rgba8Unorm, wgpu::TextureFormat::Bgra8Unorm]
+            .into_iter()
+            .find(|f| caps.formats.contains(f))
+            .or_else(|| caps.formats.iter().copied().find(|f| !f.is_srgb()))
+            .or_else(|| caps.formats.first().copied())
+            .ok_or_else(|| js_err("Viewer.create: the canvas surface offers no format"))?;
+        let mut renderer = Renderer::new(&gpu);
+        renderer.clock = now_ms;
+        let _ = canvas.style().set_property("touch-action", "none");
+        let inner = Rc::new(RefCell::new(Inner {
+            canvas: canvas.clone(),
+            _instance: instance,
+            _adapter: adapter,
+            surface,
+            surface_format,
+            configured: [0, 0],
+            renderer,
+            backend,
+            adapter_name: format!("{} ({:?}, {:?} path)", gpu.info.name, gpu.info.backend, gpu.path),
+            scene: Scene::default(),
+            stream: None,
+            uploaded: None,
+            state: ViewState::default(),
+            stats: Stats::default(),
+            input: Input::default(),
+            playing: false,
+            play_clock: 0.0,
+            last_key_time: now_ms(),
+        }));
+        attach_controls(&canvas, &inner);
+        Ok(Viewer { inner })
+    }
+
+    /// "webgpu" or "webgl2": the path that actually runs.
+    pub fn backend(&self) -> String {
+        self.inner.borrow().backend.to_string()
+    }
+
+    /// Adapter name, wgpu backend and draw path (GPU-sorted storage or CPU-sorted instanced).
+    pub fn adapter_info(&self) -> String {
+        self.inner.borrow().adapter_name.clone()
+    }
+
+    /// Start a progressive .wsplat load (replaces the current scene).
+    pub fn begin_stream(&self) {
+        let mut i = self.inner.borrow_mut();
+        i.reset_scene();
+        i.stream = Some(StreamingScene::default());
+    }
+
+    /// Feed the next bytes; returns progress JSON. Malformed data throws (the scene keeps what arrived before).
+    pub fn push_bytes(&self, bytes: &[u8]) -> Result<String, JsError> {
+        let mut i = self.inner.borrow_mut();
+        let stream = i.stream.as_mut().ok_or_else(|| js_err("push_bytes: call begin_stream() first"))?;
+        let p = stream.push(bytes).map_err(js_err)?;
+        let frames = stream.scene.num_frames();
+        Ok(progress_json(&p, frames))
+    }
+
+    /// The stream ended: throws if it stopped before the END! chunk (what arrived stays viewable).
+    pub fn end_stream(&self) -> Result<String, JsError> {
+        let mut i = self.inner.borrow_mut();
+        let mut stream = i.stream.take().ok_or_else(|| js_err("end_stream: no stream in progress"))?;
+        let result = stream.finish();
+        i.scene = std::mem::take(&mut stream.scene);
+        let frames = i.scene.num_frames();
+        let p = result.map_err(js_err)?;
+        Ok(progress_json(&p, frames))
+    }
+
+    /// Load a whole .wsplat or .ply.
+    pub fn load_bytes(&self, bytes: &[u8]) -> Result<(), JsError> {
+        let scene = if is_ply(bytes) {
+            Scene::from_gaussians(&read_ply(bytes).map_err(js_err)?)
+        } else if bytes.starts_with(b"WSPLAT") {
+            read_wsplat(bytes).map_err(js_err)?
+        } else {
+            return Err(js_err("load_bytes: neither a .wsplat (WSPLAT magic) nor a .ply (ply header)"));
+        };
+        let mut i = self.inner.borrow_mut();
+        i.reset_scene();
+        i.stream = None;
+        i.scene = scene;
+        if i.scene.rig.is_empty() {
+            // A bare point cloud: start orbiting its centre.
+            i.state.mode = CameraMode::Free;
+            i.state.free = splat_core::view_state::orbit_around(&i.scene);
+        }
+        Ok(())
+    }
+
+    /// Load Gaussians in the shared raster-vector JSON (`{"means", "quats", "scales", "opacities", "colors"}`).
+    pub fn load_gaussians_json(&self, json: &str) -> Result<(), JsError> {
+        let v: serde_json::Value = serde_json::from_str(json).map_err(|e| js_err(format!("load_gaussians_json: {e}")))?;
+        let gs = splat_core::gaussians::gaussians_from_json(&v).map_err(js_err)?;
+        let mut i = self.inner.borrow_mut();
+        i.reset_scene();
+        i.stream = None;
+        i.scene = Scene::from_gaussians(&gs);
+        Ok(())
+    }
+
+    pub fn set_frame(&self, t: u32) -> Result<(), JsError> {
+        let mut guard = self.inner.borrow_mut();
+        let i = &mut *guard;
+        let scene = i.stream.as_ref().map_or(&i.scene, |s| &s.scene);
+        i.state.set_frame(scene, t as usize).map_err(js_err)
+    }
+    pub fn frame(&self) -> u32 {
+        self.inner.borrow().state.frame as u32
+    }
+    pub fn num_frames(&self) -> u32 {
+        let i = self.inner.borrow();
+        if i.stream.as_ref().is_some_and(|s| s.decoder.header().is_none()) {
+            return 0; // no header yet
+        }
+        i.scene().num_frames() as u32
+    }
+    pub fn fps(&self) -> f64 {
+        self.inner.borrow().scene().fps
+    }
+    pub fn caption(&self) -> String {
+        self.inner.borrow().scene().caption.clone()
+    }
+    /// Rig camera names as a JSON list.
+    pub fn camera_names(&self) -> String {
+        serde_json::to_string(&rig_of(self.inner.borrow().scene()).iter().map(|c| c.name.clone()).collect::<Vec<_>>()).unwrap()
+    }
+
+    /// Lateral track shift in metres (left positive), continuous in [-8, 8].
+    pub fn set_shift(&self, m: f64) -> Result<(), JsError> {
+        self.inner.borrow_mut().state.set_shift(m).map_err(js_err)
+    }
+
+    /// A rig camera name, "mosaic", "free" (starts where the current camera looks) or "bev".
+    pub fn set_camera(&self, name: &str) -> Result<(), JsError> {
+        let mut guard = self.inner.borrow_mut();
+        let i = &mut *guard;
+        let scene = i.stream.as_ref().map_or(&i.scene, |s| &s.scene);
+        if name == "free" && i.state.mode != CameraMode::Free {
+            i.state.free_from_current(scene);
+        }
+        i.state.set_camera(scene, name).map_err(js_err)
+    }
+
+    /// View through any camera given as the shared camera JSON (web/docs/conventions.md).
+    pub fn set_camera_json(&self, json: &str) -> Result<(), JsError> {
+        let v: serde_json::Value = serde_json::from_str(json).map_err(|e| js_err(format!("set_camera_json: {e}")))?;
+        let cam = splat_core::camera::Camera::from_json(&v).map_err(js_err)?;
+        self.inner.borrow_mut().state.mode = CameraMode::Custom(cam);
+        Ok(())
+    }
+
+    pub fn camera_state(&self) -> String {
+        self.inner.borrow().state.to_json().to_string()
+    }
+
+    pub fn set_camera_state(&self, json: &str) -> Result<(), JsError> {
+        let v: serde_json::Value = serde_json::from_str(json).map_err(|e| js_err(format!("set_camera_state: {e}")))?;
+        let mut guard = self.inner.borrow_mut();
+        let i = &mut *guard;
+        let scene = i.stream.as_ref().map_or(&i.scene, |s| &s.scene);
+        i.state = ViewState::from_json(scene, &v).map_err(js_err)?;
+        Ok(())
+    }
+
+    /// Free camera controls for pages that wire their own input (the canvas already handles pointer, wheel, keys).
+    pub fn orbit(&self, dyaw: f64, dpitch: f64) {
+        self.inner.borrow_mut().state.free.orbit(dyaw, dpitch);
+    }
+    pub fn zoom(&self, factor: f64) {
+        self.inner.borrow_mut().state.free.zoom(factor);
+    }
+    pub fn fly(&self, forward: f64, right: f64, up: f64) {
+        self.inner.borrow_mut().state.free.fly(forward, right, up);
+    }
+
+    pub fn play(&self) {
+        self.inner.borrow_mut().playing = true;
+    }
+    pub fn pause(&self) {
+        self.inner.borrow_mut().playing = false;
+    }
+    pub fn is_playing(&self) -> bool {
+        self.inner.borrow().playing
+    }
+    /// Advance playback by `dt` seconds at the clip's fps, looping; returns the current frame.
+    pub fn tick(&self, dt: f64) -> u32 {
+        let mut i = self.inner.borrow_mut();
+        let frames = i.scene().num_frames();
+        let fps = i.scene().fps;
+        if i.playing && frames > 1 && dt.is_finite() && dt > 0.0 && fps > 0.0 {
+            i.play_clock += dt * fps;
+            let steps = i.play_clock.floor();
+            i.play_clock -= steps;
+            i.state.frame = (i.state.frame + steps as usize) % frames;
+        }
+        i.state.frame as u32
+    }
+
+    /// Draw the current view to the canvas.
+    pub fn render(&self) -> Result<(), JsError> {
+        self.inner.borrow_mut().render()
+    }
+
+    /// `{gaussians, bytes, fps, frame_ms, sort_ms, backend, path}` as JSON.
+    pub fn stats(&self) -> String {
+        let i = self.inner.borrow();
+        serde_json::json!({
+            "gaussians": i.renderer.count(), "bytes": i.renderer.resident_bytes(), "fps": i.stats.fps,
+            "frame_ms": i.stats.frame_ms, "sort_ms": i.stats.sort_ms, "backend": i.backend,
+            "path": if i.renderer.path == DrawPath::Storage { "gpu-sort" } else { "cpu-sort" },
+            "dropped": i.scene().dropped,
+        })
+        .to_string()
+    }
+
+    /// Render the current view offscreen and read it back through a mapped wgpu buffer: RGBA8, rows top-down.
+    pub async fn read_pixels(&self) -> Result<js_sys::Uint8Array, JsError> {
+        let (device, mut readback, scope) = {
+            let mut i = self.inner.borrow_mut();
+            let size = i.size();
+            let scope = i.renderer.device.push_error_scope(wgpu::ErrorFilter::Validation);
+            let scope_oom = i.renderer.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+            let scope_int = i.renderer.device.push_error_scope(wgpu::ErrorFilter::Internal);
+            let target = Offscreen::new(&i.renderer.device, size);
+            i.render_to(&target.view, wgpu::TextureFormat::Rgba8Unorm)?;
+            let rb = target.start_readback(&i.renderer.device, &i.renderer.queue);
+            (i.renderer.device.clone(), rb, (scope_int, scope_oom, scope))
+        };
+        let (scope_int, scope_oom, scope) = scope;
+        if let Some(e) = scope_int.pop().await {
+            return Err(js_err(format!("read_pixels: GPU internal error: {e}")));
+        }
+        if let Some(e) = scope_oom.pop().await {
+            return Err(js_err(format!("read_pixels: GPU out of memory: {e}")));
+        }
+        if let Some(e) = scope.pop().await {
+            return Err(js_err(format!("read_pixels: GPU validation error: {e}")));
+        }
+        // WebGPU maps on its own; WebGL2 needs polling. Never block: yield to the event loop between polls.
+        for _ in 0..2000 {
+            let _ = device.poll(wgpu::PollType::Poll);
+            if let Some(r) = readback.try_finish() {
+                let bytes = r.map_err(js_err)?;
+                return Ok(js_sys::Uint8Array::from(bytes.as_slice()));
+            }
+            sleep_ms(2).await;
+        }
+        Err(js_err("read_pixels: the readback did not complete within 4 s"))
+    }
+}
+
+fn attach_controls(canvas: &HtmlCanvasElement, inner: &Rc<RefCell<Inner>>) {
+    let weak: Weak<RefCell<Inner>> = Rc::downgrade(inner);
+    for (event, kind) in [("pointerdown", "down"), ("pointermove", "move"), ("pointerup", "up"), ("pointercancel", "up")] {
+        let w = weak.clone();
+        let cb = Closure::<dyn FnMut(web_sys::PointerEvent)>::new(move |e: web_sys::PointerEvent| {
+            if let Some(rc) = w.upgrade() {
+                if let Ok(mut i) = rc.try_borrow_mut() {
+                    i.on_pointer(kind, &e);
+                }
+            }
+        });
+        let _ = canvas.add_event_listener_with_callback(event, cb.as_ref().unchecked_ref());
+        cb.forget(); // lives as long as the page's canvas
+    }
+    let w = weak.clone();
+    let wheel = Closure::<dyn FnMut(web_sys::WheelEvent)>::new(move |e: web_sys::WheelEvent| {
+        if let Some(rc) = w.upgrade() {
+            if let Ok(mut i) = rc.try_borrow_mut() {
+                if i.state.mode == CameraMode::Free {
+                    e.prevent_default();
+                    i.state.free.zoom((e.delta_y() * 0.001).exp());
+                }
+            }
+        }
+    });
+    let opts = web_sys::AddEventListenerOptions::new();
+    opts.set_passive(false);
+    let _ = canvas.add_event_listener_with_callback_and_add_event_listener_options("wheel", wheel.as_ref().unchecked_ref(), &opts);
+    wheel.forget();
+    let menu = Closure::<dyn FnMut(web_sys::Event)>::new(move |e: web_sys::Event| e.prevent_default());
+    let _ = canvas.add_event_listener_with_callback("contextmenu", menu.as_ref().unchecked_ref());
+    menu.forget();
+    if let Some(win) = web_sys::window() {
+        for (event, down) in [("keydown", true), ("keyup", false)] {
+            let w = weak.clone();
+            let cb = Closure::<dyn FnMut(web_sys::KeyboardEvent)>::new(move |e: web_sys::KeyboardEvent| {
+                // Keys typed into form fields are not camera moves.
+                let typing = e.target().and_then(|t| t.dyn_into::<web_sys::Element>().ok()).is_some_and(|el| {
+                    matches!(el.tag_name().as_str(), "INPUT" | "TEXTAREA" | "SELECT")
+                });
+                let Some(rc) = w.upgrade() else { return };
+                let Ok(mut i) = rc.try_borrow_mut() else { return };
+                let key = e.key();
+                i.input.keys.retain(|k| !k.eq_ignore_ascii_case(&key));
+                if down && !typing && i.state.mode == CameraMode::Free {
+                    if i.input.keys.is_empty() {
+                        i.last_key_time = now_ms();
+                    }
+                    i.input.keys.push(key);
+                }
+            });
+            let _ = win.add_event_listener_with_callback(event, cb.as_ref().unchecked_ref());
+            cb.forget();
+        }
+    }
+}

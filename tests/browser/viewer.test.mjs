@@ -1,0 +1,169 @@
+// Headless render tests of the wasm viewer (issue 4): the bundle in web/pkg renders the shared raster vectors and a
+// streamed 4D fixture in Chromium through WebGPU and, in a separate launch, WebGL2; pixels come back through a
+// mapped wgpu buffer (Viewer.read_pixels) and are compared with the native splat-render output (>= 40 dB) and the
+// torch reference. Prints which path ran. Diffs on failure and the README screenshot go to tests/artifacts/.
+import { describe, it, before, after } from "node:test";
+import assert from "node:assert/strict";
+import { mkdirSync, writeFileSync, readFileSync, copyFileSync } from "node:fs";
+import { join } from "node:path";
+import { ROOT, ARTIFACTS, startServer, launch, openHarness, native, saveDataUrl } from "./lib/viewer-harness.mjs";
+
+const PSNR_MIN = 40;
+const VECTORS = ["random_200", "anisotropy_1e-6_1e3", "screen_covering", "opaque_stack", "near_plane", "street_shift_plus_8m"];
+const OUT = join(ARTIFACTS, "browser");
+const NATIVE = join(OUT, "native");
+const FIXTURE = join(OUT, "fixture4d.wsplat");
+const STREET = join(ROOT, "tests/vectors/raster/street_shift_0m.json");
+
+let server;
+before(() => {
+  mkdirSync(NATIVE, { recursive: true });
+  // Native references through the software adapter (lavapipe), same inputs as the browser gets.
+  for (const v of VECTORS) native([`tests/vectors/raster/${v}.json`, "--out", join(NATIVE, `${v}.png`)]);
+  native(["fixture4d", STREET, "--out", FIXTURE, "--frames", "4", "--chunk", "500"]);
+  writeFileSync(join(OUT, "street_camera.json"), JSON.stringify(JSON.parse(readFileSync(STREET, "utf8")).camera));
+  native([FIXTURE, "--camera-json", join(OUT, "street_camera.json"), "--frame", "2", "--out", join(NATIVE, "fixture4d_frame2.png")]);
+  native([FIXTURE, "--camera", "mosaic", "--frame", "1", "--shift-m", "2", "--size", "480x180", "--out", join(NATIVE, "fixture4d_mosaic.png")]);
+});
+before(async () => { server = await startServer(); });
+after(async () => { await server?.close(); });
+
+async function expectClose(t, page, path, name, b64, url) {
+  const r = await page.evaluate(([p, u]) => window.harness.compare(p, u, 40), [b64, url]);
+  if (r.diff) {
+    saveDataUrl(r.diff, join(OUT, path, `${name}.diff.png`));
+    saveDataUrl(r.render, join(OUT, path, `${name}.render.png`));
+  }
+  return r.psnr;
+}
+
+for (const path of ["webgpu", "webgl2"]) {
+  describe(`viewer in headless Chromium via ${path}`, () => {
+    let browser, page, errors, info;
+    before(async () => {
+      browser = await launch(path);
+      ({ page, errors, info } = await openHarness(browser.context, server.url, path));
+      console.log(`# viewer path requested ${path}: ${info.unavailable ? "UNAVAILABLE in this Chromium" : `ran ${info.backend} on ${info.adapter}`}`);
+    });
+    after(async () => { await browser?.close(); });
+
+    it("runs the requested backend", (t) => {
+      if (info.unavailable) return t.skip("Chromium offers no WebGPU adapter here");
+      assert.equal(info.backend, path);
+      assert.match(info.adapter, path === "webgpu" ? /BrowserWebGpu, Storage path/ : /Gl, Instanced path/);
+    });
+
+    it("renders the shared raster vectors like the native renderer and the torch reference (>= 40 dB)", async (t) => {
+      if (info.unavailable) return t.skip("no WebGPU");
+      for (const v of VECTORS) {
+        const r = await page.evaluate((n) => window.harness.renderVector(n), v);
+        const vsNative = await expectClose(t, page, path, v, r.pixels, `/artifacts/browser/native/${v}.png`);
+        const vsTorch = await expectClose(t, page, path, `${v}.vs_torch`, r.pixels, `/vectors/raster/${v}.expected.png`);
+        console.log(`# ${path} ${v}: ${vsNative.toFixed(1)} dB vs native, ${vsTorch.toFixed(1)} dB vs torch (${r.stats.gaussians} Gaussians, ${r.stats.path})`);
+        assert.ok(vsNative >= PSNR_MIN, `${v}: ${vsNative} dB vs native (diff in tests/artifacts/browser/${path}/)`);
+        assert.ok(vsTorch >= PSNR_MIN, `${v}: ${vsTorch} dB vs torch reference`);
+      }
+    });
+
+    it("streams a 4D .wsplat progressively: draws from the first static chunk, then plays frames", async (t) => {
+      if (info.unavailable) return t.skip("no WebGPU");
+      const cam = readFileSync(join(OUT, "street_camera.json"), "utf8");
+      const camera = JSON.parse(cam);
+      await page.evaluate(([w, h]) => window.harness.resize(w, h), [camera.width, camera.height]);
+      const s = await page.evaluate((c) => window.harness.stream("/slow/artifacts/browser/fixture4d.wsplat?chunk=1500&delay=2", c), cam);
+      assert.equal(s.error, undefined, s.error);
+      assert.ok(s.firstDraw, "a draw happened before the stream ended");
+      assert.ok(s.firstDraw.static_loaded < s.firstDraw.static_total, `first draw with ${s.firstDraw.static_loaded}/${s.firstDraw.static_total} static`);
+      assert.ok(s.firstDraw.lit > 50, `first draw shows the partial scene (${s.firstDraw.lit} lit px)`);
+      assert.ok(s.end.done && s.events.length > 5, `progress reported over ${s.events.length} chunks`);
+      assert.equal(await page.evaluate(() => window.harness.call("num_frames")), 4);
+      assert.equal(await page.evaluate(() => window.harness.call("fps")), 4);
+      await page.evaluate((c) => window.harness.call("set_camera_json", c), cam);
+      const frames = [];
+      for (const f of [0, 2]) {
+        await page.evaluate((x) => window.harness.call("set_frame", x), f);
+        frames.push(await page.evaluate(() => window.harness.read()));
+      }
+      const between = await page.evaluate(([a, b]) => window.harness.psnrBetween(a, b), [frames[0].pixels, frames[1].pixels]);
+      assert.ok(between < 35, `frame 0 and 2 differ (dynamic Gaussians move): ${between.toFixed(1)} dB`);
+      const p = await expectClose(t, page, path, "fixture4d_frame2", frames[1].pixels, "/artifacts/browser/native/fixture4d_frame2.png");
+      console.log(`# ${path} 4D frame 2: ${p.toFixed(1)} dB vs native`);
+      assert.ok(p >= PSNR_MIN, `4D frame 2: ${p} dB vs native`);
+      // Playback at the clip's fps, looping.
+      const ticks = await page.evaluate(() => {
+        const h = window.harness;
+        h.call("set_frame", 3);
+        h.call("play");
+        const a = h.call("tick", 0.25); // 4 fps: one frame, wraps 3 -> 0
+        const b = h.call("tick", 0.5);  // two frames
+        h.call("pause");
+        const c = h.call("tick", 1.0);  // paused: stays
+        return [a, b, c];
+      });
+      assert.deepEqual(ticks, [0, 2, 2]);
+    });
+
+    it("shows the 6-camera mosaic, moves the track sideways and round-trips the camera state", async (t) => {
+      if (info.unavailable) return t.skip("no WebGPU");
+      await page.evaluate(() => window.harness.resize(480, 180));
+      const [shifted, unshifted, restored, state] = await page.evaluate(async () => {
+        const h = window.harness;
+        h.call("set_camera", "mosaic");
+        h.call("set_frame", 1);
+        h.call("set_shift", 2);
+        const a = await h.read();
+        const state = h.call("camera_state");
+        h.call("set_shift", 0);
+        const b = await h.read();
+        h.call("set_camera", "CAM_BACK");
+        h.call("set_camera_state", state);
+        const c = await h.read();
+        return [a, b, c, state];
+      });
+      assert.equal(JSON.parse(state).camera, "mosaic");
+      assert.equal(JSON.parse(state).shift_m, 2);
+      const p = await expectClose(t, page, path, "fixture4d_mosaic", shifted.pixels, "/artifacts/browser/native/fixture4d_mosaic.png");
+      console.log(`# ${path} mosaic +2 m: ${p.toFixed(1)} dB vs native`);
+      assert.ok(p >= PSNR_MIN, `mosaic: ${p} dB vs native`);
+      const moved = await page.evaluate(([a, b]) => window.harness.psnrBetween(a, b), [shifted.pixels, unshifted.pixels]);
+      assert.ok(moved < 40, `a 2 m shift changes the views (${moved.toFixed(1)} dB)`);
+      assert.equal(restored.pixels, shifted.pixels, "set_camera_state reproduces the shared view exactly");
+      if (path === "webgl2") {
+        mkdirSync(ARTIFACTS, { recursive: true });
+        saveDataUrl(await page.evaluate(() => window.harness.png()), join(ARTIFACTS, "viewer.png"));
+      }
+    });
+
+    it("free orbit/fly and BEV cameras render; bad input throws a JS Error, a malformed stream never panics", async (t) => {
+      if (info.unavailable) return t.skip("no WebGPU");
+      const r = await page.evaluate(async () => {
+        const h = window.harness;
+        const out = {};
+        h.call("set_camera", "free");
+        h.call("orbit", 0.4, -0.1);
+        h.call("fly", 1, 0, 0);
+        out.free = (await h.read()).lit;
+        out.freeState = JSON.parse(h.call("camera_state"));
+        h.call("set_camera", "bev");
+        out.bev = (await h.read()).lit;
+        const thrown = [];
+        for (const [m, ...a] of [["set_shift", 9], ["set_camera", "CAM_NOPE"], ["set_frame", 99], ["set_camera_state", "{"], ["load_bytes", new Uint8Array([1, 2, 3])]]) {
+          try { h.call(m, ...a); thrown.push(null); } catch (e) { thrown.push(e instanceof Error ? e.message : `non-Error ${e}`); }
+        }
+        out.thrown = thrown;
+        out.bad = await h.stream("/slow/vectors/wsplat/bad_crc.wsplat?chunk=700&delay=1");
+        out.afterBad = (await h.read()).width;
+        return out;
+      });
+      assert.equal(r.freeState.camera, "free");
+      assert.ok(r.free >= 0 && r.bev >= 0);
+      for (const m of r.thrown) assert.ok(m && !m.startsWith("non-Error"), `threw an Error: ${m}`);
+      assert.match(r.thrown[0], /outside \[-8, 8\]/);
+      assert.match(r.thrown[1], /CAM_NOPE/);
+      assert.ok(r.bad.isError, "malformed stream raised an Error");
+      assert.match(r.bad.error, /bad_crc at offset 5451/);
+      assert.ok(r.afterBad > 0, "the viewer still renders after the error");
+      assert.deepEqual(errors.filter((e) => /panicked|unreachable|RuntimeError/.test(e)), [], "no wasm panic");
+    });
+  });
+}

@@ -87,3 +87,145 @@ mod tests {
         assert_eq!(got, want);
     }
 }
+
+/// The same sort cut into slices so a browser main thread never stalls: `step` works until `budget_ms` of the
+/// clock has passed, then returns; the caller keeps drawing the previous order meanwhile (WebGL2 path).
+pub struct CpuSortJob {
+    pub key: SortKey,
+    phase: Phase,
+    keys: Vec<u32>,
+    order: Vec<u32>,
+    tmp_keys: Vec<u32>,
+    tmp_order: Vec<u32>,
+    cursor: usize,
+}
+
+/// What a sort was made for: the data version and the camera's depth row (bit patterns).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SortKey {
+    pub data_version: u64,
+    pub row2: [u32; 4],
+}
+
+impl SortKey {
+    pub fn new(data_version: u64, row2: [f32; 4]) -> SortKey {
+        SortKey { data_version, row2: row2.map(f32::to_bits) }
+    }
+    pub fn row2(&self) -> [f32; 4] {
+        self.row2.map(f32::from_bits)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Keys,
+    Pass(u32),
+    Done,
+}
+
+const SLICE: usize = 1 << 16;
+
+impl CpuSortJob {
+    pub fn new(key: SortKey) -> CpuSortJob {
+        CpuSortJob { key, phase: Phase::Keys, keys: Vec::new(), order: Vec::new(), tmp_keys: Vec::new(), tmp_order: Vec::new(), cursor: 0 }
+    }
+
+    pub fn done(&self) -> bool {
+        self.phase == Phase::Done
+    }
+
+    /// Indices of visible Gaussians, nearest first (valid once `done`).
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    /// Advance; returns true when finished. `budget_ms = None` runs to the end.
+    pub fn step(&mut self, records: &[PackedSplat], budget_ms: Option<f64>, clock: fn() -> f64) -> bool {
+        let start = clock();
+        let out_of_time = || budget_ms.is_some_and(|b| clock() - start >= b);
+        let row2 = self.key.row2();
+        loop {
+            match self.phase {
+                Phase::Keys => {
+                    let end = (self.cursor + SLICE).min(records.len());
+                    for (i, r) in records[self.cursor..end].iter().enumerate() {
+                        let z = camera_z(&row2, &r.mean);
+                        if z > NEAR {
+                            self.keys.push(z.to_bits());
+                            self.order.push((self.cursor + i) as u32);
+                        }
+                    }
+                    self.cursor = end;
+                    if end == records.len() {
+                        self.phase = Phase::Pass(0);
+                        self.tmp_keys.resize(self.keys.len(), 0);
+                        self.tmp_order.resize(self.keys.len(), 0);
+                    }
+                }
+                Phase::Pass(p) => {
+                    let shift = 8 * p;
+                    let n = self.keys.len();
+                    let mut counts = [0usize; 256];
+                    for &k in &self.keys {
+                        counts[((k >> shift) & 0xff) as usize] += 1;
+                    }
+                    if !counts.iter().any(|&c| c == n) {
+                        let mut offsets = [0usize; 256];
+                        let mut sum = 0;
+                        for d in 0..256 {
+                            offsets[d] = sum;
+                            sum += counts[d];
+                        }
+                        for i in 0..n {
+                            let k = self.keys[i];
+                            let d = ((k >> shift) & 0xff) as usize;
+                            self.tmp_keys[offsets[d]] = k;
+                            self.tmp_order[offsets[d]] = self.order[i];
+                            offsets[d] += 1;
+                        }
+                        std::mem::swap(&mut self.keys, &mut self.tmp_keys);
+                        std::mem::swap(&mut self.order, &mut self.tmp_order);
+                    }
+                    self.phase = if p == 3 { Phase::Done } else { Phase::Pass(p + 1) };
+                }
+                Phase::Done => return true,
+            }
+            if self.phase == Phase::Done {
+                return true;
+            }
+            if out_of_time() {
+                return false;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod job_tests {
+    use super::*;
+
+    static mut TICK: f64 = 0.0;
+    fn fake_clock() -> f64 {
+        // Every call advances 1 ms, so a 2 ms budget forces many slices.
+        unsafe {
+            TICK += 1.0;
+            TICK
+        }
+    }
+
+    #[test]
+    fn sliced_job_equals_one_shot_sort() {
+        let records: Vec<PackedSplat> = (0..200_000u32)
+            .map(|i| PackedSplat { mean: [0.0, 0.0, ((i.wrapping_mul(2654435761)) % 10_000) as f32 * 0.01 - 3.0], shape: [0; 3], rgba: 0 })
+            .collect();
+        let row2 = [0.0, 0.0, 1.0, 0.0];
+        let want = CpuSorter::default().sort(&records, row2).to_vec();
+        let mut job = CpuSortJob::new(SortKey::new(1, row2));
+        let mut steps = 0;
+        while !job.step(&records, Some(2.0), fake_clock) {
+            steps += 1;
+        }
+        assert!(steps >= 3, "the job was cut into slices ({steps})");
+        assert_eq!(job.order(), &want[..]);
+    }
+}

@@ -6,7 +6,7 @@
 //!   as instance attributes.
 
 use crate::camera::Camera;
-use crate::cpu_sort::CpuSorter;
+use crate::cpu_sort::{CpuSortJob, CpuSorter, SortKey};
 use crate::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
 use crate::gpu_sort::GpuSort;
 use bytemuck::{Pod, Zeroable};
@@ -138,6 +138,10 @@ pub struct RenderStats {
     pub gaussians: u32,
     pub resident_bytes: u64,
     pub cpu_sort_ms: f64,
+    /// A budgeted CPU sort is still running; the frame used the previous order.
+    pub sort_pending: bool,
+    /// The view did not change, so the previous sort was reused.
+    pub sort_reused: bool,
 }
 
 pub struct Renderer {
@@ -161,6 +165,15 @@ pub struct Renderer {
     cpu_records: Vec<PackedSplat>,
     sorted: Vec<PackedSplat>,
     cpu_sorter: CpuSorter,
+    /// Bumped whenever the resident Gaussians change; part of every sort key.
+    data_version: u64,
+    /// Single-view renders reuse the last sort while its key holds (both paths).
+    last_sort: Option<SortKey>,
+    uploaded_visible: u32,
+    cpu_job: Option<CpuSortJob>,
+    /// Instanced path: slice the CPU sort to this many ms per `render` once a previous order exists
+    /// (None: sort to completion, as tests and readbacks need).
+    pub cpu_sort_budget_ms: Option<f64>,
     accum: Option<(wgpu::Texture, wgpu::TextureView, [u32; 2])>,
     pub clock: fn() -> f64,
 }
@@ -289,6 +302,11 @@ impl Renderer {
             cpu_records: Vec::new(),
             sorted: Vec::new(),
             cpu_sorter: CpuSorter::default(),
+            data_version: 0,
+            last_sort: None,
+            uploaded_visible: 0,
+            cpu_job: None,
+            cpu_sort_budget_ms: None,
             accum: None,
             clock: std_clock,
         };
@@ -350,6 +368,7 @@ impl Renderer {
 
     /// Forget the scene.
     pub fn clear(&mut self) {
+        self.data_version += 1;
         self.num_static = 0;
         self.count = 0;
         self.cpu_records.clear();
@@ -389,6 +408,7 @@ impl Renderer {
         }
         self.num_static = statics.len() as u32;
         self.count = total;
+        self.data_version += 1;
     }
 
     fn ensure_accum(&mut self, size: [u32; 2]) {
@@ -451,7 +471,7 @@ impl Renderer {
             let u = ViewUniform::new(&v.camera, v.origin, self.count);
             self.queue.write_buffer(&self.view_buf, i as u64 * UNIFORM_STRIDE, bytemuck::bytes_of(&u));
         }
-        let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), cpu_sort_ms: 0.0 };
+        let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), ..Default::default() };
         let view_binding = wgpu::BufferBinding {
             buffer: &self.view_buf,
             offset: 0,
@@ -474,9 +494,11 @@ impl Renderer {
                 {
                     let _clear = self.splat_pass(&mut encoder, &accum_view, true);
                 }
+                let single_key = (views.len() == 1).then(|| SortKey::new(self.data_version, ViewUniform::new(&views[0].camera, views[0].origin, self.count).row2));
+                stats.sort_reused = single_key.is_some() && single_key == self.last_sort;
                 for (i, v) in views.iter().enumerate() {
                     let offset = (i as u64 * UNIFORM_STRIDE) as u32;
-                    if self.count > 0 {
+                    if self.count > 0 && !stats.sort_reused {
                         sort.encode(&mut encoder, &sort_bind, offset, self.count);
                     }
                     let mut pass = self.splat_pass(&mut encoder, &accum_view, false);
@@ -490,6 +512,7 @@ impl Renderer {
                 }
                 self.blit(&mut encoder, &blit, &accum_view, target);
                 self.queue.submit([encoder.finish()]);
+                self.last_sort = single_key;
             }
             DrawPath::Instanced => {
                 let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -504,15 +527,35 @@ impl Renderer {
                 self.queue.submit([encoder.finish()]);
                 for (i, v) in views.iter().enumerate() {
                     let t0 = (self.clock)();
-                    let u = ViewUniform::new(&v.camera, v.origin, self.count);
-                    let order = self.cpu_sorter.sort(&self.cpu_records, u.row2);
-                    self.sorted.clear();
-                    self.sorted.extend(order.iter().map(|&i| self.cpu_records[i as usize]));
-                    stats.cpu_sort_ms += (self.clock)() - t0;
-                    let visible = self.sorted.len() as u32;
-                    if visible > 0 {
-                        self.queue.write_buffer(&self.splat_buf, 0, bytemuck::cast_slice(&self.sorted));
+                    let key = SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2);
+                    if views.len() > 1 {
+                        let order = self.cpu_sorter.sort(&self.cpu_records, key.row2());
+                        self.sorted.clear();
+                        self.sorted.extend(order.iter().map(|&i| self.cpu_records[i as usize]));
+                        self.upload_sorted();
+                        self.last_sort = None;
+                    } else if self.last_sort == Some(key) {
+                        stats.sort_reused = true;
+                    } else {
+                        if self.cpu_job.as_ref().is_none_or(|j| j.key != key) {
+                            self.cpu_job = Some(CpuSortJob::new(key));
+                        }
+                        // Slice only when just the view moved and an order exists to draw meanwhile.
+                        let stale_ok = self.last_sort.is_some_and(|k| k.data_version == self.data_version);
+                        let budget = if stale_ok { self.cpu_sort_budget_ms } else { None };
+                        let job = self.cpu_job.as_mut().unwrap();
+                        if job.step(&self.cpu_records, budget, self.clock) {
+                            let job = self.cpu_job.take().unwrap();
+                            self.sorted.clear();
+                            self.sorted.extend(job.order().iter().map(|&i| self.cpu_records[i as usize]));
+                            self.upload_sorted();
+                            self.last_sort = Some(key);
+                        } else {
+                            stats.sort_pending = true;
+                        }
                     }
+                    stats.cpu_sort_ms += (self.clock)() - t0;
+                    let visible = self.uploaded_visible;
                     let mut encoder = self.device.create_command_encoder(&Default::default());
                     {
                         let mut pass = self.splat_pass(&mut encoder, &accum_view, false);
@@ -535,10 +578,18 @@ impl Renderer {
         Ok(stats)
     }
 
+    fn upload_sorted(&mut self) {
+        self.uploaded_visible = self.sorted.len() as u32;
+        if !self.sorted.is_empty() {
+            self.queue.write_buffer(&self.splat_buf, 0, bytemuck::cast_slice(&self.sorted));
+        }
+    }
+
     /// Only the depth sort for one view (benchmarks): the GPU sort is submitted (poll to wait), the CPU sort
     /// runs here. Returns the CPU milliseconds spent (0 for the GPU path).
     pub fn sort_only(&mut self, view: &ViewRect) -> f64 {
         let u = ViewUniform::new(&view.camera, view.origin, self.count);
+        self.last_sort = None;
         match self.path {
             DrawPath::Storage => {
                 self.queue.write_buffer(&self.view_buf, 0, bytemuck::bytes_of(&u));

@@ -175,6 +175,7 @@ def save_enhancer(model: Enhancer, vae, path, meta: dict | None = None):
     md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
     tmp = path.with_suffix(".tmp")
     save_file(state, str(tmp), metadata=md)
+    tmp.chmod(0o644)
     tmp.replace(path)
     return path
 

@@ -143,9 +143,11 @@ def lr_at(step: int, steps: int, lr: float, warmup: int = 100) -> float:
 
 def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: Path, name: str, lr: float = 3e-4,
           seed: int = 0, ckpt_every: int = 100, minutes: float | None = None, progress: bool = True,
-          log_every: int = 10) -> list[dict]:
+          log_every: int = 10, grow=None, grow_every: int = 100) -> list[dict]:
     """Plain rectified-flow loop, batch 1 clip (T x V images). Each step's randomness comes from a generator seeded
-    by (seed, step), so a resumed run sees the same stream. Resumes from out_dir/<name>.ckpt.pt."""
+    by (seed, step), so a resumed run over the same pairs sees the same stream. Resumes from out_dir/<name>.ckpt.pt.
+    `grow()` (optional) is called every `grow_every` steps and returns newly cached (degraded, clean) pairs to add
+    (training while the pair generator still runs; not bit-reproducible, the provenance says so)."""
     cfg = model.cfg
     torch.manual_seed(seed)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -171,6 +173,10 @@ def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: P
 
     step = start
     for step in range(start, steps):
+        if grow is not None and step % grow_every == 0 and step > start:
+            d, c = grow()
+            degraded += d
+            clean += c
         gen = torch.Generator().manual_seed(seed * 1_000_003 + step)
         use_clean = cfg.mixed and clean and float(torch.rand(1, generator=gen)) < cfg.clean_prob
         pool = clean if use_clean else degraded
@@ -314,6 +320,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         "safetensors, else the fallback trained here)")
     parser.add_argument("--skip-pairs", action="store_true", help="train on the pairs already cached")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--grow", action="store_true", help="add pairs that appear in the cache while training")
 
 
 def resolve_vae(args) -> Path:
@@ -343,33 +350,46 @@ def run(args: argparse.Namespace) -> int:
     if vae.cfg.latent_channels != cfg.latent_channels:
         raise ValueError(f"VAE {vae_path} has {vae.cfg.latent_channels} latent channels; the {args.size} enhancer "
                          f"expects {cfg.latent_channels}")
-    files = sorted((args.cache / "train").glob("seed*.npz"))
-    seeds = sorted({f.name[4:12] for f in files})[:args.use_pairs]
-    files = [f for f in files if f.name[4:12] in seeds]
-    if not files:
+    seen: set[str] = set()
+
+    def load_new(limit=None, progress=True):
+        """Encode the cached pairs not loaded yet (whole clips: a clean pair is never taken without its clip)."""
+        files = sorted((args.cache / "train").glob("seed*.npz"))
+        seeds = sorted({f.name[4:12] for f in files} - seen)
+        if limit is not None:
+            seeds = seeds[:max(0, limit - len(seen))]
+        files = [f for f in files if f.name[4:12] in seeds]
+        seen.update(seeds)
+        samples = [load_sample(f) for f in files]
+        caps = encode_captions([s["caption"] for s in samples]) if samples else []
+        from tqdm import tqdm
+        d, c = [], []
+        for f, s, cap in tqdm(list(zip(files, samples, caps)), desc="encode pairs", mininterval=10,
+                              disable=not progress):
+            is_clean = f.name.endswith("_clean.npz")
+            (c if is_clean else d).append(encode_pair(vae, s, "3d" if is_clean else "4d", cfg.data.max_boxes, cap))
+        return d, c
+
+    degraded, clean = load_new(args.use_pairs)
+    if not degraded:
         raise FileNotFoundError(f"no training pairs under {args.cache / 'train'}")
-    samples = [load_sample(f) for f in files]
-    caps = encode_captions([s["caption"] for s in samples])
-    from tqdm import tqdm
-    degraded, clean = [], []
-    for f, s, c in tqdm(list(zip(files, samples, caps)), desc="encode pairs", mininterval=10):
-        is_clean = f.name.endswith("_clean.npz")
-        (clean if is_clean else degraded).append(encode_pair(vae, s, "3d" if is_clean else "4d",
-                                                             cfg.data.max_boxes, c))
-    print(f"{len(degraded)} degraded and {len(clean)} clean pairs from {len(seeds)} clips; mixed={cfg.mixed}")
+    print(f"{len(degraded)} degraded and {len(clean)} clean pairs from {len(seen)} clips; mixed={cfg.mixed}")
     torch.manual_seed(args.seed)
     model = Enhancer(cfg)
     t0 = time.time()
+    grow = (lambda: load_new(args.use_pairs, progress=False)) if args.grow else None
     hist = train(model, degraded, clean, args.steps, args.work, name, lr=args.lr, seed=args.seed,
-                 minutes=args.minutes)
+                 minutes=args.minutes, grow=grow)
+    seeds = sorted(seen)
     wall = time.time() - t0
     val = [load_sample(p) for p in val_paths]
     metrics = heldout_metrics(model, vae, val)
     state = torch.load(args.work / f"{name}.ckpt.pt", map_location="cpu", weights_only=False)
     prov = {"size": args.size, "mixed": cfg.mixed, "steps": int(state["step"]), "train_clips": len(seeds),
+            "train_seeds": sorted(int(s) for s in seeds),
             "degraded_pairs": len(degraded), "clean_pairs": len(clean), "seed": args.seed, "lr": args.lr,
             "vae": str(vae_path.name), "vae_meta": {k: v for k, v in vae.meta.items() if k != "config"},
-            "wall_s_this_run": round(wall), "threads": args.threads,
+            "wall_s_this_run": round(wall), "threads": args.threads, "grow": bool(args.grow),
             "heldout_val": {"seeds": sorted({s["seed"] for s in val}), "shifts": sorted({s["shift_m"] for s in val}),
                             **metrics},
             "command": f"python -m worldsplat_models.train_enhancer --size {args.size}"
@@ -389,3 +409,53 @@ def main(argv=None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
+    """models/weights/MODEL_CARD_enhancer.md from the provenance stored in the shipped weight files."""
+    from worldsplat_models.enhancer import load_enhancer
+    lines = ["# Enhanced diffusion model (refinement) - model card", "",
+             "Paper §3.4: refines renders of shifted (novel) tracks in latent space. Architecture and training: "
+             "`models/worldsplat_models/enhancer.py`, `train_enhancer.py`; use: `server/worldsplat/refine.py`; "
+             "evaluation: `web/docs/refinement.md`.", ""]
+    for name in ("enhancer_small.safetensors", "enhancer_small_nomix.safetensors"):
+        p = Path(weights_dir) / name
+        if not p.exists():
+            continue
+        model, vae = load_enhancer(p)
+        prov = model.meta.get("provenance", {})
+        n = sum(t.numel() for t in model.parameters())
+        nv = sum(t.numel() for t in vae.parameters())
+        cfg = model.meta["config"]
+        hv = prov.get("heldout_val", {})
+        lines += [f"## `{name}` ({'mixed conditioning, shipped default' if prov.get('mixed') else 'degraded renders only, ablation B/C'})",
+                  "", f"- file: {p.stat().st_size / 1e6:.1f} MB fp32 safetensors: enhancer {n / 1e6:.2f} M parameters "
+                  f"+ its frozen VAE {nv / 1e6:.2f} M (bundled, tensors prefixed `vae.`)",
+                  f"- config: DiT4D dim {cfg['dit']['dim']}, depth {cfg['dit']['depth']}, heads {cfg['dit']['heads']}, "
+                  f"ControlNet depth {cfg['dit']['control_depth']}, patch {cfg['dit']['patch']}; latent channels "
+                  f"{cfg['latent_channels']}; control = render latent + sketch latent + coverage "
+                  f"({cfg['dit']['control_channels']} ch); images {cfg['data']['width']}x{cfg['data']['height']}, "
+                  f"{cfg['data']['views']} views x {cfg['data']['frames']} frames; clean_prob {cfg['clean_prob']}, "
+                  f"render_drop {cfg['render_drop']}, cond_drop {cfg['dit']['cond_drop']}; sampler: rectified flow, "
+                  f"{cfg['dit']['sampler_steps']} Euler steps, shift {cfg['dit']['sampler_shift']}",
+                  f"- data: train-split seeds (clips {prov.get('train_clips')}: {prov.get('degraded_pairs')} degraded "
+                  f"pairs at +-1..4 m, {prov.get('clean_pairs')} clean pairs at 0 m), 112x64, 6 cameras, 4 frames; "
+                  "degraded input = the 4D-aggregated ORACLE lifting of the original track rendered on the shifted "
+                  "track (the learned decoder's weights were not available when this was trained)",
+                  f"- VAE: `{prov.get('vae')}` {json.dumps(prov.get('vae_meta', {}))}",
+                  f"- training: {prov.get('steps')} steps, batch 1 clip (24 images), AdamW lr {prov.get('lr')} "
+                  f"(warm-up + cosine), seed {prov.get('seed')}, {prov.get('threads')} thread(s); wall time "
+                  f"{prov.get('wall_s_this_run')} s on a 2-core CPU shared with five other jobs (no GPU)",
+                  f"- held-out (val seeds {hv.get('seeds')}, shifts {hv.get('shifts')} m, 8 steps): "
+                  f"raw render PSNR {hv.get('raw', {}).get('psnr')} dB (holes {hv.get('raw', {}).get('psnr_holes')}), "
+                  f"refined {hv.get('refined', {}).get('psnr')} dB (holes {hv.get('refined', {}).get('psnr_holes')}), "
+                  f"refined in holes only {hv.get('refined_holes', {}).get('psnr')} dB; test-split ablation in "
+                  "web/docs/refinement.md",
+                  f"- this run: `{prov.get('command')}`{' --grow' if prov.get('grow') else ''} (with --grow the "
+                  "pool of pairs grew while the pair generator ran, so the step stream is not bit-reproducible)",
+                  "- reproduce: `python -m worldsplat_models.train_enhancer --size small"
+                  f"{'' if prov.get('mixed') else ' --no-mix'} --out models/weights` (makes the pairs first, then "
+                  "trains on all of them with the shipped VAE)", ""]
+    path = path or Path(weights_dir) / "MODEL_CARD_enhancer.md"
+    path.write_text("\n".join(lines))
+    return path

@@ -27,10 +27,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", type=Path, default=None, help="sample cache (default runs/enhancer_pairs)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
+    f = sub.add_parser("refine-figure", help="raw | refined | ground truth of a scenario at a shift (PNG)")
+    f.add_argument("scenario", nargs="?", default="default", help="preset name or scenario JSON (default preset)")
+    f.add_argument("--shift-m", type=float, default=4.0)
+    f.add_argument("--cameras", default="CAM_FRONT,CAM_FRONT_LEFT,CAM_BACK_LEFT")
+    f.add_argument("--steps", type=int, default=8)
+    f.add_argument("--threads", type=int, default=1)
+    f.add_argument("--out", type=Path, required=True, help="PNG path")
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
+    if args.what == "refine-figure":
+        return run_figure(args)
 
     from worldsplat.evaluation.nvs import evaluate, markdown_table
     if args.count < 1:
@@ -42,4 +51,22 @@ def run(args: argparse.Namespace) -> int:
                       args.out)
     print(markdown_table(result))
     print(f"wrote {args.out / 'nvs.md'}, {args.out / 'nvs.json'}, {args.out / 'nvs_psnr.png'}")
+    return 0
+
+
+def run_figure(args: argparse.Namespace) -> int:
+    import json
+
+    import torch
+    from PIL import Image
+
+    from worldsplat.evaluation.nvs import side_by_side
+    from worldsplat.scenario import resolve_scenario
+    torch.set_num_threads(args.threads)
+    img, stats = side_by_side(resolve_scenario(args.scenario), args.shift_m, tuple(args.cameras.split(",")),
+                              steps=args.steps)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(img).save(args.out)
+    print(json.dumps(stats, indent=1, default=float))
+    print(f"wrote {args.out}")
     return 0

@@ -222,3 +222,38 @@ def write_report(result: dict, out: Path) -> None:
     (out / "nvs.json").write_text(json.dumps(result, indent=1, default=float) + "\n")
     (out / "nvs.md").write_text(markdown_table(result) + "\n")
     plot(result, out / "nvs_psnr.png")
+
+
+# --- the side-by-side figure (raw | refined | ground truth) ---------------------------------------------------------
+
+def side_by_side(scenario=None, shift_m: float = 4.0, cameras: tuple[str, ...] = ("CAM_FRONT", "CAM_FRONT_LEFT",
+                 "CAM_BACK_LEFT"), frame: int | None = None, steps: int = 8, weights: Path | None = None,
+                 scale: int = 2) -> tuple[np.ndarray, dict]:
+    """The playground's path on a scenario (default preset): oracle scene -> `refine_track` at `shift_m` ->
+    one frame of `cameras` as rows of [raw render | refined | exact ground truth], upscaled by `scale`
+    (nearest). Returns the image (H,W,3) uint8 and per-row PSNRs."""
+    from worldsplat.evaluation.novel_track import oracle_scene, render_scene_track
+    from worldsplat.refine import refine_track
+    from worldsplat.scenario import default_scenario
+    from worldsplat.world import build_world, simulate
+    scenario = scenario or default_scenario()
+    world = build_world(scenario)
+    scene = oracle_scene(simulate(world, 0.0), {"scenario": scenario.model_dump(mode="json")})
+    names = [c.name for c in scene.rig]
+    idx = [names.index(c) for c in cameras]
+    raw = render_scene_track(scene, shift_m, views=idx)
+    refined = refine_track(scene, shift_m, list(cameras), steps=steps, weights=weights)
+    truth = simulate(world, shift_m, cameras=list(cameras))
+    t = scene.num_frames // 2 if frame is None else frame
+    rows, stats = [], {}
+    for i, cam in enumerate(cameras):
+        r, f, g = raw.rgb[t, i], refined[t, i], truth.rgb[t, i]
+        holes = raw.alpha[t, i] < 0.5
+        stats[cam] = {"raw": image_metrics(r[None], g[None], holes[None]),
+                      "refined": image_metrics(f[None], g[None], holes[None])}
+        rows.append(np.concatenate([r, np.full((r.shape[0], 4, 3), 255, np.uint8), f,
+                                    np.full((r.shape[0], 4, 3), 255, np.uint8), g], axis=1))
+        rows.append(np.full((4, rows[-1].shape[1], 3), 255, np.uint8))
+    img = np.concatenate(rows[:-1], axis=0)
+    img = img.repeat(scale, 0).repeat(scale, 1)
+    return img, stats

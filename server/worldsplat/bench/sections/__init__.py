@@ -1,0 +1,1 @@
+"""One module per knob; each exposes `run(quick: bool) -> Section`."""

@@ -1,0 +1,68 @@
+"""Model only what a scene needs: the static budget and the merge cell vs novel-view PSNR on exact ground truth,
+Gaussian count, .wsplat bytes and render time. Scene: an oracle-lifted preset clip aggregated per paper eq. 3."""
+from __future__ import annotations
+
+import numpy as np
+
+from worldsplat.bench.report import Pareto, Section
+from worldsplat.bench.timing import time_once
+
+
+def run(quick: bool) -> Section:
+    from worldsplat.gaussians import wsplat
+    from worldsplat.gaussians.aggregate import Economy, aggregate
+    from worldsplat.gaussians.economy import lift_clip, psnr, render_frame_views
+    from worldsplat.scenario import load_preset
+    from worldsplat.world import build_world, simulate
+
+    w, h, frames = (100, 56, 2) if quick else (200, 112, 4)
+    shift = 2.0
+    sc = load_preset("urban_straight")
+    sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": w, "height": h}),
+                               "clip": sc.clip.model_copy(update={"frames": frames})})
+    world = build_world(sc)
+    clip = simulate(world)
+    gt = simulate(world, shift_m=shift)
+    per_view = lift_clip(clip)
+    T, V = clip.rgb.shape[:2]
+    views = [0, 3] if quick else list(range(V))
+    fg = [[np.isfinite(gt.depth[t, v]) for v in range(V)] for t in range(T)]
+
+    def evaluate(eco: Economy) -> tuple[list, float]:
+        scene, st = aggregate(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=eco, image_size=(h, w))
+        nbytes = len(wsplat.encode(scene))
+        imgs = {}
+        secs = time_once(lambda: imgs.update({t: render_frame_views(scene, t, shift, views) for t in range(T)}))
+        p = float(np.mean([psnr(imgs[t][i], gt.rgb[t, v], fg[t][v]) for t in range(T) for i, v in enumerate(views)]))
+        return [st.kept, st.kept / st.naive, nbytes, p, secs / (T * len(views))], p
+
+    union = aggregate(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False),
+                      image_size=(h, w))[1].static_union
+    settings: dict[str, Economy] = {"naive union (no economy)": Economy(enabled=False)}
+    fractions = [0.05, 0.1, 0.2] if quick else [0.025, 0.05, 0.1, 0.2]
+    for f in fractions:
+        settings[f"budget {int(100 * f)}% of union"] = Economy(static_budget=max(1, int(f * union)))
+    settings["economy, cell 2 (default)"] = Economy()
+    if not quick:
+        settings["economy, cell 1"] = Economy(cell_factor=1.0)
+        settings["economy, cell 4"] = Economy(cell_factor=4.0)
+    rows, points, by_budget = [], [], {}
+    for name, eco in settings.items():
+        r, p = evaluate(eco)
+        rows.append([name, *r])
+        points.append((name, float(r[0]), p))
+        if eco.static_budget is not None:
+            by_budget[eco.static_budget] = p
+    return Section(
+        key="budget", title=f"Gaussian budget and merge cell (novel view at +{shift:.0f} m, non-sky pixels)",
+        columns=["setting", "Gaussians kept", "fraction of V*T*H*W", ".wsplat bytes", "PSNR vs exact GT (dB)",
+                 "render s / view"],
+        rows=rows, default="economy, cell 2 (default)",
+        why="Merging static Gaussians that repeat across frames and views in cells of twice the pixel footprint "
+            "keeps the novel-view PSNR of the naive union within a few hundredths of a dB at a fraction of the "
+            "Gaussians, bytes and render time; hard budgets below that cut visible detail first in the distance.",
+        pareto=Pareto("Gaussians kept", "PSNR vs exact GT (dB)", points, default="economy, cell 2 (default)", log_x=True),
+        notes=[f"Preset urban_straight, {T} frames x {V} views at {w}x{h}, oracle lifting; PSNR over "
+               f"{len(views)} view(s) per frame on non-sky pixels at +{shift:.0f} m; static union {union}."],
+        data={"psnr_by_budget": by_budget},
+    )

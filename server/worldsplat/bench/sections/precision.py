@@ -1,0 +1,51 @@
+"""Rasterizer precision: the inputs stored as fp32 / fp16 / bf16 (the rasterizer upcasts to float32 by spec)
+against a float64 reference render, with time. Scene: an oracle-lifted preset view."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from worldsplat.bench.fixtures import oracle_fixture, psnr
+from worldsplat.bench.report import Pareto, Section
+from worldsplat.bench.timing import compare
+
+
+def run(quick: bool) -> Section:
+    from worldsplat.gaussians import rasterize
+
+    w, h = (100, 56) if quick else (200, 112)
+    fx = oracle_fixture("urban_straight", w, h)
+    g = fx.scene.static
+    cam = fx.scene.camera(0, "CAM_FRONT", 0.0)
+    variants = {
+        "float64": g.map(lambda t: t.to(torch.float64)),
+        "float32": g,
+        "float16": g.map(lambda t: t.to(torch.float16)),
+        "bfloat16": g.map(lambda t: t.to(torch.bfloat16)),
+    }
+    outs = {}
+
+    def render(name):
+        with torch.no_grad():
+            outs[name] = rasterize(variants[name], cam)["rgb"].double().clamp(0, 1).numpy()
+
+    timings = compare({k: (lambda k=k: render(k)) for k in variants}, repeats=1 if quick else 3, warmup=0)
+    ref = outs["float64"]
+    rows, points, err = [], [], {}
+    for t in timings:
+        img = outs[t.name]
+        e = float(np.abs(img - ref).max())
+        err[t.name] = e
+        p = psnr(img, ref)
+        rows.append([t.name, p if np.isfinite(p) else "exact", e, bool(np.isfinite(img).all()), t.median_s, t.ratio_to_baseline])
+        points.append((t.name, t.median_s, min(p, 150.0)))
+    return Section(
+        key="precision", title="Rasterizer precision (reference: float64)",
+        columns=["inputs", "PSNR vs float64 (dB)", "max abs error", "finite", "seconds / view", "time ratio"],
+        rows=rows, default="float32",
+        why="float32 matches float64 far below one 8-bit level at about half the cost; fp16/bf16 storage halves "
+            "memory but bf16's 8-bit mantissa moves means by centimetres at 50 m, a visible error, and on CPU "
+            "the upcast makes neither faster.",
+        pareto=Pareto("seconds per view", "PSNR vs float64 (dB, capped at 150)", points, default="float32"),
+        data={"error_by_dtype": err},
+    )

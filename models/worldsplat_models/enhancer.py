@@ -149,12 +149,24 @@ class Enhancer(nn.Module):
 
     @torch.no_grad()
     def sample(self, cond: dict, shape: tuple[int, ...], steps: int | None = None, seed: int = 0,
-               callback=None) -> torch.Tensor:
-        """Euler sampling from seeded noise -> refined latents of `shape` (B,T,V,c,h,w)."""
+               callback=None, init: torch.Tensor | None = None, start: float = 0.0) -> torch.Tensor:
+        """Euler sampling from seeded noise -> refined latents of `shape` (B,T,V,c,h,w).
+
+        `start` > 0 (with `init`, e.g. the render latent) begins at flow time s0 = start from
+        z(s0) = (1 - s0) eps + s0 init instead of pure noise (SDEdit-style): the model then only finishes the
+        trajectory. Implemented by re-timing, s' = s0 + (1 - s0) s, so rflow.sample is reused as is."""
+        if not 0.0 <= start < 1.0:
+            raise ValueError(f"start must be in [0, 1), got {start}")
         gen = torch.Generator().manual_seed(seed)
         noise = torch.randn(shape, generator=gen)
         steps = steps or self.cfg.dit.sampler_steps
-        return rflow.sample(self, noise, cond, steps=steps, shift=self.cfg.dit.sampler_shift, callback=callback)
+        if start == 0.0:
+            return rflow.sample(self, noise, cond, steps=steps, shift=self.cfg.dit.sampler_shift, callback=callback)
+        if init is None or tuple(init.shape) != tuple(shape):
+            raise ValueError("sampling from start > 0 needs `init` of the latent shape")
+        z0 = rflow.interpolate(init.float(), noise, torch.full((shape[0],), start))
+        retimed = lambda z, s, c: (1.0 - start) * self(z, start + (1.0 - start) * s, c)  # noqa: E731
+        return rflow.sample(retimed, z0, cond, steps=steps, shift=self.cfg.dit.sampler_shift, callback=callback)
 
 
 # --- weights ---------------------------------------------------------------------------------------------------------
@@ -235,7 +247,8 @@ def windows(T: int, n: int) -> list[tuple[int, int]]:
 @torch.no_grad()
 def enhance(model: Enhancer, vae, render: np.ndarray, alpha: np.ndarray, sketch: np.ndarray, boxes: dict,
             traj: np.ndarray, caption_emb: torch.Tensor, steps: int | None = None, seed: int = 0,
-            use_render: bool = True, blend: str = "none", callback=None, timings: dict | None = None) -> np.ndarray:
+            use_render: bool = True, blend: str = "none", callback=None, timings: dict | None = None,
+            start: float = 0.0) -> np.ndarray:
     """Refine a novel-track render. render (T,V,H,W,3) uint8, alpha (T,V,H,W), sketch (T,V,H,W,3) in {0,1},
     boxes {box_corners (T,N,8,3), box_cls, box_moving, box_mask (T,N)} in the shifted ego frames, traj (T,4,4)
     relative to frame 0, caption_emb (384,) -> refined (T,V,H,W,3) uint8.
@@ -243,6 +256,7 @@ def enhance(model: Enhancer, vae, render: np.ndarray, alpha: np.ndarray, sketch:
     Images are resized to the model's resolution and back; frames run in windows of the model's clip length
     (trajectory re-based on each window's first frame). blend "none" returns the model's output (the paper);
     "holes" keeps the render where its alpha covers the pixel and takes the model's output in the holes.
+    `start` > 0 starts the sampler from the noised render latent instead of pure noise (see Enhancer.sample).
     `timings` (a dict) receives seconds per stage: encode, denoise, decode."""
     import time
     if blend not in BLENDS:
@@ -283,7 +297,8 @@ def enhance(model: Enhancer, vae, render: np.ndarray, alpha: np.ndarray, sketch:
                 "control": Enhancer.control(lat(r_lat), lat(s_lat), lat(cov), use_render)}
         c1 = time.perf_counter()
         cb = None if callback is None else (lambda k, K, wi=wi: callback((wi + k / K) / len(wins)))
-        z = model.sample(cond, (1, n, V, cfg.latent_channels, h // f, w // f), steps, seed + t0, cb)
+        z = model.sample(cond, (1, n, V, cfg.latent_channels, h // f, w // f), steps, seed + t0, cb,
+                         init=lat(r_lat) if start > 0 else None, start=start)
         c2 = time.perf_counter()
         out[t0:t1] = decode_latents(vae, z.reshape(n * V, *z.shape[3:])).reshape(n, V, h, w, 3)
         c3 = time.perf_counter()

@@ -127,16 +127,16 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
 def stage_timings(scene=None, shift_m: float = 4.0, scenario=None, steps: int = 8, cameras: list[str] | None = None,
                   blend: str = DEFAULT_BLEND, weights: Path | None = None) -> dict:
     """Seconds per stage of one refined video (render, conditions, encode, denoise, decode, video) and per
-    camera-frame, for the bench. Without a scene: the oracle scene of the default preset (its scenario)."""
+    camera-frame, for the bench. Without a scene: the playground's scene of the default preset (or `scenario`),
+    `worldsplat.pipeline.generate_scene(..., mode="oracle")`."""
     import tempfile
 
     from worldsplat.video import write_video
     if scene is None:
-        from worldsplat.evaluation.novel_track import oracle_scene
+        from worldsplat.pipeline import generate_scene
         from worldsplat.scenario import default_scenario
-        from worldsplat.world import build_world, simulate
         scenario = scenario or default_scenario()
-        scene = oracle_scene(simulate(build_world(scenario)), {"scenario": scenario.model_dump(mode="json")})
+        scene = generate_scene(scenario, mode="oracle")
     tm: dict = {}
     t0 = time.perf_counter()
     frames = refine_track(scene, shift_m, cameras, steps=steps, scenario=scenario, blend=blend, weights=weights,

@@ -120,3 +120,19 @@ def test_enhance_shapes_resize_and_hole_blend():
         enhance(model, vae, render[:, :1], alpha[:, :1], sketch[:, :1], boxes, traj, cap, steps=1)
     with pytest.raises(ValueError, match="blend"):
         enhance(model, vae, render, alpha, sketch, boxes, traj, cap, steps=1, blend="sharpen")
+
+
+def test_start_from_the_render_latent():
+    model, vae = tiny()
+    cfg = model.cfg
+    shape = (1, cfg.data.frames, cfg.data.views, cfg.latent_channels, 4, 6)
+    init = torch.randn(shape)
+    cond = fake_cond(cfg)
+    # a fresh model predicts zero velocity, so sampling just returns its starting point z(s0)
+    z = model.sample(cond, shape, steps=3, seed=5, init=init, start=0.75)
+    noise = torch.randn(shape, generator=torch.Generator().manual_seed(5))
+    assert torch.allclose(z, 0.25 * noise + 0.75 * init, atol=1e-6)
+    with pytest.raises(ValueError, match="init"):
+        model.sample(cond, shape, steps=2, start=0.5)
+    with pytest.raises(ValueError, match="start"):
+        model.sample(cond, shape, steps=2, init=init, start=1.0)

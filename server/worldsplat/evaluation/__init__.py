@@ -1,6 +1,5 @@
 """Evaluation against the world's exact ground truth: novel-track renders, refinement ablation (A-E), metrics.
 See web/docs/refinement.md."""
+from worldsplat.pipeline import JobCancelled as Cancelled  # one cancellation exception for every job stage
 
-
-class Cancelled(Exception):
-    """Raised between stages when a job's `cancelled()` callback returns True."""
+__all__ = ["Cancelled"]

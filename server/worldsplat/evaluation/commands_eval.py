@@ -33,6 +33,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     f.add_argument("--cameras", default="CAM_FRONT,CAM_FRONT_LEFT,CAM_BACK_LEFT")
     f.add_argument("--steps", type=int, default=8)
     f.add_argument("--threads", type=int, default=1)
+    f.add_argument("--weights", type=Path, default=None, help="enhancer weights file (default the shipped one)")
     f.add_argument("--out", type=Path, required=True, help="PNG path")
 
 
@@ -64,7 +65,7 @@ def run_figure(args: argparse.Namespace) -> int:
     from worldsplat.scenario import resolve_scenario
     torch.set_num_threads(args.threads)
     img, stats = side_by_side(resolve_scenario(args.scenario), args.shift_m, tuple(args.cameras.split(",")),
-                              steps=args.steps)
+                              steps=args.steps, weights=args.weights)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(img).save(args.out)
     print(json.dumps(stats, indent=1, default=float))

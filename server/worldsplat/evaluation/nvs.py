@@ -11,6 +11,7 @@ Mapping of the paper's versions (C-Reprojection / 3D Gs / 4D Gs / Mixed Aug / En
   E  4D Gaussians refined by the mixed-conditioning enhancer (the shipped model): the full method;
   E+holes  E, but the render is kept wherever it covers a pixel and the model's output fills only the holes (the
      playground's default);
+  E@0.5    E with the sampler started halfway, from the noised render latent (SDEdit-style) instead of pure noise;
   oracle   the 4D oracle lifting's render (the reference; identical to D while the Gaussians are the oracle's);
   VAE      ground truth passed through the VAE (the ceiling of any latent-space refinement).
 Metrics per shift: PSNR and SSIM over all pixels of every camera and frame, PSNR inside the 4D render's holes
@@ -26,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-VERSIONS = ("A", "B", "C", "D", "E", "E+holes", "oracle", "VAE")
+VERSIONS = ("A", "B", "C", "D", "E", "E+holes", "E@0.5", "oracle", "VAE")
 DESCRIPTIONS = {
     "A": "reprojected S', B', T', caption only (render zeroed), mixed enhancer",
     "B": "single-frame 3D Gaussians + enhancer (no mixed aug)",
@@ -34,6 +35,7 @@ DESCRIPTIONS = {
     "D": "4D Gaussians, no enhancement (raw render)",
     "E": "4D Gaussians + enhancer with mixed aug (full)",
     "E+holes": "E, model output only in the render's holes",
+    "E@0.5": "E, sampler started at s=0.5 from the noised render latent",
     "oracle": "4D oracle lifting render (reference)",
     "VAE": "ground truth through the VAE (latent ceiling)",
 }
@@ -84,6 +86,7 @@ def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int 
         "C": enhance(*degraded, r4, a4, **kw),
         "D": r4,
         "E": enhance(*mixed, r4, a4, **kw),
+        "E@0.5": enhance(*mixed, r4, a4, start=0.5, **kw),
         "oracle": r4,
     }
     a = np.clip(a4, 0, 1)[..., None]
@@ -229,20 +232,22 @@ def write_report(result: dict, out: Path) -> None:
 def side_by_side(scenario=None, shift_m: float = 4.0, cameras: tuple[str, ...] = ("CAM_FRONT", "CAM_FRONT_LEFT",
                  "CAM_BACK_LEFT"), frame: int | None = None, steps: int = 8, weights: Path | None = None,
                  scale: int = 2) -> tuple[np.ndarray, dict]:
-    """The playground's path on a scenario (default preset): oracle scene -> `refine_track` at `shift_m` ->
+    """The playground's path on a scenario (default preset): its oracle scene from the pipeline -> `refine_track` at
+    `shift_m` ->
     one frame of `cameras` as rows of [raw render | refined | exact ground truth], upscaled by `scale`
     (nearest). Returns the image (H,W,3) uint8 and per-row PSNRs."""
-    from worldsplat.evaluation.novel_track import oracle_scene, render_scene_track
+    from worldsplat.evaluation.novel_track import render_scene_track
+    from worldsplat.pipeline import generate_scene
     from worldsplat.refine import refine_track
     from worldsplat.scenario import default_scenario
     from worldsplat.world import build_world, simulate
     scenario = scenario or default_scenario()
     world = build_world(scenario)
-    scene = oracle_scene(simulate(world, 0.0), {"scenario": scenario.model_dump(mode="json")})
+    scene = generate_scene(scenario, mode="oracle")
     names = [c.name for c in scene.rig]
     idx = [names.index(c) for c in cameras]
     raw = render_scene_track(scene, shift_m, views=idx)
-    refined = refine_track(scene, shift_m, list(cameras), steps=steps, weights=weights)
+    refined = refine_track(scene, shift_m, list(cameras), steps=steps, weights=weights, scenario=scenario)
     truth = simulate(world, shift_m, cameras=list(cameras))
     t = scene.num_frames // 2 if frame is None else frame
     rows, stats = [], {}

@@ -7,7 +7,7 @@ import assert from "node:assert/strict";
 import { copyFileSync, existsSync, mkdirSync } from "node:fs";
 import { join } from "node:path";
 import { startServer, ROOT } from "./lib/playground-server.mjs";
-import { launch, openPage, snapshot, blockDiff, ARTIFACTS } from "./lib/playground-browser.mjs";
+import { launch, openPage, snapshot, snapshotFallback, blockDiff, ARTIFACTS } from "./lib/playground-browser.mjs";
 
 const HAVE_BUNDLE = existsSync(join(ROOT, "web/pkg/splat_web.js"));
 const HAVE_PIPELINE = existsSync(join(ROOT, "server/worldsplat/pipeline.py"))
@@ -61,6 +61,7 @@ test("page loads, generates the default scenario with progress, and renders a no
   assert.equal(st.frames, presets.find((p) => p.default).scenario.clip.frames);
   const snap = await snapshot(page);
   t.diagnostic(`viewer ${st.backend}: ${await page.evaluate(() => window.playground.state.viewer.stats())}`);
+  t.diagnostic(`pixels read by ${snap.path}${snapshotFallback() ? ` (fallback: ${snapshotFallback()})` : ""}`);
   assert.equal(snap.length, 4 * snap.width * snap.height);
   assert.ok(snap.litFraction > 0.3, `non-blank render (lit fraction ${snap.litFraction})`);
   await page.screenshot({ path: join(ARTIFACTS, "playground-default.png") });

@@ -12,7 +12,6 @@ import time
 
 import numpy as np
 
-import worldsplat
 from worldsplat.camera import CAMERA_NAMES
 from worldsplat.scenario import Scenario
 
@@ -48,7 +47,10 @@ def model_version(mode: str) -> str:
     fn = getattr(p, "model_version", None)
     if callable(fn):
         return str(fn(mode))
-    return f"{mode}-worldsplat-{worldsplat.__version__}"
+    if mode == "oracle":
+        return str(p.ORACLE_VERSION)
+    from worldsplat_models.inference import load_models  # noqa: PLC0415 - the weights' hash (loaded once)
+    return f"{mode}-{load_models().version}"
 
 
 def refinement_status() -> tuple[bool, str]:
@@ -124,14 +126,6 @@ def mosaic(frames: np.ndarray, cameras: list[str]) -> np.ndarray:
     return out
 
 
-def even(frames: np.ndarray) -> np.ndarray:
-    """H.264 with yuv420p needs even sizes: pad one black row/column where needed."""
-    _, h, w, _ = frames.shape
-    if h % 2 == 0 and w % 2 == 0:
-        return frames
-    return np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)))
-
-
 def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
     from worldsplat.gaussians import wsplat  # noqa: PLC0415
     from worldsplat.video import write_video  # noqa: PLC0415
@@ -159,7 +153,7 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
     frames = np.asarray(frames)
     if frames.ndim != 5 or frames.dtype != np.uint8:
         raise RuntimeError(f"render_track returned {frames.dtype} {frames.shape}, expected uint8 (T,V,H,W,3)")
-    video = even(mosaic(frames, cameras))
+    video = mosaic(frames, cameras)
     ctx.progress("encoding video", 0.0)
     ext = VIDEO_FORMATS[p["format"]]
     fps = float(scene.fps)
@@ -168,7 +162,9 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
     ctx.progress("encoding video", 1.0)
     meta = cache.commit_meta("videos", video_id, {
         "ext": ext, "scene_id": scene_id, "shift_m": p["shift_m"], "cameras": cameras, "refine": p["refine"],
-        "frames": int(video.shape[0]), "width": int(video.shape[2]), "height": int(video.shape[1]), "fps": fps,
+        # write_video pads odd sizes by one pixel (yuv420p)
+        "frames": int(video.shape[0]), "width": int(video.shape[2] + video.shape[2] % 2),
+        "height": int(video.shape[1] + video.shape[1] % 2), "fps": fps,
     })
     return {"video_id": video_id, "bytes": meta["bytes"], "frames": meta["frames"], "width": meta["width"],
             "height": meta["height"], "format": p["format"]}

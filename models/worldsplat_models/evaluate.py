@@ -94,7 +94,7 @@ def eval_vae(models: Models, ds: ShardDataset, n: int) -> dict:
 
 @torch.no_grad()
 def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int, ...] | None = None,
-                     shifts=SHIFTS, oracle: bool = True) -> dict:
+                     shifts=SHIFTS, oracle: bool = True, model: bool = True) -> dict:
     """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips."""
     res = {s: {"model_psnr": [], "model_ssim": [], "oracle_psnr": [], "oracle_ssim": []} for s in shifts}
     for i in range(min(n, len(ds))):
@@ -103,8 +103,7 @@ def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int
         for s in ds.shifted(i):
             by_shift[float(s["shift_m"])] = s
         rig = rig_of(base)
-        scene = to_scene4d(reconstruct(clip_view(base, rig), models))
-        scenes = {"model": scene}
+        scenes = {"model": to_scene4d(reconstruct(clip_view(base, rig), models))} if model else {}
         if oracle:
             scenes["oracle"] = oracle_scene(base, rig)
         T, V = base["rgb"].shape[:2]
@@ -170,7 +169,7 @@ def _hull(p: np.ndarray) -> np.ndarray:
 @torch.no_grad()
 def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed: int = 0,
                   frames: tuple[int, ...] | None = None) -> dict:
-    iou_box, iou_gt, absrel = [], [], []
+    iou_box, iou_gt, absrel, ceiling = [], [], [], []
     for i in range(min(n, len(ds))):
         s = ds[i]
         z = ds.load(i)
@@ -192,39 +191,64 @@ def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed
                 pred_dyn = (out["extras"][..., 0] / out["alpha"].clamp_min(1e-3)) > 0.5
                 pred_dyn &= out["alpha"] > 0.5
                 box_mask = projected_box_mask(np.asarray(z["box_corners"][t][moving], np.float64), cam)
-                iou_box.append(mask_iou(pred_dyn, torch.from_numpy(box_mask)))
-                iou_gt.append(mask_iou(pred_dyn, torch.as_tensor(s["dynamic"][t, v])))
+                bm, gm = torch.from_numpy(box_mask), torch.as_tensor(s["dynamic"][t, v])
+                # pooled over all views (a per-view mean would count empty-vs-empty views as 1.0)
+                iou_box.append(_inter_union(pred_dyn, bm))
+                iou_gt.append(_inter_union(pred_dyn, gm))
+                ceiling.append(_inter_union(gm, bm))  # reference: exact silhouettes vs the boxier hulls
                 rd = out["depth"] / out["alpha"].clamp_min(1e-3)
                 absrel.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v])))
-    return {"clips": min(n, len(ds)), "steps": steps, "dynamic_iou_vs_projected_boxes": float(np.mean(iou_box)),
-            "dynamic_iou_vs_gt_mask": float(np.mean(iou_gt)), "depth_absrel": float(np.nanmean(absrel))}
+    return {"clips": min(n, len(ds)), "steps": steps, "dynamic_iou_vs_projected_boxes": _pooled(iou_box),
+            "dynamic_iou_vs_gt_mask": _pooled(iou_gt), "depth_absrel": float(np.nanmean(absrel)),
+            "gt_mask_iou_vs_projected_boxes": _pooled(ceiling)}
+
+
+def _inter_union(a: torch.Tensor, b: torch.Tensor) -> tuple[int, int]:
+    a, b = a.bool(), b.bool()
+    return int((a & b).sum()), int((a | b).sum())
+
+
+def _pooled(pairs: list[tuple[int, int]]) -> float:
+    u = sum(p[1] for p in pairs)
+    return float("nan") if u == 0 else sum(p[0] for p in pairs) / u
 
 
 @torch.no_grad()
+def steps_vs_error_for(models: Models, cond: dict, steps_list=(1, 2, 4, 8, 16, 32), ref_steps: int = 64,
+                       seed: int = 0) -> list[dict]:
+    """Error of N-step samples against a ref_steps sample from the same noise, for one condition set
+    (`inference.condition_tensors(models, world.conditions(), ego_to_world)`): PSNR of the VAE-decoded RGB (range
+    [0, 1]), latent RMSE, and the sampling time (torch eager, this machine). Used by the benchmark (issue 8)."""
+    ref = sample_latents(models, cond, steps=ref_steps, seed=seed)
+    ref_rgb = (models.vae.decode_joint(ref.flatten(0, 1))[0] + 1) / 2
+    rows = []
+    for k in steps_list:
+        t0 = time.perf_counter()
+        L = sample_latents(models, cond, steps=k, seed=seed)
+        dt = time.perf_counter() - t0
+        rgb = (models.vae.decode_joint(L.flatten(0, 1))[0] + 1) / 2
+        rows.append({"steps": k, "psnr": psnr(rgb, ref_rgb), "latent_rmse": float(torch.sqrt(torch.mean((L - ref) ** 2))),
+                     "time_s": dt})
+    return rows
+
+
+def shard_conditions(models: Models, ds: ShardDataset, i: int) -> dict:
+    s = ds[i]
+    z = ds.load(i)
+    T = s["rgb"].shape[0]
+    boxes = [[{"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+              for k in range(z["box_corners"].shape[1])] for t in range(T)]
+    return condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
+                                      "ego_traj": s["traj"]}, s["ego_to_world"].astype(np.float64))
+
+
 def steps_vs_error(models: Models, ds: ShardDataset, n: int = 1, steps_list=(1, 2, 4, 8, 16, 32), ref_steps: int = 64,
                    seed: int = 0) -> list[dict]:
-    """Error of N-step samples against a ref_steps sample from the same noise: PSNR of the VAE-decoded RGB
-    (range [0,1]) and latent RMSE; plus the sampling time (torch eager, this machine)."""
-    rows = {k: {"psnr": [], "latent_rmse": [], "time_s": []} for k in steps_list}
-    for i in range(min(n, len(ds))):
-        s = ds[i]
-        ego = s["ego_to_world"].astype(np.float64)
-        z = ds.load(i)
-        T = s["rgb"].shape[0]
-        boxes = [[{"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
-                  for k in range(z["box_corners"].shape[1])] for t in range(T)]
-        cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
-                                          "ego_traj": s["traj"]}, ego)
-        ref = sample_latents(models, cond, steps=ref_steps, seed=seed)
-        ref_rgb = (models.vae.decode_joint(ref.flatten(0, 1))[0] + 1) / 2
-        for k in steps_list:
-            t0 = time.perf_counter()
-            L = sample_latents(models, cond, steps=k, seed=seed)
-            rows[k]["time_s"].append(time.perf_counter() - t0)
-            rgb = (models.vae.decode_joint(L.flatten(0, 1))[0] + 1) / 2
-            rows[k]["psnr"].append(psnr(rgb, ref_rgb))
-            rows[k]["latent_rmse"].append(float(torch.sqrt(torch.mean((L - ref) ** 2))))
-    return [{"steps": k, **{m: float(np.mean(v)) for m, v in r.items()}} for k, r in rows.items()]
+    """steps_vs_error_for averaged over the first n clips of a split."""
+    per = [steps_vs_error_for(models, shard_conditions(models, ds, i), steps_list, ref_steps, seed)
+           for i in range(min(n, len(ds)))]
+    return [{"steps": r[0]["steps"], **{m: float(np.mean([x[m] for x in r])) for m in ("psnr", "latent_rmse", "time_s")}}
+            for r in zip(*per)]
 
 
 @torch.no_grad()
@@ -273,7 +297,8 @@ def main(argv=None) -> int:
     p.add_argument("--weights", type=Path, default=None)
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--clips", type=int, default=4)
-    p.add_argument("--parts", default="vae,reconstruct,generate,steps")
+    p.add_argument("--parts", default="vae,reconstruct,generate,steps",
+                   help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, steps")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
     p.add_argument("--figure", type=Path, default=None, help="also write the qualitative PNG of test clip 0")
@@ -289,8 +314,13 @@ def main(argv=None) -> int:
     if "vae" in parts:
         out["vae"] = eval_vae(models, ds, a.clips)
         print("vae", out["vae"], flush=True)
-    if "reconstruct" in parts:
-        out["reconstruct"] = eval_reconstruct(models, ds, a.clips, frames=frames)
+    if "reconstruct" in parts or "oracle" in parts:
+        r = eval_reconstruct(models, ds, a.clips, frames=frames, model="reconstruct" in parts,
+                             oracle="oracle" in parts)
+        prev = out.get("reconstruct", {})
+        for sh, row in r.items():  # merge, so the oracle and the model can run separately
+            prev.setdefault(sh, {}).update({k: v for k, v in row.items() if v is not None})
+        out["reconstruct"] = prev
         print("reconstruct", out["reconstruct"], flush=True)
     if "generate" in parts and "generate" in models.modes:
         out["generate"] = eval_generate(models, ds, a.clips, frames=frames)

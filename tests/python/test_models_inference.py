@@ -142,3 +142,15 @@ def test_float16_weight_files_load_as_float32(tmp_path, models):
     for k, v in models.dit.state_dict().items():
         w = back.state_dict()[k]
         assert w.dtype == v.dtype and torch.allclose(w, v, atol=1e-3, rtol=1e-3), k
+
+
+def test_projected_box_mask_fills_hull_in_front_only():
+    from worldsplat.camera import Camera
+    from worldsplat_models.evaluate import projected_box_mask
+    cam = Camera(64, 48, 40.0, 40.0, 32.0, 24.0, np.eye(4))  # looks along +z
+    cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (9, 11)], float)
+    m = projected_box_mask(cube[None], cam)
+    assert m[24, 32] and not m[0, 0]
+    # the hull spans about f * 1 / 9 = 4.4 px either side of the centre at the near face
+    assert 60 < m.sum() < 110
+    assert not projected_box_mask((cube * [1, 1, -1])[None], cam).any()  # behind the camera

@@ -129,7 +129,18 @@ for (const path of ["webgpu", "webgl2"]) {
       assert.ok(moved < 40, `a 2 m shift changes the views (${moved.toFixed(1)} dB)`);
       assert.equal(restored.pixels, shifted.pixels, "set_camera_state reproduces the shared view exactly");
       if (path === "webgl2") {
-        mkdirSync(ARTIFACTS, { recursive: true });
+        // The README screenshot: the fixture, or a real scene when VIEWER_SCENE names a .wsplat
+        // (e.g. from `worldsplat generate urban_straight --mode oracle --out scene.wsplat`).
+        if (process.env.VIEWER_SCENE) {
+          copyFileSync(process.env.VIEWER_SCENE, join(OUT, "scene.wsplat"));
+          const s = await page.evaluate(() => window.harness.stream("/artifacts/browser/scene.wsplat"));
+          assert.equal(s.error, undefined, s.error);
+          await page.evaluate(() => {
+            window.harness.resize(1200, 448);
+            window.harness.call("set_camera", "mosaic");
+            window.harness.call("set_frame", Math.min(4, window.harness.call("num_frames") - 1));
+          });
+        }
         saveDataUrl(await page.evaluate(() => window.harness.png()), join(ARTIFACTS, "viewer.png"));
       }
     });
@@ -156,6 +167,23 @@ for (const path of ["webgpu", "webgl2"]) {
         return out;
       });
       assert.equal(r.freeState.camera, "free");
+      // Real input on the canvas: drag orbits, wheel zooms, held W flies forward (free camera only).
+      await page.evaluate(() => { window.harness.resize(320, 180); window.harness.call("set_camera", "free"); });
+      const before = JSON.parse(await page.evaluate(() => window.harness.call("camera_state"))).free;
+      await page.mouse.move(100, 90);
+      await page.mouse.down();
+      await page.mouse.move(160, 60, { steps: 4 });
+      await page.mouse.up();
+      await page.mouse.wheel(0, 300);
+      const dragged = JSON.parse(await page.evaluate(() => window.harness.call("camera_state"))).free;
+      assert.ok(Math.abs(dragged.yaw - before.yaw) > 0.1 && Math.abs(dragged.pitch - before.pitch) > 0.05, "drag orbits");
+      assert.ok(dragged.distance > before.distance, "wheel zooms out");
+      await page.keyboard.down("w");
+      await page.evaluate(() => new Promise((res) => setTimeout(() => { window.harness.call("render"); res(); }, 150)));
+      await page.keyboard.up("w");
+      const flown = JSON.parse(await page.evaluate(() => window.harness.call("camera_state"))).free;
+      const moved = Math.hypot(...[0, 1, 2].map((k) => flown.target[k] - dragged.target[k]));
+      assert.ok(moved > 0.3, `W flies forward (${moved.toFixed(2)} m)`);
       assert.ok(r.free >= 0 && r.bev >= 0);
       for (const m of r.thrown) assert.ok(m && !m.startsWith("non-Error"), `threw an Error: ${m}`);
       assert.match(r.thrown[0], /outside \[-8, 8\]/);

@@ -13,6 +13,8 @@ use wasm_bindgen::prelude::*;
 use wasm_bindgen::JsCast;
 use web_sys::HtmlCanvasElement;
 
+const READBACK_TIMEOUT_MS: f64 = 120_000.0;
+
 fn now_ms() -> f64 {
     web_sys::window().and_then(|w| w.performance()).map_or(0.0, |p| p.now())
 }
@@ -500,15 +502,19 @@ impl Viewer {
             return Err(js_err(format!("read_pixels: GPU validation error: {e}")));
         }
         // WebGPU maps on its own; WebGL2 needs polling. Never block: yield to the event loop between polls.
-        for _ in 0..2000 {
+        // Software rasterizers under load can take seconds for a large scene, hence the generous limit.
+        let start = now_ms();
+        loop {
             let _ = device.poll(wgpu::PollType::Poll);
             if let Some(r) = readback.try_finish() {
                 let bytes = r.map_err(js_err)?;
                 return Ok(js_sys::Uint8Array::from(bytes.as_slice()));
             }
+            if now_ms() - start > READBACK_TIMEOUT_MS {
+                return Err(js_err(format!("read_pixels: the readback did not complete within {} s", READBACK_TIMEOUT_MS / 1000.0)));
+            }
             sleep_ms(2).await;
         }
-        Err(js_err("read_pixels: the readback did not complete within 4 s"))
     }
 }
 

@@ -33,6 +33,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bf16", action="store_true", help="bf16 autocast")
     p.add_argument("--render-views", type=int, default=2, help="decoder: target views rendered per step")
     p.add_argument("--render-down", type=int, default=2, help="decoder: render at image size / this")
+    p.add_argument("--render-every", type=int, default=1, help="decoder: rendering losses every N steps")
     p.add_argument("--no-progress", action="store_true")
 
 
@@ -84,8 +85,9 @@ def run(args: argparse.Namespace) -> int:
         meta["vae"] = str(args.vae)
         if args.kind == "decoder":
             model = build("decoder", cfg.decoder)
-            step = decoder_step_fn(samples, dcfg, render_views=args.render_views, render_down=args.render_down)
-            meta.update(render_views=args.render_views, render_down=args.render_down)
+            step = decoder_step_fn(samples, dcfg, render_every=args.render_every, render_views=args.render_views,
+                                   render_down=args.render_down)
+            meta.update(render_views=args.render_views, render_down=args.render_down, render_every=args.render_every)
         else:
             model = build("dit", cfg.dit, dcfg.num_classes)
             step = dit_step_fn(samples, batch=args.batch)

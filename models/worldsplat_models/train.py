@@ -280,11 +280,13 @@ def cull_to_camera(gs, cam, margin: float = 0.25):
 
 
 def decoder_losses(dec, s: dict, dcfg: DataConfig, gen: torch.Generator, render_views: int = 1,
-                   render_down: int = 2, latent_noise: float = 0.05, weights=(0.2, 0.5, 0.1, 0.5)):
+                   render_down: int = 2, latent_noise: float = 0.05, weights=(0.2, 0.5, 0.1, 0.5),
+                   render: bool = True):
     """Eq. 5: rendered L1 + w_ssim (1 - SSIM) + w_depth depth L1 (log-normalised) + w_mask BCE (dynamic logits vs
     the GT mask), plus a direct pixel-aligned term (colour and depth of each Gaussian vs its own pixel) weighted
     w_direct that speeds up the start. Rendering: a random target frame, `render_views` random views,
-    at image/render_down resolution."""
+    at image/render_down resolution. With render=False only the pixel-aligned and mask terms are computed (the
+    cheap steps of `decoder_step_fn(render_every=k)`)."""
     from worldsplat.gaussians import rasterize
     w_ssim, w_depth, w_mask, w_direct = weights
     model = unwrap(dec)
@@ -309,6 +311,9 @@ def decoder_losses(dec, s: dict, dcfg: DataConfig, gen: torch.Generator, render_
     pred_dn = normalize_depth(g["depth"], near, far)
     direct = (g["colors"] - rgb_g).abs().mean() + (pred_dn - dn_g).abs().mean()
     bce = F.binary_cross_entropy_with_logits(g["dynamic_logit"], dyn_g)
+    if not render:
+        loss = w_mask * bce + w_direct * direct
+        return loss, {"bce": float(bce.detach()), "direct": float(direct.detach())}
     # rendering
     p_dyn = torch.sigmoid(g["dynamic_logit"]).detach()
     t = int(torch.randint(0, T, (1,), generator=gen))
@@ -333,9 +338,11 @@ def decoder_losses(dec, s: dict, dcfg: DataConfig, gen: torch.Generator, render_
     return loss, {k: float(v.detach()) for k, v in logs.items()}
 
 
-def decoder_step_fn(samples: list[dict], dcfg: DataConfig, **kw):
+def decoder_step_fn(samples: list[dict], dcfg: DataConfig, render_every: int = 1, **kw):
+    """Rendering losses every `render_every` steps (the rasterizer dominates the cost on CPU), the pixel-aligned
+    and mask terms every step."""
     def step(dec, step_i, gen):
-        return decoder_losses(dec, pick(samples, gen)[0], dcfg, gen, **kw)
+        return decoder_losses(dec, pick(samples, gen)[0], dcfg, gen, render=step_i % render_every == 0, **kw)
     return step
 
 

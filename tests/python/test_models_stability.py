@@ -149,3 +149,14 @@ def test_gradient_clipping_and_non_finite_skip():
 
 def test_train_config_defaults_clip():
     assert TrainConfig().grad_clip == 1.0
+
+
+def test_decoder_render_every_alternates(cached):
+    from worldsplat_models.train import decoder_step_fn
+    _, samples = cached
+    step = decoder_step_fn(samples, CFG.data, render_every=2, render_down=2)
+    dec = GaussianDecoder(CFG.decoder)
+    gen = torch.Generator().manual_seed(0)
+    _, logs0 = step(dec, 0, gen)
+    loss1, logs1 = step(dec, 1, gen)
+    assert "render_l1" in logs0 and "render_l1" not in logs1 and torch.isfinite(loss1)

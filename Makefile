@@ -4,7 +4,7 @@ ROOT := $(abspath .)
 PY := $(ROOT)/.venv/bin/python
 SETUP := bash package-config/setup.sh
 export XDG_RUNTIME_DIR ?= /tmp/worldsplat-xdg
-export PATH := $(ROOT)/.tools/bin:$(PATH)
+export PATH := $(HOME)/.cargo/bin:$(PATH)
 
 .PHONY: demo test setup test-python test-rust test-wasm test-browser wasm bench lock clean
 
@@ -40,4 +40,4 @@ lock:
 	$(ROOT)/.venv/bin/pip freeze --exclude-editable > package-config/requirements.lock
 
 clean:
-	rm -rf wasm/target .venv .tools package-config/node_modules
+	rm -rf wasm/target .venv package-config/node_modules

@@ -41,10 +41,11 @@ setup_python() {
 setup_rust() {
   command -v cargo >/dev/null || { log "rust: cargo missing; install rustup first"; exit 1; }
   rustup target list --installed | grep -qx "$RUST_WASM_TARGET" || rustup target add "$RUST_WASM_TARGET"
-  local wbg="$ROOT/.tools/bin/wasm-bindgen"
-  if ! [[ -x "$wbg" ]] || ! "$wbg" --version | grep -q "$WASM_BINDGEN_VERSION"; then
-    log "rust: installing wasm-bindgen-cli $WASM_BINDGEN_VERSION (a few minutes, once)"
-    cargo install -q wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION" --root "$ROOT/.tools"
+  # wasm-bindgen-cli must match the wasm-bindgen crate exactly. It goes to cargo's own bin dir so that every
+  # clone on this machine (CI runs on a fresh one) reuses it instead of rebuilding for minutes.
+  if ! wasm-bindgen --version 2>/dev/null | grep -q " $WASM_BINDGEN_VERSION\$"; then
+    log "rust: installing wasm-bindgen-cli $WASM_BINDGEN_VERSION (a few minutes, once per machine)"
+    cargo install -q wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION" --force
   fi
 }
 

@@ -216,6 +216,11 @@ function onSceneReady(complete) {
   $("timeline").disabled = $("play-btn").disabled = false;
   $("share-btn").disabled = !state.sceneId;
   $("video-btn").disabled = !state.sceneId;
+  // the picker offers the cameras this scene's rig has
+  const names = parseJson(v.camera_names());
+  for (const opt of $("camera").options) opt.disabled = CAMERAS.includes(opt.value) && !names.includes(opt.value);
+  if (CAMERAS.includes(state.camera) && !names.includes(state.camera)) state.camera = names[0];
+  $("camera").value = state.camera;
   v.set_shift(state.shift);
   v.set_camera(state.camera);
   v.set_frame(state.frame);
@@ -364,6 +369,7 @@ async function openLocalFile(file) {
     const v = requireViewer();
     const bytes = new Uint8Array(await file.arrayBuffer());
     v.load_bytes(bytes);
+    if (/\.ply$/i.test(file.name)) state.camera = "free";  // a bare point cloud: the viewer starts orbiting it
     state.sceneId = null;
     state.streamBytes = bytes.length;
     $("scene-badge").textContent = `file: ${file.name}`;

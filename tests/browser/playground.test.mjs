@@ -4,9 +4,10 @@
 // render in a fresh page, and a bad scenario shows its error naming the field. Screenshots go to tests/artifacts/.
 import { test, before, after } from "node:test";
 import assert from "node:assert/strict";
-import { copyFileSync, existsSync, mkdirSync } from "node:fs";
+import { execFileSync } from "node:child_process";
+import { copyFileSync, existsSync, mkdirSync, readFileSync } from "node:fs";
 import { join } from "node:path";
-import { startServer, ROOT } from "./lib/playground-server.mjs";
+import { startServer, ROOT, PYTHON } from "./lib/playground-server.mjs";
 import { launch, openPage, snapshot, snapshotFallback, blockDiff, ARTIFACTS } from "./lib/playground-browser.mjs";
 
 const HAVE_BUNDLE = existsSync(join(ROOT, "web/pkg/splat_web.js"));
@@ -14,7 +15,7 @@ const HAVE_PIPELINE = existsSync(join(ROOT, "server/worldsplat/pipeline.py"))
   || existsSync(join(ROOT, "server/worldsplat/pipeline/__init__.py"));
 const skip = !HAVE_BUNDLE ? "web/pkg not built (wasm/build.sh)" : !HAVE_PIPELINE ? "worldsplat.pipeline not landed" : false;
 
-let server, browser, page, errors;
+let server, browser, page, errors, presetScenario;
 const T = { timeout: 240_000 };
 
 before(async () => {
@@ -53,6 +54,7 @@ test("page loads, generates the default scenario with progress, and renders a no
   assert.ok(st.loaded, "scene loaded into the viewer");
   assert.equal(st.backend, "webgl2");
   const presets = await (await fetch(`${server.url}/api/presets`)).json();
+  presetScenario = presets.find((p) => p.default).scenario;
   assert.equal(st.preset, presets.find((p) => p.default).name, "the page opens on the default scenario");
   const progress = st.events.filter((e) => e.type === "progress");
   assert.ok(progress.length >= 2, `progress events seen: ${JSON.stringify(st.events)}`);
@@ -163,6 +165,35 @@ test("a local .wsplat dropped on the viewer renders, and the stats overlay count
   // something that is not a scene is refused with a message
   await page.evaluate(() => window.playground.openLocalFile(new File(["x"], "notes.txt")));
   assert.match(await page.textContent("#error-text"), /not a \.wsplat or \.ply/);
+});
+
+test("a local .ply dropped on the viewer renders with the free camera", { skip, ...T }, async () => {
+  // a small scene through the API, exported to a standard 3DGS .ply by `worldsplat export`
+  const scenario = { ...presetScenario, seed: 5, clip: { frames: 1, fps: 4 }, image: { width: 64, height: 32 },
+    rig: { cameras: ["CAM_FRONT"] } };
+  const r = await (await fetch(`${server.url}/api/scenes`, { method: "POST", headers: { "content-type": "application/json" },
+    body: JSON.stringify({ scenario, mode: "oracle" }) })).json();
+  for (let s = r; s.status !== "ready";) {
+    assert.ok(["queued", "running"].includes(s.status), JSON.stringify(s));
+    await new Promise((res) => setTimeout(res, 300));
+    s = await (await fetch(`${server.url}/api/scenes/${r.scene_id}`)).json();
+  }
+  const ply = join(server.cacheDir, "dropped.ply");
+  execFileSync(PYTHON, ["-m", "worldsplat.cli", "export", join(server.cacheDir, "scenes", `${r.scene_id}.wsplat`),
+    "--out", ply], { cwd: ROOT });
+  const b64 = readFileSync(ply).toString("base64");
+  await page.evaluate((data) => {
+    const bytes = Uint8Array.from(atob(data), (c) => c.charCodeAt(0));
+    const dt = new DataTransfer();
+    dt.items.add(new File([bytes], "dropped.ply"));
+    document.getElementById("viewport").dispatchEvent(new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+  }, b64);
+  await waitFor(() => window.playground.state.source === "dropped.ply" || window.playground.state.lastError, "the .ply");
+  assert.equal(await page.evaluate(() => window.playground.state.lastError), null);
+  assert.equal(await page.evaluate(() => window.playground.state.camera), "free");
+  const snap = await snapshot(page);
+  assert.ok(snap.litFraction > 0.05, `the .ply renders (lit fraction ${snap.litFraction})`);
+  await page.screenshot({ path: join(ARTIFACTS, "playground-ply.png") });
 });
 
 test("a bad scenario shows its error naming the field", { skip, ...T }, async () => {

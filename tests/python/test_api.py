@@ -198,9 +198,16 @@ def test_video_job_and_refine_gate(client):
     bad = client.post(f"/api/scenes/{scene_id}/videos", json={"cameras": ["CAM_FRONT_LEFT"]})  # not in this rig
     assert bad.status_code == 422 and bad.json()["field"] == "cameras" and "rig" in bad.json()["error"]
     modes = client.get("/api/modes").json()
-    refine = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0, "refine": True})
+    refine = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0, "refine": True,
+                                                                "cameras": ["CAM_FRONT"]})
     if not modes["refine"]:
         assert refine.status_code == 409 and "refinement" in refine.json()["error"]
+        assert refine.json()["field"] == "refine"
+    else:  # refinement shipped: the refined video is a real job with the same frames
+        assert refine.status_code == 202, refine.text
+        done = client.app_state.jobs.wait_done(refine.json()["job"]["id"], 300)
+        assert done.status == "done", done.error
+        assert client.get(f"/api/videos/{refine.json()['video_id']}/status").json()["frames"] == 2
     r = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0})  # default: the scene's rig
     assert r.status_code == 202, r.text
     job = r.json()["job"]

@@ -223,8 +223,7 @@ function onSceneReady(complete) {
   $("camera").value = state.camera;
   v.set_shift(state.shift);
   v.set_camera(state.camera);
-  v.set_frame(state.frame);
-  state.dirty = true;
+  setFrame(state.frame);  // also the timeline and its label
   if (complete) render();
 }
 

@@ -174,36 +174,40 @@ def assert_nothing_torn(cache_dir: Path) -> None:
 
 def test_kill9_during_jobs_then_restart(tmp_path):
     cache = tmp_path / "cache"
+    # a default-size scene: seconds of work even on an idle machine, so the kill lands while it runs
+    big_scenario = load_preset("urban_straight").with_updates(seed=42).model_dump(mode="json")
     s = Server(cache).start()
     try:
         scene_id = make_scene(s.url, tiny(seed=41, frames=2))
-        # a scene job big enough to be running when the process dies, and a video job queued behind it
-        big = httpx.post(f"{s.url}/api/scenes", json={"scenario": tiny(seed=42, frames=8,
-                         cameras=("CAM_FRONT", "CAM_BACK", "CAM_FRONT_LEFT")), "mode": "oracle"}).json()
+        big = httpx.post(f"{s.url}/api/scenes", json={"scenario": big_scenario, "mode": "oracle"}).json()
         queued = httpx.post(f"{s.url}/api/scenes/{scene_id}/videos", json={"shift_m": 1.0}).json()
         end = time.time() + 60
-        while httpx.get(f"{s.url}/api/jobs/{big['job']['id']}").json()["status"] != "running":
-            assert time.time() < end
+        while True:  # kill as soon as the pipeline reports progress
+            job = httpx.get(f"{s.url}/api/jobs/{big['job']['id']}").json()
+            if job["status"] == "running" and job["stage"] != "starting":
+                break
+            assert job["status"] in ("queued", "running") and time.time() < end, job
             time.sleep(0.02)
-        time.sleep(0.3)
         s.kill9()
     finally:
         s.stop()
     s2 = Server(cache).start()
     try:
         health = httpx.get(f"{s2.url}/api/health").json()
-        assert health["recovered"]["jobs"]["interrupted"] == 1
+        assert health["recovered"]["jobs"] == {"interrupted": 1, "resumed": 1}
         job = httpx.get(f"{s2.url}/api/jobs/{big['job']['id']}").json()
         assert job["status"] == "failed" and "restart" in job["error"]
         assert httpx.get(f"{s2.url}/api/scenes/{big['scene_id']}").json()["status"] == "failed"
+        assert httpx.get(f"{s2.url}/api/scenes/{big['scene_id']}/wsplat").status_code == 409
         # the queued video job was not forgotten: it resumes and completes
         assert wait_job(s2.url, queued["job"]["id"])["status"] == "done"
         assert httpx.get(f"{s2.url}{queued['url']}").status_code == 200
-        # the interrupted scene can be requested again
-        again = httpx.post(f"{s2.url}/api/scenes", json={"scenario": tiny(seed=42, frames=8,
-                           cameras=("CAM_FRONT", "CAM_BACK", "CAM_FRONT_LEFT")), "mode": "oracle"})
+        # the interrupted scene can be requested again (same id, a new job), and cancelled
+        again = httpx.post(f"{s2.url}/api/scenes", json={"scenario": big_scenario, "mode": "oracle"})
         assert again.status_code == 202 and again.json()["scene_id"] == big["scene_id"]
-        assert wait_job(s2.url, again.json()["job"]["id"])["status"] == "done"
+        assert again.json()["job"]["id"] != big["job"]["id"]
+        httpx.delete(f"{s2.url}/api/jobs/{again.json()['job']['id']}")
+        assert wait_job(s2.url, again.json()["job"]["id"])["status"] == "cancelled"
     finally:
         s2.stop()
     assert_nothing_torn(cache)

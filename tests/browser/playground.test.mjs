@@ -10,16 +10,15 @@ import { join } from "node:path";
 import { startServer, ROOT, PYTHON } from "./lib/playground-server.mjs";
 import { launch, openPage, snapshot, snapshotFallback, blockDiff, ARTIFACTS } from "./lib/playground-browser.mjs";
 
-const HAVE_BUNDLE = existsSync(join(ROOT, "web/pkg/splat_web.js"));
-const HAVE_PIPELINE = existsSync(join(ROOT, "server/worldsplat/pipeline.py"))
-  || existsSync(join(ROOT, "server/worldsplat/pipeline/__init__.py"));
-const skip = !HAVE_BUNDLE ? "web/pkg not built (wasm/build.sh)" : !HAVE_PIPELINE ? "worldsplat.pipeline not landed" : false;
+// The wasm bundle is built by wasm/build.sh (`make test` builds it before the browser tests).
+if (!existsSync(join(ROOT, "web/pkg/splat_web.js"))) {
+  throw new Error("web/pkg/splat_web.js is missing: build the viewer bundle first (bash wasm/build.sh)");
+}
 
 let server, browser, page, errors, presetScenario;
 const T = { timeout: 240_000 };
 
 before(async () => {
-  if (skip) return;
   server = await startServer({ warm: false });
   browser = await launch();
   ({ page, errors } = await openPage(browser.context, `${server.url}/?backend=webgl2`));
@@ -40,7 +39,7 @@ async function waitFor(fn, what, timeoutMs = 180_000) {
   }
 }
 
-test("page loads, generates the default scenario with progress, and renders a non-blank image", { skip, ...T }, async (t) => {
+test("page loads, generates the default scenario with progress, and renders a non-blank image", T, async (t) => {
   const t0 = Date.now();
   await page.evaluate(() => window.playground.ready);
   t.diagnostic(`default scene generated, streamed and drawn ${((Date.now() - t0) / 1000).toFixed(1)} s after page load (cold cache)`);
@@ -69,7 +68,7 @@ test("page loads, generates the default scenario with progress, and renders a no
   await page.screenshot({ path: join(ARTIFACTS, "playground-default.png") });
 });
 
-test("moving the track slider changes the image, consistently", { skip, ...T }, async () => {
+test("moving the track slider changes the image, consistently", T, async () => {
   const at = async (m) => { await page.evaluate((x) => window.playground.setShift(x), m); return snapshot(page); };
   const s0 = await at(0);
   const s2 = await at(2);
@@ -87,7 +86,7 @@ test("moving the track slider changes the image, consistently", { skip, ...T }, 
   await page.screenshot({ path: join(ARTIFACTS, "playground-shift-2m.png") });
 });
 
-test("a track video request yields a playable video with the expected frames", { skip, ...T }, async () => {
+test("a track video request yields a playable video with the expected frames", T, async () => {
   // one camera keeps the (refinement) job small; the 2x3 mosaic layout is checked by tests/python/test_api.py
   await page.evaluate(() => window.playground.setCamera("CAM_FRONT"));
   await page.click("#video-btn");
@@ -116,7 +115,7 @@ test("a track video request yields a playable video with the expected frames", {
   copyFileSync(join(ARTIFACTS, "playground-video.png"), join(good, "playground.png"));
 });
 
-test("a share link opened in a fresh page gives the same scene id and an equal render", { skip, ...T }, async () => {
+test("a share link opened in a fresh page gives the same scene id and an equal render", T, async () => {
   await page.evaluate(() => { const p = window.playground; p.setCamera("CAM_FRONT_LEFT"); p.setShift(-1); p.setFrame(3); });
   const url = await page.evaluate(() => window.playground.share());
   const here = await snapshot(page);
@@ -136,7 +135,7 @@ test("a share link opened in a fresh page gives the same scene id and an equal r
   await fresh.close();
 });
 
-test("a local .wsplat dropped on the viewer renders, and the stats overlay counts it", { skip, ...T }, async () => {
+test("a local .wsplat dropped on the viewer renders, and the stats overlay counts it", T, async () => {
   await page.keyboard.press("Escape");
   const before = await snapshot(page);
   const name = await page.evaluate(async () => {
@@ -167,7 +166,7 @@ test("a local .wsplat dropped on the viewer renders, and the stats overlay count
   assert.match(await page.textContent("#error-text"), /not a \.wsplat or \.ply/);
 });
 
-test("a local .ply dropped on the viewer renders with the free camera", { skip, ...T }, async () => {
+test("a local .ply dropped on the viewer renders with the free camera", T, async () => {
   // a small scene through the API, exported to a standard 3DGS .ply by `worldsplat export`
   const scenario = { ...presetScenario, seed: 5, clip: { frames: 1, fps: 4 }, image: { width: 64, height: 32 },
     rig: { cameras: ["CAM_FRONT"] } };
@@ -196,7 +195,7 @@ test("a local .ply dropped on the viewer renders with the free camera", { skip, 
   await page.screenshot({ path: join(ARTIFACTS, "playground-ply.png") });
 });
 
-test("a bad scenario shows its error naming the field", { skip, ...T }, async () => {
+test("a bad scenario shows its error naming the field", T, async () => {
   await page.keyboard.press("Escape");
   await page.locator('[data-field="clip.frames"]').fill("99");
   await page.click("#generate-btn");

@@ -21,13 +21,6 @@ from worldsplat.scenario import load_preset
 
 ROOT = Path(__file__).resolve().parents[2]
 
-try:
-    import worldsplat.pipeline  # noqa: F401
-    import worldsplat.video  # noqa: F401
-    HAVE_PIPELINE = True
-except ImportError:
-    HAVE_PIPELINE = False
-pytestmark = pytest.mark.skipif(not HAVE_PIPELINE, reason="worldsplat.pipeline / worldsplat.video not landed")
 
 
 def tiny(seed: int, frames: int = 2, cameras=("CAM_FRONT", "CAM_BACK")) -> dict:

@@ -16,7 +16,7 @@ setup:
 	@$(SETUP) all
 
 test: setup
-	@$(MAKE) --no-print-directory test-python test-rust test-wasm test-browser
+	@$(MAKE) --no-print-directory test-rust test-wasm test-python test-browser
 
 test-python:
 	$(PY) -m pytest

@@ -18,6 +18,7 @@ SECTIONS: dict[str, str] = {
     "precision": "precision",      # rasterizer fp32/fp16/bf16 vs error and time
     "quant": "quant",              # .wsplat quantization vs bytes and PSNR
     "budget": "budget",            # Gaussian budget / merge thresholds vs novel-view PSNR
+    "viewer": "viewer",            # viewer frame time native + headless Chromium
 }
 
 

@@ -1,0 +1,31 @@
+"""onnxruntime vs torch eager for every exported graph: speed ratio (interleaved, same inputs) and max |diff|."""
+from __future__ import annotations
+
+from worldsplat.bench.report import Pareto, Section
+
+
+def run(quick: bool) -> Section:
+    from worldsplat_models.inference import load_models
+    from worldsplat_models.onnx_export import GRAPHS, speed_ratio
+
+    models = load_models()
+    onnx_dir = models.weights_dir / "onnx"
+    rows, points = [], []
+    for kind in GRAPHS:
+        if not (onnx_dir / f"{kind}.onnx").exists():
+            rows.append([kind, "not shipped", "", "", ""])
+            continue
+        r = speed_ratio(models, onnx_dir, kind, repeats=2 if quick else 5)
+        rows.append([kind, r["torch_s"], r["ort_s"], r["ratio"], r["max_abs_diff"]])
+        points.append((kind, r["ort_s"], r["ratio"]))
+    if not points:
+        raise FileNotFoundError(f"onnx: no exported graph in {onnx_dir}")
+    return Section(
+        key="onnx", title="onnxruntime vs torch eager (2 threads)",
+        columns=["graph", "torch s", "onnxruntime s", "speed ratio (torch / ORT)", "max abs difference"],
+        rows=rows, default="onnxruntime for serving",
+        why="The server runs the exported graphs through onnxruntime where the ratio is above 1 and the "
+            "difference is far below the quantization of the output; torch stays the training and test reference.",
+        pareto=Pareto("onnxruntime seconds", "speed ratio (torch / ORT)", points, default=points[0][0], log_x=True),
+        data={"ratios": {p[0]: p[2] for p in points}},
+    )

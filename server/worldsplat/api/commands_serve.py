@@ -10,7 +10,7 @@ DEFAULT_CACHE = Path(__file__).resolve().parents[3] / "cache"
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: loopback only)")
-    parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 picks a free one)")
+    parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
     parser.add_argument("--cache-dir", type=Path, default=Path(os.environ.get("WORLDSPLAT_CACHE", DEFAULT_CACHE)),
                         help=f"scene/video store and job records (default $WORLDSPLAT_CACHE or {DEFAULT_CACHE})")
     parser.add_argument("--cache-max-mb", type=int, default=2048, help="cache size cap in MiB (LRU eviction)")
@@ -27,8 +27,8 @@ def run(args: argparse.Namespace) -> int:
 
     from worldsplat.api.app import create_app  # noqa: PLC0415
 
-    if not 0 <= args.port <= 65535:
-        raise ValueError(f"--port must be in 0..65535, got {args.port}")
+    if not 1 <= args.port <= 65535:
+        raise ValueError(f"--port must be in 1..65535, got {args.port}")
     if args.cache_max_mb <= 0 or args.max_queued <= 0 or not args.max_scene_mpix > 0:
         raise ValueError("--cache-max-mb, --max-queued and --max-scene-mpix must be positive")
     app = create_app(args.cache_dir, web_dir=args.web_dir, max_cache_bytes=args.cache_max_mb << 20,

@@ -13,7 +13,7 @@ use wasm_bindgen::prelude::*;
 use wasm_bindgen::JsCast;
 use web_sys::HtmlCanvasElement;
 
-const READBACK_TIMEOUT_MS: f64 = 120_000.0;
+const READBACK_TIMEOUT_MS: f64 = 300_000.0;
 
 fn now_ms() -> f64 {
     web_sys::window().and_then(|w| w.performance()).map_or(0.0, |p| p.now())

@@ -19,6 +19,16 @@ VECTORS = Path(__file__).resolve().parents[1] / "vectors"
 sys.path.insert(0, str(VECTORS))
 from make_vectors import gaussians_from_json  # noqa: E402
 
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """2 shared cores: a single intra-op thread keeps these tests from spinning a second one."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 CASES = sorted(p.name[:-5] for p in (VECTORS / "raster").glob("*.json") if not p.name.endswith(".expected.json"))
 
 
@@ -264,3 +274,21 @@ def test_one_million_gaussians_memory_bounded():
     res = subprocess.run([sys.executable, "-c", MEMORY_SCRIPT], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert float(res.stdout.strip().splitlines()[-1]) < 1536
+
+
+def test_view_precull_is_exact(monkeypatch):
+    """The cheap pre-cull for big scenes only removes Gaussians the screen test would drop anyway."""
+    import worldsplat.gaussians.project as P
+    gen = torch.Generator().manual_seed(5)
+    n = 3000
+    means = torch.randn(n, 3, generator=gen) * torch.tensor([30.0, 30.0, 10.0])  # all around, also behind
+    g = Gaussians(means, torch.randn(n, 4, generator=gen), torch.rand(n, 3, generator=gen) ** 4 * 20,
+                  torch.rand(n, generator=gen), torch.rand(n, 3, generator=gen))
+    for name in ["street_shift_plus_8m", "offscreen_large", "screen_covering"]:
+        cases = [load_case(name), (g, CAM)]
+        for gg, cam in cases:
+            monkeypatch.setattr(P, "PRECULL_MIN", 10 ** 9)
+            a = rasterize(gg, cam, method="pairs")
+            monkeypatch.setattr(P, "PRECULL_MIN", 0)
+            b = rasterize(gg, cam, method="pairs")
+            assert a["visible"] == b["visible"] and torch.equal(a["rgb"], b["rgb"]), name

@@ -38,7 +38,7 @@ class Economy:
     enabled: bool = True
     min_opacity: float = 0.02          # "transparent": below this a Gaussian barely shows
     max_range: float = 150.0           # m from the nearest camera position ("out of range")
-    cell_factor: float = 2.0           # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
+    cell_factor: float = 3.0           # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
     static_budget: int | None = None   # cap on static Gaussians (most important kept)
     dynamic_budget: int | None = None  # cap per frame
 

@@ -61,30 +61,63 @@ def measure(preset: str, shifts: list[float], frames: list[int] | None, economy:
                         image_size=(H, W))
     log(f"aggregate: {time.time() - t0:.1f}s  naive union {nst.static_union}+{nst.dynamic_union}, "
         f"kept {st.kept} ({100 * st.kept / st.naive:.1f}% of V*T*H*W={st.naive})")
+    from worldsplat.gaussians import wsplat
+    data = wsplat.encode(eco)
+    quant = wsplat.decode(data)
+    size = wsplat_sizes(data, quant)
+    log(f"wsplat: {len(data)} bytes; static {size['static_bytes_per_gaussian']:.3f} B/G, dynamic "
+        f"{size['dynamic_bytes_per_gaussian']:.3f} B/G per frame (block headers included)")
     frames = frames if frames is not None else list(range(T))
     rows = []
     for s in shifts:
         gt = clip if s == 0 else simulate(world, shift_m=s, frames=frames)
-        res = {"shift_m": s, "naive": [], "economy": [], "naive_fg": [], "economy_fg": []}
+        res = {"shift_m": s, "naive": [], "economy": [], "naive_fg": [], "economy_fg": [], "quantized": [],
+               "quantized_fg": [], "quantized_vs_float": []}
         for i, t in enumerate(frames):
             gi = t if s == 0 else i
             a = render_frame_views(naive, t, s, list(range(V)))
             b = render_frame_views(eco, t, s, list(range(V)))
+            q = render_frame_views(quant, t, s, list(range(V)))
             for v in range(V):
                 ref, fg = gt.rgb[gi, v], np.isfinite(gt.depth[gi, v])
                 res["naive"].append(psnr(a[v], ref))
                 res["economy"].append(psnr(b[v], ref))
                 res["naive_fg"].append(psnr(a[v], ref, fg))
                 res["economy_fg"].append(psnr(b[v], ref, fg))
+                res["quantized"].append(psnr(q[v], ref))
+                res["quantized_fg"].append(psnr(q[v], ref, fg))
+                res["quantized_vs_float"].append(psnr(q[v], b[v]))
         row = {k: (float(np.mean(v)) if isinstance(v, list) else v) for k, v in res.items()}
         row["delta"] = row["economy"] - row["naive"]
         row["delta_fg"] = row["economy_fg"] - row["naive_fg"]
+        row["quant_delta"] = row["quantized"] - row["economy"]
+        row["quant_delta_fg"] = row["quantized_fg"] - row["economy_fg"]
         log(f"shift {s:+.0f} m: naive {row['naive']:.2f} dB, economy {row['economy']:.2f} dB "
             f"(delta {row['delta']:+.3f}); non-sky {row['naive_fg']:.2f} -> {row['economy_fg']:.2f} "
-            f"({row['delta_fg']:+.3f})")
+            f"({row['delta_fg']:+.3f}); .wsplat vs float32 {row['quant_delta']:+.3f} / non-sky "
+            f"{row['quant_delta_fg']:+.3f} dB (render-vs-render {row['quantized_vs_float']:.1f} dB)")
         rows.append(row)
     return {"preset": preset, "frames": frames, "stats": st.as_dict(), "naive_stats": nst.as_dict(), "rows": rows,
-            "dynamic_per_frame": [len(d) for d in eco.dynamic]}
+            "dynamic_per_frame": [len(d) for d in eco.dynamic], "wsplat": size,
+            "cell_factor": economy.cell_factor}
+
+
+def wsplat_sizes(data: bytes, scene: Scene4D) -> dict:
+    """Bytes per Gaussian of the STAT and DYNA payloads (block headers included, chunk framing excluded)."""
+    import struct
+    pos, stat, dyna = 12, 0, 0
+    while pos < len(data):
+        tag, (length,) = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)
+        if tag == b"STAT":
+            stat += length - 4
+        elif tag == b"DYNA":
+            dyna += length - 8
+        pos += 12 + length
+    nd = sum(len(d) for d in scene.dynamic)
+    return {"bytes": len(data), "static_bytes_per_gaussian": stat / max(1, len(scene.static)),
+            "dynamic_bytes_per_gaussian": dyna / max(1, nd), "static_layout": scene.meta["static_layout"],
+            "dynamic_layout": scene.meta["dynamic_layout"],
+            "file_bytes_per_gaussian": len(data) / max(1, len(scene.static) + nd)}
 
 
 def table(result: dict) -> str:
@@ -93,10 +126,16 @@ def table(result: dict) -> str:
              f"(**{100 * st['kept_fraction_of_naive']:.1f}%**; static {st['static_kept']}, dynamic "
              f"{st['dynamic_kept']} over all frames; lifted non-sky {st['lifted']})", "",
              "| shift (m) | PSNR naive union (dB) | PSNR economy (dB) | change (dB) | non-sky naive | non-sky economy "
-             "| change |", "|---|---|---|---|---|---|---|"]
+             "| change | .wsplat non-sky | quantization change (non-sky / all) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in result["rows"]:
         lines.append(f"| {r['shift_m']:+.0f} | {r['naive']:.2f} | {r['economy']:.2f} | {r['delta']:+.3f} | "
-                     f"{r['naive_fg']:.2f} | {r['economy_fg']:.2f} | {r['delta_fg']:+.3f} |")
+                     f"{r['naive_fg']:.2f} | {r['economy_fg']:.2f} | {r['delta_fg']:+.3f} | "
+                     f"{r['quantized_fg']:.2f} | {r['quant_delta_fg']:+.3f} / {r['quant_delta']:+.3f} |")
+    w = result["wsplat"]
+    lines += ["", f".wsplat: {w['bytes']} bytes; static {w['static_bytes_per_gaussian']:.3f} B/Gaussian "
+              f"(layout {w['static_layout']}), dynamic {w['dynamic_bytes_per_gaussian']:.3f} B/Gaussian per frame "
+              f"(layout {w['dynamic_layout']}); whole file {w['file_bytes_per_gaussian']:.3f} B/Gaussian."]
     return "\n".join(lines)
 
 

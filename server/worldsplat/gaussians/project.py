@@ -78,8 +78,37 @@ def camera_tensors(camera: Camera, dtype: torch.dtype, device) -> tuple[torch.Te
     return m[:3, :3].to(dtype=dtype, device=device), m[:3, 3].to(dtype=dtype, device=device)
 
 
+PRECULL_MIN = 50_000
+
+
+def view_candidates(g: Gaussians, camera: Camera) -> torch.Tensor:
+    """Rows that can possibly reach the image: centre beyond NEAR and within a rigorous pixel margin of the image.
+    The margin bounds the radius: sqrt(lambda_max) <= sqrt(2) (f / z) s_max sqrt(1 + lim^2) + 1 (each row of the
+    clamped Jacobian has norm <= (f / z) sqrt(1 + lim^2), so its Frobenius norm <= sqrt(2) times that; the dilation
+    and eigenvalue floor add < 1 px). A cheap exact pre-cull: it only removes
+    Gaussians the screen test would drop, so large scenes project only what a view can show."""
+    with torch.no_grad():
+        R, t = camera_tensors(camera, torch.float32, g.means.device)
+        p = g.means.detach().float() @ R.T + t
+        z = p[:, 2]
+        smax = g.scales.detach().float().clamp(C.SCALE_MIN, C.SCALE_MAX).max(1).values
+        lim_x = C.CLAMP * 0.5 * camera.width / camera.fx
+        lim_y = C.CLAMP * 0.5 * camera.height / camera.fy
+        f = max(camera.fx, camera.fy)
+        zs = z.clamp_min(C.NEAR)
+        bound = C.EXTENT_SIGMA * ((f / zs) * smax * math.sqrt(2 * (1 + max(lim_x, lim_y) ** 2)) + 1.0) + 2.0
+        u = camera.fx * p[:, 0] / zs + camera.cx
+        v = camera.fy * p[:, 1] / zs + camera.cy
+        ok = (z > C.NEAR) & (u > -bound) & (u < camera.width + bound) & (v > -bound) & (v < camera.height + bound)
+        return ok.nonzero().squeeze(1)
+
+
 def project(g: Gaussians, camera: Camera) -> Projected:
     """Sanitize, near-cull, EWA-project, cull by determinant and screen extent. Differentiable."""
+    pre = None
+    if len(g) > PRECULL_MIN:  # big scenes: an exact cheap pre-cull first (see view_candidates)
+        pre = view_candidates(g, camera)
+        g = g.subset(pre)
     index, f = sanitize(g)
     dt, dev = f["means"].dtype, f["means"].device
     R, t = camera_tensors(camera, dt, dev)
@@ -123,7 +152,8 @@ def project(g: Gaussians, camera: Camera) -> Projected:
     with torch.no_grad():  # the ellipse d <= 9 lies within +-3 sqrt(cov_xx) in x (likewise y): a tight box
         ext = torch.stack([C.EXTENT_SIGMA * torch.sqrt(a[keep]), C.EXTENT_SIGMA * torch.sqrt(c[keep])], -1)
         ext = torch.minimum(torch.nan_to_num(ext, nan=0.0, posinf=C.RADIUS_MAX), radius[keep, None].to(ext.dtype))
-    return Projected(index[keep], torch.stack([u[keep], v[keep]], -1), conic, z[keep], radius[keep], ext,
+    index = index[keep] if pre is None else pre[index[keep]]
+    return Projected(index, torch.stack([u[keep], v[keep]], -1), conic, z[keep], radius[keep], ext,
                      f["opacities"][keep], feats)
 
 

@@ -77,7 +77,7 @@ mod tests {
             .map(|_| {
                 // Coarse depths force many ties; some behind the near plane.
                 let z = ((next() % 400) as f32) * 0.25 - 5.0;
-                PackedSplat { mean: [0.0, 0.0, z], shape: [0; 3], rgba: 0 }
+                PackedSplat { mean: [0.0, 0.0, z], shape: [0; 2], rgba: 0 }
             })
             .collect();
         let row2 = [0.0, 0.0, 1.0, 0.0];
@@ -216,7 +216,7 @@ mod job_tests {
     #[test]
     fn sliced_job_equals_one_shot_sort() {
         let records: Vec<PackedSplat> = (0..200_000u32)
-            .map(|i| PackedSplat { mean: [0.0, 0.0, ((i.wrapping_mul(2654435761)) % 10_000) as f32 * 0.01 - 3.0], shape: [0; 3], rgba: 0 })
+            .map(|i| PackedSplat { mean: [0.0, 0.0, ((i.wrapping_mul(2654435761)) % 10_000) as f32 * 0.01 - 3.0], shape: [0; 2], rgba: 0 })
             .collect();
         let row2 = [0.0, 0.0, 1.0, 0.0];
         let want = CpuSorter::default().sort(&records, row2).to_vec();

@@ -135,7 +135,7 @@ impl GpuSort {
         self.capacity = capacity;
     }
 
-    /// Draw order and its scratch half (4 + 4 bytes per Gaussian) plus the histogram.
+    /// Draw order and its scratch half (4 + 4 bytes per Gaussian) plus the histogram (64 B per 1024).
     pub fn bytes(&self) -> u64 {
         self.order_a.size() + self.order_b.size() + self.hist.size()
     }

@@ -1,5 +1,5 @@
 //! splat-core: the viewer's platform-independent half. Math constants (`constants`), cameras (`camera`),
-//! Gaussians and their 28-byte GPU record (`gaussians`), the .wsplat v1 progressive decoder (`wsplat`), the 3DGS
+//! Gaussians and their 24-byte GPU record (`gaussians`), the .wsplat v1 progressive decoder (`wsplat`), the 3DGS
 //! PLY reader (`ply`), scenes (`scene`), the view state behind the Viewer API (`view_state`), the wgpu renderer
 //! (`renderer`) with its GPU radix sort (`gpu_sort`) and the CPU sort for WebGL2 (`cpu_sort`).
 

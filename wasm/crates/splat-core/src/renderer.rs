@@ -219,7 +219,7 @@ impl Renderer {
             bind_group_layouts: &[Some(&splat_bgl)],
             immediate_size: 0,
         });
-        let instance_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32x3, 2 => Uint32];
+        let instance_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32x2, 2 => Uint32];
         let instance_layout = wgpu::VertexBufferLayout {
             array_stride: PACKED_SPLAT_BYTES as u64,
             step_mode: wgpu::VertexStepMode::Instance,

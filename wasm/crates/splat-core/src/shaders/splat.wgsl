@@ -25,14 +25,14 @@ fn culled() -> VsOut {
 }
 
 // M = R(q) diag(s), the factor of the world covariance (Sigma = M M^T), from the packed shape words.
-fn unpack_shape(shape0: u32, shape1: u32, shape2: u32) -> mat3x3<f32> {
+fn unpack_shape(shape0: u32, shape1: u32) -> mat3x3<f32> {
     let span = LOG_SCALE_HI - LOG_SCALE_LO;
-    let s = exp(vec3<f32>(f32(shape0 & 0xffffu), f32(shape0 >> 16u), f32(shape1 & 0xffffu)) / 65535.0 * span
+    let s = exp(vec3<f32>(f32(shape0 & 0x7ffu), f32((shape0 >> 11u) & 0x7ffu), f32(shape1 & 0x7ffu)) / 2047.0 * span
         + vec3<f32>(LOG_SCALE_LO));
-    let small = (vec3<f32>(f32((shape1 >> 16u) & 0x7fffu), f32(shape2 & 0x7fffu), f32((shape2 >> 15u) & 0x7fffu))
-        / 32767.0 * 2.0 - 1.0) * 0.70710678;
+    let small = (vec3<f32>(f32((shape0 >> 22u) & 0x1ffu), f32((shape1 >> 11u) & 0x1ffu), f32((shape1 >> 20u) & 0x1ffu))
+        / 511.0 * 2.0 - 1.0) * 0.70710678;
     let big = sqrt(max(0.0, 1.0 - dot(small, small)));
-    let qi = shape2 >> 30u;
+    let qi = shape1 >> 29u;
     var q = vec4<f32>(big, small);                              // (w, x, y, z) with w largest
     if qi == 1u { q = vec4<f32>(small.x, big, small.y, small.z); }
     if qi == 2u { q = vec4<f32>(small.x, small.y, big, small.z); }
@@ -46,7 +46,7 @@ fn unpack_shape(shape0: u32, shape1: u32, shape2: u32) -> mat3x3<f32> {
 }
 
 // Project one Gaussian and emit corner `corner` (0..3, triangle strip) of its screen-space square.
-fn splat_vertex(mean: vec3<f32>, shape0: u32, shape1: u32, shape2: u32, rgba: u32, corner: u32) -> VsOut {
+fn splat_vertex(mean: vec3<f32>, shape0: u32, shape1: u32, rgba: u32, corner: u32) -> VsOut {
     let w = mat3x3<f32>(
         vec3<f32>(view.row0.x, view.row1.x, view.row2.x),
         vec3<f32>(view.row0.y, view.row1.y, view.row2.y),
@@ -56,7 +56,7 @@ fn splat_vertex(mean: vec3<f32>, shape0: u32, shape1: u32, shape2: u32, rgba: u3
     let fx = view.intrinsics.x; let fy = view.intrinsics.y;
     let width = view.size.x; let height = view.size.y;
 
-    let wm = w * unpack_shape(shape0, shape1, shape2); // camera-space factor: Sigma_c = wm wm^T
+    let wm = w * unpack_shape(shape0, shape1); // camera-space factor: Sigma_c = wm wm^T
     let lim_x = CLAMP * 0.5 * width / fx;
     let lim_y = CLAMP * 0.5 * height / fy;
     let tx = p.z * clamp(p.x / p.z, -lim_x, lim_x);

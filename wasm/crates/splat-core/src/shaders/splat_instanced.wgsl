@@ -3,8 +3,8 @@
 fn vs_main(
     @builtin(vertex_index) vi: u32,
     @location(0) mean: vec3<f32>,
-    @location(1) shape: vec3<u32>,
+    @location(1) shape: vec2<u32>,
     @location(2) rgba: u32,
 ) -> VsOut {
-    return splat_vertex(mean, shape.x, shape.y, shape.z, rgba, vi);
+    return splat_vertex(mean, shape.x, shape.y, rgba, vi);
 }

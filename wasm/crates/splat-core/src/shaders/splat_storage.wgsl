@@ -5,5 +5,5 @@
 @vertex
 fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
     let s = splats[order[ii]];
-    return splat_vertex(vec3<f32>(s.mx, s.my, s.mz), s.shape0, s.shape1, s.shape2, s.rgba, vi);
+    return splat_vertex(vec3<f32>(s.mx, s.my, s.mz), s.shape0, s.shape1, s.rgba, vi);
 }

@@ -16,17 +16,16 @@ struct View {
     pad1: u32,
 }
 
-// One Gaussian as resident on the GPU: 28 bytes (mirrors `gaussians::PackedSplat`).
+// One Gaussian as resident on the GPU: 24 bytes (mirrors `gaussians::PackedSplat`).
 struct Splat {
     mx: f32,
     my: f32,
     mz: f32,
-    // Shape: log-scale x, y, z as unorm16 over [LOG_SCALE_LO, LOG_SCALE_HI]; rotation as smallest-three
-    // (three 15-bit components in [-1/sqrt2, 1/sqrt2] and the 2-bit index of the dropped largest one).
-    // shape0 = lsx | lsy << 16; shape1 = lsz | qa << 16; shape2 = qb | qc << 15 | qi << 30.
+    // Shape: log-scales x, y, z as 11-bit unorm over [LOG_SCALE_LO, LOG_SCALE_HI]; rotation as smallest-three
+    // (three 9-bit components in [-1/sqrt2, 1/sqrt2], 2-bit index of the dropped largest one, w x y z order).
+    // shape0 = lsx | lsy << 11 | qa << 22; shape1 = lsz | qb << 11 | qc << 20 | qi << 29.
     shape0: u32,
     shape1: u32,
-    shape2: u32,
     // r g b opacity as unorm8 (r in the low byte)
     rgba: u32,
 }

@@ -136,6 +136,21 @@ test("a share link opened in a fresh page gives the same scene id and an equal r
   assert.ok(blockDiff(here, snap) < 0.5, `equal render (${blockDiff(here, snap)})`);
   await fresh.screenshot({ path: join(ARTIFACTS, "playground-shared.png") });
   await fresh.close();
+
+  // the free camera's pose travels too
+  await page.keyboard.press("Escape");
+  await page.evaluate(() => { const p = window.playground; p.setCamera("free"); p.state.viewer.orbit(0.5, 0.15); p.render(); });
+  const url2 = await page.evaluate(() => window.playground.share());
+  const here2 = await snapshot(page);
+  const fresh2 = await browser.context.newPage();
+  await fresh2.goto(url2);
+  await fresh2.evaluate(() => window.playground.ready);
+  assert.equal(await fresh2.evaluate(() => window.playground.state.camera), "free");
+  const there2 = await snapshot(fresh2);
+  assert.ok(blockDiff(here, here2) > 2, "the orbited free camera sees something else");
+  assert.ok(blockDiff(here2, there2) < 0.5, `equal free-camera render (${blockDiff(here2, there2)})`);
+  await fresh2.close();
+  await page.evaluate(() => window.playground.setCamera("CAM_FRONT_LEFT"));
 });
 
 test("a local .wsplat dropped on the viewer renders, and the stats overlay counts it", T, async () => {

@@ -29,7 +29,7 @@ def held_out():
 
 def test_shipped_weights_meta_and_size():
     from worldsplat_models.weights import DEFAULT_DIR, read_metadata
-    total = sum(p.stat().st_size for p in DEFAULT_DIR.glob("*") if p.suffix in (".safetensors", ".onnx"))
+    total = sum(p.stat().st_size for p in DEFAULT_DIR.rglob("*") if p.suffix in (".safetensors", ".onnx"))
     assert total <= 60 * 2 ** 20
     for kind in ("vae", "decoder"):
         md = read_metadata(DEFAULT_DIR / f"{kind}_small.safetensors")
@@ -51,7 +51,7 @@ def test_reconstruct_mode_floor(held_out):
     _, clip = held_out
     scene = inf.to_scene4d(inf.reconstruct(clip))
     ps, ab = [], []
-    for v in range(len(clip.rig)):
+    for v in (0, 2, 4):  # FRONT, BACK_RIGHT, BACK_LEFT (3 views keep the test short)
         with torch.no_grad():
             out = rasterize(scene.at_frame(1), scene.camera(1, v))
         ps.append(psnr(out["rgb"].clamp(0, 1), torch.as_tensor(clip.rgb[1, v]).float() / 255))

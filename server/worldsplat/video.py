@@ -62,6 +62,7 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 10.0) -> Path
         proc = subprocess.run(cmd, input=frames.tobytes(), capture_output=True, timeout=600)
         if proc.returncode != 0:
             raise RuntimeError(f"ffmpeg failed ({proc.returncode}): {proc.stderr.decode(errors='replace')[-500:]}")
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; videos are served and shared
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -311,6 +311,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; artifacts are served and shared
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -395,11 +395,15 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
             if state is None:
                 raise ApiError(404, f"no such scene {scene_id}")
             raise ApiError(409, f"scene {scene_id} is {state['status']}, not ready", {"Retry-After": "2"})
+        rig = meta.get("cameras") or list(CAMERA_NAMES)
         if req.refine:
             ok, why = runners.refinement_status()
             if not ok:
                 raise ApiError(409, why, field="refine")
-        rig = meta.get("cameras") or list(CAMERA_NAMES)
+            views = runners.refine_views()
+            if len(rig) != views:
+                raise ApiError(409, f"refine: the enhancer refines a whole {views}-camera rig; this scene has "
+                                    f"{len(rig)} camera(s) {rig} (generate it with the full rig)", field="refine")
         cameras = req.cameras or rig
         missing = [c for c in cameras if c not in rig]
         if missing:

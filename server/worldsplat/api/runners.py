@@ -64,6 +64,12 @@ def refinement_status() -> tuple[bool, str]:
     return True, ""
 
 
+def refine_views() -> int:
+    """How many rig views the enhancer reads at once (it refines a whole rig: scenes need all of them)."""
+    from worldsplat.refine import load_refiner  # noqa: PLC0415 - loaded once per process
+    return int(load_refiner()[0].cfg.data.views)
+
+
 @functools.lru_cache(maxsize=1)
 def refiner_version() -> str:
     """The enhancer weights' content hash: a new model gives new video ids."""

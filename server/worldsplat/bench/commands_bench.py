@@ -19,6 +19,7 @@ SECTIONS: dict[str, str] = {
     "quant": "quant",              # .wsplat quantization vs bytes and PSNR
     "budget": "budget",            # Gaussian budget / merge thresholds vs novel-view PSNR
     "viewer": "viewer",            # viewer frame time native + headless Chromium
+    "onnx": "onnx",                # onnxruntime vs torch eager
 }
 
 

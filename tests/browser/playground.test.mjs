@@ -86,7 +86,7 @@ test("moving the track slider changes the image, consistently", T, async () => {
   await page.screenshot({ path: join(ARTIFACTS, "playground-shift-2m.png") });
 });
 
-test("a track video request yields a playable video with the expected frames", T, async () => {
+test("a track video request yields a playable video with the expected frames", { timeout: 900_000 }, async (t) => {
   // one camera keeps the (refinement) job small; the 2x3 mosaic layout is checked by tests/python/test_api.py
   await page.evaluate(() => window.playground.setCamera("CAM_FRONT"));
   await page.click("#video-btn");
@@ -105,9 +105,23 @@ test("a track video request yields a playable video with the expected frames", T
   assert.equal(played.error, null);
   assert.equal(played.w, video.width);
   assert.ok(Math.abs(played.duration - video.frames / video.fps) < 0.6, `duration ${played.duration}`);
+  t.diagnostic(`refinement ${refine ? "available: raw and refined videos" : "unavailable: raw video only"}`);
   if (refine) {
-    await waitFor(() => window.playground.state.videos.refined || window.playground.state.lastError, "the refined video");
-    assert.equal(await page.evaluate(() => window.playground.state.videos.refined.frames), frames);
+    const t0 = Date.now();
+    await waitFor(() => window.playground.state.videos.refined || window.playground.state.lastError, "the refined video",
+      800_000);
+    assert.equal(await page.evaluate(() => window.playground.state.lastError), null);
+    const refined = await page.evaluate(() => window.playground.state.videos.refined);
+    assert.equal(refined.frames, frames);
+    assert.equal(refined.refine, true);
+    assert.equal(refined.width, video.width);
+    const ok = await page.evaluate(async () => {
+      const v = document.getElementById("refined-video");
+      if (v.readyState < 2) await new Promise((res, rej) => { v.onloadeddata = res; v.onerror = () => rej(new Error("video error")); });
+      return v.videoWidth > 0 && !v.error;
+    });
+    assert.ok(ok, "the refined video plays");
+    t.diagnostic(`refined video ready ${((Date.now() - t0) / 1000).toFixed(0)} s after the raw one`);
   }
   await page.screenshot({ path: join(ARTIFACTS, "playground-video.png") });
   // the README image: written when missing or asked for (UPDATE_DOC_IMAGES=1), so test runs leave the tree clean

@@ -438,11 +438,14 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
                   f"{cfg['data']['views']} views x {cfg['data']['frames']} frames; clean_prob {cfg['clean_prob']}, "
                   f"render_drop {cfg['render_drop']}, cond_drop {cfg['dit']['cond_drop']}; sampler: rectified flow, "
                   f"{cfg['dit']['sampler_steps']} Euler steps, shift {cfg['dit']['sampler_shift']}",
-                  f"- data: train-split seeds (clips {prov.get('train_clips')}: {prov.get('degraded_pairs')} degraded "
-                  f"pairs at +-1..4 m, {prov.get('clean_pairs')} clean pairs at 0 m), 112x64, 6 cameras, 4 frames; "
+                  f"- data: {prov.get('train_clips')} train-split clips (seeds {prov.get('train_seeds')}): "
+                  f"{prov.get('degraded_pairs')} degraded pairs at +-1..4 m"
+                  f"{', ' + str(prov.get('clean_pairs')) + ' clean pairs at 0 m' if prov.get('mixed') else ' (the clean pairs are not used without mixing)'}"
+                  "; 112x64, 6 cameras, 4 frames; "
                   "degraded input = the 4D-aggregated ORACLE lifting of the original track rendered on the shifted "
                   "track (the learned decoder's weights were not available when this was trained)",
-                  f"- VAE: `{prov.get('vae')}` {json.dumps(prov.get('vae_meta', {}))}",
+                  f"- VAE (frozen, bundled): `{prov.get('vae')}`, trained by `worldsplat train vae` (models "
+                  f"engineer's code; this snapshot: {json.dumps(prov.get('vae_meta', {}), sort_keys=True)})",
                   f"- training: {prov.get('steps')} steps, batch 1 clip (24 images), AdamW lr {prov.get('lr')} "
                   f"(warm-up + cosine), seed {prov.get('seed')}, {prov.get('threads')} thread(s); wall time "
                   f"{prov.get('wall_s_this_run')} s on a 2-core CPU shared with five other jobs (no GPU)",

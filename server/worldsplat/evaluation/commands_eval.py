@@ -30,7 +30,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     f = sub.add_parser("refine-figure", help="raw | refined | ground truth of a scenario at a shift (PNG)")
     f.add_argument("scenario", nargs="?", default="default", help="preset name or scenario JSON (default preset)")
     f.add_argument("--shift-m", type=float, default=4.0)
-    f.add_argument("--cameras", default="CAM_FRONT,CAM_FRONT_LEFT,CAM_BACK_LEFT")
+    f.add_argument("--cameras", default="CAM_FRONT,CAM_BACK,CAM_FRONT_RIGHT")
     f.add_argument("--steps", type=int, default=8)
     f.add_argument("--threads", type=int, default=1)
     f.add_argument("--weights", type=Path, default=None, help="enhancer weights file (default the shipped one)")

@@ -229,8 +229,8 @@ def write_report(result: dict, out: Path) -> None:
 
 # --- the side-by-side figure (raw | refined | ground truth) ---------------------------------------------------------
 
-def side_by_side(scenario=None, shift_m: float = 4.0, cameras: tuple[str, ...] = ("CAM_FRONT", "CAM_FRONT_LEFT",
-                 "CAM_BACK_LEFT"), frame: int | None = None, steps: int = 8, weights: Path | None = None,
+def side_by_side(scenario=None, shift_m: float = 4.0, cameras: tuple[str, ...] = ("CAM_FRONT", "CAM_BACK",
+                 "CAM_FRONT_RIGHT"), frame: int | None = None, steps: int = 8, weights: Path | None = None,
                  scale: int = 2) -> tuple[np.ndarray, dict]:
     """The playground's path on a scenario (default preset): its oracle scene from the pipeline -> `refine_track` at
     `shift_m` ->

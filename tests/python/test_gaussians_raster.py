@@ -292,3 +292,12 @@ def test_view_precull_is_exact(monkeypatch):
             monkeypatch.setattr(P, "PRECULL_MIN", 0)
             b = rasterize(gg, cam, method="pairs")
             assert a["visible"] == b["visible"] and torch.equal(a["rgb"], b["rgb"]), name
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device here")
+def test_cuda_matches_cpu():
+    g, cam = load_case("random_200")
+    for method in ("tiled", "pairs"):
+        a = rasterize(g, cam, method=method)["rgb"]
+        b = rasterize(g.to("cuda"), cam, method=method)["rgb"].cpu()
+        assert psnr(a, b) >= 50

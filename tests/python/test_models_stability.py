@@ -83,8 +83,8 @@ def test_sampler_steps_1_to_64_bf16_finite():
     d = CFG.data
     noise = torch.randn(2, d.frames, d.views, CFG.dit.in_channels, d.height // 8, d.width // 8,
                         generator=torch.Generator().manual_seed(1))
-    for steps in list(range(1, 9)) + [16, 32, 64]:
-        cfg = 2.0 if steps <= 8 else 1.0  # guidance doubles the cost; the long runs check accumulation
+    for steps in (1, 2, 3, 5, 8, 64):
+        cfg = 2.0 if steps <= 5 else 1.0  # guidance doubles the cost; the long runs check accumulation
         with torch.autocast(**BF16):
             z = rflow.sample(dit, noise, cond, steps=steps, shift=CFG.dit.sampler_shift, cfg_scale=cfg,
                              uncond=dropped(cond))

@@ -22,37 +22,13 @@ from worldsplat.gaussians import Gaussians, Scene4D, rasterize
 
 # --- oracle lifting -------------------------------------------------------------------------------------------------
 
-def _core_lift():
-    """The core engineer's oracle lifting when it is installed (worldsplat.gaussians.lift), else None."""
-    try:  # the submodule, not the package attribute (importing the submodule rebinds that name to the module)
-        from worldsplat.gaussians.lift import lift
-        return lift
-    except (ImportError, AttributeError):
-        return None
-
-
 def lift_view(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray, camera: Camera) -> Gaussians:
-    """Pixel-aligned Gaussians of one ground-truth view; extras[:, 0] = dynamic flag.
-
-    Uses `worldsplat.gaussians.lift` when present. The fallback is the same construction: mean = ray origin +
-    depth * ray direction (camera-z depth, unit-z rays), isotropic scale of 0.6 pixel footprints, opacity 0.99,
-    sky (non-finite depth) dropped."""
-    lift = _core_lift()
-    if lift is not None:
-        g = lift(rgb, depth, dynamic, camera)
-        if g.extras is None or g.extras.shape[1] < 1:
-            raise ValueError("lift returned Gaussians without the dynamic-mask extra channel")
-        return g
-    origin, dirs = camera.pixel_rays()
-    d = np.asarray(depth, np.float64)
-    ok = np.isfinite(d) & (d > 0)
-    means = origin + dirs[ok] * d[ok][:, None]
-    n = len(means)
-    scale = (0.6 * d[ok] / camera.fx)[:, None].repeat(3, 1)
-    quats = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (n, 1))
-    colors = np.asarray(rgb, np.float32)[ok] / 255.0
-    extras = np.asarray(dynamic, np.float32)[ok][:, None]
-    return Gaussians.from_numpy(means, quats, scale, np.full(n, 0.99), colors, extras)
+    """Pixel-aligned Gaussians of one ground-truth view (the core's oracle lifting); extras[:, 0] = dynamic flag."""
+    from worldsplat.gaussians.lift import lift  # the submodule: the package attribute is rebound to the module
+    g = lift(rgb, depth, dynamic, camera)
+    if g.extras is None or g.extras.shape[1] < 1:
+        raise ValueError("lift returned Gaussians without the dynamic-mask extra channel")
+    return g
 
 
 def oracle_scene(clip, meta: dict | None = None) -> Scene4D:

@@ -93,10 +93,14 @@ def available_modes(weights_dir: str | Path | None = None) -> list[str]:
     return out
 
 
-def load_models(weights_dir: str | Path | None = None) -> Models:
-    """Load whichever of vae / decoder / dit exist (missing ones are None; `Models.modes` says what works)."""
+def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -> Models:
+    """Load whichever of vae / decoder / dit exist (missing ones are None; `Models.modes` says what works).
+    backend "onnx" serves the VAE, the DiT step and the Gaussian decoder with onnxruntime from
+    <weights_dir>/onnx (same outputs within the documented 1e-3 parity tolerance)."""
+    if backend not in ("torch", "onnx"):
+        raise ValueError(f"backend must be 'torch' or 'onnx', got {backend!r}")
     paths = weight_paths(weights_dir)
-    key = str(paths["vae"].parent.resolve())
+    key = str(paths["vae"].parent.resolve()) + ":" + backend
     if key in _CACHE:
         return _CACHE[key]
     h = hashlib.sha256()
@@ -109,6 +113,9 @@ def load_models(weights_dir: str | Path | None = None) -> Models:
             loaded[k] = None
     m = Models(loaded["vae"], loaded["decoder"], loaded["dit"], get_config(SIZE).data, h.hexdigest()[:12],
                paths["vae"].parent)
+    if backend == "onnx":
+        from .onnx_export import use_onnx
+        use_onnx(m, paths["vae"].parent / "onnx")
     _CACHE[key] = m
     return m
 

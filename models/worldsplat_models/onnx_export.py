@@ -124,9 +124,11 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
         path = out_dir / f"{kind}.onnx"
         tmp = path.with_suffix(".tmp.onnx")
         with torch.no_grad():
+            dyn = {"vae_encoder": {"image": {0: "n"}, "mean": {0: "n"}},
+                   "vae_decoder": {"latent": {0: "n"}, "image": {0: "n"}}}.get(kind)
             torch.onnx.export(wrapper(models, kind), tuple(inputs.values()), str(tmp),
                               input_names=list(inputs), output_names=output_names(kind), opset_version=18,
-                              dynamo=False)
+                              dynamo=False, dynamic_axes=dyn)
         tmp.replace(path)
         paths[kind] = path
     return paths
@@ -182,3 +184,44 @@ def speed_ratio(models, onnx_dir: str | Path, kind: str, repeats: int = 5, threa
     b = run_ort(sess, inputs)
     diff = max(float(np.max(np.abs(x - y))) for x, y in zip(a, b))
     return {"graph": kind, "torch_s": min(tt), "ort_s": min(to), "ratio": min(tt) / min(to), "max_abs_diff": diff}
+
+
+# --- serving with onnxruntime (inference.load_models(backend="onnx")) ------------------------------------------------
+
+class OrtDiT:
+    """Callable like DiT4D(z, s, cond) for one 4-frame window, backed by dit_step.onnx."""
+
+    def __init__(self, torch_dit, sess):
+        self.cfg, self.sess = torch_dit.cfg, sess
+
+    def __call__(self, z, s, cond):
+        feed = {"z": z.float(), "s": s.float().reshape(1), **{k: cond[k] for k in _DiTStep.KEYS if k != "drop"},
+                "drop": cond.get("drop", torch.tensor([False]))}
+        return torch.from_numpy(run_ort(self.sess, feed)[0])
+
+
+class OrtGSDecoder:
+    """Callable like GaussianDecoder(L, intrinsics, cam_to_world, image_hw), backed by gs_decoder.onnx."""
+
+    def __init__(self, torch_dec, sess):
+        self.cfg, self.sess = torch_dec.cfg, sess
+
+    def __call__(self, L, intrinsics, cam_to_world, image_hw):
+        out = run_ort(self.sess, {"L": L.float(), "intrinsics": intrinsics.float(),
+                                  "cam_to_world": cam_to_world.float()})
+        return {k: torch.from_numpy(v) for k, v in zip(OUT_KEYS, out)}
+
+
+def use_onnx(models, onnx_dir: str | Path, threads: int = 2):
+    """Swap the VAE's encode/decode, the DiT step and the Gaussian decoder of `models` for onnxruntime sessions
+    (in place; the torch modules keep their configs and latent statistics). Returns models."""
+    onnx_dir = Path(onnx_dir)
+    if models.vae is not None:
+        enc, dec = session(onnx_dir / "vae_encoder.onnx", threads), session(onnx_dir / "vae_decoder.onnx", threads)
+        models.vae.encode = lambda x: torch.from_numpy(run_ort(enc, {"image": x.float()})[0])
+        models.vae.decode = lambda z: torch.from_numpy(run_ort(dec, {"latent": z.float()})[0])
+    if models.dit is not None:
+        models.dit = OrtDiT(models.dit, session(onnx_dir / "dit_step.onnx", threads))
+    if models.decoder is not None:
+        models.decoder = OrtGSDecoder(models.decoder, session(onnx_dir / "gs_decoder.onnx", threads))
+    return models

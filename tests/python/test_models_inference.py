@@ -154,3 +154,18 @@ def test_projected_box_mask_fills_hull_in_front_only():
     # the hull spans about f * 1 / 9 = 4.4 px either side of the centre at the near face
     assert 60 < m.sum() < 110
     assert not projected_box_mask((cube * [1, 1, -1])[None], cam).any()  # behind the camera
+
+
+def test_onnx_backend_reconstruct_and_generate_match_torch(models, onnx_dir):
+    import copy
+    ort_models = ox.use_onnx(copy.deepcopy(models), onnx_dir, threads=1)
+    clip, s = tiny_clip(T=2)
+    a, b = inf.reconstruct(clip, models), inf.reconstruct(clip, ort_models)
+    assert torch.allclose(a.latents, b.latents, atol=ox.PARITY_ATOL)
+    assert torch.allclose(a.frame(1).means, b.frame(1).means, atol=1e-2)
+    boxes = [[{"corners": s["box_corners"][t, k], "cls": 12, "moving": True} for k in range(2)] for t in range(2)]
+    cond = {"sketch": s["sketch"], "boxes": boxes, "ego_traj": clip.ego_to_world, "caption": "x"}
+    emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
+    ga = inf.generate(cond, steps=2, seed=1, models=models, rig=clip.rig, caption_embedding=emb)
+    gb = inf.generate(cond, steps=2, seed=1, models=ort_models, rig=clip.rig, caption_embedding=emb)
+    assert torch.allclose(ga.latents, gb.latents, atol=ox.PARITY_ATOL)

@@ -2,7 +2,6 @@
 training uses random train-split scenarios) at +4 m fill the render's holes far better than the raw render does
 (a metric floor against the world's exact ground truth). Night scenes are harder: black holes are already close to a
 dark sky there (see web/docs/refinement.md for the test-split averages)."""
-import numpy as np
 import pytest
 import torch
 

@@ -16,7 +16,8 @@ if (!existsSync(join(ROOT, "web/pkg/splat_web.js"))) {
 }
 
 let server, browser, page, errors, presetScenario;
-const T = { timeout: 240_000 };
+// generous safety nets, not timings: SwiftShader on a loaded 2-core machine takes seconds per frame
+const T = { timeout: 600_000 };
 
 before(async () => {
   server = await startServer({ warm: false });
@@ -169,6 +170,7 @@ test("a share link opened in a fresh page gives the same scene id and an equal r
 
 test("a local .wsplat dropped on the viewer renders, and the stats overlay counts it", T, async () => {
   await page.keyboard.press("Escape");
+  await page.evaluate(() => { const p = window.playground; p.setCamera("CAM_FRONT_LEFT"); p.setShift(-1); p.setFrame(3); });
   const before = await snapshot(page);
   const name = await page.evaluate(async () => {
     const id = window.playground.state.sceneId;

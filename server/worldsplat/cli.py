@@ -19,7 +19,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("worldsplat.gaussians.commands_ply", "export a .wsplat to a standard 3DGS .ply"),
     "import": ("worldsplat.gaussians.commands_ply", "import a standard 3DGS .ply to .wsplat"),
     "serve": ("worldsplat.api.commands_serve", "serve the playground (page, wasm viewer, API)"),
-    "train": ("worldsplat_models.commands_train", "train a model (vae, dit, decoder, enhancer)"),
+    "train": ("worldsplat_models.commands_train", "train a generation model (vae, decoder, dit)"),
+    "train-enhancer": ("worldsplat_models.train_enhancer", "train the enhanced diffusion model (refinement)"),
     "eval": ("worldsplat.evaluation.commands_eval", "evaluate against the world's exact ground truth"),
     "bench": ("worldsplat.bench.commands_bench", "speed-against-error benchmark report"),
 }

@@ -20,6 +20,8 @@ SECTIONS: dict[str, str] = {
     "budget": "budget",            # Gaussian budget / merge thresholds vs novel-view PSNR
     "viewer": "viewer",            # viewer frame time native + headless Chromium
     "onnx": "onnx",                # onnxruntime vs torch eager
+    "steps": "steps",              # sampler steps vs error and time
+    "stages": "stages",            # the paper's efficiency table for the small config
 }
 
 

@@ -31,14 +31,15 @@ def run(quick: bool) -> Section:
             ref = stage_timings(scenario=sc, shift_m=2.0, steps=steps)
     except ImportError:
         pass
-    diff2 = ref.get("denoise", float("nan"))
-    vae_dec = ref.get("decode", float("nan"))
+    missing = "not run (--quick)" if quick else "enhancer not shipped"
+    diff2 = ref.get("denoise", missing)
+    vae_dec = ref.get("decode", missing)
     total = t["conditions"] + t["diffusion"] + t["gs_decoder"] + (ref.get("total", 0.0) if ref else 0.0)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     rows = [[f"small, {d.width}x{d.height}, {d.views} views x {d.frames} frames, {steps} steps", t["diffusion"],
              t["gs_decoder"], diff2, vae_dec, total / 60.0, "2-core CPU", peak_mb / 1024]]
     notes = [f"Conditions (incl. caption encoding) took {t['conditions']:.2f} s. The enhancer stage table: "
-             + (", ".join(f"{k} {v:.2f}" for k, v in ref.items() if isinstance(v, float)) if ref else "not shipped")]
+             + (", ".join(f"{k} {v:.2f}" for k, v in ref.items() if isinstance(v, float)) if ref else missing)]
     return Section(
         key="stages", title="Stage table (paper Appendix B form)",
         columns=["config", "Diff-1 (s)", "Gs Dec. (s)", "Diff-2 (s)", "VAE Dec. (s)", "Total (min)", "device",

@@ -125,3 +125,15 @@ def test_scenario_without_moving_agents_has_no_dynamic_gaussians():
     moving = load_preset("urban_straight").with_updates(clip={"frames": 2}, image={"width": 64, "height": 36})
     scene2 = generate_scene(moving, mode="oracle")
     assert sum(len(d) for d in scene2.dynamic) > 0
+
+
+def test_opacity_merge_modes():
+    n = 4
+    g = Gaussians(torch.tensor([[10.0, 0, 0]]).repeat(n, 1), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                  torch.full((n, 3), 0.02), torch.full((n,), 0.5), torch.full((n, 3), 0.3))
+    mean = economize(g, Economy(opacity_merge="mean"), np.zeros((1, 3)), 100.0)
+    union = economize(g, Economy(opacity_merge="union"), np.zeros((1, 3)), 100.0)
+    assert len(mean) == len(union) == 1
+    assert np.isclose(float(mean.opacities[0]), 0.5) and np.isclose(float(union.opacities[0]), 1 - 0.5 ** 4)
+    with pytest.raises(ValueError, match="opacity_merge"):
+        economize(g, Economy(opacity_merge="max"), np.zeros((1, 3)), 100.0)

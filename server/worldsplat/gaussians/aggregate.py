@@ -39,6 +39,7 @@ class Economy:
     min_opacity: float = 0.02          # "transparent": below this a Gaussian barely shows
     max_range: float = 150.0           # m from the nearest camera position ("out of range")
     cell_factor: float = 3.0           # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
+    opacity_merge: str = "mean"        # merged opacity: "mean" of the members or "union" 1 - prod(1 - o)
     static_budget: int | None = None   # cap on static Gaussians (most important kept)
     dynamic_budget: int | None = None  # cap per frame
 
@@ -179,7 +180,13 @@ def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: flo
     spread = wmean(((a["means"] - means[inv]) ** 2).sum(1)) / 3.0   # per-axis variance of the member centres
     scales = np.sqrt(np.exp(2 * wmean(np.log(s))) + spread[:, None])
     colors = wmean(a["colors"])
-    opac = np.bincount(inv, weights=a["opacities"], minlength=m) / counts
+    if eco.opacity_merge == "union":
+        opac = np.clip(1 - np.exp(np.bincount(inv, weights=np.log1p(-np.minimum(a["opacities"], 0.999)),
+                                              minlength=m)), 0, 1)
+    elif eco.opacity_merge == "mean":
+        opac = np.bincount(inv, weights=a["opacities"], minlength=m) / counts
+    else:
+        raise ValueError(f"Economy.opacity_merge must be 'mean' or 'union', got {eco.opacity_merge!r}")
     order = np.lexsort((-a["opacities"], inv))
     first = order[np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]]
     quats = a["quats"][first]

@@ -145,9 +145,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--shifts", default="0,1,-1,2,-2,4,-4")
     p.add_argument("--frames", default=None, help="comma-separated frame indices to evaluate (default: all)")
     p.add_argument("--cell-factor", type=float, default=Economy.cell_factor)
+    p.add_argument("--opacity-merge", default=Economy.opacity_merge, choices=["mean", "union"])
     p.add_argument("--json", default=None, help="also write the result as JSON here")
     a = p.parse_args(argv)
-    eco = Economy(cell_factor=a.cell_factor)
+    eco = Economy(cell_factor=a.cell_factor, opacity_merge=a.opacity_merge)
     frames = None if a.frames is None else [int(x) for x in a.frames.split(",")]
     res = measure(a.preset, [float(x) for x in a.shifts.split(",")], frames, eco, log=lambda m: print(m, flush=True))
     print(table(res))

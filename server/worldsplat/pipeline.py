@@ -87,7 +87,9 @@ def generate_scene(scenario, mode: str = "oracle", steps: int = 8, progress: Pro
     _check(cancelled)
     prog("world", 0.0)
     world = build_world(scenario)
-    meta = {"scenario_id": scenario_id(scenario), "mode": mode, "caption": world.caption, "fps": float(world.fps)}
+    # the scenario travels in the .wsplat header so a scene read back can be refined (conditions S', B') anywhere
+    meta = {"scenario_id": scenario_id(scenario), "mode": mode, "caption": world.caption, "fps": float(world.fps),
+            "scenario": scenario.model_dump(mode="json")}
     _check(cancelled)
     if mode == "oracle":
         scene, stats = _oracle(world, prog, cancelled, economy)

@@ -5,6 +5,8 @@
   or the camera of `--camera-json` (the shared camera JSON; `--shift-m` does not apply to it).
 - FILE.mp4 / FILE.webm: every frame (or just T) as a video at the scene's fps; a mosaic for `--camera all`.
 - DIR: one PNG per frame and camera, `DIR/<frame:03d>_<camera>.png`.
+- `--refine`: the enhanced diffusion model repairs the shifted-track render (issue 7, `worldsplat.refine`); needs
+  the shipped enhancer and the scene's scenario (in the .wsplat header of `worldsplat generate`, or `--scenario`).
 """
 from __future__ import annotations
 
@@ -21,6 +23,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frame", type=int, default=None, help="frame index (default: 0 for PNG, all for video/DIR)")
     p.add_argument("--camera-json", default=None, help="render at this camera (web/docs/conventions.md)")
     p.add_argument("--out", required=True, help="DIR, FILE.png, FILE.mp4 or FILE.webm")
+    p.add_argument("--refine", action="store_true", help="refine the render with the enhanced diffusion model")
+    p.add_argument("--steps", type=int, default=8, help="--refine: rectified-flow sampler steps")
+    p.add_argument("--scenario", default=None, help="--refine: the scene's scenario (JSON file or preset) when the "
+                   "scene does not carry it")
 
 
 def load_scene(path: str | Path):
@@ -55,6 +61,8 @@ def run(args) -> int:
     if not np.isfinite(args.shift_m) or abs(args.shift_m) > 50:
         raise ValueError("--shift-m must be finite and within +-50 m")
     if args.camera_json:
+        if args.refine:
+            raise ValueError("--refine repairs rig tracks; it does not apply to --camera-json")
         if kind not in (".png", "dir"):
             raise ValueError("--camera-json renders one image: use --out FILE.png or DIR")
         cam = Camera.from_json(args.camera_json)
@@ -75,7 +83,19 @@ def run(args) -> int:
         frames = [args.frame or 0]
     else:
         frames = list(range(scene.num_frames)) if args.frame is None else [args.frame]
-    views = render_track(scene, args.shift_m, cameras, frames=frames)          # (T,V,H,W,3)
+    if args.refine:
+        from worldsplat.refine import refine_available, refine_track
+        if not refine_available():
+            raise FileNotFoundError("--refine needs the enhancer weights (models/weights/enhancer_small.safetensors)")
+        scenario = None
+        if args.scenario:
+            from worldsplat.scenario import resolve_scenario
+            scenario = resolve_scenario(args.scenario)
+        report = lambda stage, f: print(f"refine: {stage} {100 * f:.0f}%", flush=True)  # noqa: E731
+        views = refine_track(scene, args.shift_m, cameras, steps=args.steps, scenario=scenario, progress=report)
+        views = views[frames]
+    else:
+        views = render_track(scene, args.shift_m, cameras, frames=frames)      # (T,V,H,W,3)
     if kind == "dir":
         for i, t in enumerate(frames):
             for j, c in enumerate(cameras):
@@ -88,5 +108,5 @@ def run(args) -> int:
     else:
         write_video(seq, out, fps=scene.fps)
     print(f"wrote {out} ({len(frames)} frame(s), {'mosaic' if len(cameras) > 1 else cameras[0]}, "
-          f"shift {args.shift_m:+g} m)")
+          f"shift {args.shift_m:+g} m{', refined' if args.refine else ''})")
     return 0

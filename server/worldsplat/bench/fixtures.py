@@ -45,3 +45,20 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     b = b.astype(np.float64) / (255.0 if b.dtype == np.uint8 else 1.0)
     mse = float(np.mean((a - b) ** 2))
     return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
+
+
+def shipped_generator(section: str):
+    """The shipped models (generate mode required) and a preset world at the models' own size and clip length."""
+    from worldsplat_models.inference import load_models
+
+    from worldsplat.scenario import load_preset
+    from worldsplat.world import build_world
+
+    models = load_models()
+    if "generate" not in models.modes:
+        raise FileNotFoundError(f"{section}: the shipped DiT weights are missing in {models.weights_dir}")
+    d = models.data
+    sc = load_preset("urban_straight")
+    sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": d.width, "height": d.height}),
+                               "clip": sc.clip.model_copy(update={"frames": d.frames})})
+    return models, sc, build_world(sc)

@@ -4,23 +4,15 @@ from __future__ import annotations
 
 import resource
 
+from worldsplat.bench.fixtures import shipped_generator
 from worldsplat.bench.report import Section
 
 
 def run(quick: bool) -> Section:
-    from worldsplat_models.inference import generate, load_models
+    from worldsplat_models.inference import generate
 
-    from worldsplat.scenario import load_preset
-    from worldsplat.world import build_world
-
-    models = load_models()
-    if "generate" not in models.modes:
-        raise FileNotFoundError(f"stages: the shipped DiT weights are missing in {models.weights_dir}")
+    models, sc, world = shipped_generator("stages")
     d = models.data
-    sc = load_preset("urban_straight")
-    sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": d.width, "height": d.height}),
-                               "clip": sc.clip.model_copy(update={"frames": d.frames})})
-    world = build_world(sc)
     steps = 2 if quick else 8
     dec = generate(world.conditions(0.0), steps=steps, models=models)
     t = dec.meta["timing_s"]

@@ -2,24 +2,16 @@
 with the shipped DiT and VAE (the error is PSNR of the VAE-decoded RGB and the latent RMSE)."""
 from __future__ import annotations
 
+from worldsplat.bench.fixtures import shipped_generator
 from worldsplat.bench.report import Pareto, Section
 
 
 def run(quick: bool) -> Section:
     from worldsplat_models.evaluate import steps_vs_error_for
-    from worldsplat_models.inference import condition_tensors, load_models
+    from worldsplat_models.inference import condition_tensors
 
-    from worldsplat.scenario import load_preset
-    from worldsplat.world import build_world
-
-    models = load_models()
-    if "generate" not in models.modes:
-        raise FileNotFoundError(f"steps: the shipped DiT weights are missing in {models.weights_dir}")
+    models, sc, world = shipped_generator("steps")
     d = models.data
-    sc = load_preset("urban_straight")
-    sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": d.width, "height": d.height}),
-                               "clip": sc.clip.model_copy(update={"frames": d.frames})})
-    world = build_world(sc)
     cond_np = world.conditions(0.0)
     cond = condition_tensors(models, cond_np, world.ego_to_world)
     steps_list, ref = ((1, 2, 4), 8) if quick else ((1, 2, 4, 8, 16, 32), 64)

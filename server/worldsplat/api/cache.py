@@ -106,7 +106,10 @@ class ArtifactCache:
             return None
         path = self.artifact_path(kind, id_, meta["ext"])
         with contextlib.suppress(FileNotFoundError):
-            os.utime(path)  # LRU clock
+            # LRU clock. An explicit nanosecond time: the kernel's own "now" for file times is coarse (a jiffy),
+            # so two touches within a few ms would tie and eviction order would depend on the ids.
+            now = time.time_ns()
+            os.utime(path, ns=(now, now))
         return path, meta
 
     # -- writes ----------------------------------------------------------------------------------------------
@@ -169,7 +172,8 @@ class ArtifactCache:
                 except FileNotFoundError:
                     continue
                 g = groups.setdefault((kind, stem), [0.0, 0])
-                g[0] = max(g[0], st.st_mtime)
+                if not p.name.endswith(".json"):  # the artifact's mtime is the LRU clock; the meta's is creation
+                    g[0] = max(g[0], st.st_mtime)
                 g[1] += st.st_size
         return sorted((float(t), int(n), k, i) for (k, i), (t, n) in groups.items())
 

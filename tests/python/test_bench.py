@@ -7,12 +7,16 @@ from worldsplat.bench.report import Section
 from worldsplat.cli import main
 
 
+TABLE_ONLY = {"stages"}  # the paper's efficiency table is a breakdown, not a trade-off axis
+
+
 def test_quick_report_has_every_section_with_a_default_and_a_plot(tmp_path):
     assert main(["bench", "--out", str(tmp_path), "--quick"]) == 0
     md = (tmp_path / "report.md").read_text()
     for key in SECTIONS:
         assert f'<a id="{key}"></a>' in md, key
-        assert (tmp_path / f"{key}.png").stat().st_size > 1000, key
+        if key not in TABLE_ONLY:  # every speed/accuracy axis has its Pareto plot
+            assert (tmp_path / f"{key}.png").stat().st_size > 1000, key
     assert len(re.findall(r"\*\*Default: ", md)) == len(SECTIONS)
     assert "nan" not in md.lower().replace("finite", "")
 

@@ -193,7 +193,8 @@ def test_kill9_during_jobs_then_restart(tmp_path):
         assert httpx.get(f"{s2.url}/api/scenes/{big['scene_id']}").json()["status"] == "failed"
         assert httpx.get(f"{s2.url}/api/scenes/{big['scene_id']}/wsplat").status_code == 409
         # the queued video job was not forgotten: it resumes and completes
-        assert wait_job(s2.url, queued["job"]["id"])["status"] == "done"
+        resumed = wait_job(s2.url, queued["job"]["id"])
+        assert resumed["status"] == "done", resumed.get("error")
         assert httpx.get(f"{s2.url}{queued['url']}").status_code == 200
         # the interrupted scene can be requested again (same id, a new job), and cancelled
         again = httpx.post(f"{s2.url}/api/scenes", json={"scenario": big_scenario, "mode": "oracle"})

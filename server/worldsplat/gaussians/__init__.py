@@ -3,8 +3,12 @@
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.gaussians.raster import rasterize
 from worldsplat.gaussians.lift import lift
-# Eager on purpose: a lazy __getattr__ is bypassed once the submodule `aggregate` is imported (the import system
-# binds the package attribute to the module), and `from worldsplat.gaussians import aggregate` then got the module.
-from worldsplat.gaussians.aggregate import aggregate
 
 __all__ = ["Gaussians", "Scene4D", "rasterize", "lift", "aggregate"]
+
+
+def __getattr__(name):  # aggregation is imported on first use
+    if name == "aggregate":
+        from worldsplat.gaussians.aggregate import aggregate as fn
+        return fn
+    raise AttributeError(name)

@@ -168,7 +168,13 @@ def _hull(p: np.ndarray) -> np.ndarray:
 
 @torch.no_grad()
 def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed: int = 0,
-                  frames: tuple[int, ...] | None = None) -> dict:
+                  frames: tuple[int, ...] | None = None, latents: str = "sample") -> dict:
+    """Layout fidelity of generated scenes. latents="encode" swaps the DiT sample for the VAE encoding of the
+    ground-truth clip: the same metrics then measure the ceiling of the VAE + Gaussian-decoder path, i.e. what a
+    perfect diffusion model could reach with these weights."""
+    if latents not in ("sample", "encode"):
+        raise ValueError(f"eval_generate: latents must be 'sample' or 'encode', got {latents!r}")
+    from .inference import encode_clip
     iou_box, iou_gt, absrel, ceiling = [], [], [], []
     for i in range(min(n, len(ds))):
         s = ds[i]
@@ -180,7 +186,10 @@ def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed
                   for k in range(z["box_corners"].shape[1])] for t in range(T)]
         cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
                                           "ego_traj": s["traj"]}, ego)
-        L = sample_latents(models, cond, steps=steps, seed=seed)
+        if latents == "sample":
+            L = sample_latents(models, cond, steps=steps, seed=seed)
+        else:
+            L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
         scene = to_scene4d(_decode_gaussians(models, L, rig, ego, np.arange(T) / 4.0, {}))
         moving = np.asarray(z["box_moving"], bool)
         for t in (frames or range(T)):
@@ -198,7 +207,8 @@ def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed
                 ceiling.append(_inter_union(gm, bm))  # reference: exact silhouettes vs the boxier hulls
                 rd = out["depth"] / out["alpha"].clamp_min(1e-3)
                 absrel.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v])))
-    return {"clips": min(n, len(ds)), "steps": steps, "dynamic_iou_vs_projected_boxes": _pooled(iou_box),
+    return {"clips": min(n, len(ds)), "steps": steps if latents == "sample" else None, "latents": latents,
+            "dynamic_iou_vs_projected_boxes": _pooled(iou_box),
             "dynamic_iou_vs_gt_mask": _pooled(iou_gt), "depth_absrel": float(np.nanmean(absrel)),
             "gt_mask_iou_vs_projected_boxes": _pooled(ceiling)}
 
@@ -298,7 +308,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--clips", type=int, default=4)
     p.add_argument("--parts", default="vae,reconstruct,generate,steps",
-                   help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, steps")
+                   help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
+                        "(generate's layout metrics on VAE-encoded ground truth), steps")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
     p.add_argument("--figure", type=Path, default=None, help="also write the qualitative PNG of test clip 0")
@@ -325,6 +336,9 @@ def main(argv=None) -> int:
     if "generate" in parts and "generate" in models.modes:
         out["generate"] = eval_generate(models, ds, a.clips, frames=frames)
         print("generate", out["generate"], flush=True)
+    if "ceiling" in parts:
+        out["generate_ceiling"] = eval_generate(models, ds, a.clips, frames=frames, latents="encode")
+        print("generate_ceiling", out["generate_ceiling"], flush=True)
     if "steps" in parts and "generate" in models.modes:
         out["steps_vs_error"] = steps_vs_error(models, ds, max(1, min(2, a.clips)))
         print("steps", out["steps_vs_error"], flush=True)

@@ -5,8 +5,10 @@ resume and tqdm.
 
 Phases (all run by default; each resumes):
 1. pairs: for each train-split seed, the world's ground truth of a track shifted by a seeded +-1..4 m, its
-   reprojected conditions, and the 4D-aggregated ORACLE lifting of the original track rendered on it (real holes,
-   disocclusions and splat blur: the degraded input); plus the clean pair at 0 m (the true view's own render).
+   reprojected conditions, and two degraded inputs rendered on that track: the 4D-aggregated ORACLE lifting of
+   the original track (real holes, disocclusions and splat blur) and, for every other seed, the learned Gaussian
+   decoder's reconstruction of the original track (`_dec`: the decoder's own blur, ghosting and depth errors,
+   i.e. what the playground actually refines); plus the clean pair at 0 m (the true view's own render).
    Cached as .npz under --cache (default runs/enhancer_pairs, git-ignored).
 2. train: VAE-encode the pairs once (the frozen VAE of models/weights, or --vae), then rectified-flow training of
    the enhancer. With mixed conditioning (the shipped model, ablation E) a step uses the clean pair with
@@ -40,10 +42,22 @@ def has_clean_pair(seed: int) -> bool:
     return (seed // 2) % 2 == 0
 
 
+def has_decoder_pair(seed: int) -> bool:
+    """Every other seed also gets a degraded pair rendered from the learned decoder's reconstruction."""
+    return seed % 2 == 1
+
+
+def decoder_scene(clip, models):
+    """The learned Gaussian decoder's 4D scene of a clip (reconstruct mode, paper §3.5)."""
+    from worldsplat_models.inference import reconstruct, to_scene4d
+    return to_scene4d(reconstruct(clip, models))
+
+
 def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset: int = 0, size=(112, 64),
-               frames: int = 4, progress: bool = True) -> list[Path]:
+               frames: int = 4, progress: bool = True, models=None) -> list[Path]:
     """Write the training pairs of train seeds [start, start+count) (every `stride`-th from `offset`, so several
-    processes can share the work); existing files are kept (resume)."""
+    processes can share the work); existing files are kept (resume). `models` (inference.Models with a decoder)
+    adds the `_dec` pairs; without it only oracle and clean pairs are made."""
     from worldsplat.evaluation.novel_track import oracle_scene
     from worldsplat.evaluation.pairs import make_sample, sample_path, sample_scenario, save_sample, split_seeds
     from worldsplat.world import build_world, simulate
@@ -57,14 +71,19 @@ def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset:
         shift = train_shift(seed)
         p_deg = sample_path(cache, "train", seed, shift)
         p_clean = sample_path(cache, "train", seed, 0.0, "_clean") if has_clean_pair(seed) else None
-        if not (p_deg.exists() and (p_clean is None or p_clean.exists())):
+        p_dec = (sample_path(cache, "train", seed, shift, "_dec")
+                 if models is not None and has_decoder_pair(seed) else None)
+        if not all(p.exists() for p in (p_deg, p_clean, p_dec) if p is not None):
             world = build_world(sample_scenario(seed, size[0], size[1], frames))
             source = simulate(world, 0.0)
             if not p_deg.exists():
                 save_sample(p_deg, make_sample(world, shift, ("4d",), source=source, scene=oracle_scene(source)))
             if p_clean is not None and not p_clean.exists():
                 save_sample(p_clean, make_sample(world, 0.0, ("3d",), source=source))
-        paths += [p for p in (p_deg, p_clean) if p is not None]
+            if p_dec is not None and not p_dec.exists():
+                save_sample(p_dec, make_sample(world, shift, ("4d",), source=source,
+                                               scene=decoder_scene(source, models)))
+        paths += [p for p in (p_deg, p_clean, p_dec) if p is not None]
     return paths
 
 
@@ -319,6 +338,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vae", type=Path, default=None, help="frozen VAE (default models/weights/vae_small."
                         "safetensors, else the fallback trained here)")
     parser.add_argument("--skip-pairs", action="store_true", help="train on the pairs already cached")
+    parser.add_argument("--decoder-weights", type=Path, default=None,
+                        help="weights dir whose Gaussian decoder renders the `_dec` pairs (default models/weights)")
+    parser.add_argument("--no-decoder-pairs", action="store_true",
+                        help="oracle renders only as degraded inputs (the pairs of the session-1 model)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--grow", action="store_true", help="add pairs that appear in the cache while training")
 
@@ -342,8 +365,15 @@ def run(args: argparse.Namespace) -> int:
     cfg = enhancer_config(args.size)
     cfg.mixed = not args.no_mix
     name = f"enhancer_{args.size}{'' if cfg.mixed else '_nomix'}"
+    models = None
+    if not args.no_decoder_pairs:
+        from worldsplat_models.inference import load_models
+        models = load_models(args.decoder_weights)
+        if "reconstruct" not in models.modes:
+            raise FileNotFoundError(f"no Gaussian decoder in {args.decoder_weights or 'models/weights'}; "
+                                    "pass --decoder-weights or --no-decoder-pairs")
     if not args.skip_pairs:
-        make_pairs(args.cache, args.pairs)
+        make_pairs(args.cache, args.pairs, models=models)
     val_paths = make_val_pairs(args.cache)
     vae_path = resolve_vae(args)
     vae = load_vae(vae_path)
@@ -355,6 +385,8 @@ def run(args: argparse.Namespace) -> int:
     def load_new(limit=None, progress=True):
         """Encode the cached pairs not loaded yet (whole clips: a clean pair is never taken without its clip)."""
         files = sorted((args.cache / "train").glob("seed*.npz"))
+        if args.no_decoder_pairs:
+            files = [f for f in files if not f.name.endswith("_dec.npz")]
         seeds = sorted({f.name[4:12] for f in files} - seen)
         if limit is not None:
             seeds = seeds[:max(0, limit - len(seen))]
@@ -367,13 +399,17 @@ def run(args: argparse.Namespace) -> int:
         for f, s, cap in tqdm(list(zip(files, samples, caps)), desc="encode pairs", mininterval=10,
                               disable=not progress):
             is_clean = f.name.endswith("_clean.npz")
-            (c if is_clean else d).append(encode_pair(vae, s, "3d" if is_clean else "4d", cfg.data.max_boxes, cap))
+            item = encode_pair(vae, s, "3d" if is_clean else "4d", cfg.data.max_boxes, cap)
+            item["from_decoder"] = f.name.endswith("_dec.npz")
+            (c if is_clean else d).append(item)
         return d, c
 
     degraded, clean = load_new(args.use_pairs)
     if not degraded:
         raise FileNotFoundError(f"no training pairs under {args.cache / 'train'}")
-    print(f"{len(degraded)} degraded and {len(clean)} clean pairs from {len(seen)} clips; mixed={cfg.mixed}")
+    n_dec = sum(bool(d.get("from_decoder")) for d in degraded)
+    print(f"{len(degraded)} degraded ({n_dec} from the decoder) and {len(clean)} clean pairs from {len(seen)} clips; "
+          f"mixed={cfg.mixed}")
     torch.manual_seed(args.seed)
     model = Enhancer(cfg)
     t0 = time.time()
@@ -387,13 +423,15 @@ def run(args: argparse.Namespace) -> int:
     state = torch.load(args.work / f"{name}.ckpt.pt", map_location="cpu", weights_only=False)
     prov = {"size": args.size, "mixed": cfg.mixed, "steps": int(state["step"]), "train_clips": len(seeds),
             "train_seeds": sorted(int(s) for s in seeds),
-            "degraded_pairs": len(degraded), "clean_pairs": len(clean), "seed": args.seed, "lr": args.lr,
+            "degraded_pairs": len(degraded), "decoder_pairs": n_dec, "clean_pairs": len(clean), "seed": args.seed,
+            "lr": args.lr, "steps_target": args.steps, "pairs_arg": args.pairs,
             "vae": str(vae_path.name), "vae_meta": {k: v for k, v in vae.meta.items() if k != "config"},
             "wall_s_this_run": round(wall), "threads": args.threads, "grow": bool(args.grow),
             "heldout_val": {"seeds": sorted({s["seed"] for s in val}), "shifts": sorted({s["shift_m"] for s in val}),
                             **metrics},
             "command": f"python -m worldsplat_models.train_enhancer --size {args.size}"
-                       f"{' --no-mix' if not cfg.mixed else ''} --out {args.out}"}
+                       f"{' --no-mix' if not cfg.mixed else ''}{' --no-decoder-pairs' if args.no_decoder_pairs else ''}"
+                       f" --pairs {args.pairs} --steps {args.steps} --threads {args.threads} --out {args.out}"}
     path = save_enhancer(model, vae, args.out / f"{name}.safetensors", {"provenance": prov})
     (args.work / f"{name}.metrics.json").write_text(json.dumps(prov, indent=1) + "\n")
     print(json.dumps(prov["heldout_val"], indent=1))
@@ -441,24 +479,25 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
                   f"- data: {prov.get('train_clips')} train-split clips (seeds {prov.get('train_seeds')}): "
                   f"{prov.get('degraded_pairs')} degraded pairs at +-1..4 m"
                   f"{', ' + str(prov.get('clean_pairs')) + ' clean pairs at 0 m' if prov.get('mixed') else ' (the clean pairs are not used without mixing)'}"
-                  "; 112x64, 6 cameras, 4 frames; "
-                  "degraded input = the 4D-aggregated ORACLE lifting of the original track rendered on the shifted "
-                  "track (the learned decoder's weights were not available when this was trained)",
+                  "; 112x64, 6 cameras, 4 frames; degraded input = the original track's 4D-aggregated ORACLE "
+                  "lifting rendered on the shifted track"
+                  + (f", and for {prov['decoder_pairs']} of the degraded pairs the learned Gaussian decoder's "
+                     "reconstruction of the original track rendered there (decoder_small, the shipped one)"
+                     if prov.get("decoder_pairs") else " (no decoder renders)"),
                   f"- VAE (frozen, bundled): `{prov.get('vae')}`, trained by `worldsplat train vae` (models "
                   f"engineer's code; this snapshot: {json.dumps(prov.get('vae_meta', {}), sort_keys=True)})",
                   f"- training: {prov.get('steps')} steps, batch 1 clip (24 images), AdamW lr {prov.get('lr')} "
                   f"(warm-up + cosine), seed {prov.get('seed')}, {prov.get('threads')} thread(s); wall time "
-                  f"{prov.get('wall_s_this_run')} s on a 2-core CPU shared with five other jobs (no GPU)",
+                  f"{prov.get('wall_s_this_run')} s on a 2-core CPU (no GPU), shared with other jobs",
                   f"- held-out (val seeds {hv.get('seeds')}, shifts {hv.get('shifts')} m, 8 steps): "
                   f"raw render PSNR {hv.get('raw', {}).get('psnr')} dB (holes {hv.get('raw', {}).get('psnr_holes')}), "
                   f"refined {hv.get('refined', {}).get('psnr')} dB (holes {hv.get('refined', {}).get('psnr_holes')}), "
                   f"refined in holes only {hv.get('refined_holes', {}).get('psnr')} dB; test-split ablation in "
                   "web/docs/refinement.md",
-                  f"- this run: `{prov.get('command')}`{' --grow' if prov.get('grow') else ''} (with --grow the "
-                  "pool of pairs grew while the pair generator ran, so the step stream is not bit-reproducible)",
-                  "- reproduce: `python -m worldsplat_models.train_enhancer --size small"
-                  f"{'' if prov.get('mixed') else ' --no-mix'} --out models/weights` (makes the pairs first, then "
-                  "trains on all of them with the shipped VAE)", ""]
+                  (f"- this run: `{prov.get('command')}` --grow (with --grow the pool of pairs grew while the pair "
+                   "generator ran, so the step stream is not bit-reproducible)" if prov.get("grow") else
+                   f"- reproduce (the exact command of this file; makes the pairs first, then trains on all of "
+                   f"them with the shipped VAE and decoder): `{prov.get('command')}`"), ""]
     path = path or Path(weights_dir) / "MODEL_CARD_enhancer.md"
     path.write_text("\n".join(lines))
     return path

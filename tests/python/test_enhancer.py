@@ -8,8 +8,6 @@ from worldsplat_models.enhancer import (Enhancer, EnhancerConfig, enhance, enhan
                                         save_enhancer, windows)
 from worldsplat_models.vae import MultiModalVAE
 
-torch.set_num_threads(1)
-
 
 def tiny():
     torch.manual_seed(0)

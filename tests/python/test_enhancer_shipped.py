@@ -8,8 +8,6 @@ import torch
 from worldsplat.refine import WEIGHTS
 
 pytestmark = pytest.mark.skipif(not WEIGHTS.exists(), reason="enhancer weights not shipped")
-torch.set_num_threads(1)
-
 
 def test_shipped_enhancer_fills_holes_at_4m(monkeypatch):
     import worldsplat_models.conditions as cond

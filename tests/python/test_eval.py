@@ -9,8 +9,6 @@ from worldsplat.evaluation.commands_eval import parse_shifts
 from worldsplat.evaluation.nvs import VERSIONS, image_metrics, load_models, markdown_table, run_versions, \
     write_report
 
-torch.set_num_threads(1)
-
 
 def test_image_metrics_against_known_values():
     rng = np.random.default_rng(0)

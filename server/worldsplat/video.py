@@ -29,15 +29,37 @@ def even_pad(frames: np.ndarray) -> np.ndarray:
     return frames
 
 
-def mosaic(views: np.ndarray, cols: int = 3) -> np.ndarray:
-    """(T,V,H,W,3) -> (T, rows*H, cols*W, 3): the 6-camera rig as 2x3 (front row, back row)."""
-    T, V, H, W, Cc = views.shape
-    rows = -(-V // cols)
-    out = np.zeros((T, rows * H, cols * W, Cc), dtype=views.dtype)
-    for v in range(V):
-        r, c = divmod(v, cols)
-        out[:, r * H:(r + 1) * H, c * W:(c + 1) * W] = views[:, v]
-    return out
+# The nuScenes-style 2x3 layout every mosaic in the project uses: front row over back row, left to right.
+MOSAIC_ROWS = (("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT"), ("CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT"))
+
+
+def mosaic(views: np.ndarray, cameras: list[str] | None = None) -> np.ndarray:
+    """(T,V,H,W,C) or (V,H,W,C) views named `cameras` (default: the default rig's order) -> the 2x3 layout
+    (front row, back row) with missing cameras black and rows without any camera dropped; one view is returned
+    as is."""
+    from worldsplat.camera import default_rig
+    views = np.asarray(views)
+    single = views.ndim == 4
+    if single:
+        views = views[None]
+    T, V, H, W, C = views.shape
+    cameras = list(cameras) if cameras is not None else [c.name for c in default_rig(W, H)][:V]
+    if len(cameras) != V:
+        raise ValueError(f"mosaic: {V} views but {len(cameras)} camera names")
+    if V == 1:
+        out = views[:, 0]
+    else:
+        index = {c: i for i, c in enumerate(cameras)}
+        unknown = sorted(set(index) - {c for r in MOSAIC_ROWS for c in r})
+        if unknown:
+            raise ValueError(f"mosaic: cameras {unknown} are not in the 2x3 rig layout")
+        rows = [r for r in MOSAIC_ROWS if any(c in index for c in r)]
+        out = np.zeros((T, len(rows) * H, 3 * W, C), views.dtype)
+        for r, row in enumerate(rows):
+            for c, name in enumerate(row):
+                if name in index:
+                    out[:, r * H:(r + 1) * H, c * W:(c + 1) * W] = views[:, index[name]]
+    return out[0] if single else out
 
 
 def write_video(frames: np.ndarray, path: str | Path, fps: float = 10.0) -> Path:

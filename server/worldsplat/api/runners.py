@@ -19,7 +19,6 @@ from .cache import ArtifactCache
 from .jobs import JobContext, JobError
 
 # Mosaic layout (rows of camera names), as the nuScenes viewers show the rig: the front half on top.
-MOSAIC_ROWS = (("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT"), ("CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT"))
 VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
 
 
@@ -116,24 +115,9 @@ def run_scene(cache: ArtifactCache, ctx: JobContext) -> dict:
     return {"scene_id": scene_id, "bytes": meta["bytes"], "mode": mode, "seconds": meta["seconds"]}
 
 
-def mosaic(frames: np.ndarray, cameras: list[str]) -> np.ndarray:
-    """(T,V,H,W,3) -> (T,H',W',3): one camera as is, several in the rig's 2x3 layout (missing cells black)."""
-    t, v, h, w, _ = frames.shape
-    if v == 1:
-        return frames[:, 0]
-    index = {c: i for i, c in enumerate(cameras)}
-    rows = [r for r in MOSAIC_ROWS if any(c in index for c in r)]
-    out = np.zeros((t, h * len(rows), w * 3, 3), np.uint8)
-    for r, row in enumerate(rows):
-        for c, name in enumerate(row):
-            if name in index:
-                out[:, r * h:(r + 1) * h, c * w:(c + 1) * w] = frames[:, index[name]]
-    return out
-
-
 def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
     from worldsplat.gaussians import wsplat  # noqa: PLC0415
-    from worldsplat.video import write_video  # noqa: PLC0415
+    from worldsplat.video import mosaic, write_video  # noqa: PLC0415
 
     p = ctx.params
     scene_id, video_id = p["scene_id"], ctx.job.target

@@ -102,7 +102,7 @@ def run(args) -> int:
                 save_png(views[i, j], out / f"{t:03d}_{c}.png")
         print(f"wrote {len(frames) * len(cameras)} PNGs to {out}")
         return 0
-    seq = mosaic(views) if len(cameras) > 1 else views[:, 0]
+    seq = mosaic(views, cameras)
     if kind == ".png":
         save_png(seq[0], out)
     else:

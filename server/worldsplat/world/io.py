@@ -23,9 +23,9 @@ from PIL import Image
 
 from worldsplat.scenario import scenario_id
 from worldsplat.world.classes import CLASS_NAMES
+from worldsplat.video import mosaic
 from worldsplat.world.layout import shifted_ego
 
-MOSAIC_ORDER = (("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT"), ("CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT"))
 
 
 def save_png(path: Path, array: np.ndarray) -> None:
@@ -49,16 +49,6 @@ def save_npz(path: Path, **arrays) -> None:
     with open(tmp, "wb") as f:
         np.savez_compressed(f, **arrays)
     os.replace(tmp, path)
-
-
-def mosaic(images: np.ndarray, names: list[str]) -> np.ndarray:
-    """(V,H,W,3) -> 2x3 nuScenes-style mosaic (front row, back row); missing cameras are black."""
-    h, w = images.shape[1:3]
-    rows = []
-    for row in MOSAIC_ORDER:
-        tiles = [images[names.index(n)] if n in names else np.zeros((h, w, 3), images.dtype) for n in row]
-        rows.append(np.concatenate(tiles, axis=1))
-    return np.concatenate(rows, axis=0)
 
 
 BEV_COLOURS = {"drivable": (90, 90, 95), "sidewalk": (200, 130, 180), "crosswalk": (230, 220, 120),

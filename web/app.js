@@ -297,7 +297,8 @@ function tick(now) {
       setFrame((state.frame + steps) % state.frames);
     }
   }
-  if (state.loaded && (state.dirty || state.camera === "free")) {
+  // needs_redraw: the WebGL2 sort worker delivered the depth order for a view drawn meanwhile with the last one.
+  if (state.loaded && (state.dirty || state.camera === "free" || state.viewer.needs_redraw())) {
     try { render(); } catch (e) { showError(`render: ${e.message}`); state.loaded = false; }
   }
   if (now - lastStats > 500 && state.viewer && state.loaded) {

@@ -59,10 +59,60 @@ for (const path of ["webgpu", "webgl2"]) {
         const r = await page.evaluate((n) => window.harness.renderVector(n), v);
         const vsNative = await expectClose(t, page, path, v, r.pixels, `/artifacts/browser/native/${v}.png`);
         const vsTorch = await expectClose(t, page, path, `${v}.vs_torch`, r.pixels, `/vectors/raster/${v}.expected.png`);
-        console.log(`# ${path} ${v}: ${vsNative.toFixed(1)} dB vs native, ${vsTorch.toFixed(1)} dB vs torch (${r.stats.gaussians} Gaussians, ${r.stats.path})`);
+        console.log(`# ${path} ${v}: ${vsNative.toFixed(1)} dB vs native, ${vsTorch.toFixed(1)} dB vs torch (${r.stats.gaussians} Gaussians, ${r.stats.path}, sorted on ${r.stats.sort_thread})`);
+        // WebGL2 sorts in a Web Worker by default (its order is what the readback drew); WebGPU sorts on the GPU.
+        assert.equal(r.stats.sort_thread, path === "webgl2" ? "worker" : "gpu", `sort thread: ${r.stats.sort_note}`);
+        if (path === "webgl2") assert.ok(r.stats.sort_worker_ready && r.stats.sort_latency_ms > 0, "the worker answered");
         assert.ok(vsNative >= PSNR_MIN, `${v}: ${vsNative} dB vs native (diff in tests/artifacts/browser/${path}/)`);
         assert.ok(vsTorch >= PSNR_MIN, `${v}: ${vsTorch} dB vs torch reference`);
       }
+    });
+
+    it("sorts off the main thread: render never waits, the worker's order replaces the last one, fallbacks draw the same", async (t) => {
+      if (path !== "webgl2") return t.skip("the GPU path sorts on the GPU");
+      const moved = await page.evaluate(async () => {
+        const h = window.harness;
+        await h.loadVector("street_shift_0m");
+        await h.read(); // exact order for the vector's camera
+        h.call("set_camera", "free");
+        h.call("orbit", 0.35, -0.05);
+        h.call("render");
+        const during = h.stats(); // the worker has not answered yet: the last order drew
+        const arrivedEarly = h.call("needs_redraw");
+        const arrived = await h.waitRedraw();
+        h.call("render");
+        const after = h.stats();
+        const exact = await h.read();
+        return { during, arrivedEarly, arrived, after, exact: exact.pixels, lit: exact.lit, state: h.call("camera_state") };
+      });
+      assert.equal(moved.during.sort_thread, "worker");
+      assert.ok(moved.during.sort_pending, "render returned before the new order existed (no stall)");
+      assert.equal(moved.arrivedEarly, false, "the order arrives asynchronously");
+      assert.ok(moved.arrived, "the worker's order arrived and asks for a redraw");
+      assert.equal(moved.after.sort_pending, false, "the redraw uses the new order");
+      assert.ok(moved.lit > 100, `the orbited view shows the street (${moved.lit} lit px)`);
+      console.log(`# webgl2 worker sort: ${moved.after.sort_ms.toFixed(2)} ms in the worker, ${moved.after.sort_latency_ms.toFixed(1)} ms request-to-order, ${moved.after.sort_main_ms.toFixed(2)} ms main thread`);
+      // The same view sorted on the main thread (sort: "main"; and "auto" on a page without Worker) is byte-identical.
+      for (const opts of [{ sort: "main" }, { noWorker: true }]) {
+        const other = await openHarness(browser.context, server.url, path, [320, 180], opts);
+        try {
+          const r = await other.page.evaluate(async (state) => {
+            const h = window.harness;
+            await h.loadVector("street_shift_0m");
+            h.call("set_camera_state", state);
+            const px = await h.read();
+            return { pixels: px.pixels, stats: h.stats() };
+          }, moved.state);
+          assert.equal(r.stats.sort_thread, "main", JSON.stringify(opts));
+          if (opts.noWorker) assert.match(r.stats.sort_note, /Workers are unavailable/);
+          assert.equal(r.pixels, moved.exact, `main-thread sort (${JSON.stringify(opts)}) draws the worker's pixels`);
+        } finally {
+          await other.page.close();
+        }
+      }
+      const strict = await openHarness(browser.context, server.url, path, [320, 180], { sort: "worker", noWorker: true });
+      assert.match(strict.info.createError || "", /sort worker: Web Workers are unavailable/, "sort: 'worker' without workers throws");
+      await strict.page.close();
     });
 
     it("streams a 4D .wsplat progressively: draws from the first static chunk, then plays frames", async (t) => {

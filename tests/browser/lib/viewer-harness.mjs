@@ -77,14 +77,14 @@ export async function launch(path) {
 }
 
 /** The harness page with the viewer created on `backend`; page errors are collected. */
-export async function openHarness(context, base, backend, size = [320, 180]) {
+export async function openHarness(context, base, backend, size = [320, 180], opts = {}) {
   const page = await context.newPage();
   const errors = [];
   page.on("pageerror", (e) => errors.push(String(e)));
   page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
   await page.goto(`${base}/fixtures/viewer.html`);
   await page.waitForFunction(() => window.harnessReady === true);
-  const info = await page.evaluate(([b, w, h]) => window.harness.create(b, w, h), [backend, size[0], size[1]]);
+  const info = await page.evaluate(([b, w, h, o]) => window.harness.create(b, w, h, o), [backend, size[0], size[1], opts]);
   return { page, errors, info };
 }
 

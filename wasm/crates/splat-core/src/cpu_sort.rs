@@ -17,44 +17,63 @@ pub fn camera_z(row2: &[f32; 4], mean: &[f32; 3]) -> f32 {
     row2[0] * mean[0] + row2[1] * mean[1] + row2[2] * mean[2] + row2[3]
 }
 
+/// Append the depth key (z bits: positive floats order like their bits) and index of every mean in front of the
+/// near plane; indices count from `first`.
+fn push_keys(means: impl Iterator<Item = [f32; 3]>, first: usize, row2: &[f32; 4], keys: &mut Vec<u32>, order: &mut Vec<u32>) {
+    for (i, m) in means.enumerate() {
+        let z = camera_z(row2, &m);
+        if z > NEAR {
+            keys.push(z.to_bits());
+            order.push((first + i) as u32);
+        }
+    }
+}
+
+/// One stable counting pass on the 8-bit digit at `shift` (keys/order -> tmp, then swapped back); a pass whose
+/// digit is the same for every key would not move anything and is skipped.
+fn radix_pass(shift: u32, keys: &mut Vec<u32>, order: &mut Vec<u32>, tmp_keys: &mut Vec<u32>, tmp_order: &mut Vec<u32>) {
+    let n = keys.len();
+    tmp_keys.resize(n, 0);
+    tmp_order.resize(n, 0);
+    let mut counts = [0usize; 256];
+    for &k in keys.iter() {
+        counts[((k >> shift) & 0xff) as usize] += 1;
+    }
+    if counts.iter().any(|&c| c == n) {
+        return;
+    }
+    let mut offsets = [0usize; 256];
+    let mut sum = 0;
+    for d in 0..256 {
+        offsets[d] = sum;
+        sum += counts[d];
+    }
+    for i in 0..n {
+        let k = keys[i];
+        let d = ((k >> shift) & 0xff) as usize;
+        tmp_keys[offsets[d]] = k;
+        tmp_order[offsets[d]] = order[i];
+        offsets[d] += 1;
+    }
+    std::mem::swap(keys, tmp_keys);
+    std::mem::swap(order, tmp_order);
+}
+
+const PASSES: u32 = 4;
+
 impl CpuSorter {
     /// Indices of the Gaussians in front of the near plane, nearest first.
     pub fn sort(&mut self, records: &[PackedSplat], row2: [f32; 4]) -> &[u32] {
+        self.sort_means(records.iter().map(|r| r.mean), row2)
+    }
+
+    /// The same sort over bare means (the Web Worker holds only positions).
+    pub fn sort_means(&mut self, means: impl Iterator<Item = [f32; 3]>, row2: [f32; 4]) -> &[u32] {
         self.keys.clear();
         self.order.clear();
-        for (i, r) in records.iter().enumerate() {
-            let z = camera_z(&row2, &r.mean);
-            if z > NEAR {
-                self.keys.push(z.to_bits()); // positive floats order like their bits
-                self.order.push(i as u32);
-            }
-        }
-        let n = self.keys.len();
-        self.tmp_keys.resize(n, 0);
-        self.tmp_order.resize(n, 0);
-        for shift in [0u32, 8, 16, 24] {
-            let mut counts = [0usize; 256];
-            for &k in &self.keys {
-                counts[((k >> shift) & 0xff) as usize] += 1;
-            }
-            if counts.iter().any(|&c| c == n) {
-                continue; // every key has the same digit: the pass would not move anything
-            }
-            let mut offsets = [0usize; 256];
-            let mut sum = 0;
-            for d in 0..256 {
-                offsets[d] = sum;
-                sum += counts[d];
-            }
-            for i in 0..n {
-                let k = self.keys[i];
-                let d = ((k >> shift) & 0xff) as usize;
-                self.tmp_keys[offsets[d]] = k;
-                self.tmp_order[offsets[d]] = self.order[i];
-                offsets[d] += 1;
-            }
-            std::mem::swap(&mut self.keys, &mut self.tmp_keys);
-            std::mem::swap(&mut self.order, &mut self.tmp_order);
+        push_keys(means, 0, &row2, &mut self.keys, &mut self.order);
+        for p in 0..PASSES {
+            radix_pass(8 * p, &mut self.keys, &mut self.order, &mut self.tmp_keys, &mut self.tmp_order);
         }
         &self.order
     }
@@ -148,45 +167,15 @@ impl CpuSortJob {
             match self.phase {
                 Phase::Keys => {
                     let end = (self.cursor + SLICE).min(records.len());
-                    for (i, r) in records[self.cursor..end].iter().enumerate() {
-                        let z = camera_z(&row2, &r.mean);
-                        if z > NEAR {
-                            self.keys.push(z.to_bits());
-                            self.order.push((self.cursor + i) as u32);
-                        }
-                    }
+                    push_keys(records[self.cursor..end].iter().map(|r| r.mean), self.cursor, &row2, &mut self.keys, &mut self.order);
                     self.cursor = end;
                     if end == records.len() {
                         self.phase = Phase::Pass(0);
-                        self.tmp_keys.resize(self.keys.len(), 0);
-                        self.tmp_order.resize(self.keys.len(), 0);
                     }
                 }
                 Phase::Pass(p) => {
-                    let shift = 8 * p;
-                    let n = self.keys.len();
-                    let mut counts = [0usize; 256];
-                    for &k in &self.keys {
-                        counts[((k >> shift) & 0xff) as usize] += 1;
-                    }
-                    if !counts.iter().any(|&c| c == n) {
-                        let mut offsets = [0usize; 256];
-                        let mut sum = 0;
-                        for d in 0..256 {
-                            offsets[d] = sum;
-                            sum += counts[d];
-                        }
-                        for i in 0..n {
-                            let k = self.keys[i];
-                            let d = ((k >> shift) & 0xff) as usize;
-                            self.tmp_keys[offsets[d]] = k;
-                            self.tmp_order[offsets[d]] = self.order[i];
-                            offsets[d] += 1;
-                        }
-                        std::mem::swap(&mut self.keys, &mut self.tmp_keys);
-                        std::mem::swap(&mut self.order, &mut self.tmp_order);
-                    }
-                    self.phase = if p == 3 { Phase::Done } else { Phase::Pass(p + 1) };
+                    radix_pass(8 * p, &mut self.keys, &mut self.order, &mut self.tmp_keys, &mut self.tmp_order);
+                    self.phase = if p + 1 == PASSES { Phase::Done } else { Phase::Pass(p + 1) };
                 }
                 Phase::Done => return true,
             }

@@ -132,6 +132,40 @@ impl Gpu {
     }
 }
 
+/// Where the instanced path's depth order comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CpuSortSource {
+    /// Sorted inside `render` (one shot, or sliced by `cpu_sort_budget_ms`).
+    InThread,
+    /// Sorted elsewhere (a browser Web Worker): `render` draws the last order it was given and asks for a new one
+    /// through `take_sort_request`; `accept_sort_result` hands the order in.
+    External,
+}
+
+/// A depth sort for an external sorter: the positions of `data_version` (`positions()`), one depth row per view.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SortRequest {
+    pub seq: u64,
+    pub keys: Vec<SortKey>,
+}
+
+impl SortRequest {
+    pub fn data_version(&self) -> u64 {
+        self.keys.first().map_or(0, |k| k.data_version)
+    }
+}
+
+/// State of the external sort: the orders in hand (one per view slot), what the last render wanted, the one
+/// request in flight (a new one goes out only when the previous answered, so a busy sorter never queues stale work).
+#[derive(Default)]
+struct ExternalSort {
+    orders: Vec<(SortKey, Vec<u32>)>,
+    wanted: Option<Vec<SortKey>>,
+    in_flight: Option<(u64, Vec<SortKey>)>,
+    seq: u64,
+    dropped: u64,
+}
+
 /// Timing and size figures of the last `render` call.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct RenderStats {
@@ -142,6 +176,8 @@ pub struct RenderStats {
     pub sort_pending: bool,
     /// The view did not change, so the previous sort was reused.
     pub sort_reused: bool,
+    /// External sort: results dropped so far because a newer request or new data superseded them.
+    pub sorts_dropped: u64,
 }
 
 pub struct Renderer {
@@ -167,10 +203,17 @@ pub struct Renderer {
     cpu_sorter: CpuSorter,
     /// Bumped whenever the resident Gaussians change; part of every sort key.
     data_version: u64,
+    /// The oldest data version whose indices still name the same Gaussians (only appended statics since).
+    index_epoch: u64,
     /// Single-view renders reuse the last sort while its key holds (both paths).
     last_sort: Option<SortKey>,
     uploaded_visible: u32,
     cpu_job: Option<CpuSortJob>,
+    /// Instanced path: sort in `render` or take orders from outside (a Web Worker).
+    cpu_sort_source: CpuSortSource,
+    external: ExternalSort,
+    /// External sort, single view: (order key, data version) of the records in the instance buffer.
+    uploaded_order: Option<(SortKey, u64)>,
     /// Instanced path: slice the CPU sort to this many ms per `render` once a previous order exists
     /// (None: sort to completion, as tests and readbacks need).
     pub cpu_sort_budget_ms: Option<f64>,
@@ -303,9 +346,13 @@ impl Renderer {
             sorted: Vec::new(),
             cpu_sorter: CpuSorter::default(),
             data_version: 0,
+            index_epoch: 0,
             last_sort: None,
             uploaded_visible: 0,
             cpu_job: None,
+            cpu_sort_source: CpuSortSource::InThread,
+            external: ExternalSort::default(),
+            uploaded_order: None,
             cpu_sort_budget_ms: None,
             accum: None,
             clock: std_clock,
@@ -371,7 +418,107 @@ impl Renderer {
         self.data_version += 1;
         self.num_static = 0;
         self.count = 0;
+        self.index_epoch = self.data_version;
         self.cpu_records.clear();
+        // Nothing of the old scene may draw while the new one waits for its first order.
+        self.uploaded_visible = 0;
+        self.uploaded_order = None;
+        self.external.orders.clear();
+    }
+
+    /// Bumped whenever the resident Gaussians change (external sorters need the positions of this version).
+    pub fn data_version(&self) -> u64 {
+        self.data_version
+    }
+
+    /// Means of the resident Gaussians as x, y, z triples (what an external sorter needs; instanced path only).
+    pub fn positions(&self) -> Vec<f32> {
+        debug_assert!(self.path == DrawPath::Instanced);
+        self.cpu_records.iter().flat_map(|r| r.mean).collect()
+    }
+
+    /// Sort keys of `views` for the resident data (what an exact frame needs).
+    pub fn sort_keys(&self, views: &[ViewRect]) -> Vec<SortKey> {
+        views.iter().map(|v| SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2)).collect()
+    }
+
+    /// External sort: true when the orders in hand are exactly those of `views` on the resident data.
+    pub fn orders_ready(&self, views: &[ViewRect]) -> bool {
+        let keys = self.sort_keys(views);
+        keys.len() <= self.external.orders.len() && keys.iter().zip(&self.external.orders).all(|(k, o)| *k == o.0)
+    }
+
+    /// External sort: ask for the orders of `views` (the next `take_sort_request` sends it unless they are in hand).
+    pub fn want_orders(&mut self, views: &[ViewRect]) {
+        if !self.orders_ready(views) {
+            self.external.wanted = Some(self.sort_keys(views));
+        }
+    }
+
+    /// External sort: the request to send now, if the last render wanted an order that is neither in hand nor
+    /// in flight. At most one request is in flight.
+    pub fn take_sort_request(&mut self) -> Option<SortRequest> {
+        let e = &mut self.external;
+        if e.in_flight.is_some() {
+            return None;
+        }
+        let keys = e.wanted.take()?;
+        if keys.first().is_none_or(|k| k.data_version != self.data_version) {
+            return None; // wanted for data that is gone (a new scene); the next render asks again
+        }
+        e.seq += 1;
+        e.in_flight = Some((e.seq, keys.clone()));
+        Some(SortRequest { seq: e.seq, keys })
+    }
+
+    /// External sort: the sorter answered request `seq` with one order per view (visible indices, nearest first).
+    /// Returns false (and counts a drop) for an answer that is not the request in flight or whose data has
+    /// since been replaced; an order with an index out of range is an error (a broken sorter).
+    pub fn accept_sort_result(&mut self, seq: u64, orders: Vec<Vec<u32>>) -> Result<bool, String> {
+        let e = &mut self.external;
+        let keys = match &e.in_flight {
+            Some((s, _)) if *s == seq => e.in_flight.take().unwrap().1,
+            _ => {
+                e.dropped += 1;
+                return Ok(false);
+            }
+        };
+        if keys.first().is_none_or(|k| k.data_version < self.index_epoch) {
+            e.dropped += 1; // its indices no longer name the same Gaussians
+            return Ok(false);
+        }
+        if orders.len() != keys.len() {
+            return Err(format!("sort result {seq}: {} orders for {} views", orders.len(), keys.len()));
+        }
+        let count = self.count;
+        if let Some(bad) = orders.iter().flatten().find(|&&i| i >= count) {
+            return Err(format!("sort result {seq}: index {bad} is out of range (count {count})"));
+        }
+        if e.wanted.as_ref() == Some(&keys) {
+            e.wanted = None;
+        }
+        e.orders = keys.into_iter().zip(orders).collect();
+        Ok(true)
+    }
+
+    pub fn cpu_sort_source(&self) -> CpuSortSource {
+        self.cpu_sort_source
+    }
+
+    /// Switch where the instanced path's order comes from (forgets what the other source sorted).
+    pub fn set_cpu_sort_source(&mut self, source: CpuSortSource) {
+        self.cpu_sort_source = source;
+        self.last_sort = None;
+        self.cpu_job = None;
+        self.uploaded_order = None;
+        self.external = ExternalSort { seq: self.external.seq, dropped: self.external.dropped, ..Default::default() };
+    }
+
+    /// External sort: drop the request in flight (the sorter died); the next render asks again.
+    pub fn cancel_sort_request(&mut self) {
+        if let Some((_, keys)) = self.external.in_flight.take() {
+            self.external.wanted.get_or_insert(keys);
+        }
     }
 
     /// Make the resident set `statics ++ dynamic`. `statics` may only have grown since the last call (streaming
@@ -382,10 +529,14 @@ impl Renderer {
         }
         let total = (statics.len() + dynamic.len()) as u32;
         let mut from = self.num_static as usize;
+        // Streaming appends statics with no dynamic set: earlier indices keep naming the same Gaussians.
+        let append_only = dynamic.is_empty() && self.count == self.num_static;
         if total > self.capacity {
             let capacity = total.max(self.capacity.saturating_mul(3) / 2).max(1024);
             self.splat_buf = Self::make_splat_buffer(&self.device, self.path, capacity);
             self.capacity = capacity;
+            self.uploaded_visible = 0;
+            self.uploaded_order = None;
             from = 0;
             if let Some(s) = self.gpu_sort.as_mut() {
                 s.ensure_capacity(&self.device, capacity);
@@ -409,6 +560,9 @@ impl Renderer {
         self.num_static = statics.len() as u32;
         self.count = total;
         self.data_version += 1;
+        if !append_only {
+            self.index_epoch = self.data_version;
+        }
     }
 
     fn ensure_accum(&mut self, size: [u32; 2]) {
@@ -528,7 +682,9 @@ impl Renderer {
                 for (i, v) in views.iter().enumerate() {
                     let t0 = (self.clock)();
                     let key = SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2);
-                    if views.len() > 1 {
+                    if self.cpu_sort_source == CpuSortSource::External {
+                        self.draw_external_order(i, key, views.len(), &mut stats);
+                    } else if views.len() > 1 {
                         let order = self.cpu_sorter.sort(&self.cpu_records, key.row2());
                         self.sorted.clear();
                         self.sorted.extend(order.iter().map(|&i| self.cpu_records[i as usize]));
@@ -573,9 +729,40 @@ impl Renderer {
                 let mut encoder = self.device.create_command_encoder(&Default::default());
                 self.blit(&mut encoder, &blit, &accum_view, target);
                 self.queue.submit([encoder.finish()]);
+                if stats.sort_pending && self.cpu_sort_source == CpuSortSource::External {
+                    self.external.wanted = Some(self.sort_keys(views));
+                }
+                stats.sorts_dropped = self.external.dropped;
             }
         }
         Ok(stats)
+    }
+
+    /// External sort, view `slot` wanting `key`: upload the order in hand for this slot. Until the exact order
+    /// arrives the last one draws: for a single view the instance buffer as uploaded (after a data change: the
+    /// previous frame, whole and in order), for the mosaic the slot's last order over the current records.
+    fn draw_external_order(&mut self, slot: usize, key: SortKey, views: usize, stats: &mut RenderStats) {
+        let Some((have, order)) = self.external.orders.get(slot) else {
+            stats.sort_pending = true;
+            if views > 1 {
+                self.uploaded_visible = 0;
+            }
+            return;
+        };
+        if *have != key {
+            stats.sort_pending = true;
+        } else if views == 1 && self.uploaded_order == Some((*have, self.data_version)) {
+            stats.sort_reused = true;
+            return;
+        }
+        if views == 1 && have.data_version < self.index_epoch {
+            return; // keep the previous frame's records
+        }
+        let count = self.cpu_records.len() as u32;
+        self.sorted.clear();
+        self.sorted.extend(order.iter().filter(|&&i| i < count).map(|&i| self.cpu_records[i as usize]));
+        self.uploaded_order = (views == 1).then_some((*have, self.data_version));
+        self.upload_sorted();
     }
 
     fn upload_sorted(&mut self) {

@@ -4,7 +4,8 @@
 use splat_core::camera::Camera;
 use splat_core::gaussians::{gaussians_from_json, pack_all};
 use splat_core::headless;
-use splat_core::renderer::{DrawPath, Renderer, ViewRect};
+use splat_core::cpu_sort::CpuSorter;
+use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, ViewRect};
 use std::path::Path;
 
 fn vector(name: &str) -> (Camera, Vec<splat_core::gaussians::PackedSplat>) {
@@ -94,4 +95,96 @@ fn frames_swap_the_dynamic_set() {
     assert_eq!(s0.gaussians, 175);
     assert_ne!(f0, f1);
     assert_eq!(f0, f0b);
+}
+
+/// An external sorter (the browser's Web Worker) in miniature: positions in, `CpuSorter::sort_means` per row.
+fn external_sort(r: &Renderer, req: &splat_core::renderer::SortRequest) -> Vec<Vec<u32>> {
+    let pos = r.positions();
+    let means: Vec<[f32; 3]> = pos.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let mut sorter = CpuSorter::default();
+    req.keys.iter().map(|k| sorter.sort_means(means.iter().copied(), k.row2()).to_vec()).collect()
+}
+
+#[test]
+fn external_sort_draws_the_last_order_until_the_exact_one_arrives_and_drops_stale_results() {
+    let (cam, splats) = vector("street_shift_0m");
+    let gpu = headless::gpu(Some(DrawPath::Instanced)).unwrap();
+    let size = [cam.width, cam.height];
+    let a = [ViewRect { camera: cam.clone(), origin: [0, 0] }];
+    let b = [ViewRect { camera: yawed(&cam, 0.3), origin: [0, 0] }];
+    let exact = |views: &[ViewRect], statics: &[splat_core::gaussians::PackedSplat], dynamic: &[splat_core::gaussians::PackedSplat]| {
+        let mut r = Renderer::new(&gpu);
+        r.update(statics, dynamic);
+        headless::render_rgba(&mut r, views, size).unwrap().0
+    };
+    let (want_a, want_b) = (exact(&a, &splats, &[]), exact(&b, &splats, &[]));
+    let mut r = Renderer::new(&gpu);
+    r.set_cpu_sort_source(CpuSortSource::External);
+    r.update(&splats, &[]);
+    // No order yet: nothing draws, a request goes out; no second request while it is in flight.
+    let (img, s) = headless::render_rgba(&mut r, &a, size).unwrap();
+    assert!(s.sort_pending && img.chunks(4).all(|p| p[..3] == [0, 0, 0]), "nothing drawn before the first order");
+    let req_a = r.take_sort_request().expect("a request for view a");
+    assert_eq!(req_a.keys.len(), 1);
+    assert_eq!(req_a.data_version(), r.data_version());
+    headless::render_rgba(&mut r, &b, size).unwrap();
+    assert!(r.take_sort_request().is_none(), "one request in flight at a time");
+    assert!(r.accept_sort_result(req_a.seq + 7, external_sort(&r, &req_a)).unwrap() == false, "unknown seq dropped");
+    assert!(r.accept_sort_result(req_a.seq, external_sort(&r, &req_a)).unwrap());
+    // View b is wanted but a's order is in hand: draws a's order (pending), which is the exact image of a.
+    let (img, s) = headless::render_rgba(&mut r, &a, size).unwrap();
+    assert!(!s.sort_pending && s.sort_reused == false);
+    assert_eq!(img, want_a, "the worker's order draws exactly what the in-thread sort draws");
+    let (_, s) = headless::render_rgba(&mut r, &b, size).unwrap();
+    assert!(s.sort_pending, "b is not sorted yet");
+    let req_b = r.take_sort_request().expect("a request for view b");
+    let answer_b = external_sort(&r, &req_b);
+    assert!(r.accept_sort_result(req_b.seq, answer_b.clone()).unwrap());
+    assert!(r.orders_ready(&b));
+    let (img, s) = headless::render_rgba(&mut r, &b, size).unwrap();
+    assert!(!s.sort_pending);
+    assert_eq!(img, want_b);
+    let (_, s) = headless::render_rgba(&mut r, &b, size).unwrap();
+    assert!(s.sort_reused, "a held view reuses the uploaded order");
+    // A frame change (the dynamic set swaps): a result for the old data is dropped, not drawn.
+    let (statics, dynamic) = splats.split_at(splats.len() - 40);
+    r.update(statics, dynamic);
+    headless::render_rgba(&mut r, &b, size).unwrap();
+    let req_c = r.take_sort_request().expect("new data asks again");
+    r.update(statics, &dynamic[..20]);
+    assert!(!r.accept_sort_result(req_c.seq, answer_b.clone()).unwrap(), "old-data result dropped");
+    assert_eq!(headless::render_rgba(&mut r, &b, size).unwrap().1.sorts_dropped, 2);
+    // A broken sorter is an error, never a panic or an out-of-range draw.
+    headless::render_rgba(&mut r, &b, size).unwrap();
+    let req_d = r.take_sort_request().unwrap();
+    assert!(r.accept_sort_result(req_d.seq, vec![vec![u32::MAX]]).is_err());
+    // Mosaic-style multi-view requests carry one row per view and draw once answered.
+    let two = [ViewRect { camera: cam.clone(), origin: [0, 0] }, ViewRect { camera: yawed(&cam, 0.3), origin: [0, 0] }];
+    r.update(&splats, &[]);
+    r.want_orders(&two);
+    let req_e = r.take_sort_request().unwrap();
+    assert_eq!(req_e.keys.len(), 2);
+    let ans = external_sort(&r, &req_e);
+    assert!(r.accept_sort_result(req_e.seq, ans).unwrap());
+    assert!(r.orders_ready(&two));
+}
+
+#[test]
+fn external_sort_keeps_orders_across_streamed_appends() {
+    let (cam, splats) = vector("street_shift_0m");
+    let gpu = headless::gpu(Some(DrawPath::Instanced)).unwrap();
+    let size = [cam.width, cam.height];
+    let a = [ViewRect { camera: cam.clone(), origin: [0, 0] }];
+    let mut r = Renderer::new(&gpu);
+    r.set_cpu_sort_source(CpuSortSource::External);
+    let half = splats.len() / 2;
+    r.update(&splats[..half], &[]);
+    headless::render_rgba(&mut r, &a, size).unwrap();
+    let req = r.take_sort_request().unwrap();
+    let answer = external_sort(&r, &req);
+    r.update(&splats, &[]); // more statics streamed in meanwhile
+    assert!(r.accept_sort_result(req.seq, answer).unwrap(), "an order of the streamed prefix still applies");
+    let (img, s) = headless::render_rgba(&mut r, &a, size).unwrap();
+    assert!(s.sort_pending, "the full set still needs its own order");
+    assert!(img.chunks(4).any(|p| p[..3] != [0, 0, 0]), "the prefix draws meanwhile");
 }

@@ -14,6 +14,10 @@ const USAGE: &str = "usage:
   splat-render SCENE.wsplat|SCENE.ply|VECTOR.json --out FILE.png [--camera NAME|mosaic|bev|free] [--frame T]
                [--shift-m M] [--camera-json CAM.json] [--size WxH] [--path storage|instanced]
   splat-render bench [--counts 100000,500000,1000000] [--size 1280x720] [--frames 3] [--path storage|instanced]
+  splat-render bench --compare-paths [--counts ..] [--size ..] [--frames ..] [--out-dir DIR]
+               (both draw paths side by side on the same scene and views: frame time ratio, PSNR between them;
+                DIR gets each scene as PLY, the last camera as JSON and both renders, for a torch reference)
+  splat-render psnr A.png B.png                          (RGB PSNR in dB of two renders of one size)
   splat-render synth --count N --out FILE.ply           (the benchmark's synthetic street cloud)
   splat-render fixture4d VECTOR.json --out FILE.wsplat [--frames 4] [--chunk 500]
                (test fixture: the vector's Gaussians as the static base, a moving cluster as per-frame dynamics)";
@@ -32,6 +36,10 @@ impl Args {
             if let Some(name) = a.strip_prefix("--") {
                 if name == "help" {
                     return Err(USAGE.into());
+                }
+                if name == "compare-paths" {
+                    flags.push((name.to_string(), String::new())); // a switch
+                    continue;
                 }
                 let v = it.next().ok_or_else(|| format!("--{name} needs a value\n{USAGE}"))?;
                 flags.push((name.to_string(), v));
@@ -158,7 +166,10 @@ fn synthetic(n: usize, seed: u64) -> Vec<Gaussian> {
 }
 
 fn bench(a: &Args) -> Result<(), String> {
-    a.check_known(&["counts", "size", "frames", "path"])?;
+    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "out-dir"])?;
+    if a.get("compare-paths").is_some() {
+        return bench_paths(a);
+    }
     let counts: Vec<usize> = a
         .get("counts")
         .unwrap_or("100000,500000,1000000")
@@ -220,6 +231,118 @@ fn bench(a: &Args) -> Result<(), String> {
     Ok(())
 }
 
+/// RGB PSNR of two RGBA8 images of one size (999 when identical).
+fn psnr_rgba(a: &[u8], b: &[u8]) -> f64 {
+    let mut se = 0.0f64;
+    for (p, q) in a.chunks_exact(4).zip(b.chunks_exact(4)) {
+        for c in 0..3 {
+            let d = p[c] as f64 - q[c] as f64;
+            se += d * d;
+        }
+    }
+    let mse = se / (3.0 * (a.len() / 4).max(1) as f64);
+    if mse == 0.0 {
+        999.0
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+}
+
+/// The two draw paths on the same scene and the same camera sequence, interleaved per size so load drifts hit
+/// both alike. Moving = the camera orbits every frame (sort + draw + readback); held = the view repeats, the sort
+/// is reused (draw + readback only: the draw paths' own cost).
+fn bench_paths(a: &Args) -> Result<(), String> {
+    let counts: Vec<usize> = a
+        .get("counts")
+        .unwrap_or("100000,500000,1000000")
+        .split(',')
+        .map(|c| c.trim().parse().map_err(|_| format!("--counts: bad number {c:?}")))
+        .collect::<Result<_, _>>()?;
+    let size = parse_size(a.get("size").unwrap_or("1280x720"))?;
+    let frames: usize = a.get("frames").unwrap_or("3").parse().map_err(|_| "--frames: expected an integer")?;
+    let out_dir = a.get("out-dir").map(std::path::PathBuf::from);
+    if let Some(d) = &out_dir {
+        std::fs::create_dir_all(d).map_err(|e| format!("--out-dir {}: {e}", d.display()))?;
+    }
+    let storage = headless::gpu(Some(DrawPath::Storage))?;
+    let instanced = headless::gpu(Some(DrawPath::Instanced))?;
+    println!("draw paths side by side on {} ({:?}); {}x{}; {frames} timed frames each after one warm-up", storage.info.name, storage.info.backend, size[0], size[1]);
+    println!("storage = records in a storage buffer, GPU radix sort, indirect draw of order[i]; instanced = CPU sort, sorted records as instance attributes");
+    println!(
+        "{:<6} {:>9} {:>14} {:>16} {:>8} {:>13} {:>15} {:>8} {:>14} {:>15} {:>11}",
+        "paths", "gaussians", "storage mov ms", "instanced mov ms", "ratio", "storage held", "instanced held", "ratio", "storage sort", "instanced sort", "PSNR s/i dB"
+    );
+    for &n in &counts {
+        let gs = synthetic(n, 0x9e3779b97f4a7c15 ^ n as u64);
+        let scene = Scene::from_gaussians(&gs);
+        let mut renderers = [Renderer::new(&storage), Renderer::new(&instanced)];
+        for r in renderers.iter_mut() {
+            r.update(&scene.statics, &[]);
+        }
+        let mut state = ViewState::default();
+        state.set_camera(&scene, "free").unwrap();
+        state.free.target = [50.0, 0.0, 2.0];
+        state.free.distance = 30.0;
+        let mut moving = [Vec::new(), Vec::new()];
+        let mut held = [Vec::new(), Vec::new()];
+        let mut sort = [Vec::new(), Vec::new()];
+        let mut last: [Vec<u8>; 2] = [Vec::new(), Vec::new()];
+        for i in 0..=frames {
+            state.free.orbit(0.05, 0.0);
+            let views = state.views(&scene, size);
+            for (k, r) in renderers.iter_mut().enumerate() {
+                let t = Instant::now();
+                let (img, _) = headless::render_rgba(r, &views, size)?;
+                let m = t.elapsed().as_secs_f64() * 1e3;
+                let t = Instant::now();
+                let (_, st) = headless::render_rgba(r, &views, size)?;
+                let h = t.elapsed().as_secs_f64() * 1e3;
+                if !st.sort_reused {
+                    return Err("bench: the held view did not reuse its sort".into());
+                }
+                let t = Instant::now();
+                r.sort_only(&views[0]); // the CPU sort runs here, the GPU sort until the poll returns
+                r.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| format!("poll: {e}"))?;
+                let s = t.elapsed().as_secs_f64() * 1e3;
+                if i > 0 {
+                    moving[k].push(m);
+                    held[k].push(h);
+                    sort[k].push(s);
+                }
+                last[k] = img;
+            }
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let (ms, mi, hs, hi) = (mean(&moving[0]), mean(&moving[1]), mean(&held[0]), mean(&held[1]));
+        println!(
+            "{:<6} {:>9} {:>14.1} {:>16.1} {:>8.2} {:>13.1} {:>15.1} {:>8.2} {:>14.1} {:>15.1} {:>11.1}",
+            "paths", n, ms, mi, ms / mi, hs, hi, hs / hi, mean(&sort[0]), mean(&sort[1]), psnr_rgba(&last[0], &last[1])
+        );
+        if let Some(d) = &out_dir {
+            let cam = &state.views(&scene, size)[0].camera;
+            std::fs::write(d.join(format!("synth_{n}.ply")), splat_core::ply::write_ply(&gs)).map_err(|e| e.to_string())?;
+            std::fs::write(d.join(format!("camera_{n}.json")), cam.to_json().to_string()).map_err(|e| e.to_string())?;
+            for (k, name) in ["storage", "instanced"].iter().enumerate() {
+                let file = d.join(format!("{name}_{n}.png"));
+                image::RgbaImage::from_raw(size[0], size[1], last[k].clone()).unwrap().save(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+fn psnr(a: &Args) -> Result<(), String> {
+    a.check_known(&[])?;
+    let (Some(p), Some(q)) = (a.positional.get(1), a.positional.get(2)) else { return Err(USAGE.into()) };
+    let load = |f: &str| image::open(f).map(|i| i.to_rgba8()).map_err(|e| format!("{f}: {e}"));
+    let (x, y) = (load(p)?, load(q)?);
+    if x.dimensions() != y.dimensions() {
+        return Err(format!("{p} is {:?} but {q} is {:?}", x.dimensions(), y.dimensions()));
+    }
+    println!("{:.2}", psnr_rgba(x.as_raw(), y.as_raw()));
+    Ok(())
+}
+
 fn synth(a: &Args) -> Result<(), String> {
     a.check_known(&["count", "out"])?;
     let n: usize = a.get("count").ok_or("--count N is required")?.parse().map_err(|_| "--count: expected an integer")?;
@@ -262,6 +385,7 @@ fn main() {
     let result = Args::parse().and_then(|a| match a.positional.first().map(String::as_str) {
         Some("bench") => bench(&a),
         Some("synth") => synth(&a),
+        Some("psnr") => psnr(&a),
         Some("fixture4d") => fixture4d(&a),
         _ => render(&a),
     });

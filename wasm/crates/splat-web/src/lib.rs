@@ -4,7 +4,10 @@
 #![cfg(target_arch = "wasm32")]
 
 use splat_core::ply::{is_ply, read_ply};
-use splat_core::renderer::{DrawPath, Gpu, Offscreen, Renderer};
+mod sort_worker;
+
+use sort_worker::{SortWorker, WorkerMessage};
+use splat_core::renderer::{CpuSortSource, DrawPath, Gpu, Offscreen, Renderer};
 use splat_core::scene::{read_wsplat, Scene, StreamingScene};
 use splat_core::view_state::{rig_of, CameraMode, ViewState};
 use std::cell::RefCell;
@@ -46,6 +49,11 @@ struct Stats {
     fps: f64,
     last_render: f64,
     sort_pending: bool,
+    /// Main-thread ms the last render spent on the depth order (in-thread sort slices, or gathering a worker's order).
+    sort_main_ms: f64,
+    /// Worker: ms from sending a request to its order being applied.
+    sort_latency_ms: f64,
+    sorts_dropped: u64,
 }
 
 struct Inner {
@@ -68,9 +76,70 @@ struct Inner {
     playing: bool,
     play_clock: f64,
     last_key_time: f64,
+    /// WebGL2 path: the depth sort's Web Worker (None: sorted on the main thread, or the GPU path).
+    sort_worker: Option<SortWorker>,
+    /// "gpu" (compute radix sort), "worker" or "main" (WebGL2 CPU sort), and why the worker is not used.
+    sort_thread: &'static str,
+    sort_note: String,
+    /// Worker messages that arrived while the viewer was borrowed (processed on the next call).
+    inbox: Rc<RefCell<Vec<JsValue>>>,
+    /// A worker's order arrived after the last render: the page should render again.
+    order_arrived: bool,
 }
 
 impl Inner {
+    fn on_worker_message(&mut self, data: JsValue) {
+        match sort_worker::decode(&data) {
+            WorkerMessage::Ready => {
+                if let Some(w) = self.sort_worker.as_mut() {
+                    w.ready = true;
+                }
+            }
+            WorkerMessage::Sorted { seq, orders, ms } => match self.renderer.accept_sort_result(seq, orders) {
+                Ok(applied) => {
+                    if applied {
+                        self.stats.sort_ms = ms;
+                        self.stats.sort_latency_ms = now_ms() - self.sort_worker.as_ref().map_or(0.0, |w| w.requested_at);
+                        self.order_arrived = true;
+                    }
+                    self.pump_sort();
+                }
+                Err(e) => self.sort_on_main_thread(e),
+            },
+            WorkerMessage::Error(e) => self.sort_on_main_thread(e),
+        }
+    }
+
+    fn drain_inbox(&mut self) {
+        let queued: Vec<JsValue> = std::mem::take(&mut *self.inbox.borrow_mut());
+        for m in queued {
+            self.on_worker_message(m);
+        }
+    }
+
+    /// Send the renderer's pending sort request to the worker (one in flight at a time).
+    fn pump_sort(&mut self) {
+        let Some(w) = self.sort_worker.as_mut() else { return };
+        if let Some(req) = self.renderer.take_sort_request() {
+            let renderer = &self.renderer;
+            w.send(&req, || renderer.positions(), now_ms());
+        }
+    }
+
+    /// The worker failed: sort in this thread from now on (sliced, as without workers).
+    fn sort_on_main_thread(&mut self, why: String) {
+        if let Some(w) = self.sort_worker.take() {
+            // Called from inside the worker's message closure: terminate it but do not drop the closure now.
+            w.terminate();
+            std::mem::forget(w);
+        }
+        web_sys::console::warn_1(&format!("viewer: depth sort falls back to the main thread: {why}").into());
+        self.renderer.set_cpu_sort_source(CpuSortSource::InThread);
+        self.sort_thread = "main";
+        self.sort_note = why;
+        self.order_arrived = true;
+    }
+
     fn scene(&self) -> &Scene {
         self.stream.as_ref().map_or(&self.scene, |s| &s.scene)
     }
@@ -139,7 +208,10 @@ impl Inner {
         let size = self.size();
         let views = self.state.views(self.scene(), size);
         let t0 = now_ms();
+        self.drain_inbox();
         let stats = self.renderer.render(&views, target, format, size).map_err(js_err)?;
+        self.order_arrived = false;
+        self.pump_sort();
         let t1 = now_ms();
         let dt = t1 - self.stats.last_render;
         if self.stats.last_render > 0.0 && dt > 0.0 {
@@ -148,8 +220,12 @@ impl Inner {
         }
         self.stats.last_render = t1;
         self.stats.frame_ms = t1 - t0;
-        self.stats.sort_ms = stats.cpu_sort_ms;
+        if self.sort_worker.is_none() {
+            self.stats.sort_ms = stats.cpu_sort_ms;
+        }
+        self.stats.sort_main_ms = stats.cpu_sort_ms;
         self.stats.sort_pending = stats.sort_pending;
+        self.stats.sorts_dropped = stats.sorts_dropped;
         Ok(())
     }
 
@@ -248,10 +324,17 @@ async fn make_gpu(canvas: &HtmlCanvasElement, backend: &str) -> Result<(wgpu::In
 
 #[wasm_bindgen]
 impl Viewer {
-    /// `Viewer.create(canvas, {backend: "auto" | "webgpu" | "webgl2"})`.
+    /// `Viewer.create(canvas, {backend: "auto" | "webgpu" | "webgl2", sort: "auto" | "worker" | "main"})`.
+    /// `sort` is the WebGL2 path's CPU depth sort: a Web Worker by default ("auto" falls back to the main thread
+    /// where workers are unavailable; "worker" throws instead; "main" never uses one).
     pub async fn create(canvas: HtmlCanvasElement, options: JsValue) -> Result<Viewer, JsError> {
         console_error_panic_hook::set_once();
-        let backend = js_sys::Reflect::get(&options, &"backend".into()).ok().and_then(|v| v.as_string()).unwrap_or_else(|| "auto".into());
+        let option = |k: &str| js_sys::Reflect::get(&options, &k.into()).ok().and_then(|v| v.as_string());
+        let backend = option("backend").unwrap_or_else(|| "auto".into());
+        let sort = option("sort").unwrap_or_else(|| "auto".into());
+        if !matches!(sort.as_str(), "auto" | "worker" | "main") {
+            return Err(js_err(format!("Viewer.create: sort {sort:?} is not one of auto, worker, main")));
+        }
         let (instance, surface, adapter, backend) = make_gpu(&canvas, &backend).await.map_err(js_err)?;
         let gpu = Gpu::new(&adapter).await.map_err(js_err)?;
         let caps = surface.get_capabilities(&adapter);
@@ -285,7 +368,24 @@ impl Viewer {
             playing: false,
             play_clock: 0.0,
             last_key_time: now_ms(),
+            sort_worker: None,
+            sort_thread: if gpu.path == DrawPath::Storage { "gpu" } else { "main" },
+            sort_note: String::new(),
+            inbox: Rc::new(RefCell::new(Vec::new())),
+            order_arrived: false,
         }));
+        if gpu.path == DrawPath::Instanced && sort != "main" {
+            match spawn_worker(&inner) {
+                Ok(w) => {
+                    let mut i = inner.borrow_mut();
+                    i.sort_worker = Some(w);
+                    i.sort_thread = "worker";
+                    i.renderer.set_cpu_sort_source(CpuSortSource::External);
+                }
+                Err(e) if sort == "worker" => return Err(js_err(format!("Viewer.create: sort worker: {e}"))),
+                Err(e) => inner.borrow_mut().sort_note = e,
+            }
+        }
         attach_controls(&canvas, &inner);
         Ok(Viewer { inner })
     }
@@ -462,7 +562,15 @@ impl Viewer {
         self.inner.borrow_mut().render()
     }
 
-    /// `{gaussians, bytes, fps, frame_ms, sort_ms, backend, path}` as JSON.
+    /// A worker's depth order arrived since the last `render`: render again to show it (pages that render only
+    /// on change should check this every animation frame).
+    pub fn needs_redraw(&self) -> bool {
+        let mut i = self.inner.borrow_mut();
+        i.drain_inbox();
+        i.order_arrived
+    }
+
+    /// `{gaussians, bytes, fps, frame_ms, sort_ms, backend, path, sort_thread, ...}` as JSON.
     pub fn stats(&self) -> String {
         let i = self.inner.borrow();
         serde_json::json!({
@@ -470,12 +578,39 @@ impl Viewer {
             "frame_ms": i.stats.frame_ms, "sort_ms": i.stats.sort_ms, "backend": i.backend,
             "path": if i.renderer.path == DrawPath::Storage { "gpu-sort" } else { "cpu-sort" },
             "dropped": i.scene().dropped, "sort_pending": i.stats.sort_pending,
+            "sort_thread": i.sort_thread, "sort_note": i.sort_note, "sort_main_ms": i.stats.sort_main_ms,
+            "sort_latency_ms": i.stats.sort_latency_ms, "sorts_dropped": i.stats.sorts_dropped,
+            "sort_worker_ready": i.sort_worker.as_ref().is_some_and(|w| w.ready),
         })
         .to_string()
     }
 
     /// Render the current view offscreen and read it back through a mapped wgpu buffer: RGBA8, rows top-down.
+    /// A readback shows the exact depth order: with the sort worker it first waits (without blocking) for the
+    /// worker's order of this very view.
     pub async fn read_pixels(&self) -> Result<js_sys::Uint8Array, JsError> {
+        let start = now_ms();
+        loop {
+            {
+                let mut guard = self.inner.borrow_mut();
+                let i = &mut *guard;
+                i.drain_inbox();
+                if i.renderer.cpu_sort_source() != CpuSortSource::External {
+                    break;
+                }
+                i.sync_gpu();
+                let views = i.state.views(i.scene(), i.size());
+                if i.renderer.orders_ready(&views) {
+                    break;
+                }
+                i.renderer.want_orders(&views);
+                i.pump_sort();
+            }
+            if now_ms() - start > READBACK_TIMEOUT_MS {
+                return Err(js_err(format!("read_pixels: the sort worker did not answer within {} s", READBACK_TIMEOUT_MS / 1000.0)));
+            }
+            sleep_ms(1).await;
+        }
         let (device, mut readback, scope) = {
             let mut i = self.inner.borrow_mut();
             let size = i.size();
@@ -516,6 +651,20 @@ impl Viewer {
             sleep_ms(2).await;
         }
     }
+}
+
+/// Start the sort worker; its messages go to the viewer (or its inbox while the viewer is busy).
+fn spawn_worker(inner: &Rc<RefCell<Inner>>) -> Result<SortWorker, String> {
+    let weak = Rc::downgrade(inner);
+    let inbox = inner.borrow().inbox.clone();
+    let on_message = Closure::<dyn FnMut(JsValue)>::new(move |data: JsValue| {
+        let Some(rc) = weak.upgrade() else { return };
+        match rc.try_borrow_mut() {
+            Ok(mut i) => i.on_worker_message(data),
+            Err(_) => inbox.borrow_mut().push(data),
+        };
+    });
+    SortWorker::spawn(on_message)
 }
 
 fn attach_controls(canvas: &HtmlCanvasElement, inner: &Rc<RefCell<Inner>>) {

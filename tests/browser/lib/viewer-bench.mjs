@@ -1,8 +1,10 @@
 // Browser benchmark of the viewer (not a test): frame time and sort time for 100k / 500k / 1M Gaussians in
 // headless Chromium, WebGPU (GPU radix sort) and WebGL2 (CPU sort in wasm). Frame = render + buffer readback
 // (the only sync point headless); sort = frame with the view moving minus frame with the view held (sort reused).
+// WebGL2 rows also time the depth sort per view change like a frame loop (`harness.sortLatency`): with the sort in
+// the Web Worker (path "webgl2", the default) or sliced on the main thread (path "webgl2-main", sort: "main").
 // Usage: NODE_PATH=package-config/node_modules node tests/browser/lib/viewer-bench.mjs [COUNTS] [WxH] [FRAMES] [PATHS]
-//   defaults: 100000,500000,1000000 640x360 2
+//   defaults: 100000,500000,1000000 640x360 2 webgpu,webgl2   (PATHS may add webgl2-main)
 import { mkdirSync } from "node:fs";
 import { join } from "node:path";
 import { ARTIFACTS, startServer, launch, openHarness, native } from "./viewer-harness.mjs";
@@ -17,24 +19,32 @@ for (const n of counts) native(["synth", "--count", String(n), "--out", join(dir
 const server = await startServer();
 const rows = [];
 for (const path of paths) {
-  const b = await launch(path);
+  const backend = path.startsWith("webgl2") ? "webgl2" : path;
+  const b = await launch(backend);
   try {
-    const { page, info } = await openHarness(b.context, server.url, path, [width, height]);
+    const { page, info } = await openHarness(b.context, server.url, backend, [width, height], path === "webgl2-main" ? { sort: "main" } : {});
     if (info.unavailable) { console.log(`${path}: unavailable`); continue; }
     for (const n of counts) {
-      const r = await page.evaluate(async ([url, k]) => {
+      const r = await page.evaluate(async ([url, k, b]) => {
         const h = window.harness;
         const loadMs = await h.loadUrl(url);
         h.call("set_camera", "free");
         const held = await h.benchFrames(k, 0);
         const moving = await h.benchFrames(k, 0.02);
-        return { loadMs, held, moving };
-      }, [`/artifacts/bench/synth_${n}.ply`, frames]);
+        const sort = b === "webgl2" ? await h.sortLatency(k + 1, 0.02) : null;
+        return { loadMs, held, moving, sort };
+      }, [`/artifacts/bench/synth_${n}.ply`, frames, backend]);
       const row = {
         path, adapter: info.adapter, gaussians: n, load_ms: r.loadMs.toFixed(0), gpu_mb: (r.moving.stats.bytes / 1e6).toFixed(1),
         frame_ms_moving: r.moving.ms.toFixed(1), frame_ms_held: r.held.ms.toFixed(1),
-        sort_ms: (path === "webgl2" ? r.moving.stats.sort_ms : r.moving.ms - r.held.ms).toFixed(1),
+        // WebGL2: the sort's own time (in the worker; on the main thread the slices summed), WebGPU: moving - held.
+        sort_ms: (r.sort ? (r.sort.thread === "worker" ? r.sort.sortMs : r.sort.sortMain) : r.moving.ms - r.held.ms).toFixed(1),
       };
+      if (r.sort) {
+        Object.assign(row, { sort_thread: r.sort.thread, order_latency_ms: r.sort.latency.toFixed(1),
+          renders_until_sorted: r.sort.renders.toFixed(1), render_call_ms: r.sort.renderMean.toFixed(2),
+          render_call_max_ms: r.sort.renderMax.toFixed(2), main_thread_sort_ms: r.sort.sortMain.toFixed(2) });
+      }
       rows.push(row);
       console.log(JSON.stringify(row));
     }
@@ -47,3 +57,10 @@ console.log(`\n${width}x${height}, ${frames} timed frames each (after one warm-u
 console.log("\n| path | Gaussians | load ms | GPU MB | frame ms (view moving) | frame ms (view held) | sort ms |");
 console.log("|---|---|---|---|---|---|---|");
 for (const r of rows) console.log(`| ${r.path} | ${r.gaussians} | ${r.load_ms} | ${r.gpu_mb} | ${r.frame_ms_moving} | ${r.frame_ms_held} | ${r.sort_ms} |`);
+const sortRows = rows.filter((r) => r.sort_thread);
+if (sortRows.length) {
+  console.log("\nWebGL2 depth sort per view change, rendering like a frame loop until the new order draws:");
+  console.log("| path | sort thread | Gaussians | sort ms | ms until the order drew | renders meanwhile | render() ms mean | render() ms max | main-thread ms on the order |");
+  console.log("|---|---|---|---|---|---|---|---|---|");
+  for (const r of sortRows) console.log(`| ${r.path} | ${r.sort_thread} | ${r.gaussians} | ${r.sort_ms} | ${r.order_latency_ms} | ${r.renders_until_sorted} | ${r.render_call_ms} | ${r.render_call_max_ms} | ${r.main_thread_sort_ms} |`);
+}

@@ -5,15 +5,30 @@
 use crate::renderer::{SHADER_CONSTANTS, SHADER_VIEW};
 
 pub const SHADER_RADIX_SORT: &str = include_str!("shaders/radix_sort.wgsl");
-/// Elements per workgroup block (256 threads x 4 items); mirrors `BLOCK` in the WGSL.
-pub const BLOCK: u32 = 1024;
+/// Threads per workgroup of every sort kernel (`WG` in the WGSL).
+pub const WG: u32 = 256;
 const PASSES: u32 = 8;
 const UNIFORM_STRIDE: u64 = 256;
-/// The scan runs in one workgroup over 16 * blocks entries; 4096 blocks (4M Gaussians) keeps it under 256 per thread.
-pub const MAX_SORT_COUNT: u32 = 4096 * BLOCK;
+const ITEMS_LINE: &str = "const ITEMS: u32 = 16u;";
 
-pub fn sort_shader_source() -> String {
-    [SHADER_CONSTANTS, SHADER_VIEW, SHADER_RADIX_SORT].join("\n")
+/// Keys per thread; a block is `WG * items` keys. A CPU adapter (lavapipe, SwiftShader) runs a workgroup as a
+/// loop over its invocations, split at every barrier, so fewer and larger blocks cost less there: 1M keys sort
+/// in 3.3 s with 4 per thread, 1.7 s with 16, 1.2 s with 32, 1.3 s with 64 on lavapipe (web/docs/viewer.md).
+/// GPUs get 16, the range tuned GPU radix sorts use.
+pub fn items_per_thread(info: &wgpu::AdapterInfo) -> u32 {
+    if info.device_type == wgpu::DeviceType::Cpu {
+        32
+    } else {
+        16
+    }
+}
+
+/// The sort shader for `items` keys per thread (the packed 16-bit rank counters hold up to 65535 per block).
+pub fn sort_shader_source(items: u32) -> String {
+    assert!((1..=255).contains(&items), "items per thread {items} outside 1..=255");
+    assert!(SHADER_RADIX_SORT.contains(ITEMS_LINE), "radix_sort.wgsl declares ITEMS as {ITEMS_LINE:?}");
+    let sort = SHADER_RADIX_SORT.replacen(ITEMS_LINE, &format!("const ITEMS: u32 = {items}u;"), 1);
+    [SHADER_CONSTANTS, SHADER_VIEW, &sort].join("\n")
 }
 
 pub struct GpuSort {
@@ -29,6 +44,8 @@ pub struct GpuSort {
     scan: wgpu::ComputePipeline,
     scatter: wgpu::ComputePipeline,
     capacity: u32,
+    /// Keys per workgroup block (`WG * items`).
+    pub block: u32,
 }
 
 /// Bind groups for one frame: A->B and B->A.
@@ -38,10 +55,10 @@ pub struct SortBindings {
 }
 
 impl GpuSort {
-    pub fn new(device: &wgpu::Device, capacity: u32) -> GpuSort {
+    pub fn new(device: &wgpu::Device, capacity: u32, items: u32) -> GpuSort {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("radix_sort.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(sort_shader_source().into()),
+            source: wgpu::ShaderSource::Wgsl(sort_shader_source(items).into()),
         });
         let buffer_entry = |binding, ty, dynamic| wgpu::BindGroupLayoutEntry {
             binding,
@@ -95,7 +112,7 @@ impl GpuSort {
         let draw_args = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("draw args"),
             size: 16,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
         let mut s = GpuSort {
@@ -111,6 +128,7 @@ impl GpuSort {
             scatter: pipeline("scatter"),
             bgl,
             capacity: 0,
+            block: WG * items,
         };
         s.ensure_capacity(device, capacity);
         s
@@ -120,7 +138,7 @@ impl GpuSort {
         device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size: len.max(1) as u64 * 4,
-            usage: wgpu::BufferUsages::STORAGE,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, // COPY_SRC: tests read the order
             mapped_at_creation: false,
         })
     }
@@ -131,11 +149,11 @@ impl GpuSort {
         }
         self.order_a = Self::buffer(device, "order a", capacity);
         self.order_b = Self::buffer(device, "order b", capacity);
-        self.hist = Self::buffer(device, "hist", 16 * capacity.div_ceil(BLOCK));
+        self.hist = Self::buffer(device, "hist", 16 * capacity.div_ceil(self.block));
         self.capacity = capacity;
     }
 
-    /// Draw order and its scratch half (4 + 4 bytes per Gaussian) plus the histogram (64 B per 1024).
+    /// Draw order and its scratch half (4 + 4 bytes per Gaussian) plus the histogram (64 B per block).
     pub fn bytes(&self) -> u64 {
         self.order_a.size() + self.order_b.size() + self.hist.size()
     }
@@ -178,7 +196,7 @@ impl GpuSort {
     /// Record the sort of `count` Gaussians for the view at uniform offset `view_offset`; afterwards
     /// `order()` holds the draw order and `draw_args()` the indirect draw.
     pub fn encode(&self, encoder: &mut wgpu::CommandEncoder, b: &SortBindings, view_offset: u32, count: u32) {
-        let blocks = count.div_ceil(BLOCK);
+        let blocks = count.div_ceil(self.block);
         let groups = count.div_ceil(256);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("radix sort"), timestamp_writes: None });
         pass.set_bind_group(0, &b.ab, &[view_offset, 0]);

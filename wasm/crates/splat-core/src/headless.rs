@@ -28,3 +28,26 @@ pub fn render_rgba(renderer: &mut Renderer, views: &[ViewRect], size: [u32; 2]) 
     let rgba = readback.try_finish().ok_or("readback: map callback did not fire")??;
     Ok((rgba, stats))
 }
+
+/// The first `len` u32 of a buffer with COPY_SRC usage (tests inspect the GPU sort's order and draw arguments).
+pub fn read_u32s(renderer: &Renderer, buffer: &wgpu::Buffer, len: usize) -> Result<Vec<u32>, String> {
+    let bytes = (len.max(1) * 4) as u64;
+    let staging = renderer.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("u32 readback"),
+        size: bytes,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    let mut encoder = renderer.device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
+    renderer.queue.submit([encoder.finish()]);
+    let (tx, rx) = std::sync::mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    renderer.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| format!("device poll: {e}"))?;
+    rx.recv().map_err(|e| e.to_string())?.map_err(|e| format!("map: {e}"))?;
+    let data = staging.get_mapped_range(..).map_err(|e| format!("mapped range: {e:?}"))?;
+    let out = bytemuck::cast_slice::<u8, u32>(&data)[..len].to_vec();
+    Ok(out)
+}

@@ -64,7 +64,7 @@ impl ViewUniform {
             size: [cam.width as f32, cam.height as f32],
             origin: [origin[0] as f32, origin[1] as f32],
             count,
-            num_blocks: count.div_ceil(crate::gpu_sort::BLOCK),
+            num_blocks: 0, // set by the renderer for its sort's block size
             pad: [0; 2],
         }
     }
@@ -84,6 +84,8 @@ pub struct Gpu {
     pub info: wgpu::AdapterInfo,
     pub path: DrawPath,
     pub accum_format: wgpu::TextureFormat,
+    /// Keys per thread of the GPU radix sort (`gpu_sort::items_per_thread`).
+    pub sort_items: u32,
 }
 
 impl Gpu {
@@ -122,6 +124,7 @@ impl Gpu {
             info: adapter.get_info(),
             path: if compute { DrawPath::Storage } else { DrawPath::Instanced },
             accum_format,
+            sort_items: crate::gpu_sort::items_per_thread(&adapter.get_info()),
         })
     }
 
@@ -358,7 +361,7 @@ impl Renderer {
             clock: std_clock,
         };
         if r.path == DrawPath::Storage {
-            r.gpu_sort = Some(GpuSort::new(&r.device, 1));
+            r.gpu_sort = Some(GpuSort::new(&r.device, 1, gpu.sort_items));
         }
         r
     }
@@ -411,6 +414,18 @@ impl Renderer {
     pub fn resident_bytes(&self) -> u64 {
         let records = self.capacity as u64 * PACKED_SPLAT_BYTES as u64;
         records + self.gpu_sort.as_ref().map_or(0, |s| s.bytes())
+    }
+
+    /// The GPU radix sort (storage path).
+    pub fn gpu_sort(&self) -> Option<&GpuSort> {
+        self.gpu_sort.as_ref()
+    }
+
+    /// The uniform of a view, with the sort's block count.
+    fn view_uniform(&self, v: &ViewRect) -> ViewUniform {
+        let mut u = ViewUniform::new(&v.camera, v.origin, self.count);
+        u.num_blocks = self.gpu_sort.as_ref().map_or(0, |s| self.count.div_ceil(s.block));
+        u
     }
 
     /// Forget the scene.
@@ -622,7 +637,7 @@ impl Renderer {
         let blit = self.blit_pipeline(format);
         let accum_view = self.accum.as_ref().unwrap().1.clone();
         for (i, v) in views.iter().enumerate() {
-            let u = ViewUniform::new(&v.camera, v.origin, self.count);
+            let u = self.view_uniform(v);
             self.queue.write_buffer(&self.view_buf, i as u64 * UNIFORM_STRIDE, bytemuck::bytes_of(&u));
         }
         let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), ..Default::default() };
@@ -775,7 +790,7 @@ impl Renderer {
     /// Only the depth sort for one view (benchmarks): the GPU sort is submitted (poll to wait), the CPU sort
     /// runs here. Returns the CPU milliseconds spent (0 for the GPU path).
     pub fn sort_only(&mut self, view: &ViewRect) -> f64 {
-        let u = ViewUniform::new(&view.camera, view.origin, self.count);
+        let u = self.view_uniform(view);
         self.last_sort = None;
         match self.path {
             DrawPath::Storage => {

@@ -188,3 +188,35 @@ fn external_sort_keeps_orders_across_streamed_appends() {
     assert!(s.sort_pending, "the full set still needs its own order");
     assert!(img.chunks(4).any(|p| p[..3] != [0, 0, 0]), "the prefix draws meanwhile");
 }
+
+#[test]
+fn gpu_radix_sort_equals_the_cpu_sort_across_many_blocks() {
+    // 150k Gaussians (dozens of blocks at any keys-per-thread), coarse depths for many ties, some behind the camera.
+    let mut s = 0x2545F4914F6CDD1Du64;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    let splats: Vec<splat_core::gaussians::PackedSplat> = (0..150_000)
+        .map(|_| {
+            let z = (next() % 3000) as f32 * 0.01 - 2.0;
+            splat_core::gaussians::PackedSplat { mean: [(next() % 100) as f32 * 0.01, 0.0, z], shape: [0; 2], rgba: 0xff00_00ff }
+        })
+        .collect();
+    let (cam, _) = vector("random_200");
+    let gpu = headless::gpu(Some(DrawPath::Storage)).unwrap();
+    let mut r = Renderer::new(&gpu);
+    r.update(&splats, &[]);
+    let view = ViewRect { camera: cam.clone(), origin: [0, 0] };
+    r.sort_only(&view);
+    let sort = r.gpu_sort().unwrap();
+    let args = headless::read_u32s(&r, sort.draw_args(), 4).unwrap();
+    let row2 = splat_core::renderer::ViewUniform::new(&cam, [0, 0], 0).row2;
+    let want = CpuSorter::default().sort(&splats, row2).to_vec();
+    assert!(splats.len() as u32 > 8 * sort.block, "spans {} blocks", splats.len() as u32 / sort.block);
+    assert_eq!(args[1] as usize, want.len(), "visible count in the indirect draw");
+    let got = headless::read_u32s(&r, sort.order(), want.len()).unwrap();
+    assert_eq!(got, want, "GPU order (nearest first, ties by index) equals the CPU sort");
+}

@@ -16,7 +16,11 @@ fn validate(name: &str, src: &str) -> naga::Module {
 fn every_shader_validates() {
     validate("splat (storage path)", &splat_shader_source(DrawPath::Storage));
     validate("splat (instanced path)", &splat_shader_source(DrawPath::Instanced));
-    validate("radix sort", &sort_shader_source());
+    for items in [4, 16, 32] {
+        let src = sort_shader_source(items);
+        assert!(src.contains(&format!("const ITEMS: u32 = {items}u;")), "the sort shader takes {items} keys per thread");
+        validate("radix sort", &src);
+    }
     validate("blit", SHADER_BLIT);
 }
 

@@ -14,6 +14,7 @@ const USAGE: &str = "usage:
   splat-render SCENE.wsplat|SCENE.ply|VECTOR.json --out FILE.png [--camera NAME|mosaic|bev|free] [--frame T]
                [--shift-m M] [--camera-json CAM.json] [--size WxH] [--path storage|instanced]
   splat-render bench [--counts 100000,500000,1000000] [--size 1280x720] [--frames 3] [--path storage|instanced]
+               [--sort-items K]                          (GPU radix sort keys per thread; default per adapter)
   splat-render bench --compare-paths [--counts ..] [--size ..] [--frames ..] [--out-dir DIR]
                (both draw paths side by side on the same scene and views: frame time ratio, PSNR between them;
                 DIR gets each scene as PLY, the last camera as JSON and both renders, for a torch reference)
@@ -166,7 +167,7 @@ fn synthetic(n: usize, seed: u64) -> Vec<Gaussian> {
 }
 
 fn bench(a: &Args) -> Result<(), String> {
-    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "out-dir"])?;
+    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "out-dir", "sort-items"])?;
     if a.get("compare-paths").is_some() {
         return bench_paths(a);
     }
@@ -178,8 +179,14 @@ fn bench(a: &Args) -> Result<(), String> {
         .collect::<Result<_, _>>()?;
     let size = parse_size(a.get("size").unwrap_or("1280x720"))?;
     let frames: usize = a.get("frames").unwrap_or("3").parse().map_err(|_| "--frames: expected an integer")?;
-    let gpu = headless::gpu(parse_path(a)?)?;
-    println!("adapter: {} ({:?}); draw path {:?}; {}x{}; {frames} frames per size, camera moves every frame", gpu.info.name, gpu.info.backend, gpu.path, size[0], size[1]);
+    let mut gpu = headless::gpu(parse_path(a)?)?;
+    if let Some(k) = a.get("sort-items") {
+        gpu.sort_items = k.parse().ok().filter(|k| (1..=64).contains(k)).ok_or_else(|| format!("--sort-items {k:?}: expected 1..64"))?;
+    }
+    println!(
+        "adapter: {} ({:?}); draw path {:?}; {}x{}; {frames} frames per size, camera moves every frame; GPU sort {} keys per thread",
+        gpu.info.name, gpu.info.backend, gpu.path, size[0], size[1], gpu.sort_items
+    );
     println!("{:>9} {:>10} {:>12} {:>12} {:>14} {:>12}", "gaussians", "MB gpu", "frame ms", "sort ms", "sort/frame", "cpu sort ms");
     let mut renderer = Renderer::new(&gpu);
     let wait = |r: &Renderer| r.device.poll(wgpu::PollType::wait_indefinitely()).map(|_| ()).map_err(|e| format!("poll: {e}"));

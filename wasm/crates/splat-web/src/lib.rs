@@ -358,7 +358,7 @@ impl Viewer {
             configured: [0, 0],
             renderer,
             backend,
-            adapter_name: format!("{} ({:?}, {:?} path)", gpu.info.name, gpu.info.backend, gpu.path),
+            adapter_name: format!("{} ({:?}, {:?} path, {:?} device)", gpu.info.name, gpu.info.backend, gpu.path, gpu.info.device_type),
             scene: Scene::default(),
             stream: None,
             uploaded: None,

@@ -6,8 +6,8 @@
 // Ties keep input order (stable), so equal depths draw lower indices first, as the spec demands.
 
 const WG: u32 = 256u;
-const ITEMS: u32 = 4u;          // consecutive items per thread
-const BLOCK: u32 = 1024u;       // WG * ITEMS elements per block
+const ITEMS: u32 = 16u;         // consecutive items per thread (the renderer picks it per adapter: gpu_sort::items_per_thread)
+const BLOCK: u32 = WG * ITEMS;   // elements per block
 const RADIX: u32 = 16u;
 
 struct Pass { shift: u32, p0: u32, p1: u32, p2: u32 }
@@ -99,8 +99,8 @@ var<workgroup> packed_counts: array<u32, 2048>;
 @compute @workgroup_size(256)
 fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let block = wid.x;
-    var vals: array<u32, 4>;
-    var digits: array<u32, 4>;
+    var vals: array<u32, ITEMS>;
+    var digits: array<u32, ITEMS>;
     var mine: array<u32, 8>;
     for (var w = 0u; w < 8u; w++) { mine[w] = 0u; }
     for (var k = 0u; k < ITEMS; k++) {

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from worldsplat.evaluation.commands_eval import parse_shifts
-from worldsplat.evaluation.nvs import VERSIONS, image_metrics, load_models, markdown_table, run_versions, \
+from worldsplat.evaluation.nvs import DECODER_VERSIONS, VERSIONS, image_metrics, load_models, markdown_table, run_versions, \
     write_report
 
 
@@ -72,6 +72,22 @@ def test_versions_on_a_novel_view_sample(tiny_models_and_sample):
     assert np.array_equal(frames["E+holes"][a > 0.999], s["render_4d"][a > 0.999])
     # the 3D (single-frame) render has at least as many holes as the 4D aggregate
     assert (s["alpha_3d"] < 0.5).mean() >= (s["alpha_4d"] < 0.5).mean()
+
+
+def test_decoder_versions_use_the_decoder_render(tiny_models_and_sample):
+    models, s = tiny_models_and_sample
+    s = dict(s)
+    rng = np.random.default_rng(1)
+    s["render_dec"] = rng.integers(0, 256, s["render_4d"].shape, dtype=np.uint8)
+    alpha = (rng.random(s["alpha_4d"].shape) > 0.3).astype(np.float16)
+    s["alpha_dec"] = alpha
+    frames = run_versions(models, s, torch.zeros(384), steps=1)
+    assert set(frames) == set(VERSIONS) | set(DECODER_VERSIONS)
+    assert np.array_equal(frames["D-dec"], s["render_dec"])
+    covered = alpha > 0.5
+    assert np.array_equal(frames["E-dec+holes"][covered], s["render_dec"][covered])
+    assert np.array_equal(frames["E-dec+holes"][~covered], frames["E-dec"][~covered])
+    assert not np.array_equal(frames["E-dec"], frames["E"])     # conditioned on the decoder's render, not the oracle's
 
 
 def test_report_structure(tiny_models_and_sample, tmp_path):

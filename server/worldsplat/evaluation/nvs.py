@@ -28,6 +28,9 @@ import numpy as np
 import torch
 
 VERSIONS = ("A", "B", "C", "D", "E", "E+holes", "E@0.5", "oracle", "VAE")
+# The same D/E with the learned Gaussian decoder's 4D scene (reconstruct mode) in place of the oracle lifting:
+# the paper's setting, where the Gaussians come from the decoder. Present when the sample has render_dec.
+DECODER_VERSIONS = ("D-dec", "E-dec", "E-dec+holes")
 DESCRIPTIONS = {
     "A": "reprojected S', B', T', caption only (render zeroed), mixed enhancer",
     "B": "single-frame 3D Gaussians + enhancer (no mixed aug)",
@@ -38,6 +41,9 @@ DESCRIPTIONS = {
     "E@0.5": "E, sampler started at s=0.5 from the noised render latent",
     "oracle": "4D oracle lifting render (reference)",
     "VAE": "ground truth through the VAE (latent ceiling)",
+    "D-dec": "learned decoder's 4D Gaussians, raw render",
+    "E-dec": "learned decoder's 4D Gaussians + enhancer with mixed aug",
+    "E-dec+holes": "E-dec, model output only in the render's holes",
 }
 
 
@@ -91,6 +97,12 @@ def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int 
     }
     a = np.clip(a4, 0, 1)[..., None]
     out["E+holes"] = np.round(a * r4 + (1 - a) * out["E"]).astype(np.uint8)
+    if "render_dec" in sample:
+        rd, ad = sample["render_dec"], sample["alpha_dec"].astype(np.float32)
+        out["D-dec"] = rd
+        out["E-dec"] = enhance(*mixed, rd, ad, **kw)
+        out["E-dec+holes"] = np.round(np.clip(ad, 0, 1)[..., None] * rd
+                                      + (1 - np.clip(ad, 0, 1)[..., None]) * out["E-dec"]).astype(np.uint8)
     vae = mixed[1]
     T, V, H, W, _ = sample["target"].shape
     flat = sample["target"].reshape(T * V, H, W, 3)
@@ -98,20 +110,33 @@ def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int 
     return out
 
 
-def prepare_samples(cache: Path, split: str, seed: int, shifts) -> list[Path]:
-    """The cached evaluation samples (4D and 3D renders) of one held-out clip at each shift, made when missing."""
-    from worldsplat.evaluation.novel_track import oracle_scene
-    from worldsplat.evaluation.pairs import make_sample, sample_path, sample_scenario, save_sample
+def prepare_samples(cache: Path, split: str, seed: int, shifts, decoder_models=None) -> list[Path]:
+    """The cached evaluation samples (4D and 3D renders) of one held-out clip at each shift, made when missing.
+    With `decoder_models` (inference.Models with a Gaussian decoder) each sample also gets render_dec /
+    alpha_dec / depth_dec: the decoder's reconstruction of the original track rendered on the shifted one."""
+    from worldsplat.evaluation.novel_track import oracle_scene, render_scene_track
+    from worldsplat.evaluation.pairs import load_sample, make_sample, sample_path, sample_scenario, save_sample
     from worldsplat.world import build_world, simulate
     paths = [sample_path(cache, split, seed, s, "_eval") for s in shifts]
-    world = source = scene = None
+    world = source = scene = dec_scene = None
     for s, path in zip(shifts, paths):
-        if not path.exists():
+        need_dec = decoder_models is not None and (not path.exists() or "render_dec" not in np.load(path).files)
+        if not path.exists() or need_dec:
             if world is None:
                 world = build_world(sample_scenario(seed))
                 source = simulate(world, 0.0)
-                scene = oracle_scene(source)
-            save_sample(path, make_sample(world, s, ("4d", "3d"), source=source, scene=scene))
+            if path.exists():
+                sample = load_sample(path)
+            else:
+                scene = scene if scene is not None else oracle_scene(source)
+                sample = make_sample(world, s, ("4d", "3d"), source=source, scene=scene)
+            if need_dec:
+                if dec_scene is None:
+                    from worldsplat_models.inference import reconstruct, to_scene4d
+                    dec_scene = to_scene4d(reconstruct(source, decoder_models))
+                r = render_scene_track(dec_scene, s)
+                sample.update(render_dec=r.rgb, alpha_dec=r.alpha.astype(np.float16), depth_dec=r.depth.astype(np.float16))
+            save_sample(path, sample)
     return paths
 
 
@@ -125,9 +150,14 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
     weights_dir = Path(weights_dir or repo / "models" / "weights")
     cache = Path(cache or repo / "runs" / "enhancer_pairs")
     models = load_models(weights_dir)
+    from worldsplat_models.inference import load_models as load_generators
+    generators = load_generators(weights_dir)
+    decoder_models = generators if "reconstruct" in generators.modes else None
+    versions = VERSIONS + (DECODER_VERSIONS if decoder_models is not None else ())
     seeds = split_seeds(split, count)
-    per = {v: {s: [] for s in shifts} for v in VERSIONS}
+    per = {v: {s: [] for s in shifts} for v in versions}
     depth = {s: [] for s in shifts}
+    depth_dec = {s: [] for s in shifts}
     examples = {}
     t_start = time.time()
     it = [(seed, s) for seed in seeds for s in shifts]
@@ -136,16 +166,20 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
         from tqdm import tqdm
         bar = tqdm(total=len(it), desc=f"eval nvs {split}", mininterval=5)
     for seed in seeds:
-        for s, path in zip(shifts, prepare_samples(cache, split, seed, shifts)):
+        for s, path in zip(shifts, prepare_samples(cache, split, seed, shifts, decoder_models)):
             sample = load_sample(path)
             cap = encode_captions([sample["caption"]])[0]
             frames = run_versions(models, sample, cap, steps, seed=seed)
             T, V, H, W, _ = sample["target"].shape
             gt = sample["target"].reshape(-1, H, W, 3)
             holes = sample["alpha_4d"].astype(np.float32).reshape(-1, H, W) < 0.5
-            for v in VERSIONS:
-                per[v][s].append(image_metrics(frames[v].reshape(-1, H, W, 3), gt, holes))
+            for v in versions:
+                # each render is scored in its own holes (the decoder's differ from the oracle's)
+                h = (sample["alpha_dec"].astype(np.float32).reshape(-1, H, W) < 0.5) if "dec" in v else holes
+                per[v][s].append(image_metrics(frames[v].reshape(-1, H, W, 3), gt, h))
             depth[s].append(depth_abs_rel(sample["depth_4d"].astype(np.float32), sample["target_depth"]))
+            if "depth_dec" in sample:
+                depth_dec[s].append(depth_abs_rel(sample["depth_dec"].astype(np.float32), sample["target_depth"]))
             if seed == seeds[0]:
                 examples[s] = {"target": sample["target"], "alpha": sample["alpha_4d"],
                                **({k: frames[k] for k in ("D", "E", "E+holes", "A")})}
@@ -159,11 +193,13 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
         return float(np.mean(vals)) if vals else float("nan")
 
     table = {v: {str(s): {k: mean(per[v][s], k) for k in ("psnr", "ssim", "psnr_holes", "hole_frac")}
-                 for s in shifts} for v in VERSIONS}
+                 for s in shifts} for v in versions}
     for s in shifts:
         for v in ("D", "oracle"):
             table[v][str(s)]["depth_absrel"] = float(np.nanmean(depth[s]))
-    result = {"split": split, "seeds": seeds, "shifts": list(shifts), "steps": steps, "versions": list(VERSIONS),
+        if depth_dec[s]:
+            table["D-dec"][str(s)]["depth_absrel"] = float(np.nanmean(depth_dec[s]))
+    result = {"split": split, "seeds": seeds, "shifts": list(shifts), "steps": steps, "versions": list(versions),
               "descriptions": DESCRIPTIONS, "table": table, "wall_s": round(time.time() - t_start, 1),
               "weights": {k: m[0].meta.get("provenance", {}) for k, m in models.items()}}
     if out is not None:
@@ -193,6 +229,12 @@ def markdown_table(result: dict) -> str:
                 ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts) +
                 f". Hole fraction of the 4D render: " +
                 ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts) + ".")
+    if "D-dec" in result["table"]:
+        d = result["table"]["D-dec"]
+        rows.append("")
+        rows.append("The same for the learned decoder's 4D render (D-dec): depth AbsRel " +
+                    ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts) +
+                    "; hole fraction " + ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts) + ".")
     return "\n".join(rows)
 
 

@@ -225,16 +225,16 @@ def _pooled(pairs: list[tuple[int, int]]) -> float:
 
 @torch.no_grad()
 def steps_vs_error_for(models: Models, cond: dict, steps_list=(1, 2, 4, 8, 16, 32), ref_steps: int = 64,
-                       seed: int = 0) -> list[dict]:
+                       seed: int = 0, shift: float | None = None) -> list[dict]:
     """Error of N-step samples against a ref_steps sample from the same noise, for one condition set
     (`inference.condition_tensors(models, world.conditions(), ego_to_world)`): PSNR of the VAE-decoded RGB (range
     [0, 1]), latent RMSE, and the sampling time (torch eager, this machine). Used by the benchmark (issue 8)."""
-    ref = sample_latents(models, cond, steps=ref_steps, seed=seed)
+    ref = sample_latents(models, cond, steps=ref_steps, seed=seed, shift=shift)
     ref_rgb = (models.vae.decode_joint(ref.flatten(0, 1))[0] + 1) / 2
     rows = []
     for k in steps_list:
         t0 = time.perf_counter()
-        L = sample_latents(models, cond, steps=k, seed=seed)
+        L = sample_latents(models, cond, steps=k, seed=seed, shift=shift)
         dt = time.perf_counter() - t0
         rgb = (models.vae.decode_joint(L.flatten(0, 1))[0] + 1) / 2
         rows.append({"steps": k, "psnr": psnr(rgb, ref_rgb), "latent_rmse": float(torch.sqrt(torch.mean((L - ref) ** 2))),
@@ -253,9 +253,10 @@ def shard_conditions(models: Models, ds: ShardDataset, i: int) -> dict:
 
 
 def steps_vs_error(models: Models, ds: ShardDataset, n: int = 1, steps_list=(1, 2, 4, 8, 16, 32), ref_steps: int = 64,
-                   seed: int = 0) -> list[dict]:
-    """steps_vs_error_for averaged over the first n clips of a split."""
-    per = [steps_vs_error_for(models, shard_conditions(models, ds, i), steps_list, ref_steps, seed)
+                   seed: int = 0, shift: float | None = None) -> list[dict]:
+    """steps_vs_error_for averaged over the first n clips of a split (shift: the sampler's timestep shift,
+    default the DiT config's)."""
+    per = [steps_vs_error_for(models, shard_conditions(models, ds, i), steps_list, ref_steps, seed, shift)
            for i in range(min(n, len(ds)))]
     return [{"steps": r[0]["steps"], **{m: float(np.mean([x[m] for x in r])) for m in ("psnr", "latent_rmse", "time_s")}}
             for r in zip(*per)]
@@ -313,6 +314,8 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
     p.add_argument("--figure", type=Path, default=None, help="also write the qualitative PNG of test clip 0")
+    p.add_argument("--sampler-shifts", default=None,
+                   help="comma list of timestep shifts: the steps part is measured at each (key steps_vs_error_by_shift)")
     a = p.parse_args(argv)
     frames = tuple(int(x) for x in a.frames.split(","))
     torch.set_num_threads(a.threads)
@@ -342,6 +345,11 @@ def main(argv=None) -> int:
     if "steps" in parts and "generate" in models.modes:
         out["steps_vs_error"] = steps_vs_error(models, ds, max(1, min(2, a.clips)))
         print("steps", out["steps_vs_error"], flush=True)
+        if a.sampler_shifts:
+            out["steps_vs_error_by_shift"] = {
+                r: steps_vs_error(models, ds, max(1, min(2, a.clips)), steps_list=(2, 4, 8), shift=float(r))
+                for r in a.sampler_shifts.split(",")}
+            print("steps by shift", out["steps_vs_error_by_shift"], flush=True)
     if a.figure is not None:
         figure(models, ds, 0, a.figure)
     out["eval_wall_s"] = round(time.time() - t0, 1)

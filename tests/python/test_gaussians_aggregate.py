@@ -19,23 +19,35 @@ def _one_torch_thread():
 
 
 
-def test_lift_places_pixels_on_their_rays_and_drops_sky():
+def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
+    from worldsplat.gaussians.lift import SKY_CHANNEL, SKY_DISTANCE
     cam = default_rig(16, 9)[0].at(yaw_pose(2.0, 1.0, 0.0, 0.3))
     depth = np.full((9, 16), 7.5, np.float32)
     depth[0, :] = np.inf                                 # sky row
+    depth[1, 3] = 250.0                                  # beyond MAX_DEPTH: joins the sky
+    depth[1, 4] = np.nan                                 # invalid: dropped
     rgb = np.zeros((9, 16, 3), np.uint8)
     rgb[..., 0] = 200
+    rgb[0, :, 2] = 230
     dyn = np.zeros((9, 16), bool)
     dyn[4, 5] = True
+    dyn[0, 2] = True                                     # a "moving" sky pixel stays static
     g = lift(rgb, depth, dyn, cam)
-    assert len(g) == 8 * 16
+    assert len(g) == 9 * 16 - 1
+    sky = g.extras[:, SKY_CHANNEL] > 0.5
+    assert int(sky.sum()) == 17
     uv, z = cam.project(g.means.double().numpy())
-    assert np.allclose(z, 7.5, atol=1e-4)
-    cols, rows = np.meshgrid(np.arange(16) + 0.5, np.arange(1, 9) + 0.5)
-    assert np.allclose(uv, np.stack([cols.ravel(), rows.ravel()], 1), atol=1e-3)
-    assert np.allclose(g.colors[:, 0].numpy(), 200 / 255)
+    assert np.allclose(z[~sky.numpy()], 7.5, atol=1e-4)
+    dist = np.linalg.norm(g.means.double().numpy()[sky.numpy()] - cam.camera_to_world[:3, 3], axis=1)
+    assert np.allclose(dist, SKY_DISTANCE, rtol=1e-6)
+    cols, rows = np.meshgrid(np.arange(16) + 0.5, np.arange(9) + 0.5)
+    pix = np.stack([cols.ravel(), rows.ravel()], 1)
+    pix = np.delete(pix, 1 * 16 + 4, axis=0)
+    assert np.allclose(uv, pix, atol=1e-3)               # every kept pixel, sky included, sits on its own ray
+    assert np.allclose(g.colors[sky][:, 2].numpy()[:16], 230 / 255)
     assert g.extras[:, 0].sum() == 1
-    assert np.allclose(g.scales[:, 0].numpy(), 0.7 * 7.5 / cam.fx, rtol=1e-5)
+    assert np.allclose(g.scales[~sky][:, 0].numpy(), 0.7 * 7.5 / cam.fx, rtol=1e-5)
+    assert len(lift(rgb, depth, dyn, cam, sky=False)) == 8 * 16 - 2
 
 
 def test_lifted_view_rerenders_its_own_image():
@@ -137,3 +149,61 @@ def test_opacity_merge_modes():
     assert np.isclose(float(mean.opacities[0]), 0.5) and np.isclose(float(union.opacities[0]), 1 - 0.5 ** 4)
     with pytest.raises(ValueError, match="opacity_merge"):
         economize(g, Economy(opacity_merge="max"), np.zeros((1, 3)), 100.0)
+
+
+def test_economy_keeps_the_sky_shell_beyond_its_range_cut():
+    from worldsplat.gaussians.aggregate import AggregateStats
+    n = 4000
+    gen = torch.Generator().manual_seed(2)
+    dirs = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen), dim=1)
+    dirs[:, 2] = dirs[:, 2].abs()
+    means = torch.cat([dirs * 300.0, torch.tensor([[900.0, 0, 0]])])    # a sky shell + one far non-sky point
+    extras = torch.cat([torch.zeros(n + 1, 1), torch.cat([torch.ones(n, 1), torch.zeros(1, 1)])], 1)
+    g = Gaussians(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n + 1, 1), torch.full((n + 1, 3), 2.0),
+                  torch.full((n + 1,), 0.98), torch.rand(n + 1, 3, generator=gen), extras)
+    st = AggregateStats()
+    out = economize(g, Economy(max_range=150.0), np.zeros((1, 3)), focal=100.0, stats=st)
+    assert st.dropped_range == 1                       # the non-sky point at 900 m
+    assert 0 < len(out) <= n and bool((out.extras[:, 1] > 0.5).all())
+    coarse = economize(g, Economy(sky_cell_factor=12.0), np.zeros((1, 3)), focal=100.0)
+    assert len(coarse) < len(out)                      # the sky merges in its own, coarser cells
+
+
+def _render_u8(g, cam):
+    with torch.no_grad():
+        return torch.round(rasterize(g, cam, method="pairs")["rgb"].clamp(0, 1) * 255).numpy()
+
+
+def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
+    """A small version of `python -m worldsplat.gaussians.economy` (web/docs/gaussians.md; the 0.2 dB bar is
+    measured there on 8 frames): on views that see sky, the economy stays within 0.2 dB of the naive union on ALL
+    pixels of the exact ground truth at a shifted track, and the sky is rendered (a black sky scores ~4 dB).
+    Kept: <= 20 % of V*T*H*W already at 3 frames (more frames repeat more), the sky a small part of it."""
+    from scipy import ndimage
+
+    from worldsplat.gaussians.economy import lift_clip, psnr
+    from worldsplat.scenario import load_preset
+    from worldsplat.world import build_world, simulate
+    world = build_world(load_preset("urban_straight").with_updates(clip={"frames": 3}))
+    clip = simulate(world)
+    H, W = clip.depth.shape[2:]
+    per_view = lift_clip(clip)
+    args = (clip.frame_times, clip.rig, clip.ego_to_world)
+    naive, _ = aggregate(per_view, *args, economy=Economy(enabled=False), image_size=(H, W))
+    eco, st = aggregate(per_view, *args, economy=Economy(), image_size=(H, W))
+    assert 0 < st.sky_kept < 0.1 * st.kept and st.kept <= 0.2 * st.naive
+    views = [0, 3]                                     # CAM_FRONT, CAM_BACK: both see sky
+    gt = simulate(world, shift_m=-2.0, frames=[1], cameras=[clip.rig[v].name for v in views])
+    d_all = []
+    for i, v in enumerate(views):
+        cam = eco.camera(1, v, -2.0)
+        a = _render_u8(naive.at_frame(1), cam)
+        with torch.no_grad():
+            out = rasterize(eco.at_frame(1), cam, method="pairs")
+        b = torch.round(out["rgb"].clamp(0, 1) * 255).numpy()
+        d_all.append(psnr(b, gt.rgb[0, i]) - psnr(a, gt.rgb[0, i]))
+        inner_sky = ndimage.binary_erosion(~np.isfinite(gt.depth[0, i]), iterations=3)   # away from the skyline
+        assert inner_sky.sum() > 200
+        assert float(out["alpha"].numpy()[inner_sky].min()) > 0.9, v
+        assert psnr(b, gt.rgb[0, i], inner_sky) > 28.0, v
+    assert np.mean(d_all) >= -0.2, d_all

@@ -7,11 +7,13 @@ their dynamic mask into a static union over all frames and views, plus each fram
 
 The naive union repeats every surface once per frame and view that sees it. The economy then
 1. drops Gaussians that cannot show (transparent: opacity < `min_opacity`; out of range: farther than `max_range`
-   from every camera position; non-finite);
+   from every camera position, except the sky shell flagged in extras[:, SKY_CHANNEL]; non-finite);
 2. merges repeats with one resolution per place: a voxel hash whose cell is `cell_factor` x the pixel footprint
    seen from the nearest camera of the track (distance / focal), rounded to a power of two. Every observation of a
    surface (any frame, view or depth) lands in the same cell; the members of a cell become one Gaussian (mean and
-   colour averaged with finer observations weighing more, scale grown to cover the members' spread);
+   colour averaged with finer observations weighing more, scale grown to cover the members' spread). The sky shell
+   merges in its own cells (`sky_cell_factor` x its footprint), never with a surface, into Gaussians that cover
+   their cell (std >= SKY_COVER x cell);
 3. orders by importance (opacity x scale^2 x (1 + log merged count): big, solid, often-seen first, so any prefix of
    the stream is a coarser whole scene) and caps by a budget.
 `python -m worldsplat.gaussians.economy` measures kept Gaussians and PSNR change against exact ground truth.
@@ -26,9 +28,11 @@ import torch
 
 from worldsplat.camera import RigCamera
 from worldsplat.gaussians import constants as C
+from worldsplat.gaussians.lift import SKY_CHANNEL
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
 DYNAMIC_THRESHOLD = 0.5   # extras[:, 0] (dynamic probability / mask) above this -> dynamic
+SKY_COVER = 0.5           # a merged sky Gaussian's std is at least this fraction of its cell
 
 
 @dataclass
@@ -39,6 +43,7 @@ class Economy:
     min_opacity: float = 0.02          # "transparent": below this a Gaussian barely shows
     max_range: float = 150.0           # m from the nearest camera position ("out of range")
     cell_factor: float = 3.0           # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
+    sky_cell_factor: float = 3.0       # the same for the sky shell (far and smooth: may be coarser)
     opacity_merge: str = "mean"        # merged opacity: "mean" of the members or "union" 1 - prod(1 - o)
     static_budget: int | None = None   # cap on static Gaussians (most important kept)
     dynamic_budget: int | None = None  # cap per frame
@@ -54,6 +59,7 @@ class AggregateStats:
     dynamic_kept: int = 0
     dropped_transparent: int = 0
     dropped_range: int = 0
+    sky_kept: int = 0                  # static Gaussians of the sky shell (part of static_kept)
     merged_away: int = 0
     extra: dict = field(default_factory=dict)
 
@@ -119,12 +125,14 @@ def _finite_rows(a: dict[str, np.ndarray]) -> np.ndarray:
     return keep
 
 
-def _cell_keys(p: np.ndarray, level: np.ndarray) -> np.ndarray:
-    """Hash (level, voxel of size 2^level m) to int64: 16 bits level, 16 bits per axis (voxel indices wrap;
+def _cell_keys(p: np.ndarray, level: np.ndarray, sky: np.ndarray) -> np.ndarray:
+    """Hash (sky flag, level, voxel of size 2^level m) to int64: 16 bits sky + level, 16 bits per axis (voxel
+    indices wrap;
     a collision needs the same level 65536 cells apart and is harmless: it only merges two far Gaussians' counts
     into one cell... so the wrap distance is kept far beyond any scene extent at the levels used)."""
     ijk = np.floor(p / np.exp2(level.astype(np.float64))[:, None]).astype(np.int64) & 0xFFFF
-    return (((level.astype(np.int64) + 64) & 0xFFFF) << 48) | (ijk[:, 0] << 32) | (ijk[:, 1] << 16) | ijk[:, 2]
+    lv = ((level.astype(np.int64) + 64) & 0x7FFF) | (sky.astype(np.int64) << 15)
+    return (lv << 48) | (ijk[:, 0] << 32) | (ijk[:, 1] << 16) | ijk[:, 2]
 
 
 def nearest_distance(p: np.ndarray, centres: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
@@ -151,20 +159,22 @@ def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: flo
     stats.dropped_transparent += int(transparent.sum())
     keep &= ~transparent
     a = {k: v[keep] for k, v in a.items()}
+    sky = a["extras"][:, SKY_CHANNEL] > 0.5 if "extras" in a and a["extras"].shape[1] > SKY_CHANNEL else \
+        np.zeros(len(a["means"]), dtype=bool)
     dist = nearest_distance(a["means"], camera_centres)
-    far = dist > eco.max_range
+    far = (dist > eco.max_range) & ~sky
     stats.dropped_range += int(far.sum())
     a = {k: v[~far] for k, v in a.items()}
-    dist = dist[~far]
+    dist, sky = dist[~far], sky[~far]
     n = len(a["means"])
     if n == 0:
         return Gaussians.empty(0 if g.extras is None else g.extras.shape[1])
     s = np.clip(a["scales"], C.SCALE_MIN, C.SCALE_MAX)
     # One resolution per place: the pixel footprint from the nearest camera, times cell_factor, rounded to a
     # power of two. Every observation of a surface (any frame, any view, any depth) lands in the same cell.
-    cell = eco.cell_factor * np.maximum(dist, 0.1) / focal
+    cell = np.where(sky, eco.sky_cell_factor, eco.cell_factor) * np.maximum(dist, 0.1) / focal
     level = np.round(np.log2(cell)).astype(np.int64)
-    keys = _cell_keys(a["means"], level)
+    keys = _cell_keys(a["means"], level, sky)
     uniq, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
     m = len(uniq)
     stats.merged_away += n - m
@@ -179,6 +189,11 @@ def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: flo
     means = wmean(a["means"])
     spread = wmean(((a["means"] - means[inv]) ** 2).sum(1)) / 3.0   # per-axis variance of the member centres
     scales = np.sqrt(np.exp(2 * wmean(np.log(s))) + spread[:, None])
+    # A sky cell's Gaussian covers its cell (sigma >= cell / 2): the shell is one smooth backdrop behind everything,
+    # and member spread alone (a few footprints in a cell of many) leaves see-through gaps between cells.
+    cell_sky = np.bincount(inv, weights=sky.astype(np.float64), minlength=m) > 0
+    cell_size = np.exp2(np.bincount(inv, weights=level.astype(np.float64), minlength=m) / counts)
+    scales = np.where(cell_sky[:, None], np.maximum(scales, SKY_COVER * cell_size[:, None]), scales)
     colors = wmean(a["colors"])
     if eco.opacity_merge == "union":
         opac = np.clip(1 - np.exp(np.bincount(inv, weights=np.log1p(-np.minimum(a["opacities"], 0.999)),
@@ -247,6 +262,8 @@ def aggregate(per_view: list[list[Gaussians]], frame_times, rig: list[RigCamera]
         static = importance_order(static.detach())
         dynamics = [d.detach() for d in dynamics]
     stats.static_kept = len(static)
+    if static.extras is not None and static.extras.shape[1] > SKY_CHANNEL:
+        stats.sky_kept = int((static.extras[:, SKY_CHANNEL] > 0.5).sum())
     stats.dynamic_kept = sum(len(d) for d in dynamics)
     return Scene4D(static, dynamics, np.asarray(frame_times, dtype=np.float64), list(rig), ego_to_world,
                    dict(meta or {})), stats

@@ -275,8 +275,12 @@ def write_wsplat(out_dir: Path) -> list[str]:
         g = back.static.numpy()
         first = ({"mean": g["means"][0].tolist(), "quat": g["quats"][0].tolist(), "scale": g["scales"][0].tolist(),
                   "opacity": float(g["opacities"][0]), "color": g["colors"][0].tolist()} if len(back.static) else None)
+        dyn = next((d.numpy() for d in back.dynamic if len(d)), None)   # first record of the first DYNA chunk
+        first_dyn = ({"mean": dyn["means"][0].tolist(), "quat": dyn["quats"][0].tolist(),
+                      "scale": dyn["scales"][0].tolist(), "opacity": float(dyn["opacities"][0]),
+                      "color": dyn["colors"][0].tolist()} if dyn is not None else None)
         exp = {"ok": True, "num_static": len(back.static), "num_dynamic": [len(d) for d in back.dynamic],
-               "frames": back.num_frames, "first_static": first,
+               "frames": back.num_frames, "first_static": first, "first_dynamic": first_dyn,
                "static_mean_sum": g["means"].astype(np.float64).sum(0).tolist(),
                "tolerance": {"mean": 1e-4, "quat": 1e-5, "scale": 1e-5, "opacity": 1e-6, "color": 1e-6,
                              "static_mean_sum": 1e-2}}
@@ -299,6 +303,10 @@ def write_wsplat(out_dir: Path) -> list[str]:
     valid("valid_custom_layout", _scene(rng, 100, [5], 1, iso=False), block_size=7,
           static_layout=[["r", 8], ["px", 14], ["py", 14], ["pz", 14], ["qi", 2], ["qa", 9], ["qb", 9],
                          ["qc", 9], ["sx", 7], ["sy", 7], ["sz", 7], ["o", 8], ["g", 7], ["b", 9]])
+
+    valid("valid_canonical_rotation", _scene(rng, 300, [60, 61], 2, iso=False), block_size=64,
+          static_layout=[["px", 12], ["py", 12], ["pz", 12], ["qx", 5], ["qy", 2], ["qz", 9], ["sx", 6], ["sy", 6],
+                         ["sz", 6], ["o", 6], ["r", 6], ["g", 6], ["b", 6]])
 
     ch = split_chunks(base)
     head = json.loads(ch[0][1])
@@ -335,6 +343,15 @@ def write_wsplat(out_dir: Path) -> list[str]:
         "bad_layout", 20, "HEAD.static_layout")
     bad("bad_layout_too_wide", with_head(dynamic_layout=[["px", 24], ["py", 24], ["pz", 24], ["s", 24], ["o", 9],
                                                          ["r", 8], ["g", 8], ["b", 8]]),
+        "bad_layout", 20, "HEAD.dynamic_layout")
+    bad("bad_layout_two_rotations", with_head(static_layout=[["px", 8], ["py", 8], ["pz", 8], ["qi", 2], ["qa", 4],
+                                                             ["qb", 4], ["qc", 4], ["qx", 3], ["qy", 3], ["qz", 3],
+                                                             ["sx", 4], ["sy", 4], ["sz", 4], ["o", 4], ["r", 4],
+                                                             ["g", 4], ["b", 4]]),
+        "bad_layout", 20, "HEAD.static_layout")
+    bad("bad_layout_canonical_1_bit", with_head(dynamic_layout=[["px", 8], ["py", 8], ["pz", 8], ["qx", 1], ["qy", 3],
+                                                                ["qz", 3], ["sx", 4], ["sy", 4], ["sz", 4], ["o", 4],
+                                                                ["r", 4], ["g", 4], ["b", 4]]),
         "bad_layout", 20, "HEAD.dynamic_layout")
     # count claims more records than the bytes present (a decoder must not allocate for it)
     p = bytearray(ch[1][1])

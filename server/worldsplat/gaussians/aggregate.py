@@ -52,7 +52,7 @@ class Economy:
 @dataclass
 class AggregateStats:
     naive: int = 0                     # V * T * H * W (every pixel of every view and frame)
-    lifted: int = 0                    # Gaussians handed to aggregate (e.g. non-sky pixels)
+    lifted: int = 0                    # Gaussians handed to aggregate (oracle: every pixel, the sky on its shell)
     static_union: int = 0
     dynamic_union: int = 0
     static_kept: int = 0

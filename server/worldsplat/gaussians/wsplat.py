@@ -30,18 +30,30 @@ MAX_HEAD = 1 << 20
 MAX_FRAMES = 1024
 BLOCK_HEADER = 32
 TAGS = (b"HEAD", b"STAT", b"DYNA", b"END!")
-FIELDS = ("px", "py", "pz", "qi", "qa", "qb", "qc", "sx", "sy", "sz", "s", "o", "r", "g", "b")
+FIELDS = ("px", "py", "pz", "qi", "qa", "qb", "qc", "qx", "qy", "qz", "sx", "sy", "sz", "s", "o", "r", "g", "b")
+# Canonical rotation (qx qy qz): a covariance R S^2 R^T does not change when R is right-multiplied by one of the 24
+# rotations of the cube (axes permuted, scales permuted with them). The encoder picks the one closest to the
+# identity, whose quaternion (w > 0) has |x|, |y|, |z| <= sin(pi/8): no index bits and half the range. The grid
+# has an exact zero (m = 2^bits - 2 steps, the all-ones code clamps to m) so axis-aligned Gaussians stay aligned.
+Q_CANON = math.sin(math.pi / 8)
+
+
+def _canon_steps(bits: int) -> int:
+    return (1 << bits) - 2
+
+
 ERROR_KINDS = ("bad_magic", "bad_version", "truncated", "chunk_too_large", "bad_crc", "bad_tag", "bad_order",
                "bad_header", "bad_layout", "bad_payload", "count_mismatch", "trailing_data")
 
 # Default layouts (measured in web/docs/gaussians.md): bytes per Gaussian incl. the 32-byte block headers at
-# DEFAULT_BLOCK_SIZE = 256 records: static iso 10.125, static aniso 11.125, dynamic iso 7.125, dynamic aniso 8.125.
+# DEFAULT_BLOCK_SIZE = 256 records: static iso 10.125, static aniso 11.125, dynamic iso 7.125, dynamic aniso 7.125.
 STATIC_ISO = [["px", 14], ["py", 14], ["pz", 14], ["s", 8], ["o", 6], ["r", 8], ["g", 8], ["b", 8]]
 STATIC_ANISO = [["px", 10], ["py", 10], ["pz", 10], ["qi", 2], ["qa", 7], ["qb", 7], ["qc", 7],
                 ["sx", 5], ["sy", 5], ["sz", 5], ["o", 5], ["r", 5], ["g", 5], ["b", 5]]
 DYNAMIC_ISO = [["px", 10], ["py", 10], ["pz", 10], ["s", 6], ["o", 4], ["r", 5], ["g", 6], ["b", 5]]
-DYNAMIC_ANISO = [["px", 10], ["py", 10], ["pz", 10], ["qi", 2], ["qa", 6], ["qb", 6], ["qc", 6],
-                 ["sx", 4], ["sy", 4], ["sz", 4], ["o", 2], ["r", 2], ["g", 2], ["b", 2]]  # 8 bytes
+# 56 bits: the canonical rotation (3 x 3 bits, ~ smallest-three at 5 bits) pays for 3-bit scales and opacity.
+DYNAMIC_ANISO = [["px", 7], ["py", 7], ["pz", 7], ["qx", 3], ["qy", 3], ["qz", 3],
+                 ["sx", 3], ["sy", 3], ["sz", 3], ["o", 3], ["r", 5], ["g", 5], ["b", 4]]
 DEFAULT_BLOCK_SIZE = 256
 FIRST_CHUNK = 4096       # the first static chunk is small so a browser draws early; chunks then double
 MAX_CHUNK_RECORDS = 262144
@@ -74,6 +86,10 @@ class Layout:
     def isotropic(self) -> bool:
         return any(f == "s" for f, _ in self.fields)
 
+    @property
+    def canonical(self) -> bool:
+        return any(f == "qx" for f, _ in self.fields)
+
     def to_json(self) -> list:
         return [[f, b] for f, b in self.fields]
 
@@ -95,6 +111,8 @@ def parse_layout(obj, offset: int, name: str) -> Layout:
             bad(f"field {f!r}: bits {b} not in 1..24")
         if f == "qi" and b != 2:
             bad("field 'qi' must have 2 bits")
+        if f in ("qx", "qy", "qz") and b < 2:
+            bad(f"field {f!r} needs at least 2 bits")
         fields.append((f, b))
     names = [f for f, _ in fields]
     if len(set(names)) != len(names):
@@ -103,12 +121,12 @@ def parse_layout(obj, offset: int, name: str) -> Layout:
     for need in ("px", "py", "pz", "o", "r", "g", "b"):
         if need not in have:
             bad(f"missing field {need!r}")
-    aniso = {"sx", "sy", "sz", "qi", "qa", "qb", "qc"}
+    scales, three, canon = {"sx", "sy", "sz"}, {"qi", "qa", "qb", "qc"}, {"qx", "qy", "qz"}
     if "s" in have:
-        if have & aniso:
-            bad("isotropic 's' excludes sx/sy/sz and qi/qa/qb/qc")
-    elif not aniso <= have:
-        bad("needs 's' or all of sx sy sz qi qa qb qc")
+        if have & (scales | three | canon):
+            bad("isotropic 's' excludes sx/sy/sz, qi/qa/qb/qc and qx/qy/qz")
+    elif not (scales <= have and ((three <= have and not have & canon) or (canon <= have and not have & three))):
+        bad("needs 's', or all of sx sy sz with one rotation: all of qi qa qb qc or all of qx qy qz")
     lay = Layout(tuple(fields))
     if lay.record_size > 16:
         bad(f"record size {lay.record_size} bytes > 16")
@@ -171,8 +189,47 @@ def _smallest_three(q: np.ndarray, bits: dict) -> dict[str, np.ndarray]:
     return out
 
 
-def _sanitized_numpy(g: Gaussians) -> dict[str, np.ndarray]:
-    """Drop rows with non-finite fields or opacity < ALPHA_MIN (the renderer drops them too); clamp the rest."""
+def _octahedral_rotations() -> np.ndarray:
+    """The 24 rotations of the cube as unit quaternions (wxyz, one of each +-q pair)."""
+    h, r = 0.5, math.sqrt(0.5)
+    out = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    for i in range(4):
+        for j in range(i + 1, 4):
+            for sign in (1, -1):
+                q = [0.0] * 4
+                q[i], q[j] = r, sign * r
+                out.append(q)
+    out += [[h, a * h, b * h, c * h] for a in (1, -1) for b in (1, -1) for c in (1, -1)]
+    return np.asarray(out, dtype=np.float64)
+
+
+CUBE_ROTATIONS = _octahedral_rotations()
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+def canonical_rotation(q: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit quaternions (N,4) wxyz + scales (N,3) -> the same covariances as q * g (g the cube rotation that brings
+    q closest to the identity, made w >= 0) with the scales permuted to match: |x|, |y|, |z| <= sin(pi/8)."""
+    cand = _quat_mul(q[:, None, :], CUBE_ROTATIONS[None, :, :])          # (N,24,4)
+    k = np.argmax(np.abs(cand[:, :, 0]), axis=1)
+    out = cand[np.arange(len(q)), k]
+    out *= np.where(out[:, :1] < 0, -1.0, 1.0)
+    # R(q g) = R(q) R(g); S'^2 = R(g)^T S^2 R(g): axis j of the new frame is old axis argmax_i |R(g)[i, j]|.
+    from worldsplat.gaussians.project import quat_to_rotmat
+    rg = quat_to_rotmat(torch.as_tensor(CUBE_ROTATIONS)).numpy()          # (24,3,3)
+    perm = np.argmax(np.abs(rg), axis=1)                                  # (24,3): new axis j <- old axis
+    return out, np.take_along_axis(scales, perm[k], axis=1)
+
+
+def _sanitized_numpy(g: Gaussians, layout: "Layout | None" = None) -> dict[str, np.ndarray]:
+    """Drop rows with non-finite fields or opacity < ALPHA_MIN (the renderer drops them too); clamp the rest;
+    canonical rotations for a layout with qx qy qz."""
     a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
     keep = np.ones(len(g), dtype=bool)
     for v in a.values():
@@ -184,6 +241,8 @@ def _sanitized_numpy(g: Gaussians) -> dict[str, np.ndarray]:
     a["colors"] = np.clip(a["colors"], 0, 1)
     qn = np.linalg.norm(a["quats"], axis=1, keepdims=True)
     a["quats"] = np.where(qn >= C.QUAT_EPS, a["quats"] / np.maximum(qn, C.QUAT_EPS), [1.0, 0, 0, 0])
+    if layout is not None and layout.canonical and len(a["quats"]):
+        a["quats"], a["scales"] = canonical_rotation(a["quats"], a["scales"])
     return a
 
 
@@ -225,7 +284,12 @@ def encode_blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int) -> 
         else:
             for i, f in enumerate(("sx", "sy", "sz")):
                 vals[f] = _quantize(ls[:, i].astype(np.float64), float(llo), float(lhi), bits[f])
-            vals.update(_smallest_three(blk["quats"], bits))
+            if layout.canonical:
+                for i, f in enumerate(("qx", "qy", "qz")):
+                    m = _canon_steps(bits[f])
+                    vals[f] = np.clip(np.round((blk["quats"][:, 1 + i] / Q_CANON + 1) / 2 * m), 0, m).astype(np.uint64)
+            else:
+                vals.update(_smallest_three(blk["quats"], bits))
         vals["o"] = _quantize(blk["opacities"], 0.0, 1.0, bits["o"])
         for i, f in enumerate("rgb"):
             vals[f] = _quantize(blk["colors"][:, i], 0.0, 1.0, bits[f])
@@ -258,8 +322,8 @@ def encode(scene: Scene4D, *, block_size: int = DEFAULT_BLOCK_SIZE, static_layou
         dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
     if not 1 <= block_size <= 65536:
         raise ValueError("wsplat: block_size must be in 1..65536")
-    st = _sanitized_numpy(scene.static)
-    dyn = [_sanitized_numpy(d) for d in scene.dynamic]
+    st = _sanitized_numpy(scene.static, sl)
+    dyn = [_sanitized_numpy(d, dl) for d in scene.dynamic]
     if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
         raise ValueError(f"wsplat: 1..{MAX_FRAMES} frames required, got {len(scene.frame_times)}")
     allm = np.concatenate([st["means"]] + [d["means"] for d in dyn]) if len(st["means"]) + sum(
@@ -417,6 +481,11 @@ def decode_blocks(payload: memoryview, pos: int, count: int, layout: Layout, blo
             s = np.exp(deq("s", box[6], box[7]))
             scales.append(np.stack([s, s, s], 1))
             quats.append(np.tile([1.0, 0, 0, 0], (n, 1)))
+        elif layout.canonical:
+            scales.append(np.exp(np.stack([deq(f, box[6], box[7]) for f in ("sx", "sy", "sz")], 1)))
+            xyz = np.stack([Q_CANON * (2 * np.minimum(v[f], _canon_steps(bits[f])).astype(np.float64)
+                                       / _canon_steps(bits[f]) - 1) for f in ("qx", "qy", "qz")], 1)
+            quats.append(np.concatenate([np.sqrt(np.maximum(0.0, 1 - (xyz ** 2).sum(1)))[:, None], xyz], 1))
         else:
             scales.append(np.exp(np.stack([deq(f, box[6], box[7]) for f in ("sx", "sy", "sz")], 1)))
             three = np.stack([(v[f].astype(np.float64) / ((1 << bits[f]) - 1) * 2 - 1) / math.sqrt(2)

@@ -71,14 +71,18 @@ fn err<T>(kind: ErrorKind, offset: u64, message: impl Into<String>) -> Result<T,
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Field {
-    Px, Py, Pz, Qi, Qa, Qb, Qc, Sx, Sy, Sz, S, O, R, G, B,
+    Px, Py, Pz, Qi, Qa, Qb, Qc, Qx, Qy, Qz, Sx, Sy, Sz, S, O, R, G, B,
 }
+
+/// Range of the canonical rotation fields qx qy qz: sin(pi/8) (see `Layout::decode`).
+pub const Q_CANON: f64 = 0.38268343236508984;
 
 impl Field {
     fn parse(name: &str) -> Option<Field> {
         Some(match name {
             "px" => Field::Px, "py" => Field::Py, "pz" => Field::Pz,
             "qi" => Field::Qi, "qa" => Field::Qa, "qb" => Field::Qb, "qc" => Field::Qc,
+            "qx" => Field::Qx, "qy" => Field::Qy, "qz" => Field::Qz,
             "sx" => Field::Sx, "sy" => Field::Sy, "sz" => Field::Sz, "s" => Field::S,
             "o" => Field::O, "r" => Field::R, "g" => Field::G, "b" => Field::B,
             _ => return None,
@@ -92,6 +96,7 @@ pub struct Layout {
     fields: Vec<(Field, u32, u32)>, // field, bit offset, bits
     pub record_bytes: usize,
     isotropic: bool,
+    canonical: bool,
 }
 
 impl Layout {
@@ -112,6 +117,9 @@ impl Layout {
             if f == Field::Qi && bits != 2 {
                 return bad(format!("field qi must have 2 bits, got {bits}"));
             }
+            if matches!(f, Field::Qx | Field::Qy | Field::Qz) && bits < 2 {
+                return bad(format!("field {name} needs at least 2 bits, got {bits}"));
+            }
             if fields.iter().any(|&(g, _, _)| g == f) {
                 return bad(format!("field {name} appears twice"));
             }
@@ -121,7 +129,9 @@ impl Layout {
         let has = |f: Field| fields.iter().any(|&(g, _, _)| g == f);
         let all = |fs: &[Field]| fs.iter().all(|&f| has(f));
         let any = |fs: &[Field]| fs.iter().any(|&f| has(f));
-        let aniso = [Field::Sx, Field::Sy, Field::Sz, Field::Qi, Field::Qa, Field::Qb, Field::Qc];
+        let scales = [Field::Sx, Field::Sy, Field::Sz];
+        let three = [Field::Qi, Field::Qa, Field::Qb, Field::Qc];
+        let canon = [Field::Qx, Field::Qy, Field::Qz];
         if !all(&[Field::Px, Field::Py, Field::Pz]) {
             return bad("must contain px py pz".into());
         }
@@ -129,17 +139,19 @@ impl Layout {
             return bad("must contain o r g b".into());
         }
         let isotropic = has(Field::S);
-        if isotropic && any(&aniso) {
-            return bad("s excludes sx sy sz qi qa qb qc".into());
+        let canonical = any(&canon);
+        if isotropic && (any(&scales) || any(&three) || canonical) {
+            return bad("s excludes sx sy sz, qi qa qb qc and qx qy qz".into());
         }
-        if !isotropic && !all(&aniso) {
-            return bad("needs s, or all of sx sy sz qi qa qb qc".into());
+        let one_rotation = (all(&three) && !canonical) || (all(&canon) && !any(&three));
+        if !isotropic && !(all(&scales) && one_rotation) {
+            return bad("needs s, or all of sx sy sz with one rotation: all of qi qa qb qc or all of qx qy qz".into());
         }
         let record_bytes = bit.div_ceil(8) as usize;
         if record_bytes > 16 {
             return bad(format!("record size {record_bytes} bytes exceeds 16"));
         }
-        Ok(Layout { fields, record_bytes, isotropic })
+        Ok(Layout { fields, record_bytes, isotropic, canonical })
     }
 
     fn decode(&self, rec: &[u8], pos_lo: [f32; 3], pos_hi: [f32; 3], lsc: [f32; 2]) -> Gaussian {
@@ -162,6 +174,12 @@ impl Layout {
                 Field::Qa => small[0] = (t * 2.0 - 1.0) / std::f64::consts::SQRT_2,
                 Field::Qb => small[1] = (t * 2.0 - 1.0) / std::f64::consts::SQRT_2,
                 Field::Qc => small[2] = (t * 2.0 - 1.0) / std::f64::consts::SQRT_2,
+                // Canonical rotation: m = 2^n - 2 steps (an exact zero), the all-ones code clamps to m.
+                Field::Qx | Field::Qy | Field::Qz => {
+                    let m = ((1u64 << n) - 2) as f64;
+                    let k = match f { Field::Qx => 0, Field::Qy => 1, _ => 2 };
+                    small[k] = Q_CANON * (2.0 * x.min(m) / m - 1.0);
+                }
                 Field::Sx => g.scale[0] = scale(),
                 Field::Sy => g.scale[1] = scale(),
                 Field::Sz => g.scale[2] = scale(),
@@ -172,7 +190,10 @@ impl Layout {
                 Field::B => g.color[2] = t as f32,
             }
         }
-        if !self.isotropic {
+        if self.canonical {
+            let w = (1.0 - small.iter().map(|v| v * v).sum::<f64>()).max(0.0).sqrt();
+            g.quat = [w as f32, small[0] as f32, small[1] as f32, small[2] as f32];
+        } else if !self.isotropic {
             let big = (1.0 - small.iter().map(|v| v * v).sum::<f64>()).max(0.0).sqrt();
             let mut it = small.iter();
             for k in 0..4 {

@@ -264,21 +264,28 @@ fn shared_vectors() {
                 assert_eq!(dynamic.iter().sum::<u64>(), expect["num_dynamic"].as_u64().unwrap(), "{name}: num_dynamic");
             }
             assert_eq!(s.num_frames() as u64, expect["frames"].as_u64().unwrap(), "{name}: frames");
-            if let Some(first) = expect.get("first_static").filter(|v| !v.is_null()) {
+            // first_static: record 0 of the first STAT chunk; first_dynamic: record 0 of the first DYNA chunk.
+            for (key, dynamic) in [("first_static", false), ("first_dynamic", true)] {
+                let Some(first) = expect.get(key).filter(|v| !v.is_null()) else { continue };
                 let mut dec = Decoder::new();
                 let g = dec
                     .push(&bytes)
                     .unwrap()
                     .into_iter()
-                    .find_map(|e| if let Event::Static(g) = e { Some(g[0]) } else { None })
+                    .find_map(|e| match e {
+                        Event::Static(g) if !dynamic => Some(g[0]),
+                        Event::Dynamic { gaussians, .. } if dynamic => Some(gaussians[0]),
+                        _ => None,
+                    })
                     .unwrap();
-                let close = |key: &str, got: &[f32]| {
-                    let want: Vec<f32> = match &first[key] {
+                let close = |field: &str, got: &[f32]| {
+                    let want: Vec<f32> = match &first[field] {
                         serde_json::Value::Array(a) => a.iter().map(|x| x.as_f64().unwrap() as f32).collect(),
                         v => vec![v.as_f64().unwrap() as f32],
                     };
+                    assert_eq!(got.len(), want.len(), "{name}: {key}.{field}");
                     for (a, b) in got.iter().zip(&want) {
-                        assert!((a - b).abs() <= tol * b.abs().max(1.0), "{name}: first_static.{key}: {got:?} vs {want:?}");
+                        assert!((a - b).abs() <= tol * b.abs().max(1.0), "{name}: {key}.{field}: {got:?} vs {want:?}");
                     }
                 };
                 close("mean", &g.mean);

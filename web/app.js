@@ -305,7 +305,8 @@ function tick(now) {
     lastStats = now;
     const s = parseJson(state.viewer.stats());
     $("stats").textContent = `${(s.gaussians || 0).toLocaleString()} Gaussians\n${(s.fps || 0).toFixed(0)} fps · ` +
-      `${(s.frame_ms || 0).toFixed(1)} ms\n${fmtBytes(state.streamBytes)} streamed · ${fmtBytes(s.bytes || 0)} GPU`;
+      `${(s.frame_ms || 0).toFixed(1)} ms · sort: ${s.sort_thread || "?"}\n${fmtBytes(state.streamBytes)} streamed · ` +
+      `${fmtBytes(s.bytes || 0)} GPU`;
   }
   requestAnimationFrame(tick);
 }

@@ -62,7 +62,10 @@ test("page loads, generates the default scenario with progress, and renders a no
   assert.equal(st.events.at(-1).type, "done");
   assert.equal(st.frames, presets.find((p) => p.default).scenario.clip.frames);
   const snap = await snapshot(page);
-  t.diagnostic(`viewer ${st.backend}: ${await page.evaluate(() => window.playground.state.viewer.stats())}`);
+  const viewerStats = await page.evaluate(() => window.playground.state.viewer.stats());
+  t.diagnostic(`viewer ${st.backend}: ${viewerStats}`);
+  // The WebGL2 depth sort runs in the viewer's Web Worker, whose script the playground server serves under /pkg.
+  assert.equal(JSON.parse(viewerStats).sort_thread, "worker", `sort thread: ${JSON.parse(viewerStats).sort_note}`);
   t.diagnostic(`pixels read by ${snap.path}${snapshotFallback() ? ` (fallback: ${snapshotFallback()})` : ""}`);
   assert.equal(snap.length, 4 * snap.width * snap.height);
   assert.ok(snap.litFraction > 0.3, `non-blank render (lit fraction ${snap.litFraction})`);

@@ -38,12 +38,13 @@ for (const path of paths) {
         path, adapter: info.adapter, gaussians: n, load_ms: r.loadMs.toFixed(0), gpu_mb: (r.moving.stats.bytes / 1e6).toFixed(1),
         frame_ms_moving: r.moving.ms.toFixed(1), frame_ms_held: r.held.ms.toFixed(1),
         // WebGL2: the sort's own time (in the worker; on the main thread the slices summed), WebGPU: moving - held.
-        sort_ms: (r.sort ? (r.sort.thread === "worker" ? r.sort.sortMs : r.sort.sortMain) : r.moving.ms - r.held.ms).toFixed(1),
+        sort_ms: (r.sort ? r.sort.sortMs : r.moving.ms - r.held.ms).toFixed(1),
       };
       if (r.sort) {
         Object.assign(row, { sort_thread: r.sort.thread, order_latency_ms: r.sort.latency.toFixed(1),
           renders_until_sorted: r.sort.renders.toFixed(1), render_call_ms: r.sort.renderMean.toFixed(2),
-          render_call_max_ms: r.sort.renderMax.toFixed(2), main_thread_sort_ms: r.sort.sortMain.toFixed(2) });
+          render_call_max_ms: r.sort.renderMax.toFixed(2), main_thread_sort_ms: r.sort.sortMain.toFixed(2),
+          main_thread_gather_ms: r.sort.gather.toFixed(2) });
       }
       rows.push(row);
       console.log(JSON.stringify(row));
@@ -60,7 +61,7 @@ for (const r of rows) console.log(`| ${r.path} | ${r.gaussians} | ${r.load_ms} |
 const sortRows = rows.filter((r) => r.sort_thread);
 if (sortRows.length) {
   console.log("\nWebGL2 depth sort per view change (32x18 canvas), rendering until the new order draws:");
-  console.log("| path | sort thread | Gaussians | sort ms | ms until the order drew | renders meanwhile | render() ms mean | render() ms max | main-thread ms on the order |");
-  console.log("|---|---|---|---|---|---|---|---|---|");
-  for (const r of sortRows) console.log(`| ${r.path} | ${r.sort_thread} | ${r.gaussians} | ${r.sort_ms} | ${r.order_latency_ms} | ${r.renders_until_sorted} | ${r.render_call_ms} | ${r.render_call_max_ms} | ${r.main_thread_sort_ms} |`);
+  console.log("| path | sort thread | Gaussians | sort ms | ms until the order drew | renders meanwhile | render() ms mean | render() ms max | main-thread ms sorting | main-thread ms gather + upload |");
+  console.log("|---|---|---|---|---|---|---|---|---|---|");
+  for (const r of sortRows) console.log(`| ${r.path} | ${r.sort_thread} | ${r.gaussians} | ${r.sort_ms} | ${r.order_latency_ms} | ${r.renders_until_sorted} | ${r.render_call_ms} | ${r.render_call_max_ms} | ${r.main_thread_sort_ms} | ${r.main_thread_gather_ms} |`);
 }

@@ -175,12 +175,16 @@ pub struct RenderStats {
     pub gaussians: u32,
     pub resident_bytes: u64,
     pub cpu_sort_ms: f64,
+    /// Of `cpu_sort_ms`: gathering the records in draw order and uploading them (instanced path; the rest sorted).
+    pub gather_ms: f64,
     /// A budgeted CPU sort is still running; the frame used the previous order.
     pub sort_pending: bool,
     /// The view did not change, so the previous sort was reused.
     pub sort_reused: bool,
     /// External sort: results dropped so far because a newer request or new data superseded them.
     pub sorts_dropped: u64,
+    /// Instanced path: records gathered and uploaded in draw order by this render (0 when the buffer was reused).
+    pub records_uploaded: u64,
 }
 
 pub struct Renderer {
@@ -701,9 +705,11 @@ impl Renderer {
                         self.draw_external_order(i, key, views.len(), &mut stats);
                     } else if views.len() > 1 {
                         let order = self.cpu_sorter.sort(&self.cpu_records, key.row2());
+                        let tg = (self.clock)();
                         self.sorted.clear();
                         self.sorted.extend(order.iter().map(|&i| self.cpu_records[i as usize]));
                         self.upload_sorted();
+                        stats.gather_ms += (self.clock)() - tg;
                         self.last_sort = None;
                     } else if self.last_sort == Some(key) {
                         stats.sort_reused = true;
@@ -717,9 +723,11 @@ impl Renderer {
                         let job = self.cpu_job.as_mut().unwrap();
                         if job.step(&self.cpu_records, budget, self.clock) {
                             let job = self.cpu_job.take().unwrap();
+                            let tg = (self.clock)();
                             self.sorted.clear();
                             self.sorted.extend(job.order().iter().map(|&i| self.cpu_records[i as usize]));
                             self.upload_sorted();
+                            stats.gather_ms += (self.clock)() - tg;
                             self.last_sort = Some(key);
                         } else {
                             stats.sort_pending = true;
@@ -764,20 +772,23 @@ impl Renderer {
             }
             return;
         };
-        if *have != key {
-            stats.sort_pending = true;
-        } else if views == 1 && self.uploaded_order == Some((*have, self.data_version)) {
-            stats.sort_reused = true;
+        let exact = *have == key;
+        stats.sort_pending |= !exact;
+        if views == 1 && self.uploaded_order == Some((*have, self.data_version)) {
+            stats.sort_reused = exact; // the instance buffer already holds this order: nothing to gather
             return;
         }
         if views == 1 && have.data_version < self.index_epoch {
             return; // keep the previous frame's records
         }
+        let tg = (self.clock)();
         let count = self.cpu_records.len() as u32;
         self.sorted.clear();
         self.sorted.extend(order.iter().filter(|&&i| i < count).map(|&i| self.cpu_records[i as usize]));
         self.uploaded_order = (views == 1).then_some((*have, self.data_version));
         self.upload_sorted();
+        stats.records_uploaded += self.sorted.len() as u64;
+        stats.gather_ms += (self.clock)() - tg;
     }
 
     fn upload_sorted(&mut self) {

@@ -137,12 +137,14 @@ fn external_sort_draws_the_last_order_until_the_exact_one_arrives_and_drops_stal
     assert_eq!(img, want_a, "the worker's order draws exactly what the in-thread sort draws");
     let (_, s) = headless::render_rgba(&mut r, &b, size).unwrap();
     assert!(s.sort_pending, "b is not sorted yet");
+    assert_eq!(s.records_uploaded, 0, "waiting for b redraws a's uploaded order without gathering it again");
     let req_b = r.take_sort_request().expect("a request for view b");
     let answer_b = external_sort(&r, &req_b);
     assert!(r.accept_sort_result(req_b.seq, answer_b.clone()).unwrap());
     assert!(r.orders_ready(&b));
     let (img, s) = headless::render_rgba(&mut r, &b, size).unwrap();
     assert!(!s.sort_pending);
+    assert!(s.records_uploaded > 0, "b's order is gathered once it arrives");
     assert_eq!(img, want_b);
     let (_, s) = headless::render_rgba(&mut r, &b, size).unwrap();
     assert!(s.sort_reused, "a held view reuses the uploaded order");

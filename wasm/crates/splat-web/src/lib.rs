@@ -49,8 +49,10 @@ struct Stats {
     fps: f64,
     last_render: f64,
     sort_pending: bool,
-    /// Main-thread ms the last render spent on the depth order (in-thread sort slices, or gathering a worker's order).
+    /// Main-thread ms the last render spent sorting (0 with the worker; sort slices on the main thread).
     sort_main_ms: f64,
+    /// Main-thread ms the last render spent gathering records in a new draw order and uploading them (both modes).
+    gather_ms: f64,
     /// Worker: ms from sending a request to its order being applied.
     sort_latency_ms: f64,
     sorts_dropped: u64,
@@ -221,9 +223,10 @@ impl Inner {
         self.stats.last_render = t1;
         self.stats.frame_ms = t1 - t0;
         if self.sort_worker.is_none() {
-            self.stats.sort_ms = stats.cpu_sort_ms;
+            self.stats.sort_ms = stats.cpu_sort_ms - stats.gather_ms;
         }
-        self.stats.sort_main_ms = stats.cpu_sort_ms;
+        self.stats.sort_main_ms = stats.cpu_sort_ms - stats.gather_ms;
+        self.stats.gather_ms = stats.gather_ms;
         self.stats.sort_pending = stats.sort_pending;
         self.stats.sorts_dropped = stats.sorts_dropped;
         Ok(())
@@ -578,7 +581,7 @@ impl Viewer {
             "frame_ms": i.stats.frame_ms, "sort_ms": i.stats.sort_ms, "backend": i.backend,
             "path": if i.renderer.path == DrawPath::Storage { "gpu-sort" } else { "cpu-sort" },
             "dropped": i.scene().dropped, "sort_pending": i.stats.sort_pending,
-            "sort_thread": i.sort_thread, "sort_note": i.sort_note, "sort_main_ms": i.stats.sort_main_ms,
+            "sort_thread": i.sort_thread, "sort_note": i.sort_note, "sort_main_ms": i.stats.sort_main_ms, "gather_ms": i.stats.gather_ms,
             "sort_latency_ms": i.stats.sort_latency_ms, "sorts_dropped": i.stats.sorts_dropped,
             "sort_worker_ready": i.sort_worker.as_ref().is_some_and(|w| w.ready),
         })

@@ -58,6 +58,7 @@ DEFAULT_BLOCK_SIZE = 256
 FIRST_CHUNK = 4096       # the first static chunk is small so a browser draws early; chunks then double
 MAX_CHUNK_RECORDS = 262144
 ISOTROPY_TOL = 1e-3
+FAR_FACTOR = 4.0         # see _block_order
 
 
 class WsplatError(ValueError):
@@ -266,6 +267,18 @@ def _morton_order(p: np.ndarray) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
+def _block_order(p: np.ndarray) -> np.ndarray:
+    """Morton order, with the far outliers (farther than FAR_FACTOR x the median distance from the median point,
+    e.g. a sky shell 300 m out around a street) ordered after the rest on their own curve: a block that mixed
+    the two would get a position box hundreds of metres wide and lose the street's precision."""
+    if len(p) == 0:
+        return np.zeros(0, dtype=np.int64)
+    d = np.linalg.norm(p - np.median(p, axis=0), axis=1)
+    far = d > FAR_FACTOR * max(float(np.median(d)), 1e-9)
+    near_idx, far_idx = np.flatnonzero(~far), np.flatnonzero(far)
+    return np.concatenate([near_idx[_morton_order(p[near_idx])], far_idx[_morton_order(p[far_idx])]])
+
+
 def encode_blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int) -> bytes:
     out = bytearray()
     bits = dict(layout.fields)
@@ -346,14 +359,14 @@ def encode(scene: Scene4D, *, block_size: int = DEFAULT_BLOCK_SIZE, static_layou
     n, s, size = len(st["means"]), 0, FIRST_CHUNK
     while s < n:
         part = {k: v[s:s + size] for k, v in st.items()}
-        order = _morton_order(part["means"])
+        order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
         out += _chunk(b"STAT", struct.pack("<I", len(order)) + encode_blocks(part, sl, block_size))
         s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
     for t, d in enumerate(dyn):
         for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
             part = {k: v[s:s + MAX_CHUNK_RECORDS] for k, v in d.items()}
-            order = _morton_order(part["means"])
+            order = _block_order(part["means"])
             part = {k: v[order] for k, v in part.items()}
             out += _chunk(b"DYNA", struct.pack("<II", t, len(order)) + encode_blocks(part, dl, block_size))
     out += _chunk(b"END!", b"")

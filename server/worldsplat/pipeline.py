@@ -22,7 +22,7 @@ from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate
 from worldsplat.gaussians.types import Scene4D
 
 ALL_MODES = ("oracle", "reconstruct", "generate")
-ORACLE_VERSION = "oracle-1"
+ORACLE_VERSION = "oracle-2"  # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none)
 
 Progress = Callable[[str, float], None]
 Cancelled = Callable[[], bool]

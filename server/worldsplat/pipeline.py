@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate
+from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_4d
 from worldsplat.gaussians.types import Scene4D
 
 ALL_MODES = ("oracle", "reconstruct", "generate")
@@ -118,7 +118,7 @@ def generate_scene(scenario, mode: str = "oracle", steps: int = 8, progress: Pro
                                progress=lambda f: prog("generate", float(f)))
         _check(cancelled)
         prog("aggregate", 0.0)
-        scene, stats = aggregate(dec.gaussians, dec.frame_times, dec.rig, dec.ego_to_world, economy=economy,
+        scene, stats = aggregate_4d(dec.gaussians, dec.frame_times, dec.rig, dec.ego_to_world, economy=economy,
                                  image_size=(world.rig[0].height, world.rig[0].width))
         meta["model_version"] = str(dec.meta.get("model_version", models.version))
         if mode == "generate":
@@ -144,7 +144,7 @@ def _oracle(world, prog: Progress, cancelled: Cancelled | None, economy: Economy
                          for v in range(V)])
         _check(cancelled)
     prog("aggregate", 0.0)
-    return aggregate(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
+    return aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
 
 
 def render_track(scene: Scene4D, shift_m: float = 0.0, cameras: list[str] | None = None,

@@ -5,7 +5,7 @@ import torch
 
 from worldsplat.camera import Camera, default_rig, yaw_pose
 from worldsplat.gaussians import Gaussians, lift, rasterize
-from worldsplat.gaussians.aggregate import Economy, aggregate, economize, quat_from_matrix, transform
+from worldsplat.gaussians.aggregate import Economy, aggregate_4d, economize, quat_from_matrix, transform
 from worldsplat.gaussians.project import quat_to_rotmat
 
 
@@ -81,7 +81,7 @@ def test_eq3_static_union_plus_current_dynamic():
     rig = default_rig(32, 18, ("CAM_FRONT", "CAM_BACK"))
     per_view = _views(T, V, 200, 0, dynamic_frac=0.25)
     ego = np.stack([yaw_pose(t, 0, 0, 0) for t in range(T)])
-    scene, st = aggregate(per_view, np.arange(T) * 0.1, rig, ego, economy=Economy(enabled=False), image_size=(18, 32))
+    scene, st = aggregate_4d(per_view, np.arange(T) * 0.1, rig, ego, economy=Economy(enabled=False), image_size=(18, 32))
     n_dyn = [sum(int((g.extras[:, 0] > 0.5).sum()) for g in row) for row in per_view]
     assert [len(d) for d in scene.dynamic] == n_dyn
     assert len(scene.static) == T * V * 200 - sum(n_dyn)
@@ -189,8 +189,8 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
     H, W = clip.depth.shape[2:]
     per_view = lift_clip(clip)
     args = (clip.frame_times, clip.rig, clip.ego_to_world)
-    naive, _ = aggregate(per_view, *args, economy=Economy(enabled=False), image_size=(H, W))
-    eco, st = aggregate(per_view, *args, economy=Economy(), image_size=(H, W))
+    naive, _ = aggregate_4d(per_view, *args, economy=Economy(enabled=False), image_size=(H, W))
+    eco, st = aggregate_4d(per_view, *args, economy=Economy(), image_size=(H, W))
     assert 0 < st.sky_kept < 0.1 * st.kept and st.kept <= 0.2 * st.naive
     views = [0, 3]                                     # CAM_FRONT, CAM_BACK: both see sky
     gt = simulate(world, shift_m=-2.0, frames=[1], cameras=[clip.rig[v].name for v in views])

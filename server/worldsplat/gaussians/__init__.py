@@ -4,11 +4,13 @@ from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.gaussians.raster import rasterize
 from worldsplat.gaussians.lift import lift
 
-__all__ = ["Gaussians", "Scene4D", "rasterize", "lift", "aggregate"]
+__all__ = ["Gaussians", "Scene4D", "rasterize", "lift", "aggregate_4d"]
 
 
-def __getattr__(name):  # aggregation is imported on first use
-    if name == "aggregate":
-        from worldsplat.gaussians.aggregate import aggregate as fn
+def __getattr__(name):
+    # Imported on first use (aggregation pulls in more than most callers need). The function is aggregate_4d, not
+    # `aggregate`: that name is the submodule, which Python binds here once it has been imported.
+    if name == "aggregate_4d":
+        from worldsplat.gaussians.aggregate import aggregate_4d as fn
         return fn
     raise AttributeError(name)

@@ -223,7 +223,7 @@ def importance_order(g: Gaussians) -> Gaussians:
     return g.subset(torch.argsort(-imp, stable=True))
 
 
-def aggregate(per_view: list[list[Gaussians]], frame_times, rig: list[RigCamera], ego_to_world: np.ndarray, *,
+def aggregate_4d(per_view: list[list[Gaussians]], frame_times, rig: list[RigCamera], ego_to_world: np.ndarray, *,
               in_ego_frame: bool = False, economy: Economy | None = None, meta: dict | None = None,
               image_size: tuple[int, int] | None = None) -> tuple[Scene4D, AggregateStats]:
     """Paper eq. 3. `per_view[t][v]`: Gaussians of frame t, view v, with extras[:, 0] = dynamic probability

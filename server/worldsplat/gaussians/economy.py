@@ -17,7 +17,7 @@ import time
 import numpy as np
 import torch
 
-from worldsplat.gaussians.aggregate import Economy, aggregate
+from worldsplat.gaussians.aggregate import Economy, aggregate_4d
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.raster import rasterize
 from worldsplat.gaussians.types import Scene4D
@@ -55,9 +55,9 @@ def measure(preset: str, shifts: list[float], frames: list[int] | None, economy:
     T, V, H, W = clip.depth.shape
     per_view = lift_clip(clip)
     t0 = time.time()
-    naive, nst = aggregate(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False),
+    naive, nst = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False),
                            image_size=(H, W))
-    eco, st = aggregate(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy,
+    eco, st = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy,
                         image_size=(H, W))
     log(f"aggregate: {time.time() - t0:.1f}s  naive union {nst.static_union}+{nst.dynamic_union}, "
         f"kept {st.kept} ({100 * st.kept / st.naive:.1f}% of V*T*H*W={st.naive})")

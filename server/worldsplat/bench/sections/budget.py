@@ -10,7 +10,7 @@ from worldsplat.bench.timing import time_once
 
 def run(quick: bool) -> Section:
     from worldsplat.gaussians import wsplat
-    from worldsplat.gaussians.aggregate import Economy, aggregate
+    from worldsplat.gaussians.aggregate import Economy, aggregate_4d
     from worldsplat.gaussians.economy import lift_clip, psnr, render_frame_views
     from worldsplat.scenario import load_preset
     from worldsplat.world import build_world, simulate
@@ -29,14 +29,14 @@ def run(quick: bool) -> Section:
     fg = [[np.isfinite(gt.depth[t, v]) for v in range(V)] for t in range(T)]
 
     def evaluate(eco: Economy) -> tuple[list, float]:
-        scene, st = aggregate(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=eco, image_size=(h, w))
+        scene, st = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=eco, image_size=(h, w))
         nbytes = len(wsplat.encode(scene))
         imgs = {}
         secs = time_once(lambda: imgs.update({t: render_frame_views(scene, t, shift, views) for t in range(T)}))
         p = float(np.mean([psnr(imgs[t][i], gt.rgb[t, v], fg[t][v]) for t in range(T) for i, v in enumerate(views)]))
         return [st.kept, st.kept / st.naive, nbytes, p, secs / (T * len(views))], p
 
-    union = aggregate(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False),
+    union = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False),
                       image_size=(h, w))[1].static_union
     settings: dict[str, Economy] = {"naive union (no economy)": Economy(enabled=False)}
     fractions = [0.05, 0.1, 0.2] if quick else [0.025, 0.05, 0.1, 0.2]

@@ -301,3 +301,15 @@ def test_cuda_matches_cpu():
         a = rasterize(g, cam, method=method)["rgb"]
         b = rasterize(g.to("cuda"), cam, method=method)["rgb"].cpu()
         assert psnr(a, b) >= 50
+
+
+def test_rasterize_inside_bf16_autocast_matches_float32():
+    # Training steps run under bf16 autocast; the rasterizer must not inherit it (bf16 index_add fails, and bf16
+    # depths at 50 m are off by decimetres). Inputs made by an autocast region arrive as bf16 tensors too.
+    g, cam = load_case("anisotropy_1e-6_1e3")
+    ref = rasterize(g, cam)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = rasterize(g, cam)
+    for k in ("rgb", "depth", "alpha"):
+        assert out[k].dtype == ref[k].dtype, k
+        assert torch.equal(out[k], ref[k]), k

@@ -152,8 +152,14 @@ def rasterize(g: Gaussians, camera: Camera, *, method: str = "tiled", tile_size:
     """Render Gaussians at a camera per web/docs/splatting-math.md (black background).
 
     Returns rgb (H,W,3), depth (H,W) expected camera z (not normalized), alpha (H,W), extras (H,W,K) (K may be 0)
-    and visible (int: Gaussians that survived projection). Never returns NaN/Inf.
+    and visible (int: Gaussians that survived projection). Never returns NaN/Inf. Safe inside an autocast region:
+    the math runs with autocast off (bf16 compositing moves depths by metres and breaks index_add's dtypes).
     """
+    with torch.autocast(device_type=g.means.device.type, enabled=False):
+        return _rasterize(g, camera, method=method, tile_size=tile_size, chunk=chunk)
+
+
+def _rasterize(g: Gaussians, camera: Camera, *, method: str, tile_size: int, chunk: int) -> dict[str, torch.Tensor]:
     if method not in METHODS:
         raise ValueError(f"rasterize: method must be one of {', '.join(METHODS)}, got {method!r}")
     W, H = camera.width, camera.height

@@ -166,11 +166,8 @@ fn synthetic(n: usize, seed: u64) -> Vec<Gaussian> {
         .collect()
 }
 
-fn bench(a: &Args) -> Result<(), String> {
-    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "out-dir", "sort-items"])?;
-    if a.get("compare-paths").is_some() {
-        return bench_paths(a);
-    }
+/// --counts, --size and --frames of both bench modes.
+fn bench_sizes(a: &Args) -> Result<(Vec<usize>, [u32; 2], usize), String> {
     let counts: Vec<usize> = a
         .get("counts")
         .unwrap_or("100000,500000,1000000")
@@ -179,6 +176,15 @@ fn bench(a: &Args) -> Result<(), String> {
         .collect::<Result<_, _>>()?;
     let size = parse_size(a.get("size").unwrap_or("1280x720"))?;
     let frames: usize = a.get("frames").unwrap_or("3").parse().map_err(|_| "--frames: expected an integer")?;
+    Ok((counts, size, frames))
+}
+
+fn bench(a: &Args) -> Result<(), String> {
+    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "out-dir", "sort-items"])?;
+    if a.get("compare-paths").is_some() {
+        return bench_paths(a);
+    }
+    let (counts, size, frames) = bench_sizes(a)?;
     let mut gpu = headless::gpu(parse_path(a)?)?;
     if let Some(k) = a.get("sort-items") {
         gpu.sort_items = k.parse().ok().filter(|k| (1..=64).contains(k)).ok_or_else(|| format!("--sort-items {k:?}: expected 1..64"))?;
@@ -259,14 +265,7 @@ fn psnr_rgba(a: &[u8], b: &[u8]) -> f64 {
 /// both alike. Moving = the camera orbits every frame (sort + draw + readback); held = the view repeats, the sort
 /// is reused (draw + readback only: the draw paths' own cost).
 fn bench_paths(a: &Args) -> Result<(), String> {
-    let counts: Vec<usize> = a
-        .get("counts")
-        .unwrap_or("100000,500000,1000000")
-        .split(',')
-        .map(|c| c.trim().parse().map_err(|_| format!("--counts: bad number {c:?}")))
-        .collect::<Result<_, _>>()?;
-    let size = parse_size(a.get("size").unwrap_or("1280x720"))?;
-    let frames: usize = a.get("frames").unwrap_or("3").parse().map_err(|_| "--frames: expected an integer")?;
+    let (counts, size, frames) = bench_sizes(a)?;
     let out_dir = a.get("out-dir").map(std::path::PathBuf::from);
     if let Some(d) = &out_dir {
         std::fs::create_dir_all(d).map_err(|e| format!("--out-dir {}: {e}", d.display()))?;

@@ -16,13 +16,10 @@ def run(quick: bool) -> Section:
     steps = 2 if quick else 8
     dec = generate(world.conditions(0.0), steps=steps, models=models)
     t = dec.meta["timing_s"]
+    from worldsplat.refine import refine_available, stage_timings
     ref = {}
-    try:
-        from worldsplat.refine import refine_available, stage_timings
-        if refine_available() and not quick:  # the refined track takes minutes on 2 cores
-            ref = stage_timings(scenario=sc, shift_m=2.0, steps=steps)
-    except ImportError:
-        pass
+    if refine_available() and not quick:  # the refined track takes minutes on 2 cores
+        ref = stage_timings(scenario=sc, shift_m=2.0, steps=steps)
     missing = "not run (--quick)" if quick else "enhancer not shipped"
     diff2 = ref.get("denoise", missing)
     vae_dec = ref.get("decode", missing)

@@ -9,16 +9,6 @@ from worldsplat.gaussians.aggregate import Economy, aggregate_4d, economize, qua
 from worldsplat.gaussians.project import quat_to_rotmat
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """2 shared cores: a single intra-op thread keeps these tests from spinning a second one."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
-
 def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
     from worldsplat.gaussians.lift import SKY_CHANNEL, SKY_DISTANCE
     cam = default_rig(16, 9)[0].at(yaw_pose(2.0, 1.0, 0.0, 0.3))

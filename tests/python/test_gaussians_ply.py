@@ -7,16 +7,6 @@ from worldsplat.gaussians import Gaussians
 from worldsplat.gaussians.ply import SH_C0, read_ply, write_ply
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """2 shared cores: a single intra-op thread keeps these tests from spinning a second one."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
-
 def _gaussians(n=300, seed=0):
     gen = torch.Generator().manual_seed(seed)
     q = torch.randn(n, 4, generator=gen)

@@ -20,15 +20,6 @@ sys.path.insert(0, str(VECTORS))
 from make_vectors import gaussians_from_json  # noqa: E402
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """2 shared cores: a single intra-op thread keeps these tests from spinning a second one."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 CASES = sorted(p.name[:-5] for p in (VECTORS / "raster").glob("*.json") if not p.name.endswith(".expected.json"))
 
 

@@ -4,22 +4,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from worldsplat.cli import main as cli
 from worldsplat.gaussians import wsplat
 from worldsplat.pipeline import JobCancelled, MODES, generate_scene, render_track
 from worldsplat.scenario import load_preset
 from worldsplat.video import probe, write_video
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """2 shared cores: a single intra-op thread keeps these tests from spinning a second one."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 TINY = {"clip": {"frames": 2}, "image": {"width": 64, "height": 36}}

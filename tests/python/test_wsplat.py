@@ -18,15 +18,6 @@ sys.path.insert(0, str(VECTORS.parent))
 from make_vectors import _street, base_camera, split_chunks  # noqa: E402
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """2 shared cores: a single intra-op thread keeps these tests from spinning a second one."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 NAMES = sorted(p.stem for p in VECTORS.glob("*.wsplat"))
 
 

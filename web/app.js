@@ -1,6 +1,7 @@
 // The playground page: scenario panel -> POST /api/scenes -> progress (SSE) -> .wsplat stream into the wasm viewer;
 // timeline, cameras, track shift, track videos (raw and refined), share links, drag-and-drop, stats.
 // No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
+import { SHIFT_MAX_M } from "./limits.js";
 import { decodeShare, shareUrl } from "./share.js";
 
 const $ = (id) => document.getElementById(id);
@@ -242,7 +243,7 @@ function setFrame(t) {
 }
 
 function setShift(m) {
-  state.shift = Math.max(-8, Math.min(8, Math.round(Number(m) * 10) / 10));
+  state.shift = Math.max(-SHIFT_MAX_M, Math.min(SHIFT_MAX_M, Math.round(Number(m) * 10) / 10));
   $("shift").value = String(state.shift);
   $("shift-label").textContent = `${state.shift >= 0 ? "+" : ""}${state.shift.toFixed(1)} m`;
   document.querySelectorAll("#shift-quick button").forEach((b) => b.classList.toggle("active", Number(b.dataset.shift) === state.shift));
@@ -409,6 +410,8 @@ function wire() {
   $("timeline").oninput = (e) => { setPlaying(false); setFrame(Number(e.target.value)); };
   $("play-btn").onclick = () => setPlaying(!state.playing);
   $("camera").onchange = (e) => setCamera(e.target.value);
+  $("shift").min = String(-SHIFT_MAX_M); // the slider's bounds come from the one JS definition of the limit
+  $("shift").max = String(SHIFT_MAX_M);
   $("shift").oninput = (e) => setShift(e.target.value);
   document.querySelectorAll("#shift-quick button").forEach((b) => { b.onclick = () => setShift(b.dataset.shift); });
   $("video-btn").onclick = () => requestVideos();

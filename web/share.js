@@ -2,6 +2,8 @@
 // fragment, as base64url(JSON). The scenario travels whole (normalized by the server), so the same scenario on a
 // server with the same models hashes to the same scene id. Pure functions: also imported by the node tests.
 
+import { SHIFT_MAX_M } from "./limits.js";
+
 export const SHARE_VERSION = 1;
 const CAMERA_VIEWS = ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT",
   "CAM_FRONT_LEFT", "mosaic", "free", "bev"];
@@ -54,7 +56,9 @@ export function decodeShare(fragment) {
   if (typeof payload.scenario !== "object" || payload.scenario === null) throw new Error("share link: no scenario");
   const view = payload.view || {};
   const shift = Number(view.shift_m);
-  if (!Number.isFinite(shift) || shift < -8 || shift > 8) throw new Error("share link: view.shift_m must be in [-8, 8]");
+  if (!Number.isFinite(shift) || Math.abs(shift) > SHIFT_MAX_M) {
+    throw new Error(`share link: view.shift_m must be in [-${SHIFT_MAX_M}, ${SHIFT_MAX_M}]`);
+  }
   if (!CAMERA_VIEWS.includes(view.camera)) throw new Error(`share link: unknown camera ${view.camera}`);
   const frame = Number(view.frame);
   if (!Number.isInteger(frame) || frame < 0) throw new Error("share link: view.frame must be a non-negative integer");

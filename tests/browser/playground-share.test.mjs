@@ -34,3 +34,19 @@ test("no share state -> null; broken share state -> an error naming the problem"
   assert.throws(() => decodeShare(enc({ v: 1, scenario, view: { shift_m: 0, camera: "bev", frame: 1.5 } })), /frame/);
   assert.throws(() => encodeShare({}), /scenario/);
 });
+
+test("the shift limit has one JS definition: share links, app.js and the slider use web/limits.js", async () => {
+  const { SHIFT_MAX_M } = await import("../../web/limits.js");
+  const { readFileSync } = await import("node:fs");
+  const enc = (shift_m) => "#share=" + Buffer.from(JSON.stringify({ v: 1, scenario, view: { shift_m, camera: "mosaic", frame: 0 } })).toString("base64url");
+  assert.equal(decodeShare(enc(SHIFT_MAX_M)).view.shift_m, SHIFT_MAX_M);
+  assert.equal(decodeShare(enc(-SHIFT_MAX_M)).view.shift_m, -SHIFT_MAX_M);
+  assert.throws(() => decodeShare(enc(SHIFT_MAX_M + 0.1)), new RegExp(`\\[-${SHIFT_MAX_M}, ${SHIFT_MAX_M}\\]`));
+  const web = (f) => readFileSync(new URL(`../../web/${f}`, import.meta.url), "utf8");
+  const slider = web("index.html").match(/<input[^>]*id="shift"[^>]*>/)[0];
+  assert.doesNotMatch(slider, /\b(min|max)=/, "the slider's bounds are set from limits.js, not in the HTML");
+  for (const f of ["app.js", "share.js"]) {
+    assert.match(web(f), /import \{ SHIFT_MAX_M \} from "\.\/limits\.js"/, f);
+    assert.doesNotMatch(web(f).replace(/\/\/.*$/gm, ""), /-8\b|\b8\)|\[-8, 8\]/, `${f} spells no literal shift bound`);
+  }
+});

@@ -21,8 +21,12 @@ test: setup
 test-python:
 	$(PY) -m pytest
 
-test-rust:
+test-rust: test-rust-lint
 	@if [ -f wasm/Cargo.toml ]; then cd wasm && cargo test --workspace; else echo "wasm/: no workspace yet"; fi
+
+.PHONY: test-rust-lint
+test-rust-lint:
+	@if [ -f wasm/Cargo.toml ]; then cd wasm && cargo fmt --all --check && cargo clippy --workspace --all-targets -- -D warnings; fi
 
 wasm:
 	@if [ -f wasm/build.sh ]; then bash wasm/build.sh; fi

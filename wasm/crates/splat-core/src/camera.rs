@@ -45,10 +45,7 @@ pub fn mat4_from_json(v: &Value, what: &str) -> Result<Mat4, String> {
             .flat_map(|r| r.as_array().unwrap().iter())
             .map(|x| x.as_f64().ok_or_else(|| format!("{what}: entries must be numbers")))
             .collect::<Result<_, _>>()?,
-        Value::Array(xs) => xs
-            .iter()
-            .map(|x| x.as_f64().ok_or_else(|| format!("{what}: entries must be numbers")))
-            .collect::<Result<_, _>>()?,
+        Value::Array(xs) => xs.iter().map(|x| x.as_f64().ok_or_else(|| format!("{what}: entries must be numbers"))).collect::<Result<_, _>>()?,
         _ => return Err(format!("{what}: expected a 4x4 matrix")),
     };
     if flat.len() != 16 {
@@ -162,15 +159,7 @@ impl RigCamera {
     /// world_to_camera = inverse(ego_to_world @ translate(0, shift, 0) @ camera_to_ego).
     pub fn at(&self, ego_to_world: &Mat4, shift_m: f64) -> Camera {
         let c2w = mat_mul(&mat_mul(ego_to_world, &translation(0.0, shift_m, 0.0)), &self.camera_to_ego);
-        Camera {
-            width: self.width,
-            height: self.height,
-            fx: self.fx,
-            fy: self.fy,
-            cx: self.cx,
-            cy: self.cy,
-            world_to_camera: rigid_inverse(&c2w),
-        }
+        Camera { width: self.width, height: self.height, fx: self.fx, fy: self.fy, cx: self.cx, cy: self.cy, world_to_camera: rigid_inverse(&c2w) }
     }
 
     pub fn from_json(v: &Value, what: &str) -> Result<RigCamera, String> {
@@ -195,11 +184,7 @@ impl RigCamera {
 pub fn look_pose(eye: [f64; 3], yaw: f64, pitch: f64) -> Mat4 {
     let f = [pitch.cos() * yaw.cos(), pitch.cos() * yaw.sin(), pitch.sin()];
     let right = [yaw.sin(), -yaw.cos(), 0.0]; // f x up, normalized
-    let down = [
-        f[1] * right[2] - f[2] * right[1],
-        f[2] * right[0] - f[0] * right[2],
-        f[0] * right[1] - f[1] * right[0],
-    ];
+    let down = [f[1] * right[2] - f[2] * right[1], f[2] * right[0] - f[0] * right[2], f[0] * right[1] - f[1] * right[0]];
     let mut m = IDENTITY;
     for i in 0..3 {
         m[i][0] = right[i];
@@ -298,12 +283,7 @@ impl FreeCamera {
 /// Top-down (BEV) camera above the ego at `height_m`, ego forward pointing up in the image.
 pub fn bev_camera(ego_to_world: &Mat4, width: u32, height: u32, height_m: f64, hfov_deg: f64) -> Camera {
     // Camera axes in ego FLU: x (image right) = -y_ego, y (image down) = -x_ego, z (view) = -z_ego.
-    let cam_to_ego: Mat4 = [
-        [0.0, -1.0, 0.0, 0.0],
-        [-1.0, 0.0, 0.0, 0.0],
-        [0.0, 0.0, -1.0, height_m],
-        [0.0, 0.0, 0.0, 1.0],
-    ];
+    let cam_to_ego: Mat4 = [[0.0, -1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, height_m], [0.0, 0.0, 0.0, 1.0]];
     let c2w = mat_mul(ego_to_world, &cam_to_ego);
     let fx = width as f64 / (2.0 * (hfov_deg.to_radians() / 2.0).tan());
     Camera { width, height, fx, fy: fx, cx: width as f64 / 2.0, cy: height as f64 / 2.0, world_to_camera: rigid_inverse(&c2w) }

@@ -39,7 +39,7 @@ fn radix_pass(shift: u32, keys: &mut Vec<u32>, order: &mut Vec<u32>, tmp_keys: &
     for &k in keys.iter() {
         counts[((k >> shift) & 0xff) as usize] += 1;
     }
-    if counts.iter().any(|&c| c == n) {
+    if counts.contains(&n) {
         return;
     }
     let mut offsets = [0usize; 256];

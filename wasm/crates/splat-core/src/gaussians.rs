@@ -47,8 +47,7 @@ impl Gaussian {
     /// The spec's sanitizing: `None` if the Gaussian is dropped (non-finite input or opacity < 1/255),
     /// otherwise unit quaternion (identity if |q| < QUAT_EPS), clamped scale, opacity and colour.
     pub fn sanitized(&self) -> Option<Gaussian> {
-        let finite = self.mean.iter().chain(&self.quat).chain(&self.scale).chain(&self.color).all(|v| v.is_finite())
-            && self.opacity.is_finite();
+        let finite = self.mean.iter().chain(&self.quat).chain(&self.scale).chain(&self.color).all(|v| v.is_finite()) && self.opacity.is_finite();
         if !finite {
             return None;
         }
@@ -57,11 +56,7 @@ impl Gaussian {
             return None;
         }
         let n = self.quat.iter().map(|&v| (v as f64) * (v as f64)).sum::<f64>().sqrt();
-        let quat = if n < QUAT_EPS as f64 {
-            [1.0, 0.0, 0.0, 0.0]
-        } else {
-            self.quat.map(|v| (v as f64 / n) as f32)
-        };
+        let quat = if n < QUAT_EPS as f64 { [1.0, 0.0, 0.0, 0.0] } else { self.quat.map(|v| (v as f64 / n) as f32) };
         Some(Gaussian {
             mean: self.mean,
             quat,
@@ -143,50 +138,6 @@ pub fn pack_all(gs: &[Gaussian]) -> (Vec<PackedSplat>, usize) {
     (out, dropped)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn record_is_24_bytes() {
-        assert_eq!(PACKED_SPLAT_BYTES, 24);
-    }
-
-    #[test]
-    fn covariance_round_trips_over_the_whole_scale_range() {
-        for &(s, q) in &[
-            ([1e-6f32, 1e-6, 1e-6], [1.0f32, 0.0, 0.0, 0.0]),
-            ([1e3, 1e3, 1e3], [1.0, 0.0, 0.0, 0.0]),
-            ([1e3, 1e-6, 0.5], [0.9, 0.1, -0.3, 0.2]),
-            ([0.05, 0.02, 0.3], [0.3, -0.5, 0.7, 0.1]),
-        ] {
-            let g = Gaussian { mean: [0.0; 3], quat: q, scale: s, opacity: 0.5, color: [0.2; 3] }.sanitized().unwrap();
-            let want = g.covariance();
-            let got = g.pack().unwrap().covariance();
-            let m = want[0][0].max(want[1][1]).max(want[2][2]);
-            for i in 0..3 {
-                for j in 0..3 {
-                    let err = (got[i][j] - want[i][j]).abs() / m;
-                    assert!(err < 1e-2, "scale {s:?}: cov[{i}][{j}] {} vs {} (rel {err})", got[i][j], want[i][j]);
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn sanitizing_follows_the_spec() {
-        let base = Gaussian { mean: [1.0, 2.0, 3.0], quat: [0.0; 4], scale: [0.0, 2e3, 1.0], opacity: 2.0, color: [-1.0, 0.5, 9.0] };
-        let g = base.sanitized().unwrap();
-        assert_eq!(g.quat, [1.0, 0.0, 0.0, 0.0]);
-        assert_eq!(g.scale, [SCALE_MIN, SCALE_MAX, 1.0]);
-        assert_eq!(g.opacity, 1.0);
-        assert_eq!(g.color, [0.0, 0.5, 1.0]);
-        assert!(Gaussian { opacity: 0.5 / 255.0, ..base }.sanitized().is_none());
-        assert!(Gaussian { mean: [f32::NAN, 0.0, 0.0], ..base }.sanitized().is_none());
-        assert!(Gaussian { quat: [f32::INFINITY, 0.0, 0.0, 0.0], ..base }.sanitized().is_none());
-    }
-}
-
 fn json_number(v: &serde_json::Value, what: &str) -> Result<f32, String> {
     match v {
         serde_json::Value::Number(n) => Ok(n.as_f64().unwrap_or(f64::NAN) as f32),
@@ -233,7 +184,49 @@ pub fn gaussians_from_json(obj: &serde_json::Value) -> Result<Vec<Gaussian>, Str
     if [quats.len(), scales.len(), opacities.len(), colors.len()].iter().any(|&l| l != n) {
         return Err(format!("gaussians: lists differ in length (means has {n})"));
     }
-    Ok((0..n)
-        .map(|i| Gaussian { mean: means[i], quat: quats[i], scale: scales[i], opacity: opacities[i][0], color: colors[i] })
-        .collect())
+    Ok((0..n).map(|i| Gaussian { mean: means[i], quat: quats[i], scale: scales[i], opacity: opacities[i][0], color: colors[i] }).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn record_is_24_bytes() {
+        assert_eq!(PACKED_SPLAT_BYTES, 24);
+    }
+
+    #[test]
+    fn covariance_round_trips_over_the_whole_scale_range() {
+        for &(s, q) in &[
+            ([1e-6f32, 1e-6, 1e-6], [1.0f32, 0.0, 0.0, 0.0]),
+            ([1e3, 1e3, 1e3], [1.0, 0.0, 0.0, 0.0]),
+            ([1e3, 1e-6, 0.5], [0.9, 0.1, -0.3, 0.2]),
+            ([0.05, 0.02, 0.3], [0.3, -0.5, 0.7, 0.1]),
+        ] {
+            let g = Gaussian { mean: [0.0; 3], quat: q, scale: s, opacity: 0.5, color: [0.2; 3] }.sanitized().unwrap();
+            let want = g.covariance();
+            let got = g.pack().unwrap().covariance();
+            let m = want[0][0].max(want[1][1]).max(want[2][2]);
+            for i in 0..3 {
+                for j in 0..3 {
+                    let err = (got[i][j] - want[i][j]).abs() / m;
+                    assert!(err < 1e-2, "scale {s:?}: cov[{i}][{j}] {} vs {} (rel {err})", got[i][j], want[i][j]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn sanitizing_follows_the_spec() {
+        let base = Gaussian { mean: [1.0, 2.0, 3.0], quat: [0.0; 4], scale: [0.0, 2e3, 1.0], opacity: 2.0, color: [-1.0, 0.5, 9.0] };
+        let g = base.sanitized().unwrap();
+        assert_eq!(g.quat, [1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(g.scale, [SCALE_MIN, SCALE_MAX, 1.0]);
+        assert_eq!(g.opacity, 1.0);
+        assert_eq!(g.color, [0.0, 0.5, 1.0]);
+        assert!(Gaussian { opacity: 0.5 / 255.0, ..base }.sanitized().is_none());
+        assert!(Gaussian { mean: [f32::NAN, 0.0, 0.0], ..base }.sanitized().is_none());
+        assert!(Gaussian { quat: [f32::INFINITY, 0.0, 0.0, 0.0], ..base }.sanitized().is_none());
+    }
 }

@@ -185,7 +185,11 @@ impl GpuSort {
                     wgpu::BindGroupEntry { binding: 5, resource: self.draw_args.as_entire_binding() },
                     wgpu::BindGroupEntry {
                         binding: 6,
-                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding { buffer: &self.pass_buf, offset: 0, size: wgpu::BufferSize::new(16) }),
+                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                            buffer: &self.pass_buf,
+                            offset: 0,
+                            size: wgpu::BufferSize::new(16),
+                        }),
                     },
                 ],
             })

@@ -1,7 +1,7 @@
 //! Native headless rendering (tests, `splat-render`): an adapter from the environment (`WGPU_BACKEND`,
 //! `WGPU_ADAPTER_NAME`; with no GPU that is Mesa lavapipe), render views to RGBA8 bytes.
 
-use crate::renderer::{DrawPath, Gpu, Offscreen, Renderer, RenderStats, ViewRect};
+use crate::renderer::{DrawPath, Gpu, Offscreen, RenderStats, Renderer, ViewRect};
 
 pub fn adapter() -> Result<wgpu::Adapter, String> {
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());

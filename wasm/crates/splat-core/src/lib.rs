@@ -8,10 +8,10 @@ pub mod constants;
 pub mod cpu_sort;
 pub mod gaussians;
 pub mod gpu_sort;
-pub mod renderer;
 #[cfg(not(target_arch = "wasm32"))]
 pub mod headless;
-pub mod scene;
-pub mod wsplat;
 pub mod ply;
+pub mod renderer;
+pub mod scene;
 pub mod view_state;
+pub mod wsplat;

@@ -8,7 +8,14 @@ pub const SH_C0: f32 = 0.282_094_8;
 
 #[derive(Clone, Copy)]
 enum Ty {
-    I8, U8, I16, U16, I32, U32, F32, F64,
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
 }
 
 impl Ty {
@@ -63,10 +70,8 @@ pub fn read_ply(bytes: &[u8]) -> Result<Vec<Gaussian>, String> {
     for (n, line) in header.lines().enumerate().skip(1) {
         let w: Vec<&str> = line.split_whitespace().collect();
         match w.as_slice() {
-            ["format", f, _] => {
-                if *f != "binary_little_endian" {
-                    return Err(format!("ply line {}: format {f} unsupported (binary_little_endian only)", n + 1));
-                }
+            ["format", f, _] if *f != "binary_little_endian" => {
+                return Err(format!("ply line {}: format {f} unsupported (binary_little_endian only)", n + 1));
             }
             ["element", name, c] => {
                 in_vertex = *name == "vertex";
@@ -132,11 +137,20 @@ pub fn write_ply(gs: &[Gaussian]) -> Vec<u8> {
     for g in gs {
         let o = g.opacity.clamp(1e-6, 1.0 - 1e-6);
         let vals = [
-            g.mean[0], g.mean[1], g.mean[2],
-            (g.color[0] - 0.5) / SH_C0, (g.color[1] - 0.5) / SH_C0, (g.color[2] - 0.5) / SH_C0,
+            g.mean[0],
+            g.mean[1],
+            g.mean[2],
+            (g.color[0] - 0.5) / SH_C0,
+            (g.color[1] - 0.5) / SH_C0,
+            (g.color[2] - 0.5) / SH_C0,
             (o / (1.0 - o)).ln(),
-            g.scale[0].ln(), g.scale[1].ln(), g.scale[2].ln(),
-            g.quat[0], g.quat[1], g.quat[2], g.quat[3],
+            g.scale[0].ln(),
+            g.scale[1].ln(),
+            g.scale[2].ln(),
+            g.quat[0],
+            g.quat[1],
+            g.quat[2],
+            g.quat[3],
         ];
         for v in vals {
             bytes.extend_from_slice(&v.to_le_bytes());

@@ -304,10 +304,8 @@ impl Renderer {
             multiview_mask: None,
             cache: None,
         });
-        let blit_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("blit.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(SHADER_BLIT.into()),
-        });
+        let blit_module = device
+            .create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("blit.wgsl"), source: wgpu::ShaderSource::Wgsl(SHADER_BLIT.into()) });
         let blit_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("blit bgl"),
             entries: &[wgpu::BindGroupLayoutEntry {
@@ -391,7 +389,12 @@ impl Renderer {
         let p = self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("blit pipeline"),
             layout: Some(&self.blit_layout),
-            vertex: wgpu::VertexState { module: &self.blit_module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &[] },
+            vertex: wgpu::VertexState {
+                module: &self.blit_module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
             primitive: Default::default(),
             depth_stencil: None,
             multisample: Default::default(),
@@ -625,7 +628,13 @@ impl Renderer {
 
     /// Render `views` into `target` (of `size` and `format`; sRGB formats are not corrected, use a unorm one).
     /// Each view is sorted for its own camera.
-    pub fn render(&mut self, views: &[ViewRect], target: &wgpu::TextureView, format: wgpu::TextureFormat, size: [u32; 2]) -> Result<RenderStats, String> {
+    pub fn render(
+        &mut self,
+        views: &[ViewRect],
+        target: &wgpu::TextureView,
+        format: wgpu::TextureFormat,
+        size: [u32; 2],
+    ) -> Result<RenderStats, String> {
         if views.len() > MAX_VIEWS {
             return Err(format!("render: at most {MAX_VIEWS} views, got {}", views.len()));
         }
@@ -645,11 +654,8 @@ impl Renderer {
             self.queue.write_buffer(&self.view_buf, i as u64 * UNIFORM_STRIDE, bytemuck::bytes_of(&u));
         }
         let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), ..Default::default() };
-        let view_binding = wgpu::BufferBinding {
-            buffer: &self.view_buf,
-            offset: 0,
-            size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
-        };
+        let view_binding =
+            wgpu::BufferBinding { buffer: &self.view_buf, offset: 0, size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64) };
         match self.path {
             DrawPath::Storage => {
                 let sort = self.gpu_sort.as_ref().unwrap();
@@ -667,7 +673,8 @@ impl Renderer {
                 {
                     let _clear = self.splat_pass(&mut encoder, &accum_view, true);
                 }
-                let single_key = (views.len() == 1).then(|| SortKey::new(self.data_version, ViewUniform::new(&views[0].camera, views[0].origin, self.count).row2));
+                let single_key =
+                    (views.len() == 1).then(|| SortKey::new(self.data_version, ViewUniform::new(&views[0].camera, views[0].origin, self.count).row2));
                 stats.sort_reused = single_key.is_some() && single_key == self.last_sort;
                 for (i, v) in views.iter().enumerate() {
                     let offset = (i as u64 * UNIFORM_STRIDE) as u32;

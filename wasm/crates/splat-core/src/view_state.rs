@@ -2,7 +2,7 @@
 //! BEV view, at a frame and a lateral track shift. Serializes to JSON for share links. Shared by the browser
 //! front and the native `splat-render`.
 
-use crate::camera::{bev_camera, default_rig, translation, mat_mul, Camera, FreeCamera, RigCamera};
+use crate::camera::{bev_camera, default_rig, mat_mul, translation, Camera, FreeCamera, RigCamera};
 use crate::constants::SHIFT_MAX_M;
 use crate::renderer::ViewRect;
 use crate::scene::Scene;
@@ -39,7 +39,11 @@ impl Default for ViewState {
 
 /// The scene's rig, or the default rig (640x360) for files without one (PLY, raster vectors).
 pub fn rig_of(scene: &Scene) -> Vec<RigCamera> {
-    if scene.rig.is_empty() { default_rig(640, 360) } else { scene.rig.clone() }
+    if scene.rig.is_empty() {
+        default_rig(640, 360)
+    } else {
+        scene.rig.clone()
+    }
 }
 
 /// Fit a camera into a cell keeping its aspect (uniform scale), centred.

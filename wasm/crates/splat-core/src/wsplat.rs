@@ -71,7 +71,24 @@ fn err<T>(kind: ErrorKind, offset: u64, message: impl Into<String>) -> Result<T,
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Field {
-    Px, Py, Pz, Qi, Qa, Qb, Qc, Qx, Qy, Qz, Sx, Sy, Sz, S, O, R, G, B,
+    Px,
+    Py,
+    Pz,
+    Qi,
+    Qa,
+    Qb,
+    Qc,
+    Qx,
+    Qy,
+    Qz,
+    Sx,
+    Sy,
+    Sz,
+    S,
+    O,
+    R,
+    G,
+    B,
 }
 
 /// Range of the canonical rotation fields qx qy qz: sin(pi/8) (see `Layout::decode`).
@@ -80,11 +97,24 @@ pub const Q_CANON: f64 = 0.38268343236508984;
 impl Field {
     fn parse(name: &str) -> Option<Field> {
         Some(match name {
-            "px" => Field::Px, "py" => Field::Py, "pz" => Field::Pz,
-            "qi" => Field::Qi, "qa" => Field::Qa, "qb" => Field::Qb, "qc" => Field::Qc,
-            "qx" => Field::Qx, "qy" => Field::Qy, "qz" => Field::Qz,
-            "sx" => Field::Sx, "sy" => Field::Sy, "sz" => Field::Sz, "s" => Field::S,
-            "o" => Field::O, "r" => Field::R, "g" => Field::G, "b" => Field::B,
+            "px" => Field::Px,
+            "py" => Field::Py,
+            "pz" => Field::Pz,
+            "qi" => Field::Qi,
+            "qa" => Field::Qa,
+            "qb" => Field::Qb,
+            "qc" => Field::Qc,
+            "qx" => Field::Qx,
+            "qy" => Field::Qy,
+            "qz" => Field::Qz,
+            "sx" => Field::Sx,
+            "sy" => Field::Sy,
+            "sz" => Field::Sz,
+            "s" => Field::S,
+            "o" => Field::O,
+            "r" => Field::R,
+            "g" => Field::G,
+            "b" => Field::B,
             _ => return None,
         })
     }
@@ -144,7 +174,7 @@ impl Layout {
             return bad("s excludes sx sy sz, qi qa qb qc and qx qy qz".into());
         }
         let one_rotation = (all(&three) && !canonical) || (all(&canon) && !any(&three));
-        if !isotropic && !(all(&scales) && one_rotation) {
+        if !(isotropic || (all(&scales) && one_rotation)) {
             return bad("needs s, or all of sx sy sz with one rotation: all of qi qa qb qc or all of qx qy qz".into());
         }
         let record_bytes = bit.div_ceil(8) as usize;
@@ -177,7 +207,11 @@ impl Layout {
                 // Canonical rotation: m = 2^n - 2 steps (an exact zero), the all-ones code clamps to m.
                 Field::Qx | Field::Qy | Field::Qz => {
                     let m = ((1u64 << n) - 2) as f64;
-                    let k = match f { Field::Qx => 0, Field::Qy => 1, _ => 2 };
+                    let k = match f {
+                        Field::Qx => 0,
+                        Field::Qy => 1,
+                        _ => 2,
+                    };
                     small[k] = Q_CANON * (2.0 * x.min(m) / m - 1.0);
                 }
                 Field::Sx => g.scale[0] = scale(),
@@ -278,13 +312,13 @@ impl Header {
             .ok_or_else(|| bad("rig: expected a list".into()))?
             .iter()
             .enumerate()
-            .map(|(i, c)| RigCamera::from_json(c, &format!("rig[{i}]")).map_err(|m| bad(m)))
+            .map(|(i, c)| RigCamera::from_json(c, &format!("rig[{i}]")).map_err(&bad))
             .collect::<Result<Vec<_>, _>>()?;
         let ego_to_world = get("ego_to_world")?
             .as_array()
             .ok_or_else(|| bad("ego_to_world: expected a list".into()))?
             .iter()
-            .map(|m| mat4_from_json(m, "ego_to_world").map_err(|m| bad(m)))
+            .map(|m| mat4_from_json(m, "ego_to_world").map_err(&bad))
             .collect::<Result<Vec<_>, _>>()?;
         if ego_to_world.len() != t {
             return Err(bad(format!("ego_to_world: length {} != {t} frames", ego_to_world.len())));
@@ -494,8 +528,11 @@ impl Decoder {
                     if len > MAX_HEAD {
                         return err(ErrorKind::BadHeader, off + 4, format!("HEAD length: {len} bytes exceeds {MAX_HEAD}"));
                     }
-                    let v: Value = serde_json::from_slice(payload)
-                        .map_err(|e| WsplatError { kind: ErrorKind::BadHeader, offset: payload_off, message: format!("HEAD: invalid JSON: {e}") })?;
+                    let v: Value = serde_json::from_slice(payload).map_err(|e| WsplatError {
+                        kind: ErrorKind::BadHeader,
+                        offset: payload_off,
+                        message: format!("HEAD: invalid JSON: {e}"),
+                    })?;
                     let h = Header::from_json(&v, payload_off)?;
                     self.dynamic_counts = vec![0; h.frame_times.len()];
                     self.header = Some(h.clone());
@@ -507,7 +544,11 @@ impl Decoder {
                     let (gs, _) = decode_records(payload, payload_off, 0, h.block_size, &h.static_layout)?;
                     self.static_count += gs.len() as u64;
                     if self.static_count > h.num_static {
-                        return err(ErrorKind::CountMismatch, payload_off, format!("STAT count: {} static Gaussians exceed HEAD.num_static {}", self.static_count, h.num_static));
+                        return err(
+                            ErrorKind::CountMismatch,
+                            payload_off,
+                            format!("STAT count: {} static Gaussians exceed HEAD.num_static {}", self.static_count, h.num_static),
+                        );
                     }
                     events.push(Event::Static(gs));
                 }
@@ -523,7 +564,11 @@ impl Decoder {
                     let (gs, _) = decode_records(payload, payload_off, 4, h.block_size, &h.dynamic_layout)?;
                     self.dynamic_counts[frame] += gs.len() as u64;
                     if self.dynamic_counts[frame] > h.num_dynamic[frame] {
-                        return err(ErrorKind::CountMismatch, payload_off + 4, format!("DYNA count: frame {frame} exceeds HEAD.num_dynamic[{frame}] = {}", h.num_dynamic[frame]));
+                        return err(
+                            ErrorKind::CountMismatch,
+                            payload_off + 4,
+                            format!("DYNA count: frame {frame} exceeds HEAD.num_dynamic[{frame}] = {}", h.num_dynamic[frame]),
+                        );
                     }
                     self.stage = Stage::Dynamic;
                     events.push(Event::Dynamic { frame, gaussians: gs });
@@ -534,21 +579,40 @@ impl Decoder {
                         return err(ErrorKind::BadPayload, payload_off, format!("END! payload: {len} bytes, must be empty"));
                     }
                     if self.static_count != h.num_static {
-                        return err(ErrorKind::CountMismatch, off, format!("END!: {} static Gaussians, HEAD.num_static says {}", self.static_count, h.num_static));
+                        return err(
+                            ErrorKind::CountMismatch,
+                            off,
+                            format!("END!: {} static Gaussians, HEAD.num_static says {}", self.static_count, h.num_static),
+                        );
                     }
                     if let Some(f) = (0..h.num_dynamic.len()).find(|&f| self.dynamic_counts[f] != h.num_dynamic[f]) {
-                        return err(ErrorKind::CountMismatch, off, format!("END!: frame {f} has {} dynamic Gaussians, HEAD.num_dynamic[{f}] says {}", self.dynamic_counts[f], h.num_dynamic[f]));
+                        return err(
+                            ErrorKind::CountMismatch,
+                            off,
+                            format!(
+                                "END!: frame {f} has {} dynamic Gaussians, HEAD.num_dynamic[{f}] says {}",
+                                self.dynamic_counts[f], h.num_dynamic[f]
+                            ),
+                        );
                     }
                     self.stage = Stage::Done;
                     events.push(Event::End);
                 }
                 _ => {
-                    return err(ErrorKind::BadOrder, off, format!("chunk order: {} not allowed {}", String::from_utf8_lossy(&tag), match self.stage {
-                        Stage::Head => "before HEAD",
-                        Stage::Static => "here (after HEAD/STAT)",
-                        Stage::Dynamic => "after DYNA",
-                        _ => "here",
-                    }));
+                    return err(
+                        ErrorKind::BadOrder,
+                        off,
+                        format!(
+                            "chunk order: {} not allowed {}",
+                            String::from_utf8_lossy(&tag),
+                            match self.stage {
+                                Stage::Head => "before HEAD",
+                                Stage::Static => "here (after HEAD/STAT)",
+                                Stage::Dynamic => "after DYNA",
+                                _ => "here",
+                            }
+                        ),
+                    );
                 }
             }
             at += total;
@@ -572,7 +636,11 @@ fn decode_records(payload: &[u8], payload_off: u64, start: usize, block_size: us
     let blocks = count.div_ceil(block_size);
     let want = (start as u64 + 4) + blocks as u64 * BLOCK_HEADER as u64 + count as u64 * layout.record_bytes as u64;
     if payload.len() as u64 != want {
-        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name} count: {count} records need a {want}-byte payload, got {}", payload.len()));
+        return err(
+            ErrorKind::BadPayload,
+            payload_off + start as u64,
+            format!("{name} count: {count} records need a {want}-byte payload, got {}", payload.len()),
+        );
     }
     let mut out = Vec::with_capacity(count); // bounded: the payload holding them is present
     let mut at = start + 4;
@@ -580,7 +648,8 @@ fn decode_records(payload: &[u8], payload_off: u64, start: usize, block_size: us
         let lo = [f32_at(payload, at), f32_at(payload, at + 4), f32_at(payload, at + 8)];
         let hi = [f32_at(payload, at + 12), f32_at(payload, at + 16), f32_at(payload, at + 20)];
         let lsc = [f32_at(payload, at + 24), f32_at(payload, at + 28)];
-        let ok = (0..3).all(|k| lo[k].is_finite() && hi[k].is_finite() && lo[k] <= hi[k]) && lsc[0].is_finite() && lsc[1].is_finite() && lsc[0] <= lsc[1];
+        let ok =
+            (0..3).all(|k| lo[k].is_finite() && hi[k].is_finite() && lo[k] <= hi[k]) && lsc[0].is_finite() && lsc[1].is_finite() && lsc[0] <= lsc[1];
         if !ok {
             return err(ErrorKind::BadPayload, payload_off + at as u64, format!("{name} block {b}: box must be finite with lo <= hi"));
         }
@@ -601,8 +670,20 @@ pub mod encode {
     use serde_json::json;
 
     pub const STATIC_LAYOUT: &[(&str, u32)] = &[
-        ("px", 15), ("py", 15), ("pz", 15), ("qi", 2), ("qa", 9), ("qb", 9), ("qc", 9),
-        ("sx", 6), ("sy", 6), ("sz", 6), ("o", 8), ("r", 8), ("g", 8), ("b", 8),
+        ("px", 15),
+        ("py", 15),
+        ("pz", 15),
+        ("qi", 2),
+        ("qa", 9),
+        ("qb", 9),
+        ("qc", 9),
+        ("sx", 6),
+        ("sy", 6),
+        ("sz", 6),
+        ("o", 8),
+        ("r", 8),
+        ("g", 8),
+        ("b", 8),
     ];
     pub const DYNAMIC_LAYOUT: &[(&str, u32)] = &[("px", 16), ("py", 16), ("pz", 16), ("s", 8), ("o", 6), ("r", 6), ("g", 6), ("b", 6)];
 
@@ -676,8 +757,10 @@ pub mod encode {
         let t = dynamic.len().max(1);
         let rig: Vec<Value> = crate::camera::default_rig(160, 90)
             .iter()
-            .map(|c| json!({"name": c.name, "width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
-                             "camera_to_ego": crate::camera::mat4_to_json(&c.camera_to_ego)}))
+            .map(|c| {
+                json!({"name": c.name, "width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+                             "camera_to_ego": crate::camera::mat4_to_json(&c.camera_to_ego)})
+            })
             .collect();
         let ego: Vec<Value> = (0..t).map(|f| crate::camera::mat4_to_json(&crate::camera::translation(f as f64 * 0.5, 0.0, 0.0))).collect();
         let layout = |l: &[(&str, u32)]| json!(l.iter().map(|(f, b)| json!([f, b])).collect::<Vec<_>>());

@@ -2,9 +2,9 @@
 //! order until it finishes and then matches the one-shot sort, the 4D dynamic set follows the frame.
 
 use splat_core::camera::Camera;
+use splat_core::cpu_sort::CpuSorter;
 use splat_core::gaussians::{gaussians_from_json, pack_all};
 use splat_core::headless;
-use splat_core::cpu_sort::CpuSorter;
 use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, ViewRect};
 use std::path::Path;
 
@@ -19,9 +19,9 @@ fn yawed(cam: &Camera, angle: f64) -> Camera {
     let (c, s) = (angle.cos(), angle.sin());
     let r = [[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]];
     let mut out = cam.clone();
-    for i in 0..3 {
+    for (i, ri) in r.iter().enumerate() {
         for j in 0..4 {
-            out.world_to_camera[i][j] = (0..3).map(|k| r[i][k] * cam.world_to_camera[k][j]).sum();
+            out.world_to_camera[i][j] = (0..3).map(|k| ri[k] * cam.world_to_camera[k][j]).sum();
         }
     }
     out
@@ -129,11 +129,11 @@ fn external_sort_draws_the_last_order_until_the_exact_one_arrives_and_drops_stal
     assert_eq!(req_a.data_version(), r.data_version());
     headless::render_rgba(&mut r, &b, size).unwrap();
     assert!(r.take_sort_request().is_none(), "one request in flight at a time");
-    assert!(r.accept_sort_result(req_a.seq + 7, external_sort(&r, &req_a)).unwrap() == false, "unknown seq dropped");
+    assert!(!r.accept_sort_result(req_a.seq + 7, external_sort(&r, &req_a)).unwrap(), "unknown seq dropped");
     assert!(r.accept_sort_result(req_a.seq, external_sort(&r, &req_a)).unwrap());
     // View b is wanted but a's order is in hand: draws a's order (pending), which is the exact image of a.
     let (img, s) = headless::render_rgba(&mut r, &a, size).unwrap();
-    assert!(!s.sort_pending && s.sort_reused == false);
+    assert!(!s.sort_pending && !s.sort_reused);
     assert_eq!(img, want_a, "the worker's order draws exactly what the in-thread sort draws");
     let (_, s) = headless::render_rgba(&mut r, &b, size).unwrap();
     assert!(s.sort_pending, "b is not sorted yet");

@@ -30,9 +30,7 @@ fn validation_catches_a_broken_shader() {
     let parsed = naga::front::wgsl::parse_str(&broken);
     let failed = match parsed {
         Err(_) => true,
-        Ok(m) => naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
-            .validate(&m)
-            .is_err(),
+        Ok(m) => naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default()).validate(&m).is_err(),
     };
     assert!(failed, "a type error must not validate");
 }

@@ -136,7 +136,13 @@ fn render(a: &Args) -> Result<(), String> {
     image::RgbaImage::from_raw(size[0], size[1], rgba).unwrap().save(out).map_err(|e| format!("{out}: {e}"))?;
     eprintln!(
         "splat-render: {out} {}x{} ({} Gaussians, {} static dropped by sanitizing; {} via {:?} on {})",
-        size[0], size[1], renderer.count(), scene.dropped, if explicit_used { "camera json".to_string() } else { state.mode_name() }, renderer.path, gpu.info.name
+        size[0],
+        size[1],
+        renderer.count(),
+        scene.dropped,
+        if explicit_used { "camera json".to_string() } else { state.mode_name() },
+        renderer.path,
+        gpu.info.name
     );
     Ok(())
 }
@@ -154,7 +160,13 @@ fn synthetic(n: usize, seed: u64) -> Vec<Gaussian> {
         .map(|_| {
             let x = f() * 100.0;
             let kind = f();
-            let (y, z) = if kind < 0.5 { (f() * 30.0 - 15.0, 0.0) } else if kind < 0.8 { (if f() < 0.5 { -12.0 } else { 12.0 }, f() * 10.0) } else { (f() * 24.0 - 12.0, f() * 3.0) };
+            let (y, z) = if kind < 0.5 {
+                (f() * 30.0 - 15.0, 0.0)
+            } else if kind < 0.8 {
+                (if f() < 0.5 { -12.0 } else { 12.0 }, f() * 10.0)
+            } else {
+                (f() * 24.0 - 12.0, f() * 3.0)
+            };
             Gaussian {
                 mean: [x, y + (f() - 0.5) * 0.1, z + (f() - 0.5) * 0.1],
                 quat: [f() - 0.5, f() - 0.5, f() - 0.5, f() - 0.5],
@@ -272,11 +284,24 @@ fn bench_paths(a: &Args) -> Result<(), String> {
     }
     let storage = headless::gpu(Some(DrawPath::Storage))?;
     let instanced = headless::gpu(Some(DrawPath::Instanced))?;
-    println!("draw paths side by side on {} ({:?}); {}x{}; {frames} timed frames each after one warm-up", storage.info.name, storage.info.backend, size[0], size[1]);
+    println!(
+        "draw paths side by side on {} ({:?}); {}x{}; {frames} timed frames each after one warm-up",
+        storage.info.name, storage.info.backend, size[0], size[1]
+    );
     println!("storage = records in a storage buffer, GPU radix sort, indirect draw of order[i]; instanced = CPU sort, sorted records as instance attributes");
     println!(
         "{:<6} {:>9} {:>14} {:>16} {:>8} {:>13} {:>15} {:>8} {:>14} {:>15} {:>11}",
-        "paths", "gaussians", "storage mov ms", "instanced mov ms", "ratio", "storage held", "instanced held", "ratio", "storage sort", "instanced sort", "PSNR s/i dB"
+        "paths",
+        "gaussians",
+        "storage mov ms",
+        "instanced mov ms",
+        "ratio",
+        "storage held",
+        "instanced held",
+        "ratio",
+        "storage sort",
+        "instanced sort",
+        "PSNR s/i dB"
     );
     for &n in &counts {
         let gs = synthetic(n, 0x9e3779b97f4a7c15 ^ n as u64);
@@ -322,7 +347,17 @@ fn bench_paths(a: &Args) -> Result<(), String> {
         let (ms, mi, hs, hi) = (mean(&moving[0]), mean(&moving[1]), mean(&held[0]), mean(&held[1]));
         println!(
             "{:<6} {:>9} {:>14.1} {:>16.1} {:>8.2} {:>13.1} {:>15.1} {:>8.2} {:>14.1} {:>15.1} {:>11.1}",
-            "paths", n, ms, mi, ms / mi, hs, hi, hs / hi, mean(&sort[0]), mean(&sort[1]), psnr_rgba(&last[0], &last[1])
+            "paths",
+            n,
+            ms,
+            mi,
+            ms / mi,
+            hs,
+            hi,
+            hs / hi,
+            mean(&sort[0]),
+            mean(&sort[1]),
+            psnr_rgba(&last[0], &last[1])
         );
         if let Some(d) = &out_dir {
             let cam = &state.views(&scene, size)[0].camera;
@@ -363,7 +398,8 @@ fn fixture4d(a: &Args) -> Result<(), String> {
     let out = a.get("out").ok_or("--out FILE.wsplat is required")?;
     let frames: usize = a.get("frames").unwrap_or("4").parse().map_err(|_| "--frames: expected an integer")?;
     let chunk: usize = a.get("chunk").unwrap_or("500").parse().map_err(|_| "--chunk: expected an integer")?;
-    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(input).map_err(|e| format!("{input}: {e}"))?).map_err(|e| format!("{input}: {e}"))?;
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(input).map_err(|e| format!("{input}: {e}"))?).map_err(|e| format!("{input}: {e}"))?;
     let gs = gaussians_from_json(&v["gaussians"])?;
     let statics: Vec<Gaussian> = gs.iter().filter_map(Gaussian::sanitized).collect();
     // A bright cluster in front of the vector's camera that moves sideways frame by frame.

@@ -301,7 +301,10 @@ pub struct Viewer {
     inner: Rc<RefCell<Inner>>,
 }
 
-async fn make_gpu(canvas: &HtmlCanvasElement, backend: &str) -> Result<(wgpu::Instance, wgpu::Surface<'static>, wgpu::Adapter, &'static str), String> {
+async fn make_gpu(
+    canvas: &HtmlCanvasElement,
+    backend: &str,
+) -> Result<(wgpu::Instance, wgpu::Surface<'static>, wgpu::Adapter, &'static str), String> {
     let backends = match backend {
         "webgpu" => wgpu::Backends::BROWSER_WEBGPU,
         "webgl2" => wgpu::Backends::GL,
@@ -707,9 +710,10 @@ fn attach_controls(canvas: &HtmlCanvasElement, inner: &Rc<RefCell<Inner>>) {
             let w = weak.clone();
             let cb = Closure::<dyn FnMut(web_sys::KeyboardEvent)>::new(move |e: web_sys::KeyboardEvent| {
                 // Keys typed into form fields are not camera moves.
-                let typing = e.target().and_then(|t| t.dyn_into::<web_sys::Element>().ok()).is_some_and(|el| {
-                    matches!(el.tag_name().as_str(), "INPUT" | "TEXTAREA" | "SELECT")
-                });
+                let typing = e
+                    .target()
+                    .and_then(|t| t.dyn_into::<web_sys::Element>().ok())
+                    .is_some_and(|el| matches!(el.tag_name().as_str(), "INPUT" | "TEXTAREA" | "SELECT"));
                 let Some(rc) = w.upgrade() else { return };
                 let Ok(mut i) = rc.try_borrow_mut() else { return };
                 let key = e.key();

@@ -1,0 +1,106 @@
+"""Per-camera layout maps: what the conditions alone say each pixel should show (issue 12, layout control).
+
+Rendered by ray casting a *layout world* that holds only what a scenario states: the road plane with its drivable
+area, painted markings and sidewalks, and one solid box per agent (its 3D box, not its detailed parts). Buildings,
+trees, textures and lighting are absent: they are the model's to generate. Channels (`LAYOUT_CHANNELS`), float32:
+
+    drivable    1 on road surface (lanes + shoulder), incl. junction areas
+    markings    1 on painted lane lines and crosswalk stripes (exact, as the world paints them)
+    sidewalk    1 on sidewalks / kerb side of urban roads
+    vehicle     1 where a car / bus / truck box is the nearest surface (filled, not a wireframe)
+    vulnerable  1 where a pedestrian / cyclist box is the nearest surface
+    heading     on box pixels: position of the hit along the agent's heading, 0 at its rear, 1 at its front
+                (so the direction of travel is visible in a single image); 0 elsewhere
+    depth       layout depth (camera z of the road plane or box hit), log-normalised to [-1, 1] over
+                [near, far] as the models normalise depth; +1 where the ray meets neither (sky, far)
+
+The maps are exact for any rig camera and shifted track, like the world's ground truth, and cost one ray cast
+with a handful of boxes per camera.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from worldsplat.world.classes import CROSSWALK, CYCLIST, LANE_MARKING, PEDESTRIAN, VEHICLE_CLASSES
+from worldsplat.world.prims import BOX, Prims
+from worldsplat.world.render import PID_GROUND, trace
+from worldsplat.world.road import bev_layers
+
+LAYOUT_CHANNELS = ("drivable", "markings", "sidewalk", "vehicle", "vulnerable", "heading", "depth")
+LAYOUT_RANGE = 90.0  # metres: the road plane beyond this is left out (as the sketch's lines are)
+
+
+def agent_boxes(world, t: int) -> Prims:
+    """One solid box per agent at frame t (its annotated 3D box), agent index in `agent`."""
+    n = len(world.agents)
+    center = np.zeros((n, 3))
+    half = np.zeros((n, 3))
+    yaw = np.zeros(n)
+    cls = np.zeros(n, np.uint8)
+    for i, a in enumerate(world.agents):
+        x, y, th = a.poses[t]
+        length, width, height = a.size
+        center[i] = (x, y, height / 2)
+        half[i] = (length / 2, width / 2, height / 2)
+        yaw[i] = th
+        cls[i] = a.cls
+    return Prims(
+        center,
+        yaw,
+        half,
+        np.full(n, BOX, np.int8),
+        cls,
+        np.zeros((n, 3), np.float32),
+        np.zeros(n, np.int8),
+        np.zeros(n, np.float32),
+        np.arange(n, dtype=np.int32),
+    )
+
+
+def normalize_log_depth(z: np.ndarray, near: float, far: float) -> np.ndarray:
+    d = np.clip(np.nan_to_num(z, nan=far, posinf=far), near, far)
+    return np.clip(2.0 * (np.log(d) - math.log(near)) / (math.log(far) - math.log(near)) - 1.0, -1.0, 1.0)
+
+
+def layout_map(world, t: int, cam, near: float = 0.5, far: float = 80.0) -> np.ndarray:
+    """(H, W, 7) float32 layout map of frame t seen by `cam` (any pose, shifted tracks included)."""
+    boxes = agent_boxes(world, t)
+    hits, o, d = trace(cam, boxes, far=LAYOUT_RANGE)
+    h, w = hits.t.shape
+    out = np.zeros((h, w, len(LAYOUT_CHANNELS)), np.float32)
+    finite = np.isfinite(hits.t)
+    p = o + hits.t[..., None] * d  # world hit points (camera-z depth times unit-z rays)
+    ground = (hits.pid == PID_GROUND) & finite
+    if ground.any():
+        gx, gy = p[ground, 0], p[ground, 1]
+        layers = bev_layers(world.road, gx, gy)
+        cls, _, _ = world.road.ground(gx, gy)
+        out[ground, 0] = layers["drivable"]
+        out[ground, 1] = (cls == LANE_MARKING) | (cls == CROSSWALK)
+        out[ground, 2] = layers["sidewalk"]
+    on_box = (hits.pid >= 0) & finite
+    if on_box.any():
+        k = hits.pid[on_box]
+        bcls = boxes.cls[k]
+        out[on_box, 3] = np.isin(bcls, list(VEHICLE_CLASSES))
+        out[on_box, 4] = np.isin(bcls, [PEDESTRIAN, CYCLIST])
+        c, s = np.cos(boxes.yaw[k]), np.sin(boxes.yaw[k])
+        rel = p[on_box, :2] - boxes.center[k, :2]
+        along = c * rel[:, 0] + s * rel[:, 1]
+        out[on_box, 5] = np.clip(0.5 + along / (2 * boxes.half[k, 0]), 0.0, 1.0)
+    out[..., 6] = normalize_log_depth(np.where(finite, hits.t, np.inf), near, far)
+    return out
+
+
+def layout_maps(world, shift_m: float = 0.0, cameras=None, near: float = 0.5, far: float = 80.0) -> np.ndarray:
+    """(T, V, H, W, 7) layout maps of every frame and rig camera (at the rig's resolution)."""
+    rig = world.rig if cameras is None else [world.rig_camera(n) for n in cameras]
+    return np.stack(
+        [
+            np.stack([layout_map(world, t, rc.at(world.ego_to_world[t], shift_m), near, far) for rc in rig])
+            for t in range(world.num_frames)
+        ]
+    )

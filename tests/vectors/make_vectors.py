@@ -1,9 +1,11 @@
-"""Regenerate the shared test vectors deterministically: `python tests/vectors/make_vectors.py [raster|wsplat]`.
+"""Regenerate the shared test vectors deterministically: `python tests/vectors/make_vectors.py [raster|wsplat|rig]`.
 
 raster/<case>.json          camera + Gaussians (non-finite numbers as "NaN", "Infinity", "-Infinity")
 raster/<case>.expected.png  torch reference render, RGB8, round(255 * clamp(c, 0, 1))
 raster/<case>.expected.json {"alpha_sum", "rgb_mean", "finite", "visible"}
 wsplat/<name>.wsplat + <name>.json  valid files with expected decoded values, malformed files with the error
+rig/rig_shift.json          a preset's rig (intrinsics + camera_to_ego), its ego poses, and world_to_camera of every
+                            rig camera at several lateral shifts and frames (Python's rig + shift composition)
 Every renderer / decoder must pass all of them (see web/docs/gaussians.md).
 """
 from __future__ import annotations
@@ -375,12 +377,56 @@ def write_wsplat(out_dir: Path) -> list[str]:
     return names
 
 
+# ---------------------------------------------------------------------------------------------- rig + shift
+RIG_PRESET = "suburban_curve"  # a curving road: the ego yaw changes from frame to frame
+RIG_SHIFTS_M = (-8.0, -2.0, 0.0, 1.5, 4.0, 8.0)  # both ends of the +-8 m limit included
+
+
+def rig_vector() -> dict:
+    """The preset's rig and ego poses (inputs) and the world camera of every rig camera at every shift and at the
+    first, middle and last frame (expected), as the Python world computes them (`World.camera`)."""
+    from worldsplat.scenario import load_preset
+    from worldsplat.world.layout import build_world
+    world = build_world(load_preset(RIG_PRESET))
+    frames = sorted({0, world.num_frames // 2, world.num_frames - 1})
+    cases = []
+    for t in frames:
+        for shift in RIG_SHIFTS_M:
+            for rc in world.rig:
+                cam = world.camera(t, rc.name, shift)
+                cases.append({"frame": t, "shift_m": shift, "camera": rc.name, "width": cam.width, "height": cam.height,
+                              "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
+                              "world_to_camera": np.asarray(cam.world_to_camera, np.float64).tolist()})
+    return {"preset": RIG_PRESET, "image": [world.rig[0].width, world.rig[0].height],
+            "rig": [rc.to_json() for rc in world.rig],
+            "ego_to_world": np.asarray(world.ego_to_world, np.float64).tolist(),
+            "frame_times": [float(x) for x in world.frame_times],
+            "shifts_m": list(RIG_SHIFTS_M), "frames": frames, "cases": cases}
+
+
+def write_rig(out_dir: Path = HERE / "rig") -> list[str]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    v = rig_vector()
+    # One top-level key, rig camera or case per line: diffs of a regenerated vector stay readable.
+    lines = []
+    for k, x in v.items():
+        if isinstance(x, list) and x and isinstance(x[0], dict):
+            items = ",\n".join(f"  {json.dumps(e)}" for e in x)
+            lines.append(f' "{k}": [\n{items}\n ]')
+        else:
+            lines.append(f' "{k}": {json.dumps(x)}')
+    (out_dir / "rig_shift.json").write_text("{\n" + ",\n".join(lines) + "\n}\n")
+    return [f"rig_shift.json ({len(v['cases'])} cameras)"]
+
+
 def main(argv: list[str]) -> int:
-    which = argv[1:] or ["raster", "wsplat"]
+    which = argv[1:] or ["raster", "wsplat", "rig"]
     if "raster" in which:
         print("raster:", ", ".join(write_raster()))
     if "wsplat" in which:
         print("wsplat:", ", ".join(write_wsplat(HERE / "wsplat")))
+    if "rig" in which:
+        print("rig:", ", ".join(write_rig()))
     return 0
 
 

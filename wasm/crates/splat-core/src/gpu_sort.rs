@@ -2,14 +2,12 @@
 //! 1024-element block, one exclusive scan, a stable scatter. Output: the draw order (nearest first) and the
 //! indirect draw arguments (instance count = Gaussians in front of the near plane).
 
-use crate::renderer::{SHADER_CONSTANTS, SHADER_VIEW};
+pub use crate::shaders::{sort_shader_source, SHADER_RADIX_SORT};
+use crate::view::{ViewUniform, UNIFORM_STRIDE};
 
-pub const SHADER_RADIX_SORT: &str = include_str!("shaders/radix_sort.wgsl");
 /// Threads per workgroup of every sort kernel (`WG` in the WGSL).
 pub const WG: u32 = 256;
 const PASSES: u32 = 8;
-const UNIFORM_STRIDE: u64 = 256;
-const ITEMS_LINE: &str = "const ITEMS: u32 = 16u;";
 
 /// Keys per thread; a block is `WG * items` keys. A CPU adapter (lavapipe, SwiftShader) runs a workgroup as a
 /// loop over its invocations, split at every barrier, so fewer and larger blocks cost less there: 1M keys sort
@@ -21,14 +19,6 @@ pub fn items_per_thread(info: &wgpu::AdapterInfo) -> u32 {
     } else {
         16
     }
-}
-
-/// The sort shader for `items` keys per thread (the packed 16-bit rank counters hold up to 65535 per block).
-pub fn sort_shader_source(items: u32) -> String {
-    assert!((1..=255).contains(&items), "items per thread {items} outside 1..=255");
-    assert!(SHADER_RADIX_SORT.contains(ITEMS_LINE), "radix_sort.wgsl declares ITEMS as {ITEMS_LINE:?}");
-    let sort = SHADER_RADIX_SORT.replacen(ITEMS_LINE, &format!("const ITEMS: u32 = {items}u;"), 1);
-    [SHADER_CONSTANTS, SHADER_VIEW, &sort].join("\n")
 }
 
 pub struct GpuSort {
@@ -48,7 +38,8 @@ pub struct GpuSort {
     pub block: u32,
 }
 
-/// Bind groups for one frame: A->B and B->A.
+/// Bind groups of the sort: A->B and B->A (made once per buffer set).
+#[derive(Clone)]
 pub struct SortBindings {
     ab: wgpu::BindGroup,
     ba: wgpu::BindGroup,
@@ -175,7 +166,7 @@ impl GpuSort {
                         resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
                             buffer: view_buf,
                             offset: 0,
-                            size: wgpu::BufferSize::new(std::mem::size_of::<crate::renderer::ViewUniform>() as u64),
+                            size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
                         }),
                     },
                     wgpu::BindGroupEntry { binding: 1, resource: splats.as_entire_binding() },

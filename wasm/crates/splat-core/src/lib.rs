@@ -1,17 +1,24 @@
 //! splat-core: the viewer's platform-independent half. Math constants (`constants`), cameras (`camera`),
 //! Gaussians and their 24-byte GPU record (`gaussians`), the .wsplat v1 progressive decoder (`wsplat`), the 3DGS
 //! PLY reader (`ply`), scenes (`scene`), the view state behind the Viewer API (`view_state`), the wgpu renderer
-//! (`renderer`) with its GPU radix sort (`gpu_sort`) and the CPU sort for WebGL2 (`cpu_sort`).
+//! (`renderer`) with its device setup (`device`), shader registry (`shaders`), per-view uniform (`view`), GPU
+//! radix sort (`gpu_sort`), CPU sort for WebGL2 (`cpu_sort`), worker-sort protocol (`external_sort`) and
+//! readback (`readback`). Imports go one way: renderer -> the others; none of them imports the renderer.
 
 pub mod camera;
 pub mod constants;
 pub mod cpu_sort;
+pub mod device;
+pub mod external_sort;
 pub mod gaussians;
 pub mod gpu_sort;
 #[cfg(not(target_arch = "wasm32"))]
 pub mod headless;
 pub mod ply;
+pub mod readback;
 pub mod renderer;
 pub mod scene;
+pub mod shaders;
+pub mod view;
 pub mod view_state;
 pub mod wsplat;

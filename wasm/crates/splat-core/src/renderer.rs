@@ -4,170 +4,23 @@
 //!   buffer, a GPU radix sort (`gpu_sort`) writes the draw order and the visible count (indirect draw);
 //! - `DrawPath::Instanced` (WebGL2: no compute, no storage buffers): a CPU sort, records uploaded in draw order
 //!   as instance attributes.
+//!
+//! Beside it: `device` (adapter -> device, draw path), `shaders` (the WGSL registry), `view` (the per-view
+//! uniform), `external_sort` (the worker-sort protocol), `readback` (offscreen target + buffer map).
 
-use crate::camera::Camera;
 use crate::cpu_sort::{CpuSortJob, CpuSorter, SortKey};
+use crate::external_sort::ExternalSort;
 use crate::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
 use crate::gpu_sort::GpuSort;
-use bytemuck::{Pod, Zeroable};
 
-pub const SHADER_CONSTANTS: &str = include_str!("shaders/constants.wgsl");
-pub const SHADER_VIEW: &str = include_str!("shaders/view.wgsl");
-pub const SHADER_SPLAT: &str = include_str!("shaders/splat.wgsl");
-pub const SHADER_SPLAT_STORAGE: &str = include_str!("shaders/splat_storage.wgsl");
-pub const SHADER_SPLAT_INSTANCED: &str = include_str!("shaders/splat_instanced.wgsl");
-pub const SHADER_BLIT: &str = include_str!("shaders/blit.wgsl");
-
-/// Full WGSL source of the splat draw for a path (what the renderer compiles and the naga test validates).
-pub fn splat_shader_source(path: DrawPath) -> String {
-    let tail = match path {
-        DrawPath::Storage => SHADER_SPLAT_STORAGE,
-        DrawPath::Instanced => SHADER_SPLAT_INSTANCED,
-    };
-    [SHADER_CONSTANTS, SHADER_VIEW, SHADER_SPLAT, tail].join("\n")
-}
-
-/// Most views one `render` call composes (the 6-camera mosaic needs 6).
-pub const MAX_VIEWS: usize = 8;
-const UNIFORM_STRIDE: u64 = 256;
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DrawPath {
-    Storage,
-    Instanced,
-}
-
-/// Mirrors `struct View` in `shaders/view.wgsl`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub struct ViewUniform {
-    pub row0: [f32; 4],
-    pub row1: [f32; 4],
-    pub row2: [f32; 4],
-    pub intrinsics: [f32; 4],
-    pub size: [f32; 2],
-    pub origin: [f32; 2],
-    pub count: u32,
-    pub num_blocks: u32,
-    pub pad: [u32; 2],
-}
-
-impl ViewUniform {
-    pub fn new(cam: &Camera, origin: [u32; 2], count: u32) -> ViewUniform {
-        let m = &cam.world_to_camera;
-        let row = |i: usize| [m[i][0] as f32, m[i][1] as f32, m[i][2] as f32, m[i][3] as f32];
-        ViewUniform {
-            row0: row(0),
-            row1: row(1),
-            row2: row(2),
-            intrinsics: [cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32],
-            size: [cam.width as f32, cam.height as f32],
-            origin: [origin[0] as f32, origin[1] as f32],
-            count,
-            num_blocks: 0, // set by the renderer for its sort's block size
-            pad: [0; 2],
-        }
-    }
-}
-
-/// One view of a frame: a camera drawn into the viewport at `origin` (its size is the camera's).
-#[derive(Clone, Debug)]
-pub struct ViewRect {
-    pub camera: Camera,
-    pub origin: [u32; 2],
-}
-
-/// The device and what it can do.
-pub struct Gpu {
-    pub device: wgpu::Device,
-    pub queue: wgpu::Queue,
-    pub info: wgpu::AdapterInfo,
-    pub path: DrawPath,
-    pub accum_format: wgpu::TextureFormat,
-    /// Keys per thread of the GPU radix sort (`gpu_sort::items_per_thread`).
-    pub sort_items: u32,
-}
-
-impl Gpu {
-    /// Request a device with the adapter's own limits and pick the draw path and accumulation format.
-    pub async fn new(adapter: &wgpu::Adapter) -> Result<Gpu, String> {
-        let caps = adapter.get_downlevel_capabilities();
-        let limits = adapter.limits();
-        let compute = caps.flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
-            && caps.flags.contains(wgpu::DownlevelFlags::VERTEX_STORAGE)
-            && caps.flags.contains(wgpu::DownlevelFlags::INDIRECT_EXECUTION)
-            && limits.max_storage_buffers_per_shader_stage >= 5
-            && limits.max_compute_workgroup_storage_size >= 8192
-            && limits.max_compute_invocations_per_workgroup >= 256;
-        let f16 = adapter.get_texture_format_features(wgpu::TextureFormat::Rgba16Float);
-        let accum_format = if f16.allowed_usages.contains(wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING)
-            && f16.flags.contains(wgpu::TextureFormatFeatureFlags::BLENDABLE)
-        {
-            wgpu::TextureFormat::Rgba16Float
-        } else {
-            wgpu::TextureFormat::Rgba8Unorm
-        };
-        let (device, queue) = adapter
-            .request_device(&wgpu::DeviceDescriptor {
-                label: Some("splat device"),
-                required_features: wgpu::Features::empty(),
-                required_limits: limits,
-                experimental_features: Default::default(),
-                memory_hints: wgpu::MemoryHints::Performance,
-                trace: Default::default(),
-            })
-            .await
-            .map_err(|e| format!("request_device failed: {e}"))?;
-        Ok(Gpu {
-            device,
-            queue,
-            info: adapter.get_info(),
-            path: if compute { DrawPath::Storage } else { DrawPath::Instanced },
-            accum_format,
-            sort_items: crate::gpu_sort::items_per_thread(&adapter.get_info()),
-        })
-    }
-
-    /// Force the CPU-sorted instanced path (to test it on adapters that have compute).
-    pub fn with_path(mut self, path: DrawPath) -> Gpu {
-        self.path = path;
-        self
-    }
-}
-
-/// Where the instanced path's depth order comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CpuSortSource {
-    /// Sorted inside `render` (one shot, or sliced by `cpu_sort_budget_ms`).
-    InThread,
-    /// Sorted elsewhere (a browser Web Worker): `render` draws the last order it was given and asks for a new one
-    /// through `take_sort_request`; `accept_sort_result` hands the order in.
-    External,
-}
-
-/// A depth sort for an external sorter: the positions of `data_version` (`positions()`), one depth row per view.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SortRequest {
-    pub seq: u64,
-    pub keys: Vec<SortKey>,
-}
-
-impl SortRequest {
-    pub fn data_version(&self) -> u64 {
-        self.keys.first().map_or(0, |k| k.data_version)
-    }
-}
-
-/// State of the external sort: the orders in hand (one per view slot), what the last render wanted, the one
-/// request in flight (a new one goes out only when the previous answered, so a busy sorter never queues stale work).
-#[derive(Default)]
-struct ExternalSort {
-    orders: Vec<(SortKey, Vec<u32>)>,
-    wanted: Option<Vec<SortKey>>,
-    in_flight: Option<(u64, Vec<SortKey>)>,
-    seq: u64,
-    dropped: u64,
-}
+pub use crate::device::Gpu;
+pub use crate::external_sort::{CpuSortSource, SortRequest};
+pub use crate::readback::{Offscreen, Readback};
+pub use crate::shaders::{
+    splat_shader_source, SHADER_BLIT, SHADER_CONSTANTS, SHADER_SPLAT, SHADER_SPLAT_INSTANCED, SHADER_SPLAT_STORAGE, SHADER_VIEW,
+};
+use crate::view::UNIFORM_STRIDE;
+pub use crate::view::{DrawPath, ViewRect, ViewUniform, MAX_VIEWS};
 
 /// Timing and size figures of the last `render` call.
 #[derive(Clone, Copy, Debug, Default)]
@@ -466,61 +319,26 @@ impl Renderer {
 
     /// External sort: true when the orders in hand are exactly those of `views` on the resident data.
     pub fn orders_ready(&self, views: &[ViewRect]) -> bool {
-        let keys = self.sort_keys(views);
-        keys.len() <= self.external.orders.len() && keys.iter().zip(&self.external.orders).all(|(k, o)| *k == o.0)
+        self.external.orders_ready(&self.sort_keys(views))
     }
 
     /// External sort: ask for the orders of `views` (the next `take_sort_request` sends it unless they are in hand).
     pub fn want_orders(&mut self, views: &[ViewRect]) {
-        if !self.orders_ready(views) {
-            self.external.wanted = Some(self.sort_keys(views));
-        }
+        let keys = self.sort_keys(views);
+        self.external.want(keys);
     }
 
     /// External sort: the request to send now, if the last render wanted an order that is neither in hand nor
     /// in flight. At most one request is in flight.
     pub fn take_sort_request(&mut self) -> Option<SortRequest> {
-        let e = &mut self.external;
-        if e.in_flight.is_some() {
-            return None;
-        }
-        let keys = e.wanted.take()?;
-        if keys.first().is_none_or(|k| k.data_version != self.data_version) {
-            return None; // wanted for data that is gone (a new scene); the next render asks again
-        }
-        e.seq += 1;
-        e.in_flight = Some((e.seq, keys.clone()));
-        Some(SortRequest { seq: e.seq, keys })
+        self.external.take_request(self.data_version)
     }
 
     /// External sort: the sorter answered request `seq` with one order per view (visible indices, nearest first).
     /// Returns false (and counts a drop) for an answer that is not the request in flight or whose data has
     /// since been replaced; an order with an index out of range is an error (a broken sorter).
     pub fn accept_sort_result(&mut self, seq: u64, orders: Vec<Vec<u32>>) -> Result<bool, String> {
-        let e = &mut self.external;
-        let keys = match &e.in_flight {
-            Some((s, _)) if *s == seq => e.in_flight.take().unwrap().1,
-            _ => {
-                e.dropped += 1;
-                return Ok(false);
-            }
-        };
-        if keys.first().is_none_or(|k| k.data_version < self.index_epoch) {
-            e.dropped += 1; // its indices no longer name the same Gaussians
-            return Ok(false);
-        }
-        if orders.len() != keys.len() {
-            return Err(format!("sort result {seq}: {} orders for {} views", orders.len(), keys.len()));
-        }
-        let count = self.count;
-        if let Some(bad) = orders.iter().flatten().find(|&&i| i >= count) {
-            return Err(format!("sort result {seq}: index {bad} is out of range (count {count})"));
-        }
-        if e.wanted.as_ref() == Some(&keys) {
-            e.wanted = None;
-        }
-        e.orders = keys.into_iter().zip(orders).collect();
-        Ok(true)
+        self.external.accept(seq, orders, self.index_epoch, self.count)
     }
 
     pub fn cpu_sort_source(&self) -> CpuSortSource {
@@ -533,14 +351,12 @@ impl Renderer {
         self.last_sort = None;
         self.cpu_job = None;
         self.uploaded_order = None;
-        self.external = ExternalSort { seq: self.external.seq, dropped: self.external.dropped, ..Default::default() };
+        self.external.reset();
     }
 
     /// External sort: drop the request in flight (the sorter died); the next render asks again.
     pub fn cancel_sort_request(&mut self) {
-        if let Some((_, keys)) = self.external.in_flight.take() {
-            self.external.wanted.get_or_insert(keys);
-        }
+        self.external.cancel();
     }
 
     /// Make the resident set `statics ++ dynamic`. `statics` may only have grown since the last call (streaming
@@ -852,89 +668,5 @@ impl Renderer {
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &bind, &[]);
         pass.draw(0..3, 0..1);
-    }
-}
-
-/// An offscreen RGBA8 target that can be read back (tests, the native CLI, `read_pixels` in the browser).
-pub struct Offscreen {
-    pub texture: wgpu::Texture,
-    pub view: wgpu::TextureView,
-    pub size: [u32; 2],
-}
-
-impl Offscreen {
-    pub fn new(device: &wgpu::Device, size: [u32; 2]) -> Offscreen {
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("offscreen"),
-            size: wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba8Unorm,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
-        let view = texture.create_view(&Default::default());
-        Offscreen { texture, view, size }
-    }
-
-    /// Copy to a mappable buffer and request the map; `receiver` fires once the device has been polled.
-    pub fn start_readback(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Readback {
-        let [w, h] = self.size;
-        let padded = (w * 4).div_ceil(256) * 256;
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: padded as u64 * h as u64,
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut encoder = device.create_command_encoder(&Default::default());
-        encoder.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo { texture: &self.texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buffer,
-                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded), rows_per_image: Some(h) },
-            },
-            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
-        );
-        queue.submit([encoder.finish()]);
-        let (tx, rx) = futures_channel::oneshot::channel();
-        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        Readback { buffer, receiver: rx, size: self.size, padded }
-    }
-}
-
-pub struct Readback {
-    buffer: wgpu::Buffer,
-    receiver: futures_channel::oneshot::Receiver<Result<(), wgpu::BufferAsyncError>>,
-    size: [u32; 2],
-    padded: u32,
-}
-
-impl Readback {
-    /// Tightly packed RGBA8 rows once the map callback has fired (`None` until then; keep polling the device).
-    pub fn try_finish(&mut self) -> Option<Result<Vec<u8>, String>> {
-        let result = match self.receiver.try_recv() {
-            Ok(None) => return None,
-            Ok(Some(r)) => r,
-            Err(_) => return Some(Err("readback: map request was dropped".into())),
-        };
-        Some(self.copy_out(result))
-    }
-
-    fn copy_out(&self, map_result: Result<(), wgpu::BufferAsyncError>) -> Result<Vec<u8>, String> {
-        map_result.map_err(|e| format!("readback map failed: {e}"))?;
-        let [w, h] = self.size;
-        let data = self.buffer.get_mapped_range(..).map_err(|e| format!("readback range: {e:?}"))?;
-        let mut out = Vec::with_capacity((w * h * 4) as usize);
-        for row in 0..h as usize {
-            let start = row * self.padded as usize;
-            out.extend_from_slice(&data[start..start + w as usize * 4]);
-        }
-        drop(data);
-        self.buffer.unmap();
-        Ok(out)
     }
 }

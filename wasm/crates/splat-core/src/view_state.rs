@@ -4,8 +4,8 @@
 
 use crate::camera::{bev_camera, default_rig, mat_mul, translation, Camera, FreeCamera, RigCamera};
 use crate::constants::SHIFT_MAX_M;
-use crate::renderer::ViewRect;
 use crate::scene::Scene;
+use crate::view::ViewRect;
 use serde_json::{json, Value};
 
 /// Mosaic cells, nuScenes style: front row left to right, back row left to right.

@@ -149,6 +149,15 @@ impl CpuSortJob {
         CpuSortJob { key, phase: Phase::Keys, keys: Vec::new(), order: Vec::new(), tmp_keys: Vec::new(), tmp_order: Vec::new(), cursor: 0 }
     }
 
+    /// Start over for `key`, keeping the buffers of the previous sort (no allocation once they are big enough).
+    pub fn restart(&mut self, key: SortKey) {
+        self.key = key;
+        self.phase = Phase::Keys;
+        self.cursor = 0;
+        self.keys.clear();
+        self.order.clear();
+    }
+
     pub fn done(&self) -> bool {
         self.phase == Phase::Done
     }
@@ -216,5 +225,13 @@ mod job_tests {
         }
         assert!(steps >= 3, "the job was cut into slices ({steps})");
         assert_eq!(job.order(), &want[..]);
+        // Restarted for another view (mid-way through a sort too), it reuses its buffers and sorts afresh.
+        let row2b = [0.0, 0.0, -1.0, 40.0];
+        let wantb = CpuSorter::default().sort(&records, row2b).to_vec();
+        job.restart(SortKey::new(2, row2));
+        assert!(!job.step(&records, Some(2.0), fake_clock));
+        job.restart(SortKey::new(3, row2b));
+        while !job.step(&records, Some(2.0), fake_clock) {}
+        assert_eq!(job.order(), &wantb[..]);
     }
 }

@@ -1,7 +1,8 @@
 //! splat-core: the viewer's platform-independent half. Math constants (`constants`), cameras (`camera`),
 //! Gaussians and their 24-byte GPU record (`gaussians`), the .wsplat v1 progressive decoder (`wsplat`), the 3DGS
 //! PLY reader (`ply`), scenes (`scene`), the view state behind the Viewer API (`view_state`), the wgpu renderer
-//! (`renderer`) with its device setup (`device`), shader registry (`shaders`), per-view uniform (`view`), GPU
+//! (`renderer`) with its device setup (`device`), shader registry (`shaders`), per-view uniform (`view`), the
+//! WebGL2 path's resident records (`records`), GPU
 //! radix sort (`gpu_sort`), CPU sort for WebGL2 (`cpu_sort`), worker-sort protocol (`external_sort`) and
 //! readback (`readback`). Imports go one way: renderer -> the others; none of them imports the renderer.
 
@@ -16,6 +17,7 @@ pub mod gpu_sort;
 pub mod headless;
 pub mod ply;
 pub mod readback;
+pub mod records;
 pub mod renderer;
 pub mod scene;
 pub mod shaders;

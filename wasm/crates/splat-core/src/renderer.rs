@@ -1,9 +1,9 @@
-//! The wgpu splat renderer (platform-independent): premultiplied instanced quads composited front to back into
-//! a float accumulation target, then copied to the output. Two draw paths share one projection shader:
+//! The wgpu splat renderer (platform-independent): premultiplied quads composited front to back into a float
+//! accumulation target, then copied to the output. Two draw paths share one projection shader:
 //! - `DrawPath::Storage` (compute available: Vulkan, Metal, DX12, WebGPU): records stay resident in a storage
 //!   buffer, a GPU radix sort (`gpu_sort`) writes the draw order and the visible count (indirect draw);
-//! - `DrawPath::Instanced` (WebGL2: no compute, no storage buffers): a CPU sort, records uploaded in draw order
-//!   as instance attributes.
+//! - `DrawPath::Instanced` (WebGL2: no compute, no storage buffers): records stay resident in two textures
+//!   (`records`), a CPU sort (here or in a Web Worker) gives the draw order, uploaded as a u32 index per instance.
 //!
 //! Beside it: `device` (adapter -> device, draw path), `shaders` (the WGSL registry), `view` (the per-view
 //! uniform), `external_sort` (the worker-sort protocol), `readback` (offscreen target + buffer map).
@@ -11,7 +11,8 @@
 use crate::cpu_sort::{CpuSortJob, CpuSorter, SortKey};
 use crate::external_sort::ExternalSort;
 use crate::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
-use crate::gpu_sort::GpuSort;
+use crate::gpu_sort::{GpuSort, SortBindings};
+use crate::records::RecordTextures;
 
 pub use crate::device::Gpu;
 pub use crate::external_sort::{CpuSortSource, SortRequest};
@@ -22,21 +23,29 @@ pub use crate::shaders::{
 use crate::view::UNIFORM_STRIDE;
 pub use crate::view::{DrawPath, ViewRect, ViewUniform, MAX_VIEWS};
 
-/// Timing and size figures of the last `render` call.
+/// Timing and size figures of the last `render` call. Stage times are CPU milliseconds of issuing each stage;
+/// with `Renderer::stage_sync` set (native profiling) each stage is waited for, so they are the stage's own time.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct RenderStats {
     pub gaussians: u32,
     pub resident_bytes: u64,
+    /// Instanced path: choosing the order (sorting here, or taking the worker's) and uploading it.
     pub cpu_sort_ms: f64,
-    /// Of `cpu_sort_ms`: gathering the records in draw order and uploading them (instanced path; the rest sorted).
+    /// Of `cpu_sort_ms`: uploading the draw order (4 B per visible Gaussian) and any new records.
     pub gather_ms: f64,
+    /// Storage path with `stage_sync`: the GPU radix sort.
+    pub gpu_sort_ms: f64,
+    /// The splat passes (all views).
+    pub draw_ms: f64,
+    /// The copy of the accumulation target to the output.
+    pub blit_ms: f64,
     /// A budgeted CPU sort is still running; the frame used the previous order.
     pub sort_pending: bool,
     /// The view did not change, so the previous sort was reused.
     pub sort_reused: bool,
     /// External sort: results dropped so far because a newer request or new data superseded them.
     pub sorts_dropped: u64,
-    /// Instanced path: records gathered and uploaded in draw order by this render (0 when the buffer was reused).
+    /// Instanced path: draw-order indices uploaded by this render (0 when the instance buffer was reused).
     pub records_uploaded: u64,
 }
 
@@ -52,15 +61,24 @@ pub struct Renderer {
     splat_bgl: wgpu::BindGroupLayout,
     blit_bgl: wgpu::BindGroupLayout,
     view_buf: wgpu::Buffer,
+    /// Storage path: the records (24 B each). Instanced path: the draw order (a u32 record index per instance).
     splat_buf: wgpu::Buffer,
     capacity: u32,
     num_static: u32,
     count: u32,
     gpu_sort: Option<GpuSort>,
-    // Instanced path: the records (static then dynamic) and the sorted copy uploaded per view.
+    /// Instanced path: the records resident in textures, and how many leading ones match `cpu_records`.
+    records: Option<RecordTextures>,
+    records_valid: usize,
+    // Bind groups, made once and again only when what they bind is replaced.
+    splat_bind: Option<wgpu::BindGroup>,
+    sort_bind: Option<SortBindings>,
+    blit_bind: Option<wgpu::BindGroup>,
+    // Instanced path: the records (static then dynamic) as the CPU sorts them.
     cpu_records: Vec<PackedSplat>,
-    sorted: Vec<PackedSplat>,
     cpu_sorter: CpuSorter,
+    /// Mosaic orders from an older frame, restricted to the indices that still exist.
+    order_scratch: Vec<u32>,
     /// Bumped whenever the resident Gaussians change; part of every sort key.
     data_version: u64,
     /// The oldest data version whose indices still name the same Gaussians (only appended statics since).
@@ -72,17 +90,33 @@ pub struct Renderer {
     /// Instanced path: sort in `render` or take orders from outside (a Web Worker).
     cpu_sort_source: CpuSortSource,
     external: ExternalSort,
-    /// External sort, single view: (order key, data version) of the records in the instance buffer.
+    /// External sort, single view: (order key, data version) of the order in the instance buffer.
     uploaded_order: Option<(SortKey, u64)>,
     /// Instanced path: slice the CPU sort to this many ms per `render` once a previous order exists
     /// (None: sort to completion, as tests and readbacks need).
     pub cpu_sort_budget_ms: Option<f64>,
     accum: Option<(wgpu::Texture, wgpu::TextureView, [u32; 2])>,
     pub clock: fn() -> f64,
+    /// Profiling: called after each stage is submitted to wait for the GPU (native: a blocking poll), so the
+    /// stage times in `RenderStats` are the stages' own. None in normal use (one submission per frame).
+    pub stage_sync: Option<fn(&wgpu::Device)>,
+    /// Profiling: sort and upload as usual but draw no splat (the frame's cost without the splat draw).
+    pub skip_splats: bool,
+    /// Draw each Gaussian as the spec's full square (half-size `radius`) instead of the tight rectangle around
+    /// its opacity-aware ellipse: the same image, more fragments (the before/after of the tight quad).
+    pub square_quads: bool,
 }
 
 fn std_clock() -> f64 {
     0.0
+}
+
+/// Upload a draw order into the instance buffer; returns the number of instances.
+fn write_order(queue: &wgpu::Queue, buf: &wgpu::Buffer, order: &[u32]) -> u32 {
+    if !order.is_empty() {
+        queue.write_buffer(buf, 0, bytemuck::cast_slice(order));
+    }
+    order.len() as u32
 }
 
 impl Renderer {
@@ -112,9 +146,19 @@ impl Renderer {
             },
             count: None,
         };
+        let record_entry = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Uint,
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        };
         let entries: Vec<wgpu::BindGroupLayoutEntry> = match gpu.path {
             DrawPath::Storage => vec![uniform_entry, storage_entry(1), storage_entry(2)],
-            DrawPath::Instanced => vec![uniform_entry],
+            DrawPath::Instanced => vec![uniform_entry, record_entry(1), record_entry(2)],
         };
         let splat_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("splat bgl"), entries: &entries });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -122,12 +166,8 @@ impl Renderer {
             bind_group_layouts: &[Some(&splat_bgl)],
             immediate_size: 0,
         });
-        let instance_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32x2, 2 => Uint32];
-        let instance_layout = wgpu::VertexBufferLayout {
-            array_stride: PACKED_SPLAT_BYTES as u64,
-            step_mode: wgpu::VertexStepMode::Instance,
-            attributes: &instance_attrs,
-        };
+        let instance_attrs = wgpu::vertex_attr_array![0 => Uint32];
+        let instance_layout = wgpu::VertexBufferLayout { array_stride: 4, step_mode: wgpu::VertexStepMode::Instance, attributes: &instance_attrs };
         let buffers: Vec<Option<wgpu::VertexBufferLayout>> = match gpu.path {
             DrawPath::Storage => vec![],
             DrawPath::Instanced => vec![Some(instance_layout)],
@@ -200,9 +240,14 @@ impl Renderer {
             num_static: 0,
             count: 0,
             gpu_sort: None,
+            records: None,
+            records_valid: 0,
+            splat_bind: None,
+            sort_bind: None,
+            blit_bind: None,
             cpu_records: Vec::new(),
-            sorted: Vec::new(),
             cpu_sorter: CpuSorter::default(),
+            order_scratch: Vec::new(),
             data_version: 0,
             index_epoch: 0,
             last_sort: None,
@@ -214,23 +259,26 @@ impl Renderer {
             cpu_sort_budget_ms: None,
             accum: None,
             clock: std_clock,
+            stage_sync: None,
+            skip_splats: false,
+            square_quads: false,
         };
-        if r.path == DrawPath::Storage {
-            r.gpu_sort = Some(GpuSort::new(&r.device, 1, gpu.sort_items));
+        match r.path {
+            DrawPath::Storage => r.gpu_sort = Some(GpuSort::new(&r.device, 1, gpu.sort_items)),
+            DrawPath::Instanced => r.records = Some(RecordTextures::new(&r.device, 1)),
         }
         r
     }
 
     fn make_splat_buffer(device: &wgpu::Device, path: DrawPath, capacity: u32) -> wgpu::Buffer {
-        let usage = match path {
-            DrawPath::Storage => wgpu::BufferUsages::STORAGE,
-            DrawPath::Instanced => wgpu::BufferUsages::VERTEX,
-        } | wgpu::BufferUsages::COPY_DST
-            | wgpu::BufferUsages::COPY_SRC;
+        let (usage, bytes) = match path {
+            DrawPath::Storage => (wgpu::BufferUsages::STORAGE, PACKED_SPLAT_BYTES as u64),
+            DrawPath::Instanced => (wgpu::BufferUsages::VERTEX, 4),
+        };
         device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("splats"),
-            size: capacity.max(1) as u64 * PACKED_SPLAT_BYTES as u64,
-            usage,
+            label: Some(if path == DrawPath::Storage { "splats" } else { "draw order" }),
+            size: capacity.max(1) as u64 * bytes,
+            usage: usage | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         })
     }
@@ -272,8 +320,7 @@ impl Renderer {
 
     /// GPU bytes held per scene: records + draw order (+ sort scratch on the compute path).
     pub fn resident_bytes(&self) -> u64 {
-        let records = self.capacity as u64 * PACKED_SPLAT_BYTES as u64;
-        records + self.gpu_sort.as_ref().map_or(0, |s| s.bytes())
+        self.splat_buf.size() + self.gpu_sort.as_ref().map_or(0, |s| s.bytes()) + self.records.as_ref().map_or(0, |t| t.bytes())
     }
 
     /// The GPU radix sort (storage path).
@@ -285,6 +332,7 @@ impl Renderer {
     fn view_uniform(&self, v: &ViewRect) -> ViewUniform {
         let mut u = ViewUniform::new(&v.camera, v.origin, self.count);
         u.num_blocks = self.gpu_sort.as_ref().map_or(0, |s| self.count.div_ceil(s.block));
+        u.flags = self.square_quads as u32;
         u
     }
 
@@ -295,6 +343,7 @@ impl Renderer {
         self.count = 0;
         self.index_epoch = self.data_version;
         self.cpu_records.clear();
+        self.records_valid = 0;
         // Nothing of the old scene may draw while the new one waits for its first order.
         self.uploaded_visible = 0;
         self.uploaded_order = None;
@@ -375,9 +424,15 @@ impl Renderer {
             self.capacity = capacity;
             self.uploaded_visible = 0;
             self.uploaded_order = None;
+            self.splat_bind = None;
+            self.sort_bind = None;
             from = 0;
             if let Some(s) = self.gpu_sort.as_mut() {
                 s.ensure_capacity(&self.device, capacity);
+            }
+            if self.records.is_some() {
+                self.records = Some(RecordTextures::new(&self.device, capacity));
+                self.records_valid = 0;
             }
         }
         match self.path {
@@ -390,9 +445,12 @@ impl Renderer {
                 }
             }
             DrawPath::Instanced => {
+                // The textures take the change when an order for it draws (`flush_records`): until then they
+                // keep the records the order in the instance buffer names.
                 self.cpu_records.truncate(self.num_static as usize);
                 self.cpu_records.extend_from_slice(&statics[self.num_static as usize..]);
                 self.cpu_records.extend_from_slice(dynamic);
+                self.records_valid = self.records_valid.min(self.num_static as usize);
             }
         }
         self.num_static = statics.len() as u32;
@@ -401,6 +459,16 @@ impl Renderer {
         if !append_only {
             self.index_epoch = self.data_version;
         }
+    }
+
+    /// Instanced path: bring the record textures up to `cpu_records` (only the records that changed).
+    fn flush_records(&mut self) {
+        if let Some(t) = self.records.as_mut() {
+            if self.records_valid < self.cpu_records.len() {
+                t.write(&self.queue, self.records_valid, &self.cpu_records[self.records_valid..]);
+            }
+        }
+        self.records_valid = self.cpu_records.len();
     }
 
     fn ensure_accum(&mut self, size: [u32; 2]) {
@@ -419,6 +487,53 @@ impl Renderer {
         });
         let view = tex.create_view(&Default::default());
         self.accum = Some((tex, view, size));
+        self.blit_bind = None;
+    }
+
+    /// The splat draw's bind group (uniforms + records, + order on the storage path), made when first needed.
+    fn splat_bind(&mut self) -> wgpu::BindGroup {
+        if let Some(b) = &self.splat_bind {
+            return b.clone();
+        }
+        let view = wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: &self.view_buf,
+            offset: 0,
+            size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
+        });
+        let entry = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+        let entries = match (&self.gpu_sort, &self.records) {
+            (Some(sort), _) => [entry(0, view), entry(1, self.splat_buf.as_entire_binding()), entry(2, sort.order().as_entire_binding())],
+            (None, Some(t)) => {
+                [entry(0, view), entry(1, wgpu::BindingResource::TextureView(&t.view_a)), entry(2, wgpu::BindingResource::TextureView(&t.view_b))]
+            }
+            (None, None) => unreachable!("a renderer has a GPU sort or record textures"),
+        };
+        let b = self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("splat bind"), layout: &self.splat_bgl, entries: &entries });
+        self.splat_bind = Some(b.clone());
+        b
+    }
+
+    fn sort_bind(&mut self) -> SortBindings {
+        if let Some(b) = &self.sort_bind {
+            return b.clone();
+        }
+        let b = self.gpu_sort.as_ref().expect("storage path").bind_groups(&self.device, &self.view_buf, &self.splat_buf);
+        self.sort_bind = Some(b.clone());
+        b
+    }
+
+    fn blit_bind(&mut self) -> wgpu::BindGroup {
+        if let Some(b) = &self.blit_bind {
+            return b.clone();
+        }
+        let accum = &self.accum.as_ref().expect("accumulation target").1;
+        let b = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("blit bind"),
+            layout: &self.blit_bgl,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(accum) }],
+        });
+        self.blit_bind = Some(b.clone());
+        b
     }
 
     fn splat_pass(&self, encoder: &mut wgpu::CommandEncoder, accum: &wgpu::TextureView, clear: bool) -> wgpu::RenderPass<'static> {
@@ -442,8 +557,17 @@ impl Renderer {
             .forget_lifetime()
     }
 
+    /// Milliseconds since `t0`, after waiting for the GPU when profiling (`stage_sync`).
+    fn stage_end(&self, t0: f64) -> f64 {
+        if let Some(sync) = self.stage_sync {
+            sync(&self.device);
+        }
+        (self.clock)() - t0
+    }
+
     /// Render `views` into `target` (of `size` and `format`; sRGB formats are not corrected, use a unorm one).
-    /// Each view is sorted for its own camera.
+    /// Each view is sorted for its own camera. One submission per frame for a single view (the mosaic submits
+    /// once per view: each view's order goes through the one instance buffer).
     pub fn render(
         &mut self,
         views: &[ViewRect],
@@ -463,162 +587,184 @@ impl Renderer {
             }
         }
         self.ensure_accum(size);
-        let blit = self.blit_pipeline(format);
-        let accum_view = self.accum.as_ref().unwrap().1.clone();
         for (i, v) in views.iter().enumerate() {
             let u = self.view_uniform(v);
             self.queue.write_buffer(&self.view_buf, i as u64 * UNIFORM_STRIDE, bytemuck::bytes_of(&u));
         }
         let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), ..Default::default() };
-        let view_binding =
-            wgpu::BufferBinding { buffer: &self.view_buf, offset: 0, size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64) };
-        match self.path {
-            DrawPath::Storage => {
-                let sort = self.gpu_sort.as_ref().unwrap();
-                let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("splat bind"),
-                    layout: &self.splat_bgl,
-                    entries: &[
-                        wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::Buffer(view_binding.clone()) },
-                        wgpu::BindGroupEntry { binding: 1, resource: self.splat_buf.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 2, resource: sort.order().as_entire_binding() },
-                    ],
-                });
-                let sort_bind = sort.bind_groups(&self.device, &self.view_buf, &self.splat_buf);
-                let mut encoder = self.device.create_command_encoder(&Default::default());
-                {
-                    let _clear = self.splat_pass(&mut encoder, &accum_view, true);
-                }
-                let single_key =
-                    (views.len() == 1).then(|| SortKey::new(self.data_version, ViewUniform::new(&views[0].camera, views[0].origin, self.count).row2));
-                stats.sort_reused = single_key.is_some() && single_key == self.last_sort;
-                for (i, v) in views.iter().enumerate() {
-                    let offset = (i as u64 * UNIFORM_STRIDE) as u32;
-                    if self.count > 0 && !stats.sort_reused {
-                        sort.encode(&mut encoder, &sort_bind, offset, self.count);
-                    }
-                    let mut pass = self.splat_pass(&mut encoder, &accum_view, false);
-                    pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
-                    pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
-                    pass.set_pipeline(&self.splat_pipeline);
-                    pass.set_bind_group(0, &bind, &[offset]);
-                    if self.count > 0 {
-                        pass.draw_indirect(sort.draw_args(), 0);
-                    }
-                }
-                self.blit(&mut encoder, &blit, &accum_view, target);
-                self.queue.submit([encoder.finish()]);
-                self.last_sort = single_key;
-            }
-            DrawPath::Instanced => {
-                let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("splat bind"),
-                    layout: &self.splat_bgl,
-                    entries: &[wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::Buffer(view_binding) }],
-                });
-                let mut encoder = self.device.create_command_encoder(&Default::default());
-                {
-                    let _clear = self.splat_pass(&mut encoder, &accum_view, true);
-                }
-                self.queue.submit([encoder.finish()]);
-                for (i, v) in views.iter().enumerate() {
-                    let t0 = (self.clock)();
-                    let key = SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2);
-                    if self.cpu_sort_source == CpuSortSource::External {
-                        self.draw_external_order(i, key, views.len(), &mut stats);
-                    } else if views.len() > 1 {
-                        let order = self.cpu_sorter.sort(&self.cpu_records, key.row2());
-                        let tg = (self.clock)();
-                        self.sorted.clear();
-                        self.sorted.extend(order.iter().map(|&i| self.cpu_records[i as usize]));
-                        self.upload_sorted();
-                        stats.gather_ms += (self.clock)() - tg;
-                        self.last_sort = None;
-                    } else if self.last_sort == Some(key) {
-                        stats.sort_reused = true;
-                    } else {
-                        if self.cpu_job.as_ref().is_none_or(|j| j.key != key) {
-                            self.cpu_job = Some(CpuSortJob::new(key));
-                        }
-                        // Slice only when just the view moved and an order exists to draw meanwhile.
-                        let stale_ok = self.last_sort.is_some_and(|k| k.data_version == self.data_version);
-                        let budget = if stale_ok { self.cpu_sort_budget_ms } else { None };
-                        let job = self.cpu_job.as_mut().unwrap();
-                        if job.step(&self.cpu_records, budget, self.clock) {
-                            let job = self.cpu_job.take().unwrap();
-                            let tg = (self.clock)();
-                            self.sorted.clear();
-                            self.sorted.extend(job.order().iter().map(|&i| self.cpu_records[i as usize]));
-                            self.upload_sorted();
-                            stats.gather_ms += (self.clock)() - tg;
-                            self.last_sort = Some(key);
-                        } else {
-                            stats.sort_pending = true;
-                        }
-                    }
-                    stats.cpu_sort_ms += (self.clock)() - t0;
-                    let visible = self.uploaded_visible;
-                    let mut encoder = self.device.create_command_encoder(&Default::default());
-                    {
-                        let mut pass = self.splat_pass(&mut encoder, &accum_view, false);
-                        pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
-                        pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
-                        pass.set_pipeline(&self.splat_pipeline);
-                        pass.set_bind_group(0, &bind, &[(i as u64 * UNIFORM_STRIDE) as u32]);
-                        if visible > 0 {
-                            pass.set_vertex_buffer(0, self.splat_buf.slice(..));
-                            pass.draw(0..4, 0..visible);
-                        }
-                    }
-                    self.queue.submit([encoder.finish()]);
-                }
-                let mut encoder = self.device.create_command_encoder(&Default::default());
-                self.blit(&mut encoder, &blit, &accum_view, target);
-                self.queue.submit([encoder.finish()]);
-                if stats.sort_pending && self.cpu_sort_source == CpuSortSource::External {
-                    self.external.wanted = Some(self.sort_keys(views));
-                }
-                stats.sorts_dropped = self.external.dropped;
-            }
-        }
+        let blit = self.blit_pipeline(format);
+        let blit_bind = self.blit_bind();
+        let bind = self.splat_bind();
+        let encoder = match self.path {
+            DrawPath::Storage => self.encode_storage(views, &bind, &mut stats),
+            DrawPath::Instanced => self.encode_instanced(views, &bind, &mut stats),
+        };
+        let mut encoder = encoder.unwrap_or_else(|| {
+            // No view: the target is still cleared.
+            let mut e = self.device.create_command_encoder(&Default::default());
+            let accum = self.accum.as_ref().unwrap().1.clone();
+            drop(self.splat_pass(&mut e, &accum, true));
+            e
+        });
+        let t = (self.clock)();
+        self.blit(&mut encoder, &blit, &blit_bind, target);
+        self.queue.submit([encoder.finish()]);
+        stats.blit_ms = self.stage_end(t);
         Ok(stats)
     }
 
+    /// Storage path: per view the GPU sort (unless a single held view reuses it) and the indirect draw, in one
+    /// encoder (returned unsubmitted, for the blit).
+    fn encode_storage(&mut self, views: &[ViewRect], bind: &wgpu::BindGroup, stats: &mut RenderStats) -> Option<wgpu::CommandEncoder> {
+        let sort_bind = self.sort_bind();
+        let accum = self.accum.as_ref().unwrap().1.clone();
+        let single_key =
+            (views.len() == 1).then(|| SortKey::new(self.data_version, ViewUniform::new(&views[0].camera, views[0].origin, self.count).row2));
+        stats.sort_reused = single_key.is_some() && single_key == self.last_sort;
+        let sort = self.gpu_sort.as_ref().unwrap();
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        for (i, v) in views.iter().enumerate() {
+            let offset = (i as u64 * UNIFORM_STRIDE) as u32;
+            if self.count > 0 && !stats.sort_reused {
+                let t = (self.clock)();
+                sort.encode(&mut encoder, &sort_bind, offset, self.count);
+                if self.stage_sync.is_some() {
+                    self.queue.submit([std::mem::replace(&mut encoder, self.device.create_command_encoder(&Default::default())).finish()]);
+                }
+                stats.gpu_sort_ms += self.stage_end(t);
+            }
+            let t = (self.clock)();
+            {
+                let mut pass = self.splat_pass(&mut encoder, &accum, i == 0);
+                pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
+                pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
+                pass.set_pipeline(&self.splat_pipeline);
+                pass.set_bind_group(0, bind, &[offset]);
+                if self.count > 0 && !self.skip_splats {
+                    pass.draw_indirect(sort.draw_args(), 0);
+                }
+            }
+            if self.stage_sync.is_some() {
+                self.queue.submit([std::mem::replace(&mut encoder, self.device.create_command_encoder(&Default::default())).finish()]);
+            }
+            stats.draw_ms += self.stage_end(t);
+        }
+        self.last_sort = single_key;
+        (!views.is_empty()).then_some(encoder)
+    }
+
+    /// Instanced path: per view choose the order (sort here, or the worker's), upload it (indices only; the
+    /// records are resident), draw. The last view's encoder is returned unsubmitted, for the blit.
+    fn encode_instanced(&mut self, views: &[ViewRect], bind: &wgpu::BindGroup, stats: &mut RenderStats) -> Option<wgpu::CommandEncoder> {
+        let accum = self.accum.as_ref().unwrap().1.clone();
+        if self.cpu_sort_source == CpuSortSource::InThread {
+            let t = (self.clock)();
+            self.flush_records();
+            stats.gather_ms += (self.clock)() - t;
+        }
+        let mut last = None;
+        for (i, v) in views.iter().enumerate() {
+            let t0 = (self.clock)();
+            let key = SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2);
+            if self.cpu_sort_source == CpuSortSource::External {
+                self.draw_external_order(i, key, views.len(), stats);
+            } else if views.len() > 1 {
+                let order = self.cpu_sorter.sort(&self.cpu_records, key.row2());
+                let tg = (self.clock)();
+                self.uploaded_visible = write_order(&self.queue, &self.splat_buf, order);
+                stats.records_uploaded += self.uploaded_visible as u64;
+                stats.gather_ms += (self.clock)() - tg;
+                self.last_sort = None;
+            } else if self.last_sort == Some(key) {
+                stats.sort_reused = true;
+            } else {
+                if self.cpu_job.as_ref().is_none_or(|j| j.key != key) {
+                    match self.cpu_job.as_mut() {
+                        Some(job) => job.restart(key), // reuses its buffers
+                        None => self.cpu_job = Some(CpuSortJob::new(key)),
+                    }
+                }
+                // Slice only when just the view moved and an order exists to draw meanwhile.
+                let stale_ok = self.last_sort.is_some_and(|k| k.data_version == self.data_version);
+                let budget = if stale_ok { self.cpu_sort_budget_ms } else { None };
+                let job = self.cpu_job.as_mut().unwrap();
+                if job.step(&self.cpu_records, budget, self.clock) {
+                    let tg = (self.clock)();
+                    self.uploaded_visible = write_order(&self.queue, &self.splat_buf, job.order());
+                    stats.records_uploaded += self.uploaded_visible as u64;
+                    stats.gather_ms += (self.clock)() - tg;
+                    self.last_sort = Some(key);
+                } else {
+                    stats.sort_pending = true;
+                }
+            }
+            stats.cpu_sort_ms += (self.clock)() - t0;
+            let t = (self.clock)();
+            let visible = self.uploaded_visible;
+            let mut encoder = self.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = self.splat_pass(&mut encoder, &accum, i == 0);
+                pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
+                pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
+                pass.set_pipeline(&self.splat_pipeline);
+                pass.set_bind_group(0, bind, &[(i as u64 * UNIFORM_STRIDE) as u32]);
+                if visible > 0 && !self.skip_splats {
+                    pass.set_vertex_buffer(0, self.splat_buf.slice(..visible as u64 * 4));
+                    pass.draw(0..4, 0..visible);
+                }
+            }
+            // The next view writes its order into the same buffer: submit this one first.
+            if i + 1 < views.len() || self.stage_sync.is_some() {
+                self.queue.submit([encoder.finish()]);
+                encoder = self.device.create_command_encoder(&Default::default());
+            }
+            stats.draw_ms += self.stage_end(t);
+            last = Some(encoder);
+        }
+        if stats.sort_pending && self.cpu_sort_source == CpuSortSource::External {
+            self.external.wanted = Some(self.sort_keys(views));
+        }
+        stats.sorts_dropped = self.external.dropped;
+        last
+    }
+
     /// External sort, view `slot` wanting `key`: upload the order in hand for this slot. Until the exact order
-    /// arrives the last one draws: for a single view the instance buffer as uploaded (after a data change: the
-    /// previous frame, whole and in order), for the mosaic the slot's last order over the current records.
+    /// arrives the last one draws: for a single view the instance buffer as uploaded over the records it was
+    /// sorted for (after a frame change: the previous frame, whole and in order; the record textures take the new
+    /// frame with the first order made for it), for the mosaic the slot's last order over the current records.
     fn draw_external_order(&mut self, slot: usize, key: SortKey, views: usize, stats: &mut RenderStats) {
-        let Some((have, order)) = self.external.orders.get(slot) else {
+        let Some((have, _)) = self.external.orders.get(slot) else {
             stats.sort_pending = true;
             if views > 1 {
                 self.uploaded_visible = 0;
             }
             return;
         };
-        let exact = *have == key;
+        let have = *have;
+        let exact = have == key;
         stats.sort_pending |= !exact;
-        if views == 1 && self.uploaded_order == Some((*have, self.data_version)) {
-            stats.sort_reused = exact; // the instance buffer already holds this order: nothing to gather
+        if views == 1 && self.uploaded_order == Some((have, self.data_version)) {
+            stats.sort_reused = exact; // the instance buffer already holds this order: nothing to upload
             return;
         }
         if views == 1 && have.data_version < self.index_epoch {
-            return; // keep the previous frame's records
+            return; // keep drawing the previous frame
         }
         let tg = (self.clock)();
+        self.flush_records();
         let count = self.cpu_records.len() as u32;
-        self.sorted.clear();
-        self.sorted.extend(order.iter().filter(|&&i| i < count).map(|&i| self.cpu_records[i as usize]));
-        self.uploaded_order = (views == 1).then_some((*have, self.data_version));
-        self.upload_sorted();
-        stats.records_uploaded += self.sorted.len() as u64;
+        let order = &self.external.orders[slot].1;
+        let order: &[u32] = if order.iter().all(|&i| i < count) {
+            order
+        } else {
+            self.order_scratch.clear();
+            self.order_scratch.extend(order.iter().copied().filter(|&i| i < count));
+            &self.order_scratch
+        };
+        self.uploaded_visible = write_order(&self.queue, &self.splat_buf, order);
+        self.uploaded_order = (views == 1).then_some((have, self.data_version));
+        stats.records_uploaded += self.uploaded_visible as u64;
         stats.gather_ms += (self.clock)() - tg;
-    }
-
-    fn upload_sorted(&mut self) {
-        self.uploaded_visible = self.sorted.len() as u32;
-        if !self.sorted.is_empty() {
-            self.queue.write_buffer(&self.splat_buf, 0, bytemuck::cast_slice(&self.sorted));
-        }
     }
 
     /// Only the depth sort for one view (benchmarks): the GPU sort is submitted (poll to wait), the CPU sort
@@ -629,8 +775,8 @@ impl Renderer {
         match self.path {
             DrawPath::Storage => {
                 self.queue.write_buffer(&self.view_buf, 0, bytemuck::bytes_of(&u));
+                let bind = self.sort_bind();
                 let sort = self.gpu_sort.as_ref().unwrap();
-                let bind = sort.bind_groups(&self.device, &self.view_buf, &self.splat_buf);
                 let mut encoder = self.device.create_command_encoder(&Default::default());
                 if self.count > 0 {
                     sort.encode(&mut encoder, &bind, 0, self.count);
@@ -646,12 +792,7 @@ impl Renderer {
         }
     }
 
-    fn blit(&self, encoder: &mut wgpu::CommandEncoder, pipeline: &wgpu::RenderPipeline, accum: &wgpu::TextureView, target: &wgpu::TextureView) {
-        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("blit bind"),
-            layout: &self.blit_bgl,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(accum) }],
-        });
+    fn blit(&self, encoder: &mut wgpu::CommandEncoder, pipeline: &wgpu::RenderPipeline, bind: &wgpu::BindGroup, target: &wgpu::TextureView) {
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("blit"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
@@ -666,7 +807,7 @@ impl Renderer {
             multiview_mask: None,
         });
         pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, &bind, &[]);
+        pass.set_bind_group(0, bind, &[]);
         pass.draw(0..3, 0..1);
     }
 }

@@ -27,7 +27,9 @@ pub struct ViewUniform {
     pub origin: [f32; 2],
     pub count: u32,
     pub num_blocks: u32,
-    pub pad: [u32; 2],
+    /// Bit 0: draw the spec's full square quads (`Renderer::square_quads`).
+    pub flags: u32,
+    pub pad: u32,
 }
 
 impl ViewUniform {
@@ -43,7 +45,8 @@ impl ViewUniform {
             origin: [origin[0] as f32, origin[1] as f32],
             count,
             num_blocks: 0, // set by the renderer for its sort's block size
-            pad: [0; 2],
+            flags: 0,
+            pad: 0,
         }
     }
 }

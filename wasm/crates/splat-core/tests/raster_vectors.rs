@@ -83,3 +83,37 @@ fn raster_vectors_gpu_sorted_storage_path() {
 fn raster_vectors_cpu_sorted_instanced_path() {
     run(DrawPath::Instanced);
 }
+
+#[test]
+fn tight_quads_render_the_image_of_square_quads() {
+    // The tight rectangle around the opacity-aware ellipse leaves out only pixels the fragment discards anyway.
+    let dir = repo().join("tests/vectors/raster");
+    for path in [DrawPath::Storage, DrawPath::Instanced] {
+        let gpu = headless::gpu(Some(path)).expect("adapter");
+        let mut renderer = Renderer::new(&gpu);
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|x| x == "json") && !p.to_string_lossy().ends_with(".expected.json"))
+            .collect();
+        files.sort();
+        for file in files {
+            let name = file.file_stem().unwrap().to_string_lossy().to_string();
+            let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+            let cam = Camera::from_json(&v["camera"]).unwrap();
+            let (packed, _) = pack_all(&gaussians_from_json(&v["gaussians"]).unwrap());
+            renderer.clear();
+            renderer.update(&packed, &[]);
+            let size = [cam.width, cam.height];
+            let view = [ViewRect { camera: cam, origin: [0, 0] }];
+            renderer.square_quads = true;
+            let (square, _) = headless::render_rgba(&mut renderer, &view, size).unwrap();
+            renderer.square_quads = false;
+            let (tight, _) = headless::render_rgba(&mut renderer, &view, size).unwrap();
+            let max = square.iter().zip(&tight).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
+            let differing = square.chunks(4).zip(tight.chunks(4)).filter(|(a, b)| a != b).count();
+            println!("{path:?} {name:24} tight vs square: {differing} pixels differ, max {max}");
+            assert!(max <= 1 && differing * 1000 <= square.len() / 4, "{path:?} {name}: {differing} pixels differ (max {max})");
+        }
+    }
+}

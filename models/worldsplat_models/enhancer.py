@@ -16,16 +16,22 @@ conditions only (ablation version A).
 from __future__ import annotations
 
 import dataclasses
+import json
+import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+from safetensors import safe_open
+from safetensors.torch import save_file
 
 from . import rflow
-from .configs import DataConfig, DiTConfig, SIZES
+from .configs import SIZES, DataConfig, DiTConfig, VAEConfig, from_dict
 from .dit import DiT4D
+from .vae import MultiModalVAE
 
 
 @dataclass
@@ -71,7 +77,6 @@ def config_to_dict(cfg: EnhancerConfig) -> dict:
 
 
 def config_from_dict(d: dict) -> EnhancerConfig:
-    from .configs import from_dict
     d = dict(d)
     data = from_dict(DataConfig, d.pop("data"))
     dit = from_dict(DiTConfig, d.pop("dit"))
@@ -174,10 +179,7 @@ class Enhancer(nn.Module):
 def save_enhancer(model: Enhancer, vae, path, meta: dict | None = None):
     """fp32 safetensors holding the enhancer AND the frozen VAE it was trained against (tensors prefixed "vae."),
     so the pair cannot drift apart; configs and provenance in the metadata."""
-    import json
-    from pathlib import Path
 
-    from safetensors.torch import save_file
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().float().contiguous().clone() for k, v in model.state_dict().items()}
@@ -194,13 +196,8 @@ def save_enhancer(model: Enhancer, vae, path, meta: dict | None = None):
 
 def load_enhancer(path) -> tuple[Enhancer, nn.Module]:
     """-> (enhancer, its VAE), both in eval mode; `enhancer.meta` holds the file's metadata."""
-    import json
-    from pathlib import Path
 
-    from safetensors import safe_open
 
-    from .configs import VAEConfig, from_dict
-    from .vae import MultiModalVAE
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"enhancer weights {path} not found")
@@ -258,7 +255,6 @@ def enhance(model: Enhancer, vae, render: np.ndarray, alpha: np.ndarray, sketch:
     "holes" keeps the render where its alpha covers the pixel and takes the model's output in the holes.
     `start` > 0 starts the sampler from the noised render latent instead of pure noise (see Enhancer.sample).
     `timings` (a dict) receives seconds per stage: encode, denoise, decode."""
-    import time
     if blend not in BLENDS:
         raise ValueError(f"blend must be one of {BLENDS}, got {blend!r}")
     cfg = model.cfg

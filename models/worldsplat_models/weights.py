@@ -1,11 +1,14 @@
 """Weight files: safetensors with the model kind and its config (JSON) in the metadata, so a file is self-describing.
 
-`models/weights/<kind>_<size>.safetensors` for kind in vae | decoder | dit.
+`<weights_dir()>/<kind>_<size>.safetensors` for kind in vae | decoder | dit (the enhancer: `enhancer_<size>`).
+The shipped weights and their model cards live in `models/weights/`, beside this package; `weights_dir()` is the
+one place that says so (`$WORLDSPLAT_WEIGHTS` points it elsewhere).
 """
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import torch
@@ -13,20 +16,25 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 
 from .configs import DiTConfig, GSDecoderConfig, VAEConfig, from_dict
+from .dit import DiT4D
+from .gs_decoder import GaussianDecoder
+from .vae import MultiModalVAE
 
 KINDS = {"vae": VAEConfig, "decoder": GSDecoderConfig, "dit": DiTConfig}
-DEFAULT_DIR = Path(__file__).resolve().parent.parent / "weights"
+
+
+def weights_dir() -> Path:
+    """The shipped weights: `$WORLDSPLAT_WEIGHTS`, else `models/weights` beside this package."""
+    env = os.environ.get("WORLDSPLAT_WEIGHTS")
+    return Path(env) if env else Path(__file__).resolve().parent.parent / "weights"
 
 
 def build(kind: str, cfg, num_classes: int = 17) -> torch.nn.Module:
     if kind == "vae":
-        from .vae import MultiModalVAE
         return MultiModalVAE(cfg)
     if kind == "decoder":
-        from .gs_decoder import GaussianDecoder
         return GaussianDecoder(cfg)
     if kind == "dit":
-        from .dit import DiT4D
         return DiT4D(cfg, num_classes)
     raise ValueError(f"unknown model kind {kind!r}; expected one of {', '.join(KINDS)}")
 
@@ -72,24 +80,3 @@ def load_weights(path: str | Path, expect_kind: str | None = None) -> torch.nn.M
     model.load_state_dict({k: v.float() for k, v in tensors.items()})
     model.meta = md
     return model.eval()
-
-
-def ship(run_dir: str | Path, out_dir: str | Path = DEFAULT_DIR, kinds=("vae", "decoder", "dit"),
-         size: str = "small", onnx: bool = True) -> list[Path]:
-    """Copy trained weights from a run directory into the shipped set: float16 safetensors (half the bytes;
-    loaded as float32) and the ONNX serving graphs exported from exactly those (rounded) weights."""
-    run_dir, out_dir = Path(run_dir), Path(out_dir)
-    written = []
-    for kind in kinds:
-        src = run_dir / f"{kind}_{size}.safetensors"
-        if not src.exists():
-            continue
-        m = load_weights(src, kind)
-        meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
-        written.append(save_weights(m, out_dir / src.name, kind, meta, dtype=torch.float16))
-    if onnx:
-        from .inference import _CACHE, load_models
-        from .onnx_export import export
-        _CACHE.clear()
-        written += list(export(load_models(out_dir), out_dir / "onnx").values())
-    return written

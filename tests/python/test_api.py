@@ -8,8 +8,8 @@ import time
 import pytest
 from fastapi.testclient import TestClient
 
-from worldsplat.api.app import MAX_BODY, create_app, parse_range, ApiError
-from worldsplat.scenario import load_preset
+from worldsplat.api.app import MAX_BODY, ApiError, create_app, parse_range
+from worldsplat.core.scenario import load_preset
 
 TINY = {"clip": {"frames": 2, "fps": 4.0}, "image": {"width": 64, "height": 32},
         "traffic": {"moving_vehicles": 2, "parked_vehicles": 1, "pedestrians": 1, "cyclists": 0}}

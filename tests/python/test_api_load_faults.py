@@ -17,7 +17,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from worldsplat.scenario import load_preset
+from worldsplat.core.scenario import load_preset
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -40,7 +40,7 @@ class Server:
         self.cache_dir, self.max_queued, self.max_scene_mpix = cache_dir, max_queued, max_scene_mpix
         self.proc: subprocess.Popen | None = None
 
-    def start(self, timeout: float = 120) -> "Server":
+    def start(self, timeout: float = 120) -> Server:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = open(self.cache_dir.parent / f"server-{self.port}.log", "wb")

@@ -2,10 +2,9 @@
 import re
 
 from worldsplat.bench.checks import check_trends
-from worldsplat.bench.commands_bench import SECTIONS
 from worldsplat.bench.report import Section
 from worldsplat.cli import main
-
+from worldsplat.cli.bench import SECTIONS
 
 TABLE_ONLY = {"stages"}  # the paper's efficiency table is a breakdown, not a trade-off axis
 

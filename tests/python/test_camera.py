@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from worldsplat.camera import CAMERA_NAMES, Camera, default_rig, yaw_pose
+from worldsplat.core.camera import CAMERA_NAMES, Camera, default_rig, yaw_pose
 
 
 def test_principal_point_and_pixel_centres():

@@ -4,8 +4,15 @@ import pytest
 import torch
 
 from worldsplat_models.configs import DiTConfig, get_config
-from worldsplat_models.enhancer import (Enhancer, EnhancerConfig, enhance, enhancer_config, load_enhancer,
-                                        save_enhancer, windows)
+from worldsplat_models.enhancer import (
+    Enhancer,
+    EnhancerConfig,
+    enhance,
+    enhancer_config,
+    load_enhancer,
+    save_enhancer,
+    windows,
+)
 from worldsplat_models.vae import MultiModalVAE
 
 
@@ -134,3 +141,30 @@ def test_start_from_the_render_latent():
         model.sample(cond, shape, steps=2, start=0.5)
     with pytest.raises(ValueError, match="start"):
         model.sample(cond, shape, steps=2, init=init, start=1.0)
+
+
+def test_enhancer_training_runs_on_the_shared_loop_and_resumes(tmp_path):
+    """worldsplat.training.enhancer.train is the shared train_loop: checkpoint, resume, log, finite losses."""
+    from worldsplat.training.enhancer import train
+
+    model, _ = tiny()
+    cfg = model.cfg
+    T, V, N = cfg.data.frames, cfg.data.views, cfg.data.max_boxes
+    c, h, w = cfg.latent_channels, 4, 6
+    g = torch.Generator().manual_seed(5)
+
+    def item():
+        return {"target": torch.randn(T, V, c, h, w, generator=g), "render": torch.randn(T, V, c, h, w, generator=g),
+                "sketch": torch.randn(T, V, c, h, w, generator=g), "cover": torch.ones(T, V, 1, h, w),
+                "box_corners": torch.zeros(T, N, 8, 3), "box_cls": torch.zeros(T, N, dtype=torch.long),
+                "box_moving": torch.zeros(T, N, dtype=bool), "box_mask": torch.zeros(T, N, dtype=bool),
+                "traj": torch.eye(4).expand(T, 4, 4).clone(), "caption": torch.randn(384, generator=g)}
+
+    degraded, clean = [item(), item()], [item()]
+    h1 = train(model, degraded, clean, steps=4, out_dir=tmp_path, name="enh", ckpt_every=2, log_every=1,
+               progress=False)
+    assert [r["step"] for r in h1] == [1, 2, 3, 4] and all(np.isfinite(r["loss"]) for r in h1)
+    assert (tmp_path / "enh.ckpt.pt").exists() and len((tmp_path / "enh.log.jsonl").read_text().splitlines()) == 4
+    h2 = train(model, degraded, clean, steps=6, out_dir=tmp_path, name="enh", ckpt_every=2, progress=False)
+    assert [r["step"] for r in h2] == [5, 6]  # resumed from step 4
+    assert torch.load(tmp_path / "enh.ckpt.pt", weights_only=False)["step"] == 6

@@ -5,16 +5,16 @@ dark sky there (see web/docs/refinement.md for the test-split averages)."""
 import pytest
 import torch
 
-from worldsplat.refine import WEIGHTS
+from worldsplat.pipeline.refine import WEIGHTS
 
 pytestmark = pytest.mark.skipif(not WEIGHTS.exists(), reason="enhancer weights not shipped")
 
 def test_shipped_enhancer_fills_holes_at_4m(monkeypatch):
     import worldsplat_models.conditions as cond
-    from worldsplat.evaluation.novel_track import oracle_scene
+    from worldsplat.core.scenario import default_scenario
     from worldsplat.evaluation.nvs import image_metrics
-    from worldsplat.scenario import default_scenario
-    from worldsplat.refine import load_refiner, refine_track
+    from worldsplat.pipeline.refine import load_refiner, refine_track
+    from worldsplat.pipeline.scene import oracle_scene
     from worldsplat.world import build_world, simulate
     model, vae = load_refiner(str(WEIGHTS))
     assert model.meta["provenance"]["mixed"] and model.cfg.data.views == 6
@@ -23,7 +23,7 @@ def test_shipped_enhancer_fills_holes_at_4m(monkeypatch):
     sc = default_scenario().with_updates(image={"width": 112, "height": 64}, clip={"frames": 2})
     world = build_world(sc)
     scene = oracle_scene(simulate(world, 0.0), {"scenario": sc.model_dump(mode="json")})
-    from worldsplat.evaluation.novel_track import render_scene_track
+    from worldsplat.pipeline.render import render_scene_track
     raw = render_scene_track(scene, 4.0)
     out = refine_track(scene, 4.0, steps=4, blend="holes", render=raw)
     truth = simulate(world, 4.0).rgb

@@ -5,9 +5,16 @@ import numpy as np
 import pytest
 import torch
 
-from worldsplat.evaluation.commands_eval import parse_shifts
-from worldsplat.evaluation.nvs import DECODER_VERSIONS, VERSIONS, image_metrics, load_models, markdown_table, run_versions, \
-    write_report
+from worldsplat.cli.eval import parse_shifts
+from worldsplat.evaluation.nvs import (
+    DECODER_VERSIONS,
+    VERSIONS,
+    image_metrics,
+    load_enhancers,
+    markdown_table,
+    run_versions,
+    write_report,
+)
 
 
 def test_image_metrics_against_known_values():
@@ -31,15 +38,15 @@ def test_parse_shifts_names_the_problem():
 
 
 def test_missing_weights_name_the_command(tmp_path):
-    with pytest.raises(FileNotFoundError, match="train_enhancer"):
-        load_models(tmp_path)
+    with pytest.raises(FileNotFoundError, match="worldsplat train-enhancer"):
+        load_enhancers(tmp_path)
 
 
 @pytest.fixture(scope="module")
 def tiny_models_and_sample():
-    from worldsplat.evaluation.novel_track import oracle_scene
-    from worldsplat.evaluation.pairs import make_sample
-    from worldsplat.scenario import load_preset
+    from worldsplat.core.scenario import load_preset
+    from worldsplat.pipeline.scene import oracle_scene
+    from worldsplat.training.pairs import make_sample
     from worldsplat.world import build_world, simulate
     from worldsplat_models.configs import get_config
     from worldsplat_models.enhancer import Enhancer, enhancer_config

@@ -3,10 +3,11 @@ import numpy as np
 import pytest
 import torch
 
-from worldsplat.camera import Camera, default_rig, yaw_pose
+from worldsplat.core.camera import Camera, default_rig, yaw_pose
 from worldsplat.gaussians import Gaussians, lift, rasterize
 from worldsplat.gaussians.aggregate import Economy, aggregate_4d, economize, quat_from_matrix, transform
 from worldsplat.gaussians.project import quat_to_rotmat
+from worldsplat.gaussians.raster import render_view
 
 
 def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
@@ -118,8 +119,8 @@ def test_economy_merges_repeats_and_drops_what_cannot_show():
 
 
 def test_scenario_without_moving_agents_has_no_dynamic_gaussians():
-    from worldsplat.pipeline import generate_scene
-    from worldsplat.scenario import load_preset
+    from worldsplat.core.scenario import load_preset
+    from worldsplat.pipeline.scene import generate_scene
     s = load_preset("empty_road").with_updates(clip={"frames": 2}, image={"width": 64, "height": 36})
     scene = generate_scene(s, mode="oracle")
     assert scene.num_frames == 2 and all(len(d) == 0 for d in scene.dynamic)
@@ -160,8 +161,7 @@ def test_economy_keeps_the_sky_shell_beyond_its_range_cut():
 
 
 def _render_u8(g, cam):
-    with torch.no_grad():
-        return torch.round(rasterize(g, cam, method="pairs")["rgb"].clamp(0, 1) * 255).numpy()
+    return render_view(g, cam).rgb
 
 
 def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
@@ -171,8 +171,9 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
     Kept: <= 20 % of V*T*H*W already at 3 frames (more frames repeat more), the sky a small part of it."""
     from scipy import ndimage
 
-    from worldsplat.gaussians.economy import lift_clip, psnr
-    from worldsplat.scenario import load_preset
+    from worldsplat.core.metrics import psnr
+    from worldsplat.core.scenario import load_preset
+    from worldsplat.gaussians.economy import lift_clip
     from worldsplat.world import build_world, simulate
     world = build_world(load_preset("urban_straight").with_updates(clip={"frames": 3}))
     clip = simulate(world)
@@ -190,7 +191,7 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
         a = _render_u8(naive.at_frame(1), cam)
         with torch.no_grad():
             out = rasterize(eco.at_frame(1), cam, method="pairs")
-        b = torch.round(out["rgb"].clamp(0, 1) * 255).numpy()
+        b = torch.round(out["rgb"].clamp(0, 1) * 255).to(torch.uint8).numpy()
         d_all.append(psnr(b, gt.rgb[0, i]) - psnr(a, gt.rgb[0, i]))
         inner_sky = ndimage.binary_erosion(~np.isfinite(gt.depth[0, i]), iterations=3)   # away from the skyline
         assert inner_sky.sum() > 200

@@ -10,15 +10,14 @@ import pytest
 import torch
 from PIL import Image
 
-from worldsplat.camera import Camera
-from worldsplat.gaussians import Gaussians, constants as C, rasterize
+from worldsplat.core.camera import Camera
+from worldsplat.gaussians import Gaussians, rasterize
 from worldsplat.gaussians.project import project, quat_to_rotmat, tile_intersect
 from worldsplat.gaussians.raster import composite
 
 VECTORS = Path(__file__).resolve().parents[1] / "vectors"
 sys.path.insert(0, str(VECTORS))
 from make_vectors import gaussians_from_json  # noqa: E402
-
 
 CASES = sorted(p.name[:-5] for p in (VECTORS / "raster").glob("*.json") if not p.name.endswith(".expected.json"))
 
@@ -241,7 +240,7 @@ def test_extras_composite_like_colour():
 MEMORY_SCRIPT = r"""
 import resource, sys, torch, numpy as np
 torch.set_num_threads(1)
-from worldsplat.camera import Camera
+from worldsplat.core.camera import Camera
 from worldsplat.gaussians import Gaussians, rasterize
 gen = torch.Generator().manual_seed(0)
 n = 1_000_000

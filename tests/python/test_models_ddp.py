@@ -6,7 +6,6 @@ import json
 import os
 import socket
 
-import pytest
 import torch
 import torch.multiprocessing as mp
 
@@ -20,10 +19,11 @@ def _free_port() -> int:
 def _worker(rank: int, world: int, port: int, out_dir: str) -> None:
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world))
     import torch.distributed as dist
+
+    from worldsplat.training.loop import dit_batch, dit_step_fn, train_loop
     from worldsplat_models import rflow
     from worldsplat_models.configs import TrainConfig, get_config
     from worldsplat_models.dit import DiT4D
-    from worldsplat_models.train import dit_batch, dit_step_fn, train_loop
 
     torch.set_num_threads(1)
     cfg = get_config("tiny")

@@ -1,4 +1,5 @@
-"""The inference API used by worldsplat.pipeline (tiny random models) and the ONNX serving graphs' parity."""
+"""The inference API used by worldsplat.pipeline.scene (tiny random models) and the ONNX serving graphs' parity."""
+import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -6,10 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from worldsplat_models import inference as inf
-from worldsplat_models import onnx_export as ox
+from worldsplat.gaussians import Gaussians
+from worldsplat.pipeline import inference as inf
+from worldsplat.pipeline import onnx as ox
+from worldsplat.training.data import synthetic_sample
 from worldsplat_models.configs import get_config
-from worldsplat_models.data import synthetic_sample
 from worldsplat_models.weights import build, load_weights, save_weights
 
 torch.set_num_threads(1)
@@ -28,7 +30,7 @@ def models():
 
 
 def tiny_clip(T=3, seed=0):
-    from worldsplat.camera import default_rig
+    from worldsplat.core.camera import default_rig
     d = CFG.data
     s = synthetic_sample(d, seed)
     rig = default_rig(d.width, d.height)[: d.views]
@@ -49,8 +51,12 @@ def test_reconstruct_windows_and_scene(models):
     assert dec.latents.shape == (3, d.views, CFG.vae.joint_channels, d.height // 8, d.width // 8)
     scene = inf.to_scene4d(dec, meta={"fps": 4})
     assert scene.num_frames == 3
-    vis = sum(int((inf.to_scene4d(dec, threshold=2.0).dynamic[t].opacities >= 0).sum()) for t in range(3))
-    assert vis == 0  # threshold above 1: nothing is dynamic
+    # the served aggregation (gaussians.aggregate_4d): with every dynamic probability 0, nothing is dynamic
+    still = dataclasses.replace(dec, gaussians=[[Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors,
+                                                           torch.zeros_like(g.extras)) for g in row]
+                                                for row in dec.gaussians])
+    assert sum(len(x) for x in inf.to_scene4d(still).dynamic) == 0
+    assert scene.meta["aggregate"]["kept"] == len(scene.static) + sum(len(x) for x in scene.dynamic)
     total = sum(len(g) for t in range(3) for g in dec.gaussians[t])
     assert len(scene.static) + sum(len(x) for x in scene.dynamic) <= total
     assert torch.isfinite(scene.static.means).all()
@@ -145,8 +151,8 @@ def test_float16_weight_files_load_as_float32(tmp_path, models):
 
 
 def test_projected_box_mask_fills_hull_in_front_only():
-    from worldsplat.camera import Camera
-    from worldsplat_models.evaluate import projected_box_mask
+    from worldsplat.core.camera import Camera
+    from worldsplat.evaluation.models import projected_box_mask
     cam = Camera(64, 48, 40.0, 40.0, 32.0, 24.0, np.eye(4))  # looks along +z
     cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (9, 11)], float)
     m = projected_box_mask(cube[None], cam)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from worldsplat_models import rflow
-from worldsplat_models.configs import DiTConfig, GSDecoderConfig, get_config
+from worldsplat_models.configs import DiTConfig, get_config
 from worldsplat_models.dit import DiT4D, dropped
 from worldsplat_models.gs_decoder import GaussianDecoder, matrix_to_quaternion, safe_normalize_quaternion
 from worldsplat_models.vae import MultiModalVAE, denormalize_depth, normalize_depth
@@ -169,7 +169,7 @@ def test_paper_config_constructs():
 # --- Gaussian decoder -------------------------------------------------------------------------------------------------
 
 def rig_inputs(B=1):
-    from worldsplat.camera import default_rig
+    from worldsplat.core.camera import default_rig
     d = CFG.data
     rig = default_rig(d.width, d.height)[: d.views]
     ego = [np.eye(4), np.array([[1, 0, 0, 2.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])]

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 import torch
 
+from worldsplat.training.data import synthetic_sample
+from worldsplat.training.loop import build_cache, decoder_losses, dit_step_fn, optimizer_step, vae_step_fn
 from worldsplat_models import rflow
 from worldsplat_models.configs import TrainConfig, get_config
-from worldsplat_models.data import synthetic_sample
 from worldsplat_models.dit import DiT4D, dropped
 from worldsplat_models.gs_decoder import GaussianDecoder
-from worldsplat_models.train import (build_cache, decoder_losses, dit_step_fn, optimizer_step, vae_step_fn)
 from worldsplat_models.vae import MultiModalVAE
 
 torch.set_num_threads(1)
@@ -92,8 +92,8 @@ def test_sampler_steps_1_to_64_bf16_finite():
 
 
 def test_100_random_scenarios_generate_finite_bounded_gaussians():
-    from worldsplat_models.data import synthetic_sample as ss  # noqa: F401  (same rig as the tests above)
-    from worldsplat.camera import default_rig
+    from worldsplat.core.camera import default_rig
+    from worldsplat.training.data import synthetic_sample as ss  # noqa: F401  (same rig as the tests above)
     dit = perturbed(DiT4D(CFG.dit)).eval()
     dec = perturbed(GaussianDecoder(CFG.decoder), 0.2).eval()
     d, c = CFG.data, CFG.decoder
@@ -117,7 +117,7 @@ def test_100_random_scenarios_generate_finite_bounded_gaussians():
 def test_decoder_guards_extreme_latents():
     dec = perturbed(GaussianDecoder(CFG.decoder), 0.5).eval()
     d, c = CFG.data, CFG.decoder
-    from worldsplat.camera import default_rig
+    from worldsplat.core.camera import default_rig
     rig = default_rig(d.width, d.height)[: d.views]
     intr = torch.tensor([[rc.fx, rc.fy, rc.cx, rc.cy] for rc in rig], dtype=torch.float32).expand(1, d.frames, -1, -1)
     c2w = torch.tensor(np.array([rc.camera_to_ego for rc in rig]), dtype=torch.float32).expand(1, d.frames, -1, -1, -1)
@@ -152,7 +152,7 @@ def test_train_config_defaults_clip():
 
 
 def test_decoder_render_every_alternates(cached):
-    from worldsplat_models.train import decoder_step_fn
+    from worldsplat.training.loop import decoder_step_fn
     _, samples = cached
     step = decoder_step_fn(samples, CFG.data, render_every=2, render_down=2)
     dec = GaussianDecoder(CFG.decoder)

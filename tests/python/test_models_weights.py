@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from worldsplat_models import inference as inf
-from worldsplat_models.metrics import depth_abs_rel, psnr
+from worldsplat.core.metrics import depth_abs_rel, psnr
+from worldsplat.pipeline import inference as inf
 
 torch.set_num_threads(2)
 
@@ -21,14 +21,15 @@ pytestmark = pytest.mark.skipif("reconstruct" not in inf.available_modes(),
 
 @pytest.fixture(scope="module")
 def held_out():
-    from worldsplat.scenario import random_scenario
+    from worldsplat.core.scenario import random_scenario
     from worldsplat.world import build_world, simulate
     world = build_world(random_scenario(2_000_123))  # test split seed range [2e6, 3e6), never trained on
     return world, simulate(world)
 
 
 def test_shipped_weights_meta_and_size():
-    from worldsplat_models.weights import DEFAULT_DIR, read_metadata
+    from worldsplat_models.weights import read_metadata, weights_dir
+    DEFAULT_DIR = weights_dir()
     total = sum(p.stat().st_size for p in DEFAULT_DIR.rglob("*") if p.suffix in (".safetensors", ".onnx"))
     assert total <= 60 * 2 ** 20
     for kind in ("vae", "decoder"):

@@ -1,16 +1,16 @@
 """The pipeline (oracle mode), render_track, videos and the generate/render/export/import commands."""
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from worldsplat.cli import main as cli
+from worldsplat.core.errors import Cancelled as JobCancelled
+from worldsplat.core.scenario import load_preset
+from worldsplat.core.video import probe, write_video
 from worldsplat.gaussians import wsplat
-from worldsplat.pipeline import JobCancelled, MODES, generate_scene, render_track
-from worldsplat.scenario import load_preset
-from worldsplat.video import probe, write_video
-
+from worldsplat.pipeline.render import render_track
+from worldsplat.pipeline.scene import MODES, generate_scene
 
 TINY = {"clip": {"frames": 2}, "image": {"width": 64, "height": 36}}
 
@@ -39,15 +39,17 @@ def test_modes_and_errors():
         generate_scene(load_preset("urban_straight"), mode="dream")
     with pytest.raises(JobCancelled):
         generate_scene(load_preset("urban_straight").with_updates(**TINY), cancelled=lambda: True)
+    with pytest.raises(JobCancelled):
+        generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="oracle", cancelled=lambda: True)
     stages = []
     with pytest.raises(JobCancelled):
-        generate_scene(load_preset("urban_straight").with_updates(**TINY), progress=lambda s, f: stages.append(s),
+        generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="oracle", progress=lambda s, f: stages.append(s),
                        cancelled=lambda: "lift" in stages)
     assert stages[:3] == ["world", "simulate", "lift"]
 
 
 def test_model_modes_say_what_is_missing(monkeypatch):
-    import worldsplat.pipeline as pl
+    import worldsplat.pipeline.scene as pl
     monkeypatch.setattr(pl, "_models_inference", lambda: None)
     assert list(pl.MODES) == ["oracle"]
     with pytest.raises(FileNotFoundError, match="worldsplat_models"):

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 import torch
 
-from worldsplat.evaluation.novel_track import oracle_scene, render_scene_track
-from worldsplat.evaluation.pairs import conditions_for_track
-from worldsplat.scenario import load_preset
+from worldsplat.core.scenario import load_preset
+from worldsplat.pipeline.conditions import conditions_for_track
+from worldsplat.pipeline.render import render_scene_track
+from worldsplat.pipeline.scene import oracle_scene
 from worldsplat.world import build_world, simulate
 
 torch.set_num_threads(1)
@@ -77,7 +78,7 @@ def no_minilm(monkeypatch):
 
 
 def test_refine_track_shape_dtype_progress_and_blend(small_world, tiny_weights, no_minilm):
-    from worldsplat.refine import refine_available, refine_track
+    from worldsplat.pipeline.refine import refine_available, refine_track
     sc, _, clip, scene = small_world
     assert refine_available(tiny_weights) and not refine_available(tiny_weights.parent / "none.safetensors")
     stages = []
@@ -97,9 +98,9 @@ def test_refine_track_shape_dtype_progress_and_blend(small_world, tiny_weights, 
 
 
 def test_refine_track_rejects_bad_input(small_world, tiny_weights, no_minilm):
-    from worldsplat.evaluation import Cancelled
+    from worldsplat.core.errors import Cancelled
     from worldsplat.gaussians import Scene4D
-    from worldsplat.refine import refine_track
+    from worldsplat.pipeline.refine import refine_track
     sc, _, _, scene = small_world
     with pytest.raises(ValueError, match="CAM_NOPE"):
         refine_track(scene, 1.0, ["CAM_NOPE"], steps=1, weights=tiny_weights)
@@ -114,7 +115,7 @@ def test_refine_track_rejects_bad_input(small_world, tiny_weights, no_minilm):
 
 
 def test_refine_track_at_another_resolution_than_the_model(tiny_weights, no_minilm):
-    from worldsplat.refine import refine_track
+    from worldsplat.pipeline.refine import refine_track
     sc = load_preset("urban_straight").with_updates(image={"width": 64, "height": 40}, clip={"frames": 3},
                                                     rig={"cameras": CAMS})
     clip = simulate(build_world(sc), 0.0)

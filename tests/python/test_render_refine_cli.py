@@ -3,10 +3,9 @@ test_refine.py; a full refined video takes minutes on 2 cores)."""
 import json
 
 import numpy as np
-import torch
 
-from worldsplat.camera import default_rig
 from worldsplat.cli import main
+from worldsplat.core.camera import default_rig
 from worldsplat.gaussians import Gaussians, Scene4D, wsplat
 
 
@@ -15,7 +14,7 @@ def _scene(tmp_path, with_scenario: bool):
                              np.full(4, 0.9), np.full((4, 3), 0.5))
     meta = {"fps": 4.0}
     if with_scenario:
-        from worldsplat.scenario import load_preset
+        from worldsplat.core.scenario import load_preset
         meta["scenario"] = load_preset("urban_straight").model_dump(mode="json")
     s = Scene4D(g, [Gaussians.empty()], [0.0], default_rig(64, 36), np.eye(4)[None], meta)
     p = tmp_path / "s.wsplat"
@@ -33,7 +32,7 @@ def test_refine_rejects_camera_json(tmp_path, capsys):
 
 
 def test_scenario_travels_in_the_header(tmp_path):
-    from worldsplat.scenario import load_preset
+    from worldsplat.core.scenario import load_preset
     p = _scene(tmp_path, True)
     assert wsplat.read(p).meta["scenario"] == load_preset("urban_straight").model_dump(mode="json")
 

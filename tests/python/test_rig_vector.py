@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from worldsplat.scenario import load_preset
+from worldsplat.core.scenario import load_preset
 from worldsplat.world.layout import build_world
 
 VECTOR = Path(__file__).resolve().parents[1] / "vectors" / "rig" / "rig_shift.json"

@@ -3,8 +3,17 @@ import json
 
 import pytest
 
-from worldsplat.scenario import (Scenario, ScenarioError, default_scenario, list_presets, load_preset,
-                                 random_scenario, scenario_id, schema_text, SCHEMA_PATH)
+from worldsplat.core.scenario import (
+    Scenario,
+    ScenarioError,
+    default_scenario,
+    list_presets,
+    load_preset,
+    random_scenario,
+    scenario_id,
+    schema_path,
+    schema_text,
+)
 
 # (path, bad value) -> the error must name the path.
 OUT_OF_RANGE = [
@@ -109,8 +118,8 @@ def test_random_scenarios_validate_and_vary():
 
 
 def test_committed_schema_matches_generated():
-    assert SCHEMA_PATH.read_text() == schema_text(), \
-        "web/docs/scenario.schema.json is stale: run `python -m worldsplat.scenario --write-schema`"
+    assert schema_path().read_text() == schema_text(), \
+        "web/docs/scenario.schema.json is stale: run `worldsplat presets --write-schema`"
     schema = json.loads(schema_text())
     assert schema["additionalProperties"] is False
     assert schema["$defs"]["Traffic"]["properties"]["pedestrians"]["maximum"] == 24

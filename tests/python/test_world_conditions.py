@@ -1,7 +1,7 @@
 """Conditions: BEV raster, perspective sketches for shifted rigs, boxes, ego trajectory."""
 import numpy as np
 
-from worldsplat.scenario import load_preset
+from worldsplat.core.scenario import load_preset
 from worldsplat.world import build_world
 from worldsplat.world.conditions import BEV_CHANNELS, BEV_RES, BEV_SIZE, SKETCH_CHANNELS
 

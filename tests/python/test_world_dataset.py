@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from worldsplat.cli import main as cli_main
-from worldsplat.scenario import Scenario
+from worldsplat.core.scenario import Scenario
 from worldsplat.world.dataset import SHARD_KEYS, SPLIT_BASE, SPLIT_SIZE, load_shard, split_seed, write_dataset
 
 

@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from worldsplat.camera import DEFAULT_RIG_SPEC
-from worldsplat.scenario import load_preset
+from worldsplat.core.camera import DEFAULT_RIG_SPEC
+from worldsplat.core.scenario import load_preset
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import BARRIER, CROSSWALK, CURB, LANE_MARKING, ROAD, SIDEWALK, TERRAIN
 from worldsplat.world.prims import M_PLAIN, PrimBuilder

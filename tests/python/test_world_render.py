@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from worldsplat.cli import main as cli_main
-from worldsplat.scenario import Scenario, list_presets, load_preset
+from worldsplat.core.scenario import Scenario, list_presets, load_preset
 from worldsplat.world import build_world, simulate
 from worldsplat.world.agents import EGO_LENGTH, EGO_WIDTH, ego_footprint
 from worldsplat.world.classes import AGENT_CLASSES, CAR, CYCLIST, ROAD, SKY
@@ -161,7 +161,7 @@ def test_sim_command_writes_everything(tmp_path: Path):
 
 
 def test_render_views_matches_simulate_for_rig_cameras_and_takes_any_camera():
-    from worldsplat.camera import Camera
+    from worldsplat.core.camera import Camera
     from worldsplat.world import render_views
     w = build_world(small("urban_straight", frames=2))
     clip = simulate(w, shift_m=1.5, frames=[1])
@@ -196,7 +196,7 @@ def test_lane_indices_match_geometry():
 
 @pytest.mark.parametrize("seed", [3, 1000004, 2000007, 123457])
 def test_random_scenarios_build_and_render(seed):
-    from worldsplat.scenario import random_scenario
+    from worldsplat.core.scenario import random_scenario
     sc = random_scenario(seed, width=40, height=32, frames=2)
     w = build_world(sc)
     clip = simulate(w, shift_m=-2.0)

@@ -7,16 +7,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from worldsplat.camera import default_rig, yaw_pose
+from worldsplat.core.camera import default_rig, yaw_pose
 from worldsplat.gaussians import Gaussians, Scene4D, wsplat
 from worldsplat.gaussians.wsplat import Layout, ProgressiveDecoder, WsplatError, pack_records, unpack_records
 
 VECTORS = Path(__file__).resolve().parents[1] / "vectors" / "wsplat"
 sys.path.insert(0, str(VECTORS.parent))
 from make_vectors import _street, base_camera, split_chunks  # noqa: E402
-
 
 NAMES = sorted(p.stem for p in VECTORS.glob("*.wsplat"))
 
@@ -133,7 +133,7 @@ def test_anisotropic_dynamic_record_renders_close_to_float32():
     """The 7-byte anisotropic dynamic record on a street of sheets (25:1) with random rotations, opacities and
     colours: decoded render vs float32 render (measured 36.3 dB; the former 9-byte layout with 2-bit colour 31.0).
     Against a reconstruction near 20 dB this is a < 0.1 dB change (gaussians.md, `python -m
-    worldsplat.gaussians.quant`)."""
+    worldsplat.bench.quant`)."""
     from worldsplat.gaussians import rasterize
     rng = np.random.default_rng(0)
     s = _street(rng, 3000, 3000)

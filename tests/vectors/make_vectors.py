@@ -11,55 +11,21 @@ Every renderer / decoder must pass all of them (see web/docs/gaussians.md).
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
+# the JSON form of Gaussians has one definition, in the package; re-exported here for the tests
+from worldsplat.gaussians.vector_json import from_json_array, gaussians_from_json, gaussians_to_json, to_json_array  # noqa: F401
+
 HERE = Path(__file__).resolve().parent
 RASTER_CAMERA_SIZE = (128, 72)
 
 
-# ---------------------------------------------------------------------------------------------- JSON helpers
-def _encode_float(x: float):
-    if math.isnan(x):
-        return "NaN"
-    if math.isinf(x):
-        return "Infinity" if x > 0 else "-Infinity"
-    return float(x)
-
-
-def to_json_array(a: np.ndarray) -> list:
-    a = np.asarray(a, dtype=np.float64)
-    if a.ndim == 1:
-        return [_encode_float(v) for v in a]
-    return [to_json_array(r) for r in a]
-
-
-def from_json_array(v, shape_tail: tuple[int, ...]) -> np.ndarray:
-    def dec(x):
-        if isinstance(x, list):
-            return [dec(y) for y in x]
-        if isinstance(x, str):
-            return {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}[x]
-        return float(x)
-    a = np.asarray(dec(v), dtype=np.float64)
-    return a.reshape((-1,) + shape_tail)
-
-
-def gaussians_to_json(g: dict[str, np.ndarray]) -> dict:
-    return {k: to_json_array(g[k]) for k in ("means", "quats", "scales", "opacities", "colors")}
-
-
-def gaussians_from_json(obj: dict) -> dict[str, np.ndarray]:
-    tails = {"means": (3,), "quats": (4,), "scales": (3,), "opacities": (), "colors": (3,)}
-    return {k: from_json_array(obj[k], t) for k, t in tails.items()}
-
-
 # ---------------------------------------------------------------------------------------------- raster cases
 def base_camera(shift_m: float = 0.0):
-    from worldsplat.camera import default_rig, yaw_pose
+    from worldsplat.core.camera import default_rig, yaw_pose
     w, h = RASTER_CAMERA_SIZE
     return default_rig(w, h, ("CAM_FRONT",))[0].at(yaw_pose(3.0, 1.0, 0.0, 0.2), shift_m)
 
@@ -190,6 +156,7 @@ def raster_cases() -> list[dict]:
 
 def render_case(case: dict):
     import torch
+
     from worldsplat.gaussians import Gaussians, rasterize
     dtype = {"float32": torch.float32, "float16": torch.float16}[case["dtype"]]
     g = Gaussians.from_numpy(**case["gaussians"], dtype=dtype)
@@ -224,8 +191,8 @@ def write_raster(out_dir: Path = HERE / "raster") -> list[str]:
 
 # ---------------------------------------------------------------------------------------------- wsplat vectors
 def _scene(rng, n_static, n_dyn, frames, iso, extra_meta=None):
-    import torch
-    from worldsplat.camera import default_rig, yaw_pose
+
+    from worldsplat.core.camera import default_rig, yaw_pose
     from worldsplat.gaussians import Gaussians, Scene4D
 
     def gs(n, centre):
@@ -266,6 +233,7 @@ def chunk_offset(chunks, index: int) -> int:
 
 def write_wsplat(out_dir: Path) -> list[str]:
     import struct
+
     from worldsplat.gaussians import wsplat
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(7)
@@ -385,7 +353,7 @@ RIG_SHIFTS_M = (-8.0, -2.0, 0.0, 1.5, 4.0, 8.0)  # both ends of the +-8 m limit 
 def rig_vector() -> dict:
     """The preset's rig and ego poses (inputs) and the world camera of every rig camera at every shift and at the
     first, middle and last frame (expected), as the Python world computes them (`World.camera`)."""
-    from worldsplat.scenario import load_preset
+    from worldsplat.core.scenario import load_preset
     from worldsplat.world.layout import build_world
     world = build_world(load_preset(RIG_PRESET))
     frames = sorted({0, world.num_frames // 2, world.num_frames - 1})

@@ -22,14 +22,15 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 import worldsplat
-from worldsplat.camera import CAMERA_NAMES
-from worldsplat.scenario import Scenario, ScenarioError, default_preset_name, list_presets, load_preset
+from worldsplat.core.camera import CAMERA_NAMES
+from worldsplat.core.limits import MAX_SHIFT_M
+from worldsplat.core.paths import web_dir as default_web_dir
+from worldsplat.core.scenario import Scenario, ScenarioError, default_preset_name, list_presets, load_preset
 
 from . import runners
 from .cache import ArtifactCache, InvalidId, validate_id
 from .jobs import ACTIVE, Job, JobManager, QueueFull
 
-WEB_DIR = Path(__file__).resolve().parents[3] / "web"
 MAX_BODY = 64 * 1024
 # frames x cameras x width x height a scene may have: the scenario allows 1600x900 x 32 x 6 (276M pixels), far more
 # than 2 CPU cores can lift, render or hold; 16M is 15x the default preset (8 x 6 x 200x112).
@@ -57,7 +58,7 @@ class SceneRequest(BaseModel):
 
 class VideoRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    shift_m: float = Field(0.0, ge=-8.0, le=8.0, allow_inf_nan=False,
+    shift_m: float = Field(0.0, ge=-MAX_SHIFT_M, le=MAX_SHIFT_M, allow_inf_nan=False,
                            description="lateral track shift in metres, left positive")
     cameras: list[str] | None = Field(None, min_length=1, max_length=6,
                                       description="cameras to render (default: the scene's whole rig); several "
@@ -259,7 +260,7 @@ class Playground:
 def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = None,
                max_cache_bytes: int = 2 << 30, max_queued: int = 16, warm: bool = True,
                max_scene_pixels: int = MAX_SCENE_PIXELS) -> FastAPI:
-    web = Path(web_dir) if web_dir else WEB_DIR
+    web = Path(web_dir) if web_dir else default_web_dir()
     pg = Playground(Path(cache_dir), max_cache_bytes, max_queued, max_scene_pixels)
 
     @asynccontextmanager

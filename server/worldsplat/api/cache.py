@@ -18,8 +18,10 @@ import re
 import secrets
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
+
+from worldsplat.core.io import fsync_dir, write_json_atomic
 
 ID_RE = re.compile(r"^[0-9a-f]{32}$")
 # kind -> allowed artifact extensions
@@ -35,27 +37,6 @@ def validate_id(value: str) -> str:
         raise InvalidId(f"invalid id {value[:80]!r}: expected 32 lower-case hex digits" if isinstance(value, str)
                         else "invalid id: expected a string")
     return value
-
-
-def fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def write_json_atomic(path: Path, obj: object, tmp_dir: Path | None = None) -> None:
-    """JSON to `path` via temp file + fsync + rename (+ directory fsync)."""
-    tmp_dir = tmp_dir or path.parent
-    tmp = tmp_dir / f".{path.name}.{secrets.token_hex(4)}.tmp"
-    data = json.dumps(obj, indent=1, sort_keys=True).encode()
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    fsync_dir(path.parent)
 
 
 class ArtifactCache:

@@ -16,11 +16,14 @@ import secrets
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
-from .cache import ID_RE, validate_id, write_json_atomic
+from worldsplat.core.errors import Cancelled
+from worldsplat.core.io import write_json_atomic
+
+from .cache import ID_RE, validate_id
 
 ACTIVE = ("queued", "running")
 TERMINAL = ("done", "failed", "cancelled")
@@ -32,10 +35,6 @@ class QueueFull(RuntimeError):
     def __init__(self, retry_after: int):
         super().__init__(f"the job queue is full; retry in {retry_after} s")
         self.retry_after = retry_after
-
-
-class JobCancelled(Exception):
-    """Raised inside a job when its cancellation was requested (runners may also raise the pipeline's own)."""
 
 
 class JobError(Exception):
@@ -57,10 +56,12 @@ class Job:
     started: float | None = None
     finished: float | None = None
     version: int = 0                # bumped on every change (SSE clients wait on it)
+    deleted: bool = False           # DELETE /api/jobs/{id}: cancelled and gone from the API (404 from then on)
 
     def public(self) -> dict:
         d = asdict(self)
         d.pop("params")
+        d.pop("deleted")
         d["params"] = {k: v for k, v in self.params.items() if k != "scenario"}
         return d
 
@@ -68,7 +69,7 @@ class Job:
 class JobContext:
     """What a runner sees: its job's params, a progress callback and a cancellation probe."""
 
-    def __init__(self, manager: "JobManager", job: Job):
+    def __init__(self, manager: JobManager, job: Job):
         self._m, self.job = manager, job
 
     @property
@@ -83,7 +84,7 @@ class JobContext:
 
     def check(self) -> None:
         if self.cancelled():
-            raise JobCancelled(f"job {self.job.id} cancelled")
+            raise Cancelled(f"job {self.job.id} cancelled")
 
 
 Runner = Callable[[JobContext], dict]
@@ -183,11 +184,12 @@ class JobManager:
 
     def get(self, job_id: str) -> Job | None:
         validate_id(job_id)
-        return self.jobs.get(job_id)
+        job = self.jobs.get(job_id)
+        return None if job is None or job.deleted else job
 
     def latest_for(self, kind: str, target: str) -> Job | None:
         with self._cv:
-            cands = [j for j in self.jobs.values() if j.kind == kind and j.target == target]
+            cands = [j for j in self.jobs.values() if j.kind == kind and j.target == target and not j.deleted]
         return max(cands, key=lambda j: j.created) if cands else None
 
     def cancel(self, job_id: str) -> Job | None:
@@ -203,6 +205,18 @@ class JobManager:
             elif job.status == "running":
                 self._cancel_requested.add(job.id)
                 job.stage = "cancelling"
+                job.version += 1
+                self._persist(job)
+                self._cv.notify_all()
+            return job
+
+    def delete(self, job_id: str) -> Job | None:
+        """Cancel the job (as `cancel`) and remove it from the API: `get` and `latest_for` no longer see it. SSE streams
+        already open still see it end; the record stays on disk (flagged) until pruned like any finished job."""
+        with self._cv:
+            job = self.cancel(job_id)
+            if job is not None:
+                job.deleted = True
                 job.version += 1
                 self._persist(job)
                 self._cv.notify_all()
@@ -247,7 +261,7 @@ class JobManager:
                 self._persist(job)
             self._cv.notify_all()
         if job.id in self._cancel_requested:
-            raise JobCancelled(f"job {job.id} cancelled")
+            raise Cancelled(f"job {job.id} cancelled")
 
     def _finish(self, job: Job, status: str, error: str | None = None, result: dict | None = None) -> None:
         job.status, job.error, job.finished = status, error, time.time()
@@ -282,7 +296,7 @@ class JobManager:
                 with self._cv:
                     if self._stopping:
                         self._finish(job, "failed", error="interrupted by a server shutdown; request it again")
-                    elif job.id in self._cancel_requested or type(e).__name__ in ("JobCancelled", "Cancelled"):
+                    elif job.id in self._cancel_requested or isinstance(e, Cancelled):
                         self._finish(job, "cancelled", error="cancelled by request")
                     elif isinstance(e, (JobError, ValueError)):
                         self._finish(job, "failed", error=str(e))

@@ -12,8 +12,8 @@ import time
 
 import numpy as np
 
-from worldsplat.camera import CAMERA_NAMES
-from worldsplat.scenario import Scenario
+from worldsplat.core.camera import CAMERA_NAMES
+from worldsplat.core.scenario import Scenario
 
 from .cache import ArtifactCache
 from .jobs import JobContext, JobError
@@ -23,7 +23,7 @@ VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
 
 
 def _pipeline():
-    import worldsplat.pipeline as pipeline  # noqa: PLC0415 - heavy (torch), imported on first use
+    import worldsplat.pipeline.scene as pipeline  # noqa: PLC0415 - heavy (torch), imported on first use
     return pipeline
 
 
@@ -32,11 +32,8 @@ def available_modes() -> list[str]:
 
 
 def default_mode() -> str:
-    """generate once its weights ship (a scene from the scenario alone), else oracle. reconstruct is offered but not
-    the default: it reads the same ground-truth video the oracle lifts exactly, and the small shipped VAE/decoder
-    reproduce it blurred (it is there to show the models at work)."""
-    modes = available_modes()
-    return "generate" if "generate" in modes else "oracle" if "oracle" in modes else modes[0]
+    """`worldsplat.pipeline.scene.default_mode` (one definition, shared with `worldsplat generate`)."""
+    return _pipeline().default_mode()
 
 
 def model_version(mode: str) -> str:
@@ -47,16 +44,16 @@ def model_version(mode: str) -> str:
         return str(fn(mode))
     if mode == "oracle":
         return str(p.ORACLE_VERSION)
-    from worldsplat_models.inference import load_models  # noqa: PLC0415 - the weights' hash (loaded once)
+    from worldsplat.pipeline.inference import load_models  # noqa: PLC0415 - the weights' hash (loaded once)
     return f"{mode}-{load_models().version}"
 
 
 def refinement_status() -> tuple[bool, str]:
-    """(available, why not): refinement (issue 7) needs `worldsplat.refine` and its enhancer weights."""
+    """(available, why not): refinement (issue 7) needs `worldsplat.pipeline.refine` and its enhancer weights."""
     try:
-        from worldsplat.refine import WEIGHTS, refine_available  # noqa: PLC0415
+        from worldsplat.pipeline.refine import WEIGHTS, refine_available  # noqa: PLC0415
     except ImportError as e:
-        return False, f"refinement is not available: worldsplat.refine cannot be imported ({e})"
+        return False, f"refinement is not available: worldsplat.pipeline.refine cannot be imported ({e})"
     if not refine_available():
         return False, f"refinement is not available: the enhancer weights ({WEIGHTS.name}) are not installed"
     return True, ""
@@ -64,14 +61,14 @@ def refinement_status() -> tuple[bool, str]:
 
 def refine_views() -> int:
     """How many rig views the enhancer reads at once (it refines a whole rig: scenes need all of them)."""
-    from worldsplat.refine import load_refiner  # noqa: PLC0415 - loaded once per process
+    from worldsplat.pipeline.refine import load_refiner  # noqa: PLC0415 - loaded once per process
     return int(load_refiner()[0].cfg.data.views)
 
 
 @functools.lru_cache(maxsize=1)
 def refiner_version() -> str:
     """The enhancer weights' content hash: a new model gives new video ids."""
-    from worldsplat.refine import WEIGHTS  # noqa: PLC0415
+    from worldsplat.pipeline.refine import WEIGHTS  # noqa: PLC0415
     h = hashlib.sha256()
     with open(WEIGHTS, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -116,8 +113,8 @@ def run_scene(cache: ArtifactCache, ctx: JobContext) -> dict:
 
 
 def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
+    from worldsplat.core.video import mosaic, write_video  # noqa: PLC0415
     from worldsplat.gaussians import wsplat  # noqa: PLC0415
-    from worldsplat.video import mosaic, write_video  # noqa: PLC0415
 
     p = ctx.params
     scene_id, video_id = p["scene_id"], ctx.job.target
@@ -128,16 +125,17 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
         ctx.progress("reading scene", 0.0)
         scene = wsplat.read(opened[0])
     cameras = [c for c in CAMERA_NAMES if c in p["cameras"]]
-    pipeline = _pipeline()
     if p["refine"]:
         ok, why = refinement_status()
         if not ok:
             raise JobError(why)
-        from worldsplat.refine import refine_track  # noqa: PLC0415
+        from worldsplat.pipeline.refine import refine_track  # noqa: PLC0415
         frames = refine_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled,
                               scenario=opened[1].get("scenario"))
     else:
-        frames = pipeline.render_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled)
+        from worldsplat.pipeline.render import render_track  # noqa: PLC0415 - heavy (torch), imported on first use
+
+        frames = render_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled)
     ctx.check()
     frames = np.asarray(frames)
     if frames.ndim != 5 or frames.dtype != np.uint8:

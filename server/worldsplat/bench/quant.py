@@ -1,7 +1,7 @@
 """Measure the .wsplat quantization of anisotropic scenes: bytes per Gaussian and the PSNR change of the decoded
 scene against the float32 scene, both rendered and compared with the world's exact ground truth.
 
-    python -m worldsplat.gaussians.quant [--presets urban_straight,night_rain] [--shifts 0,2,-4]
+    python -m worldsplat.bench.quant [--presets urban_straight,night_rain] [--shifts 0,2,-4]
 
 Scenes: `generate_scene(mode="reconstruct")` with the shipped weights (the models predict anisotropic Gaussians;
 the oracle's are isotropic and measured by `worldsplat.gaussians.economy`), at the models' image size and clip
@@ -21,10 +21,15 @@ import sys
 import numpy as np
 import torch
 
+from worldsplat.core.metrics import psnr
+from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians import wsplat
-from worldsplat.gaussians.economy import psnr, wsplat_sizes
-from worldsplat.gaussians.raster import rasterize
+from worldsplat.gaussians.economy import wsplat_sizes
 from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.pipeline.inference import load_models
+from worldsplat.pipeline.render import render_track
+from worldsplat.pipeline.scene import generate_scene
+from worldsplat.world import build_world, simulate
 
 
 def every_gaussian_dynamic(scene: Scene4D) -> Scene4D:
@@ -33,22 +38,10 @@ def every_gaussian_dynamic(scene: Scene4D) -> Scene4D:
 
 
 def render_all(scene: Scene4D, shift_m: float) -> np.ndarray:
-    T, V = scene.num_frames, len(scene.rig)
-    out = []
-    with torch.no_grad():
-        for t in range(T):
-            g = scene.at_frame(t)
-            out.append([torch.round(rasterize(g, scene.camera(t, v, shift_m), method="pairs")["rgb"].clamp(0, 1)
-                                    * 255).to(torch.uint8).numpy() for v in range(V)])
-    return np.asarray(out)
+    return render_track(scene, shift_m)
 
 
 def measure(preset: str, shifts: list[float], log=print) -> dict:
-    from worldsplat_models.inference import load_models
-
-    from worldsplat.pipeline import generate_scene
-    from worldsplat.scenario import load_preset
-    from worldsplat.world import build_world, simulate
     d = load_models().data
     sc = load_preset(preset).with_updates(image={"width": d.width, "height": d.height}, clip={"frames": d.frames})
     world = build_world(sc)

@@ -1,11 +1,12 @@
 """The report model: sections of measured rows, written as one markdown page with PNG plots."""
 from __future__ import annotations
 
+import io
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from worldsplat.core.io import atomic_write_bytes
 
 
 @dataclass
@@ -46,10 +47,10 @@ def fmt(v: object) -> str:
 
 
 def plot_pareto(p: Pareto, path: Path) -> None:
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - matplotlib, only for plots
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - matplotlib, only for plots
 
     fig, ax = plt.subplots(figsize=(5, 3.4), dpi=110)
     xs = [x for _, x, _ in p.points]
@@ -73,23 +74,10 @@ def plot_pareto(p: Pareto, path: Path) -> None:
 
 
 def _fig_bytes(fig) -> bytes:
-    import io
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     return buf.getvalue()
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_report(sections: list[Section], out: Path, header: list[str]) -> Path:

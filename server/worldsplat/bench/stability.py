@@ -1,5 +1,6 @@
 """The numerical-stability suite as one table: every named hard case, run here on the Python side, with the test
-that pins the same case in each other implementation. `python -m worldsplat.bench.stability --out FILE.md`.
+that pins the same case in each other implementation.
+`python -m worldsplat.bench.stability --out FILE.md [--vectors tests/vectors]`.
 
 Each row is measured when the command runs (no status is written by hand): NaN/Inf counts in outputs and gradients,
 and agreement with the shared expectation. The Rust/wasm columns name the test that runs the same vector in
@@ -14,24 +15,26 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from PIL import Image
 
-ROOT = Path(__file__).resolve().parents[3]
-VECTORS = ROOT / "tests" / "vectors"
+from worldsplat.core.camera import Camera
+from worldsplat.core.paths import vectors_dir
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians import Gaussians, rasterize, wsplat
+from worldsplat.gaussians.vector_json import gaussians_from_json
+from worldsplat.world import build_world, simulate
+from worldsplat_models import rflow
+from worldsplat_models.configs import get_config
+from worldsplat_models.dit import DiT4D
 
 
 def _nonfinite(*ts) -> int:
     return int(sum((~torch.isfinite(t)).sum().item() for t in ts if t is not None and t.numel()))
 
 
-def raster_rows() -> list[list]:
-    from worldsplat.camera import Camera
-    from worldsplat.gaussians import Gaussians, rasterize
-
-    sys.path.insert(0, str(VECTORS))
-    from make_vectors import gaussians_from_json  # the shared reader of the vectors
-
+def raster_rows(vectors: Path) -> list[list]:
     rows = []
-    for p in sorted((VECTORS / "raster").glob("*.json")):
+    for p in sorted((vectors / "raster").glob("*.json")):
         if p.name.endswith(".expected.json"):
             continue
         vec = json.loads(p.read_text())
@@ -53,8 +56,6 @@ def raster_rows() -> list[list]:
                 bad_grad = "n/a (nothing visible)"
         bad = _nonfinite(out["rgb"], out["depth"], out["alpha"])
         img = (out["rgb"].detach().clamp(0, 1) * 255).round().to(torch.uint8).numpy()
-        from PIL import Image
-
         exp = np.asarray(Image.open(p.with_suffix("").with_suffix(".expected.png")).convert("RGB"))
         same = int(np.abs(img.astype(int) - exp.astype(int)).max())
         rows.append([f"raster/{p.stem}", vec.get("description", "")[:70], bad, bad_grad,
@@ -62,11 +63,9 @@ def raster_rows() -> list[list]:
     return rows
 
 
-def wsplat_rows() -> list[list]:
-    from worldsplat.gaussians import wsplat
-
+def wsplat_rows(vectors: Path) -> list[list]:
     rows = []
-    for p in sorted((VECTORS / "wsplat").glob("*.wsplat")):
+    for p in sorted((vectors / "wsplat").glob("*.wsplat")):
         exp = json.loads(p.with_suffix(".json").read_text())
         try:
             scene = wsplat.decode(p.read_bytes())
@@ -81,10 +80,6 @@ def wsplat_rows() -> list[list]:
 
 
 def model_rows() -> list[list]:
-    from worldsplat_models.configs import get_config
-    from worldsplat_models.dit import DiT4D
-    from worldsplat_models import rflow
-
     rows = []
     torch.manual_seed(0)
     cfg = get_config("tiny")
@@ -119,9 +114,6 @@ def model_rows() -> list[list]:
 
 
 def world_rows() -> list[list]:
-    from worldsplat.scenario import load_preset
-    from worldsplat.world import build_world, simulate
-
     rows = []
     for preset, shift in (("night_rain", 0.0), ("foggy_dusk", 0.0), ("urban_straight", 8.0), ("urban_straight", -8.0),
                           ("empty_road", 0.0)):
@@ -141,9 +133,11 @@ def world_rows() -> list[list]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--vectors", type=Path, default=None, help="the shared test vectors (default tests/vectors)")
     args = ap.parse_args(argv)
+    vectors = args.vectors or vectors_dir()
     torch.set_num_threads(1)
-    rows = world_rows() + raster_rows() + wsplat_rows() + model_rows()
+    rows = world_rows() + raster_rows(vectors) + wsplat_rows(vectors) + model_rows()
     lines = ["# Numerical stability: every named hard case", "",
              "Made by `python -m worldsplat.bench.stability --out web/docs/stability.md` (measured when run). "
              "NaN/Inf columns count non-finite values in the outputs and in the gradients of every input; the "

@@ -11,18 +11,18 @@ import sys
 
 # command -> (module, help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "presets": ("worldsplat.world.commands_presets", "list the shipped scenario presets"),
-    "sim": ("worldsplat.world.commands_sim", "render a scenario's exact ground truth (RGB, depth, masks, conditions)"),
-    "dataset": ("worldsplat.world.commands_dataset", "write a sharded, resumable training dataset"),
-    "generate": ("worldsplat.pipeline_cli", "scenario -> 4D Gaussian scene (.wsplat)"),
-    "render": ("worldsplat.gaussians.commands_render", "render a .wsplat/.ply at a rig camera or any camera"),
-    "export": ("worldsplat.gaussians.commands_ply", "export a .wsplat to a standard 3DGS .ply"),
-    "import": ("worldsplat.gaussians.commands_ply", "import a standard 3DGS .ply to .wsplat"),
-    "serve": ("worldsplat.api.commands_serve", "serve the playground (page, wasm viewer, API)"),
-    "train": ("worldsplat_models.commands_train", "train a generation model (vae, decoder, dit)"),
-    "train-enhancer": ("worldsplat_models.train_enhancer", "train the enhanced diffusion model (refinement)"),
-    "eval": ("worldsplat.evaluation.commands_eval", "evaluate against the world's exact ground truth"),
-    "bench": ("worldsplat.bench.commands_bench", "speed-against-error benchmark report"),
+    "presets": ("worldsplat.cli.presets", "list the shipped scenario presets"),
+    "sim": ("worldsplat.cli.sim", "render a scenario's exact ground truth (RGB, depth, masks, conditions)"),
+    "dataset": ("worldsplat.cli.dataset", "write a sharded, resumable training dataset"),
+    "generate": ("worldsplat.cli.generate", "scenario -> 4D Gaussian scene (.wsplat)"),
+    "render": ("worldsplat.cli.render", "render a .wsplat/.ply at a rig camera or any camera"),
+    "export": ("worldsplat.cli.ply", "export a .wsplat to a standard 3DGS .ply"),
+    "import": ("worldsplat.cli.ply", "import a standard 3DGS .ply to .wsplat"),
+    "serve": ("worldsplat.cli.serve", "serve the playground (page, wasm viewer, API)"),
+    "train": ("worldsplat.cli.train", "train a generation model (vae, decoder, dit)"),
+    "train-enhancer": ("worldsplat.cli.train_enhancer", "train the enhanced diffusion model (refinement)"),
+    "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
+    "bench": ("worldsplat.cli.bench", "speed-against-error benchmark report"),
 }
 
 
@@ -53,7 +53,3 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as e:
         print(f"worldsplat {only}: error: {e}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -10,7 +10,7 @@ import time
 import traceback
 from pathlib import Path
 
-from .report import Section, write_report
+from worldsplat.bench.report import Section, write_report
 
 # section key -> module in worldsplat.bench.sections; each exposes `run(quick: bool) -> Section`
 SECTIONS: dict[str, str] = {
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
               "Command: `worldsplat bench --out DIR" + (" --quick" if args.quick else "") + "`."]
     path = write_report(sections, args.out, header)
     print(f"wrote {path}")
-    from .checks import check_trends
+    from worldsplat.bench.checks import check_trends
 
     problems = check_trends(sections) + failures
     for p in problems:

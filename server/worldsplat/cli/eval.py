@@ -5,14 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from worldsplat.core.limits import MAX_SHIFT_M
+
 
 def parse_shifts(text: str) -> tuple[float, ...]:
     try:
         shifts = tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
         raise ValueError(f"--shifts: expected comma-separated metres such as 0,1,2,4, got {text!r}") from None
-    if not shifts or any(abs(s) > 8 for s in shifts):
-        raise ValueError(f"--shifts: need 1+ shifts within +-8 m, got {text!r}")
+    if not shifts or any(not abs(s) <= MAX_SHIFT_M for s in shifts):
+        raise ValueError(f"--shifts: need 1+ shifts within +-{MAX_SHIFT_M:g} m, got {text!r}")
     return shifts
 
 
@@ -61,8 +63,8 @@ def run_figure(args: argparse.Namespace) -> int:
     import torch
     from PIL import Image
 
+    from worldsplat.core.scenario import resolve_scenario
     from worldsplat.evaluation.nvs import side_by_side
-    from worldsplat.scenario import resolve_scenario
     torch.set_num_threads(args.threads)
     img, stats = side_by_side(resolve_scenario(args.scenario), args.shift_m, tuple(args.cameras.split(",")),
                               steps=args.steps, weights=args.weights)

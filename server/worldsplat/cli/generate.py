@@ -8,7 +8,8 @@ import time
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="a scenario JSON file or a preset name (see `worldsplat presets`)")
-    p.add_argument("--mode", default="oracle", choices=["oracle", "reconstruct", "generate"])
+    p.add_argument("--mode", default=None, choices=["oracle", "reconstruct", "generate"],
+                   help="default: the playground's default (generate when its weights ship, else oracle)")
     p.add_argument("--steps", type=int, default=8, help="sampler steps (generate mode)")
     p.add_argument("--seed", type=int, default=None, help="sampling seed (generate mode; default: scenario seed)")
     p.add_argument("--out", required=True, help="output .wsplat")
@@ -16,12 +17,13 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from worldsplat.core.scenario import resolve_scenario
     from worldsplat.gaussians import wsplat
-    from worldsplat.pipeline import generate_scene
-    from worldsplat.scenario import resolve_scenario
+    from worldsplat.pipeline.scene import default_mode, generate_scene
     if not args.out.endswith(".wsplat"):
         raise ValueError(f"--out must end with .wsplat, got {args.out}")
     scenario = resolve_scenario(args.scenario)
+    args.mode = args.mode or default_mode()
     t0 = time.time()
     last = [None]
 

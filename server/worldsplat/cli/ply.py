@@ -2,9 +2,8 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
-
-import numpy as np
 
 
 def configure_export(p: argparse.ArgumentParser) -> None:
@@ -32,19 +31,10 @@ def configure_import(p: argparse.ArgumentParser) -> None:
 
 def run_import(args) -> int:
     from worldsplat.gaussians import wsplat
-    from worldsplat.gaussians.ply import read_ply
+    from worldsplat.gaussians.aggregate import importance_order
+    from worldsplat.gaussians.ply import scene_from_ply
     scene = scene_from_ply(Path(args.ply), fps=args.fps)
+    scene = dataclasses.replace(scene, static=importance_order(scene.static))  # .wsplat chunks: importance order
     n = wsplat.write(scene, args.out)
     print(f"wrote {args.out}: {len(scene.static)} Gaussians, {n} bytes")
     return 0
-
-
-def scene_from_ply(path: Path, fps: float = 10.0):
-    """A PLY has no frames, rig or trajectory: one frame, the default rig at the identity ego pose."""
-    from worldsplat.camera import default_rig
-    from worldsplat.gaussians.aggregate import importance_order
-    from worldsplat.gaussians.ply import read_ply
-    from worldsplat.gaussians.types import Gaussians, Scene4D
-    g = importance_order(read_ply(path))
-    return Scene4D(g, [Gaussians.empty()], np.zeros(1), default_rig(200, 112), np.eye(4)[None],
-                   {"mode": "import", "caption": f"imported from {path.name}", "fps": fps})

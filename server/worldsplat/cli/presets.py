@@ -13,10 +13,10 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from worldsplat.scenario import SCHEMA_PATH, list_presets, load_preset, write_schema
+    from worldsplat.core.scenario import list_presets, load_preset, write_schema
 
     if args.write_schema is not None:
-        print(write_schema(args.write_schema or SCHEMA_PATH))
+        print(write_schema(args.write_schema or None))
         return 0
     if args.show:
         print(json.dumps(json.loads(load_preset(args.show).normalized_json()), indent=2))

@@ -5,8 +5,9 @@
   or the camera of `--camera-json` (the shared camera JSON; `--shift-m` does not apply to it).
 - FILE.mp4 / FILE.webm: every frame (or just T) as a video at the scene's fps; a mosaic for `--camera all`.
 - DIR: one PNG per frame and camera, `DIR/<frame:03d>_<camera>.png`.
-- `--refine`: the enhanced diffusion model repairs the shifted-track render (issue 7, `worldsplat.refine`); needs
+- `--refine`: the enhanced diffusion model repairs the shifted-track render (issue 7, `worldsplat.pipeline.refine`); needs
   the shipped enhancer and the scene's scenario (in the .wsplat header of `worldsplat generate`, or `--scenario`).
+Every image comes from the one track renderer (`worldsplat.pipeline.render`, built on `gaussians.raster.render_view`).
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ def load_scene(path: str | Path):
     if not path.exists():
         raise FileNotFoundError(f"scene {path} not found")
     if path.suffix.lower() == ".ply":
-        from worldsplat.gaussians.commands_ply import scene_from_ply
+        from worldsplat.gaussians.ply import scene_from_ply
         return scene_from_ply(path)
     from worldsplat.gaussians import wsplat
     return wsplat.read(path)
@@ -47,19 +48,17 @@ def save_png(img: np.ndarray, path: Path) -> None:
 
 
 def run(args) -> int:
-    import torch
-
-    from worldsplat.camera import Camera
-    from worldsplat.gaussians.raster import rasterize
-    from worldsplat.pipeline import render_track
-    from worldsplat.video import mosaic, write_video
+    from worldsplat.core.camera import Camera
+    from worldsplat.core.limits import check_shift
+    from worldsplat.core.video import mosaic, write_video
+    from worldsplat.gaussians.raster import render_view
+    from worldsplat.pipeline.render import render_track
     scene = load_scene(args.scene)
     out = Path(args.out)
     kind = out.suffix.lower() if out.suffix.lower() in (".png", ".mp4", ".webm") else "dir"
     if args.frame is not None and not 0 <= args.frame < scene.num_frames:
         raise ValueError(f"--frame {args.frame} out of range 0..{scene.num_frames - 1}")
-    if not np.isfinite(args.shift_m) or abs(args.shift_m) > 50:
-        raise ValueError("--shift-m must be finite and within +-50 m")
+    args.shift_m = check_shift(args.shift_m, "--shift-m")
     if args.camera_json:
         if args.refine:
             raise ValueError("--refine repairs rig tracks; it does not apply to --camera-json")
@@ -67,9 +66,7 @@ def run(args) -> int:
             raise ValueError("--camera-json renders one image: use --out FILE.png or DIR")
         cam = Camera.from_json(args.camera_json)
         t = args.frame or 0
-        with torch.no_grad():
-            rgb = rasterize(scene.at_frame(t), cam, method="pairs")["rgb"]
-        img = torch.round(rgb.clamp(0, 1) * 255).to(torch.uint8).numpy()
+        img = render_view(scene.at_frame(t), cam).rgb
         dest = out if kind == ".png" else out / f"{t:03d}_camera_json.png"
         save_png(img, dest)
         print(f"wrote {dest}")
@@ -84,12 +81,12 @@ def run(args) -> int:
     else:
         frames = list(range(scene.num_frames)) if args.frame is None else [args.frame]
     if args.refine:
-        from worldsplat.refine import refine_available, refine_track
+        from worldsplat.pipeline.refine import refine_available, refine_track
         if not refine_available():
             raise FileNotFoundError("--refine needs the enhancer weights (models/weights/enhancer_small.safetensors)")
         scenario = None
         if args.scenario:
-            from worldsplat.scenario import resolve_scenario
+            from worldsplat.core.scenario import resolve_scenario
             scenario = resolve_scenario(args.scenario)
         report = lambda stage, f: print(f"refine: {stage} {100 * f:.0f}%", flush=True)  # noqa: E731
         views = refine_track(scene, args.shift_m, cameras, steps=args.steps, scenario=scenario, progress=report)

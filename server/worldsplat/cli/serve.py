@@ -5,14 +5,14 @@ import argparse
 import os
 from pathlib import Path
 
-DEFAULT_CACHE = Path(__file__).resolve().parents[3] / "cache"
+from worldsplat.core.paths import cache_dir
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: loopback only)")
     parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
-    parser.add_argument("--cache-dir", type=Path, default=Path(os.environ.get("WORLDSPLAT_CACHE", DEFAULT_CACHE)),
-                        help=f"scene/video store and job records (default $WORLDSPLAT_CACHE or {DEFAULT_CACHE})")
+    parser.add_argument("--cache-dir", type=Path, default=Path(os.environ.get("WORLDSPLAT_CACHE") or cache_dir()),
+                        help=f"scene/video store and job records (default $WORLDSPLAT_CACHE or {cache_dir()})")
     parser.add_argument("--cache-max-mb", type=int, default=2048, help="cache size cap in MiB (LRU eviction)")
     parser.add_argument("--max-queued", type=int, default=16, help="queued jobs before 429 (default 16)")
     parser.add_argument("--web-dir", type=Path, default=os.environ.get("WORLDSPLAT_WEB_DIR") or None,

@@ -18,7 +18,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from worldsplat.scenario import resolve_scenario
+    from worldsplat.core.scenario import resolve_scenario
     from worldsplat.world import build_world, simulate
     from worldsplat.world.io import write_sim
 

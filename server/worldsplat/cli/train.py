@@ -38,11 +38,19 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .configs import TrainConfig, get_config
-    from .data import ShardDataset
-    from .train import (build_cache, decoder_step_fn, dit_step_fn, fit_latent_stats, load_samples, setup_distributed,
-                        train_loop, vae_step_fn)
-    from .weights import build, load_weights, save_weights
+    from worldsplat.training.data import ShardDataset
+    from worldsplat.training.loop import (
+        build_cache,
+        decoder_step_fn,
+        dit_step_fn,
+        fit_latent_stats,
+        load_samples,
+        setup_distributed,
+        train_loop,
+        vae_step_fn,
+    )
+    from worldsplat_models.configs import TrainConfig, get_config
+    from worldsplat_models.weights import build, load_weights, save_weights
 
     torch.set_num_threads(args.threads)
     rank, world = setup_distributed()

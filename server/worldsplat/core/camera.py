@@ -90,7 +90,7 @@ class Camera:
         }
 
     @staticmethod
-    def from_json(obj: dict | str | Path) -> "Camera":
+    def from_json(obj: dict | str | Path) -> Camera:
         """Parse the shared camera JSON (web/docs/conventions.md); errors name the offending field."""
         if isinstance(obj, (str, Path)):
             obj = json.loads(Path(obj).read_text())
@@ -121,6 +121,11 @@ def translation(x: float, y: float, z: float) -> np.ndarray:
     m = np.eye(4)
     m[:3, 3] = (x, y, z)
     return m
+
+
+def shifted_ego(ego_to_world: np.ndarray, shift_m: float) -> np.ndarray:
+    """Ego poses of the track shifted `shift_m` to the left (ego y): `ego_to_world @ shift(s)` (conventions.md)."""
+    return ego_to_world @ translation(0.0, shift_m, 0.0)
 
 
 def yaw_pose(x: float, y: float, z: float, yaw: float) -> np.ndarray:
@@ -155,7 +160,7 @@ class RigCamera:
                 "cx": self.cx, "cy": self.cy, "camera_to_ego": self.camera_to_ego.tolist()}
 
     @staticmethod
-    def from_json(obj: dict) -> "RigCamera":
+    def from_json(obj: dict) -> RigCamera:
         return RigCamera(obj["name"], int(obj["width"]), int(obj["height"]), float(obj["fx"]), float(obj["fy"]),
                          float(obj["cx"]), float(obj["cy"]), np.asarray(obj["camera_to_ego"], float).reshape(4, 4))
 

@@ -1,17 +1,33 @@
-"""Image metrics shared by training losses, model cards and reports: PSNR, SSIM, depth AbsRel, mask IoU.
+"""Image metrics, one definition each, shared by training losses, model cards, evaluation, bench and reports: PSNR,
+SSIM, depth AbsRel, mask IoU, and `image_metrics` (PSNR + SSIM + PSNR inside holes).
 
-Images are float tensors in [0, 1] with channels last (..., H, W, C) unless noted.
+Images are channels last (..., H, W, C): float in [0, 1] (torch or numpy) or uint8 (scaled by 1/255).
 """
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
 
-def psnr(a: torch.Tensor, b: torch.Tensor, peak: float = 1.0) -> float:
-    mse = float(torch.mean((a.float() - b.float()) ** 2))
+def _unit(x) -> np.ndarray:
+    """An image as float64 numpy in [0, 1] units (uint8 scaled by 1/255)."""
+    if isinstance(x, torch.Tensor):
+        x = x.detach().cpu()
+        return x.numpy().astype(np.float64) / (255.0 if x.dtype == torch.uint8 else 1.0)
+    x = np.asarray(x)
+    return x.astype(np.float64) / (255.0 if x.dtype == np.uint8 else 1.0)
+
+
+def psnr(a, b, mask=None, peak: float = 1.0) -> float:
+    """PSNR in dB of two images (float in [0, 1] or uint8); `mask` (..., H, W) bool selects the pixels scored
+    (an empty selection scores inf, like identical images)."""
+    d = (_unit(a) - _unit(b)) ** 2
+    if mask is not None:
+        d = d[np.asarray(mask.cpu() if isinstance(mask, torch.Tensor) else mask, bool)]
+    mse = float(d.mean()) if d.size else 0.0
     return float("inf") if mse == 0 else 10.0 * math.log10(peak * peak / mse)
 
 
@@ -50,9 +66,11 @@ def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return ssim_map(a4, b4, size=min(11, (min(H, W) // 2) * 2 - 1)).mean()
 
 
-def depth_abs_rel(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor | None = None,
-                  max_depth: float = 80.0) -> float:
-    """mean |pred - gt| / gt over pixels with finite gt below max_depth (sky and the far range excluded)."""
+def depth_abs_rel(pred, gt, valid=None, max_depth: float = 80.0) -> float:
+    """mean |pred - gt| / gt over pixels with finite gt below max_depth (sky and the far range excluded); torch or
+    numpy depths in metres."""
+    pred, gt = torch.as_tensor(np.asarray(pred) if not isinstance(pred, torch.Tensor) else pred), \
+        torch.as_tensor(np.asarray(gt) if not isinstance(gt, torch.Tensor) else gt)
     gt = gt.float()
     ok = torch.isfinite(gt) & (gt > 0) & (gt < max_depth) & torch.isfinite(pred)
     if valid is not None:
@@ -67,3 +85,16 @@ def mask_iou(pred: torch.Tensor, gt: torch.Tensor) -> float:
     p, g = pred.bool(), gt.bool()
     union = int((p | g).sum())
     return 1.0 if union == 0 else int((p & g).sum()) / union
+
+
+def image_metrics(pred, gt, holes=None) -> dict:
+    """pred, gt (N,H,W,3) uint8 -> PSNR (dB, over all pixels), SSIM, and PSNR inside `holes` (N,H,W) bool
+    (with the holes' fraction)."""
+    p = torch.from_numpy(np.asarray(pred)).float() / 255
+    g = torch.from_numpy(np.asarray(gt)).float() / 255
+    out = {"psnr": psnr(p, g), "ssim": float(ssim(p, g))}
+    if holes is not None:
+        h = np.asarray(holes, bool)
+        out["hole_frac"] = float(h.mean())
+        out["psnr_holes"] = psnr(p, g, h) if bool(h.any()) else float("nan")
+    return out

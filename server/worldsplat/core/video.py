@@ -3,11 +3,14 @@ through imageio-ffmpeg's bundled ffmpeg binary (no system ffmpeg needed)."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from worldsplat.core.camera import default_rig
 
 CODECS = {
     ".mp4": ["-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-pix_fmt", "yuv420p", "-movflags", "+faststart"],
@@ -16,7 +19,7 @@ CODECS = {
 
 
 def ffmpeg_exe() -> str:
-    import imageio_ffmpeg
+    import imageio_ffmpeg  # noqa: PLC0415 - ffmpeg, only for videos
     return imageio_ffmpeg.get_ffmpeg_exe()
 
 
@@ -37,7 +40,6 @@ def mosaic(views: np.ndarray, cameras: list[str] | None = None) -> np.ndarray:
     """(T,V,H,W,C) or (V,H,W,C) views named `cameras` (default: the default rig's order) -> the 2x3 layout
     (front row, back row) with missing cameras black and rows without any camera dropped; one view is returned
     as is."""
-    from worldsplat.camera import default_rig
     views = np.asarray(views)
     single = views.ndim == 4
     if single:
@@ -97,7 +99,6 @@ def probe(path: str | Path) -> dict:
     cmd = [ffmpeg_exe(), "-hide_banner", "-i", str(path), "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-"]
     proc = subprocess.run(cmd, capture_output=True, timeout=120)
     err = proc.stderr.decode(errors="replace")
-    import re
     m = re.search(r"Video: (\w+).*?, (\d+)x(\d+)", err)
     if proc.returncode != 0 or not m:
         raise RuntimeError(f"probe failed: {err[-300:]}")

@@ -1,5 +1,2 @@
-"""Evaluation against the world's exact ground truth: novel-track renders, refinement ablation (A-E), metrics.
-See web/docs/refinement.md."""
-from worldsplat.pipeline import JobCancelled as Cancelled  # one cancellation exception for every job stage
-
-__all__ = ["Cancelled"]
+"""Evaluation against the world's exact ground truth: the shipped models (`models`) and the novel-view refinement
+ablation A-E (`nvs`). See web/docs/models.md and web/docs/refinement.md."""

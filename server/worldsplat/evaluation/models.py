@@ -1,6 +1,6 @@
 """Held-out evaluation of the shipped models against the world's exact ground truth (issue 6 report).
 
-    python -m worldsplat_models.evaluate --data runs/data --split test --out runs/eval/models.json
+    python -m worldsplat.evaluation.models --data runs/data --split test --out runs/eval/models.json
 
 - VAE: RGB PSNR, depth AbsRel (decoded depth vs GT, pixels with GT < 80 m), dynamic-mask IoU, per held-out clip.
 - Reconstruct mode: the decoded 4D Gaussians (paper eq. 3) rendered with the reference rasterizer at the rig
@@ -21,52 +21,46 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from PIL import Image
 
-from .data import ShardDataset
-from .inference import (Models, condition_tensors, load_models, reconstruct, sample_latents, to_scene4d, _decode_gaussians)
-from .metrics import depth_abs_rel, mask_iou, psnr, ssim
-from .vae import denormalize_depth
+from worldsplat.core.camera import default_rig
+from worldsplat.core.metrics import depth_abs_rel, mask_iou, psnr, ssim
+from worldsplat.gaussians.raster import rasterize, render_view
+from worldsplat.pipeline.inference import (
+    Models,
+    condition_tensors,
+    decode_gaussians,
+    encode_clip,
+    load_models,
+    reconstruct,
+    sample_latents,
+    to_scene4d,
+)
+from worldsplat.pipeline.scene import oracle_scene
+from worldsplat.training.data import ShardDataset
+from worldsplat.world import Clip
+from worldsplat_models.vae import denormalize_depth
 
 SHIFTS = (0.0, -1.0, 1.0, -2.0, 2.0, -4.0, 4.0)
 
 
-def clip_view(sample: dict, rig) -> object:
-    """A shard sample as the attribute object reconstruct() takes."""
-    from types import SimpleNamespace
-    return SimpleNamespace(rgb=sample["rgb"], depth=sample["depth"], dynamic=sample["dynamic"], rig=rig,
-                           ego_to_world=sample["ego_to_world"].astype(np.float64),
-                           frame_times=np.arange(sample["rgb"].shape[0]) / 4.0, caption=sample["caption"])
+def clip_view(sample: dict, rig) -> Clip:
+    """A shard sample as the simulated clip reconstruct() and oracle_scene() take."""
+    T = sample["rgb"].shape[0]
+    return Clip(rig=rig, ego_to_world=sample["ego_to_world"].astype(np.float64), frame_times=np.arange(T) / 4.0,
+                fps=4.0, rgb=sample["rgb"], depth=sample["depth"], dynamic=sample["dynamic"],
+                semantic=np.zeros(sample["rgb"].shape[:4], np.uint8), caption=str(sample["caption"]))
 
 
 def rig_of(sample: dict):
-    from worldsplat.camera import default_rig
     H, W = sample["rgb"].shape[2:4]
     return default_rig(W, H)
 
 
-def render(g, cam) -> dict:
-    from worldsplat.gaussians import rasterize
-    from .train import cull_to_camera
+def raster_view(g, cam) -> dict:
+    """Float render with the extra (dynamic) channel, for the mask and depth metrics (images: `render_view`)."""
     with torch.no_grad():
-        return rasterize(cull_to_camera(g, cam, margin=0.5), cam)
-
-
-def oracle_scene(sample: dict, rig):
-    """Oracle lifting of every GT frame/view, aggregated like the model: static = non-dynamic pixels of all
-    frames, dynamic[t] = frame t's dynamic pixels."""
-    from worldsplat.gaussians import Gaussians, Scene4D, lift
-    T, V = sample["rgb"].shape[:2]
-    ego = sample["ego_to_world"].astype(np.float64)
-    static, dynamic = [], []
-    for t in range(T):
-        dyn_t = []
-        for v in range(V):
-            g = lift(sample["rgb"][t, v], sample["depth"][t, v], sample["dynamic"][t, v], rig[v].at(ego[t]))
-            m = g.extras[:, 0] > 0.5
-            static.append(g.subset(~m))
-            dyn_t.append(g.subset(m))
-        dynamic.append(Gaussians.cat(dyn_t))
-    return Scene4D(Gaussians.cat(static), dynamic, np.arange(T) / 4.0, rig, ego)
+        return rasterize(g, cam, method="pairs")
 
 
 def _img(x) -> torch.Tensor:
@@ -75,7 +69,6 @@ def _img(x) -> torch.Tensor:
 
 @torch.no_grad()
 def eval_vae(models: Models, ds: ShardDataset, n: int) -> dict:
-    from .inference import encode_clip
     d = models.data
     ps, ab, iou = [], [], []
     for i in range(min(n, len(ds))):
@@ -105,7 +98,7 @@ def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int
         rig = rig_of(base)
         scenes = {"model": to_scene4d(reconstruct(clip_view(base, rig), models))} if model else {}
         if oracle:
-            scenes["oracle"] = oracle_scene(base, rig)
+            scenes["oracle"] = oracle_scene(clip_view(base, rig))
         T, V = base["rgb"].shape[:2]
         for sh in shifts:
             if sh not in by_shift:
@@ -116,10 +109,10 @@ def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int
                 for t in (frames or range(T)):
                     g = sc.at_frame(t)
                     for v in range(V):
-                        out = render(g, sc.camera(t, v, sh))
+                        img = _img(render_view(g, sc.camera(t, v, sh)).rgb)
                         tgt = _img(gt["rgb"][t, v])
-                        pv.append(psnr(out["rgb"].clamp(0, 1), tgt))
-                        sv.append(float(ssim(out["rgb"].clamp(0, 1), tgt)))
+                        pv.append(psnr(img, tgt))
+                        sv.append(float(ssim(img, tgt)))
                 res[sh][f"{name}_psnr"].append(float(np.mean(pv)))
                 res[sh][f"{name}_ssim"].append(float(np.mean(sv)))
     return {str(sh): {k: (float(np.mean(v)) if v else None) for k, v in r.items()} for sh, r in res.items()}
@@ -128,7 +121,7 @@ def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int
 def projected_box_mask(corners_world: np.ndarray, cam) -> np.ndarray:
     """(K,8,3) world corners of moving boxes -> (H,W) bool: union of the filled hulls of their projections
     (corners behind the camera are dropped; boxes with fewer than 3 corners in front are skipped)."""
-    from matplotlib.path import Path as MPath
+    from matplotlib.path import Path as MPath  # noqa: PLC0415 - matplotlib, only for plots
     H, W = cam.height, cam.width
     ys, xs = np.mgrid[0:H, 0:W]
     pix = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], -1)
@@ -174,7 +167,6 @@ def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed
     perfect diffusion model could reach with these weights."""
     if latents not in ("sample", "encode"):
         raise ValueError(f"eval_generate: latents must be 'sample' or 'encode', got {latents!r}")
-    from .inference import encode_clip
     iou_box, iou_gt, absrel, ceiling = [], [], [], []
     for i in range(min(n, len(ds))):
         s = ds[i]
@@ -190,13 +182,13 @@ def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed
             L = sample_latents(models, cond, steps=steps, seed=seed)
         else:
             L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
-        scene = to_scene4d(_decode_gaussians(models, L, rig, ego, np.arange(T) / 4.0, {}))
+        scene = to_scene4d(decode_gaussians(models, L, rig, ego, np.arange(T) / 4.0, {}))
         moving = np.asarray(z["box_moving"], bool)
         for t in (frames or range(T)):
             g = scene.at_frame(t)
             for v in range(V):
                 cam = scene.camera(t, v)
-                out = render(g, cam)
+                out = raster_view(g, cam)
                 pred_dyn = (out["extras"][..., 0] / out["alpha"].clamp_min(1e-3)) > 0.5
                 pred_dyn &= out["alpha"] > 0.5
                 box_mask = projected_box_mask(np.asarray(z["box_corners"][t][moving], np.float64), cam)
@@ -267,9 +259,6 @@ def figure(models: Models, ds: ShardDataset, index: int, out_png: Path, t: int =
            shift_m: float = 2.0, steps: int = 8, seed: int = 0) -> Path:
     """One PNG, a row per source and a column per camera (FRONT_LEFT, FRONT, FRONT_RIGHT by default):
     GT | VAE decode | reconstruct render | GT at +shift | reconstruct render at +shift | generated render."""
-    from PIL import Image
-    from .inference import encode_clip
-    d = models.data
     s = ds[index]
     rig = rig_of(s)
     T, V = s["rgb"].shape[:2]
@@ -278,12 +267,11 @@ def figure(models: Models, ds: ShardDataset, index: int, out_png: Path, t: int =
     rgb = (models.vae.decode_joint(L[t])[0] + 1) / 2
     rows.append([(rgb[v].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8) for v in views])
     scene = to_scene4d(reconstruct(clip_view(s, rig), models))
-    to8 = lambda x: (x.clamp(0, 1).numpy() * 255).round().astype(np.uint8)  # noqa: E731
-    rows.append([to8(render(scene.at_frame(t), scene.camera(t, v))["rgb"]) for v in views])
+    rows.append([render_view(scene.at_frame(t), scene.camera(t, v)).rgb for v in views])
     shifted = {float(x["shift_m"]): x for x in ds.shifted(index)}
     if shift_m in shifted:
         rows.append([shifted[shift_m]["rgb"][t, v] for v in views])
-        rows.append([to8(render(scene.at_frame(t), scene.camera(t, v, shift_m))["rgb"]) for v in views])
+        rows.append([render_view(scene.at_frame(t), scene.camera(t, v, shift_m)).rgb for v in views])
     if "generate" in models.modes:
         z = ds.load(index)
         ego = s["ego_to_world"].astype(np.float64)
@@ -292,9 +280,9 @@ def figure(models: Models, ds: ShardDataset, index: int, out_png: Path, t: int =
         cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
                                           "ego_traj": s["traj"]}, ego)
         Lg = sample_latents(models, cond, steps=steps, seed=seed)
-        gscene = to_scene4d(_decode_gaussians(models, Lg, rig, ego, np.arange(T) / 4.0, {}))
+        gscene = to_scene4d(decode_gaussians(models, Lg, rig, ego, np.arange(T) / 4.0, {}))
         rows.append([(s["sketch"][t, v] * 255).astype(np.uint8) for v in views])
-        rows.append([to8(render(gscene.at_frame(t), gscene.camera(t, v))["rgb"]) for v in views])
+        rows.append([render_view(gscene.at_frame(t), gscene.camera(t, v)).rgb for v in views])
     grid = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(grid).resize((grid.shape[1] * 2, grid.shape[0] * 2), Image.NEAREST).save(out_png)

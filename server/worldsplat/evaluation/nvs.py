@@ -25,7 +25,20 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
+from tqdm import tqdm
+
+from worldsplat.core.metrics import depth_abs_rel, image_metrics
+from worldsplat.core.paths import runs_dir
+from worldsplat.core.scenario import default_scenario
+from worldsplat.pipeline.inference import load_models, reconstruct, to_scene4d
+from worldsplat.pipeline.refine import refine_track
+from worldsplat.pipeline.render import render_scene_track
+from worldsplat.pipeline.scene import generate_scene, oracle_scene
+from worldsplat.training.pairs import load_sample, make_sample, sample_path, sample_scenario, save_sample, split_seeds
+from worldsplat.world import build_world, simulate
+from worldsplat_models import conditions as caption_encoder
+from worldsplat_models.enhancer import decode_latents, encode_images, enhance, load_enhancer
+from worldsplat_models.weights import weights_dir as default_weights_dir
 
 VERSIONS = ("A", "B", "C", "D", "E", "E+holes", "E@0.5", "oracle", "VAE")
 # The same D/E with the learned Gaussian decoder's 4D scene (reconstruct mode) in place of the oracle lifting:
@@ -47,32 +60,13 @@ DESCRIPTIONS = {
 }
 
 
-def image_metrics(pred: np.ndarray, gt: np.ndarray, holes: np.ndarray | None = None) -> dict:
-    """pred, gt (N,H,W,3) uint8 -> PSNR (dB, over all pixels), SSIM, and PSNR inside `holes` (N,H,W) bool."""
-    from worldsplat_models.metrics import psnr, ssim
-    p = torch.from_numpy(np.asarray(pred)).float() / 255
-    g = torch.from_numpy(np.asarray(gt)).float() / 255
-    out = {"psnr": psnr(p, g), "ssim": float(ssim(p, g))}
-    if holes is not None:
-        h = torch.from_numpy(np.asarray(holes, bool))
-        out["hole_frac"] = float(h.float().mean())
-        out["psnr_holes"] = psnr(p[h], g[h]) if bool(h.any()) else float("nan")
-    return out
-
-
-def depth_abs_rel(pred: np.ndarray, gt: np.ndarray) -> float:
-    from worldsplat_models.metrics import depth_abs_rel as absrel
-    return absrel(torch.from_numpy(np.asarray(pred, np.float32)), torch.from_numpy(np.asarray(gt, np.float32)))
-
-
-def load_models(weights_dir: Path):
+def load_enhancers(weights_dir: Path):
     """{"mixed": (enhancer, vae), "degraded": (enhancer, vae)} from enhancer_small[_nomix].safetensors."""
-    from worldsplat_models.enhancer import load_enhancer
     out = {}
     for key, name in (("mixed", "enhancer_small.safetensors"), ("degraded", "enhancer_small_nomix.safetensors")):
         path = Path(weights_dir) / name
         if not path.exists():
-            raise FileNotFoundError(f"{path} not found: train it with `python -m worldsplat_models.train_enhancer "
+            raise FileNotFoundError(f"{path} not found: train it with `worldsplat train-enhancer "
                                     f"--size small{' --no-mix' if key == 'degraded' else ''} --out {weights_dir}`")
         out[key] = load_enhancer(path)
     return out
@@ -80,7 +74,6 @@ def load_models(weights_dir: Path):
 
 def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int = 0) -> dict:
     """All versions' frames (T,V,H,W,3) uint8 for one novel-view sample with render_4d and render_3d."""
-    from worldsplat_models.enhancer import decode_latents, encode_images, enhance
     mixed, degraded = models["mixed"], models["degraded"]
     kw = dict(sketch=sample["sketch"], boxes=sample, traj=sample["traj"], caption_emb=caption_emb, steps=steps,
               seed=seed)
@@ -114,9 +107,6 @@ def prepare_samples(cache: Path, split: str, seed: int, shifts, decoder_models=N
     """The cached evaluation samples (4D and 3D renders) of one held-out clip at each shift, made when missing.
     With `decoder_models` (inference.Models with a Gaussian decoder) each sample also gets render_dec /
     alpha_dec / depth_dec: the decoder's reconstruction of the original track rendered on the shifted one."""
-    from worldsplat.evaluation.novel_track import oracle_scene, render_scene_track
-    from worldsplat.evaluation.pairs import load_sample, make_sample, sample_path, sample_scenario, save_sample
-    from worldsplat.world import build_world, simulate
     paths = [sample_path(cache, split, seed, s, "_eval") for s in shifts]
     world = source = scene = dec_scene = None
     for s, path in zip(shifts, paths):
@@ -132,7 +122,6 @@ def prepare_samples(cache: Path, split: str, seed: int, shifts, decoder_models=N
                 sample = make_sample(world, s, ("4d", "3d"), source=source, scene=scene)
             if need_dec:
                 if dec_scene is None:
-                    from worldsplat_models.inference import reconstruct, to_scene4d
                     dec_scene = to_scene4d(reconstruct(source, decoder_models))
                 r = render_scene_track(dec_scene, s)
                 sample.update(render_dec=r.rgb, alpha_dec=r.alpha.astype(np.float16), depth_dec=r.depth.astype(np.float16))
@@ -144,14 +133,10 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
              weights_dir: Path | None = None, cache: Path | None = None, out: Path | None = None,
              progress: bool = True, keep_frames: bool = False) -> dict:
     """Scores of every version per shift, averaged over `count` held-out clips of `split`."""
-    from worldsplat.evaluation.pairs import load_sample, split_seeds
-    from worldsplat_models.conditions import encode_captions
-    repo = Path(__file__).resolve().parents[3]
-    weights_dir = Path(weights_dir or repo / "models" / "weights")
-    cache = Path(cache or repo / "runs" / "enhancer_pairs")
-    models = load_models(weights_dir)
-    from worldsplat_models.inference import load_models as load_generators
-    generators = load_generators(weights_dir)
+    weights_dir = Path(weights_dir or default_weights_dir())
+    cache = Path(cache or runs_dir() / "enhancer_pairs")
+    models = load_enhancers(weights_dir)
+    generators = load_models(weights_dir)
     decoder_models = generators if "reconstruct" in generators.modes else None
     versions = VERSIONS + (DECODER_VERSIONS if decoder_models is not None else ())
     seeds = split_seeds(split, count)
@@ -163,12 +148,11 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
     it = [(seed, s) for seed in seeds for s in shifts]
     bar = None
     if progress:
-        from tqdm import tqdm
         bar = tqdm(total=len(it), desc=f"eval nvs {split}", mininterval=5)
     for seed in seeds:
         for s, path in zip(shifts, prepare_samples(cache, split, seed, shifts, decoder_models)):
             sample = load_sample(path)
-            cap = encode_captions([sample["caption"]])[0]
+            cap = caption_encoder.encode_captions([sample["caption"]])[0]
             frames = run_versions(models, sample, cap, steps, seed=seed)
             T, V, H, W, _ = sample["target"].shape
             gt = sample["target"].reshape(-1, H, W, 3)
@@ -227,7 +211,7 @@ def markdown_table(result: dict) -> str:
     rows.append("")
     rows.append("Depth AbsRel of the 4D render vs exact depth (covered pixels, < 80 m): " +
                 ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts) +
-                f". Hole fraction of the 4D render: " +
+                ". Hole fraction of the 4D render: " +
                 ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts) + ".")
     if "D-dec" in result["table"]:
         d = result["table"]["D-dec"]
@@ -239,9 +223,9 @@ def markdown_table(result: dict) -> str:
 
 
 def plot(result: dict, path: Path) -> Path:
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - matplotlib, only for plots
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - matplotlib, only for plots
     shifts = result["shifts"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for v in result["versions"]:
@@ -278,11 +262,6 @@ def side_by_side(scenario=None, shift_m: float = 4.0, cameras: tuple[str, ...] =
     `shift_m` ->
     one frame of `cameras` as rows of [raw render | refined | exact ground truth], upscaled by `scale`
     (nearest). Returns the image (H,W,3) uint8 and per-row PSNRs."""
-    from worldsplat.evaluation.novel_track import render_scene_track
-    from worldsplat.pipeline import generate_scene
-    from worldsplat.refine import refine_track
-    from worldsplat.scenario import default_scenario
-    from worldsplat.world import build_world, simulate
     scenario = scenario or default_scenario()
     world = build_world(scenario)
     scene = generate_scene(scenario, mode="oracle")

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from worldsplat.camera import RigCamera
+from worldsplat.core.camera import RigCamera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.lift import SKY_CHANNEL
 from worldsplat.gaussians.types import Gaussians, Scene4D

@@ -11,34 +11,25 @@ from __future__ import annotations
 
 import argparse
 import json
+import struct
 import sys
 import time
 
 import numpy as np
-import torch
 
+from worldsplat.core.metrics import psnr
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians import wsplat
 from worldsplat.gaussians.aggregate import Economy, aggregate_4d
 from worldsplat.gaussians.lift import lift
-from worldsplat.gaussians.raster import rasterize
+from worldsplat.gaussians.raster import render_view
 from worldsplat.gaussians.types import Scene4D
-
-
-def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
-    d = (a.astype(np.float64) - b.astype(np.float64)) ** 2 / 255.0 ** 2
-    if mask is not None:
-        d = d[mask]
-    mse = float(d.mean()) if d.size else 0.0
-    return float("inf") if mse == 0 else 10 * np.log10(1 / mse)
+from worldsplat.world import build_world, simulate
 
 
 def render_frame_views(scene: Scene4D, t: int, shift_m: float, views: list[int]) -> list[np.ndarray]:
     g = scene.at_frame(t)
-    out = []
-    with torch.no_grad():
-        for v in views:
-            rgb = rasterize(g, scene.camera(t, v, shift_m), method="pairs")["rgb"]
-            out.append(torch.round(rgb.clamp(0, 1) * 255).to(torch.uint8).numpy())
-    return out
+    return [render_view(g, scene.camera(t, v, shift_m)).rgb for v in views]
 
 
 def lift_clip(clip, **kw) -> list[list]:
@@ -48,8 +39,6 @@ def lift_clip(clip, **kw) -> list[list]:
 
 
 def measure(preset: str, shifts: list[float], frames: list[int] | None, economy: Economy, log=print) -> dict:
-    from worldsplat.scenario import load_preset
-    from worldsplat.world import build_world, simulate
     world = build_world(load_preset(preset))
     clip = simulate(world)
     T, V, H, W = clip.depth.shape
@@ -61,7 +50,6 @@ def measure(preset: str, shifts: list[float], frames: list[int] | None, economy:
                         image_size=(H, W))
     log(f"aggregate: {time.time() - t0:.1f}s  naive union {nst.static_union}+{nst.dynamic_union}, "
         f"kept {st.kept} ({100 * st.kept / st.naive:.1f}% of V*T*H*W={st.naive})")
-    from worldsplat.gaussians import wsplat
     data = wsplat.encode(eco)
     quant = wsplat.decode(data)
     size = wsplat_sizes(data, quant)
@@ -105,7 +93,6 @@ def measure(preset: str, shifts: list[float], frames: list[int] | None, economy:
 
 def wsplat_sizes(data: bytes, scene: Scene4D) -> dict:
     """Bytes per Gaussian of the STAT and DYNA payloads (block headers included, chunk framing excluded)."""
-    import struct
     pos, stat, dyna = 12, 0, 0
     while pos < len(data):
         tag, (length,) = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)

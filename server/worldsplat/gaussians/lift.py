@@ -11,9 +11,8 @@ pixels at its depth (`scale = FOOTPRINT * z / f`), so neighbouring splats overla
 from __future__ import annotations
 
 import numpy as np
-import torch
 
-from worldsplat.camera import Camera
+from worldsplat.core.camera import Camera
 from worldsplat.gaussians.types import Gaussians
 
 FOOTPRINT = 0.7          # px: splat std relative to the pixel pitch (tuned on the presets, see gaussians.md)

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from worldsplat.gaussians.types import Gaussians
+from worldsplat.core.camera import default_rig
+from worldsplat.core.io import atomic_write_bytes
+from worldsplat.gaussians.types import Gaussians, Scene4D
 
 SH_C0 = 0.28209479177387814
 _TYPES = {"float": "f4", "float32": "f4", "double": "f8", "float64": "f8", "uchar": "u1", "uint8": "u1",
@@ -22,7 +24,6 @@ MAX_HEADER = 64 * 1024
 
 
 def write_ply(g: Gaussians, path: str | Path) -> Path:
-    from worldsplat.gaussians.wsplat import atomic_write_bytes
     a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
     n = len(a["means"])
     o = np.clip(a["opacities"], 1e-6, 1 - 1e-6)
@@ -92,3 +93,11 @@ def read_ply(path: str | Path) -> Gaussians:
         scales = np.exp(np.stack([f(f"scale_{i}") for i in range(3)], 1))
     quats = np.stack([f(f"rot_{i}") for i in range(4)], 1)
     return Gaussians.from_numpy(means, quats, scales, opac, colors)
+
+
+def scene_from_ply(path: str | Path, fps: float = 10.0) -> Scene4D:
+    """A PLY as a one-frame scene: the Gaussians in the file's order (the input order that breaks depth ties,
+    web/docs/splatting-math.md), the default rig at the identity ego pose (a PLY has no frames, rig or trajectory)."""
+    path = Path(path)
+    return Scene4D(read_ply(path), [Gaussians.empty()], np.zeros(1), default_rig(200, 112), np.eye(4)[None],
+                   {"mode": "import", "caption": f"imported from {path.name}", "fps": fps})

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from worldsplat.camera import Camera
+from worldsplat.core.camera import Camera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.types import Gaussians
 

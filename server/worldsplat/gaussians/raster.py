@@ -7,9 +7,12 @@ Gaussians processed in chunks of CHUNK so memory is bounded by TILE_SIZE^2 * CHU
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
 import torch
 
-from worldsplat.camera import Camera
+from worldsplat.core.camera import Camera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.project import Projected, depth_order, project, tile_intersect
 from worldsplat.gaussians.types import Gaussians
@@ -199,8 +202,24 @@ def _rasterize(g: Gaussians, camera: Camera, *, method: str, tile_size: int, chu
             "visible": len(proj)}
 
 
-def render_uint8(g: Gaussians, camera: Camera) -> "np.ndarray":  # noqa: F821
-    """Inference helper: (H,W,3) uint8, colour clamped to [0,1], round(255 c) (the shared-vector convention)."""
+@dataclass
+class View:
+    """One rendered image: rgb (H,W,3) uint8 = round(255 clamp(c, 0, 1)) (the shared-vector convention), alpha
+    (H,W) float32 accumulated opacity (1 - alpha marks the holes) and depth (H,W) float32 expected camera z
+    normalised by alpha, inf where alpha < 0.5."""
+
+    rgb: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+
+
+def render_view(g: Gaussians, camera: Camera) -> View:
+    """The one way to render Gaussians to an 8-bit image (tracks, videos, refinement, evaluation, bench): the
+    reference rasterizer's sparse "pairs" path, no gradient, no culling beyond the spec's own (exact) tests."""
     with torch.no_grad():
-        rgb = rasterize(g, camera)["rgb"]
-    return torch.round(rgb.clamp(0, 1) * 255).to(torch.uint8).cpu().numpy()
+        out = rasterize(g, camera, method="pairs")
+    rgb = torch.round(out["rgb"].clamp(0, 1) * 255).to(torch.uint8).cpu().numpy()
+    alpha = out["alpha"].float().cpu().numpy().astype(np.float32)
+    depth = (out["depth"] / out["alpha"].clamp_min(1e-6)).float().cpu().numpy()
+    depth = np.where(alpha >= 0.5, depth, np.inf).astype(np.float32)
+    return View(rgb, alpha, depth)

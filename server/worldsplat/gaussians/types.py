@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from worldsplat.camera import Camera, RigCamera
+from worldsplat.core.camera import Camera, RigCamera
 
 _FIELDS = ("means", "quats", "scales", "opacities", "colors")
 
@@ -40,12 +40,12 @@ class Gaussians:
         return int(self.means.shape[0])
 
     @staticmethod
-    def empty(num_extras: int = 0, dtype=torch.float32) -> "Gaussians":
+    def empty(num_extras: int = 0, dtype=torch.float32) -> Gaussians:
         z = lambda *s: torch.zeros(*s, dtype=dtype)  # noqa: E731
         return Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, 3), z(0, num_extras) if num_extras else None)
 
     @staticmethod
-    def from_numpy(means, quats, scales, opacities, colors, extras=None, dtype=torch.float32) -> "Gaussians":
+    def from_numpy(means, quats, scales, opacities, colors, extras=None, dtype=torch.float32) -> Gaussians:
         t = lambda a: torch.as_tensor(np.array(a), dtype=dtype)  # noqa: E731 (copy: inputs may be read-only)
         return Gaussians(t(means).reshape(-1, 3), t(quats).reshape(-1, 4), t(scales).reshape(-1, 3),
                          t(opacities).reshape(-1), t(colors).reshape(-1, 3),
@@ -57,16 +57,16 @@ class Gaussians:
             out["extras"] = self.extras.detach().cpu().numpy()
         return out
 
-    def map(self, fn) -> "Gaussians":
+    def map(self, fn) -> Gaussians:
         return Gaussians(*(fn(getattr(self, k)) for k in _FIELDS), None if self.extras is None else fn(self.extras))
 
-    def to(self, *args, **kwargs) -> "Gaussians":
+    def to(self, *args, **kwargs) -> Gaussians:
         return self.map(lambda t: t.to(*args, **kwargs))
 
-    def detach(self) -> "Gaussians":
+    def detach(self) -> Gaussians:
         return self.map(lambda t: t.detach())
 
-    def subset(self, index) -> "Gaussians":
+    def subset(self, index) -> Gaussians:
         """Rows selected by a bool mask or an index tensor/array."""
         if isinstance(index, np.ndarray):
             index = torch.from_numpy(index)
@@ -74,7 +74,7 @@ class Gaussians:
         return self.map(lambda t: t[index])
 
     @staticmethod
-    def cat(parts: list["Gaussians"]) -> "Gaussians":
+    def cat(parts: list[Gaussians]) -> Gaussians:
         parts = [p for p in parts if p is not None]
         if not parts:
             return Gaussians.empty()

@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import struct
-import tempfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,8 +17,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from worldsplat.camera import RigCamera
+from worldsplat.core.camera import RigCamera
+from worldsplat.core.io import atomic_write_bytes
 from worldsplat.gaussians import constants as C
+from worldsplat.gaussians.project import quat_to_rotmat
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
 MAGIC = b"WSPLAT\r\n"
@@ -222,13 +222,12 @@ def canonical_rotation(q: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray, n
     out = cand[np.arange(len(q)), k]
     out *= np.where(out[:, :1] < 0, -1.0, 1.0)
     # R(q g) = R(q) R(g); S'^2 = R(g)^T S^2 R(g): axis j of the new frame is old axis argmax_i |R(g)[i, j]|.
-    from worldsplat.gaussians.project import quat_to_rotmat
     rg = quat_to_rotmat(torch.as_tensor(CUBE_ROTATIONS)).numpy()          # (24,3,3)
     perm = np.argmax(np.abs(rg), axis=1)                                  # (24,3): new axis j <- old axis
     return out, np.take_along_axis(scales, perm[k], axis=1)
 
 
-def _sanitized_numpy(g: Gaussians, layout: "Layout | None" = None) -> dict[str, np.ndarray]:
+def _sanitized_numpy(g: Gaussians, layout: Layout | None = None) -> dict[str, np.ndarray]:
     """Drop rows with non-finite fields or opacity < ALPHA_MIN (the renderer drops them too); clamp the rest;
     canonical rotations for a layout with qx qy qz."""
     a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
@@ -378,22 +377,6 @@ def write(scene: Scene4D, path: str | Path, **kwargs) -> int:
     data = encode(scene, **kwargs)
     atomic_write_bytes(Path(path), data)
     return len(data)
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; artifacts are served and shared
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 # ---------------------------------------------------------------------------------------------- decoder

@@ -1,16 +1,15 @@
-"""Inference API used by `worldsplat.pipeline` (modes "reconstruct" and "generate").
+"""Inference glue of the networks, used by `worldsplat.pipeline.scene` (modes "reconstruct" and "generate").
 
 Contract
 --------
-    models = load_models(weights_dir=None)           # models/weights by default; cached per directory
+    models = load_models(weights_dir=None)           # worldsplat_models.weights.weights_dir() by default; cached
     available_modes(weights_dir=None) -> ["reconstruct", "generate"] subset whose weights exist
     dec = reconstruct(clip, models=None)              # clip: worldsplat.world.simulate(...) output (rgb, depth,
                                                       #   dynamic, rig, ego_to_world, frame_times, caption)
     dec = generate(conditions, steps=8, seed=0, models=None, rig=None, frame_times=None, progress=None)
                                                       # conditions: world.conditions() (sketch, boxes, ego_traj,
                                                       #   caption); rig: list[RigCamera] (default: default_rig)
-    scene = to_scene4d(dec, meta=None)                # paper eq. 3: static = every frame's Gaussians with
-                                                      #   p_dynamic < 0.5, dynamic[t] = frame t's with p >= 0.5
+    scene = to_scene4d(dec, meta=None)                # paper eq. 3 exactly as served (gaussians.aggregate_4d)
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
 
@@ -23,20 +22,26 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from . import rflow
-from .configs import DataConfig, get_config
-from .data import pack_boxes, sketch_rgb
-from .dit import dropped
-from .vae import normalize_depth
-from .weights import DEFAULT_DIR, load_weights
+from worldsplat.core.camera import CAMERA_NAMES, default_rig
+from worldsplat.gaussians import Gaussians, Scene4D
+from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_4d
+from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
+from worldsplat.pipeline.onnx import use_onnx
+from worldsplat_models import rflow
+from worldsplat_models.conditions import encode_captions
+from worldsplat_models.configs import DataConfig, get_config
+from worldsplat_models.dit import dropped
+from worldsplat_models.vae import normalize_depth
+from worldsplat_models.weights import load_weights
+from worldsplat_models.weights import weights_dir as default_weights_dir
 
 SIZE = "small"
 
@@ -71,7 +76,6 @@ class DecodedFrames:
     meta: dict = field(default_factory=dict)
 
     def frame(self, t: int):
-        from worldsplat.gaussians import Gaussians
         return Gaussians.cat(self.gaussians[t])
 
 
@@ -79,7 +83,7 @@ _CACHE: dict[str, Models] = {}
 
 
 def weight_paths(weights_dir: str | Path | None = None) -> dict[str, Path]:
-    d = Path(weights_dir) if weights_dir is not None else DEFAULT_DIR
+    d = Path(weights_dir) if weights_dir is not None else default_weights_dir()
     return {k: d / f"{k}_{SIZE}.safetensors" for k in ("vae", "decoder", "dit")}
 
 
@@ -114,7 +118,6 @@ def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -
     m = Models(loaded["vae"], loaded["decoder"], loaded["dit"], get_config(SIZE).data, h.hexdigest()[:12],
                paths["vae"].parent)
     if backend == "onnx":
-        from .onnx_export import use_onnx
         use_onnx(m, paths["vae"].parent / "onnx")
     _CACHE[key] = m
     return m
@@ -142,20 +145,6 @@ def _resize(x: torch.Tensor, hw: tuple[int, int], mode: str) -> torch.Tensor:
                          align_corners=False)
 
 
-def _cameras(rig, ego_to_world: np.ndarray, native_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """intrinsics (T,V,4) rescaled to the native image size, cam_to_world (T,V,4,4)."""
-    H, W = native_hw
-    T = len(ego_to_world)
-    intr = np.zeros((T, len(rig), 4), np.float32)
-    c2w = np.zeros((T, len(rig), 4, 4), np.float32)
-    for v, rc in enumerate(rig):
-        sx, sy = W / rc.width, H / rc.height
-        intr[:, v] = (rc.fx * sx, rc.fy * sy, rc.cx * sx, rc.cy * sy)
-        for t in range(T):
-            c2w[t, v] = np.asarray(ego_to_world[t]) @ rc.camera_to_ego
-    return torch.from_numpy(intr), torch.from_numpy(c2w)
-
-
 def _windows(T: int, F_: int) -> list[list[int]]:
     """Consecutive windows of F_ frame indices covering 0..T-1; the last is padded with its final frame."""
     out = []
@@ -166,19 +155,17 @@ def _windows(T: int, F_: int) -> list[list[int]]:
 
 
 def _check_rig(rig, V: int) -> None:
-    from worldsplat.camera import CAMERA_NAMES
     names = tuple(rc.name for rc in rig)
     if len(rig) != V or names != CAMERA_NAMES[:V]:
         raise ValueError(f"the models were trained on the default {V}-camera rig {CAMERA_NAMES}; got {names}")
 
 
-def _decode_gaussians(models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times,
+def decode_gaussians(models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times,
                       meta: dict) -> DecodedFrames:
     """L (T,V,C,h,w) normalised -> DecodedFrames (window by window)."""
-    from worldsplat.gaussians import Gaussians
     d = models.data
     T = L.shape[0]
-    intr, c2w = _cameras(rig, ego_to_world, (d.height, d.width))
+    intr, c2w = rig_tensors(rig, ego_to_world, (d.height, d.width))
     gs, logits = [[None] * len(rig) for _ in range(T)], [[None] * len(rig) for _ in range(T)]
     for win in _windows(T, d.frames):
         out = models.decoder(L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
@@ -223,7 +210,7 @@ def reconstruct(clip, models: Models | None = None) -> DecodedFrames:
     t0 = time.perf_counter()
     L = encode_clip(models, clip.rgb, clip.depth, clip.dynamic)
     t1 = time.perf_counter()
-    dec = _decode_gaussians(models, L, clip.rig, clip.ego_to_world, clip.frame_times,
+    dec = decode_gaussians(models, L, clip.rig, clip.ego_to_world, clip.frame_times,
                             {"mode": "reconstruct", "model_version": models.version,
                              "caption": getattr(clip, "caption", "")})
     dec.meta["timing_s"] = {"vae_encode": t1 - t0, "gs_decoder": time.perf_counter() - t1}
@@ -249,7 +236,6 @@ def condition_tensors(models: Models, conditions: dict, ego_to_world: np.ndarray
     ctl = (vae.encode(sk) - vae.latent_mean[:c].view(1, -1, 1, 1)) / vae.latent_std[:c].view(1, -1, 1, 1)
     corners, cls, moving, mask = pack_boxes(conditions["boxes"], ego_to_world, d.max_boxes)
     if caption_emb is None:
-        from .conditions import encode_captions
         caption_emb = encode_captions([str(conditions["caption"])])[0]
     traj = np.asarray(conditions.get("ego_traj", ego_to_world), np.float32)
     return {"box_corners": torch.from_numpy(corners), "box_cls": torch.from_numpy(cls),
@@ -299,7 +285,6 @@ def generate(conditions: dict, steps: int = 8, seed: int = 0, models: Models | N
     if ego is None:
         raise ValueError("generate: conditions lack 'ego_traj'")
     if rig is None:
-        from worldsplat.camera import default_rig
         h, w = np.asarray(conditions["sketch"]).shape[2:4]
         rig = default_rig(w, h)
     _check_rig(rig, d.views)
@@ -309,7 +294,7 @@ def generate(conditions: dict, steps: int = 8, seed: int = 0, models: Models | N
     L = sample_latents(models, cond, steps, seed, cfg_scale, progress=progress)
     t2 = time.perf_counter()
     ft = np.arange(T, dtype=np.float64) if frame_times is None else frame_times
-    dec = _decode_gaussians(models, L, rig, ego, ft, {"mode": "generate", "steps": steps, "seed": seed,
+    dec = decode_gaussians(models, L, rig, ego, ft, {"mode": "generate", "steps": steps, "seed": seed,
                                                      "model_version": models.version,
                                                      "caption": str(conditions["caption"])})
     # stage times for the benchmark's efficiency table (conditions incl. caption encoding, diffusion, decoder)
@@ -317,17 +302,16 @@ def generate(conditions: dict, steps: int = 8, seed: int = 0, models: Models | N
     return dec
 
 
-def to_scene4d(dec: DecodedFrames, threshold: float = 0.5, min_opacity: float = 1.0 / 255, meta: dict | None = None):
-    """Paper eq. 3 with hard masks: static = union over frames of Gaussians with p_dynamic < threshold,
-    dynamic[t] = frame t's Gaussians with p_dynamic >= threshold. Near-transparent Gaussians are dropped."""
-    from worldsplat.gaussians import Gaussians, Scene4D
-    static, dynamic = [], []
-    for t in range(len(dec.gaussians)):
-        g = Gaussians.cat(dec.gaussians[t])
-        p = g.extras[:, 0]
-        vis = g.opacities >= min_opacity
-        static.append(g.subset(vis & (p < threshold)))
-        dynamic.append(g.subset(vis & (p >= threshold)))
-    m = dict(dec.meta)
-    m.update(meta or {})
-    return Scene4D(Gaussians.cat(static), dynamic, dec.frame_times, dec.rig, dec.ego_to_world, m)
+def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tuple[Scene4D, AggregateStats]:
+    """Paper eq. 3 on decoded Gaussians, exactly as the playground serves them (`aggregate_4d`: static = every
+    frame's Gaussians with p_dynamic <= 0.5, dynamic[t] = frame t's others, then the economy)."""
+    H, W = dec.rig[0].height, dec.rig[0].width
+    return aggregate_4d(dec.gaussians, dec.frame_times, dec.rig, dec.ego_to_world, economy=economy,
+                        meta=dict(dec.meta), image_size=(H, W))
+
+
+def to_scene4d(dec: DecodedFrames, meta: dict | None = None, economy: Economy | None = None) -> Scene4D:
+    """The served scene of decoded frames (`aggregate_decoded`), with `meta` merged into its meta."""
+    scene, stats = aggregate_decoded(dec, economy)
+    scene.meta.update({"aggregate": stats.as_dict(), **(meta or {})})
+    return scene

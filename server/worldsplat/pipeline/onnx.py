@@ -17,6 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from worldsplat.core.camera import default_rig
+from worldsplat.pipeline.conditions import rig_tensors
+
 PARITY_ATOL = 1e-3
 GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder")
 
@@ -87,12 +90,10 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
                 "control": torch.randn(1, T, V, c.control_channels, h, w, generator=g),
                 "drop": torch.tensor([False])}
     if kind == "gs_decoder":
-        from worldsplat.camera import default_rig
-        from .inference import _cameras
         rig = default_rig(W, H)[:V]
         ego = np.stack([np.eye(4)] * T)
         ego[:, 0, 3] = np.arange(T) * 2.0
-        intr, c2w = _cameras(rig, ego, (H, W))
+        intr, c2w = rig_tensors(rig, ego, (H, W))
         return {"L": torch.randn(1, T, V, models.decoder.cfg.in_channels, h, w, generator=g),
                 "intrinsics": intr[None], "cam_to_world": c2w[None]}
     raise ValueError(f"unknown graph {kind!r}; expected one of {', '.join(GRAPHS)}")
@@ -135,7 +136,7 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
 
 
 def session(path: str | Path, threads: int = 2):
-    import onnxruntime as ort
+    import onnxruntime as ort  # noqa: PLC0415 - only for the onnx backend
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1

@@ -2,7 +2,7 @@
 conditions (S', B', T') for the shifted rig from the world, VAE-encode the render, denoise with the Enhanced Diffusion
 Model (worldsplat_models.enhancer), VAE-decode.
 
-    from worldsplat.refine import refine_available, refine_track
+    from worldsplat.pipeline.refine import refine_available, refine_track
     frames = refine_track(scene, shift_m=4.0, cameras=["CAM_FRONT"], steps=8, progress=cb, cancelled=fn)
 
 The scenario that produced the scene is needed for the conditions: it is read from `scene.meta["scenario"]` (a dict
@@ -12,13 +12,26 @@ See web/docs/refinement.md.
 from __future__ import annotations
 
 import json
+import tempfile
 import time
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-WEIGHTS = Path(__file__).resolve().parents[2] / "models" / "weights" / "enhancer_small.safetensors"
+from worldsplat.core.errors import Cancelled
+from worldsplat.core.limits import check_shift
+from worldsplat.core.scenario import Scenario, default_scenario
+from worldsplat.core.video import write_video
+from worldsplat.pipeline.conditions import conditions_for_track
+from worldsplat.pipeline.render import render_scene_track
+from worldsplat.pipeline.scene import generate_scene
+from worldsplat.world import build_world
+from worldsplat_models import conditions as caption_encoder
+from worldsplat_models.enhancer import enhance, finish, load_enhancer
+from worldsplat_models.weights import weights_dir
+
+WEIGHTS = weights_dir() / "enhancer_small.safetensors"
 DEFAULT_BLEND = "holes"
 
 
@@ -30,13 +43,11 @@ def refine_available(weights: Path | None = None) -> bool:
 @lru_cache(maxsize=2)
 def load_refiner(weights: str | None = None):
     """(enhancer, vae) in eval mode, loaded once per process."""
-    from worldsplat_models.enhancer import load_enhancer
     return load_enhancer(weights or WEIGHTS)
 
 
 def scenario_of(scene, scenario=None):
     """The Scenario behind a scene: the argument, else scene.meta["scenario"]; a clear error otherwise."""
-    from worldsplat.scenario import Scenario
     if scenario is not None:
         return scenario if isinstance(scenario, Scenario) else Scenario.parse(scenario)
     s = scene.meta.get("scenario")
@@ -57,7 +68,6 @@ def _check_rig(scene, world) -> None:
 
 def track_conditions(world, shift_m: float, max_boxes: int) -> dict:
     """Reprojected conditions of the shifted track (S', B', T', caption) from the world's layout."""
-    from worldsplat.evaluation.pairs import conditions_for_track
     return conditions_for_track(world, shift_m, max_boxes)
 
 
@@ -66,16 +76,10 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
                  weights: Path | None = None, timings: dict | None = None, render=None) -> np.ndarray:
     """Refined frames (T,V',H,W,3) uint8 of the scene seen from the track shifted `shift_m` m left, for `cameras`
     (names, rig order; None = all). progress(stage, fraction) with stages "render", "conditions", "refine";
-    cancelled() is checked between stages (raises worldsplat.evaluation.Cancelled). blend "holes" (default) keeps the
+    cancelled() is checked between stages (raises worldsplat.core.errors.Cancelled). blend "holes" (default) keeps the
     render where it covers the pixel and fills its holes with the model's output; "none" returns the model's output
     everywhere (the paper's form). `render` (a TrackRender of the full rig) skips the render stage."""
-    from worldsplat.evaluation import Cancelled
-    from worldsplat.evaluation.novel_track import render_scene_track
-    from worldsplat.world import build_world
-    from worldsplat_models.conditions import encode_captions
-    from worldsplat_models.enhancer import enhance, finish
-    if not np.isfinite(shift_m) or abs(shift_m) > 50:
-        raise ValueError(f"shift_m must be finite and within +-50 m, got {shift_m}")
+    shift_m = check_shift(shift_m)
     if not isinstance(steps, int) or not 1 <= steps <= 64:
         raise ValueError(f"steps must be an integer in 1..64, got {steps!r}")
     names = [c.name for c in scene.rig]
@@ -110,7 +114,7 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
     prog("conditions", 0.0)
     t0 = time.perf_counter()
     cond = track_conditions(world, shift_m, model.cfg.data.max_boxes)
-    cap = encode_captions([cond["caption"]])[0]
+    cap = caption_encoder.encode_captions([cond["caption"]])[0]
     tm["conditions"] = time.perf_counter() - t0
     prog("conditions", 1.0)
     if check():
@@ -128,13 +132,8 @@ def stage_timings(scene=None, shift_m: float = 4.0, scenario=None, steps: int = 
                   blend: str = DEFAULT_BLEND, weights: Path | None = None) -> dict:
     """Seconds per stage of one refined video (render, conditions, encode, denoise, decode, video) and per
     camera-frame, for the bench. Without a scene: the playground's scene of the default preset (or `scenario`),
-    `worldsplat.pipeline.generate_scene(..., mode="oracle")`."""
-    import tempfile
-
-    from worldsplat.video import write_video
+    `worldsplat.pipeline.scene.generate_scene(..., mode="oracle")`."""
     if scene is None:
-        from worldsplat.pipeline import generate_scene
-        from worldsplat.scenario import default_scenario
         scenario = scenario or default_scenario()
         scene = generate_scene(scenario, mode="oracle")
     tm: dict = {}

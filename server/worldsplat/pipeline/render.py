@@ -1,99 +1,37 @@
-"""Novel tracks (paper §3.5): renders of Gaussian scenes from the ego track shifted laterally, and the exact ground
-truth and reprojected conditions (S', B', T') of the same shifted track from the world.
+"""Scene -> rendered track: the one track renderer (videos, refinement, evaluation, training pairs, bench), built on
+`worldsplat.gaussians.raster.render_view`.
 
-One home for the three kinds of novel-track renders the refinement model is trained and evaluated on:
-- "4d": the 4D-aggregated oracle lifting (paper eq. 3: the static union of all frames and views plus the current
-  frame's dynamic Gaussians), rendered at the shifted cameras (ablation versions C, D, E);
-- "3d": single-frame 3D Gaussians (only frame t's own views lifted), rendered at frame t's shifted cameras
-  (ablation version B);
-- any Scene4D (e.g. one the learned decoder produced), rendered with `render_scene_track`.
-Renders come back with their alpha, which marks the holes (disocclusions, unobserved sky) the refinement fills.
+    frames = render_track(scene, shift_m, cameras, progress=cb, cancelled=fn)   # uint8 (T,V,H,W,3)
+    r = render_scene_track(scene, shift_m, views=[0, 3], size=(112, 64))        # TrackRender: rgb, alpha, depth
+
+Novel tracks (paper §3.5) are the ego track shifted laterally (`shift_m` metres, left positive); renders come back
+with their alpha, which marks the holes (disocclusions, unobserved sky) the refinement fills. The kinds of scene
+rendered here: any Scene4D (the pipeline's, a .wsplat read back, the learned decoder's), and ablation B's
+single-frame 3D Gaussians (`render_single_frame_track`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
-from worldsplat.camera import Camera
-from worldsplat.gaussians import Gaussians, Scene4D, rasterize
-
-
-# --- oracle lifting -------------------------------------------------------------------------------------------------
-
-def lift_view(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray, camera: Camera) -> Gaussians:
-    """Pixel-aligned Gaussians of one ground-truth view (the core's oracle lifting); extras[:, 0] = dynamic flag."""
-    from worldsplat.gaussians.lift import lift  # the submodule: the package attribute is rebound to the module
-    g = lift(rgb, depth, dynamic, camera)
-    if g.extras is None or g.extras.shape[1] < 1:
-        raise ValueError("lift returned Gaussians without the dynamic-mask extra channel")
-    return g
-
-
-def oracle_scene(clip, meta: dict | None = None) -> Scene4D:
-    """Paper eq. 3 on the oracle lifting of a simulated clip: static = union over frames and views of the non-dynamic
-    Gaussians, dynamic[t] = frame t's dynamic Gaussians. (No merging: this is the reference the learned models are
-    measured against.)"""
-    T, V = clip.rgb.shape[:2]
-    static, dynamic = [], []
-    for t in range(T):
-        dyn_t = []
-        for v in range(V):
-            g = lift_view(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v))
-            is_dyn = g.extras[:, 0] > 0.5
-            static.append(g.subset(~is_dyn))
-            dyn_t.append(g.subset(is_dyn))
-        dynamic.append(Gaussians.cat(dyn_t))
-    return Scene4D(static=Gaussians.cat(static), dynamic=dynamic, frame_times=clip.frame_times, rig=list(clip.rig),
-                   ego_to_world=clip.ego_to_world, meta={"mode": "oracle", "caption": clip.caption, "fps": clip.fps,
-                                                         **(meta or {})})
-
-
-def single_frame_gaussians(clip, t: int) -> Gaussians:
-    """Ablation B: 3D Gaussians lifted from frame t's views only (no temporal aggregation)."""
-    return Gaussians.cat([lift_view(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v))
-                          for v in range(clip.rgb.shape[1])])
-
-
-# --- rendering ------------------------------------------------------------------------------------------------------
-
-def cull(g: Gaussians, cam: Camera, margin: float = 0.15) -> Gaussians:
-    """Gaussians whose centre projects into the (enlarged) image in front of the camera; only for speed (a
-    Gaussian centred outside by more than `margin` of the image contributes nothing at these scales)."""
-    if len(g) == 0:
-        return g
-    with torch.no_grad():
-        w2c = torch.from_numpy(cam.world_to_camera)
-        pc = g.means.double() @ w2c[:3, :3].T + w2c[:3, 3]
-        z = pc[:, 2]
-        u = cam.fx * pc[:, 0] / z.clamp_min(1e-3) + cam.cx
-        v = cam.fy * pc[:, 1] / z.clamp_min(1e-3) + cam.cy
-        ok = (z > 0.2) & (u > -margin * cam.width) & (u < (1 + margin) * cam.width) & \
-             (v > -margin * cam.height) & (v < (1 + margin) * cam.height)
-    return g.subset(ok)
-
-
-def render_view(g: Gaussians, cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(rgb uint8 (H,W,3), alpha float32 (H,W), expected depth float32 (H,W), inf where alpha < 0.5)."""
-    with torch.no_grad():
-        out = rasterize(cull(g, cam), cam)
-    rgb = torch.round(out["rgb"].clamp(0, 1) * 255).to(torch.uint8).numpy()
-    alpha = out["alpha"].float().numpy()
-    depth = (out["depth"] / out["alpha"].clamp_min(1e-6)).float().numpy()
-    depth = np.where(alpha >= 0.5, depth, np.inf).astype(np.float32)
-    return rgb, alpha.astype(np.float32), depth
+from worldsplat.core.camera import Camera
+from worldsplat.core.errors import check
+from worldsplat.gaussians import Gaussians, Scene4D
+from worldsplat.gaussians.lift import lift
+from worldsplat.gaussians.raster import View, render_view
 
 
 @dataclass
 class TrackRender:
-    rgb: np.ndarray      # (T,V,H,W,3) uint8
-    alpha: np.ndarray    # (T,V,H,W) float32 accumulated opacity; 1 - alpha is the hole mask
-    depth: np.ndarray    # (T,V,H,W) float32 camera z, inf in holes
+    rgb: np.ndarray  # (T,V,H,W,3) uint8
+    alpha: np.ndarray  # (T,V,H,W) float32 accumulated opacity; 1 - alpha is the hole mask
+    depth: np.ndarray  # (T,V,H,W) float32 camera z, inf in holes
 
 
-def _stack(views: list[list[tuple]]) -> TrackRender:
-    return TrackRender(*(np.stack([np.stack([v[i] for v in row]) for row in views]) for i in range(3)))
+def _stack(views: list[list[View]]) -> TrackRender:
+    return TrackRender(*(np.stack([np.stack([getattr(v, k) for v in row]) for row in views])
+                         for k in ("rgb", "alpha", "depth")))
 
 
 def resized(cam: Camera, size: tuple[int, int] | None) -> Camera:
@@ -109,21 +47,47 @@ def render_scene_track(scene: Scene4D, shift_m: float, views: list[int] | None =
                        frames: list[int] | None = None, progress=None, cancelled=None,
                        size: tuple[int, int] | None = None) -> TrackRender:
     """Render a Scene4D (static + frame t's dynamic Gaussians) from the track shifted `shift_m` m to the left,
-    optionally at another image size (width, height)."""
+    optionally at another image size (width, height). `progress("render", fraction)` after every view;
+    `cancelled()` is checked before every view (raises worldsplat.core.errors.Cancelled)."""
     if not np.isfinite(shift_m):
         raise ValueError(f"shift_m must be finite, got {shift_m}")
-    views = list(range(len(scene.rig))) if views is None else views
-    frames = list(range(scene.num_frames)) if frames is None else frames
+    views = list(range(len(scene.rig))) if views is None else list(views)
+    frames = list(range(scene.num_frames)) if frames is None else list(frames)
+    total = max(1, len(frames) * len(views))
     out = []
     for i, t in enumerate(frames):
-        if cancelled is not None and cancelled():
-            from worldsplat.evaluation import Cancelled
-            raise Cancelled("cancelled while rendering the novel track")
         g = scene.at_frame(t)
-        out.append([render_view(g, resized(scene.camera(t, v, shift_m), size)) for v in views])
-        if progress is not None:
-            progress("render", (i + 1) / len(frames))
+        row = []
+        for j, v in enumerate(views):
+            check(cancelled, "cancelled while rendering the track")
+            row.append(render_view(g, resized(scene.camera(t, v, shift_m), size)))
+            if progress is not None:
+                progress("render", (i * len(views) + j + 1) / total)
+        out.append(row)
     return _stack(out)
+
+
+def render_track(scene: Scene4D, shift_m: float = 0.0, cameras: list[str] | None = None,
+                 progress=None, cancelled=None, frames: list[int] | None = None) -> np.ndarray:
+    """Render every frame (or `frames`) at every camera (or `cameras`) of the rig with the track shifted `shift_m`
+    metres left. Returns uint8 (T,V,H,W,3); black background."""
+    names = [c.name for c in scene.rig]
+    cameras = names if cameras is None else list(cameras)
+    for c in cameras:
+        if c not in names:
+            raise ValueError(f"unknown camera {c!r}; the scene's rig has {', '.join(names)}")
+    views = [names.index(c) for c in cameras]
+    if len({(scene.rig[v].height, scene.rig[v].width) for v in views}) != 1:
+        raise ValueError("render_track: the selected cameras differ in size")
+    if progress is not None:
+        progress("render", 0.0)
+    return render_scene_track(scene, shift_m, views, frames, progress, cancelled).rgb
+
+
+def single_frame_gaussians(clip, t: int) -> Gaussians:
+    """Ablation B: 3D Gaussians lifted from frame t's views only (no temporal aggregation)."""
+    return Gaussians.cat([lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v))
+                          for v in range(clip.rgb.shape[1])])
 
 
 def render_single_frame_track(clip, shift_m: float) -> TrackRender:

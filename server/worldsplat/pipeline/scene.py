@@ -1,40 +1,36 @@
-"""Scenario -> 4D Gaussian scene, and scene -> rendered track. The one place the modes meet.
+"""Scenario -> 4D Gaussian scene. The one place the modes meet.
 
     scene = generate_scene(scenario, mode="oracle" | "reconstruct" | "generate", steps=8, progress=cb, cancelled=fn)
-    frames = render_track(scene, shift_m, cameras, progress=cb, cancelled=fn)   # uint8 (T,V,H,W,3)
 
 oracle      the world's exact RGB + depth + dynamic masks, lifted pixel-aligned (worldsplat.gaussians.lift) and
             aggregated (paper eq. 3 + economy). Training-free; always available.
 reconstruct ground-truth multi-view video -> VAE encoder -> latent Gaussian decoder (paper §3.5), via
-            `worldsplat_models.inference`; needs shipped weights.
+            `worldsplat.pipeline.inference`; needs shipped weights.
 generate    world conditions -> 4D-aware DiT -> latent Gaussian decoder; needs shipped weights.
 `progress(stage, fraction)` is called as stages advance; `cancelled()` is checked between stages and frames and
-raises JobCancelled.
+raises worldsplat.core.errors.Cancelled.
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
-import numpy as np
-import torch
-
+from worldsplat.core.errors import check as _check_cancelled
+from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_4d
+from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.types import Scene4D
+from worldsplat.world import build_world, simulate
 
 ALL_MODES = ("oracle", "reconstruct", "generate")
 ORACLE_VERSION = "oracle-2"  # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none)
 
 Progress = Callable[[str, float], None]
-Cancelled = Callable[[], bool]
-
-
-class JobCancelled(Exception):
-    """Raised between stages when `cancelled()` returns True."""
+CancelCheck = Callable[[], bool]
 
 
 def _models_inference():
     try:
-        from worldsplat_models import inference
+        from worldsplat.pipeline import inference  # noqa: PLC0415 - optional: broken networks must not stop the oracle
     except ImportError:
         return None
     return inference
@@ -69,18 +65,23 @@ class _Modes:
 MODES = _Modes()
 
 
-def _check(cancelled: Cancelled | None) -> None:
-    if cancelled is not None and cancelled():
-        raise JobCancelled("cancelled")
+def default_mode() -> str:
+    """The default mode of the playground and of `worldsplat generate`: generate once its weights ship (a scene from
+    the scenario alone), else oracle. reconstruct is offered but not the default: it reads the same ground-truth video
+    the oracle lifts exactly, and the small shipped VAE/decoder reproduce it blurred (it shows the models at work)."""
+    return "generate" if "generate" in available_modes() else "oracle"
 
 
-def generate_scene(scenario, mode: str = "oracle", steps: int = 8, progress: Progress | None = None,
-                   cancelled: Cancelled | None = None, seed: int | None = None,
+def _check(cancelled: CancelCheck | None) -> None:
+    _check_cancelled(cancelled)
+
+
+def generate_scene(scenario, mode: str | None = None, steps: int = 8, progress: Progress | None = None,
+                   cancelled: CancelCheck | None = None, seed: int | None = None,
                    economy: Economy | None = None) -> Scene4D:
     """Build the 4D Gaussian scene of a scenario. `meta` records scenario_id, mode, model_version, caption, fps
-    and the aggregation statistics."""
-    from worldsplat.scenario import scenario_id
-    from worldsplat.world import build_world, simulate
+    and the aggregation statistics. `mode` None is `default_mode()`."""
+    mode = default_mode() if mode is None else mode
     if mode not in ALL_MODES:
         raise ValueError(f"unknown mode {mode!r}; modes are {', '.join(ALL_MODES)}")
     prog = progress or (lambda stage, f: None)
@@ -118,8 +119,7 @@ def generate_scene(scenario, mode: str = "oracle", steps: int = 8, progress: Pro
                                progress=lambda f: prog("generate", float(f)))
         _check(cancelled)
         prog("aggregate", 0.0)
-        scene, stats = aggregate_4d(dec.gaussians, dec.frame_times, dec.rig, dec.ego_to_world, economy=economy,
-                                 image_size=(world.rig[0].height, world.rig[0].width))
+        scene, stats = inf.aggregate_decoded(dec, economy=economy)
         meta["model_version"] = str(dec.meta.get("model_version", models.version))
         if mode == "generate":
             meta["steps"] = int(steps)
@@ -129,13 +129,16 @@ def generate_scene(scenario, mode: str = "oracle", steps: int = 8, progress: Pro
     return scene
 
 
-def _oracle(world, prog: Progress, cancelled: Cancelled | None, economy: Economy | None
+def _oracle(world, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None
             ) -> tuple[Scene4D, AggregateStats]:
-    from worldsplat.gaussians.lift import lift
-    from worldsplat.world import simulate
     prog("simulate", 0.0)
     clip = simulate(world)
     _check(cancelled)
+    return _aggregate_clip(clip, economy, prog, cancelled)
+
+
+def _aggregate_clip(clip, economy: Economy | None, prog: Progress, cancelled: CancelCheck | None
+                    ) -> tuple[Scene4D, AggregateStats]:
     T, V, H, W = clip.depth.shape
     per_view = []
     for t in range(T):
@@ -147,36 +150,11 @@ def _oracle(world, prog: Progress, cancelled: Cancelled | None, economy: Economy
     return aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
 
 
-def render_track(scene: Scene4D, shift_m: float = 0.0, cameras: list[str] | None = None,
-                 progress: Progress | None = None, cancelled: Cancelled | None = None,
-                 frames: list[int] | None = None) -> np.ndarray:
-    """Render every frame (or `frames`) at every camera (or `cameras`) of the rig with the track shifted `shift_m`
-    metres left. Returns uint8 (T,V,H,W,3); black background."""
-    from worldsplat.gaussians.raster import rasterize
-    if not np.isfinite(shift_m):
-        raise ValueError("shift_m must be finite")
-    names = [c.name for c in scene.rig]
-    cameras = names if cameras is None else list(cameras)
-    for c in cameras:
-        if c not in names:
-            raise ValueError(f"unknown camera {c!r}; the scene's rig has {', '.join(names)}")
-    frames = list(range(scene.num_frames)) if frames is None else list(frames)
-    views = [names.index(c) for c in cameras]
-    sizes = {(scene.rig[v].height, scene.rig[v].width) for v in views}
-    if len(sizes) != 1:
-        raise ValueError("render_track: the selected cameras differ in size")
-    H, W = sizes.pop()
-    out = np.zeros((len(frames), len(views), H, W, 3), dtype=np.uint8)
-    total = len(frames) * len(views)
-    with torch.no_grad():
-        for i, t in enumerate(frames):
-            g = scene.at_frame(t)
-            for j, v in enumerate(views):
-                _check(cancelled)
-                if progress is not None:
-                    progress("render", (i * len(views) + j) / total)
-                rgb = rasterize(g, scene.camera(t, v, shift_m), method="pairs")["rgb"]
-                out[i, j] = torch.round(rgb.clamp(0, 1) * 255).to(torch.uint8).numpy()
-    if progress is not None:
-        progress("render", 1.0)
-    return out
+def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None) -> Scene4D:
+    """The oracle scene of a simulated clip (exact RGB + depth + dynamic masks, lifted), aggregated exactly as the
+    playground serves it (paper eq. 3 + economy, `aggregate_4d`): the reference the learned models, the refinement
+    pairs and the evaluation are measured on."""
+    scene, stats = _aggregate_clip(clip, economy, lambda stage, f: None, None)
+    scene.meta.update({"mode": "oracle", "model_version": ORACLE_VERSION, "caption": getattr(clip, "caption", ""),
+                       "fps": float(clip.fps), "aggregate": stats.as_dict(), **(meta or {})})
+    return scene

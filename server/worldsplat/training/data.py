@@ -16,27 +16,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .configs import DataConfig
-
-
-def pack_boxes(boxes_per_frame: list[list[dict]], ego_to_world: np.ndarray, max_boxes: int):
-    """World-frame boxes per frame -> padded arrays in each frame's ego frame (nearest boxes kept)."""
-    T = len(boxes_per_frame)
-    corners = np.zeros((T, max_boxes, 8, 3), np.float32)
-    cls = np.zeros((T, max_boxes), np.int64)
-    moving = np.zeros((T, max_boxes), bool)
-    mask = np.zeros((T, max_boxes), bool)
-    for t, boxes in enumerate(boxes_per_frame):
-        w2e = np.linalg.inv(np.asarray(ego_to_world[t], np.float64))
-        items = []
-        for b in boxes:
-            c = np.asarray(b["corners"], np.float64).reshape(8, 3)
-            ce = c @ w2e[:3, :3].T + w2e[:3, 3]
-            items.append((float(np.linalg.norm(ce.mean(0)[:2])), ce, int(b["cls"]), bool(b.get("moving", False))))
-        items.sort(key=lambda it: it[0])
-        for i, (_, ce, c_id, mv) in enumerate(items[:max_boxes]):
-            corners[t, i], cls[t, i], moving[t, i], mask[t, i] = ce, c_id, mv, True
-    return corners, cls, moving, mask
+from worldsplat.core.camera import default_rig
+from worldsplat.pipeline.conditions import pack_boxes, sketch_rgb
+from worldsplat.world import build_world, simulate
+from worldsplat_models.configs import DataConfig
+from worldsplat_models.vae import normalize_depth
 
 
 def rig_arrays(clip, frames: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -51,15 +35,6 @@ def rig_arrays(clip, frames: int | None = None) -> tuple[np.ndarray, np.ndarray]
             intr[t, v] = (cam.fx, cam.fy, cam.cx, cam.cy)
             c2w[t, v] = cam.camera_to_world
     return intr, c2w
-
-
-def sketch_rgb(sketch: np.ndarray) -> np.ndarray:
-    s = np.asarray(sketch, np.float32)
-    if s.ndim == 4:
-        s = s[..., None]
-    if s.shape[-1] == 1:
-        s = np.repeat(s, 3, axis=-1)
-    return np.clip(s, 0.0, 1.0)
 
 
 def sample_from_simulation(clip, conditions: dict, max_boxes: int) -> dict:
@@ -77,14 +52,12 @@ def sample_from_simulation(clip, conditions: dict, max_boxes: int) -> dict:
 
 
 def sample_from_scenario(scenario, shift_m: float = 0.0, max_boxes: int = 32) -> dict:
-    from worldsplat.world import build_world, simulate
     world = build_world(scenario)
     return sample_from_simulation(simulate(world, shift_m=shift_m), world.conditions(shift_m=shift_m), max_boxes)
 
 
 def synthetic_sample(cfg: DataConfig, seed: int) -> dict:
     """Random but well-formed sample (for tests and the DDP smoke test; not a world)."""
-    from worldsplat.camera import default_rig
     rng = np.random.default_rng(seed)
     T, V, H, W, N = cfg.frames, cfg.views, cfg.height, cfg.width, cfg.max_boxes
     rig = default_rig(W, H)[:V]
@@ -179,7 +152,6 @@ def collate(samples: list[dict]) -> dict:
 def vae_inputs(batch: dict, cfg: DataConfig) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Collated batch -> per-image VAE inputs (B*T*V, C, H, W): rgb [-1,1], normalised depth, mask {0,1},
     sketch [-1,1]."""
-    from .vae import normalize_depth
     rgb = batch["rgb"].float().div(127.5).sub(1.0).flatten(0, 2).permute(0, 3, 1, 2)
     depth = normalize_depth(batch["depth"], cfg.depth_near, cfg.depth_far).flatten(0, 2)[:, None]
     mask = batch["dynamic"].float().flatten(0, 2)[:, None]

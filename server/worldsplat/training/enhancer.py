@@ -1,7 +1,7 @@
-"""Training of the Enhanced Diffusion Model (paper §3.4; enhancer.py): a plain loop with fixed seeds, checkpoints,
-resume and tqdm.
+"""Training of the Enhanced Diffusion Model (paper §3.4; worldsplat_models.enhancer) with the shared training loop
+(worldsplat.training.loop.train_loop: fixed seeds, checkpoints, resume, schedule, clipping, progress).
 
-    python -m worldsplat_models.train_enhancer --size small --out models/weights      # the one reproducible command
+    worldsplat train-enhancer --size small      # the one reproducible command (writes to the weights folder)
 
 Phases (all run by default; each resumes):
 1. pairs: for each train-split seed, the world's ground truth of a track shifted by a seeded +-1..4 m, its
@@ -17,16 +17,32 @@ Phases (all run by default; each resumes):
 """
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_CACHE = REPO / "runs" / "enhancer_pairs"
+from worldsplat.core.metrics import image_metrics, psnr, ssim
+from worldsplat.core.paths import runs_dir
+from worldsplat.pipeline.conditions import conditions_for_track
+from worldsplat.pipeline.inference import reconstruct, to_scene4d
+from worldsplat.pipeline.scene import oracle_scene
+from worldsplat.training.loop import train_loop
+from worldsplat.training.pairs import make_sample, sample_path, sample_scenario, save_sample, split_seeds
+from worldsplat.world import build_world, simulate
+from worldsplat_models import conditions as caption_encoder
+from worldsplat_models.configs import TrainConfig, get_config
+from worldsplat_models.enhancer import Enhancer, coverage, encode_images, enhance, load_enhancer
+from worldsplat_models.vae import MultiModalVAE
+from worldsplat_models.weights import load_weights, save_weights, weights_dir
+
+
+def default_cache() -> Path:
+    return runs_dir() / "enhancer_pairs"
+
 TRAIN_SHIFTS = (-4.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 4.0)
 
 
@@ -49,7 +65,6 @@ def has_decoder_pair(seed: int) -> bool:
 
 def decoder_scene(clip, models):
     """The learned Gaussian decoder's 4D scene of a clip (reconstruct mode, paper §3.5)."""
-    from worldsplat_models.inference import reconstruct, to_scene4d
     return to_scene4d(reconstruct(clip, models))
 
 
@@ -58,13 +73,9 @@ def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset:
     """Write the training pairs of train seeds [start, start+count) (every `stride`-th from `offset`, so several
     processes can share the work); existing files are kept (resume). `models` (inference.Models with a decoder)
     adds the `_dec` pairs; without it only oracle and clean pairs are made."""
-    from worldsplat.evaluation.novel_track import oracle_scene
-    from worldsplat.evaluation.pairs import make_sample, sample_path, sample_scenario, save_sample, split_seeds
-    from worldsplat.world import build_world, simulate
     seeds = split_seeds("train", count, start)[offset::stride]
     it = seeds
     if progress:
-        from tqdm import tqdm
         it = tqdm(seeds, desc=f"pairs {offset}/{stride}", mininterval=10)
     paths = []
     for seed in it:
@@ -89,9 +100,6 @@ def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset:
 
 def make_val_pairs(cache: Path, count: int = 3, shifts=(2.0, 4.0), size=(112, 64), frames: int = 4) -> list[Path]:
     """Held-out (val-split) pairs for the metrics written beside the weights."""
-    from worldsplat.evaluation.novel_track import oracle_scene
-    from worldsplat.evaluation.pairs import make_sample, sample_path, sample_scenario, save_sample, split_seeds
-    from worldsplat.world import build_world, simulate
     paths = []
     for seed in split_seeds("val", count):
         todo = [s for s in shifts if not sample_path(cache, "val", seed, s).exists()]
@@ -108,18 +116,16 @@ def make_val_pairs(cache: Path, count: int = 3, shifts=(2.0, 4.0), size=(112, 64
 # --- phase 2: train --------------------------------------------------------------------------------------------------
 
 def default_vae_path() -> Path:
-    return REPO / "models" / "weights" / "vae_small.safetensors"
+    return weights_dir() / "vae_small.safetensors"
 
 
 def load_vae(path: Path | None = None):
-    from worldsplat_models.weights import load_weights
     return load_weights(path or default_vae_path(), expect_kind="vae")
 
 
 @torch.no_grad()
 def encode_pair(vae, sample: dict, render_key: str, max_boxes: int, caption_emb: torch.Tensor) -> dict:
     """A novel-view sample -> the enhancer's tensors (latents (T,V,c,h,w), coverage, conditions)."""
-    from worldsplat_models.enhancer import coverage, encode_images
     T, V, H, W = sample["target"].shape[:4]
     f = vae.cfg.downsample
 
@@ -144,90 +150,41 @@ COND_KEYS = ("box_corners", "box_cls", "box_moving", "box_mask", "traj", "captio
 
 def batch_of(items: list[dict], use_render: torch.Tensor | bool = True) -> tuple[torch.Tensor, dict]:
     """Encoded pairs -> (target (B,T,V,c,h,w), cond for Enhancer) with the ControlNet input assembled."""
-    from worldsplat_models.enhancer import Enhancer
     st = lambda k: torch.stack([it[k] for it in items])  # noqa: E731
     cond = {k: st(k) for k in COND_KEYS}
     cond["control"] = Enhancer.control(st("render"), st("sketch"), st("cover"), use_render)
     return st("target"), cond
 
 
-def lr_at(step: int, steps: int, lr: float, warmup: int = 100) -> float:
-    """Linear warm-up then cosine decay to 10 %."""
-    import math
-    if step < warmup:
-        return lr * (step + 1) / warmup
-    p = min(1.0, (step - warmup) / max(1, steps - warmup))
-    return lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * p)))
-
-
 def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: Path, name: str, lr: float = 3e-4,
           seed: int = 0, ckpt_every: int = 100, minutes: float | None = None, progress: bool = True,
           log_every: int = 10, grow=None, grow_every: int = 100) -> list[dict]:
-    """Plain rectified-flow loop, batch 1 clip (T x V images). Each step's randomness comes from a generator seeded
-    by (seed, step), so a resumed run over the same pairs sees the same stream. Resumes from out_dir/<name>.ckpt.pt.
-    `grow()` (optional) is called every `grow_every` steps and returns newly cached (degraded, clean) pairs to add
-    (training while the pair generator still runs; not bit-reproducible, the provenance says so)."""
+    """Rectified-flow training of the enhancer with the shared loop (`worldsplat.training.loop.train_loop`), batch 1
+    clip (T x V images). Each step's randomness comes from the loop's generator seeded by (seed, step), so a resumed
+    run over the same pairs sees the same stream. Resumes from out_dir/<name>.ckpt.pt. `grow()` (optional) is
+    called every `grow_every` steps and returns newly cached (degraded, clean) pairs to add (training while the pair
+    generator still runs; not bit-reproducible, the provenance says so)."""
     cfg = model.cfg
-    torch.manual_seed(seed)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    ckpt = out_dir / f"{name}.ckpt.pt"
-    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=0.01, betas=(0.9, 0.99))
-    start = 0
-    if ckpt.exists():
-        state = torch.load(ckpt, map_location="cpu", weights_only=False)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["opt"])
-        start = state["step"]
-    history, t0 = [], time.time()
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=steps, initial=start, desc=name, mininterval=10, dynamic_ncols=True)
-    model.train()
+    first_step: list[int] = []
 
-    def save(step):
-        tmp = ckpt.with_suffix(".tmp")
-        torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step}, tmp)
-        tmp.replace(ckpt)
-
-    step = start
-    for step in range(start, steps):
-        if grow is not None and step % grow_every == 0 and step > start:
+    def step_fn(_model, step: int, gen: torch.Generator):
+        if not first_step:
+            first_step.append(step)
+        elif grow is not None and step % grow_every == 0:
             d, c = grow()
-            degraded += d
-            clean += c
-        gen = torch.Generator().manual_seed(seed * 1_000_003 + step)
+            degraded.extend(d)
+            clean.extend(c)
         use_clean = cfg.mixed and clean and float(torch.rand(1, generator=gen)) < cfg.clean_prob
         pool = clean if use_clean else degraded
         item = pool[int(torch.randint(len(pool), (1,), generator=gen))]
         use_render = torch.rand(1, generator=gen) >= cfg.render_drop
         x, cond = batch_of([item], use_render)
         cond["drop"] = torch.rand(1, generator=gen) < cfg.dit.cond_drop
-        for g in opt.param_groups:
-            g["lr"] = lr_at(step, steps, lr)
-        loss = model.loss(x, cond, generator=gen)
-        opt.zero_grad(set_to_none=True)
-        if torch.isfinite(loss):
-            loss.backward()
-            norm = torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-            if torch.isfinite(norm):
-                opt.step()
-        rec = {"step": step + 1, "loss": float(loss.detach()), "clean": bool(use_clean), "render": bool(use_render),
-               "time": round(time.time() - t0, 1)}
-        history.append(rec)
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{rec['loss']:.3f}")
-        if (step + 1) % log_every == 0:
-            with open(out_dir / f"{name}.log.jsonl", "a") as f:
-                f.write(json.dumps(rec) + "\n")
-        if (step + 1) % ckpt_every == 0:
-            save(step + 1)
-        if minutes is not None and time.time() - t0 > 60 * minutes:
-            break
-    save(step + 1 if history else start)
-    if bar is not None:
-        bar.close()
+        return model.loss(x, cond, generator=gen), {"clean": bool(use_clean), "render": bool(use_render)}
+
+    tcfg = TrainConfig(steps=steps, lr=lr, weight_decay=0.01, warmup=100, grad_clip=1.0, seed=seed,
+                       ckpt_every=ckpt_every, log_every=log_every, threads=torch.get_num_threads())
+    history = train_loop(name, model, step_fn, tcfg, Path(out_dir), progress=progress, minutes=minutes)
     model.eval()
     return history
 
@@ -240,17 +197,11 @@ def train_fallback_vae(out: Path, steps: int = 1500, seed: int = 0, clips: int =
     MultiModalVAE (small config) trained on RGB and sketch images of train-split world clips (the enhancer uses
     only those two modalities), L1 + 0.5 (1 - SSIM) + KL, random 32x56 crops. The enhancer bundles whichever VAE it
     was trained against, so the two can never drift apart."""
-    from worldsplat.evaluation.pairs import conditions_for_track, sample_scenario, split_seeds
-    from worldsplat.world import build_world, simulate
-    from worldsplat_models.configs import get_config
-    from worldsplat_models.metrics import ssim
-    from worldsplat_models.vae import MultiModalVAE
     torch.manual_seed(seed)
     vae = MultiModalVAE(get_config("small").vae)
     images, sketches = [], []
     it = split_seeds("train", clips, start=500_000)
     if progress:
-        from tqdm import tqdm
         it = tqdm(it, desc="vae clips", mininterval=10)
     for s in it:
         w = build_world(sample_scenario(s))
@@ -258,16 +209,8 @@ def train_fallback_vae(out: Path, steps: int = 1500, seed: int = 0, clips: int =
         sketches.append(torch.from_numpy(conditions_for_track(w, 0.0)["sketch"].reshape(-1, 64, 112, 3)))
     images = torch.cat(images).permute(0, 3, 1, 2).float() / 127.5 - 1
     sketches = torch.cat(sketches).permute(0, 3, 1, 2).float() * 2 - 1
-    opt = torch.optim.AdamW(vae.parameters(), lr=1e-3, weight_decay=0.0)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=steps, desc="vae", mininterval=10)
-    t0 = time.time()
-    for step in range(steps):
-        gen = torch.Generator().manual_seed(seed * 7919 + step)
-        for g in opt.param_groups:
-            g["lr"] = lr_at(step, steps, 1e-3, warmup=50)
+
+    def step_fn(_model, step: int, gen: torch.Generator):
         xs = []
         for pool, k in ((images, 6), (sketches, 2)):
             idx = torch.randint(len(pool), (k,), generator=gen)
@@ -277,26 +220,23 @@ def train_fallback_vae(out: Path, steps: int = 1500, seed: int = 0, clips: int =
         x = torch.cat(xs)
         recon, kl = vae(x, generator=gen)
         s = ssim(((recon + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((x + 1) / 2).permute(0, 2, 3, 1))
-        loss = (recon - x).abs().mean() + 0.5 * (1 - s) + vae.cfg.kl_weight * kl
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(vae.parameters(), 1.0)
-        opt.step()
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{float(loss):.3f}")
-        if minutes is not None and time.time() - t0 > 60 * minutes:
-            break
+        return (recon - x).abs().mean() + 0.5 * (1 - s) + vae.cfg.kl_weight * kl, {}
+
+    t0 = time.time()
+    tcfg = TrainConfig(steps=steps, lr=1e-3, weight_decay=0.0, warmup=50, grad_clip=1.0, seed=seed, ckpt_every=250,
+                       log_every=50, threads=torch.get_num_threads())
+    train_loop(Path(out).stem, vae, step_fn, tcfg, Path(out).parent, progress=progress, minutes=minutes)
+    done = int(torch.load(Path(out).parent / f"{Path(out).stem}.ckpt.pt", map_location="cpu",
+                          weights_only=False)["step"])
     vae.eval()
     with torch.no_grad():  # latent statistics of the RGB channels (the only ones the enhancer reads)
         z = torch.cat([vae.encode(images[i:i + 64]) for i in range(0, len(images), 64)])
         c = vae.cfg.latent_channels
         vae.latent_mean[:c] = z.mean(dim=(0, 2, 3))
         vae.latent_std[:c] = z.std(dim=(0, 2, 3)).clamp_min(1e-3)
-        psnr = -10 * torch.log10(((vae.decode(z[:64]).clamp(-1, 1) - images[:64]) ** 2).mean() / 4)
-    from worldsplat_models.weights import save_weights
-    save_weights(vae, out, "vae", {"trained_by": "train_enhancer.train_fallback_vae", "steps": step + 1,
-                                   "rgb_psnr_train": round(float(psnr), 2), "wall_s": round(time.time() - t0)})
+        rgb_psnr = psnr((vae.decode(z[:64]).clamp(-1, 1) + 1) / 2, (images[:64] + 1) / 2)
+    save_weights(vae, out, "vae", {"trained_by": "worldsplat.training.enhancer.train_fallback_vae", "steps": done,
+                                   "rgb_psnr_train": round(float(rgb_psnr), 2), "wall_s": round(time.time() - t0)})
     return vae
 
 
@@ -305,12 +245,9 @@ def train_fallback_vae(out: Path, steps: int = 1500, seed: int = 0, clips: int =
 @torch.no_grad()
 def heldout_metrics(model, vae, samples: list[dict], steps: int = 8) -> dict:
     """PSNR of the raw render vs the refined output (model only, and holes-only blend) on held-out pairs."""
-    from worldsplat.evaluation.nvs import image_metrics
-    from worldsplat_models.conditions import encode_captions
-    from worldsplat_models.enhancer import enhance
     rows = {"raw": [], "refined": [], "refined_holes": []}
     for s in samples:
-        cap = encode_captions([s["caption"]])[0]
+        cap = caption_encoder.encode_captions([s["caption"]])[0]
         a = s["alpha_4d"].astype(np.float32)
         T, V, H, W, _ = s["target"].shape
         gt = s["target"].reshape(-1, H, W, 3)
@@ -323,135 +260,8 @@ def heldout_metrics(model, vae, samples: list[dict], steps: int = 8) -> dict:
             for k, v in rows.items()}
 
 
-def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--size", default="small", choices=("tiny", "small", "paper"))
-    parser.add_argument("--out", type=Path, default=REPO / "models" / "weights", help="where the weights go")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="pair cache (git-ignored)")
-    parser.add_argument("--work", type=Path, default=REPO / "runs" / "enhancer", help="checkpoints and logs")
-    parser.add_argument("--pairs", type=int, default=240, help="train-split clips to make pairs from")
-    parser.add_argument("--use-pairs", type=int, default=None, help="train on at most this many clips' pairs")
-    parser.add_argument("--steps", type=int, default=3000)
-    parser.add_argument("--minutes", type=float, default=None, help="stop training after this wall time")
-    parser.add_argument("--lr", type=float, default=3e-4)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--no-mix", action="store_true", help="degraded renders only (ablation B/C's model)")
-    parser.add_argument("--vae", type=Path, default=None, help="frozen VAE (default models/weights/vae_small."
-                        "safetensors, else the fallback trained here)")
-    parser.add_argument("--skip-pairs", action="store_true", help="train on the pairs already cached")
-    parser.add_argument("--decoder-weights", type=Path, default=None,
-                        help="weights dir whose Gaussian decoder renders the `_dec` pairs (default models/weights)")
-    parser.add_argument("--no-decoder-pairs", action="store_true",
-                        help="oracle renders only as degraded inputs (the pairs of the session-1 model)")
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--grow", action="store_true", help="add pairs that appear in the cache while training")
-
-
-def resolve_vae(args) -> Path:
-    if args.vae is not None:
-        return args.vae
-    if default_vae_path().exists():
-        return default_vae_path()
-    fallback = args.work / "vae_fallback.safetensors"
-    if not fallback.exists():
-        train_fallback_vae(fallback)
-    return fallback
-
-
-def run(args: argparse.Namespace) -> int:
-    from worldsplat.evaluation.pairs import load_sample
-    from worldsplat_models.conditions import encode_captions
-    from worldsplat_models.enhancer import Enhancer, enhancer_config, save_enhancer
-    torch.set_num_threads(args.threads)
-    cfg = enhancer_config(args.size)
-    cfg.mixed = not args.no_mix
-    name = f"enhancer_{args.size}{'' if cfg.mixed else '_nomix'}"
-    models = None
-    if not args.no_decoder_pairs:
-        from worldsplat_models.inference import load_models
-        models = load_models(args.decoder_weights)
-        if "reconstruct" not in models.modes:
-            raise FileNotFoundError(f"no Gaussian decoder in {args.decoder_weights or 'models/weights'}; "
-                                    "pass --decoder-weights or --no-decoder-pairs")
-    if not args.skip_pairs:
-        make_pairs(args.cache, args.pairs, models=models)
-    val_paths = make_val_pairs(args.cache)
-    vae_path = resolve_vae(args)
-    vae = load_vae(vae_path)
-    if vae.cfg.latent_channels != cfg.latent_channels:
-        raise ValueError(f"VAE {vae_path} has {vae.cfg.latent_channels} latent channels; the {args.size} enhancer "
-                         f"expects {cfg.latent_channels}")
-    seen: set[str] = set()
-
-    def load_new(limit=None, progress=True):
-        """Encode the cached pairs not loaded yet (whole clips: a clean pair is never taken without its clip)."""
-        files = sorted((args.cache / "train").glob("seed*.npz"))
-        if args.no_decoder_pairs:
-            files = [f for f in files if not f.name.endswith("_dec.npz")]
-        seeds = sorted({f.name[4:12] for f in files} - seen)
-        if limit is not None:
-            seeds = seeds[:max(0, limit - len(seen))]
-        files = [f for f in files if f.name[4:12] in seeds]
-        seen.update(seeds)
-        samples = [load_sample(f) for f in files]
-        caps = encode_captions([s["caption"] for s in samples]) if samples else []
-        from tqdm import tqdm
-        d, c = [], []
-        for f, s, cap in tqdm(list(zip(files, samples, caps)), desc="encode pairs", mininterval=10,
-                              disable=not progress):
-            is_clean = f.name.endswith("_clean.npz")
-            item = encode_pair(vae, s, "3d" if is_clean else "4d", cfg.data.max_boxes, cap)
-            item["from_decoder"] = f.name.endswith("_dec.npz")
-            (c if is_clean else d).append(item)
-        return d, c
-
-    degraded, clean = load_new(args.use_pairs)
-    if not degraded:
-        raise FileNotFoundError(f"no training pairs under {args.cache / 'train'}")
-    n_dec = sum(bool(d.get("from_decoder")) for d in degraded)
-    print(f"{len(degraded)} degraded ({n_dec} from the decoder) and {len(clean)} clean pairs from {len(seen)} clips; "
-          f"mixed={cfg.mixed}")
-    torch.manual_seed(args.seed)
-    model = Enhancer(cfg)
-    t0 = time.time()
-    grow = (lambda: load_new(args.use_pairs, progress=False)) if args.grow else None
-    hist = train(model, degraded, clean, args.steps, args.work, name, lr=args.lr, seed=args.seed,
-                 minutes=args.minutes, grow=grow)
-    seeds = sorted(seen)
-    wall = time.time() - t0
-    val = [load_sample(p) for p in val_paths]
-    metrics = heldout_metrics(model, vae, val)
-    state = torch.load(args.work / f"{name}.ckpt.pt", map_location="cpu", weights_only=False)
-    prov = {"size": args.size, "mixed": cfg.mixed, "steps": int(state["step"]), "train_clips": len(seeds),
-            "train_seeds": sorted(int(s) for s in seeds),
-            "degraded_pairs": len(degraded), "decoder_pairs": n_dec, "clean_pairs": len(clean), "seed": args.seed,
-            "lr": args.lr, "steps_target": args.steps, "pairs_arg": args.pairs,
-            "vae": str(vae_path.name), "vae_meta": {k: v for k, v in vae.meta.items() if k != "config"},
-            "wall_s_this_run": round(wall), "threads": args.threads, "grow": bool(args.grow),
-            "heldout_val": {"seeds": sorted({s["seed"] for s in val}), "shifts": sorted({s["shift_m"] for s in val}),
-                            **metrics},
-            "command": f"python -m worldsplat_models.train_enhancer --size {args.size}"
-                       f"{' --no-mix' if not cfg.mixed else ''}{' --no-decoder-pairs' if args.no_decoder_pairs else ''}"
-                       f" --pairs {args.pairs} --steps {args.steps} --threads {args.threads} --out {args.out}"}
-    path = save_enhancer(model, vae, args.out / f"{name}.safetensors", {"provenance": prov})
-    (args.work / f"{name}.metrics.json").write_text(json.dumps(prov, indent=1) + "\n")
-    print(json.dumps(prov["heldout_val"], indent=1))
-    print(f"wrote {path} ({len(hist)} steps this run)")
-    return 0
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m worldsplat_models.train_enhancer", description=__doc__.splitlines()[0])
-    configure(ap)
-    return run(ap.parse_args(argv))
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
-
-
 def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
     """models/weights/MODEL_CARD_enhancer.md from the provenance stored in the shipped weight files."""
-    from worldsplat_models.enhancer import load_enhancer
     lines = ["# Enhanced diffusion model (refinement) - model card", "",
              "Paper §3.4: refines renders of shifted (novel) tracks in latent space. Architecture and training: "
              "`models/worldsplat_models/enhancer.py`, `train_enhancer.py`; use: `server/worldsplat/refine.py`; "

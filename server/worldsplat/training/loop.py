@@ -1,5 +1,7 @@
-"""Plain training loops for the VAE, the Gaussian decoder and the DiT: fixed seeds, checkpoints with resume, tqdm,
-gradient clipping, optional bf16 autocast, and a torchrun DDP path (gloo on CPU, nccl on GPU).
+"""The one training loop (`train_loop`) every model shares (the VAE, the Gaussian decoder, the DiT, the enhancer and
+its fallback VAE): fixed seeds, checkpoints with resume, warm-up + cosine schedule, gradient clipping with a skip on
+non-finite steps, tqdm progress and a JSONL log, an optional wall-time limit, optional bf16 autocast, and a torchrun
+DDP path (gloo on CPU, nccl on GPU). Below it, the step functions of the three generation models.
 
 Order (each stage reads the previous one's weights):
     vae      images of all three modalities (random crops)              -> vae.safetensors (+ latent statistics)
@@ -14,20 +16,23 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
 import torch.distributed as dist
 import torch.nn.functional as F
+from tqdm import tqdm
 
-from . import rflow
-from .configs import DataConfig, TrainConfig
-from .data import collate, vae_inputs
-from .metrics import ssim
-from .vae import normalize_depth
-
+from worldsplat.core.camera import Camera, rigid_inverse
+from worldsplat.core.metrics import ssim
+from worldsplat.gaussians import Gaussians, rasterize
+from worldsplat.training.data import collate, vae_inputs
+from worldsplat_models import rflow
+from worldsplat_models.conditions import encode_captions
+from worldsplat_models.configs import DataConfig, TrainConfig
+from worldsplat_models.vae import normalize_depth
 
 # --- infrastructure ----------------------------------------------------------------------------------------------
 
@@ -82,10 +87,12 @@ def save_checkpoint(path: Path, model, opt, step: int, extra: dict | None = None
 
 
 def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: TrainConfig, out_dir: Path,
-               progress: bool = True, on_checkpoint: Callable | None = None) -> list[dict]:
+               progress: bool = True, on_checkpoint: Callable | None = None,
+               minutes: float | None = None) -> list[dict]:
     """Generic loop. step_fn(model, step, generator) -> (loss tensor, logs dict). Resumes from
     out_dir/<name>.ckpt.pt when present. Returns the log history of this run (rank 0 writes it to <name>.log.jsonl).
-    on_checkpoint(model, steps_done) runs after each checkpoint (e.g. to export weights).
+    on_checkpoint(model, steps_done) runs after each checkpoint (e.g. to export weights). `minutes`: stop (with a
+    checkpoint) once this much wall time has passed; a later run resumes.
     """
     rank, world = setup_distributed()
     out_dir = Path(out_dir)
@@ -108,7 +115,6 @@ def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: Train
     history = []
     bar = None
     if progress and rank == 0:
-        from tqdm import tqdm
         bar = tqdm(total=tcfg.steps, initial=start, desc=name, dynamic_ncols=True, mininterval=5)
     t0 = time.time()
     model.train()
@@ -122,6 +128,7 @@ def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: Train
         rec = {"step": step + 1, "loss": float(loss.detach()), "grad_norm": gnorm, "skipped": skipped,
                "lr": lr_at(step, tcfg), "time": round(time.time() - t0, 2), **logs}
         history.append(rec)
+        out_of_time = minutes is not None and time.time() - t0 > 60 * minutes
         if rank == 0:
             if bar is not None:
                 bar.update(1)
@@ -129,10 +136,12 @@ def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: Train
             if (step + 1) % tcfg.log_every == 0 or step + 1 == tcfg.steps:
                 with open(log_path, "a") as f:
                     f.write(json.dumps(rec) + "\n")
-            if (step + 1) % tcfg.ckpt_every == 0 or step + 1 == tcfg.steps:
+            if (step + 1) % tcfg.ckpt_every == 0 or step + 1 == tcfg.steps or out_of_time:
                 save_checkpoint(ckpt, model, opt, step + 1)
                 if on_checkpoint is not None:
                     on_checkpoint(model, step + 1)
+        if out_of_time:
+            break
     if bar is not None:
         bar.close()
     return history
@@ -144,7 +153,6 @@ def load_samples(dataset, limit: int | None = None, progress: bool = True) -> li
     n = len(dataset) if limit is None else min(limit, len(dataset))
     it = range(n)
     if progress:
-        from tqdm import tqdm
         it = tqdm(it, desc="load clips", mininterval=5)
     return [dataset[i] for i in it]
 
@@ -220,12 +228,10 @@ def encode_sample(vae, s: dict, dcfg: DataConfig) -> dict:
 def build_cache(vae, samples: list[dict], dcfg: DataConfig, captions: Callable | None = None,
                 progress: bool = True) -> list[dict]:
     """Adds "L", "control" and "caption_emb" to each sample (in place) and returns the list."""
-    from .conditions import encode_captions
     captions = captions or encode_captions
     emb = captions([s["caption"] for s in samples])
     it = enumerate(samples)
     if progress:
-        from tqdm import tqdm
         it = tqdm(it, total=len(samples), desc="encode latents", mininterval=5)
     for i, s in it:
         s.update(encode_sample(vae, s, dcfg))
@@ -246,7 +252,6 @@ def area_down(x: torch.Tensor, factor: int) -> torch.Tensor:
 
 def camera_at(intr: torch.Tensor, c2w: torch.Tensor, width: int, height: int, image_w: int):
     """worldsplat Camera for intrinsics of an image_w-wide image rescaled to width x height."""
-    from worldsplat.camera import Camera, rigid_inverse
     s = width / image_w
     fx, fy, cx, cy = [float(v) * s for v in intr]
     return Camera(width, height, fx, fy, cx, cy, rigid_inverse(c2w.double().numpy()))
@@ -255,7 +260,6 @@ def camera_at(intr: torch.Tensor, c2w: torch.Tensor, width: int, height: int, im
 def aggregate_soft(g: dict, t: int, p_dyn: torch.Tensor):
     """Paper eq. 3 with soft masks (differentiable): frame t's Gaussians at full opacity (static + dynamic part)
     and the static part of every other frame (opacity * (1 - p_dynamic)). g fields are (T,V,gh,gw,k)."""
-    from worldsplat.gaussians import Gaussians
     T = g["means"].shape[0]
     keep = torch.ones_like(p_dyn)
     others = torch.arange(T) != t
@@ -287,9 +291,7 @@ def decoder_losses(dec, s: dict, dcfg: DataConfig, gen: torch.Generator, render_
     w_direct that speeds up the start. Rendering: a random target frame, `render_views` random views,
     at image/render_down resolution. With render=False only the pixel-aligned and mask terms are computed (the
     cheap steps of `decoder_step_fn(render_every=k)`)."""
-    from worldsplat.gaussians import rasterize
     w_ssim, w_depth, w_mask, w_direct = weights
-    model = unwrap(dec)
     L = s["L"][None]
     if latent_noise > 0:
         L = L + latent_noise * torch.randn(L.shape, generator=gen)

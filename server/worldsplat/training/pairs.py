@@ -1,6 +1,6 @@
 """Novel-view samples: (render of a shifted track, exact ground truth of that track, its reprojected conditions).
 
-The refinement model trains on them (worldsplat_models.train_enhancer) and `worldsplat eval nvs` scores on them.
+The refinement model trains on them (worldsplat.training.enhancer) and `worldsplat eval nvs` scores on them.
 A sample is a dict of numpy arrays (T frames, V views, H x W images):
 
     shift_m float                   seed int                  caption str
@@ -14,51 +14,34 @@ Only the render kinds asked for are present. Files: one .npz per (seed, shift) u
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from worldsplat.core.io import write_npz_atomic
+from worldsplat.core.scenario import random_scenario
+from worldsplat.pipeline.conditions import conditions_for_track
+from worldsplat.pipeline.render import render_scene_track, render_single_frame_track
+from worldsplat.pipeline.scene import oracle_scene
+from worldsplat.world import simulate
+from worldsplat.world.dataset import split_seed
+
+
 def split_seeds(split: str, count: int, start: int = 0) -> list[int]:
     """Seeds of clips [start, start+count) of a split: the world dataset's disjoint ranges (one definition)."""
-    from worldsplat.world.dataset import split_seed
     if count < 0 or start < 0:
         raise ValueError("count and start must be non-negative")
     return [split_seed(split, i) for i in range(start, start + count)]
 
 
 def sample_scenario(seed: int, width: int = 112, height: int = 64, frames: int = 4):
-    from worldsplat.scenario import random_scenario
     return random_scenario(seed, width=width, height=height, frames=frames)
-
-
-def pack_boxes(boxes_per_frame: list[list[dict]], ego_to_world: np.ndarray, max_boxes: int):
-    """World-frame boxes -> arrays in each frame's (shifted) ego frame, nearest first (the models' layout)."""
-    from worldsplat_models.data import pack_boxes as pack
-    return pack(boxes_per_frame, ego_to_world, max_boxes)
-
-
-def conditions_for_track(world, shift_m: float, max_boxes: int = 32, cameras: list[str] | None = None) -> dict:
-    """Reprojected conditions of the shifted track: sketch S', boxes B' (in the shifted ego frames), trajectory T',
-    caption."""
-    from worldsplat.world.layout import shifted_ego
-    cond = world.conditions(shift_m=shift_m, cameras=cameras)
-    ego = shifted_ego(world.ego_to_world, shift_m)
-    corners, cls, moving, mask = pack_boxes(cond["boxes"], ego, max_boxes)
-    sk = np.asarray(cond["sketch"], np.float32)
-    if sk.ndim == 4:
-        sk = np.repeat(sk[..., None], 3, axis=-1)
-    return {"sketch": (sk > 0.5).astype(np.uint8), "box_corners": corners.astype(np.float32), "box_cls": cls,
-            "box_moving": moving, "box_mask": mask, "traj": np.asarray(cond["ego_traj"], np.float32),
-            "caption": str(cond["caption"])}
 
 
 def make_sample(world, shift_m: float, renders: tuple[str, ...] = ("4d",), source=None, scene=None,
                 max_boxes: int = 32) -> dict:
     """One novel-view sample of `world` at `shift_m` (see the module doc). `source` (the unshifted clip) and
     `scene` (its oracle Scene4D) can be passed in to share them between shifts."""
-    from worldsplat.evaluation.novel_track import oracle_scene, render_scene_track, render_single_frame_track
-    from worldsplat.world import simulate
     unknown = set(renders) - {"4d", "3d"}
     if unknown:
         raise ValueError(f"unknown render kind(s) {sorted(unknown)}; expected 4d and/or 3d")
@@ -78,12 +61,8 @@ def make_sample(world, shift_m: float, renders: tuple[str, ...] = ("4d",), sourc
 
 
 def save_sample(path: Path, sample: dict) -> None:
-    """Atomic .npz write (temporary file + rename) so an interrupted generator never leaves a torn sample."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
-    np.savez(tmp, **sample)
-    tmp.replace(path)
+    """Atomic .npz write so an interrupted generator never leaves a torn sample."""
+    write_npz_atomic(path, sample)
 
 
 def load_sample(path: Path) -> dict:

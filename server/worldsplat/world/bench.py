@@ -9,7 +9,7 @@ import argparse
 import os
 import time
 
-from worldsplat.scenario import list_presets, load_preset
+from worldsplat.core.scenario import list_presets, load_preset
 from worldsplat.world import build_world, simulate
 
 BUDGET_S = 3.0

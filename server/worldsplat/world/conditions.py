@@ -10,13 +10,17 @@
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from worldsplat.camera import Camera, rigid_inverse
+from worldsplat.core.camera import Camera, rigid_inverse, shifted_ego
 from worldsplat.world.classes import CLASS_NAMES, CYCLIST, PEDESTRIAN, VEHICLE_CLASSES
-from worldsplat.world.layout import World, shifted_ego
 from worldsplat.world.render import single_threaded_blas
 from worldsplat.world.road import bev_layers
+
+if TYPE_CHECKING:  # the World's own `conditions()` calls world_conditions; only the annotations name it
+    from worldsplat.world.layout import World
 
 BEV_CHANNELS = ("drivable", "lane_divider", "crosswalk", "sidewalk", "vehicle", "vulnerable")
 SKETCH_CHANNELS = ("lane_lines", "vehicle_boxes", "vulnerable_boxes")

@@ -1,19 +1,21 @@
 """Sharded training data from the world: one compressed .npz per clip, resumable, non-overlapping split seeds.
 
 Split seed ranges never overlap: train [0, 1e6), val [1e6, 2e6), test [2e6, 3e6); clip i of a split uses seed
-`SPLIT_BASE[split] + i` and a random scenario drawn from that seed (`worldsplat.scenario.random_scenario`).
+`SPLIT_BASE[split] + i` and a random scenario drawn from that seed (`worldsplat.core.scenario.random_scenario`).
 A shard is written to a temporary file and renamed, so an existing `clip_XXXXXX.npz` is always complete and a
 re-run skips it. Shard keys are listed in `SHARD_KEYS` and documented in web/docs/world.md.
 """
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from worldsplat.scenario import Scenario, random_scenario, scenario_id
+from worldsplat.core.io import write_json_atomic, write_npz_atomic
+from worldsplat.core.scenario import Scenario, random_scenario, scenario_id
+from worldsplat.world import build_world, simulate
 
 SPLIT_BASE = {"train": 0, "val": 1_000_000, "test": 2_000_000}
 SPLIT_SIZE = 1_000_000
@@ -36,7 +38,6 @@ def shard_path(out: Path, split: str, index: int) -> Path:
 
 def clip_arrays(scenario: Scenario, shifts: tuple[float, ...] = ()) -> dict[str, np.ndarray]:
     """Everything one training clip needs, as arrays (see SHARD_KEYS); `shifts` adds shifted-track truth."""
-    from worldsplat.world import build_world, simulate
 
     world = build_world(scenario)
     clip = simulate(world)
@@ -71,18 +72,8 @@ def clip_arrays(scenario: Scenario, shifts: tuple[float, ...] = ()) -> dict[str,
 
 
 def write_shard(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """Atomic: a temporary file in the same directory, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    """Atomic (worldsplat.core.io): a reader never sees a torn shard."""
+    write_npz_atomic(path, arrays, compressed=True)
 
 
 def load_shard(path: str | Path) -> dict:
@@ -100,7 +91,6 @@ def write_dataset(out: Path, split: str, count: int, width: int = 112, height: i
                   fps: float = 4.0, preset_mix: bool = False, shifts: tuple[float, ...] = (), start: int = 0,
                   progress: bool = True) -> dict:
     """Write clips start..start+count-1 of a split; existing complete shards are skipped (resumable)."""
-    from tqdm import tqdm
 
     out = Path(out)
     (out / split).mkdir(parents=True, exist_ok=True)
@@ -125,7 +115,5 @@ def write_dataset(out: Path, split: str, count: int, width: int = 112, height: i
                 "seed_range": [SPLIT_BASE[split], SPLIT_BASE[split] + SPLIT_SIZE], "image": [width, height],
                 "frames": frames, "fps": fps, "preset_mix": preset_mix, "shifts": list(shifts),
                 "keys": list(SHARD_KEYS), "clips": [clips[k] for k in sorted(clips)]}
-    tmp = mpath.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(manifest, indent=1))
-    os.replace(tmp, mpath)
+    write_json_atomic(mpath, manifest, sort_keys=False)
     return {"written": written, "skipped": skipped, "manifest": str(mpath)}

@@ -13,42 +13,33 @@ Layout of an output directory (documented in web/docs/world.md):
 """
 from __future__ import annotations
 
+import io
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
-
-from worldsplat.scenario import scenario_id
+from worldsplat.core.io import atomic_write_bytes, write_json_atomic, write_npz_atomic
+from worldsplat.core.scenario import scenario_id
+from worldsplat.core.video import mosaic
 from worldsplat.world.classes import CLASS_NAMES
-from worldsplat.video import mosaic
 from worldsplat.world.layout import shifted_ego
 
 
-
 def save_png(path: Path, array: np.ndarray) -> None:
-    """Write a PNG atomically (temporary file + rename) with deterministic bytes."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    Image.fromarray(array).save(tmp, format="PNG", optimize=False, compress_level=6)
-    os.replace(tmp, path)
+    """Write a PNG atomically with deterministic bytes."""
+    buf = io.BytesIO()
+    Image.fromarray(array).save(buf, format="PNG", optimize=False, compress_level=6)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def write_json(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True, allow_nan=False))
-    os.replace(tmp, path)
+    write_json_atomic(path, obj, allow_nan=False)
 
 
 def save_npz(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    with open(tmp, "wb") as f:
-        np.savez_compressed(f, **arrays)
-    os.replace(tmp, path)
+    write_npz_atomic(path, arrays, compressed=True)
 
 
 BEV_COLOURS = {"drivable": (90, 90, 95), "sidewalk": (200, 130, 180), "crosswalk": (230, 220, 120),

@@ -10,13 +10,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from worldsplat.camera import RigCamera, default_rig, translation, yaw_pose
-from worldsplat.scenario import Scenario
+from worldsplat.core.camera import RigCamera, default_rig, shifted_ego, translation, yaw_pose  # noqa: F401 (re-export)
+from worldsplat.core.scenario import Scenario
 from worldsplat.world.agents import Agent, agent_parts, build_agents, ego_path, place_parts
+from worldsplat.world.caption import compose_caption
 from worldsplat.world.classes import BARRIER, BUILDING, POLE, SIGN, VEGETATION
+from worldsplat.world.conditions import world_conditions
 from worldsplat.world.lighting import Lighting, make_lighting
-from worldsplat.world.prims import (M_BUILDING, M_FOLIAGE, M_HOUSE, M_LAMP, M_PLAIN, M_SIGN, M_TRAFFIC_LIGHT,
-                                    PrimBuilder, Prims)
+from worldsplat.world.prims import (
+    M_BUILDING,
+    M_FOLIAGE,
+    M_HOUSE,
+    M_LAMP,
+    M_PLAIN,
+    M_SIGN,
+    M_TRAFFIC_LIGHT,
+    PrimBuilder,
+    Prims,
+)
 from worldsplat.world.road import RoadGeometry, make_road
 
 FACADES = ((0.78, 0.72, 0.62), (0.66, 0.42, 0.33), (0.58, 0.58, 0.6), (0.85, 0.83, 0.78), (0.55, 0.5, 0.44),
@@ -67,7 +78,6 @@ class World:
         return self.rig_camera(name).at(self.ego_to_world[t], shift_m)
 
     def conditions(self, shift_m: float = 0.0, cameras: list[str] | None = None) -> dict:
-        from worldsplat.world.conditions import world_conditions
         return world_conditions(self, shift_m, cameras)
 
     def add_static(self, prims: Prims) -> None:
@@ -260,12 +270,8 @@ def build_world(scenario: Scenario) -> World:
     template = Prims.concat([agent_parts(a, i, float(keys[i])) for i, a in enumerate(agents)])
     rig = default_rig(scenario.image.width, scenario.image.height, tuple(scenario.rig.cameras))
     world = World(scenario, road, lighting, static, agents, template, ego_to_world, times, rig, lamps)
-    from worldsplat.world.caption import compose_caption
     world.caption = compose_caption(world)
     return world
 
 
-def shifted_ego(ego_to_world: np.ndarray, shift_m: float) -> np.ndarray:
-    """Ego poses of the track shifted `shift_m` to the left (ego y)."""
-    return ego_to_world @ translation(0.0, shift_m, 0.0)
 

@@ -31,19 +31,19 @@ class Prims:
         return int(self.center.shape[0])
 
     @staticmethod
-    def empty() -> "Prims":
+    def empty() -> Prims:
         return Prims(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0, np.uint8),
                      np.zeros((0, 3), np.float32), np.zeros(0, np.int8), np.zeros(0, np.float32),
                      np.zeros(0, np.int32))
 
     @staticmethod
-    def concat(items: list["Prims"]) -> "Prims":
+    def concat(items: list[Prims]) -> Prims:
         items = [p for p in items if len(p)]
         if not items:
             return Prims.empty()
         return Prims(*(np.concatenate([getattr(p, f) for p in items]) for f in Prims.__dataclass_fields__))
 
-    def take(self, idx: np.ndarray) -> "Prims":
+    def take(self, idx: np.ndarray) -> Prims:
         return Prims(*(getattr(self, f)[idx] for f in Prims.__dataclass_fields__))
 
     @property

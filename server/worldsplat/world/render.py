@@ -15,11 +15,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from worldsplat.camera import Camera
+from worldsplat.core.camera import Camera
 from worldsplat.world.classes import CROSSWALK, CURB, LANE_MARKING, SIDEWALK, SKY, TERRAIN
 from worldsplat.world.lighting import Lighting
-from worldsplat.world.prims import (BOX, SPHERE, M_BUILDING, M_BUS, M_CABIN, M_CAR_BODY, M_FOLIAGE, M_HOUSE, M_LAMP,
-                                    M_PERSON, M_TRAFFIC_LIGHT, Prims)
+from worldsplat.world.prims import (
+    BOX,
+    M_BUILDING,
+    M_BUS,
+    M_CABIN,
+    M_CAR_BODY,
+    M_FOLIAGE,
+    M_HOUSE,
+    M_LAMP,
+    M_PERSON,
+    M_TRAFFIC_LIGHT,
+    SPHERE,
+    Prims,
+)
 
 NEAR = 0.05
 FAR = 250.0
@@ -31,7 +43,7 @@ def single_threaded_blas():
     multi-threaded OpenBLAS spin-waits on them and runs ~25x slower when the cores are busy. We parallelise over
     frames instead (worldsplat.world.simulate)."""
     try:
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import threadpool_limits  # noqa: PLC0415 - optional BLAS thread control
     except ImportError:      # pragma: no cover - threadpoolctl ships with the pinned environment
         return contextlib.nullcontext()
     return threadpool_limits(limits=1, user_api="blas")

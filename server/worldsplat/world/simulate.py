@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from worldsplat.camera import Camera, RigCamera
+from worldsplat.core.camera import Camera, RigCamera
 from worldsplat.world.layout import World, shifted_ego
 from worldsplat.world.render import render_frame, single_threaded_blas
 

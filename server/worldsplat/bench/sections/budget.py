@@ -6,14 +6,15 @@ import numpy as np
 
 from worldsplat.bench.report import Pareto, Section
 from worldsplat.bench.timing import time_once
+from worldsplat.core.metrics import psnr
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians import wsplat
+from worldsplat.gaussians.aggregate import Economy, aggregate_4d
+from worldsplat.gaussians.economy import lift_clip, render_frame_views
+from worldsplat.world import build_world, simulate
 
 
 def run(quick: bool) -> Section:
-    from worldsplat.gaussians import wsplat
-    from worldsplat.gaussians.aggregate import Economy, aggregate_4d
-    from worldsplat.gaussians.economy import lift_clip, psnr, render_frame_views
-    from worldsplat.scenario import load_preset
-    from worldsplat.world import build_world, simulate
 
     w, h, frames = (100, 56, 2) if quick else (200, 112, 4)
     shift = 2.0

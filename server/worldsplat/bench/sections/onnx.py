@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 from worldsplat.bench.report import Pareto, Section
+from worldsplat.pipeline.inference import load_models
+from worldsplat.pipeline.onnx import GRAPHS, speed_ratio
 
 
 def run(quick: bool) -> Section:
-    from worldsplat_models.inference import load_models
-    from worldsplat_models.onnx_export import GRAPHS, speed_ratio
 
     models = load_models()
     onnx_dir = models.weights_dir / "onnx"

@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from worldsplat.bench.fixtures import oracle_fixture, psnr
+from worldsplat.bench.fixtures import oracle_fixture
 from worldsplat.bench.report import Pareto, Section
 from worldsplat.bench.timing import compare
+from worldsplat.core.metrics import psnr
+from worldsplat.gaussians import rasterize
 
 
 def run(quick: bool) -> Section:
-    from worldsplat.gaussians import rasterize
 
     w, h = (100, 56) if quick else (200, 112)
     fx = oracle_fixture("urban_straight", w, h)

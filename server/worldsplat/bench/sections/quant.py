@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from worldsplat.bench.fixtures import oracle_fixture, psnr
+from worldsplat.bench.fixtures import oracle_fixture
 from worldsplat.bench.report import Pareto, Section
+from worldsplat.core.metrics import psnr
+from worldsplat.gaussians import rasterize, wsplat
 
 
 def layout(pos_bits: int, col_bits: int, s_bits: int = 8, o_bits: int = 6) -> list:
@@ -20,7 +22,6 @@ SETTINGS = {  # name -> (position bits, colour bits)
 
 
 def run(quick: bool) -> Section:
-    from worldsplat.gaussians import rasterize, wsplat
 
     w, h = (100, 56) if quick else (200, 112)
     fx = oracle_fixture("urban_straight", w, h)

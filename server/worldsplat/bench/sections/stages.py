@@ -6,17 +6,17 @@ import resource
 
 from worldsplat.bench.fixtures import shipped_generator
 from worldsplat.bench.report import Section
+from worldsplat.pipeline.inference import generate
+from worldsplat.pipeline.refine import refine_available, stage_timings
 
 
 def run(quick: bool) -> Section:
-    from worldsplat_models.inference import generate
 
     models, sc, world = shipped_generator("stages")
     d = models.data
     steps = 2 if quick else 8
     dec = generate(world.conditions(0.0), steps=steps, models=models)
     t = dec.meta["timing_s"]
-    from worldsplat.refine import refine_available, stage_timings
     ref = {}
     if refine_available() and not quick:  # the refined track takes minutes on 2 cores
         ref = stage_timings(scenario=sc, shift_m=2.0, steps=steps)

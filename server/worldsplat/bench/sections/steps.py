@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from worldsplat.bench.fixtures import shipped_generator
 from worldsplat.bench.report import Pareto, Section
+from worldsplat.evaluation.models import steps_vs_error_for
+from worldsplat.pipeline.inference import condition_tensors
 
 
 def run(quick: bool) -> Section:
-    from worldsplat_models.evaluate import steps_vs_error_for
-    from worldsplat_models.inference import condition_tensors
 
     models, sc, world = shipped_generator("steps")
     d = models.data

@@ -6,11 +6,11 @@ import json
 import os
 import re
 import subprocess
-from pathlib import Path
 
 from worldsplat.bench.report import Pareto, Section
+from worldsplat.core.paths import source_root
 
-ROOT = Path(__file__).resolve().parents[4]
+ROOT = source_root()  # the viewer bench drives the checkout's wasm/ and tests/browser/
 
 
 def _native(counts: list[int], size: str, frames: int) -> list[dict]:

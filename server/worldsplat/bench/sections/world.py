@@ -7,11 +7,11 @@ from __future__ import annotations
 
 from worldsplat.bench.report import Pareto, Section
 from worldsplat.bench.timing import compare
+from worldsplat.core.scenario import load_preset
+from worldsplat.world import build_world, simulate
 
 
 def run(quick: bool) -> Section:
-    from worldsplat.scenario import load_preset
-    from worldsplat.world import build_world, simulate
 
     sizes = [(56, 100), (112, 200)] if quick else [(56, 100), (112, 200), (224, 400)]
     frames = 2 if quick else 8

@@ -18,6 +18,8 @@ const USAGE: &str = "usage:
   splat-render bench --compare-paths [--counts ..] [--size ..] [--frames ..] [--out-dir DIR]
                (both draw paths side by side on the same scene and views: frame time ratio, PSNR between them;
                 DIR gets each scene as PLY, the last camera as JSON and both renders, for a torch reference)
+  splat-render bench --stages [--counts ..] [--size ..] [--frames ..] [--accum f16|unorm8]
+               (both paths, every stage waited for: sort, upload, draw, blit, readback ms; draw with square quads)
   splat-render psnr A.png B.png                          (RGB PSNR in dB of two renders of one size)
   splat-render synth --count N --out FILE.ply           (the benchmark's synthetic street cloud)
   splat-render fixture4d VECTOR.json --out FILE.wsplat [--frames 4] [--chunk 500]
@@ -38,7 +40,7 @@ impl Args {
                 if name == "help" {
                     return Err(USAGE.into());
                 }
-                if name == "compare-paths" {
+                if name == "compare-paths" || name == "stages" {
                     flags.push((name.to_string(), String::new())); // a switch
                     continue;
                 }
@@ -192,9 +194,12 @@ fn bench_sizes(a: &Args) -> Result<(Vec<usize>, [u32; 2], usize), String> {
 }
 
 fn bench(a: &Args) -> Result<(), String> {
-    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "out-dir", "sort-items"])?;
+    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "stages", "out-dir", "sort-items", "accum"])?;
     if a.get("compare-paths").is_some() {
         return bench_paths(a);
+    }
+    if a.get("stages").is_some() {
+        return bench_stages(a);
     }
     let (counts, size, frames) = bench_sizes(a)?;
     let mut gpu = headless::gpu(parse_path(a)?)?;
@@ -254,6 +259,79 @@ fn bench(a: &Args) -> Result<(), String> {
         );
     }
     Ok(())
+}
+
+/// Where a frame goes, per stage, on both draw paths (`bench --stages`): every stage is submitted on its own and
+/// waited for (`Renderer::stage_sync`), the camera orbits every frame (a new order each frame). Also the same
+/// frames with the spec's full square quads (`square_quads`) against the tight rectangles: the draw both ways.
+fn bench_stages(a: &Args) -> Result<(), String> {
+    let (counts, size, frames) = bench_sizes(a)?;
+    fn wait(d: &wgpu::Device) {
+        let _ = d.poll(wgpu::PollType::wait_indefinitely());
+    }
+    println!(
+        "per-stage ms (each stage waited for), {}x{}, {frames} timed frames after one warm-up, camera moving, accumulation {}",
+        size[0],
+        size[1],
+        a.get("accum").unwrap_or("f16")
+    );
+    println!("| path | Gaussians | frame | sort | upload | draw | blit | readback | draw, square quads | draw tight / square |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for path in [DrawPath::Storage, DrawPath::Instanced] {
+        let mut gpu = headless::gpu(Some(path))?;
+        if let Some(k) = a.get("sort-items") {
+            gpu.sort_items = k.parse().map_err(|_| format!("--sort-items {k:?}: expected an integer"))?;
+        }
+        match a.get("accum") {
+            None | Some("f16") => {}
+            Some("unorm8") => gpu.accum_format = wgpu::TextureFormat::Rgba8Unorm,
+            Some(x) => return Err(format!("--accum {x:?}: expected f16 or unorm8")),
+        }
+        for &n in &counts {
+            let gs = synthetic(n, 0x9e3779b97f4a7c15 ^ n as u64);
+            let scene = Scene::from_gaussians(&gs);
+            let mut r = Renderer::new(&gpu);
+            r.clock = native_clock;
+            r.stage_sync = Some(wait);
+            r.update(&scene.statics, &[]);
+            let mut state = ViewState::default();
+            state.set_camera(&scene, "free").unwrap();
+            state.free.target = [50.0, 0.0, 2.0];
+            state.free.distance = 30.0;
+            let mut acc = [0.0f64; 7];
+            for i in 0..=frames {
+                state.free.orbit(0.05, 0.0);
+                let views = state.views(&scene, size);
+                r.square_quads = false;
+                let t = Instant::now();
+                let (_, st) = headless::render_rgba(&mut r, &views, size)?;
+                let frame = t.elapsed().as_secs_f64() * 1e3;
+                // The same view again with square quads: its sort is reused, so only the draw differs.
+                r.square_quads = true;
+                let (_, sq) = headless::render_rgba(&mut r, &views, size)?;
+                let sort = st.gpu_sort_ms + st.cpu_sort_ms - st.gather_ms;
+                let staged = sort + st.gather_ms + st.draw_ms + st.blit_ms;
+                if i > 0 {
+                    for (k, x) in [frame, sort, st.gather_ms, st.draw_ms, st.blit_ms, frame - staged, sq.draw_ms].into_iter().enumerate() {
+                        acc[k] += x / frames as f64;
+                    }
+                }
+            }
+            let [frame, sort, upload, draw, blit, readback, square] = acc;
+            println!(
+                "| {} | {n} | {frame:.1} | {sort:.1} | {upload:.1} | {draw:.1} | {blit:.1} | {readback:.1} | {square:.1} | {:.2} |",
+                if path == DrawPath::Storage { "storage (GPU sort)" } else { "instanced (CPU sort)" },
+                draw / square
+            );
+        }
+    }
+    Ok(())
+}
+
+fn native_clock() -> f64 {
+    use std::sync::OnceLock;
+    static START: OnceLock<Instant> = OnceLock::new();
+    START.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3
 }
 
 /// RGB PSNR of two RGBA8 images of one size (999 when identical).

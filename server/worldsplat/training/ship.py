@@ -1,0 +1,30 @@
+"""Ship trained weights: float16 safetensors in the weights folder and the ONNX serving graphs exported from exactly
+those (rounded) weights."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from worldsplat.pipeline.inference import _CACHE, load_models
+from worldsplat.pipeline.onnx import export
+from worldsplat_models.weights import load_weights, save_weights, weights_dir
+
+
+def ship(run_dir: str | Path, out_dir: str | Path | None = None, kinds=("vae", "decoder", "dit"),
+         size: str = "small", onnx: bool = True) -> list[Path]:
+    """Copy trained weights from a run directory into the shipped set: float16 safetensors (half the bytes;
+    loaded as float32) and the ONNX serving graphs exported from exactly those (rounded) weights."""
+    run_dir, out_dir = Path(run_dir), Path(out_dir or weights_dir())
+    written = []
+    for kind in kinds:
+        src = run_dir / f"{kind}_{size}.safetensors"
+        if not src.exists():
+            continue
+        m = load_weights(src, kind)
+        meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
+        written.append(save_weights(m, out_dir / src.name, kind, meta, dtype=torch.float16))
+    if onnx:
+        _CACHE.clear()
+        written += list(export(load_models(out_dir), out_dir / "onnx").values())
+    return written

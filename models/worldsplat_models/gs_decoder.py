@@ -17,6 +17,7 @@ per pixel of a grid at image/`gaussian_stride` resolution, with bounded, documen
 Non-finite raw outputs are zeroed before activation. Mean = ray origin + d * ray direction (unit camera z, so d is
 camera-z depth as in the world's depth maps) + offset.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,8 +33,9 @@ from .vae import ResBlock
 HEAD_CHANNELS = {"offset": 3, "quat": 4, "scale": 3, "opacity": 1, "color": 3, "depth": 1, "dynamic": 1}
 
 
-def pixel_rays(intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: tuple[int, int],
-               grid_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+def pixel_rays(
+    intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: tuple[int, int], grid_hw: tuple[int, int]
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Ray origins (..., 3) and directions (..., gh, gw, 3) with unit camera-z component, for the centres of a
     gh x gw grid covering an image of image_hw pixels. intrinsics (..., 4) = fx, fy, cx, cy in image pixels."""
     with torch.autocast(device_type=intrinsics.device.type, enabled=False):  # geometry stays float32
@@ -84,10 +86,15 @@ def matrix_to_quaternion(R: torch.Tensor) -> torch.Tensor:
 def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     aw, ax, ay, az = a.unbind(-1)
     bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
-                        aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx,
-                        aw * bz + ax * by - ay * bx + az * bw], dim=-1)
+    return torch.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        dim=-1,
+    )
 
 
 def safe_normalize_quaternion(q: torch.Tensor) -> torch.Tensor:
@@ -140,8 +147,9 @@ class GaussianDecoder(nn.Module):
         nn.init.normal_(self.head.weight, std=1e-3)
         nn.init.zeros_(self.head.bias)
 
-    def forward(self, L: torch.Tensor, intrinsics: torch.Tensor, cam_to_world: torch.Tensor,
-                image_hw: tuple[int, int]) -> dict[str, torch.Tensor]:
+    def forward(
+        self, L: torch.Tensor, intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: tuple[int, int]
+    ) -> dict[str, torch.Tensor]:
         """L (B,T,V,C,h,w) normalised latents; intrinsics (B,T,V,4) fx,fy,cx,cy of the image_hw image;
         cam_to_world (B,T,V,4,4) -> Gaussian fields, each (B,T,V,gh,gw,k) (k dropped when 1), in world metres."""
         cfg = self.cfg
@@ -152,10 +160,13 @@ class GaussianDecoder(nn.Module):
             raise ValueError(f"Gaussian decoder: {V} views x {T} frames exceeds max {cfg.max_views} x {cfg.max_frames}")
         D = cfg.dim
         o, d = pixel_rays(intrinsics, cam_to_world, image_hw, (h, w))
-        rays = plucker(o, d, cfg.ray_scale).to(L.dtype)                        # (B,T,V,6,h,w)
-        x = torch.cat([L, rays], dim=3).permute(0, 1, 2, 4, 5, 3)               # (B,T,V,h,w,C+6)
-        pos = (sincos_2d(h, w, D, L.device).reshape(1, 1, 1, h, w, D)
-               + self.view_embed[:V].reshape(1, 1, V, 1, 1, D) + self.frame_embed[:T].reshape(1, T, 1, 1, 1, D))
+        rays = plucker(o, d, cfg.ray_scale).to(L.dtype)  # (B,T,V,6,h,w)
+        x = torch.cat([L, rays], dim=3).permute(0, 1, 2, 4, 5, 3)  # (B,T,V,h,w,C+6)
+        pos = (
+            sincos_2d(h, w, D, L.device).reshape(1, 1, 1, h, w, D)
+            + self.view_embed[:V].reshape(1, 1, V, 1, 1, D)
+            + self.frame_embed[:T].reshape(1, T, 1, 1, 1, D)
+        )
         tok = (self.embed(x) + pos.to(x.dtype)).reshape(B, T, V * h * w, D)
         for blk in self.blocks:
             tok = blk(tok, T)
@@ -172,8 +183,14 @@ class GaussianDecoder(nn.Module):
         fx_grid = intrinsics[..., 0].float() * (gw / image_hw[1])
         return self.activate(raw, o_g, d_g, fx_grid, cam_to_world)
 
-    def activate(self, raw: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, fx_grid: torch.Tensor,
-                 cam_to_world: torch.Tensor) -> dict[str, torch.Tensor]:
+    def activate(
+        self,
+        raw: torch.Tensor,
+        origins: torch.Tensor,
+        dirs: torch.Tensor,
+        fx_grid: torch.Tensor,
+        cam_to_world: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
         """Raw head output (B,T,V,gh,gw,16) -> bounded Gaussian parameters (float32, autocast off)."""
         with torch.autocast(device_type=raw.device.type, enabled=False):
             return self._activate(raw.float(), origins.float(), dirs.float(), fx_grid.float(), cam_to_world.float())
@@ -188,14 +205,17 @@ class GaussianDecoder(nn.Module):
         means = origins[..., None, None, :] + depth[..., None] * dirs + offset
         a, b = cfg.pixel_scale_range
         footprint = depth / fx_grid[..., None, None]
-        scales = (footprint[..., None] * (a + (b - a) * torch.sigmoid(parts["scale"]))).clamp(cfg.scale_min,
-                                                                                               cfg.scale_max)
+        scales = (footprint[..., None] * (a + (b - a) * torch.sigmoid(parts["scale"]))).clamp(
+            cfg.scale_min, cfg.scale_max
+        )
         q_cam = safe_normalize_quaternion(parts["quat"])
         q_c2w = matrix_to_quaternion(cam_to_world[..., :3, :3])[..., None, None, :].expand_as(q_cam)
         quats = quaternion_multiply(q_c2w, q_cam)
         quats = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         return {
-            "means": means, "quats": quats, "scales": scales,
+            "means": means,
+            "quats": quats,
+            "scales": scales,
             "opacities": torch.sigmoid(parts["opacity"][..., 0] + cfg.opacity_bias),
             "colors": torch.sigmoid(parts["color"]),
             "depth": depth,

@@ -9,9 +9,10 @@ Timestep shift (OpenSora v1.2 / SD3 form) acts on the noise level sigma = 1 - s:
     sigma' = r * sigma / (1 + (r - 1) * sigma),  r >= 1 spends more steps at high noise.
 All timestep arithmetic is float32 even under autocast (fp16 there produced NaN in OpenSora, PR #523).
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 
@@ -32,16 +33,23 @@ def interpolate(x: torch.Tensor, eps: torch.Tensor, s: torch.Tensor) -> torch.Te
     return ((1.0 - s) * eps.float() + s * x.float()).to(x.dtype)
 
 
-def sample_training_s(batch: int, shift: float = 1.0, generator: torch.Generator | None = None,
-                      device=None) -> torch.Tensor:
+def sample_training_s(
+    batch: int, shift: float = 1.0, generator: torch.Generator | None = None, device=None
+) -> torch.Tensor:
     """Logit-normal s (sigmoid of a standard normal), then the timestep shift on sigma = 1 - s."""
     s = torch.sigmoid(torch.randn(batch, generator=generator, device=device))
     return 1.0 - shift_noise_level(1.0 - s, shift)
 
 
-def training_loss(model: VelocityFn, x: torch.Tensor, cond, shift: float = 1.0,
-                  generator: torch.Generator | None = None, eps: torch.Tensor | None = None,
-                  s: torch.Tensor | None = None) -> torch.Tensor:
+def training_loss(
+    model: VelocityFn,
+    x: torch.Tensor,
+    cond,
+    shift: float = 1.0,
+    generator: torch.Generator | None = None,
+    eps: torch.Tensor | None = None,
+    s: torch.Tensor | None = None,
+) -> torch.Tensor:
     """Mean squared error between g(z(s), s, c) and x - eps."""
     if eps is None:
         eps = torch.randn(x.shape, generator=generator, device=x.device, dtype=x.dtype)
@@ -61,8 +69,16 @@ def sampling_grid(steps: int, shift: float = 1.0) -> torch.Tensor:
 
 
 @torch.no_grad()
-def sample(model: VelocityFn, noise: torch.Tensor, cond, steps: int = 8, shift: float = 1.0,
-           cfg_scale: float = 1.0, uncond=None, callback: Callable[[int, int], None] | None = None) -> torch.Tensor:
+def sample(
+    model: VelocityFn,
+    noise: torch.Tensor,
+    cond,
+    steps: int = 8,
+    shift: float = 1.0,
+    cfg_scale: float = 1.0,
+    uncond=None,
+    callback: Callable[[int, int], None] | None = None,
+) -> torch.Tensor:
     """Euler integration from s = 0 (noise) to s = 1 (data).
 
     With cfg_scale != 1 the velocity is g_u + cfg_scale * (g_c - g_u), where g_u uses `uncond` (the dropped

@@ -8,6 +8,7 @@ DiT and the Gaussian decoder.
 Depth normalisation (one definition, used by data, decoder and metrics): log depth over [near, far] metres,
     n = 2 * (log d - log near) / (log far - log near) - 1, clamped to [-1, 1]; sky (inf) -> far -> +1.
 """
+
 from __future__ import annotations
 
 import math
@@ -136,8 +137,11 @@ class MultiModalVAE(nn.Module):
     def encode_joint(self, rgb: torch.Tensor, depth_n: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """rgb (B,3,H,W) in [-1,1], depth_n (B,1,H,W) normalised depth, mask (B,1,H,W) in {0,1}
         -> normalised L (B, 3c, H/8, W/8)."""
-        parts = [self.encode(rgb), self.encode(depth_n.expand(-1, 3, -1, -1)),
-                 self.encode((mask.float() * 2 - 1).expand(-1, 3, -1, -1))]
+        parts = [
+            self.encode(rgb),
+            self.encode(depth_n.expand(-1, 3, -1, -1)),
+            self.encode((mask.float() * 2 - 1).expand(-1, 3, -1, -1)),
+        ]
         L = torch.cat(parts, dim=1)
         return (L - self.latent_mean.view(1, -1, 1, 1)) / self.latent_std.view(1, -1, 1, 1)
 
@@ -146,6 +150,6 @@ class MultiModalVAE(nn.Module):
         c = self.cfg.latent_channels
         L = L * self.latent_std.view(1, -1, 1, 1) + self.latent_mean.view(1, -1, 1, 1)
         rgb = self.decode(L[:, :c]).clamp(-1, 1)
-        depth = self.decode(L[:, c:2 * c]).mean(1, keepdim=True).clamp(-1, 1)
-        mask = ((self.decode(L[:, 2 * c:]).mean(1, keepdim=True) + 1) * 0.5).clamp(0, 1)
+        depth = self.decode(L[:, c : 2 * c]).mean(1, keepdim=True).clamp(-1, 1)
+        mask = ((self.decode(L[:, 2 * c :]).mean(1, keepdim=True) + 1) * 0.5).clamp(0, 1)
         return rgb, depth, mask

@@ -4,6 +4,7 @@
 The shipped weights and their model cards live in `models/weights/`, beside this package; `weights_dir()` is the
 one place that says so (`$WORLDSPLAT_WEIGHTS` points it elsewhere).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,8 +40,9 @@ def build(kind: str, cfg, num_classes: int = 17) -> torch.nn.Module:
     raise ValueError(f"unknown model kind {kind!r}; expected one of {', '.join(KINDS)}")
 
 
-def save_weights(model: torch.nn.Module, path: str | Path, kind: str, meta: dict | None = None,
-                 dtype: torch.dtype = torch.float32) -> Path:
+def save_weights(
+    model: torch.nn.Module, path: str | Path, kind: str, meta: dict | None = None, dtype: torch.dtype = torch.float32
+) -> Path:
     """Atomic write of the weights (stored as `dtype`; loading always gives float32) + metadata
     {kind, config, **meta}."""
     path = Path(path)

@@ -1,4 +1,5 @@
 """Shared pytest set-up for the Python suite."""
+
 import pytest
 import torch
 

@@ -1,5 +1,6 @@
 """The playground API in-process (FastAPI TestClient): presets, scenes, streams with Range, SSE, videos, jobs, and bad
 input (422 naming the field, 404, 413, 416, ids that cannot escape the cache). Scenes are tiny (2 frames, 64x32)."""
+
 from __future__ import annotations
 
 import json
@@ -11,8 +12,11 @@ from fastapi.testclient import TestClient
 from worldsplat.api.app import MAX_BODY, ApiError, create_app, parse_range
 from worldsplat.core.scenario import load_preset
 
-TINY = {"clip": {"frames": 2, "fps": 4.0}, "image": {"width": 64, "height": 32},
-        "traffic": {"moving_vehicles": 2, "parked_vehicles": 1, "pedestrians": 1, "cyclists": 0}}
+TINY = {
+    "clip": {"frames": 2, "fps": 4.0},
+    "image": {"width": 64, "height": 32},
+    "traffic": {"moving_vehicles": 2, "parked_vehicles": 1, "pedestrians": 1, "cyclists": 0},
+}
 
 
 def tiny_scenario(seed: int = 3, cameras: list[str] | None = None) -> dict:
@@ -44,13 +48,16 @@ def test_presets_and_schema(client):
     assert client.get("/openapi.json").status_code == 200 and client.get("/docs").status_code == 200
 
 
-@pytest.mark.parametrize("patch, field", [
-    ({"traffic": {"pedestrians": 99}}, "scenario.traffic.pedestrians"),
-    ({"clip": {"frames": 0}}, "scenario.clip.frames"),
-    ({"weather": "sunny"}, "scenario.weather"),
-    ({"seed": -1}, "scenario.seed"),
-    ({"environment": {"weather": "snow"}}, "scenario.environment.weather"),
-])
+@pytest.mark.parametrize(
+    "patch, field",
+    [
+        ({"traffic": {"pedestrians": 99}}, "scenario.traffic.pedestrians"),
+        ({"clip": {"frames": 0}}, "scenario.clip.frames"),
+        ({"weather": "sunny"}, "scenario.weather"),
+        ({"seed": -1}, "scenario.seed"),
+        ({"environment": {"weather": "snow"}}, "scenario.environment.weather"),
+    ],
+)
 def test_invalid_scenario_is_422_naming_the_field(client, patch, field):
     scenario = tiny_scenario()
     for k, v in patch.items():
@@ -75,21 +82,28 @@ def test_oversize_scene_is_422(client):
 
 
 def test_bad_requests_never_500(client):
-    assert client.post("/api/scenes", content=b"{not json", headers={"content-type": "application/json"}
-                       ).status_code == 422
+    assert (
+        client.post("/api/scenes", content=b"{not json", headers={"content-type": "application/json"}).status_code
+        == 422
+    )
     assert client.post("/api/scenes", json=[1, 2]).status_code == 422
     assert client.post("/api/scenes", json={"scenario": tiny_scenario(), "extra": 1}).json()["field"] == "extra"
     r = client.post("/api/scenes", content=b"x" * (MAX_BODY + 1), headers={"content-type": "application/json"})
     assert r.status_code == 413
-    r = client.post("/api/scenes", content=b"{}", headers={"content-type": "application/json",
-                                                             "content-length": "abc"})
+    r = client.post("/api/scenes", content=b"{}", headers={"content-type": "application/json", "content-length": "abc"})
     assert r.status_code in (400, 413)
 
 
 @pytest.mark.parametrize("bad", ["..%2F..%2Fetc%2Fpasswd", "A" * 32, "0" * 31, "0" * 64, "%00", "x"])
 def test_ids_are_validated_404(client, bad):
-    for url in (f"/api/scenes/{bad}", f"/api/scenes/{bad}/wsplat", f"/api/scenes/{bad}/events",
-                f"/api/jobs/{bad}", f"/api/videos/{bad}", f"/api/videos/{bad}/status"):
+    for url in (
+        f"/api/scenes/{bad}",
+        f"/api/scenes/{bad}/wsplat",
+        f"/api/scenes/{bad}/events",
+        f"/api/jobs/{bad}",
+        f"/api/videos/{bad}",
+        f"/api/videos/{bad}/status",
+    ):
         assert client.get(url).status_code == 404, url
     # an encoded slash no longer matches the API route: the static mount answers 405 (never a file, never a 500)
     expected = (404, 405) if "%2F" in bad else (404,)
@@ -99,8 +113,14 @@ def test_ids_are_validated_404(client, bad):
 
 def test_unknown_ids_404(client):
     unknown = "0" * 32
-    for url in (f"/api/scenes/{unknown}", f"/api/scenes/{unknown}/wsplat", f"/api/scenes/{unknown}/events",
-                f"/api/jobs/{unknown}", f"/api/videos/{unknown}", f"/api/videos/{unknown}/status"):
+    for url in (
+        f"/api/scenes/{unknown}",
+        f"/api/scenes/{unknown}/wsplat",
+        f"/api/scenes/{unknown}/events",
+        f"/api/jobs/{unknown}",
+        f"/api/videos/{unknown}",
+        f"/api/videos/{unknown}/status",
+    ):
         assert client.get(url).status_code == 404, url
     assert client.post(f"/api/jobs/{unknown}/cancel").status_code == 404
 
@@ -160,8 +180,9 @@ def test_scene_lifecycle_stream_range_and_events(client):
     part = client.get(f"/api/scenes/{scene_id}/wsplat", headers={"Range": "bytes=8-15"})
     assert part.status_code == 206 and part.content == whole.content[8:16]
     assert part.headers["content-range"] == f"bytes 8-15/{state['bytes']}"
-    assert client.get(f"/api/scenes/{scene_id}/wsplat", headers={"Range": f"bytes={state['bytes']}-"}
-                      ).status_code == 416
+    assert (
+        client.get(f"/api/scenes/{scene_id}/wsplat", headers={"Range": f"bytes={state['bytes']}-"}).status_code == 416
+    )
     cached = client.post("/api/scenes", json={"scenario": scenario, "mode": "oracle"})
     assert cached.status_code == 200 and cached.json()["status"] == "ready"
     # a different mode or seed is a different scene
@@ -173,7 +194,9 @@ def test_scene_lifecycle_stream_range_and_events(client):
 
 
 def test_video_job_and_refine_gate(client):
-    scene_id = client.post("/api/scenes", json={"scenario": tiny_scenario(seed=21), "mode": "oracle"}).json()["scene_id"]
+    scene_id = client.post("/api/scenes", json={"scenario": tiny_scenario(seed=21), "mode": "oracle"}).json()[
+        "scene_id"
+    ]
     pair = tiny_scenario(seed=22, cameras=["CAM_FRONT", "CAM_BACK"])
     pair_id = client.post("/api/scenes", json={"scenario": pair, "mode": "oracle"}).json()["scene_id"]
     assert wait_scene(client, scene_id)["status"] == "ready" and wait_scene(client, pair_id)["status"] == "ready"
@@ -202,12 +225,17 @@ def test_video_job_and_refine_gate(client):
     part = client.get(status["url"], headers={"Range": "bytes=0-99"})
     assert part.status_code == 206 and part.content == video.content[:100]
     # cached: the same request (any camera order) is answered at once
-    assert client.post(f"/api/scenes/{pair_id}/videos",
-                       json={"shift_m": 2.0, "cameras": ["CAM_BACK", "CAM_FRONT"]}).status_code == 200
+    assert (
+        client.post(
+            f"/api/scenes/{pair_id}/videos", json={"shift_m": 2.0, "cameras": ["CAM_BACK", "CAM_FRONT"]}
+        ).status_code
+        == 200
+    )
     # refinement: 409 naming it while unavailable; once shipped, a real job on full-rig scenes only
     modes = client.get("/api/modes").json()
-    refine = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0, "refine": True,
-                                                                "cameras": ["CAM_FRONT"]})
+    refine = client.post(
+        f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0, "refine": True, "cameras": ["CAM_FRONT"]}
+    )
     if not modes["refine"]:
         assert refine.status_code == 409 and "refinement" in refine.json()["error"]
         assert refine.json()["field"] == "refine"
@@ -219,8 +247,12 @@ def test_video_job_and_refine_gate(client):
     assert done.status == "done", done.error
     status = client.get(f"/api/videos/{refine.json()['video_id']}/status").json()
     assert status["frames"] == 2 and status["refine"] is True and (status["width"], status["height"]) == (64, 32)
-    assert refine.json()["video_id"] != client.post(f"/api/scenes/{scene_id}/videos", json={
-        "shift_m": 2.0, "cameras": ["CAM_FRONT"]}).json()["video_id"]
+    assert (
+        refine.json()["video_id"]
+        != client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 2.0, "cameras": ["CAM_FRONT"]}).json()[
+            "video_id"
+        ]
+    )
 
 
 def test_cancel_running_scene_job(client):

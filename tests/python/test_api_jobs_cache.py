@@ -1,5 +1,6 @@
 """The server's job manager and artifact cache on their own (no torch, no pipeline): real job functions, real files,
 and real kill -9 of a process in the middle of a job or a cache write."""
+
 from __future__ import annotations
 
 import hashlib
@@ -24,8 +25,9 @@ ID_C = "c" * 32
 
 # ---------------------------------------------------------------------------------------------------------------
 # cache
-@pytest.mark.parametrize("bad", ["", "A" * 32, "../" + "a" * 29, "a" * 31, "a" * 33, "a" * 31 + "/", "%2e%2e",
-                                 "a" * 31 + "\x00", "g" * 32])
+@pytest.mark.parametrize(
+    "bad", ["", "A" * 32, "../" + "a" * 29, "a" * 31, "a" * 33, "a" * 31 + "/", "%2e%2e", "a" * 31 + "\x00", "g" * 32]
+)
 def test_ids_are_validated(bad, tmp_path):
     with pytest.raises(InvalidId):
         validate_id(bad)
@@ -102,6 +104,7 @@ def hashing_runner(cache: ArtifactCache, gate: threading.Event | None = None):
         ctx.progress("write", 0.0)
         cache.put_bytes("scenes", ctx.job.target, ".wsplat", h.digest(), {"blocks": n})
         return {"digest": h.hexdigest()}
+
     return run
 
 

@@ -1,6 +1,7 @@
 """The real server (`worldsplat serve` in a subprocess, loopback, temp cache): load (50 concurrent .wsplat streams +
 10 queued video jobs, nothing but explicit 429s may fail), kill -9 during jobs and restart (nothing torn or lost), and
 a bounded schemathesis run against /openapi.json (no 5xx). Scenes are tiny so the whole file takes seconds."""
+
 from __future__ import annotations
 
 import concurrent.futures as cf
@@ -22,11 +23,17 @@ from worldsplat.core.scenario import load_preset
 ROOT = Path(__file__).resolve().parents[2]
 
 
-
 def tiny(seed: int, frames: int = 2, cameras=("CAM_FRONT", "CAM_BACK")) -> dict:
-    return load_preset("urban_straight").with_updates(
-        seed=seed, clip={"frames": frames}, image={"width": 64, "height": 32}, rig={"cameras": list(cameras)},
-    ).model_dump(mode="json")
+    return (
+        load_preset("urban_straight")
+        .with_updates(
+            seed=seed,
+            clip={"frames": frames},
+            image={"width": 64, "height": 32},
+            rig={"cameras": list(cameras)},
+        )
+        .model_dump(mode="json")
+    )
 
 
 def free_port() -> int:
@@ -45,10 +52,27 @@ class Server:
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = open(self.cache_dir.parent / f"server-{self.port}.log", "wb")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "worldsplat.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port),
-             "--cache-dir", str(self.cache_dir), "--no-warm", "--max-queued", str(self.max_queued),
-             "--max-scene-mpix", str(self.max_scene_mpix)],
-            cwd=ROOT, stdout=self.log, stderr=subprocess.STDOUT)
+            [
+                sys.executable,
+                "-m",
+                "worldsplat.cli",
+                "serve",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(self.port),
+                "--cache-dir",
+                str(self.cache_dir),
+                "--no-warm",
+                "--max-queued",
+                str(self.max_queued),
+                "--max-scene-mpix",
+                str(self.max_scene_mpix),
+            ],
+            cwd=ROOT,
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
+        )
         end = time.time() + timeout
         while time.time() < end:
             assert self.proc.poll() is None, self.read_log()
@@ -118,8 +142,7 @@ def test_load_50_streams_and_10_video_jobs(server):
         return h.hexdigest()
 
     def video(i: int) -> tuple[int, dict, dict]:
-        r = httpx.post(f"{server.url}/api/scenes/{scene_id}/videos",
-                       json={"shift_m": -4 + i * 0.8}, timeout=30)
+        r = httpx.post(f"{server.url}/api/scenes/{scene_id}/videos", json={"shift_m": -4 + i * 0.8}, timeout=30)
         return r.status_code, dict(r.headers), r.json()
 
     with cf.ThreadPoolExecutor(60) as pool:
@@ -259,8 +282,9 @@ def run_schemathesis(server: Server) -> None:
     for op in schema.get_all_operations():
         operation = op.ok()
 
-        @settings(max_examples=12, deadline=None, database=None,
-                  suppress_health_check=list(HealthCheck), derandomize=True)
+        @settings(
+            max_examples=12, deadline=None, database=None, suppress_health_check=list(HealthCheck), derandomize=True
+        )
         @given(case=operation.as_strategy())
         def check(case):
             nonlocal calls

@@ -1,4 +1,5 @@
 """`worldsplat bench --quick`: the report's structure, and the trend checks that fail the build on a regression."""
+
 import re
 
 from worldsplat.bench.checks import check_trends
@@ -25,14 +26,18 @@ def _section(key, data):
 
 
 def test_trend_checks_catch_regressions():
-    ok = [_section("steps", {"error_by_steps": {1: 0.5, 2: 0.3, 4: 0.1, 64: 0.0}}),
-          _section("budget", {"psnr_by_budget": {10: 20.0, 20: 21.0}}),
-          _section("precision", {"error_by_dtype": {"float32": 1e-7, "float16": 1e-3, "bfloat16": 1e-2}})]
+    ok = [
+        _section("steps", {"error_by_steps": {1: 0.5, 2: 0.3, 4: 0.1, 64: 0.0}}),
+        _section("budget", {"psnr_by_budget": {10: 20.0, 20: 21.0}}),
+        _section("precision", {"error_by_dtype": {"float32": 1e-7, "float16": 1e-3, "bfloat16": 1e-2}}),
+    ]
     assert check_trends(ok) == []
-    bad = [_section("steps", {"error_by_steps": {1: 0.1, 2: 0.3, 64: 0.0}}),
-           _section("budget", {"psnr_by_budget": {10: 22.0, 20: 21.0}}),
-           _section("precision", {"error_by_dtype": {"float32": 1e-2, "float16": 1e-3}}),
-           Section(key="x", title="x", columns=["a"], rows=[])]
+    bad = [
+        _section("steps", {"error_by_steps": {1: 0.1, 2: 0.3, 64: 0.0}}),
+        _section("budget", {"psnr_by_budget": {10: 22.0, 20: 21.0}}),
+        _section("precision", {"error_by_dtype": {"float32": 1e-2, "float16": 1e-3}}),
+        Section(key="x", title="x", columns=["a"], rows=[]),
+    ]
     problems = check_trends(bad)
     assert len(problems) == 4, problems
 

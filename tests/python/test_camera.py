@@ -1,4 +1,5 @@
 """The shared pinhole convention and the default rig (web/docs/conventions.md)."""
+
 import math
 
 import numpy as np

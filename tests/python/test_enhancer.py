@@ -1,4 +1,5 @@
 """Enhanced diffusion model (issue 7): shapes, conditioning, learning, weights round trip, inference helper."""
+
 import numpy as np
 import pytest
 import torch
@@ -25,19 +26,24 @@ def fake_cond(cfg, B=1, control=None, gen=None):
     T, V, N = cfg.data.frames, cfg.data.views, cfg.data.max_boxes
     c, h, w = cfg.latent_channels, cfg.data.height // 8, cfg.data.width // 8
     g = gen or torch.Generator().manual_seed(1)
-    return {"box_corners": torch.randn(B, T, N, 8, 3, generator=g) * 10,
-            "box_cls": torch.randint(0, 17, (B, T, N), generator=g), "box_moving": torch.zeros(B, T, N, dtype=bool),
-            "box_mask": torch.ones(B, T, N, dtype=bool), "traj": torch.eye(4).expand(B, T, 4, 4).clone(),
-            "caption": torch.randn(B, 384, generator=g),
-            "control": control if control is not None else torch.randn(B, T, V, 2 * c + 1, h, w, generator=g)}
+    return {
+        "box_corners": torch.randn(B, T, N, 8, 3, generator=g) * 10,
+        "box_cls": torch.randint(0, 17, (B, T, N), generator=g),
+        "box_moving": torch.zeros(B, T, N, dtype=bool),
+        "box_mask": torch.ones(B, T, N, dtype=bool),
+        "traj": torch.eye(4).expand(B, T, 4, 4).clone(),
+        "caption": torch.randn(B, 384, generator=g),
+        "control": control if control is not None else torch.randn(B, T, V, 2 * c + 1, h, w, generator=g),
+    }
 
 
 def test_forward_shape_and_channel_contract():
     model, _ = tiny()
     cfg = model.cfg
     x = torch.randn(2, cfg.data.frames, cfg.data.views, cfg.latent_channels, 4, 6)
-    cond = fake_cond(cfg, B=2, control=torch.randn(2, cfg.data.frames, cfg.data.views, 2 * cfg.latent_channels + 1,
-                                                    4, 6))
+    cond = fake_cond(
+        cfg, B=2, control=torch.randn(2, cfg.data.frames, cfg.data.views, 2 * cfg.latent_channels + 1, 4, 6)
+    )
     v = model(x, torch.rand(2), cond)
     assert v.shape == x.shape and torch.isfinite(v).all()
     with pytest.raises(ValueError, match="control"):
@@ -62,6 +68,7 @@ def test_a_few_steps_lower_the_loss_on_a_fixed_batch():
     eps = torch.randn(x.shape, generator=g)
     s = torch.tensor([0.5])
     from worldsplat_models import rflow
+
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     losses = []
     for _ in range(15):
@@ -103,12 +110,16 @@ def test_enhance_shapes_resize_and_hole_blend():
     model, vae = tiny()
     cfg = model.cfg
     rng = np.random.default_rng(0)
-    T, V, H, W = 3, cfg.data.views, 40, 60    # other size and clip length than the model's: resized, windowed
+    T, V, H, W = 3, cfg.data.views, 40, 60  # other size and clip length than the model's: resized, windowed
     render = rng.integers(0, 256, (T, V, H, W, 3), dtype=np.uint8)
     sketch = (rng.random((T, V, H, W, 3)) > 0.9).astype(np.uint8)
     N = cfg.data.max_boxes
-    boxes = {"box_corners": rng.normal(0, 5, (T, N, 8, 3)).astype(np.float32), "box_cls": np.zeros((T, N), int),
-             "box_moving": np.zeros((T, N), bool), "box_mask": np.ones((T, N), bool)}
+    boxes = {
+        "box_corners": rng.normal(0, 5, (T, N, 8, 3)).astype(np.float32),
+        "box_cls": np.zeros((T, N), int),
+        "box_moving": np.zeros((T, N), bool),
+        "box_mask": np.ones((T, N), bool),
+    }
     traj = np.stack([np.eye(4)] * T).astype(np.float32)
     cap = torch.zeros(384)
     alpha = np.ones((T, V, H, W), np.float32)
@@ -117,7 +128,7 @@ def test_enhance_shapes_resize_and_hole_blend():
     assert out.shape == render.shape and out.dtype == np.uint8
     assert set(tm) == {"encode", "denoise", "decode"}
     full = enhance(model, vae, render, alpha, sketch, boxes, traj, cap, steps=2, blend="holes")
-    assert np.array_equal(full, render)         # fully covered: the render is kept
+    assert np.array_equal(full, render)  # fully covered: the render is kept
     alpha[:, :, :10] = 0.0
     holes = enhance(model, vae, render, alpha, sketch, boxes, traj, cap, steps=2, blend="holes")
     assert np.array_equal(holes[:, :, :10], out[:, :, :10]) and np.array_equal(holes[:, :, 10:], render[:, :, 10:])
@@ -154,15 +165,21 @@ def test_enhancer_training_runs_on_the_shared_loop_and_resumes(tmp_path):
     g = torch.Generator().manual_seed(5)
 
     def item():
-        return {"target": torch.randn(T, V, c, h, w, generator=g), "render": torch.randn(T, V, c, h, w, generator=g),
-                "sketch": torch.randn(T, V, c, h, w, generator=g), "cover": torch.ones(T, V, 1, h, w),
-                "box_corners": torch.zeros(T, N, 8, 3), "box_cls": torch.zeros(T, N, dtype=torch.long),
-                "box_moving": torch.zeros(T, N, dtype=bool), "box_mask": torch.zeros(T, N, dtype=bool),
-                "traj": torch.eye(4).expand(T, 4, 4).clone(), "caption": torch.randn(384, generator=g)}
+        return {
+            "target": torch.randn(T, V, c, h, w, generator=g),
+            "render": torch.randn(T, V, c, h, w, generator=g),
+            "sketch": torch.randn(T, V, c, h, w, generator=g),
+            "cover": torch.ones(T, V, 1, h, w),
+            "box_corners": torch.zeros(T, N, 8, 3),
+            "box_cls": torch.zeros(T, N, dtype=torch.long),
+            "box_moving": torch.zeros(T, N, dtype=bool),
+            "box_mask": torch.zeros(T, N, dtype=bool),
+            "traj": torch.eye(4).expand(T, 4, 4).clone(),
+            "caption": torch.randn(384, generator=g),
+        }
 
     degraded, clean = [item(), item()], [item()]
-    h1 = train(model, degraded, clean, steps=4, out_dir=tmp_path, name="enh", ckpt_every=2, log_every=1,
-               progress=False)
+    h1 = train(model, degraded, clean, steps=4, out_dir=tmp_path, name="enh", ckpt_every=2, log_every=1, progress=False)
     assert [r["step"] for r in h1] == [1, 2, 3, 4] and all(np.isfinite(r["loss"]) for r in h1)
     assert (tmp_path / "enh.ckpt.pt").exists() and len((tmp_path / "enh.log.jsonl").read_text().splitlines()) == 4
     h2 = train(model, degraded, clean, steps=6, out_dir=tmp_path, name="enh", ckpt_every=2, progress=False)

@@ -1,4 +1,5 @@
 """`worldsplat eval nvs` (issue 7): metrics, the A-E versions on a real novel-view sample, the report's structure."""
+
 import json
 
 import numpy as np
@@ -51,16 +52,17 @@ def tiny_models_and_sample():
     from worldsplat_models.configs import get_config
     from worldsplat_models.enhancer import Enhancer, enhancer_config
     from worldsplat_models.vae import MultiModalVAE
+
     torch.manual_seed(0)
     vae = MultiModalVAE(get_config("tiny").vae).eval()
     mixed = Enhancer(enhancer_config("tiny")).eval()
     with torch.no_grad():  # a fresh ControlNet is zero-initialised (ignores its input): wake it up
         for p in mixed.parameters():
             p.add_(0.05 * torch.randn_like(p))
-    models = {"mixed": (mixed, vae),
-              "degraded": (Enhancer(enhancer_config("tiny")).eval(), vae)}
-    sc = load_preset("urban_straight").with_updates(image={"width": 48, "height": 32}, clip={"frames": 2},
-                                                    rig={"cameras": ["CAM_FRONT", "CAM_BACK"]})
+    models = {"mixed": (mixed, vae), "degraded": (Enhancer(enhancer_config("tiny")).eval(), vae)}
+    sc = load_preset("urban_straight").with_updates(
+        image={"width": 48, "height": 32}, clip={"frames": 2}, rig={"cameras": ["CAM_FRONT", "CAM_BACK"]}
+    )
     world = build_world(sc)
     src = simulate(world, 0.0)
     sample = make_sample(world, 2.0, ("4d", "3d"), source=src, scene=oracle_scene(src), max_boxes=4)
@@ -74,7 +76,7 @@ def test_versions_on_a_novel_view_sample(tiny_models_and_sample):
     for v, f in frames.items():
         assert f.shape == s["target"].shape and f.dtype == np.uint8, v
     assert np.array_equal(frames["D"], s["render_4d"])
-    assert not np.array_equal(frames["A"], frames["E"])          # the render condition matters
+    assert not np.array_equal(frames["A"], frames["E"])  # the render condition matters
     a = s["alpha_4d"].astype(np.float32)
     assert np.array_equal(frames["E+holes"][a > 0.999], s["render_4d"][a > 0.999])
     # the 3D (single-frame) render has at least as many holes as the 4D aggregate
@@ -94,7 +96,7 @@ def test_decoder_versions_use_the_decoder_render(tiny_models_and_sample):
     covered = alpha > 0.5
     assert np.array_equal(frames["E-dec+holes"][covered], s["render_dec"][covered])
     assert np.array_equal(frames["E-dec+holes"][~covered], frames["E-dec"][~covered])
-    assert not np.array_equal(frames["E-dec"], frames["E"])     # conditioned on the decoder's render, not the oracle's
+    assert not np.array_equal(frames["E-dec"], frames["E"])  # conditioned on the decoder's render, not the oracle's
 
 
 def test_report_structure(tiny_models_and_sample, tmp_path):
@@ -105,8 +107,15 @@ def test_report_structure(tiny_models_and_sample, tmp_path):
     gt = s["target"].reshape(-1, H, W, 3)
     table = {v: {"2.0": image_metrics(frames[v].reshape(-1, H, W, 3), gt, holes)} for v in VERSIONS}
     table["D"]["2.0"]["depth_absrel"] = 0.1
-    result = {"split": "test", "seeds": [int(s["seed"])], "shifts": [2.0], "steps": 1, "versions": list(VERSIONS),
-              "descriptions": {v: v for v in VERSIONS}, "table": table}
+    result = {
+        "split": "test",
+        "seeds": [int(s["seed"])],
+        "shifts": [2.0],
+        "steps": 1,
+        "versions": list(VERSIONS),
+        "descriptions": {v: v for v in VERSIONS},
+        "table": table,
+    }
     write_report(result, tmp_path)
     md = (tmp_path / "nvs.md").read_text()
     assert md.count("\n| ") == len(VERSIONS) and "PSNR 2.0 m" in md and "hole PSNR" in md

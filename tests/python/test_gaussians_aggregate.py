@@ -1,4 +1,5 @@
 """Oracle lifting and 4D aggregation (paper eq. 3 + economy)."""
+
 import numpy as np
 import pytest
 import torch
@@ -12,17 +13,18 @@ from worldsplat.gaussians.raster import render_view
 
 def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
     from worldsplat.gaussians.lift import SKY_CHANNEL, SKY_DISTANCE
+
     cam = default_rig(16, 9)[0].at(yaw_pose(2.0, 1.0, 0.0, 0.3))
     depth = np.full((9, 16), 7.5, np.float32)
-    depth[0, :] = np.inf                                 # sky row
-    depth[1, 3] = 250.0                                  # beyond MAX_DEPTH: joins the sky
-    depth[1, 4] = np.nan                                 # invalid: dropped
+    depth[0, :] = np.inf  # sky row
+    depth[1, 3] = 250.0  # beyond MAX_DEPTH: joins the sky
+    depth[1, 4] = np.nan  # invalid: dropped
     rgb = np.zeros((9, 16, 3), np.uint8)
     rgb[..., 0] = 200
     rgb[0, :, 2] = 230
     dyn = np.zeros((9, 16), bool)
     dyn[4, 5] = True
-    dyn[0, 2] = True                                     # a "moving" sky pixel stays static
+    dyn[0, 2] = True  # a "moving" sky pixel stays static
     g = lift(rgb, depth, dyn, cam)
     assert len(g) == 9 * 16 - 1
     sky = g.extras[:, SKY_CHANNEL] > 0.5
@@ -34,7 +36,7 @@ def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
     cols, rows = np.meshgrid(np.arange(16) + 0.5, np.arange(9) + 0.5)
     pix = np.stack([cols.ravel(), rows.ravel()], 1)
     pix = np.delete(pix, 1 * 16 + 4, axis=0)
-    assert np.allclose(uv, pix, atol=1e-3)               # every kept pixel, sky included, sits on its own ray
+    assert np.allclose(uv, pix, atol=1e-3)  # every kept pixel, sky included, sits on its own ray
     assert np.allclose(g.colors[sky][:, 2].numpy()[:16], 230 / 255)
     assert g.extras[:, 0].sum() == 1
     assert np.allclose(g.scales[~sky][:, 0].numpy(), 0.7 * 7.5 / cam.fx, rtol=1e-5)
@@ -61,8 +63,16 @@ def _views(T, V, n, seed, dynamic_frac=0.0):
         for v in range(V):
             means = torch.rand(n, 3, generator=gen) * torch.tensor([20.0, 10, 3]) + torch.tensor([5.0, -5, 0])
             dyn = (torch.rand(n, 1, generator=gen) < dynamic_frac).float()
-            row.append(Gaussians(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 0.05),
-                                 torch.full((n,), 0.9), torch.rand(n, 3, generator=gen), dyn))
+            row.append(
+                Gaussians(
+                    means,
+                    torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                    torch.full((n, 3), 0.05),
+                    torch.full((n,), 0.9),
+                    torch.rand(n, 3, generator=gen),
+                    dyn,
+                )
+            )
         out.append(row)
     return out
 
@@ -72,7 +82,9 @@ def test_eq3_static_union_plus_current_dynamic():
     rig = default_rig(32, 18, ("CAM_FRONT", "CAM_BACK"))
     per_view = _views(T, V, 200, 0, dynamic_frac=0.25)
     ego = np.stack([yaw_pose(t, 0, 0, 0) for t in range(T)])
-    scene, st = aggregate_4d(per_view, np.arange(T) * 0.1, rig, ego, economy=Economy(enabled=False), image_size=(18, 32))
+    scene, st = aggregate_4d(
+        per_view, np.arange(T) * 0.1, rig, ego, economy=Economy(enabled=False), image_size=(18, 32)
+    )
     n_dyn = [sum(int((g.extras[:, 0] > 0.5).sum()) for g in row) for row in per_view]
     assert [len(d) for d in scene.dynamic] == n_dyn
     assert len(scene.static) == T * V * 200 - sum(n_dyn)
@@ -85,8 +97,13 @@ def test_eq3_static_union_plus_current_dynamic():
 
 def test_ego_frame_inputs_are_moved_to_world():
     R = yaw_pose(3.0, 1.0, 0.5, 0.7)
-    g = Gaussians(torch.tensor([[1.0, 2.0, 3.0]]), torch.tensor([[0.9, 0.1, 0.2, 0.3]]), torch.tensor([[0.1, 0.2, 0.3]]),
-                  torch.tensor([0.5]), torch.tensor([[0.1, 0.2, 0.3]]))
+    g = Gaussians(
+        torch.tensor([[1.0, 2.0, 3.0]]),
+        torch.tensor([[0.9, 0.1, 0.2, 0.3]]),
+        torch.tensor([[0.1, 0.2, 0.3]]),
+        torch.tensor([0.5]),
+        torch.tensor([[0.1, 0.2, 0.3]]),
+    )
     w = transform(g, R)
     assert np.allclose(w.means[0].numpy(), R[:3, :3] @ [1, 2, 3] + R[:3, 3], atol=1e-5)
     q = g.quats / g.quats.norm()
@@ -100,12 +117,22 @@ def test_economy_merges_repeats_and_drops_what_cannot_show():
     base = torch.rand(500, 3, generator=gen) * 10 + torch.tensor([5.0, -5, 0])
     copies = [base + 1e-4 * torch.randn(500, 3, generator=gen) for _ in range(4)]  # 4 observations per point
     n = 2000
-    g = Gaussians(torch.cat(copies), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 0.02),
-                  torch.full((n,), 0.9), torch.rand(n, 3, generator=gen))
-    extra = Gaussians(torch.tensor([[5.0, 0, 0], [900.0, 0, 0], [6.0, 0, 0]]),
-                      torch.tensor([[1.0, 0, 0, 0]]).repeat(3, 1), torch.full((3, 3), 0.02),
-                      torch.tensor([0.001, 0.9, float("nan")]), torch.rand(3, 3))
+    g = Gaussians(
+        torch.cat(copies),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.02),
+        torch.full((n,), 0.9),
+        torch.rand(n, 3, generator=gen),
+    )
+    extra = Gaussians(
+        torch.tensor([[5.0, 0, 0], [900.0, 0, 0], [6.0, 0, 0]]),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(3, 1),
+        torch.full((3, 3), 0.02),
+        torch.tensor([0.001, 0.9, float("nan")]),
+        torch.rand(3, 3),
+    )
     from worldsplat.gaussians.aggregate import AggregateStats
+
     st = AggregateStats()
     out = economize(Gaussians.cat([g, extra]), Economy(cell_factor=2.0), np.zeros((1, 3)), focal=1000.0, stats=st)
     assert st.dropped_transparent == 1 and st.dropped_range == 1
@@ -121,6 +148,7 @@ def test_economy_merges_repeats_and_drops_what_cannot_show():
 def test_scenario_without_moving_agents_has_no_dynamic_gaussians():
     from worldsplat.core.scenario import load_preset
     from worldsplat.pipeline.scene import generate_scene
+
     s = load_preset("empty_road").with_updates(clip={"frames": 2}, image={"width": 64, "height": 36})
     scene = generate_scene(s, mode="oracle")
     assert scene.num_frames == 2 and all(len(d) == 0 for d in scene.dynamic)
@@ -132,32 +160,44 @@ def test_scenario_without_moving_agents_has_no_dynamic_gaussians():
 
 def test_opacity_merge_modes():
     n = 4
-    g = Gaussians(torch.tensor([[10.0, 0, 0]]).repeat(n, 1), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                  torch.full((n, 3), 0.02), torch.full((n,), 0.5), torch.full((n, 3), 0.3))
+    g = Gaussians(
+        torch.tensor([[10.0, 0, 0]]).repeat(n, 1),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.02),
+        torch.full((n,), 0.5),
+        torch.full((n, 3), 0.3),
+    )
     mean = economize(g, Economy(opacity_merge="mean"), np.zeros((1, 3)), 100.0)
     union = economize(g, Economy(opacity_merge="union"), np.zeros((1, 3)), 100.0)
     assert len(mean) == len(union) == 1
-    assert np.isclose(float(mean.opacities[0]), 0.5) and np.isclose(float(union.opacities[0]), 1 - 0.5 ** 4)
+    assert np.isclose(float(mean.opacities[0]), 0.5) and np.isclose(float(union.opacities[0]), 1 - 0.5**4)
     with pytest.raises(ValueError, match="opacity_merge"):
         economize(g, Economy(opacity_merge="max"), np.zeros((1, 3)), 100.0)
 
 
 def test_economy_keeps_the_sky_shell_beyond_its_range_cut():
     from worldsplat.gaussians.aggregate import AggregateStats
+
     n = 4000
     gen = torch.Generator().manual_seed(2)
     dirs = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen), dim=1)
     dirs[:, 2] = dirs[:, 2].abs()
-    means = torch.cat([dirs * 300.0, torch.tensor([[900.0, 0, 0]])])    # a sky shell + one far non-sky point
+    means = torch.cat([dirs * 300.0, torch.tensor([[900.0, 0, 0]])])  # a sky shell + one far non-sky point
     extras = torch.cat([torch.zeros(n + 1, 1), torch.cat([torch.ones(n, 1), torch.zeros(1, 1)])], 1)
-    g = Gaussians(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n + 1, 1), torch.full((n + 1, 3), 2.0),
-                  torch.full((n + 1,), 0.98), torch.rand(n + 1, 3, generator=gen), extras)
+    g = Gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n + 1, 1),
+        torch.full((n + 1, 3), 2.0),
+        torch.full((n + 1,), 0.98),
+        torch.rand(n + 1, 3, generator=gen),
+        extras,
+    )
     st = AggregateStats()
     out = economize(g, Economy(max_range=150.0), np.zeros((1, 3)), focal=100.0, stats=st)
-    assert st.dropped_range == 1                       # the non-sky point at 900 m
+    assert st.dropped_range == 1  # the non-sky point at 900 m
     assert 0 < len(out) <= n and bool((out.extras[:, 1] > 0.5).all())
     coarse = economize(g, Economy(sky_cell_factor=12.0), np.zeros((1, 3)), focal=100.0)
-    assert len(coarse) < len(out)                      # the sky merges in its own, coarser cells
+    assert len(coarse) < len(out)  # the sky merges in its own, coarser cells
 
 
 def _render_u8(g, cam):
@@ -175,6 +215,7 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
     from worldsplat.core.scenario import load_preset
     from worldsplat.gaussians.economy import lift_clip
     from worldsplat.world import build_world, simulate
+
     world = build_world(load_preset("urban_straight").with_updates(clip={"frames": 3}))
     clip = simulate(world)
     H, W = clip.depth.shape[2:]
@@ -183,7 +224,7 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
     naive, _ = aggregate_4d(per_view, *args, economy=Economy(enabled=False), image_size=(H, W))
     eco, st = aggregate_4d(per_view, *args, economy=Economy(), image_size=(H, W))
     assert 0 < st.sky_kept < 0.1 * st.kept and st.kept <= 0.2 * st.naive
-    views = [0, 3]                                     # CAM_FRONT, CAM_BACK: both see sky
+    views = [0, 3]  # CAM_FRONT, CAM_BACK: both see sky
     gt = simulate(world, shift_m=-2.0, frames=[1], cameras=[clip.rig[v].name for v in views])
     d_all = []
     for i, v in enumerate(views):
@@ -193,7 +234,7 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
             out = rasterize(eco.at_frame(1), cam, method="pairs")
         b = torch.round(out["rgb"].clamp(0, 1) * 255).to(torch.uint8).numpy()
         d_all.append(psnr(b, gt.rgb[0, i]) - psnr(a, gt.rgb[0, i]))
-        inner_sky = ndimage.binary_erosion(~np.isfinite(gt.depth[0, i]), iterations=3)   # away from the skyline
+        inner_sky = ndimage.binary_erosion(~np.isfinite(gt.depth[0, i]), iterations=3)  # away from the skyline
         assert inner_sky.sum() > 200
         assert float(out["alpha"].numpy()[inner_sky].min()) > 0.9, v
         assert psnr(b, gt.rgb[0, i], inner_sky) > 28.0, v

@@ -1,4 +1,5 @@
 """The torch reference rasterizer: stages, shared vectors, tiled vs brute force, gradients, hard cases, memory."""
+
 import json
 import math
 import subprocess
@@ -65,13 +66,20 @@ def test_projection_culls_and_sanitizes():
     g2 = one((0, 0, 5), scale=(0.3, 0.01, 0.01), quat=(0, 0, 0, 0))
     g3 = one((0, 0, 5), scale=(0.3, 0.01, 0.01))
     assert torch.allclose(project(g2, CAM).conic, project(g3, CAM).conic)  # |q| = 0 -> identity
-    assert torch.allclose(quat_to_rotmat(torch.tensor([[0.0, 0, 0, 1.0]])),
-                          torch.tensor([[[-1.0, 0, 0], [0, -1, 0], [0, 0, 1]]]))
+    assert torch.allclose(
+        quat_to_rotmat(torch.tensor([[0.0, 0, 0, 1.0]])), torch.tensor([[[-1.0, 0, 0], [0, -1, 0], [0, 0, 1]]])
+    )
 
 
 def test_low_opacity_and_scale_clamp():
-    g = Gaussians.from_numpy([(0, 0, 5)] * 3, [(1, 0, 0, 0)] * 3, [(1e-9,) * 3, (1e-6,) * 3, (1e-6,) * 3],
-                             [0.5, 0.5, 0.9 / 255], [(1, 1, 1)] * 3, dtype=torch.float64)
+    g = Gaussians.from_numpy(
+        [(0, 0, 5)] * 3,
+        [(1, 0, 0, 0)] * 3,
+        [(1e-9,) * 3, (1e-6,) * 3, (1e-6,) * 3],
+        [0.5, 0.5, 0.9 / 255],
+        [(1, 1, 1)] * 3,
+        dtype=torch.float64,
+    )
     p = project(g, CAM)
     assert p.index.tolist() == [0, 1]
     assert torch.allclose(p.conic[0], p.conic[1])  # 1e-9 clamped to SCALE_MIN
@@ -80,12 +88,17 @@ def test_low_opacity_and_scale_clamp():
 def test_tile_lists_are_exact_and_depth_sorted():
     torch.manual_seed(1)
     n = 300
-    g = Gaussians(torch.randn(n, 3) * torch.tensor([2, 1.5, 1]) + torch.tensor([0, 0, 6.0]), torch.randn(n, 4),
-                  torch.rand(n, 3) * 0.3, torch.rand(n) * 0.9 + 0.05, torch.rand(n, 3))
+    g = Gaussians(
+        torch.randn(n, 3) * torch.tensor([2, 1.5, 1]) + torch.tensor([0, 0, 6.0]),
+        torch.randn(n, 4),
+        torch.rand(n, 3) * 0.3,
+        torch.rand(n) * 0.9 + 0.05,
+        torch.rand(n, 3),
+    )
     p = project(g, CAM)
     tl = tile_intersect(p, CAM.width, CAM.height, tile_size=8)
     for k in range(tl.tiles_x * tl.tiles_y):
-        ids = tl.ids[tl.offsets[k]:tl.offsets[k + 1]]
+        ids = tl.ids[tl.offsets[k] : tl.offsets[k + 1]]
         tx, ty = k % tl.tiles_x, k // tl.tiles_x
         # expected: Gaussians that touch (d <= 9, inside the square) some pixel centre of this tile
         xs = torch.arange(tx * 8, min(CAM.width, tx * 8 + 8)) + 0.5
@@ -104,8 +117,14 @@ def test_tile_lists_are_exact_and_depth_sorted():
 
 
 def test_composite_two_gaussians_analytic():
-    g = Gaussians.from_numpy([(0, 0, 2), (0, 0, 4)], [(1, 0, 0, 0)] * 2, [(0.5,) * 3] * 2, [0.6, 0.7],
-                             [(1, 0, 0), (0, 1, 0)], dtype=torch.float64)
+    g = Gaussians.from_numpy(
+        [(0, 0, 2), (0, 0, 4)],
+        [(1, 0, 0, 0)] * 2,
+        [(0.5,) * 3] * 2,
+        [0.6, 0.7],
+        [(1, 0, 0), (0, 1, 0)],
+        dtype=torch.float64,
+    )
     p = project(g, CAM)
     pix = torch.tensor([[20.0, 15.0]], dtype=torch.float64)  # the pixel corner at the principal point
     f, d, a = composite(pix, torch.tensor([0, 1]), p)
@@ -119,8 +138,14 @@ def test_composite_two_gaussians_analytic():
 def test_early_stop_before_the_gaussian_that_crosses_t_min():
     # alpha 0.95 each: T' = 0.05, 0.0025, 1.25e-4, 6.25e-6 < T_MIN -> the 4th (white) Gaussian is not added.
     n = 4
-    g = Gaussians.from_numpy([(0, 0, 2 + i) for i in range(n)], [(1, 0, 0, 0)] * n, [(0.5,) * 3] * n, [0.95] * n,
-                             [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)], dtype=torch.float64)
+    g = Gaussians.from_numpy(
+        [(0, 0, 2 + i) for i in range(n)],
+        [(1, 0, 0, 0)] * n,
+        [(0.5,) * 3] * n,
+        [0.95] * n,
+        [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)],
+        dtype=torch.float64,
+    )
     p = project(g, CAM)
     pix = torch.tensor([[20.0, 15.0]], dtype=torch.float64)
     f, _, a = composite(pix, torch.arange(n), p)
@@ -166,6 +191,7 @@ def test_tiled_and_pairs_match_brute_force(name):
 def test_expected_outcomes_of_named_hard_cases():
     def vis(name):
         return json.loads((VECTORS / "raster" / f"{name}.expected.json").read_text())["visible"]
+
     assert vis("empty") == 0 and vis("behind_camera") == 5 and vis("camera_plane") == 5
     assert vis("near_plane") == 20 and vis("nonfinite_inputs") == 29 and vis("nan_quaternion") == 40
     assert vis("opacity_0_and_1") == 25  # 0, 0.99/255 and -0.5 dropped (3 of 8, five times)
@@ -184,8 +210,9 @@ def test_gradcheck_float64():
     torch.manual_seed(0)
     n = 4
     cam = Camera(10, 8, 8.0, 8.0, 5.0, 4.0, np.eye(4))
-    means = (torch.tensor([[0.1, 0.05, 3.0], [-0.4, 0.2, 4.0], [0.3, -0.3, 2.5], [0.0, 0.0, 5.0]])
-             .double().requires_grad_())
+    means = (
+        torch.tensor([[0.1, 0.05, 3.0], [-0.4, 0.2, 4.0], [0.3, -0.3, 2.5], [0.0, 0.0, 5.0]]).double().requires_grad_()
+    )
     quats = torch.randn(n, 4, dtype=torch.float64).requires_grad_()
     scales = (torch.rand(n, 3, dtype=torch.float64) * 0.3 + 0.3).requires_grad_()
     opac = (torch.rand(n, dtype=torch.float64) * 0.4 + 0.3).requires_grad_()
@@ -193,14 +220,29 @@ def test_gradcheck_float64():
     extras = torch.rand(n, 1, dtype=torch.float64).requires_grad_()
 
     for method in ("tiled", "pairs"):
+
         def f(m, q, s, o, c, e):
             out = rasterize(Gaussians(m, q, s, o, c, e), cam, tile_size=4, method=method)
             return out["rgb"], out["depth"], out["alpha"], out["extras"]
-        assert torch.autograd.gradcheck(f, (means, quats, scales, opac, cols, extras), eps=1e-6, atol=1e-5, fast_mode=True)
+
+        assert torch.autograd.gradcheck(
+            f, (means, quats, scales, opac, cols, extras), eps=1e-6, atol=1e-5, fast_mode=True
+        )
 
 
-@pytest.mark.parametrize("name", ["nonfinite_inputs", "anisotropy_1e-6_1e3", "camera_inside", "near_plane",
-                                  "nan_quaternion", "zero_quaternion", "screen_covering", "opaque_stack"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "nonfinite_inputs",
+        "anisotropy_1e-6_1e3",
+        "camera_inside",
+        "near_plane",
+        "nan_quaternion",
+        "zero_quaternion",
+        "screen_covering",
+        "opaque_stack",
+    ],
+)
 def test_gradients_stay_finite_on_hard_cases(name):
     g, cam = load_case(name)
     for method in ("tiled", "pairs"):
@@ -217,13 +259,21 @@ def test_fuzz_no_nan_or_inf_leaves_the_rasterizer():
     specials = torch.tensor([0.0, -0.0, 1e-30, 1e30, -1e30, float("nan"), float("inf"), -float("inf"), 1e-7, 5.0])
     for trial in range(6):
         n = 64
+
         def noisy(*shape):
             t = torch.randn(*shape, generator=gen) * 10 ** torch.randint(-3, 4, shape, generator=gen)
             mask = torch.rand(*shape, generator=gen) < 0.1
             pick = specials[torch.randint(0, len(specials), shape, generator=gen)]
             return torch.where(mask, pick, t)
-        g = Gaussians(noisy(n, 3) + torch.tensor([0, 0, 3.0]), noisy(n, 4), noisy(n, 3).abs(), torch.rand(n, generator=gen),
-                      noisy(n, 3).abs(), noisy(n, 2))
+
+        g = Gaussians(
+            noisy(n, 3) + torch.tensor([0, 0, 3.0]),
+            noisy(n, 4),
+            noisy(n, 3).abs(),
+            torch.rand(n, generator=gen),
+            noisy(n, 3).abs(),
+            noisy(n, 2),
+        )
         for method in ("tiled", "pairs"):
             out = rasterize(g, CAM, method=method)
             for k in ("rgb", "depth", "alpha", "extras"):
@@ -231,8 +281,14 @@ def test_fuzz_no_nan_or_inf_leaves_the_rasterizer():
 
 
 def test_extras_composite_like_colour():
-    g = Gaussians.from_numpy([(0, 0, 3), (0.2, 0, 4)], [(1, 0, 0, 0)] * 2, [(0.3,) * 3] * 2, [0.7, 0.9],
-                             [(1, 0, 0), (0, 1, 0)], extras=[(1.0,), (0.0,)])
+    g = Gaussians.from_numpy(
+        [(0, 0, 3), (0.2, 0, 4)],
+        [(1, 0, 0, 0)] * 2,
+        [(0.3,) * 3] * 2,
+        [0.7, 0.9],
+        [(1, 0, 0), (0, 1, 0)],
+        extras=[(1.0,), (0.0,)],
+    )
     out = rasterize(g, CAM)
     assert torch.allclose(out["extras"][..., 0], out["rgb"][..., 0], atol=1e-6)
 
@@ -269,15 +325,21 @@ def test_one_million_gaussians_memory_bounded():
 def test_view_precull_is_exact(monkeypatch):
     """The cheap pre-cull for big scenes only removes Gaussians the screen test would drop anyway."""
     import worldsplat.gaussians.project as P
+
     gen = torch.Generator().manual_seed(5)
     n = 3000
     means = torch.randn(n, 3, generator=gen) * torch.tensor([30.0, 30.0, 10.0])  # all around, also behind
-    g = Gaussians(means, torch.randn(n, 4, generator=gen), torch.rand(n, 3, generator=gen) ** 4 * 20,
-                  torch.rand(n, generator=gen), torch.rand(n, 3, generator=gen))
+    g = Gaussians(
+        means,
+        torch.randn(n, 4, generator=gen),
+        torch.rand(n, 3, generator=gen) ** 4 * 20,
+        torch.rand(n, generator=gen),
+        torch.rand(n, 3, generator=gen),
+    )
     for name in ["street_shift_plus_8m", "offscreen_large", "screen_covering"]:
         cases = [load_case(name), (g, CAM)]
         for gg, cam in cases:
-            monkeypatch.setattr(P, "PRECULL_MIN", 10 ** 9)
+            monkeypatch.setattr(P, "PRECULL_MIN", 10**9)
             a = rasterize(gg, cam, method="pairs")
             monkeypatch.setattr(P, "PRECULL_MIN", 0)
             b = rasterize(gg, cam, method="pairs")

@@ -2,6 +2,7 @@
 
 A few DiT steps on per-rank synthetic latents: the loss on a fixed probe batch falls and both ranks hold
 bit-identical weights after every step (DDP averaged the gradients and applied the same update)."""
+
 import json
 import os
 import socket
@@ -33,14 +34,19 @@ def _worker(rank: int, world: int, port: int, out_dir: str) -> None:
     d = cfg.data
     h, w = d.height // 8, d.width // 8
     pattern = torch.linspace(-2, 2, cfg.dit.in_channels).view(1, 1, -1, 1, 1)  # learnable: a fixed latent
-    samples = [{"L": pattern.expand(d.frames, d.views, -1, h, w) + 0.1 * torch.randn(h, w, generator=g),
-                "control": torch.randn(d.frames, d.views, cfg.dit.control_channels, h, w, generator=g),
-                "caption_emb": torch.randn(384, generator=g),
-                "box_corners": torch.randn(d.frames, d.max_boxes, 8, 3, generator=g).numpy(),
-                "box_cls": torch.randint(0, 17, (d.frames, d.max_boxes), generator=g).numpy(),
-                "box_moving": (torch.rand(d.frames, d.max_boxes, generator=g) > 0.5).numpy(),
-                "box_mask": (torch.rand(d.frames, d.max_boxes, generator=g) > 0.5).numpy(),
-                "traj": torch.eye(4).expand(d.frames, 4, 4).numpy()} for _ in range(2)]
+    samples = [
+        {
+            "L": pattern.expand(d.frames, d.views, -1, h, w) + 0.1 * torch.randn(h, w, generator=g),
+            "control": torch.randn(d.frames, d.views, cfg.dit.control_channels, h, w, generator=g),
+            "caption_emb": torch.randn(384, generator=g),
+            "box_corners": torch.randn(d.frames, d.max_boxes, 8, 3, generator=g).numpy(),
+            "box_cls": torch.randint(0, 17, (d.frames, d.max_boxes), generator=g).numpy(),
+            "box_moving": (torch.rand(d.frames, d.max_boxes, generator=g) > 0.5).numpy(),
+            "box_mask": (torch.rand(d.frames, d.max_boxes, generator=g) > 0.5).numpy(),
+            "traj": torch.eye(4).expand(d.frames, 4, 4).numpy(),
+        }
+        for _ in range(2)
+    ]
     probe_x, probe_c = dit_batch(samples)
     pg = torch.Generator().manual_seed(7)
     eps = torch.randn(probe_x.shape, generator=pg)
@@ -71,6 +77,6 @@ def test_ddp_two_process_gloo(tmp_path):
     # fork: the children inherit the imported torch (spawn would pay the import twice more)
     mp.start_processes(_worker, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True, start_method="fork")
     r = [json.loads((tmp_path / f"rank{i}.json").read_text()) for i in range(2)]
-    assert r[0]["diff"] == 0.0 and r[1]["diff"] == 0.0      # identical weights on both ranks
+    assert r[0]["diff"] == 0.0 and r[1]["diff"] == 0.0  # identical weights on both ranks
     for x in r:
-        assert x["after"] < x["before"] * 0.9, x            # the loss falls on each rank's probe batch
+        assert x["after"] < x["before"] * 0.9, x  # the loss falls on each rank's probe batch

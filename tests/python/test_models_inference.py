@@ -1,4 +1,5 @@
 """The inference API used by worldsplat.pipeline.scene (tiny random models) and the ONNX serving graphs' parity."""
+
 import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
@@ -21,8 +22,14 @@ CFG = get_config("tiny")
 @pytest.fixture(scope="module")
 def models():
     torch.manual_seed(0)
-    m = inf.Models(build("vae", CFG.vae).eval(), build("decoder", CFG.decoder).eval(), build("dit", CFG.dit).eval(),
-                   CFG.data, "test", Path("."))
+    m = inf.Models(
+        build("vae", CFG.vae).eval(),
+        build("decoder", CFG.decoder).eval(),
+        build("dit", CFG.dit).eval(),
+        CFG.data,
+        "test",
+        Path("."),
+    )
     with torch.no_grad():
         for p in list(m.dit.parameters()) + list(m.decoder.head.parameters()):
             p.add_(0.05 * torch.randn_like(p))
@@ -31,14 +38,22 @@ def models():
 
 def tiny_clip(T=3, seed=0):
     from worldsplat.core.camera import default_rig
+
     d = CFG.data
     s = synthetic_sample(d, seed)
     rig = default_rig(d.width, d.height)[: d.views]
     ego = np.stack([np.eye(4)] * T)
     ego[:, 0, 3] = np.arange(T)
     rep = lambda a: np.concatenate([a] * 2)[:T]  # noqa: E731
-    return SimpleNamespace(rgb=rep(s["rgb"]), depth=rep(s["depth"]), dynamic=rep(s["dynamic"]), rig=rig,
-                           ego_to_world=ego, frame_times=np.arange(T) / 4.0, caption="tiny"), s
+    return SimpleNamespace(
+        rgb=rep(s["rgb"]),
+        depth=rep(s["depth"]),
+        dynamic=rep(s["dynamic"]),
+        rig=rig,
+        ego_to_world=ego,
+        frame_times=np.arange(T) / 4.0,
+        caption="tiny",
+    ), s
 
 
 def test_reconstruct_windows_and_scene(models):
@@ -52,9 +67,13 @@ def test_reconstruct_windows_and_scene(models):
     scene = inf.to_scene4d(dec, meta={"fps": 4})
     assert scene.num_frames == 3
     # the served aggregation (gaussians.aggregate_4d): with every dynamic probability 0, nothing is dynamic
-    still = dataclasses.replace(dec, gaussians=[[Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors,
-                                                           torch.zeros_like(g.extras)) for g in row]
-                                                for row in dec.gaussians])
+    still = dataclasses.replace(
+        dec,
+        gaussians=[
+            [Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, torch.zeros_like(g.extras)) for g in row]
+            for row in dec.gaussians
+        ],
+    )
     assert sum(len(x) for x in inf.to_scene4d(still).dynamic) == 0
     assert scene.meta["aggregate"]["kept"] == len(scene.static) + sum(len(x) for x in scene.dynamic)
     total = sum(len(g) for t in range(3) for g in dec.gaussians[t])
@@ -153,6 +172,7 @@ def test_float16_weight_files_load_as_float32(tmp_path, models):
 def test_projected_box_mask_fills_hull_in_front_only():
     from worldsplat.core.camera import Camera
     from worldsplat.evaluation.models import projected_box_mask
+
     cam = Camera(64, 48, 40.0, 40.0, 32.0, 24.0, np.eye(4))  # looks along +z
     cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (9, 11)], float)
     m = projected_box_mask(cube[None], cam)
@@ -164,6 +184,7 @@ def test_projected_box_mask_fills_hull_in_front_only():
 
 def test_onnx_backend_reconstruct_and_generate_match_torch(models, onnx_dir):
     import copy
+
     ort_models = ox.use_onnx(copy.deepcopy(models), onnx_dir, threads=1)
     clip, s = tiny_clip(T=2)
     a, b = inf.reconstruct(clip, models), inf.reconstruct(clip, ort_models)

@@ -1,4 +1,5 @@
 """Networks of issue 6 on random tensors with the tiny config: shapes, gradients, wiring, bounds, rectified flow."""
+
 import math
 
 import numpy as np
@@ -18,13 +19,15 @@ CFG = get_config("tiny")
 def random_cond(B, T, V, cfg=CFG, seed=0):
     g = torch.Generator().manual_seed(seed)
     N, h, w = cfg.data.max_boxes, cfg.data.height // 8, cfg.data.width // 8
-    return dict(box_corners=torch.randn(B, T, N, 8, 3, generator=g) * 10,
-                box_cls=torch.randint(0, 17, (B, T, N), generator=g),
-                box_moving=torch.rand(B, T, N, generator=g) > 0.5,
-                box_mask=torch.rand(B, T, N, generator=g) > 0.3,
-                traj=torch.eye(4).expand(B, T, 4, 4).clone(),
-                caption=torch.nn.functional.normalize(torch.randn(B, 384, generator=g), dim=-1),
-                control=torch.randn(B, T, V, cfg.dit.control_channels, h, w, generator=g))
+    return dict(
+        box_corners=torch.randn(B, T, N, 8, 3, generator=g) * 10,
+        box_cls=torch.randint(0, 17, (B, T, N), generator=g),
+        box_moving=torch.rand(B, T, N, generator=g) > 0.5,
+        box_mask=torch.rand(B, T, N, generator=g) > 0.3,
+        traj=torch.eye(4).expand(B, T, 4, 4).clone(),
+        caption=torch.nn.functional.normalize(torch.randn(B, 384, generator=g), dim=-1),
+        control=torch.randn(B, T, V, cfg.dit.control_channels, h, w, generator=g),
+    )
 
 
 def make_dit(seed=0, perturb=True):
@@ -44,6 +47,7 @@ def latents(B=1, seed=1):
 
 
 # --- VAE ------------------------------------------------------------------------------------------------------------
+
 
 def test_vae_shapes_and_gradients():
     vae = MultiModalVAE(CFG.vae)
@@ -77,6 +81,7 @@ def test_depth_normalization_round_trip_and_sky():
 
 
 # --- DiT ------------------------------------------------------------------------------------------------------------
+
 
 def test_dit_shape_and_zero_init_output():
     dit = DiT4D(CFG.dit)
@@ -146,8 +151,18 @@ def test_dit_box_changes_output_only_when_valid():
 
 
 def test_dit_reusable_with_other_channels():
-    cfg = DiTConfig(in_channels=2, control_channels=5, out_channels=2, dim=32, depth=2, heads=2, control_depth=1,
-                    cond_dim=32, max_views=2, max_frames=2)
+    cfg = DiTConfig(
+        in_channels=2,
+        control_channels=5,
+        out_channels=2,
+        dim=32,
+        depth=2,
+        heads=2,
+        control_depth=1,
+        cond_dim=32,
+        max_views=2,
+        max_frames=2,
+    )
     dit = DiT4D(cfg)
     c = random_cond(1, 2, 2)
     c["control"] = torch.randn(1, 2, 2, 5, 4, 6)
@@ -158,6 +173,7 @@ def test_dit_reusable_with_other_channels():
 
 def test_paper_config_constructs():
     from worldsplat_models.configs import get_config as gc
+
     p = gc("paper")
     with torch.device("meta"):
         n = sum(q.numel() for q in DiT4D(p.dit).parameters())
@@ -168,8 +184,10 @@ def test_paper_config_constructs():
 
 # --- Gaussian decoder -------------------------------------------------------------------------------------------------
 
+
 def rig_inputs(B=1):
     from worldsplat.core.camera import default_rig
+
     d = CFG.data
     rig = default_rig(d.width, d.height)[: d.views]
     ego = [np.eye(4), np.array([[1, 0, 0, 2.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])]
@@ -223,6 +241,7 @@ def test_decoder_guards_non_finite_head_output():
     raw[..., 0] = float("inf")
     raw[..., 5] = -float("inf")
     from worldsplat_models.gs_decoder import pixel_rays
+
     o, dirs = pixel_rays(intr, c2w, (32, 48), (4, 6))
     g = dec.activate(raw, o, dirs, intr[..., 0] * 6 / 48, c2w)
     for k, v in g.items():
@@ -248,6 +267,7 @@ def test_decoder_rejects_bad_input():
 
 
 # --- rectified flow -------------------------------------------------------------------------------------------------
+
 
 def test_interpolation_endpoints_and_oracle_loss():
     x, eps = torch.randn(2, 5), torch.randn(2, 5)
@@ -276,7 +296,7 @@ def test_sampling_grid_and_shift():
     assert g3[0] == 0 and g3[-1] == 1 and bool((g3[1:] > g3[:-1]).all())
     assert g3[1] < g1[1]  # shift > 1 spends the first steps at high noise
     # OpenSora's 8-step r=3 grid in its noise convention: 1, .955, .9, .833, .75, .643, .5, .3
-    assert torch.allclose(1 - g3[:8], torch.tensor([1, .9545, .9, .8333, .75, .6429, .5, .3]), atol=1e-3)
+    assert torch.allclose(1 - g3[:8], torch.tensor([1, 0.9545, 0.9, 0.8333, 0.75, 0.6429, 0.5, 0.3]), atol=1e-3)
     with pytest.raises(ValueError):
         rflow.sampling_grid(0)
     with pytest.raises(ValueError):

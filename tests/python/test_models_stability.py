@@ -1,5 +1,6 @@
 """Numerical stability of the models (issue 6 item 9): no NaN/Inf in bf16 autocast training steps or inference,
 across sampler steps 1..64 and 100 random scenarios; guards on scale, quaternion and depth; gradient clipping."""
+
 import numpy as np
 import pytest
 import torch
@@ -44,8 +45,10 @@ def test_bf16_training_steps_are_finite(cached):
     models = {
         "vae": (MultiModalVAE(CFG.vae), vae_step_fn(samples, CFG.data, images_per_step=2, crop=(16, 24))),
         "dit": (perturbed(DiT4D(CFG.dit)), dit_step_fn(samples)),
-        "decoder": (GaussianDecoder(CFG.decoder),
-                    lambda m, i, g: decoder_losses(m, samples[0], CFG.data, g, render_down=2)),
+        "decoder": (
+            GaussianDecoder(CFG.decoder),
+            lambda m, i, g: decoder_losses(m, samples[0], CFG.data, g, render_down=2),
+        ),
     }
     for name, (model, step) in models.items():
         opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
@@ -64,43 +67,64 @@ def random_conditions(B, seed):
     d = CFG.data
     T, V, N, h, w = d.frames, d.views, d.max_boxes, d.height // 8, d.width // 8
     corners = torch.randn(B, T, N, 8, 3, generator=g) * 20
-    corners[0::4] *= 50.0                      # far away
-    corners[1::4, :, 0, 0, 0] = float("nan")   # a corrupted corner
+    corners[0::4] *= 50.0  # far away
+    corners[1::4, :, 0, 0, 0] = float("nan")  # a corrupted corner
     mask = torch.rand(B, T, N, generator=g) > 0.5
-    mask[2::4] = False                         # empty road
+    mask[2::4] = False  # empty road
     traj = torch.eye(4).repeat(B, T, 1, 1)
     traj[:, :, 0, 3] = torch.randn(B, T, generator=g) * 30
-    traj[3::4, :, :3, 3] *= 100.0              # implausible ego motion
-    return dict(box_corners=corners, box_cls=torch.randint(0, 40, (B, T, N), generator=g),
-                box_moving=torch.rand(B, T, N, generator=g) > 0.5, box_mask=mask, traj=traj,
-                caption=torch.nn.functional.normalize(torch.randn(B, 384, generator=g), dim=-1),
-                control=torch.randn(B, T, V, CFG.dit.control_channels, h, w, generator=g) * 3)
+    traj[3::4, :, :3, 3] *= 100.0  # implausible ego motion
+    return dict(
+        box_corners=corners,
+        box_cls=torch.randint(0, 40, (B, T, N), generator=g),
+        box_moving=torch.rand(B, T, N, generator=g) > 0.5,
+        box_mask=mask,
+        traj=traj,
+        caption=torch.nn.functional.normalize(torch.randn(B, 384, generator=g), dim=-1),
+        control=torch.randn(B, T, V, CFG.dit.control_channels, h, w, generator=g) * 3,
+    )
 
 
 def test_sampler_steps_1_to_64_bf16_finite():
     dit = perturbed(DiT4D(CFG.dit)).eval()
     cond = random_conditions(2, 0)
     d = CFG.data
-    noise = torch.randn(2, d.frames, d.views, CFG.dit.in_channels, d.height // 8, d.width // 8,
-                        generator=torch.Generator().manual_seed(1))
+    noise = torch.randn(
+        2,
+        d.frames,
+        d.views,
+        CFG.dit.in_channels,
+        d.height // 8,
+        d.width // 8,
+        generator=torch.Generator().manual_seed(1),
+    )
     for steps in (1, 2, 3, 5, 8, 64):
         cfg = 2.0 if steps <= 5 else 1.0  # guidance doubles the cost; the long runs check accumulation
         with torch.autocast(**BF16):
-            z = rflow.sample(dit, noise, cond, steps=steps, shift=CFG.dit.sampler_shift, cfg_scale=cfg,
-                             uncond=dropped(cond))
+            z = rflow.sample(
+                dit, noise, cond, steps=steps, shift=CFG.dit.sampler_shift, cfg_scale=cfg, uncond=dropped(cond)
+            )
         assert torch.isfinite(z).all(), steps
 
 
 def test_100_random_scenarios_generate_finite_bounded_gaussians():
     from worldsplat.core.camera import default_rig
     from worldsplat.training.data import synthetic_sample as ss  # noqa: F401  (same rig as the tests above)
+
     dit = perturbed(DiT4D(CFG.dit)).eval()
     dec = perturbed(GaussianDecoder(CFG.decoder), 0.2).eval()
     d, c = CFG.data, CFG.decoder
     B = 100
     cond = random_conditions(B, 3)
-    noise = torch.randn(B, d.frames, d.views, CFG.dit.in_channels, d.height // 8, d.width // 8,
-                        generator=torch.Generator().manual_seed(4))
+    noise = torch.randn(
+        B,
+        d.frames,
+        d.views,
+        CFG.dit.in_channels,
+        d.height // 8,
+        d.width // 8,
+        generator=torch.Generator().manual_seed(4),
+    )
     rig = default_rig(d.width, d.height)[: d.views]
     intr = torch.tensor([[rc.fx, rc.fy, rc.cx, rc.cy] for rc in rig], dtype=torch.float32).expand(B, d.frames, -1, -1)
     c2w = torch.tensor(np.array([rc.camera_to_ego for rc in rig]), dtype=torch.float32).expand(B, d.frames, -1, -1, -1)
@@ -118,6 +142,7 @@ def test_decoder_guards_extreme_latents():
     dec = perturbed(GaussianDecoder(CFG.decoder), 0.5).eval()
     d, c = CFG.data, CFG.decoder
     from worldsplat.core.camera import default_rig
+
     rig = default_rig(d.width, d.height)[: d.views]
     intr = torch.tensor([[rc.fx, rc.fy, rc.cx, rc.cy] for rc in rig], dtype=torch.float32).expand(1, d.frames, -1, -1)
     c2w = torch.tensor(np.array([rc.camera_to_ego for rc in rig]), dtype=torch.float32).expand(1, d.frames, -1, -1, -1)
@@ -136,7 +161,7 @@ def test_gradient_clipping_and_non_finite_skip():
     loss = (model(torch.ones(1, 4)) * 1e6).sum()
     norm, skipped = optimizer_step(model, opt, loss, grad_clip=1.0)
     assert not skipped and norm > 1e5
-    step = (model.weight.detach() - before)
+    step = model.weight.detach() - before
     total = torch.sqrt(step.pow(2).sum() + 0)  # SGD lr 1: the update is the clipped gradient (bias included)
     assert float(total) <= 1.0 + 1e-5
     w = model.weight.detach().clone()
@@ -153,6 +178,7 @@ def test_train_config_defaults_clip():
 
 def test_decoder_render_every_alternates(cached):
     from worldsplat.training.loop import decoder_step_fn
+
     _, samples = cached
     step = decoder_step_fn(samples, CFG.data, render_every=2, render_down=2)
     dec = GaussianDecoder(CFG.decoder)

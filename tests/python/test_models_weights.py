@@ -2,6 +2,7 @@
 
 Floors sit a few dB / points below the values measured in web/docs/models.md, so a broken export, a wrong
 normalisation or a geometry regression fails here while ordinary numeric noise does not."""
+
 import numpy as np
 import pytest
 import torch
@@ -11,27 +12,30 @@ from worldsplat.pipeline import inference as inf
 
 torch.set_num_threads(2)
 
-VAE_PSNR_FLOOR = 20.0          # dB, VAE RGB reconstruction
-RECON_PSNR_FLOOR = 17.0        # dB, reconstruct mode rendered at the rig cameras (0 m)
+VAE_PSNR_FLOOR = 20.0  # dB, VAE RGB reconstruction
+RECON_PSNR_FLOOR = 17.0  # dB, reconstruct mode rendered at the rig cameras (0 m)
 RECON_DEPTH_ABSREL_MAX = 0.35  # rendered depth vs GT depth
 
-pytestmark = pytest.mark.skipif("reconstruct" not in inf.available_modes(),
-                                reason="no shipped weights in models/weights")
+pytestmark = pytest.mark.skipif(
+    "reconstruct" not in inf.available_modes(), reason="no shipped weights in models/weights"
+)
 
 
 @pytest.fixture(scope="module")
 def held_out():
     from worldsplat.core.scenario import random_scenario
     from worldsplat.world import build_world, simulate
+
     world = build_world(random_scenario(2_000_123))  # test split seed range [2e6, 3e6), never trained on
     return world, simulate(world)
 
 
 def test_shipped_weights_meta_and_size():
     from worldsplat_models.weights import read_metadata, weights_dir
+
     DEFAULT_DIR = weights_dir()
     total = sum(p.stat().st_size for p in DEFAULT_DIR.rglob("*") if p.suffix in (".safetensors", ".onnx"))
-    assert total <= 60 * 2 ** 20
+    assert total <= 60 * 2**20
     for kind in ("vae", "decoder"):
         md = read_metadata(DEFAULT_DIR / f"{kind}_small.safetensors")
         assert md["kind"] == kind and md["steps_done"] > 0
@@ -49,6 +53,7 @@ def test_vae_reconstruction_floor(held_out):
 
 def test_reconstruct_mode_floor(held_out):
     from worldsplat.gaussians import rasterize
+
     _, clip = held_out
     scene = inf.to_scene4d(inf.reconstruct(clip))
     ps, ab = [], []

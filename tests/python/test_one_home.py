@@ -90,8 +90,9 @@ def test_one_psnr_for_uint8_float_and_masks():
     b[0, 0, 0] = 255
     mse = 3 / (2 * 4 * 4 * 3)
     assert metrics.psnr(a, b) == pytest.approx(10 * np.log10(1 / mse))
-    assert metrics.psnr(torch.from_numpy(a).float() / 255, torch.from_numpy(b).float() / 255) == \
-        pytest.approx(metrics.psnr(a, b))
+    assert metrics.psnr(torch.from_numpy(a).float() / 255, torch.from_numpy(b).float() / 255) == pytest.approx(
+        metrics.psnr(a, b)
+    )
     mask = np.zeros((2, 4, 4), bool)
     mask[1] = True
     assert metrics.psnr(a, b, mask) == float("inf")

@@ -1,4 +1,5 @@
 """The pipeline (oracle mode), render_track, videos and the generate/render/export/import commands."""
+
 import json
 
 import numpy as np
@@ -22,6 +23,7 @@ def tiny_scene():
 
 def test_oracle_scene_metadata_and_rerender(tiny_scene):
     from worldsplat.world import build_world, simulate
+
     s = tiny_scene
     assert s.meta["mode"] == "oracle" and len(s.meta["scenario_id"]) == 16 and s.num_frames == 2
     assert s.meta["aggregate"]["kept"] < s.meta["aggregate"]["naive"]
@@ -43,13 +45,18 @@ def test_modes_and_errors():
         generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="oracle", cancelled=lambda: True)
     stages = []
     with pytest.raises(JobCancelled):
-        generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="oracle", progress=lambda s, f: stages.append(s),
-                       cancelled=lambda: "lift" in stages)
+        generate_scene(
+            load_preset("urban_straight").with_updates(**TINY),
+            mode="oracle",
+            progress=lambda s, f: stages.append(s),
+            cancelled=lambda: "lift" in stages,
+        )
     assert stages[:3] == ["world", "simulate", "lift"]
 
 
 def test_model_modes_say_what_is_missing(monkeypatch):
     import worldsplat.pipeline.scene as pl
+
     monkeypatch.setattr(pl, "_models_inference", lambda: None)
     assert list(pl.MODES) == ["oracle"]
     with pytest.raises(FileNotFoundError, match="worldsplat_models"):
@@ -57,7 +64,7 @@ def test_model_modes_say_what_is_missing(monkeypatch):
 
 
 def test_write_video_mp4_and_webm(tmp_path):
-    frames = np.zeros((5, 35, 61, 3), np.uint8)       # odd size: padded to even for yuv420p
+    frames = np.zeros((5, 35, 61, 3), np.uint8)  # odd size: padded to even for yuv420p
     frames[:, :, :30, 0] = 255
     frames[2:, 10:20, 40:50, 1] = 200
     p = write_video(frames, tmp_path / "a.mp4", fps=4)
@@ -67,7 +74,7 @@ def test_write_video_mp4_and_webm(tmp_path):
     assert abs(float(info["data"][3, 15, 45, 1]) - 200) < 20 and info["data"][0, 15, 10, 0] > 230
     w = write_video(frames, tmp_path / "a.webm", fps=4)
     assert probe(w)["codec"] == "vp9"
-    assert not list(tmp_path.glob(".*"))                # no temp files left
+    assert not list(tmp_path.glob(".*"))  # no temp files left
     with pytest.raises(ValueError):
         write_video(frames.astype(np.float32), tmp_path / "b.mp4")
     with pytest.raises(ValueError):
@@ -91,17 +98,29 @@ def test_cli_generate_render_export_import(tmp_path, capsys):
     (tmp_path / "cam.json").write_text(json.dumps(cam))
     assert cli(["render", str(out), "--camera-json", str(tmp_path / "cam.json"), "--out", str(tmp_path / "c.png")]) == 0
     from PIL import Image
+
     a = np.asarray(Image.open(tmp_path / "c.png"))
     assert cli(["render", str(out), "--shift-m", "1", "--out", str(tmp_path / "r.png")]) == 0
     b = np.asarray(Image.open(tmp_path / "r.png"))
-    assert np.array_equal(a, b)                        # camera JSON == rig camera at +1 m
+    assert np.array_equal(a, b)  # camera JSON == rig camera at +1 m
     assert cli(["export", str(out), "--out", str(tmp_path / "s.ply")]) == 0
     assert cli(["import", str(tmp_path / "s.ply"), "--out", str(tmp_path / "back.wsplat")]) == 0
     back = wsplat.read(tmp_path / "back.wsplat")
     assert len(back.static) == len(scene.static) and back.meta["mode"] == "import"
-    assert cli(["render", str(tmp_path / "s.ply"), "--camera-json", str(tmp_path / "cam.json"),
-                "--out", str(tmp_path / "p.png")]) == 0
+    assert (
+        cli(
+            [
+                "render",
+                str(tmp_path / "s.ply"),
+                "--camera-json",
+                str(tmp_path / "cam.json"),
+                "--out",
+                str(tmp_path / "p.png"),
+            ]
+        )
+        == 0
+    )
     c = np.asarray(Image.open(tmp_path / "p.png"))
-    assert np.abs(a.astype(int) - c.astype(int)).mean() < 1.0   # the PLY renders like the .wsplat
+    assert np.abs(a.astype(int) - c.astype(int)).mean() < 1.0  # the PLY renders like the .wsplat
     assert cli(["render", str(out), "--camera", "NOPE", "--out", str(tmp_path / "x.png")]) == 2
     assert "unknown camera" in capsys.readouterr().err

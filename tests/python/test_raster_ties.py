@@ -43,15 +43,24 @@ def equal_depth_scene(cam: Camera, groups: int = 12, per_group: int = 4, seed: i
     n = groups * per_group
     means = np.repeat(centres, per_group, 0)
     order = rng.permutation(n)  # interleave the groups in the input
-    return {"means": means[order], "quats": rng.normal(size=(n, 4)), "scales": rng.uniform(0.1, 0.4, (n, 3)),
-            "opacities": rng.uniform(0.6, 0.95, n), "colors": rng.uniform(0, 1, (n, 3))}
+    return {
+        "means": means[order],
+        "quats": rng.normal(size=(n, 4)),
+        "scales": rng.uniform(0.1, 0.4, (n, 3)),
+        "opacities": rng.uniform(0.6, 0.95, n),
+        "colors": rng.uniform(0, 1, (n, 3)),
+    }
 
 
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def reference_render(g: dict, cam: Camera) -> np.ndarray:
@@ -70,7 +79,7 @@ def reference_render(g: dict, cam: Camera) -> np.ndarray:
         Rq = quat_to_rot(g["quats"][k])
         M = R @ Rq @ np.diag(g["scales"][k])
         tx, ty = z * np.clip(x / z, -lim_x, lim_x), z * np.clip(y / z, -lim_y, lim_y)
-        J = np.array([[cam.fx / z, 0, -cam.fx * tx / z ** 2], [0, cam.fy / z, -cam.fy * ty / z ** 2]])
+        J = np.array([[cam.fx / z, 0, -cam.fx * tx / z**2], [0, cam.fy / z, -cam.fy * ty / z**2]])
         cov = J @ M @ M.T @ J.T + 0.3 * np.eye(2)
         det = cov[0, 0] * cov[1, 1] - cov[0, 1] ** 2
         a, b, c = cov[1, 1] / det, -cov[0, 1] / det, cov[0, 0] / det
@@ -114,7 +123,8 @@ def test_render_camera_json_keeps_a_ply_in_input_order(case, tmp_path):
     cam, g, ref = case
     ply = write_ply(Gaussians.from_numpy(**g), tmp_path / "ties.ply")
     (tmp_path / "cam.json").write_text(json.dumps(cam.to_json()))
-    assert cli(["render", str(ply), "--camera-json", str(tmp_path / "cam.json"), "--out",
-                str(tmp_path / "ties.png")]) == 0
+    assert (
+        cli(["render", str(ply), "--camera-json", str(tmp_path / "cam.json"), "--out", str(tmp_path / "ties.png")]) == 0
+    )
     img = np.asarray(Image.open(tmp_path / "ties.png").convert("RGB"))
     assert psnr(img, ref) > 45, f"worldsplat render: {psnr(img, ref):.1f} dB against the input-order reference"

@@ -1,4 +1,5 @@
 """Refined novel-track video (issue 7): novel-track renders, reprojected conditions, refine_track."""
+
 import json
 
 import numpy as np
@@ -17,8 +18,9 @@ CAMS = ["CAM_FRONT", "CAM_BACK"]
 
 @pytest.fixture(scope="module")
 def small_world():
-    sc = load_preset("urban_straight").with_updates(image={"width": 48, "height": 32}, clip={"frames": 2},
-                                                    rig={"cameras": CAMS})
+    sc = load_preset("urban_straight").with_updates(
+        image={"width": 48, "height": 32}, clip={"frames": 2}, rig={"cameras": CAMS}
+    )
     world = build_world(sc)
     clip = simulate(world, 0.0)
     return sc, world, clip, oracle_scene(clip, {"scenario": sc.model_dump(mode="json")})
@@ -29,7 +31,7 @@ def test_oracle_render_reproduces_the_source_track_and_opens_holes_when_shifted(
     r0 = render_scene_track(scene, 0.0)
     covered = np.isfinite(clip.depth)
     err = np.abs(r0.rgb.astype(float) - clip.rgb.astype(float))[covered].mean()
-    assert err < 20, err          # close where geometry exists (what remains is splat blur at 48x32)
+    assert err < 20, err  # close where geometry exists (what remains is splat blur at 48x32)
     assert (r0.alpha[covered] > 0.5).mean() > 0.97
     r4 = render_scene_track(scene, 4.0)
     truth4 = simulate(world, 4.0)
@@ -45,7 +47,7 @@ def test_reprojected_conditions_match_the_world_for_the_shift(small_world):
     c0, c2 = conditions_for_track(world, 0.0), conditions_for_track(world, 2.0)
     ref = world.conditions(shift_m=2.0)
     assert np.array_equal(c2["sketch"], (np.asarray(ref["sketch"]) > 0.5).astype(np.uint8))
-    assert not np.array_equal(c0["sketch"], c2["sketch"])            # S' really is reprojected
+    assert not np.array_equal(c0["sketch"], c2["sketch"])  # S' really is reprojected
     assert np.allclose(c2["traj"], ref["ego_traj"])
     # B': boxes live in the shifted ego frame, so every box sits exactly 2 m further right (ego y smaller);
     # slots are ordered nearest-first, so match boxes by content
@@ -65,6 +67,7 @@ def tiny_weights(tmp_path_factory):
     from worldsplat_models.configs import get_config
     from worldsplat_models.enhancer import Enhancer, enhancer_config, save_enhancer
     from worldsplat_models.vae import MultiModalVAE
+
     torch.manual_seed(0)
     path = tmp_path_factory.mktemp("w") / "enhancer_tiny.safetensors"
     save_enhancer(Enhancer(enhancer_config("tiny")), MultiModalVAE(get_config("tiny").vae), path)
@@ -74,17 +77,20 @@ def tiny_weights(tmp_path_factory):
 @pytest.fixture()
 def no_minilm(monkeypatch):
     import worldsplat_models.conditions as cond
+
     monkeypatch.setattr(cond, "encode_captions", lambda caps: torch.zeros(len(caps), 384))
 
 
 def test_refine_track_shape_dtype_progress_and_blend(small_world, tiny_weights, no_minilm):
     from worldsplat.pipeline.refine import refine_available, refine_track
+
     sc, _, clip, scene = small_world
     assert refine_available(tiny_weights) and not refine_available(tiny_weights.parent / "none.safetensors")
     stages = []
     tm = {}
-    out = refine_track(scene, 4.0, ["CAM_BACK"], steps=2, weights=tiny_weights,
-                       progress=lambda s, f: stages.append(s), timings=tm)
+    out = refine_track(
+        scene, 4.0, ["CAM_BACK"], steps=2, weights=tiny_weights, progress=lambda s, f: stages.append(s), timings=tm
+    )
     T, V, H, W, _ = clip.rgb.shape
     assert out.shape == (T, 1, H, W, 3) and out.dtype == np.uint8
     assert {"render", "conditions", "refine"} <= set(stages)
@@ -101,6 +107,7 @@ def test_refine_track_rejects_bad_input(small_world, tiny_weights, no_minilm):
     from worldsplat.core.errors import Cancelled
     from worldsplat.gaussians import Scene4D
     from worldsplat.pipeline.refine import refine_track
+
     sc, _, _, scene = small_world
     with pytest.raises(ValueError, match="CAM_NOPE"):
         refine_track(scene, 1.0, ["CAM_NOPE"], steps=1, weights=tiny_weights)
@@ -116,12 +123,14 @@ def test_refine_track_rejects_bad_input(small_world, tiny_weights, no_minilm):
 
 def test_refine_track_at_another_resolution_than_the_model(tiny_weights, no_minilm):
     from worldsplat.pipeline.refine import refine_track
-    sc = load_preset("urban_straight").with_updates(image={"width": 64, "height": 40}, clip={"frames": 3},
-                                                    rig={"cameras": CAMS})
+
+    sc = load_preset("urban_straight").with_updates(
+        image={"width": 64, "height": 40}, clip={"frames": 3}, rig={"cameras": CAMS}
+    )
     clip = simulate(build_world(sc), 0.0)
     scene = oracle_scene(clip, {"scenario": json.dumps(sc.model_dump(mode="json"))})
     out = refine_track(scene, 2.0, ["CAM_FRONT"], steps=1, weights=tiny_weights)
     assert out.shape == (3, 1, 40, 64, 3) and out.dtype == np.uint8
     raw = render_scene_track(scene, 2.0, views=[0])
     covered = raw.alpha > 0.999
-    assert np.array_equal(out[covered], raw.rgb[covered])      # default blend keeps the full-size render
+    assert np.array_equal(out[covered], raw.rgb[covered])  # default blend keeps the full-size render

@@ -1,6 +1,7 @@
 """The shared rig + lateral shift vector (tests/vectors/rig/rig_shift.json): the Python world's rig, ego poses and
 world cameras at every shift and frame are what the vector pins (the Rust side: wasm/crates/splat-core/tests/
 rig_vector.rs). Regenerate with `python tests/vectors/make_vectors.py rig` after a deliberate rig change."""
+
 import json
 from pathlib import Path
 

@@ -1,4 +1,5 @@
 """The scenario schema: bounds, unknown fields, cross-field rules, presets, canonical form and exported schema."""
+
 import json
 
 import pytest
@@ -17,18 +18,39 @@ from worldsplat.core.scenario import (
 
 # (path, bad value) -> the error must name the path.
 OUT_OF_RANGE = [
-    (("seed",), -1), (("seed",), 2**31), (("seed",), "7"), (("version",), 2),
-    (("road", "kind"), "roundabout"), (("road", "setting"), "rural"),
-    (("road", "lanes_per_direction"), 0), (("road", "lanes_per_direction"), 5),
-    (("road", "lane_width"), 2.0), (("road", "lane_width"), 6.0), (("road", "curvature"), 0.2),
-    (("traffic", "moving_vehicles"), -1), (("traffic", "moving_vehicles"), 21),
-    (("traffic", "parked_vehicles"), 25), (("traffic", "pedestrians"), 25), (("traffic", "cyclists"), 9),
-    (("environment", "time_of_day"), "noon"), (("environment", "weather"), "snow"),
-    (("ego", "speed"), -0.5), (("ego", "speed"), 31.0), (("ego", "start_lane"), 4),
+    (("seed",), -1),
+    (("seed",), 2**31),
+    (("seed",), "7"),
+    (("version",), 2),
+    (("road", "kind"), "roundabout"),
+    (("road", "setting"), "rural"),
+    (("road", "lanes_per_direction"), 0),
+    (("road", "lanes_per_direction"), 5),
+    (("road", "lane_width"), 2.0),
+    (("road", "lane_width"), 6.0),
+    (("road", "curvature"), 0.2),
+    (("traffic", "moving_vehicles"), -1),
+    (("traffic", "moving_vehicles"), 21),
+    (("traffic", "parked_vehicles"), 25),
+    (("traffic", "pedestrians"), 25),
+    (("traffic", "cyclists"), 9),
+    (("environment", "time_of_day"), "noon"),
+    (("environment", "weather"), "snow"),
+    (("ego", "speed"), -0.5),
+    (("ego", "speed"), 31.0),
+    (("ego", "start_lane"), 4),
     (("ego", "manoeuvre"), "u_turn"),
-    (("clip", "frames"), 0), (("clip", "frames"), 33), (("clip", "fps"), 0.5), (("clip", "fps"), 31.0),
-    (("image", "width"), 16), (("image", "width"), 5000), (("image", "height"), 10), (("image", "height"), 1000),
-    (("rig", "cameras"), []), (("rig", "cameras"), ["CAM_TOP"]), (("rig", "cameras"), ["CAM_BACK", "CAM_BACK"]),
+    (("clip", "frames"), 0),
+    (("clip", "frames"), 33),
+    (("clip", "fps"), 0.5),
+    (("clip", "fps"), 31.0),
+    (("image", "width"), 16),
+    (("image", "width"), 5000),
+    (("image", "height"), 10),
+    (("image", "height"), 1000),
+    (("rig", "cameras"), []),
+    (("rig", "cameras"), ["CAM_TOP"]),
+    (("rig", "cameras"), ["CAM_BACK", "CAM_BACK"]),
 ]
 
 
@@ -63,12 +85,18 @@ def test_non_finite_numbers_rejected():
         Scenario.parse('{"ego": {"speed": NaN}}')
 
 
-@pytest.mark.parametrize("patch,field", [
-    ({"road": {"lanes_per_direction": 2}, "ego": {"start_lane": 2}}, "ego.start_lane"),
-    ({"road": {"lanes_per_direction": 2}, "ego": {"start_lane": 1, "manoeuvre": "lane_change_left"}}, "ego.manoeuvre"),
-    ({"ego": {"start_lane": 0, "manoeuvre": "lane_change_right"}}, "ego.manoeuvre"),
-    ({"road": {"kind": "straight"}, "ego": {"manoeuvre": "turn_left"}}, "ego.manoeuvre"),
-])
+@pytest.mark.parametrize(
+    "patch,field",
+    [
+        ({"road": {"lanes_per_direction": 2}, "ego": {"start_lane": 2}}, "ego.start_lane"),
+        (
+            {"road": {"lanes_per_direction": 2}, "ego": {"start_lane": 1, "manoeuvre": "lane_change_left"}},
+            "ego.manoeuvre",
+        ),
+        ({"ego": {"start_lane": 0, "manoeuvre": "lane_change_right"}}, "ego.manoeuvre"),
+        ({"road": {"kind": "straight"}, "ego": {"manoeuvre": "turn_left"}}, "ego.manoeuvre"),
+    ],
+)
 def test_cross_field_rules_name_the_field(patch, field):
     with pytest.raises(ScenarioError, match=field):
         Scenario.parse(patch)
@@ -101,8 +129,9 @@ def test_presets_validate_and_cover_the_required_kinds():
     assert any(k[0] == "curve" and k[1] == "suburban" for k in kinds)
     assert any(k[2] == "night" and k[3] == "rain" for k in kinds)
     assert any(k[0] == "straight" and k[1] == "urban" for k in kinds)
-    assert any(s.traffic.moving_vehicles == 0 and s.traffic.pedestrians == 0 and s.traffic.cyclists == 0
-               for s in scen.values())
+    assert any(
+        s.traffic.moving_vehicles == 0 and s.traffic.pedestrians == 0 and s.traffic.cyclists == 0 for s in scen.values()
+    )
     assert load_preset("default") == default_scenario()
     with pytest.raises(ValueError, match="unknown preset"):
         load_preset("nope")
@@ -118,8 +147,9 @@ def test_random_scenarios_validate_and_vary():
 
 
 def test_committed_schema_matches_generated():
-    assert schema_path().read_text() == schema_text(), \
+    assert schema_path().read_text() == schema_text(), (
         "web/docs/scenario.schema.json is stale: run `worldsplat presets --write-schema`"
+    )
     schema = json.loads(schema_text())
     assert schema["additionalProperties"] is False
     assert schema["$defs"]["Traffic"]["properties"]["pedestrians"]["maximum"] == 24

@@ -1,4 +1,5 @@
 """Conditions: BEV raster, perspective sketches for shifted rigs, boxes, ego trajectory."""
+
 import numpy as np
 
 from worldsplat.core.scenario import load_preset
@@ -59,7 +60,7 @@ def test_shifted_sketch_moves_lines_and_traj_is_relative():
     d2 = c2["bev"][0, 0, BEV_SIZE // 2]
     assert np.argmax(d2) - np.argmax(d0) == round(2.0 / BEV_RES)
     assert np.allclose(c2["ego_traj"][0], np.eye(4))
-    assert np.allclose(c2["ego_traj"][:, :3, 3], c0["ego_traj"][:, :3, 3], atol=1e-9)   # straight road
+    assert np.allclose(c2["ego_traj"][:, :3, 3], c0["ego_traj"][:, :3, 3], atol=1e-9)  # straight road
 
 
 def test_dynamic_pixels_lie_inside_projected_moving_boxes_for_a_shifted_rig():
@@ -67,6 +68,7 @@ def test_dynamic_pixels_lie_inside_projected_moving_boxes_for_a_shifted_rig():
     projected 2D extent of some moving agent's 3D box, and every moving box in front of a camera with a large
     enough footprint has dynamic pixels."""
     from worldsplat.world import simulate
+
     w = _world(traffic={"moving_vehicles": 10, "parked_vehicles": 4, "pedestrians": 6, "cyclists": 2})
     shift = 3.0
     clip = simulate(w, shift_m=shift)
@@ -82,11 +84,11 @@ def test_dynamic_pixels_lie_inside_projected_moving_boxes_for_a_shifted_rig():
                 if np.all(z <= 0.05):
                     continue
                 if np.any(z <= 0.05):
-                    cover[:] = True          # straddles the camera plane: anything goes
+                    cover[:] = True  # straddles the camera plane: anything goes
                     continue
                 i0, i1 = int(np.floor(uv[:, 0].min())), int(np.ceil(uv[:, 0].max()))
                 j0, j1 = int(np.floor(uv[:, 1].min())), int(np.ceil(uv[:, 1].max()))
-                cover[max(j0, 0):max(j1, 0), max(i0, 0):max(i1, 0)] = True
+                cover[max(j0, 0) : max(j1, 0), max(i0, 0) : max(i1, 0)] = True
             dyn = clip.dynamic[t, v]
             assert not np.any(dyn & ~cover), (t, v)
     assert clip.dynamic.sum() > 100

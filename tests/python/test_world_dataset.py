@@ -1,4 +1,5 @@
 """The dataset writer: shard contents, resumability, atomic writes, non-overlapping split seeds."""
+
 import json
 
 import numpy as np
@@ -45,7 +46,27 @@ def test_dataset_shards_resume_and_contents(tmp_path):
 
 
 def test_dataset_command(tmp_path, capsys):
-    assert cli_main(["dataset", "--count", "1", "--split", "train", "--out", str(tmp_path), "--width", "40",
-                     "--height", "32", "--frames", "1", "--preset-mix", "--no-progress"]) == 0
+    assert (
+        cli_main(
+            [
+                "dataset",
+                "--count",
+                "1",
+                "--split",
+                "train",
+                "--out",
+                str(tmp_path),
+                "--width",
+                "40",
+                "--height",
+                "32",
+                "--frames",
+                "1",
+                "--preset-mix",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert (tmp_path / "train" / "clip_000000.npz").exists()
     assert "wrote 1" in capsys.readouterr().out

@@ -1,4 +1,5 @@
 """Renderer geometry against the camera convention: projection, depth = camera z, cross-view consistency, shift."""
+
 import math
 
 import numpy as np
@@ -89,10 +90,12 @@ def _interp_inverse_depth(depth, u, v):
     x, y = u - 0.5, v - 0.5
     i0, j0 = int(math.floor(x)), int(math.floor(y))
     fx, fy = x - i0, y - j0
-    patch = depth[j0:j0 + 2, i0:i0 + 2].astype(np.float64)
+    patch = depth[j0 : j0 + 2, i0 : i0 + 2].astype(np.float64)
     inv = 1.0 / patch
-    return 1.0 / ((inv[0, 0] * (1 - fx) + inv[0, 1] * fx) * (1 - fy) + (inv[1, 0] * (1 - fx) + inv[1, 1] * fx) * fy), \
-        (i0, j0)
+    return 1.0 / ((inv[0, 0] * (1 - fx) + inv[0, 1] * fx) * (1 - fy) + (inv[1, 0] * (1 - fx) + inv[1, 1] * fx) * fy), (
+        i0,
+        j0,
+    )
 
 
 def test_static_points_agree_across_frames_and_cameras_within_1cm(world):
@@ -115,7 +118,7 @@ def test_static_points_agree_across_frames_and_cameras_within_1cm(world):
                     if not (z[0] > 0.5 and 1 <= u < W - 1 and 1 <= vv < H - 1):
                         continue
                     zi, (i0, j0) = _interp_inverse_depth(clip.depth[t, v], u, vv)
-                    if not np.all(clip.semantic[t, v, j0:j0 + 2, i0:i0 + 2] == ROAD):
+                    if not np.all(clip.semantic[t, v, j0 : j0 + 2, i0 : i0 + 2] == ROAD):
                         continue
                     o, _ = cam.pixel_rays()
                     ray = cam.camera_to_world[:3, :3] @ np.array([(u - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, 1.0])
@@ -150,7 +153,7 @@ def test_shift_moves_near_static_point_the_right_way(world, cam_index, direction
         return 0.5 * (ii.min() + ii.max() + 1)
 
     du = centre(c2) - centre(c0)
-    expected = direction * f * 2.0 / (z - half)      # the face towards the camera
+    expected = direction * f * 2.0 / (z - half)  # the face towards the camera
     assert np.sign(du) == direction
     assert abs(du - expected) <= 1.0, (du, expected)
     # The whole face is still there (same size), only moved.

@@ -1,4 +1,5 @@
 """World determinism, dynamic masks, agent behaviour, presets and the `sim` command."""
+
 import hashlib
 import json
 from pathlib import Path
@@ -48,12 +49,14 @@ def test_different_seeds_give_different_worlds():
 
 def _overlap(p, q, size_p, size_q):
     """Separating-axis test for two oriented rectangles (x, y, yaw) with (length, width)."""
+
     def corners(pose, size):
         x, y, a = pose
         c, s = np.cos(a), np.sin(a)
         l, w = size[0] / 2, size[1] / 2
         loc = np.array([[l, w], [l, -w], [-l, -w], [-l, w]])
         return loc @ np.array([[c, s], [-s, c]]) + [x, y]
+
     cp, cq = corners(p, size_p), corners(q, size_q)
     for poly in (cp, cq):
         for k in range(4):
@@ -69,8 +72,7 @@ def _overlap(p, q, size_p, size_q):
 def test_agents_never_overlap_and_follow_the_road(name):
     sc = load_preset(name).with_updates(clip={"frames": 16})
     w = build_world(sc)
-    ego = np.stack([ego_footprint(np.array([e[0, 3], e[1, 3], np.arctan2(e[1, 0], e[0, 0])]))
-                    for e in w.ego_to_world])
+    ego = np.stack([ego_footprint(np.array([e[0, 3], e[1, 3], np.arctan2(e[1, 0], e[0, 0])])) for e in w.ego_to_world])
     bodies = [(ego, (EGO_LENGTH, EGO_WIDTH))] + [(a.poses, a.size[:2]) for a in w.agents]
     for t in range(w.num_frames):
         for i in range(len(bodies)):
@@ -86,8 +88,7 @@ def test_agents_never_overlap_and_follow_the_road(name):
 
 def test_dynamic_mask_is_exactly_the_moving_agents():
     # No parked cars and no standing pedestrians: every agent pixel is a moving-agent pixel.
-    sc = small("urban_straight", traffic={"parked_vehicles": 0, "pedestrians": 0, "moving_vehicles": 10,
-                                          "cyclists": 2})
+    sc = small("urban_straight", traffic={"parked_vehicles": 0, "pedestrians": 0, "moving_vehicles": 10, "cyclists": 2})
     clip = simulate(build_world(sc))
     agent_px = np.isin(clip.semantic, AGENT_CLASSES)
     assert clip.dynamic.sum() > 50
@@ -95,8 +96,7 @@ def test_dynamic_mask_is_exactly_the_moving_agents():
 
 
 def test_parked_cars_are_not_dynamic():
-    sc = small("urban_straight", traffic={"parked_vehicles": 12, "pedestrians": 0, "moving_vehicles": 3,
-                                          "cyclists": 0})
+    sc = small("urban_straight", traffic={"parked_vehicles": 12, "pedestrians": 0, "moving_vehicles": 3, "cyclists": 0})
     w = build_world(sc)
     clip = simulate(w)
     car_px = clip.semantic == CAR
@@ -145,13 +145,23 @@ def test_sim_command_writes_everything(tmp_path: Path):
         assert cli_main(["sim", str(path), "--out", str(out), "--shift-m", "2"]) == 0
         outs.append(out)
     files = sorted(p.relative_to(outs[0]) for p in outs[0].rglob("*") if p.is_file())
-    for must in ("mosaic.png", "bev.png", "depth.npz", "meta.json", "conditions/boxes.json", "conditions/bev.npz",
-                 "rgb/CAM_FRONT_00.png", "dynamic/CAM_BACK_01.png", "semantic/CAM_FRONT_LEFT_00.png",
-                 "conditions/sketch/CAM_FRONT_01.png"):
+    for must in (
+        "mosaic.png",
+        "bev.png",
+        "depth.npz",
+        "meta.json",
+        "conditions/boxes.json",
+        "conditions/bev.npz",
+        "rgb/CAM_FRONT_00.png",
+        "dynamic/CAM_BACK_01.png",
+        "semantic/CAM_FRONT_LEFT_00.png",
+        "conditions/sketch/CAM_FRONT_01.png",
+    ):
         assert Path(must) in files, must
-    for f in files:   # byte-identical on a second run
-        assert hashlib.sha256((outs[0] / f).read_bytes()).digest() == \
-            hashlib.sha256((outs[1] / f).read_bytes()).digest(), f
+    for f in files:  # byte-identical on a second run
+        assert (
+            hashlib.sha256((outs[0] / f).read_bytes()).digest() == hashlib.sha256((outs[1] / f).read_bytes()).digest()
+        ), f
     meta = json.loads((outs[0] / "meta.json").read_text())
     assert meta["shift_m"] == 2.0 and len(meta["cameras"]) == 6 and len(meta["world_to_camera"]) == 2
     depth = np.load(outs[0] / "depth.npz")["depth"]
@@ -163,6 +173,7 @@ def test_sim_command_writes_everything(tmp_path: Path):
 def test_render_views_matches_simulate_for_rig_cameras_and_takes_any_camera():
     from worldsplat.core.camera import Camera
     from worldsplat.world import render_views
+
     w = build_world(small("urban_straight", frames=2))
     clip = simulate(w, shift_m=1.5, frames=[1])
     cams = [clip.camera(0, v) for v in range(6)]
@@ -181,10 +192,15 @@ def test_lane_indices_match_geometry():
         w = build_world(load_preset(name))
         sc = w.scenario
         _, d_ego = w.road.sd(np.array([0.0]), np.array([0.0]))
-        assert abs(d_ego[0] - (-(w.road.median / 2 + (sc.road.lanes_per_direction - sc.ego.start_lane - 0.5)
-                                 * sc.road.lane_width))) < 1e-9
+        assert (
+            abs(
+                d_ego[0]
+                - (-(w.road.median / 2 + (sc.road.lanes_per_direction - sc.ego.start_lane - 0.5) * sc.road.lane_width))
+            )
+            < 1e-9
+        )
         for a in w.agents:
-            if a.where[0] != "lane" or a.where[1] != "main" or a.cls == CYCLIST:   # cyclists ride at the kerb
+            if a.where[0] != "lane" or a.where[1] != "main" or a.cls == CYCLIST:  # cyclists ride at the kerb
                 continue
             direction, lane = a.where[2], a.where[3]
             _, d = w.road.sd(a.poses[:1, 0], a.poses[:1, 1])
@@ -197,6 +213,7 @@ def test_lane_indices_match_geometry():
 @pytest.mark.parametrize("seed", [3, 1000004, 2000007, 123457])
 def test_random_scenarios_build_and_render(seed):
     from worldsplat.core.scenario import random_scenario
+
     sc = random_scenario(seed, width=40, height=32, frames=2)
     w = build_world(sc)
     clip = simulate(w, shift_m=-2.0)

@@ -1,4 +1,5 @@
 """.wsplat v1: shared vectors (valid + malformed), round trip, progressive decoding, bounded fuzzing."""
+
 import json
 import struct
 import sys
@@ -37,14 +38,24 @@ def test_shared_wsplat_vector(name):
     tol = exp["tolerance"]
     if exp["first_static"] is not None:
         g = scene.static.numpy()
-        for key, field in (("mean", "means"), ("quat", "quats"), ("scale", "scales"), ("opacity", "opacities"),
-                           ("color", "colors")):
+        for key, field in (
+            ("mean", "means"),
+            ("quat", "quats"),
+            ("scale", "scales"),
+            ("opacity", "opacities"),
+            ("color", "colors"),
+        ):
             assert np.allclose(g[field][0], exp["first_static"][key], atol=tol[key], rtol=0), key
         assert np.allclose(g["means"].astype(np.float64).sum(0), exp["static_mean_sum"], atol=tol["static_mean_sum"])
-    if exp.get("first_dynamic") is not None:   # first record of the first DYNA chunk
+    if exp.get("first_dynamic") is not None:  # first record of the first DYNA chunk
         g = next(d for d in scene.dynamic if len(d)).numpy()
-        for key, field in (("mean", "means"), ("quat", "quats"), ("scale", "scales"), ("opacity", "opacities"),
-                           ("color", "colors")):
+        for key, field in (
+            ("mean", "means"),
+            ("quat", "quats"),
+            ("scale", "scales"),
+            ("opacity", "opacities"),
+            ("color", "colors"),
+        ):
             assert np.allclose(g[field][0], exp["first_dynamic"][key], atol=tol[key], rtol=0), key
 
 
@@ -58,22 +69,35 @@ def make_scene(n_static=500, n_dyn=(30, 0, 12), iso=True, seed=0):
 
     def gs(n):
         s = torch.rand(n, 1 if iso else 3, generator=gen) * 0.3 + 0.01
-        return Gaussians(torch.rand(n, 3, generator=gen) * 20, torch.randn(n, 4, generator=gen), s.expand(n, 3).clone(),
-                         torch.rand(n, generator=gen) * 0.9 + 0.05, torch.rand(n, 3, generator=gen))
+        return Gaussians(
+            torch.rand(n, 3, generator=gen) * 20,
+            torch.randn(n, 4, generator=gen),
+            s.expand(n, 3).clone(),
+            torch.rand(n, generator=gen) * 0.9 + 0.05,
+            torch.rand(n, 3, generator=gen),
+        )
+
     T = len(n_dyn)
-    return Scene4D(gs(n_static), [gs(n) for n in n_dyn], np.arange(T) * 0.1, default_rig(32, 18),
-                   np.stack([yaw_pose(t, 0.1 * t, 0, 0.01 * t) for t in range(T)]),
-                   {"scenario_id": "abc", "mode": "oracle", "model_version": "v", "caption": "a street", "fps": 10.0})
+    return Scene4D(
+        gs(n_static),
+        [gs(n) for n in n_dyn],
+        np.arange(T) * 0.1,
+        default_rig(32, 18),
+        np.stack([yaw_pose(t, 0.1 * t, 0, 0.01 * t) for t in range(T)]),
+        {"scenario_id": "abc", "mode": "oracle", "model_version": "v", "caption": "a street", "fps": 10.0},
+    )
 
 
 def matched_error(a: Gaussians, b: Gaussians) -> dict:
     """Encoding reorders within chunks: match by nearest mean and compare fields."""
     am, bm = a.means.double(), b.means.double()
     idx = torch.cdist(am, bm).argmin(1)
-    return {"means": float((am - bm[idx]).abs().max()),
-            "scales": float((a.scales.double().log() - b.scales.double()[idx].log()).abs().max()),
-            "opacities": float((a.opacities.double() - b.opacities.double()[idx]).abs().max()),
-            "colors": float((a.colors.double() - b.colors.double()[idx]).abs().max())}
+    return {
+        "means": float((am - bm[idx]).abs().max()),
+        "scales": float((a.scales.double().log() - b.scales.double()[idx].log()).abs().max()),
+        "opacities": float((a.opacities.double() - b.opacities.double()[idx]).abs().max()),
+        "colors": float((a.colors.double() - b.colors.double()[idx]).abs().max()),
+    }
 
 
 @pytest.mark.parametrize("iso", [True, False])
@@ -88,6 +112,7 @@ def test_round_trip_within_quantization(iso):
     assert err["means"] < 0.05 and err["scales"] < 0.3 and err["opacities"] < 0.04 and err["colors"] < 0.04, err
     if not iso:  # rotation survives smallest-three (compare rotation matrices: q and -q are the same rotation)
         from worldsplat.gaussians.project import quat_to_rotmat
+
         idx = torch.cdist(sc.static.means.double(), back.static.means.double()).argmin(1)
         qa = sc.static.quats / sc.static.quats.norm(dim=1, keepdim=True)
         d = (quat_to_rotmat(qa) - quat_to_rotmat(back.static.quats[idx])).abs().max()
@@ -111,6 +136,7 @@ def test_bytes_per_gaussian_of_default_layouts():
 
 def _covariances(q, s):
     from worldsplat.gaussians.project import quat_to_rotmat
+
     R = quat_to_rotmat(torch.as_tensor(q, dtype=torch.float64))
     return R @ torch.diag_embed(torch.as_tensor(s, dtype=torch.float64) ** 2) @ R.transpose(1, 2)
 
@@ -123,7 +149,7 @@ def test_canonical_rotation_keeps_every_covariance():
     cq, cs = wsplat.canonical_rotation(q, s)
     assert torch.allclose(_covariances(q, s), _covariances(cq, cs), atol=1e-9)
     assert (cq[:, 0] >= 0).all() and np.abs(cq[:, 1:]).max() <= wsplat.Q_CANON + 1e-12
-    assert sorted(np.sort(cs, 1).ravel()) == sorted(np.sort(s, 1).ravel())   # the scales are only permuted
+    assert sorted(np.sort(cs, 1).ravel()) == sorted(np.sort(s, 1).ravel())  # the scales are only permuted
     # axis-aligned Gaussians (any of the 24 cube rotations) become the identity exactly
     aq, _ = wsplat.canonical_rotation(wsplat.CUBE_ROTATIONS, np.ones((24, 3)))
     assert np.allclose(aq, [1, 0, 0, 0], atol=1e-12)
@@ -135,6 +161,7 @@ def test_anisotropic_dynamic_record_renders_close_to_float32():
     Against a reconstruction near 20 dB this is a < 0.1 dB change (gaussians.md, `python -m
     worldsplat.bench.quant`)."""
     from worldsplat.gaussians import rasterize
+
     rng = np.random.default_rng(0)
     s = _street(rng, 3000, 3000)
     q = rng.normal(size=(len(s["means"]), 4))
@@ -143,8 +170,9 @@ def test_anisotropic_dynamic_record_renders_close_to_float32():
     s["colors"] = np.clip(s["colors"] + rng.normal(0, 0.1, (len(q), 3)), 0, 1)
     g = Gaussians.from_numpy(**s)
     cam = base_camera(0.0)
-    scene = Scene4D(Gaussians.empty(), [g], np.zeros(1), default_rig(128, 72, ("CAM_FRONT",)), np.eye(4)[None],
-                    {"fps": 10.0})
+    scene = Scene4D(
+        Gaussians.empty(), [g], np.zeros(1), default_rig(128, 72, ("CAM_FRONT",)), np.eye(4)[None], {"fps": 10.0}
+    )
     data = wsplat.encode(scene)
     dyna = sum(len(p) - 8 for t, p in split_chunks(data) if t == b"DYNA")
     assert dyna / len(g) <= 8
@@ -161,16 +189,23 @@ def test_anisotropic_dynamic_layout_round_trip():
     a, b = sc.dynamic[0], back.dynamic[0]
     idx = torch.cdist(a.means.double(), b.means.double()).argmin(1)
     qa = (a.quats / a.quats.norm(dim=1, keepdim=True)).double().numpy()
-    ca, cb = _covariances(qa, a.scales.double().numpy()), _covariances(b.quats.double().numpy()[idx],
-                                                                          b.scales.double().numpy()[idx])
+    ca, cb = (
+        _covariances(qa, a.scales.double().numpy()),
+        _covariances(b.quats.double().numpy()[idx], b.scales.double().numpy()[idx]),
+    )
     # relative covariance error: 3-bit log-scales over the block's range and 3-bit rotations
     rel = (ca - cb).flatten(1).norm(dim=1) / ca.flatten(1).norm(dim=1)
     assert float(rel.median()) < 0.35, float(rel.median())
     axis = make_scene(n_static=10, n_dyn=(500,), iso=False, seed=6)
-    axis.dynamic[0] = Gaussians(axis.dynamic[0].means, torch.tensor([[0.0, 0, 0, 1]]).repeat(500, 1),
-                                axis.dynamic[0].scales, axis.dynamic[0].opacities, axis.dynamic[0].colors)
+    axis.dynamic[0] = Gaussians(
+        axis.dynamic[0].means,
+        torch.tensor([[0.0, 0, 0, 1]]).repeat(500, 1),
+        axis.dynamic[0].scales,
+        axis.dynamic[0].opacities,
+        axis.dynamic[0].colors,
+    )
     back = wsplat.decode(wsplat.encode(axis))
-    assert np.allclose(back.dynamic[0].quats.numpy(), [1, 0, 0, 0])   # a 180-degree turn about z is the identity
+    assert np.allclose(back.dynamic[0].quats.numpy(), [1, 0, 0, 0])  # a 180-degree turn about z is the identity
 
 
 def test_static_chunks_keep_importance_order_as_prefixes():
@@ -179,7 +214,7 @@ def test_static_chunks_keep_importance_order_as_prefixes():
     dec = ProgressiveDecoder()
     sizes = []
     for s in range(0, len(data), 997):  # odd-sized pieces, as from a network stream
-        for kind, payload in dec.feed(data[s:s + 997]):
+        for kind, payload in dec.feed(data[s : s + 997]):
             if kind == "static":
                 sizes.append(len(payload))
     assert dec.done and sizes == [4096, 5904]

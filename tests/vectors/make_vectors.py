@@ -8,6 +8,7 @@ rig/rig_shift.json          a preset's rig (intrinsics + camera_to_ego), its ego
                             rig camera at several lateral shifts and frames (Python's rig + shift composition)
 Every renderer / decoder must pass all of them (see web/docs/gaussians.md).
 """
+
 from __future__ import annotations
 
 import json
@@ -26,6 +27,7 @@ RASTER_CAMERA_SIZE = (128, 72)
 # ---------------------------------------------------------------------------------------------- raster cases
 def base_camera(shift_m: float = 0.0):
     from worldsplat.core.camera import default_rig, yaw_pose
+
     w, h = RASTER_CAMERA_SIZE
     return default_rig(w, h, ("CAM_FRONT",))[0].at(yaw_pose(3.0, 1.0, 0.0, 0.2), shift_m)
 
@@ -39,9 +41,13 @@ def _random(rng, n, cam, zlo=2.0, zhi=30.0, slo=0.02, shi=0.5, olo=0.1, ohi=1.0,
     z = rng.uniform(zlo, zhi, n)
     xy = rng.uniform(-spread, spread, (n, 2)) * z[:, None] * np.array([1.0, 0.6])
     pts = np.concatenate([xy, z[:, None]], 1)
-    return {"means": _from_camera(cam, pts), "quats": rng.normal(size=(n, 4)),
-            "scales": np.exp(rng.uniform(np.log(slo), np.log(shi), (n, 3))),
-            "opacities": rng.uniform(olo, ohi, n), "colors": rng.uniform(0, 1, (n, 3))}
+    return {
+        "means": _from_camera(cam, pts),
+        "quats": rng.normal(size=(n, 4)),
+        "scales": np.exp(rng.uniform(np.log(slo), np.log(shi), (n, 3))),
+        "opacities": rng.uniform(olo, ohi, n),
+        "colors": rng.uniform(0, 1, (n, 3)),
+    }
 
 
 def _cat(*parts):
@@ -53,8 +59,11 @@ def _street(rng, n_ground=1500, n_wall=1500):
     gx = rng.uniform(0, 60, n_ground)
     gy = rng.uniform(-12, 14, n_ground)
     ground = np.stack([gx, gy, np.zeros(n_ground)], 1)
-    col_g = np.where((np.abs(gy - 1.0) < 0.15)[:, None] & ((gx % 4) < 2)[:, None], [0.95, 0.95, 0.9],
-                     np.where((np.abs(gy - 1.0) < 6)[:, None], [0.35, 0.35, 0.38], [0.3, 0.55, 0.25]))
+    col_g = np.where(
+        (np.abs(gy - 1.0) < 0.15)[:, None] & ((gx % 4) < 2)[:, None],
+        [0.95, 0.95, 0.9],
+        np.where((np.abs(gy - 1.0) < 6)[:, None], [0.35, 0.35, 0.38], [0.3, 0.55, 0.25]),
+    )
     wx = rng.uniform(0, 60, n_wall)
     side = rng.integers(0, 2, n_wall)
     wy = np.where(side == 1, 9.0, -7.0) + rng.normal(0, 0.05, n_wall)
@@ -66,8 +75,13 @@ def _street(rng, n_ground=1500, n_wall=1500):
     means = np.concatenate([ground, walls])
     n = len(means)
     scales = np.concatenate([np.tile([0.5, 0.5, 0.02], (n_ground, 1)), np.tile([0.45, 0.03, 0.45], (n_wall, 1))])
-    return {"means": means, "quats": np.tile([1.0, 0, 0, 0], (n, 1)), "scales": scales,
-            "opacities": np.full(n, 0.9), "colors": np.concatenate([col_g, col_w])}
+    return {
+        "means": means,
+        "quats": np.tile([1.0, 0, 0, 0], (n, 1)),
+        "scales": scales,
+        "opacities": np.full(n, 0.9),
+        "colors": np.concatenate([col_g, col_w]),
+    }
 
 
 def raster_cases() -> list[dict]:
@@ -80,35 +94,63 @@ def raster_cases() -> list[dict]:
         cases.append({"name": name, "description": desc, "camera": camera, "gaussians": g, "dtype": dtype})
 
     add("random_200", "200 random Gaussians in front of the camera", _random(rng, 200, cam))
-    add("random_dense_2000", "2000 random, mostly opaque Gaussians: exercises the T_MIN early stop",
-        _random(rng, 2000, cam, olo=0.6, ohi=1.0, slo=0.05, shi=1.0))
+    add(
+        "random_dense_2000",
+        "2000 random, mostly opaque Gaussians: exercises the T_MIN early stop",
+        _random(rng, 2000, cam, olo=0.6, ohi=1.0, slo=0.05, shi=1.0),
+    )
     behind = _random(rng, 20, cam, zlo=-5.0, zhi=-0.5, slo=0.5, shi=3.0)
-    add("behind_camera", "20 large Gaussians behind the camera (culled) and 5 in front",
-        _cat(behind, _random(rng, 5, cam, zlo=4, zhi=8)))
+    add(
+        "behind_camera",
+        "20 large Gaussians behind the camera (culled) and 5 in front",
+        _cat(behind, _random(rng, 5, cam, zlo=4, zhi=8)),
+    )
     plane = _random(rng, 20, cam, zlo=1, zhi=1, slo=0.1, shi=2.0)
     plane["means"] = _from_camera(cam, np.concatenate([rng.uniform(-2, 2, (20, 2)), np.zeros((20, 1))], 1))
-    add("camera_plane", "20 Gaussians centred on the camera plane z = 0 (culled) and 5 in front",
-        _cat(plane, _random(rng, 5, cam, zlo=4, zhi=8)))
+    add(
+        "camera_plane",
+        "20 Gaussians centred on the camera plane z = 0 (culled) and 5 in front",
+        _cat(plane, _random(rng, 5, cam, zlo=4, zhi=8)),
+    )
     near = _random(rng, 30, cam, slo=0.005, shi=0.2, spread=0.3)
     zs = np.repeat([0.19, 0.21, 0.25], 10)
     near["means"] = _from_camera(cam, np.concatenate([rng.uniform(-0.1, 0.1, (30, 2)), zs[:, None]], 1))
     add("near_plane", "Gaussians at camera z = 0.19 (culled), 0.21 and 0.25 (kept): NEAR = 0.2", near)
     n = 12
     ang = rng.uniform(0, np.pi, n)
-    aniso = {"means": _from_camera(cam, np.stack([rng.uniform(-3, 3, n), rng.uniform(-1, 1, n),
-                                                  rng.uniform(5, 20, n)], 1)),
-             "quats": np.stack([np.cos(ang / 2), rng.normal(size=n) * 0.3 * np.sin(ang / 2),
-                                rng.normal(size=n) * 0.3 * np.sin(ang / 2), np.sin(ang / 2)], 1),
-             "scales": np.array([[1e3, 1e-6, 1e-6], [1e-6, 1e3, 1e-6], [1e-6, 1e-6, 1e3], [1e3, 1e3, 1e-6]] * 3),
-             "opacities": np.full(n, 0.8), "colors": rng.uniform(0.2, 1, (n, 3))}
+    aniso = {
+        "means": _from_camera(cam, np.stack([rng.uniform(-3, 3, n), rng.uniform(-1, 1, n), rng.uniform(5, 20, n)], 1)),
+        "quats": np.stack(
+            [
+                np.cos(ang / 2),
+                rng.normal(size=n) * 0.3 * np.sin(ang / 2),
+                rng.normal(size=n) * 0.3 * np.sin(ang / 2),
+                np.sin(ang / 2),
+            ],
+            1,
+        ),
+        "scales": np.array([[1e3, 1e-6, 1e-6], [1e-6, 1e3, 1e-6], [1e-6, 1e-6, 1e3], [1e3, 1e3, 1e-6]] * 3),
+        "opacities": np.full(n, 0.8),
+        "colors": rng.uniform(0.2, 1, (n, 3)),
+    }
     add("anisotropy_1e-6_1e3", "needles and sheets with scales 1e3 vs 1e-6 m (float32 det cancellation)", aniso)
-    cover = {"means": _from_camera(cam, np.array([[0.0, 0.0, 5.0], [1.0, 0.5, 40.0]])),
-             "quats": np.array([[1.0, 0, 0, 0], [0.9, 0.1, 0.2, 0.3]]), "scales": np.array([[20.0, 20, 20], [50, 30, 40]]),
-             "opacities": np.array([0.6, 0.9]), "colors": np.array([[0.2, 0.6, 0.9], [0.9, 0.3, 0.1]])}
-    add("screen_covering", "two Gaussians much larger than the screen plus 30 small ones in front",
-        _cat(_random(rng, 30, cam, zlo=2, zhi=4, slo=0.02, shi=0.1), cover))
-    add("sub_pixel", "300 Gaussians with scales 1e-5..1e-3 m far away: footprint = the 0.3 px^2 dilation",
-        _random(rng, 300, cam, zlo=5, zhi=50, slo=1e-5, shi=1e-3, olo=0.5))
+    cover = {
+        "means": _from_camera(cam, np.array([[0.0, 0.0, 5.0], [1.0, 0.5, 40.0]])),
+        "quats": np.array([[1.0, 0, 0, 0], [0.9, 0.1, 0.2, 0.3]]),
+        "scales": np.array([[20.0, 20, 20], [50, 30, 40]]),
+        "opacities": np.array([0.6, 0.9]),
+        "colors": np.array([[0.2, 0.6, 0.9], [0.9, 0.3, 0.1]]),
+    }
+    add(
+        "screen_covering",
+        "two Gaussians much larger than the screen plus 30 small ones in front",
+        _cat(_random(rng, 30, cam, zlo=2, zhi=4, slo=0.02, shi=0.1), cover),
+    )
+    add(
+        "sub_pixel",
+        "300 Gaussians with scales 1e-5..1e-3 m far away: footprint = the 0.3 px^2 dilation",
+        _random(rng, 300, cam, zlo=5, zhi=50, slo=1e-5, shi=1e-3, olo=0.5),
+    )
     zq = _random(rng, 60, cam, slo=0.05, shi=1.0)
     zq["quats"][:] = 0.0
     zq["quats"][:5] = 1e-8  # below QUAT_EPS too
@@ -120,33 +162,70 @@ def raster_cases() -> list[dict]:
     op["opacities"] = np.tile([0.0, 0.99 / 255, 1.01 / 255, 0.5, 1.0, 1.5, -0.5, 1.0], 5)
     add("opacity_0_and_1", "opacities 0, just below and above 1/255, 0.5, 1, 1.5 (clamped to 1), -0.5 (dropped)", op)
     nf = _random(rng, 40, cam)
-    bad = [("means", (0, 0), np.nan), ("means", (1, 2), np.inf), ("scales", (2, 1), np.nan),
-           ("scales", (3, 0), np.inf), ("opacities", (4,), np.nan), ("colors", (5, 1), -np.inf),
-           ("colors", (6, 2), np.nan), ("means", (7, 1), -np.inf), ("quats", (8, 0), np.inf),
-           ("opacities", (9,), np.inf), ("scales", (10, 2), -np.inf)]
+    bad = [
+        ("means", (0, 0), np.nan),
+        ("means", (1, 2), np.inf),
+        ("scales", (2, 1), np.nan),
+        ("scales", (3, 0), np.inf),
+        ("opacities", (4,), np.nan),
+        ("colors", (5, 1), -np.inf),
+        ("colors", (6, 2), np.nan),
+        ("means", (7, 1), -np.inf),
+        ("quats", (8, 0), np.inf),
+        ("opacities", (9,), np.inf),
+        ("scales", (10, 2), -np.inf),
+    ]
     for k, idx, val in bad:
         nf[k][idx] = val
-    add("nonfinite_inputs", "NaN/+-Inf in means, scales, opacities, colours, quaternions: those Gaussians are "
-        "dropped (sanitized), the other 29 render", nf)
-    add("empty", "no Gaussians: a black image", {k: np.zeros((0,) + s) for k, s in
-                                                  (("means", (3,)), ("quats", (4,)), ("scales", (3,)),
-                                                   ("opacities", ()), ("colors", (3,)))})
+    add(
+        "nonfinite_inputs",
+        "NaN/+-Inf in means, scales, opacities, colours, quaternions: those Gaussians are "
+        "dropped (sanitized), the other 29 render",
+        nf,
+    )
+    add(
+        "empty",
+        "no Gaussians: a black image",
+        {
+            k: np.zeros((0,) + s)
+            for k, s in (("means", (3,)), ("quats", (4,)), ("scales", (3,)), ("opacities", ()), ("colors", (3,)))
+        },
+    )
     h = _random(rng, 200, cam)
     h = {k: v.astype(np.float16).astype(np.float64) for k, v in h.items()}
-    add("fp16_inputs", "200 Gaussians given as float16 tensors (values exactly representable in fp16); the "
-        "reference upcasts to float32", h, dtype="float16")
-    inside = {"means": _from_camera(cam, np.array([[0.0, 0.0, 0.5], [0.2, 0.1, 0.0]])),
-              "quats": np.array([[1.0, 0, 0, 0], [1.0, 0, 0, 0]]), "scales": np.array([[3.0, 3.0, 3.0], [2.0, 2, 2]]),
-              "opacities": np.array([0.5, 0.9]), "colors": np.array([[0.9, 0.8, 0.1], [0.1, 0.9, 0.1]])}
-    add("camera_inside", "the camera inside two Gaussians (one centred 0.5 m ahead, one centred on the camera) "
-        "plus 50 more", _cat(_random(rng, 50, cam, zlo=3, zhi=20), inside))
-    stack = {"means": _from_camera(cam, np.stack([np.zeros(50), np.zeros(50), np.linspace(3, 20, 50)], 1)),
-             "quats": np.tile([1.0, 0, 0, 0], (50, 1)), "scales": np.tile([1.0, 1.0, 1.0], (50, 1)),
-             "opacities": np.ones(50), "colors": rng.uniform(0, 1, (50, 3))}
+    add(
+        "fp16_inputs",
+        "200 Gaussians given as float16 tensors (values exactly representable in fp16); the "
+        "reference upcasts to float32",
+        h,
+        dtype="float16",
+    )
+    inside = {
+        "means": _from_camera(cam, np.array([[0.0, 0.0, 0.5], [0.2, 0.1, 0.0]])),
+        "quats": np.array([[1.0, 0, 0, 0], [1.0, 0, 0, 0]]),
+        "scales": np.array([[3.0, 3.0, 3.0], [2.0, 2, 2]]),
+        "opacities": np.array([0.5, 0.9]),
+        "colors": np.array([[0.9, 0.8, 0.1], [0.1, 0.9, 0.1]]),
+    }
+    add(
+        "camera_inside",
+        "the camera inside two Gaussians (one centred 0.5 m ahead, one centred on the camera) plus 50 more",
+        _cat(_random(rng, 50, cam, zlo=3, zhi=20), inside),
+    )
+    stack = {
+        "means": _from_camera(cam, np.stack([np.zeros(50), np.zeros(50), np.linspace(3, 20, 50)], 1)),
+        "quats": np.tile([1.0, 0, 0, 0], (50, 1)),
+        "scales": np.tile([1.0, 1.0, 1.0], (50, 1)),
+        "opacities": np.ones(50),
+        "colors": rng.uniform(0, 1, (50, 3)),
+    }
     add("opaque_stack", "50 opaque Gaussians stacked along the optical axis: compositing stops at T_MIN", stack)
     off = _random(rng, 20, cam, zlo=2, zhi=10, slo=0.5, shi=3.0, spread=3.0)
-    add("offscreen_large", "large Gaussians far outside the field of view whose footprints reach in "
-        "(Jacobian clamp at 1.3 tan(fov/2))", off)
+    add(
+        "offscreen_large",
+        "large Gaussians far outside the field of view whose footprints reach in (Jacobian clamp at 1.3 tan(fov/2))",
+        off,
+    )
     street = _street(rng)
     add("street_shift_0m", "a small street seen by CAM_FRONT", street, camera=base_camera(0.0))
     add("street_shift_plus_8m", "the same street, track shifted 8 m left", street, camera=base_camera(8.0))
@@ -158,6 +237,7 @@ def render_case(case: dict):
     import torch
 
     from worldsplat.gaussians import Gaussians, rasterize
+
     dtype = {"float32": torch.float32, "float16": torch.float16}[case["dtype"]]
     g = Gaussians.from_numpy(**case["gaussians"], dtype=dtype)
     with torch.no_grad():
@@ -166,21 +246,32 @@ def render_case(case: dict):
 
 def expected_from_render(out) -> tuple[np.ndarray, dict]:
     import torch
+
     rgb = out["rgb"].clamp(0, 1)
     img = torch.round(rgb * 255).to(torch.uint8).numpy()
     finite = all(bool(torch.isfinite(out[k]).all()) for k in ("rgb", "depth", "alpha"))
-    return img, {"alpha_sum": float(out["alpha"].sum()), "rgb_mean": float(rgb.mean()),
-                 "finite": finite, "visible": int(out["visible"])}
+    return img, {
+        "alpha_sum": float(out["alpha"].sum()),
+        "rgb_mean": float(rgb.mean()),
+        "finite": finite,
+        "visible": int(out["visible"]),
+    }
 
 
 def write_raster(out_dir: Path = HERE / "raster") -> list[str]:
     from PIL import Image
+
     out_dir.mkdir(parents=True, exist_ok=True)
     names = []
     for case in raster_cases():
         name = case["name"]
-        vec = {"name": name, "description": case["description"], "camera": case["camera"].to_json(),
-               "input_dtype": case["dtype"], "gaussians": gaussians_to_json(case["gaussians"])}
+        vec = {
+            "name": name,
+            "description": case["description"],
+            "camera": case["camera"].to_json(),
+            "input_dtype": case["dtype"],
+            "gaussians": gaussians_to_json(case["gaussians"]),
+        }
         (out_dir / f"{name}.json").write_text(json.dumps(vec) + "\n")
         img, exp = expected_from_render(render_case(case))
         Image.fromarray(img).save(out_dir / f"{name}.expected.png")
@@ -197,22 +288,33 @@ def _scene(rng, n_static, n_dyn, frames, iso, extra_meta=None):
 
     def gs(n, centre):
         s = np.exp(rng.uniform(np.log(0.01), np.log(0.5), (n, 1 if iso else 3)))
-        return Gaussians.from_numpy(rng.uniform(-5, 5, (n, 3)) + centre, rng.normal(size=(n, 4)),
-                                    np.broadcast_to(s, (n, 3)), rng.uniform(0.05, 1, n), rng.uniform(0, 1, (n, 3)))
+        return Gaussians.from_numpy(
+            rng.uniform(-5, 5, (n, 3)) + centre,
+            rng.normal(size=(n, 4)),
+            np.broadcast_to(s, (n, 3)),
+            rng.uniform(0.05, 1, n),
+            rng.uniform(0, 1, (n, 3)),
+        )
+
     meta = {"scenario_id": "vec", "mode": "oracle", "model_version": "test", "caption": "test vector", "fps": 10.0}
     meta.update(extra_meta or {})
-    return Scene4D(gs(n_static, np.array([10.0, 0, 1])), [gs(n, np.array([12.0 + t, 2, 1])) if n else Gaussians.empty()
-                                                         for t, n in enumerate(n_dyn)],
-                   np.arange(frames) / 10.0, default_rig(64, 36), np.stack([yaw_pose(t, 0, 0, 0) for t in range(frames)]),
-                   meta)
+    return Scene4D(
+        gs(n_static, np.array([10.0, 0, 1])),
+        [gs(n, np.array([12.0 + t, 2, 1])) if n else Gaussians.empty() for t, n in enumerate(n_dyn)],
+        np.arange(frames) / 10.0,
+        default_rig(64, 36),
+        np.stack([yaw_pose(t, 0, 0, 0) for t in range(frames)]),
+        meta,
+    )
 
 
 def split_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
     import struct
+
     out, pos = [], 12
     while pos < len(data):
-        tag, (length,) = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)
-        out.append((tag, data[pos + 8:pos + 8 + length]))
+        tag, (length,) = data[pos : pos + 4], struct.unpack_from("<I", data, pos + 4)
+        out.append((tag, data[pos + 8 : pos + 8 + length]))
         pos += 12 + length
     return out
 
@@ -220,6 +322,7 @@ def split_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
 def join_chunks(chunks, head: bytes = b"WSPLAT\r\n\x01\x00\x00\x00") -> bytes:
     import struct
     import zlib
+
     out = bytearray(head)
     for tag, payload in chunks:
         h = tag + struct.pack("<I", len(payload))
@@ -235,6 +338,7 @@ def write_wsplat(out_dir: Path) -> list[str]:
     import struct
 
     from worldsplat.gaussians import wsplat
+
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(7)
     names = []
@@ -243,17 +347,46 @@ def write_wsplat(out_dir: Path) -> list[str]:
         data = wsplat.encode(scene, **kw)
         back = wsplat.decode(data)
         g = back.static.numpy()
-        first = ({"mean": g["means"][0].tolist(), "quat": g["quats"][0].tolist(), "scale": g["scales"][0].tolist(),
-                  "opacity": float(g["opacities"][0]), "color": g["colors"][0].tolist()} if len(back.static) else None)
-        dyn = next((d.numpy() for d in back.dynamic if len(d)), None)   # first record of the first DYNA chunk
-        first_dyn = ({"mean": dyn["means"][0].tolist(), "quat": dyn["quats"][0].tolist(),
-                      "scale": dyn["scales"][0].tolist(), "opacity": float(dyn["opacities"][0]),
-                      "color": dyn["colors"][0].tolist()} if dyn is not None else None)
-        exp = {"ok": True, "num_static": len(back.static), "num_dynamic": [len(d) for d in back.dynamic],
-               "frames": back.num_frames, "first_static": first, "first_dynamic": first_dyn,
-               "static_mean_sum": g["means"].astype(np.float64).sum(0).tolist(),
-               "tolerance": {"mean": 1e-4, "quat": 1e-5, "scale": 1e-5, "opacity": 1e-6, "color": 1e-6,
-                             "static_mean_sum": 1e-2}}
+        first = (
+            {
+                "mean": g["means"][0].tolist(),
+                "quat": g["quats"][0].tolist(),
+                "scale": g["scales"][0].tolist(),
+                "opacity": float(g["opacities"][0]),
+                "color": g["colors"][0].tolist(),
+            }
+            if len(back.static)
+            else None
+        )
+        dyn = next((d.numpy() for d in back.dynamic if len(d)), None)  # first record of the first DYNA chunk
+        first_dyn = (
+            {
+                "mean": dyn["means"][0].tolist(),
+                "quat": dyn["quats"][0].tolist(),
+                "scale": dyn["scales"][0].tolist(),
+                "opacity": float(dyn["opacities"][0]),
+                "color": dyn["colors"][0].tolist(),
+            }
+            if dyn is not None
+            else None
+        )
+        exp = {
+            "ok": True,
+            "num_static": len(back.static),
+            "num_dynamic": [len(d) for d in back.dynamic],
+            "frames": back.num_frames,
+            "first_static": first,
+            "first_dynamic": first_dyn,
+            "static_mean_sum": g["means"].astype(np.float64).sum(0).tolist(),
+            "tolerance": {
+                "mean": 1e-4,
+                "quat": 1e-5,
+                "scale": 1e-5,
+                "opacity": 1e-6,
+                "color": 1e-6,
+                "static_mean_sum": 1e-2,
+            },
+        }
         (out_dir / f"{name}.wsplat").write_bytes(data)
         (out_dir / f"{name}.json").write_text(json.dumps(exp, indent=1) + "\n")
         names.append(name)
@@ -261,8 +394,9 @@ def write_wsplat(out_dir: Path) -> list[str]:
 
     def bad(name, data, kind, offset, field):
         (out_dir / f"{name}.wsplat").write_bytes(data)
-        (out_dir / f"{name}.json").write_text(json.dumps({"ok": False, "error_kind": kind, "offset": offset,
-                                                          "field": field}, indent=1) + "\n")
+        (out_dir / f"{name}.json").write_text(
+            json.dumps({"ok": False, "error_kind": kind, "offset": offset, "field": field}, indent=1) + "\n"
+        )
         names.append(name)
 
     base = valid("valid_iso", _scene(rng, 300, [20, 0, 35], 3, iso=True), block_size=128)
@@ -270,13 +404,48 @@ def write_wsplat(out_dir: Path) -> list[str]:
     valid("valid_static_only", _scene(rng, 50, [0], 1, iso=True))
     valid("valid_empty", _scene(rng, 0, [0, 0], 2, iso=True))
     valid("valid_multi_chunk", _scene(rng, 5000, [3], 1, iso=True, extra_meta={"future_field": {"x": 1}}))
-    valid("valid_custom_layout", _scene(rng, 100, [5], 1, iso=False), block_size=7,
-          static_layout=[["r", 8], ["px", 14], ["py", 14], ["pz", 14], ["qi", 2], ["qa", 9], ["qb", 9],
-                         ["qc", 9], ["sx", 7], ["sy", 7], ["sz", 7], ["o", 8], ["g", 7], ["b", 9]])
+    valid(
+        "valid_custom_layout",
+        _scene(rng, 100, [5], 1, iso=False),
+        block_size=7,
+        static_layout=[
+            ["r", 8],
+            ["px", 14],
+            ["py", 14],
+            ["pz", 14],
+            ["qi", 2],
+            ["qa", 9],
+            ["qb", 9],
+            ["qc", 9],
+            ["sx", 7],
+            ["sy", 7],
+            ["sz", 7],
+            ["o", 8],
+            ["g", 7],
+            ["b", 9],
+        ],
+    )
 
-    valid("valid_canonical_rotation", _scene(rng, 300, [60, 61], 2, iso=False), block_size=64,
-          static_layout=[["px", 12], ["py", 12], ["pz", 12], ["qx", 5], ["qy", 2], ["qz", 9], ["sx", 6], ["sy", 6],
-                         ["sz", 6], ["o", 6], ["r", 6], ["g", 6], ["b", 6]])
+    valid(
+        "valid_canonical_rotation",
+        _scene(rng, 300, [60, 61], 2, iso=False),
+        block_size=64,
+        static_layout=[
+            ["px", 12],
+            ["py", 12],
+            ["pz", 12],
+            ["qx", 5],
+            ["qy", 2],
+            ["qz", 9],
+            ["sx", 6],
+            ["sy", 6],
+            ["sz", 6],
+            ["o", 6],
+            ["r", 6],
+            ["g", 6],
+            ["b", 6],
+        ],
+    )
 
     ch = split_chunks(base)
     head = json.loads(ch[0][1])
@@ -291,7 +460,7 @@ def write_wsplat(out_dir: Path) -> list[str]:
     bad("bad_magic", b"WSPLAT\n\n" + base[8:], "bad_magic", 0, "magic")
     bad("bad_version", base[:8] + struct.pack("<I", 2) + base[12:], "bad_version", 8, "version")
     bad("truncated_file_header", base[:10], "truncated", 0, "file")
-    bad("truncated_in_stat", base[:stat_at + 100], "truncated", stat_at, "file")
+    bad("truncated_in_stat", base[: stat_at + 100], "truncated", stat_at, "file")
     bad("truncated_before_end", base[:end_at], "truncated", end_at, "file")
     big = bytearray(base)
     struct.pack_into("<I", big, stat_at + 4, (64 << 20) + 1)
@@ -300,8 +469,13 @@ def write_wsplat(out_dir: Path) -> list[str]:
     flip[stat_at + 8 + 40] ^= 0x10
     bad("bad_crc", bytes(flip), "bad_crc", stat_at + 8 + len(ch[1][1]), "chunk.crc")
     bad("bad_tag", join_chunks(ch[:1] + [(b"STAX", ch[1][1])] + ch[2:]), "bad_tag", stat_at, "chunk.tag")
-    bad("bad_order_stat_after_dyna", join_chunks(ch[:1] + ch[2:3] + ch[1:2] + ch[3:]), "bad_order",
-        chunk_offset(ch[:1] + ch[2:3], 2), "chunk.tag")
+    bad(
+        "bad_order_stat_after_dyna",
+        join_chunks(ch[:1] + ch[2:3] + ch[1:2] + ch[3:]),
+        "bad_order",
+        chunk_offset(ch[:1] + ch[2:3], 2),
+        "chunk.tag",
+    )
     bad("bad_order_no_head", join_chunks(ch[1:]), "bad_order", 12, "chunk.tag")
     bad("bad_order_two_heads", join_chunks(ch[:1] + ch[:1] + ch[1:]), "bad_order", chunk_offset(ch, 1), "chunk.tag")
     bad("bad_header_fps", with_head(fps=-1), "bad_header", 20, "HEAD.fps")
@@ -309,33 +483,100 @@ def write_wsplat(out_dir: Path) -> list[str]:
     bad("bad_header_frame_times", with_head(frame_times=[0.0, 0.2, 0.1]), "bad_header", 20, "HEAD.frame_times")
     bad("bad_header_rig", with_head(rig=[{"name": "C", "width": 0}]), "bad_header", 20, "HEAD.rig[0].width")
     bad("bad_header_missing_block_size", with_head(block_size=None), "bad_header", 20, "HEAD.block_size")
-    bad("bad_layout_missing_o", with_head(static_layout=[f for f in head["static_layout"] if f[0] != "o"]),
-        "bad_layout", 20, "HEAD.static_layout")
-    bad("bad_layout_too_wide", with_head(dynamic_layout=[["px", 24], ["py", 24], ["pz", 24], ["s", 24], ["o", 9],
-                                                         ["r", 8], ["g", 8], ["b", 8]]),
-        "bad_layout", 20, "HEAD.dynamic_layout")
-    bad("bad_layout_two_rotations", with_head(static_layout=[["px", 8], ["py", 8], ["pz", 8], ["qi", 2], ["qa", 4],
-                                                             ["qb", 4], ["qc", 4], ["qx", 3], ["qy", 3], ["qz", 3],
-                                                             ["sx", 4], ["sy", 4], ["sz", 4], ["o", 4], ["r", 4],
-                                                             ["g", 4], ["b", 4]]),
-        "bad_layout", 20, "HEAD.static_layout")
-    bad("bad_layout_canonical_1_bit", with_head(dynamic_layout=[["px", 8], ["py", 8], ["pz", 8], ["qx", 1], ["qy", 3],
-                                                                ["qz", 3], ["sx", 4], ["sy", 4], ["sz", 4], ["o", 4],
-                                                                ["r", 4], ["g", 4], ["b", 4]]),
-        "bad_layout", 20, "HEAD.dynamic_layout")
+    bad(
+        "bad_layout_missing_o",
+        with_head(static_layout=[f for f in head["static_layout"] if f[0] != "o"]),
+        "bad_layout",
+        20,
+        "HEAD.static_layout",
+    )
+    bad(
+        "bad_layout_too_wide",
+        with_head(
+            dynamic_layout=[["px", 24], ["py", 24], ["pz", 24], ["s", 24], ["o", 9], ["r", 8], ["g", 8], ["b", 8]]
+        ),
+        "bad_layout",
+        20,
+        "HEAD.dynamic_layout",
+    )
+    bad(
+        "bad_layout_two_rotations",
+        with_head(
+            static_layout=[
+                ["px", 8],
+                ["py", 8],
+                ["pz", 8],
+                ["qi", 2],
+                ["qa", 4],
+                ["qb", 4],
+                ["qc", 4],
+                ["qx", 3],
+                ["qy", 3],
+                ["qz", 3],
+                ["sx", 4],
+                ["sy", 4],
+                ["sz", 4],
+                ["o", 4],
+                ["r", 4],
+                ["g", 4],
+                ["b", 4],
+            ]
+        ),
+        "bad_layout",
+        20,
+        "HEAD.static_layout",
+    )
+    bad(
+        "bad_layout_canonical_1_bit",
+        with_head(
+            dynamic_layout=[
+                ["px", 8],
+                ["py", 8],
+                ["pz", 8],
+                ["qx", 1],
+                ["qy", 3],
+                ["qz", 3],
+                ["sx", 4],
+                ["sy", 4],
+                ["sz", 4],
+                ["o", 4],
+                ["r", 4],
+                ["g", 4],
+                ["b", 4],
+            ]
+        ),
+        "bad_layout",
+        20,
+        "HEAD.dynamic_layout",
+    )
     # count claims more records than the bytes present (a decoder must not allocate for it)
     p = bytearray(ch[1][1])
     struct.pack_into("<I", p, 0, 0x7FFFFFFF)
-    bad("bad_payload_count", join_chunks(ch[:1] + [(b"STAT", bytes(p))] + ch[2:]), "bad_payload",
-        stat_at + 8, "STAT.count")
+    bad(
+        "bad_payload_count",
+        join_chunks(ch[:1] + [(b"STAT", bytes(p))] + ch[2:]),
+        "bad_payload",
+        stat_at + 8,
+        "STAT.count",
+    )
     p = bytearray(ch[1][1])
     struct.pack_into("<f", p, 4, float("nan"))
-    bad("bad_payload_box", join_chunks(ch[:1] + [(b"STAT", bytes(p))] + ch[2:]), "bad_payload",
-        stat_at + 8 + 4, "STAT.block")
+    bad(
+        "bad_payload_box",
+        join_chunks(ch[:1] + [(b"STAT", bytes(p))] + ch[2:]),
+        "bad_payload",
+        stat_at + 8 + 4,
+        "STAT.block",
+    )
     p = bytearray(ch[2][1])
     struct.pack_into("<I", p, 0, 9)
-    bad("bad_payload_frame", join_chunks(ch[:2] + [(b"DYNA", bytes(p))] + ch[3:]), "bad_payload",
-        chunk_offset(ch, 2) + 8, "DYNA.frame")
+    bad(
+        "bad_payload_frame",
+        join_chunks(ch[:2] + [(b"DYNA", bytes(p))] + ch[3:]),
+        "bad_payload",
+        chunk_offset(ch, 2) + 8,
+        "DYNA.frame",
+    )
     d = with_head(num_static=head["num_static"] + 1)
     bad("count_mismatch_static", d, "count_mismatch", chunk_offset(split_chunks(d), 4), "HEAD.num_static")
     d = with_head(num_dynamic=[20, 0, 30])  # the frame-2 DYNA chunk (index 3) holds 35
@@ -355,6 +596,7 @@ def rig_vector() -> dict:
     first, middle and last frame (expected), as the Python world computes them (`World.camera`)."""
     from worldsplat.core.scenario import load_preset
     from worldsplat.world.layout import build_world
+
     world = build_world(load_preset(RIG_PRESET))
     frames = sorted({0, world.num_frames // 2, world.num_frames - 1})
     cases = []
@@ -362,14 +604,30 @@ def rig_vector() -> dict:
         for shift in RIG_SHIFTS_M:
             for rc in world.rig:
                 cam = world.camera(t, rc.name, shift)
-                cases.append({"frame": t, "shift_m": shift, "camera": rc.name, "width": cam.width, "height": cam.height,
-                              "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
-                              "world_to_camera": np.asarray(cam.world_to_camera, np.float64).tolist()})
-    return {"preset": RIG_PRESET, "image": [world.rig[0].width, world.rig[0].height],
-            "rig": [rc.to_json() for rc in world.rig],
-            "ego_to_world": np.asarray(world.ego_to_world, np.float64).tolist(),
-            "frame_times": [float(x) for x in world.frame_times],
-            "shifts_m": list(RIG_SHIFTS_M), "frames": frames, "cases": cases}
+                cases.append(
+                    {
+                        "frame": t,
+                        "shift_m": shift,
+                        "camera": rc.name,
+                        "width": cam.width,
+                        "height": cam.height,
+                        "fx": cam.fx,
+                        "fy": cam.fy,
+                        "cx": cam.cx,
+                        "cy": cam.cy,
+                        "world_to_camera": np.asarray(cam.world_to_camera, np.float64).tolist(),
+                    }
+                )
+    return {
+        "preset": RIG_PRESET,
+        "image": [world.rig[0].width, world.rig[0].height],
+        "rig": [rc.to_json() for rc in world.rig],
+        "ego_to_world": np.asarray(world.ego_to_world, np.float64).tolist(),
+        "frame_times": [float(x) for x in world.frame_times],
+        "shifts_m": list(RIG_SHIFTS_M),
+        "frames": frames,
+        "cases": cases,
+    }
 
 
 def write_rig(out_dir: Path = HERE / "rig") -> list[str]:

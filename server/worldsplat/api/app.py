@@ -4,6 +4,7 @@ Routes only; the work is in runners.py (pipeline calls), jobs.py (queue, worker,
 Every client error is a 4xx with a message naming what is wrong; ids are validated before any path is formed.
 See web/docs/playground.md for the API walk-through.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -49,20 +50,32 @@ class ApiError(Exception):
 # -- request models ------------------------------------------------------------------------------------------------
 class SceneRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    scenario: Scenario | None = Field(None, description="the scenario (see GET /api/schema); default: the default "
-                                                       "preset, or `preset` if given")
+    scenario: Scenario | None = Field(
+        None, description="the scenario (see GET /api/schema); default: the default preset, or `preset` if given"
+    )
     preset: str | None = Field(None, max_length=64, description="start from this preset when `scenario` is absent")
-    mode: str | None = Field(None, max_length=32, description="oracle | reconstruct | generate (GET /api/modes); "
-                                                             "default: the best mode whose weights exist")
+    mode: str | None = Field(
+        None,
+        max_length=32,
+        description="oracle | reconstruct | generate (GET /api/modes); default: the best mode whose weights exist",
+    )
 
 
 class VideoRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    shift_m: float = Field(0.0, ge=-MAX_SHIFT_M, le=MAX_SHIFT_M, allow_inf_nan=False,
-                           description="lateral track shift in metres, left positive")
-    cameras: list[str] | None = Field(None, min_length=1, max_length=6,
-                                      description="cameras to render (default: the scene's whole rig); several "
-                                                  "make a 2x3 mosaic")
+    shift_m: float = Field(
+        0.0,
+        ge=-MAX_SHIFT_M,
+        le=MAX_SHIFT_M,
+        allow_inf_nan=False,
+        description="lateral track shift in metres, left positive",
+    )
+    cameras: list[str] | None = Field(
+        None,
+        min_length=1,
+        max_length=6,
+        description="cameras to render (default: the scene's whole rig); several make a 2x3 mosaic",
+    )
     refine: bool = Field(False, description="run the enhanced-diffusion refinement (issue 7) on the renders")
     format: Literal["mp4", "webm"] = "mp4"
 
@@ -102,8 +115,9 @@ def parse_range(header: str, size: int) -> tuple[int, int] | None:
     else:
         start, end = max(0, size - int(m.group(2))), size
     if start >= size or end <= start:
-        raise ApiError(416, f"range {header.strip()!r} not satisfiable for {size} bytes",
-                       {"Content-Range": f"bytes */{size}"})
+        raise ApiError(
+            416, f"range {header.strip()!r} not satisfiable for {size} bytes", {"Content-Range": f"bytes */{size}"}
+        )
     return start, end
 
 
@@ -135,8 +149,11 @@ def file_response(path: Path, media_type: str, request: Request, filename: str) 
         finally:
             f.close()
 
-    headers = {"Accept-Ranges": "bytes", "Content-Disposition": f'inline; filename="{filename}"',
-               "Cache-Control": "public, max-age=31536000, immutable"}  # content-addressed: never changes
+    headers = {
+        "Accept-Ranges": "bytes",
+        "Content-Disposition": f'inline; filename="{filename}"',
+        "Cache-Control": "public, max-age=31536000, immutable",
+    }  # content-addressed: never changes
     if rng is None:
         return StreamingResponse(body(), media_type=media_type, headers=headers | {"X-Content-Length": str(size)})
     headers |= {"Content-Range": f"bytes {start}-{end - 1}/{size}", "Content-Length": str(end - start)}
@@ -188,8 +205,13 @@ class BodyLimit:
     @staticmethod
     async def _reply(send, status: int, message: str):
         data = json.dumps({"detail": message, "error": message}).encode()
-        await send({"type": "http.response.start", "status": status,
-                    "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())]})
+        await send(
+            {
+                "type": "http.response.start",
+                "status": status,
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())],
+            }
+        )
         await send({"type": "http.response.body", "body": data})
 
 
@@ -200,10 +222,14 @@ class Playground:
     def __init__(self, cache_dir: Path, max_cache_bytes: int, max_queued: int, max_scene_pixels: int):
         self.cache = ArtifactCache(cache_dir, max_cache_bytes)
         self.max_scene_pixels = max_scene_pixels
-        self.jobs = JobManager(cache_dir / "state", {
-            "scene": lambda ctx: runners.run_scene(self.cache, ctx),
-            "video": lambda ctx: runners.run_video(self.cache, ctx),
-        }, max_queued=max_queued)
+        self.jobs = JobManager(
+            cache_dir / "state",
+            {
+                "scene": lambda ctx: runners.run_scene(self.cache, ctx),
+                "video": lambda ctx: runners.run_video(self.cache, ctx),
+            },
+            max_queued=max_queued,
+        )
         self.ready = threading.Event()  # the pipeline is importable and modes are known
         self.startup_error: str | None = None
         self.modes: list[str] = []
@@ -233,23 +259,40 @@ class Playground:
         meta = self.cache.meta("scenes", scene_id)
         job = self.jobs.latest_for("scene", scene_id)
         if meta is not None:
-            return {"scene_id": scene_id, "status": "ready", "mode": meta["mode"],
-                    "model_version": meta["model_version"], "bytes": meta["bytes"], "frames": meta.get("frames"),
-                    "cameras": meta.get("cameras"), "scenario": meta.get("scenario"),
-                    "wsplat": f"/api/scenes/{scene_id}/wsplat", "job": job_view(job) if job else None}
+            return {
+                "scene_id": scene_id,
+                "status": "ready",
+                "mode": meta["mode"],
+                "model_version": meta["model_version"],
+                "bytes": meta["bytes"],
+                "frames": meta.get("frames"),
+                "cameras": meta.get("cameras"),
+                "scenario": meta.get("scenario"),
+                "wsplat": f"/api/scenes/{scene_id}/wsplat",
+                "job": job_view(job) if job else None,
+            }
         if job is None:
             return None
         status = job.status if job.status in ACTIVE else ("failed" if job.status != "done" else "missing")
-        return {"scene_id": scene_id, "status": status, "mode": job.params.get("mode"),
-                "model_version": job.params.get("model_version"), "error": job.error, "job": job_view(job)}
+        return {
+            "scene_id": scene_id,
+            "status": status,
+            "mode": job.params.get("mode"),
+            "model_version": job.params.get("model_version"),
+            "error": job.error,
+            "job": job_view(job),
+        }
 
     def submit_scene(self, scenario: Scenario, mode: str) -> dict:
         scene_id = runners.scene_id_for(scenario, mode)
         state = self.scene_state(scene_id)
         if state is not None and state["status"] in ("ready", "queued", "running"):
             return state
-        params = {"scenario": scenario.model_dump(mode="json"), "mode": mode,
-                  "model_version": runners.model_version(mode)}
+        params = {
+            "scenario": scenario.model_dump(mode="json"),
+            "mode": mode,
+            "model_version": runners.model_version(mode),
+        }
         try:
             self.jobs.submit("scene", scene_id, params)
         except QueueFull as e:
@@ -257,9 +300,14 @@ class Playground:
         return self.scene_state(scene_id)
 
 
-def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = None,
-               max_cache_bytes: int = 2 << 30, max_queued: int = 16, warm: bool = True,
-               max_scene_pixels: int = MAX_SCENE_PIXELS) -> FastAPI:
+def create_app(
+    cache_dir: str | Path = "cache",
+    web_dir: str | Path | None = None,
+    max_cache_bytes: int = 2 << 30,
+    max_queued: int = 16,
+    warm: bool = True,
+    max_scene_pixels: int = MAX_SCENE_PIXELS,
+) -> FastAPI:
     web = Path(web_dir) if web_dir else default_web_dir()
     pg = Playground(Path(cache_dir), max_cache_bytes, max_queued, max_scene_pixels)
 
@@ -270,9 +318,12 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
         yield
         await asyncio.to_thread(pg.jobs.stop)
 
-    app = FastAPI(title="WorldSplat Playground API", version=worldsplat.__version__, lifespan=lifespan,
-                  description="Scenario -> 4D Gaussian scene (.wsplat stream) -> track videos. "
-                              "See web/docs/playground.md.")
+    app = FastAPI(
+        title="WorldSplat Playground API",
+        version=worldsplat.__version__,
+        lifespan=lifespan,
+        description="Scenario -> 4D Gaussian scene (.wsplat stream) -> track videos. See web/docs/playground.md.",
+    )
     app.state.playground = pg
     app.add_middleware(BodyLimit, max_bytes=MAX_BODY)
 
@@ -292,23 +343,41 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
             msg = "unknown field" if err.get("type") == "extra_forbidden" else msg.removeprefix("Value error, ")
             problems.append({"field": ".".join(loc), "message": msg})
         text = "; ".join(f"{p['field']}: {p['message']}" if p["field"] else p["message"] for p in problems)
-        return JSONResponse({"detail": problems, "error": text or "invalid request",
-                             "field": problems[0]["field"] if problems else None}, status_code=422)
+        return JSONResponse(
+            {
+                "detail": problems,
+                "error": text or "invalid request",
+                "field": problems[0]["field"] if problems else None,
+            },
+            status_code=422,
+        )
 
     # -- meta ------------------------------------------------------------------------------------------------------
     @app.get("/api/health", tags=["meta"])
     def health() -> dict:
-        return {"ok": pg.startup_error is None, "ready": pg.ready.is_set(), "error": pg.startup_error,
-                "version": worldsplat.__version__, "queued": pg.jobs.queued_count(),
-                "cache_bytes": pg.cache.total_bytes(), "cache_cap": pg.cache.max_bytes,
-                "recovered": {"cache": pg.cache.recovered, "jobs": pg.jobs.recovered}}
+        return {
+            "ok": pg.startup_error is None,
+            "ready": pg.ready.is_set(),
+            "error": pg.startup_error,
+            "version": worldsplat.__version__,
+            "queued": pg.jobs.queued_count(),
+            "cache_bytes": pg.cache.total_bytes(),
+            "cache_cap": pg.cache.max_bytes,
+            "recovered": {"cache": pg.cache.recovered, "jobs": pg.jobs.recovered},
+        }
 
     @app.get("/api/modes", tags=["meta"])
     def modes() -> dict:
         pg.require_ready()
         refine, why = runners.refinement_status()
-        return {"modes": pg.modes, "default": pg.default_mode, "refine": refine, "refine_reason": why or None,
-                "versions": {m: runners.model_version(m) for m in pg.modes}, "warm_scene": pg.warm_scene}
+        return {
+            "modes": pg.modes,
+            "default": pg.default_mode,
+            "refine": refine,
+            "refine_reason": why or None,
+            "versions": {m: runners.model_version(m) for m in pg.modes},
+            "warm_scene": pg.warm_scene,
+        }
 
     @app.get("/api/presets", tags=["scenario"])
     def presets() -> list[dict]:
@@ -326,9 +395,16 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
         return Scenario.model_json_schema()
 
     # -- scenes ----------------------------------------------------------------------------------------------------
-    @app.post("/api/scenes", tags=["scenes"], status_code=202,
-              responses={200: {"description": "already cached"}, 422: {"description": "invalid scenario or mode"},
-                         429: {"description": "queue full (Retry-After)"}})
+    @app.post(
+        "/api/scenes",
+        tags=["scenes"],
+        status_code=202,
+        responses={
+            200: {"description": "already cached"},
+            422: {"description": "invalid scenario or mode"},
+            429: {"description": "queue full (Retry-After)"},
+        },
+    )
     def create_scene(req: Annotated[SceneRequest, Body()]) -> JSONResponse:
         pg.require_ready()
         if req.scenario is not None:
@@ -340,15 +416,17 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
                 raise ApiError(422, f"preset: {e}", field="preset") from None
         pixels = scenario.clip.frames * len(scenario.rig.cameras) * scenario.image.width * scenario.image.height
         if pixels > pg.max_scene_pixels:
-            raise ApiError(422, f"scenario.image: {scenario.image.width}x{scenario.image.height} x "
-                                f"{scenario.clip.frames} frames x {len(scenario.rig.cameras)} cameras = "
-                                f"{pixels / 1e6:.1f}M pixels is over this server's limit of "
-                                f"{pg.max_scene_pixels / 1e6:.1f}M (worldsplat serve --max-scene-mpix)",
-                           field="scenario.image")
+            raise ApiError(
+                422,
+                f"scenario.image: {scenario.image.width}x{scenario.image.height} x "
+                f"{scenario.clip.frames} frames x {len(scenario.rig.cameras)} cameras = "
+                f"{pixels / 1e6:.1f}M pixels is over this server's limit of "
+                f"{pg.max_scene_pixels / 1e6:.1f}M (worldsplat serve --max-scene-mpix)",
+                field="scenario.image",
+            )
         mode = req.mode or pg.default_mode
         if mode not in pg.modes:
-            raise ApiError(422, f"mode: {mode[:32]!r} is not available here; available modes: {pg.modes}",
-                           field="mode")
+            raise ApiError(422, f"mode: {mode[:32]!r} is not available here; available modes: {pg.modes}", field="mode")
         state = pg.submit_scene(scenario, mode)
         return JSONResponse(state, status_code=200 if state["status"] == "ready" else 202)
 
@@ -359,9 +437,15 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
             raise ApiError(404, f"no such scene {scene_id}")
         return state
 
-    @app.get("/api/scenes/{scene_id}/wsplat", tags=["scenes"],
-             responses={200: {"content": {"application/octet-stream": {}}}, 206: {"description": "Range"},
-                        409: {"description": "not generated yet"}})
+    @app.get(
+        "/api/scenes/{scene_id}/wsplat",
+        tags=["scenes"],
+        responses={
+            200: {"content": {"application/octet-stream": {}}},
+            206: {"description": "Range"},
+            409: {"description": "not generated yet"},
+        },
+    )
     def scene_wsplat(scene_id: str, request: Request):
         checked_id(scene_id, "scene")
         opened = pg.cache.open_artifact("scenes", scene_id)
@@ -369,12 +453,12 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
             state = pg.scene_state(scene_id)
             if state is None:
                 raise ApiError(404, f"no such scene {scene_id}")
-            raise ApiError(409, f"scene {scene_id} is {state['status']}; wait for its events to say done",
-                           {"Retry-After": "2"})
+            raise ApiError(
+                409, f"scene {scene_id} is {state['status']}; wait for its events to say done", {"Retry-After": "2"}
+            )
         return file_response(opened[0], "application/octet-stream", request, f"{scene_id}.wsplat")
 
-    @app.get("/api/scenes/{scene_id}/events", tags=["scenes"],
-             responses={200: {"content": {"text/event-stream": {}}}})
+    @app.get("/api/scenes/{scene_id}/events", tags=["scenes"], responses={200: {"content": {"text/event-stream": {}}}})
     async def scene_events(scene_id: str, request: Request):
         checked_id(scene_id, "scene")
         job = pg.jobs.latest_for("scene", scene_id)
@@ -385,9 +469,15 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
         return sse_job(job.id, request)
 
     # -- videos ----------------------------------------------------------------------------------------------------
-    @app.post("/api/scenes/{scene_id}/videos", tags=["videos"], status_code=202,
-              responses={409: {"description": "refinement unavailable / scene not ready"},
-                         429: {"description": "queue full"}})
+    @app.post(
+        "/api/scenes/{scene_id}/videos",
+        tags=["videos"],
+        status_code=202,
+        responses={
+            409: {"description": "refinement unavailable / scene not ready"},
+            429: {"description": "queue full"},
+        },
+    )
     def create_video(scene_id: str, req: Annotated[VideoRequest, Body()]) -> JSONResponse:
         checked_id(scene_id, "scene")
         meta = pg.cache.meta("scenes", scene_id)
@@ -403,8 +493,12 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
                 raise ApiError(409, why, field="refine")
             views = runners.refine_views()
             if len(rig) != views:
-                raise ApiError(409, f"refine: the enhancer refines a whole {views}-camera rig; this scene has "
-                                    f"{len(rig)} camera(s) {rig} (generate it with the full rig)", field="refine")
+                raise ApiError(
+                    409,
+                    f"refine: the enhancer refines a whole {views}-camera rig; this scene has "
+                    f"{len(rig)} camera(s) {rig} (generate it with the full rig)",
+                    field="refine",
+                )
         cameras = req.cameras or rig
         missing = [c for c in cameras if c not in rig]
         if missing:
@@ -413,16 +507,24 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
         vmeta = pg.cache.meta("videos", video_id)
         if vmeta is not None:
             return JSONResponse(video_state(video_id, vmeta, pg.jobs.latest_for("video", video_id)), 200)
-        params = {"scene_id": scene_id, "shift_m": req.shift_m, "cameras": cameras, "refine": req.refine,
-                  "format": req.format}
+        params = {
+            "scene_id": scene_id,
+            "shift_m": req.shift_m,
+            "cameras": cameras,
+            "refine": req.refine,
+            "format": req.format,
+        }
         try:
             job, _ = pg.jobs.submit("video", video_id, params)
         except QueueFull as e:
             raise ApiError(429, str(e), {"Retry-After": str(e.retry_after)}) from None
         return JSONResponse(video_state(video_id, None, job), 202)
 
-    @app.get("/api/videos/{video_id}", tags=["videos"],
-             responses={200: {"content": {"video/mp4": {}, "video/webm": {}}}, 206: {"description": "Range"}})
+    @app.get(
+        "/api/videos/{video_id}",
+        tags=["videos"],
+        responses={200: {"content": {"video/mp4": {}, "video/webm": {}}}, 206: {"description": "Range"}},
+    )
     def video_file(video_id: str, request: Request):
         checked_id(video_id, "video")
         opened = pg.cache.open_artifact("videos", video_id)
@@ -489,12 +591,14 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
                 await asyncio.sleep(SSE_POLL)
                 idle += SSE_POLL
 
-        return StreamingResponse(events(), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+        return StreamingResponse(
+            events(), media_type="text/event-stream", headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+        )
 
     def sse_once(data: dict) -> StreamingResponse:
         async def one():
             yield f"event: done\ndata: {json.dumps(data)}\n\n"
+
         return StreamingResponse(one(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"})
 
     # -- the page and the viewer bundle ------------------------------------------------------------------------------
@@ -513,9 +617,20 @@ def create_app(cache_dir: str | Path = "cache", web_dir: str | Path | None = Non
 
 def video_state(video_id: str, meta: dict | None, job: Job | None) -> dict:
     if meta is not None:
-        return {"video_id": video_id, "status": "ready", "url": f"/api/videos/{video_id}",
-                **{k: meta.get(k) for k in ("bytes", "frames", "width", "height", "fps", "refine", "shift_m",
-                                            "cameras", "scene_id")},
-                "job": job_view(job) if job else None}
-    return {"video_id": video_id, "status": job.status if job else "missing", "error": job.error if job else None,
-            "job": job_view(job) if job else None, "url": f"/api/videos/{video_id}"}
+        return {
+            "video_id": video_id,
+            "status": "ready",
+            "url": f"/api/videos/{video_id}",
+            **{
+                k: meta.get(k)
+                for k in ("bytes", "frames", "width", "height", "fps", "refine", "shift_m", "cameras", "scene_id")
+            },
+            "job": job_view(job) if job else None,
+        }
+    return {
+        "video_id": video_id,
+        "status": job.status if job else "missing",
+        "error": job.error if job else None,
+        "job": job_view(job) if job else None,
+        "url": f"/api/videos/{video_id}",
+    }

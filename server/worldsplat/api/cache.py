@@ -9,6 +9,7 @@ Ids are lower-case hex only (validated before any path is formed), so no client 
 The store has a size cap; when over it, least-recently-used entries (by the artifact's mtime, bumped on every read)
 are evicted, except pinned ones (in use by a running job).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -34,8 +35,11 @@ class InvalidId(ValueError):
 
 def validate_id(value: str) -> str:
     if not isinstance(value, str) or not ID_RE.fullmatch(value):
-        raise InvalidId(f"invalid id {value[:80]!r}: expected 32 lower-case hex digits" if isinstance(value, str)
-                        else "invalid id: expected a string")
+        raise InvalidId(
+            f"invalid id {value[:80]!r}: expected 32 lower-case hex digits"
+            if isinstance(value, str)
+            else "invalid id: expected a string"
+        )
     return value
 
 

@@ -7,6 +7,7 @@ thread: the machine has 2 cores and torch already uses both for one job. Each jo
 a job that was `running` when the process died reads `failed` ("interrupted by a server restart"), and `queued` jobs
 are queued again (resumed) in their original order.
 """
+
 from __future__ import annotations
 
 import collections
@@ -45,18 +46,18 @@ class JobError(Exception):
 class Job:
     id: str
     kind: str
-    target: str                     # the artifact id the job produces (scene id, video id)
+    target: str  # the artifact id the job produces (scene id, video id)
     params: dict
     status: str = "queued"
     stage: str = "queued"
-    fraction: float = 0.0           # overall progress in [0, 1]
+    fraction: float = 0.0  # overall progress in [0, 1]
     error: str | None = None
     result: dict = field(default_factory=dict)
     created: float = field(default_factory=time.time)
     started: float | None = None
     finished: float | None = None
-    version: int = 0                # bumped on every change (SSE clients wait on it)
-    deleted: bool = False           # DELETE /api/jobs/{id}: cancelled and gone from the API (404 from then on)
+    version: int = 0  # bumped on every change (SSE clients wait on it)
+    deleted: bool = False  # DELETE /api/jobs/{id}: cancelled and gone from the API (404 from then on)
 
     def public(self) -> dict:
         d = asdict(self)

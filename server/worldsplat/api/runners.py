@@ -4,6 +4,7 @@ formed (content hashes) and for what the pipeline offers (modes, refinement), so
 The pipeline (torch) is imported lazily: `worldsplat serve` starts in a fraction of a second and imports it in the
 background while warming the default scene.
 """
+
 from __future__ import annotations
 
 import functools
@@ -24,6 +25,7 @@ VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
 
 def _pipeline():
     import worldsplat.pipeline.scene as pipeline  # noqa: PLC0415 - heavy (torch), imported on first use
+
     return pipeline
 
 
@@ -45,6 +47,7 @@ def model_version(mode: str) -> str:
     if mode == "oracle":
         return str(p.ORACLE_VERSION)
     from worldsplat.pipeline.inference import load_models  # noqa: PLC0415 - the weights' hash (loaded once)
+
     return f"{mode}-{load_models().version}"
 
 
@@ -62,6 +65,7 @@ def refinement_status() -> tuple[bool, str]:
 def refine_views() -> int:
     """How many rig views the enhancer reads at once (it refines a whole rig: scenes need all of them)."""
     from worldsplat.pipeline.refine import load_refiner  # noqa: PLC0415 - loaded once per process
+
     return int(load_refiner()[0].cfg.data.views)
 
 
@@ -69,6 +73,7 @@ def refine_views() -> int:
 def refiner_version() -> str:
     """The enhancer weights' content hash: a new model gives new video ids."""
     from worldsplat.pipeline.refine import WEIGHTS  # noqa: PLC0415
+
     h = hashlib.sha256()
     with open(WEIGHTS, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -104,11 +109,19 @@ def run_scene(cache: ArtifactCache, ctx: JobContext) -> dict:
     with cache.writer("scenes", scene_id, ".wsplat") as tmp:
         wsplat.write(scene, tmp)
     ctx.check()
-    meta = cache.commit_meta("scenes", scene_id, {
-        "ext": ".wsplat", "mode": mode, "model_version": p["model_version"], "scenario": scenario.model_dump(
-            mode="json"), "frames": int(scenario.clip.frames), "cameras": list(scenario.rig.cameras),
-        "seconds": round(time.monotonic() - t0, 3),
-    })
+    meta = cache.commit_meta(
+        "scenes",
+        scene_id,
+        {
+            "ext": ".wsplat",
+            "mode": mode,
+            "model_version": p["model_version"],
+            "scenario": scenario.model_dump(mode="json"),
+            "frames": int(scenario.clip.frames),
+            "cameras": list(scenario.rig.cameras),
+            "seconds": round(time.monotonic() - t0, 3),
+        },
+    )
     return {"scene_id": scene_id, "bytes": meta["bytes"], "mode": mode, "seconds": meta["seconds"]}
 
 
@@ -130,8 +143,15 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
         if not ok:
             raise JobError(why)
         from worldsplat.pipeline.refine import refine_track  # noqa: PLC0415
-        frames = refine_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled,
-                              scenario=opened[1].get("scenario"))
+
+        frames = refine_track(
+            scene,
+            p["shift_m"],
+            cameras,
+            progress=ctx.progress,
+            cancelled=ctx.cancelled,
+            scenario=opened[1].get("scenario"),
+        )
     else:
         from worldsplat.pipeline.render import render_track  # noqa: PLC0415 - heavy (torch), imported on first use
 
@@ -147,11 +167,27 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
     with cache.writer("videos", video_id, ext) as tmp:
         write_video(video, tmp, fps=fps)
     ctx.progress("encoding video", 1.0)
-    meta = cache.commit_meta("videos", video_id, {
-        "ext": ext, "scene_id": scene_id, "shift_m": p["shift_m"], "cameras": cameras, "refine": p["refine"],
-        # write_video pads odd sizes by one pixel (yuv420p)
-        "frames": int(video.shape[0]), "width": int(video.shape[2] + video.shape[2] % 2),
-        "height": int(video.shape[1] + video.shape[1] % 2), "fps": fps,
-    })
-    return {"video_id": video_id, "bytes": meta["bytes"], "frames": meta["frames"], "width": meta["width"],
-            "height": meta["height"], "format": p["format"]}
+    meta = cache.commit_meta(
+        "videos",
+        video_id,
+        {
+            "ext": ext,
+            "scene_id": scene_id,
+            "shift_m": p["shift_m"],
+            "cameras": cameras,
+            "refine": p["refine"],
+            # write_video pads odd sizes by one pixel (yuv420p)
+            "frames": int(video.shape[0]),
+            "width": int(video.shape[2] + video.shape[2] % 2),
+            "height": int(video.shape[1] + video.shape[1] % 2),
+            "fps": fps,
+        },
+    )
+    return {
+        "video_id": video_id,
+        "bytes": meta["bytes"],
+        "frames": meta["frames"],
+        "width": meta["width"],
+        "height": meta["height"],
+        "format": p["format"],
+    }

@@ -1,4 +1,5 @@
 """Trends physics promises; `--quick` fails the build when a regression breaks one."""
+
 from __future__ import annotations
 
 import math

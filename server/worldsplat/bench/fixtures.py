@@ -1,5 +1,6 @@
 """Scenes the sections share: a preset rendered by the world, its oracle scene as the playground serves it
 (`worldsplat.pipeline.scene.oracle_scene`: paper eq. 3 + economy), with exact ground truth."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -21,10 +22,16 @@ class OracleFixture:
 
 
 @lru_cache(maxsize=4)
-def oracle_fixture(preset: str = "urban_straight", width: int = 200, height: int = 112, frames: int = 1) -> OracleFixture:
+def oracle_fixture(
+    preset: str = "urban_straight", width: int = 200, height: int = 112, frames: int = 1
+) -> OracleFixture:
     sc = load_preset(preset)
-    sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": width, "height": height}),
-                               "clip": sc.clip.model_copy(update={"frames": frames})})
+    sc = sc.model_copy(
+        update={
+            "image": sc.image.model_copy(update={"width": width, "height": height}),
+            "clip": sc.clip.model_copy(update={"frames": frames}),
+        }
+    )
     world = build_world(sc)
     clip = simulate(world)
     return OracleFixture(oracle_scene(clip), world, clip, width, height)
@@ -37,6 +44,10 @@ def shipped_generator(section: str):
         raise FileNotFoundError(f"{section}: the shipped DiT weights are missing in {models.weights_dir}")
     d = models.data
     sc = load_preset("urban_straight")
-    sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": d.width, "height": d.height}),
-                               "clip": sc.clip.model_copy(update={"frames": d.frames})})
+    sc = sc.model_copy(
+        update={
+            "image": sc.image.model_copy(update={"width": d.width, "height": d.height}),
+            "clip": sc.clip.model_copy(update={"frames": d.frames}),
+        }
+    )
     return models, sc, build_world(sc)

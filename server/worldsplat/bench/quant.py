@@ -13,6 +13,7 @@ length. Rows per preset and shift:
 "render vs float32" is the PSNR between the decoded and the float32 renders (quantization error alone): against a
 reconstruction at P dB it costs <= 0.1 dB while it is >= P + 16.3 dB.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,8 +34,14 @@ from worldsplat.world import build_world, simulate
 
 
 def every_gaussian_dynamic(scene: Scene4D) -> Scene4D:
-    return Scene4D(Gaussians.empty(), [Gaussians.cat([scene.static.detach(), d.detach()]) for d in scene.dynamic],
-                   scene.frame_times, scene.rig, scene.ego_to_world, dict(scene.meta))
+    return Scene4D(
+        Gaussians.empty(),
+        [Gaussians.cat([scene.static.detach(), d.detach()]) for d in scene.dynamic],
+        scene.frame_times,
+        scene.rig,
+        scene.ego_to_world,
+        dict(scene.meta),
+    )
 
 
 def render_all(scene: Scene4D, shift_m: float) -> np.ndarray:
@@ -52,10 +59,12 @@ def measure(preset: str, shifts: list[float], log=print) -> dict:
     data, sdata = wsplat.encode(scene), wsplat.encode(stress)
     dec, sdec = wsplat.decode(data), wsplat.decode(sdata)
     size, ssize = wsplat_sizes(data, dec), wsplat_sizes(sdata, sdec)
-    log(f"{preset}: {len(scene.static)} static + {sum(len(x) for x in scene.dynamic)} dynamic Gaussians; static "
+    log(
+        f"{preset}: {len(scene.static)} static + {sum(len(x) for x in scene.dynamic)} dynamic Gaussians; static "
         f"{size['static_bytes_per_gaussian']:.3f} B/G, dynamic {size['dynamic_bytes_per_gaussian']:.3f} B/G "
         f"(stress: dynamic {ssize['dynamic_bytes_per_gaussian']:.3f} B/G); layouts {size['static_layout']} / "
-        f"{size['dynamic_layout']}")
+        f"{size['dynamic_layout']}"
+    )
     rows = []
     for s in shifts:
         gt = simulate(world, shift_m=s)
@@ -67,25 +76,36 @@ def measure(preset: str, shifts: list[float], log=print) -> dict:
             row[f"{name}_change"] = psnr(q, gt.rgb) - row[f"{name}_float"]
             row[f"{name}_change_dynamic_px"] = (psnr(q, gt.rgb, dyn) - psnr(f32, gt.rgb, dyn)) if dyn.any() else 0.0
             row[f"{name}_vs_float"] = psnr(q, f32)
-        log(f"  shift {s:+.0f} m: as encoded {row['encoded_float']:.2f} dB, change {row['encoded_change']:+.3f} "
+        log(
+            f"  shift {s:+.0f} m: as encoded {row['encoded_float']:.2f} dB, change {row['encoded_change']:+.3f} "
             f"(moving-agent px {row['encoded_change_dynamic_px']:+.3f}); every Gaussian dynamic: change "
             f"{row['stress_change']:+.3f} (agent px {row['stress_change_dynamic_px']:+.3f}), render vs float32 "
-            f"{row['stress_vs_float']:.1f} dB")
+            f"{row['stress_vs_float']:.1f} dB"
+        )
         rows.append(row)
-    return {"preset": preset, "sizes": size, "stress_sizes": ssize, "rows": rows, "dynamic_fraction":
-            float(np.mean(gt.dynamic))}
+    return {
+        "preset": preset,
+        "sizes": size,
+        "stress_sizes": ssize,
+        "rows": rows,
+        "dynamic_fraction": float(np.mean(gt.dynamic)),
+    }
 
 
 def table(results: list[dict]) -> str:
-    lines = ["| preset | shift (m) | float32 vs GT (dB) | as encoded: change all / agent px (dB) | every Gaussian "
-             "dynamic: change all / agent px (dB) | every Gaussian dynamic: render vs float32 (dB) |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "| preset | shift (m) | float32 vs GT (dB) | as encoded: change all / agent px (dB) | every Gaussian "
+        "dynamic: change all / agent px (dB) | every Gaussian dynamic: render vs float32 (dB) |",
+        "|---|---|---|---|---|---|",
+    ]
     for res in results:
         for r in res["rows"]:
-            lines.append(f"| {r['preset']} | {r['shift_m']:+.0f} | {r['encoded_float']:.2f} | "
-                         f"{r['encoded_change']:+.3f} / {r['encoded_change_dynamic_px']:+.3f} | "
-                         f"{r['stress_change']:+.3f} / {r['stress_change_dynamic_px']:+.3f} | "
-                         f"{r['stress_vs_float']:.1f} |")
+            lines.append(
+                f"| {r['preset']} | {r['shift_m']:+.0f} | {r['encoded_float']:.2f} | "
+                f"{r['encoded_change']:+.3f} / {r['encoded_change_dynamic_px']:+.3f} | "
+                f"{r['stress_change']:+.3f} / {r['stress_change_dynamic_px']:+.3f} | "
+                f"{r['stress_vs_float']:.1f} |"
+            )
     return "\n".join(lines)
 
 

@@ -1,4 +1,5 @@
 """The report model: sections of measured rows, written as one markdown page with PNG plots."""
+
 from __future__ import annotations
 
 import io
@@ -58,8 +59,15 @@ def plot_pareto(p: Pareto, path: Path) -> None:
     ax.plot(xs, ys, "o-", color="#4477aa", lw=1.2, ms=4)
     for name, x, y in p.points:
         is_default = name == p.default
-        ax.annotate(name, (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points",
-                    color="#cc3311" if is_default else "#333333", weight="bold" if is_default else None)
+        ax.annotate(
+            name,
+            (x, y),
+            fontsize=7,
+            xytext=(3, 3),
+            textcoords="offset points",
+            color="#cc3311" if is_default else "#333333",
+            weight="bold" if is_default else None,
+        )
         if is_default:
             ax.plot([x], [y], "*", color="#cc3311", ms=12, label=f"default: {name}")
     if p.log_x:

@@ -6,6 +6,7 @@ Each row is measured when the command runs (no status is written by hand): NaN/I
 and agreement with the shared expectation. The Rust/wasm columns name the test that runs the same vector in
 `make test` (they fail the build if the case regresses there).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -51,15 +52,26 @@ def raster_rows(vectors: Path) -> list[list]:
             loss = out["rgb"].sum() + out["depth"].sum() + out["alpha"].sum()
             if loss.requires_grad:
                 loss.backward()
-                bad_grad = _nonfinite(*(getattr(g_grad, f).grad for f in ("means", "quats", "scales", "opacities", "colors")))
+                bad_grad = _nonfinite(
+                    *(getattr(g_grad, f).grad for f in ("means", "quats", "scales", "opacities", "colors"))
+                )
             else:
                 bad_grad = "n/a (nothing visible)"
         bad = _nonfinite(out["rgb"], out["depth"], out["alpha"])
         img = (out["rgb"].detach().clamp(0, 1) * 255).round().to(torch.uint8).numpy()
         exp = np.asarray(Image.open(p.with_suffix("").with_suffix(".expected.png")).convert("RGB"))
         same = int(np.abs(img.astype(int) - exp.astype(int)).max())
-        rows.append([f"raster/{p.stem}", vec.get("description", "")[:70], bad, bad_grad,
-                     f"max diff {same}/255", "raster_vectors.rs (2 draw paths, >= 40 dB)", "viewer.test.mjs (WebGPU + WebGL2)"])
+        rows.append(
+            [
+                f"raster/{p.stem}",
+                vec.get("description", "")[:70],
+                bad,
+                bad_grad,
+                f"max diff {same}/255",
+                "raster_vectors.rs (2 draw paths, >= 40 dB)",
+                "viewer.test.mjs (WebGPU + WebGL2)",
+            ]
+        )
     return rows
 
 
@@ -74,8 +86,17 @@ def wsplat_rows(vectors: Path) -> list[list]:
         except wsplat.WsplatError as e:
             got, bad = f"{getattr(e, 'kind', '?')} @ {getattr(e, 'offset', '?')}", 0
         want = "ok" if exp.get("ok") else f"{exp.get('error_kind')} @ {exp.get('offset')}"
-        rows.append([f"wsplat/{p.stem}", want, bad, "", "as expected" if got == want else f"MISMATCH: {got}",
-                     "wsplat.rs (every vector)", "decoder shared with native"])
+        rows.append(
+            [
+                f"wsplat/{p.stem}",
+                want,
+                bad,
+                "",
+                "as expected" if got == want else f"MISMATCH: {got}",
+                "wsplat.rs (every vector)",
+                "decoder shared with native",
+            ]
+        )
     return rows
 
 
@@ -95,38 +116,71 @@ def model_rows() -> list[list]:
     corners[0, :, 0, 0, 0] = float("nan")
     traj = torch.eye(4).repeat(1, T, 1, 1)
     traj[:, :, :3, 3] = 3000.0
-    cond = dict(box_corners=corners, box_cls=torch.zeros(1, T, N, dtype=torch.long),
-                box_moving=torch.ones(1, T, N, dtype=torch.bool), box_mask=torch.ones(1, T, N, dtype=torch.bool),
-                traj=traj, caption=torch.nn.functional.normalize(torch.randn(1, 384), dim=-1),
-                control=torch.randn(1, T, V, cfg.dit.control_channels, h, w) * 3)
+    cond = dict(
+        box_corners=corners,
+        box_cls=torch.zeros(1, T, N, dtype=torch.long),
+        box_moving=torch.ones(1, T, N, dtype=torch.bool),
+        box_mask=torch.ones(1, T, N, dtype=torch.bool),
+        traj=traj,
+        caption=torch.nn.functional.normalize(torch.randn(1, 384), dim=-1),
+        control=torch.randn(1, T, V, cfg.dit.control_channels, h, w) * 3,
+    )
     worst = 0
     try:
         for steps in (1, 2, 4, 8, 16, 32, 64):
             with torch.autocast("cpu", dtype=torch.bfloat16):
                 z = rflow.sample(dit, noise, cond, steps=steps, shift=cfg.dit.sampler_shift)
             worst += _nonfinite(z)
-        rows.append(["sampler: Euler steps 1..64, bf16 autocast, tiny DiT, far/NaN boxes, wild ego motion", "finite latents", worst, "", "ok" if worst == 0
-                     else "NaN/Inf", "n/a (Python only)", "n/a"])
+        rows.append(
+            [
+                "sampler: Euler steps 1..64, bf16 autocast, tiny DiT, far/NaN boxes, wild ego motion",
+                "finite latents",
+                worst,
+                "",
+                "ok" if worst == 0 else "NaN/Inf",
+                "n/a (Python only)",
+                "n/a",
+            ]
+        )
     except Exception as e:  # a crash is a finding, reported as such
-        rows.append(["sampler: Euler steps 1..64, bf16 autocast, tiny DiT, far/NaN boxes, wild ego motion", "finite latents", "crash", "",
-                     f"{type(e).__name__}: {e}"[:80], "n/a", "n/a"])
+        rows.append(
+            [
+                "sampler: Euler steps 1..64, bf16 autocast, tiny DiT, far/NaN boxes, wild ego motion",
+                "finite latents",
+                "crash",
+                "",
+                f"{type(e).__name__}: {e}"[:80],
+                "n/a",
+                "n/a",
+            ]
+        )
     return rows
 
 
 def world_rows() -> list[list]:
     rows = []
-    for preset, shift in (("night_rain", 0.0), ("foggy_dusk", 0.0), ("urban_straight", 8.0), ("urban_straight", -8.0),
-                          ("empty_road", 0.0)):
+    for preset, shift in (
+        ("night_rain", 0.0),
+        ("foggy_dusk", 0.0),
+        ("urban_straight", 8.0),
+        ("urban_straight", -8.0),
+        ("empty_road", 0.0),
+    ):
         sc = load_preset(preset)
-        sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": 64, "height": 36}),
-                                   "clip": sc.clip.model_copy(update={"frames": 2})})
+        sc = sc.model_copy(
+            update={
+                "image": sc.image.model_copy(update={"width": 64, "height": 36}),
+                "clip": sc.clip.model_copy(update={"frames": 2}),
+            }
+        )
         clip = simulate(build_world(sc), shift_m=shift)
         depth = clip.depth
         bad = int((~np.isfinite(clip.rgb.astype(np.float32))).sum() + np.isnan(depth).sum() + (depth < 0).sum())
         note = f"dynamic px {int(clip.dynamic.sum())}" if preset == "empty_road" else "depth >= 0, sky = +inf"
         ok = bad == 0 and (preset != "empty_road" or clip.dynamic.sum() == 0)
-        rows.append([f"world/{preset} shift {shift:+.0f} m", note, bad, "", "ok" if ok else "FAIL",
-                     "n/a (Python only)", "n/a"])
+        rows.append(
+            [f"world/{preset} shift {shift:+.0f} m", note, bad, "", "ok" if ok else "FAIL", "n/a (Python only)", "n/a"]
+        )
     return rows
 
 
@@ -138,14 +192,18 @@ def main(argv: list[str] | None = None) -> int:
     vectors = args.vectors or vectors_dir()
     torch.set_num_threads(1)
     rows = world_rows() + raster_rows(vectors) + wsplat_rows(vectors) + model_rows()
-    lines = ["# Numerical stability: every named hard case", "",
-             "Made by `python -m worldsplat.bench.stability --out web/docs/stability.md` (measured when run). "
-             "NaN/Inf columns count non-finite values in the outputs and in the gradients of every input; the "
-             "last two columns name the test that runs the same case in the Rust native and wasm implementations "
-             "inside `make test`. Decoder activation guards (depth in [near, far], scale clamps, normalized "
-             "quaternions) are tested in `tests/python/test_models_stability.py`.", "",
-             "| case | what / expected | NaN or Inf out | NaN or Inf in gradients | Python (torch) | Rust native | wasm |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Numerical stability: every named hard case",
+        "",
+        "Made by `python -m worldsplat.bench.stability --out web/docs/stability.md` (measured when run). "
+        "NaN/Inf columns count non-finite values in the outputs and in the gradients of every input; the "
+        "last two columns name the test that runs the same case in the Rust native and wasm implementations "
+        "inside `make test`. Decoder activation guards (depth in [near, far], scale clamps, normalized "
+        "quaternions) are tested in `tests/python/test_models_stability.py`.",
+        "",
+        "| case | what / expected | NaN or Inf out | NaN or Inf in gradients | Python (torch) | Rust native | wasm |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         lines.append("| " + " | ".join(str(x).replace("|", "/") for x in r) + " |")
     total = sum(r[2] for r in rows if isinstance(r[2], int)) + sum(r[3] for r in rows if isinstance(r[3], int))

@@ -4,6 +4,7 @@
 one's median and its ratio to the first (the baseline). Interleaving means a noisy neighbour slows all
 candidates alike, so the ratio stays meaningful even when the absolute seconds do not.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -38,5 +39,12 @@ def compare(candidates: dict[str, Callable[[], object]], repeats: int = 3, warmu
             samples[name].append(time_once(fn))
     names = list(candidates)
     base = statistics.median(samples[names[0]])
-    return [Timing(n, statistics.median(samples[n]), samples[n], statistics.median(samples[n]) / base if base > 0 else float("nan"))
-            for n in names]
+    return [
+        Timing(
+            n,
+            statistics.median(samples[n]),
+            samples[n],
+            statistics.median(samples[n]) / base if base > 0 else float("nan"),
+        )
+        for n in names
+    ]

@@ -3,6 +3,7 @@
 Each command module exposes `configure(parser)` and `run(args) -> int`; they are imported lazily so that a quick
 command (`presets`) never pays for importing torch.
 """
+
 from __future__ import annotations
 
 import argparse

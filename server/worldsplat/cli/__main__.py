@@ -1,4 +1,5 @@
 """`python -m worldsplat.cli ...` is `worldsplat ...`."""
+
 import sys
 
 from worldsplat.cli import main

@@ -1,4 +1,5 @@
 """`worldsplat bench --out DIR [--quick] [--only k1,k2]`: run every section, write report.md + plots."""
+
 from __future__ import annotations
 
 import argparse
@@ -14,14 +15,14 @@ from worldsplat.bench.report import Section, write_report
 
 # section key -> module in worldsplat.bench.sections; each exposes `run(quick: bool) -> Section`
 SECTIONS: dict[str, str] = {
-    "world": "world",              # ground-truth renderer throughput
-    "precision": "precision",      # rasterizer fp32/fp16/bf16 vs error and time
-    "quant": "quant",              # .wsplat quantization vs bytes and PSNR
-    "budget": "budget",            # Gaussian budget / merge thresholds vs novel-view PSNR
-    "viewer": "viewer",            # viewer frame time native + headless Chromium
-    "onnx": "onnx",                # onnxruntime vs torch eager
-    "steps": "steps",              # sampler steps vs error and time
-    "stages": "stages",            # the paper's efficiency table for the small config
+    "world": "world",  # ground-truth renderer throughput
+    "precision": "precision",  # rasterizer fp32/fp16/bf16 vs error and time
+    "quant": "quant",  # .wsplat quantization vs bytes and PSNR
+    "budget": "budget",  # Gaussian budget / merge thresholds vs novel-view PSNR
+    "viewer": "viewer",  # viewer frame time native + headless Chromium
+    "onnx": "onnx",  # onnxruntime vs torch eager
+    "steps": "steps",  # sampler steps vs error and time
+    "stages": "stages",  # the paper's efficiency table for the small config
 }
 
 
@@ -37,10 +38,12 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         raise ValueError(f"--only: unknown section(s) {', '.join(unknown)}; known: {', '.join(SECTIONS)}")
     sections, failures = run_sections(keys, args.quick)
-    header = [f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {platform.machine()} with "
-              f"{os.cpu_count()} cores, Python {platform.python_version()}; mode: {'quick' if args.quick else 'full'}.",
-              "Times are medians of interleaved runs; compare ratios, not seconds (shared, noisy machines).",
-              "Command: `worldsplat bench --out DIR" + (" --quick" if args.quick else "") + "`."]
+    header = [
+        f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {platform.machine()} with "
+        f"{os.cpu_count()} cores, Python {platform.python_version()}; mode: {'quick' if args.quick else 'full'}.",
+        "Times are medians of interleaved runs; compare ratios, not seconds (shared, noisy machines).",
+        "Command: `worldsplat bench --out DIR" + (" --quick" if args.quick else "") + "`.",
+    ]
     path = write_report(sections, args.out, header)
     print(f"wrote {path}")
     from worldsplat.bench.checks import check_trends

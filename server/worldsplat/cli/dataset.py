@@ -1,4 +1,5 @@
 """`worldsplat dataset --count N --split train|val|test --out DIR`: sharded, resumable world dataset."""
+
 from __future__ import annotations
 
 import argparse
@@ -25,8 +26,18 @@ def run(args: argparse.Namespace) -> int:
     if args.count < 1:
         raise ValueError("--count must be at least 1")
     shifts = tuple(float(s) for s in args.shifts.split(",") if s.strip())
-    res = write_dataset(args.out, args.split, args.count, width=args.width, height=args.height, frames=args.frames,
-                        fps=args.fps, preset_mix=args.preset_mix, shifts=shifts, start=args.start,
-                        progress=not args.no_progress)
+    res = write_dataset(
+        args.out,
+        args.split,
+        args.count,
+        width=args.width,
+        height=args.height,
+        frames=args.frames,
+        fps=args.fps,
+        preset_mix=args.preset_mix,
+        shifts=shifts,
+        start=args.start,
+        progress=not args.no_progress,
+    )
     print(f"{args.split}: wrote {res['written']} clip(s), skipped {res['skipped']} complete; {res['manifest']}")
     return 0

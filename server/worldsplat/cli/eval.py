@@ -1,5 +1,6 @@
 """`worldsplat eval nvs --split test --shifts 0,1,2,4 --out DIR [--count N] [--steps N]`: the novel-view ablation
 (A-E, oracle, VAE ceiling) against exact ground truth on held-out seeds; writes nvs.json, nvs.md and nvs_psnr.png."""
+
 from __future__ import annotations
 
 import argparse
@@ -41,17 +42,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import torch
+
     if args.what == "refine-figure":
         return run_figure(args)
 
     from worldsplat.evaluation.nvs import evaluate, markdown_table
+
     if args.count < 1:
         raise ValueError("--count must be at least 1")
     if not 1 <= args.steps <= 64:
         raise ValueError("--steps must be in 1..64")
     torch.set_num_threads(args.threads)
-    result = evaluate(args.split, parse_shifts(args.shifts), args.count, args.steps, args.weights, args.cache,
-                      args.out)
+    result = evaluate(args.split, parse_shifts(args.shifts), args.count, args.steps, args.weights, args.cache, args.out)
     print(markdown_table(result))
     print(f"wrote {args.out / 'nvs.md'}, {args.out / 'nvs.json'}, {args.out / 'nvs_psnr.png'}")
     return 0
@@ -65,9 +67,15 @@ def run_figure(args: argparse.Namespace) -> int:
 
     from worldsplat.core.scenario import resolve_scenario
     from worldsplat.evaluation.nvs import side_by_side
+
     torch.set_num_threads(args.threads)
-    img, stats = side_by_side(resolve_scenario(args.scenario), args.shift_m, tuple(args.cameras.split(",")),
-                              steps=args.steps, weights=args.weights)
+    img, stats = side_by_side(
+        resolve_scenario(args.scenario),
+        args.shift_m,
+        tuple(args.cameras.split(",")),
+        steps=args.steps,
+        weights=args.weights,
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(img).save(args.out)
     print(json.dumps(stats, indent=1, default=float))

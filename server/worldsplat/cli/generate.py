@@ -1,4 +1,5 @@
 """`worldsplat generate SCENARIO.json|PRESET --mode oracle|reconstruct|generate [--steps N] --out SCENE.wsplat`."""
+
 from __future__ import annotations
 
 import argparse
@@ -8,8 +9,12 @@ import time
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="a scenario JSON file or a preset name (see `worldsplat presets`)")
-    p.add_argument("--mode", default=None, choices=["oracle", "reconstruct", "generate"],
-                   help="default: the playground's default (generate when its weights ship, else oracle)")
+    p.add_argument(
+        "--mode",
+        default=None,
+        choices=["oracle", "reconstruct", "generate"],
+        help="default: the playground's default (generate when its weights ship, else oracle)",
+    )
     p.add_argument("--steps", type=int, default=8, help="sampler steps (generate mode)")
     p.add_argument("--seed", type=int, default=None, help="sampling seed (generate mode; default: scenario seed)")
     p.add_argument("--out", required=True, help="output .wsplat")
@@ -20,6 +25,7 @@ def run(args) -> int:
     from worldsplat.core.scenario import resolve_scenario
     from worldsplat.gaussians import wsplat
     from worldsplat.pipeline.scene import default_mode, generate_scene
+
     if not args.out.endswith(".wsplat"):
         raise ValueError(f"--out must end with .wsplat, got {args.out}")
     scenario = resolve_scenario(args.scenario)
@@ -31,11 +37,14 @@ def run(args) -> int:
         if not args.quiet and stage != last[0]:
             print(f"[{time.time() - t0:6.1f}s] {stage}", file=sys.stderr, flush=True)
             last[0] = stage
+
     scene = generate_scene(scenario, mode=args.mode, steps=args.steps, seed=args.seed, progress=progress)
     n = wsplat.write(scene, args.out)
     st = scene.meta.get("aggregate", {})
     dyn = sum(len(d) for d in scene.dynamic)
-    print(f"wrote {args.out}: {len(scene.static)} static + {dyn} dynamic Gaussians over {scene.num_frames} frames, "
-          f"{n} bytes ({n / max(1, len(scene.static) + dyn):.2f} B/Gaussian), mode {args.mode}"
-          + (f", {100 * st['kept_fraction_of_naive']:.1f}% of naive V*T*H*W" if st.get("naive") else ""))
+    print(
+        f"wrote {args.out}: {len(scene.static)} static + {dyn} dynamic Gaussians over {scene.num_frames} frames, "
+        f"{n} bytes ({n / max(1, len(scene.static) + dyn):.2f} B/Gaussian), mode {args.mode}"
+        + (f", {100 * st['kept_fraction_of_naive']:.1f}% of naive V*T*H*W" if st.get("naive") else "")
+    )
     return 0

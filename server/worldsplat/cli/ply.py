@@ -1,4 +1,5 @@
 """`worldsplat export SCENE.wsplat --out SCENE.ply` and `worldsplat import SCENE.ply --out SCENE.wsplat`."""
+
 from __future__ import annotations
 
 import argparse
@@ -16,6 +17,7 @@ def configure_export(p: argparse.ArgumentParser) -> None:
 def run_export(args) -> int:
     from worldsplat.gaussians import wsplat
     from worldsplat.gaussians.ply import write_ply
+
     scene = wsplat.read(args.scene)
     g = scene.static if args.static_only else scene.at_frame(args.frame)
     write_ply(g, args.out)
@@ -33,6 +35,7 @@ def run_import(args) -> int:
     from worldsplat.gaussians import wsplat
     from worldsplat.gaussians.aggregate import importance_order
     from worldsplat.gaussians.ply import scene_from_ply
+
     scene = scene_from_ply(Path(args.ply), fps=args.fps)
     scene = dataclasses.replace(scene, static=importance_order(scene.static))  # .wsplat chunks: importance order
     n = wsplat.write(scene, args.out)

@@ -9,6 +9,7 @@
   the shipped enhancer and the scene's scenario (in the .wsplat header of `worldsplat generate`, or `--scenario`).
 Every image comes from the one track renderer (`worldsplat.pipeline.render`, built on `gaussians.raster.render_view`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,8 +27,11 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="DIR, FILE.png, FILE.mp4 or FILE.webm")
     p.add_argument("--refine", action="store_true", help="refine the render with the enhanced diffusion model")
     p.add_argument("--steps", type=int, default=8, help="--refine: rectified-flow sampler steps")
-    p.add_argument("--scenario", default=None, help="--refine: the scene's scenario (JSON file or preset) when the "
-                   "scene does not carry it")
+    p.add_argument(
+        "--scenario",
+        default=None,
+        help="--refine: the scene's scenario (JSON file or preset) when the scene does not carry it",
+    )
 
 
 def load_scene(path: str | Path):
@@ -36,13 +40,16 @@ def load_scene(path: str | Path):
         raise FileNotFoundError(f"scene {path} not found")
     if path.suffix.lower() == ".ply":
         from worldsplat.gaussians.ply import scene_from_ply
+
         return scene_from_ply(path)
     from worldsplat.gaussians import wsplat
+
     return wsplat.read(path)
 
 
 def save_png(img: np.ndarray, path: Path) -> None:
     from PIL import Image
+
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(img).save(path)
 
@@ -53,6 +60,7 @@ def run(args) -> int:
     from worldsplat.core.video import mosaic, write_video
     from worldsplat.gaussians.raster import render_view
     from worldsplat.pipeline.render import render_track
+
     scene = load_scene(args.scene)
     out = Path(args.out)
     kind = out.suffix.lower() if out.suffix.lower() in (".png", ".mp4", ".webm") else "dir"
@@ -82,17 +90,19 @@ def run(args) -> int:
         frames = list(range(scene.num_frames)) if args.frame is None else [args.frame]
     if args.refine:
         from worldsplat.pipeline.refine import refine_available, refine_track
+
         if not refine_available():
             raise FileNotFoundError("--refine needs the enhancer weights (models/weights/enhancer_small.safetensors)")
         scenario = None
         if args.scenario:
             from worldsplat.core.scenario import resolve_scenario
+
             scenario = resolve_scenario(args.scenario)
         report = lambda stage, f: print(f"refine: {stage} {100 * f:.0f}%", flush=True)  # noqa: E731
         views = refine_track(scene, args.shift_m, cameras, steps=args.steps, scenario=scenario, progress=report)
         views = views[frames]
     else:
-        views = render_track(scene, args.shift_m, cameras, frames=frames)      # (T,V,H,W,3)
+        views = render_track(scene, args.shift_m, cameras, frames=frames)  # (T,V,H,W,3)
     if kind == "dir":
         for i, t in enumerate(frames):
             for j, c in enumerate(cameras):
@@ -104,6 +114,8 @@ def run(args) -> int:
         save_png(seq[0], out)
     else:
         write_video(seq, out, fps=scene.fps)
-    print(f"wrote {out} ({len(frames)} frame(s), {'mosaic' if len(cameras) > 1 else cameras[0]}, "
-          f"shift {args.shift_m:+g} m{', refined' if args.refine else ''})")
+    print(
+        f"wrote {out} ({len(frames)} frame(s), {'mosaic' if len(cameras) > 1 else cameras[0]}, "
+        f"shift {args.shift_m:+g} m{', refined' if args.refine else ''})"
+    )
     return 0

@@ -1,4 +1,5 @@
 """`worldsplat serve [--host] [--port] [--cache-dir]`: the playground (page, wasm viewer, API) with uvicorn."""
+
 from __future__ import annotations
 
 import argparse
@@ -11,14 +12,26 @@ from worldsplat.core.paths import cache_dir
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1: loopback only)")
     parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
-    parser.add_argument("--cache-dir", type=Path, default=Path(os.environ.get("WORLDSPLAT_CACHE") or cache_dir()),
-                        help=f"scene/video store and job records (default $WORLDSPLAT_CACHE or {cache_dir()})")
+    parser.add_argument(
+        "--cache-dir",
+        type=Path,
+        default=Path(os.environ.get("WORLDSPLAT_CACHE") or cache_dir()),
+        help=f"scene/video store and job records (default $WORLDSPLAT_CACHE or {cache_dir()})",
+    )
     parser.add_argument("--cache-max-mb", type=int, default=2048, help="cache size cap in MiB (LRU eviction)")
     parser.add_argument("--max-queued", type=int, default=16, help="queued jobs before 429 (default 16)")
-    parser.add_argument("--web-dir", type=Path, default=os.environ.get("WORLDSPLAT_WEB_DIR") or None,
-                        help="serve the page from here (default $WORLDSPLAT_WEB_DIR or the repository's web/)")
-    parser.add_argument("--max-scene-mpix", type=float, default=16.0,
-                        help="largest scene accepted, in million pixels (frames x cameras x width x height)")
+    parser.add_argument(
+        "--web-dir",
+        type=Path,
+        default=os.environ.get("WORLDSPLAT_WEB_DIR") or None,
+        help="serve the page from here (default $WORLDSPLAT_WEB_DIR or the repository's web/)",
+    )
+    parser.add_argument(
+        "--max-scene-mpix",
+        type=float,
+        default=16.0,
+        help="largest scene accepted, in million pixels (frames x cameras x width x height)",
+    )
     parser.add_argument("--no-warm", action="store_true", help="do not generate the default scene at start-up")
 
 
@@ -31,10 +44,14 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--port must be in 1..65535, got {args.port}")
     if args.cache_max_mb <= 0 or args.max_queued <= 0 or not args.max_scene_mpix > 0:
         raise ValueError("--cache-max-mb, --max-queued and --max-scene-mpix must be positive")
-    app = create_app(args.cache_dir, web_dir=args.web_dir, max_cache_bytes=args.cache_max_mb << 20,
-                     max_queued=args.max_queued, warm=not args.no_warm,
-                     max_scene_pixels=int(args.max_scene_mpix * 1e6))
-    print(f"worldsplat serve: http://{args.host}:{args.port}/ (API docs at /docs, cache {args.cache_dir})",
-          flush=True)
+    app = create_app(
+        args.cache_dir,
+        web_dir=args.web_dir,
+        max_cache_bytes=args.cache_max_mb << 20,
+        max_queued=args.max_queued,
+        warm=not args.no_warm,
+        max_scene_pixels=int(args.max_scene_mpix * 1e6),
+    )
+    print(f"worldsplat serve: http://{args.host}:{args.port}/ (API docs at /docs, cache {args.cache_dir})", flush=True)
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning", timeout_graceful_shutdown=5)
     return 0

@@ -1,4 +1,5 @@
 """`worldsplat sim SCENARIO.json|PRESET --out DIR [--shift-m M]`: write a scenario's exact ground truth."""
+
 from __future__ import annotations
 
 import argparse

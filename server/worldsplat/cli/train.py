@@ -5,6 +5,7 @@ same --out; the weights (OUT/<kind>_<size>.safetensors) are written at every che
 --vae (the VAE weights, used frozen to encode the clips). Launch under torchrun for DDP:
     torchrun --nproc_per_node 2 -m worldsplat.cli train dit ...
 """
+
 from __future__ import annotations
 
 import argparse
@@ -57,8 +58,15 @@ def run(args: argparse.Namespace) -> int:
     cfg = get_config(args.size)
     dcfg = cfg.data
     default_lr = {"vae": 1e-3, "decoder": 5e-4, "dit": 3e-4}[args.kind]
-    tcfg = TrainConfig(steps=args.steps, lr=args.lr or default_lr, seed=args.seed, threads=args.threads,
-                       ckpt_every=args.ckpt_every, bf16=args.bf16, warmup=min(100, max(1, args.steps // 20)))
+    tcfg = TrainConfig(
+        steps=args.steps,
+        lr=args.lr or default_lr,
+        seed=args.seed,
+        threads=args.threads,
+        ckpt_every=args.ckpt_every,
+        bf16=args.bf16,
+        warmup=min(100, max(1, args.steps // 20)),
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     ds = ShardDataset(args.data, "train", dcfg.max_boxes, limit=args.clips)
     t0 = time.time()
@@ -67,9 +75,16 @@ def run(args: argparse.Namespace) -> int:
         if args.kind == "vae":
             s.pop("sketch")
     weights_path = args.out / f"{args.kind}_{args.size}.safetensors"
-    meta = {"data": str(args.data), "train_seeds": [int(samples[0]["seed"]), int(samples[-1]["seed"])],
-            "clips": len(samples), "steps": args.steps, "seed": args.seed, "world_size": world,
-            "threads": args.threads, "bf16": args.bf16}
+    meta = {
+        "data": str(args.data),
+        "train_seeds": [int(samples[0]["seed"]), int(samples[-1]["seed"])],
+        "clips": len(samples),
+        "steps": args.steps,
+        "seed": args.seed,
+        "world_size": world,
+        "threads": args.threads,
+        "bf16": args.bf16,
+    }
     torch.manual_seed(args.seed)
 
     if args.kind == "vae":
@@ -93,8 +108,13 @@ def run(args: argparse.Namespace) -> int:
         meta["vae"] = str(args.vae)
         if args.kind == "decoder":
             model = build("decoder", cfg.decoder)
-            step = decoder_step_fn(samples, dcfg, render_every=args.render_every, render_views=args.render_views,
-                                   render_down=args.render_down)
+            step = decoder_step_fn(
+                samples,
+                dcfg,
+                render_every=args.render_every,
+                render_views=args.render_views,
+                render_down=args.render_down,
+            )
             meta.update(render_views=args.render_views, render_down=args.render_down, render_every=args.render_every)
         else:
             model = build("dit", cfg.dit, dcfg.num_classes)
@@ -111,8 +131,15 @@ def run(args: argparse.Namespace) -> int:
         meta.update(steps_done=n_steps, wall_s=round(time.time() - t0, 1))
         save_weights(m, weights_path, args.kind, meta)
 
-    history = train_loop(args.kind, model, step, tcfg, args.out, progress=not args.no_progress,
-                         on_checkpoint=finish if rank == 0 else None)
+    history = train_loop(
+        args.kind,
+        model,
+        step,
+        tcfg,
+        args.out,
+        progress=not args.no_progress,
+        on_checkpoint=finish if rank == 0 else None,
+    )
     if rank == 0:
         print(json.dumps({"weights": str(weights_path), "steps": args.steps, "last": history[-1] if history else None}))
     return 0

@@ -1,5 +1,6 @@
 """`worldsplat train-enhancer [--size small] [--no-mix] ...`: the Enhanced Diffusion Model's three phases (pairs, train,
 export), see `worldsplat.training.enhancer`."""
+
 from __future__ import annotations
 
 import argparse
@@ -40,13 +41,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-mix", action="store_true", help="degraded renders only (ablation B/C's model)")
-    parser.add_argument("--vae", type=Path, default=None, help="frozen VAE (default models/weights/vae_small."
-                        "safetensors, else the fallback trained here)")
+    parser.add_argument(
+        "--vae",
+        type=Path,
+        default=None,
+        help="frozen VAE (default models/weights/vae_small.safetensors, else the fallback trained here)",
+    )
     parser.add_argument("--skip-pairs", action="store_true", help="train on the pairs already cached")
-    parser.add_argument("--decoder-weights", type=Path, default=None,
-                        help="weights dir whose Gaussian decoder renders the `_dec` pairs (default models/weights)")
-    parser.add_argument("--no-decoder-pairs", action="store_true",
-                        help="oracle renders only as degraded inputs (the pairs of the session-1 model)")
+    parser.add_argument(
+        "--decoder-weights",
+        type=Path,
+        default=None,
+        help="weights dir whose Gaussian decoder renders the `_dec` pairs (default models/weights)",
+    )
+    parser.add_argument(
+        "--no-decoder-pairs",
+        action="store_true",
+        help="oracle renders only as degraded inputs (the pairs of the session-1 model)",
+    )
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--grow", action="store_true", help="add pairs that appear in the cache while training")
 
@@ -74,16 +86,20 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_decoder_pairs:
         models = load_models(args.decoder_weights)
         if "reconstruct" not in models.modes:
-            raise FileNotFoundError(f"no Gaussian decoder in {args.decoder_weights or 'models/weights'}; "
-                                    "pass --decoder-weights or --no-decoder-pairs")
+            raise FileNotFoundError(
+                f"no Gaussian decoder in {args.decoder_weights or 'models/weights'}; "
+                "pass --decoder-weights or --no-decoder-pairs"
+            )
     if not args.skip_pairs:
         make_pairs(args.cache, args.pairs, models=models)
     val_paths = make_val_pairs(args.cache)
     vae_path = resolve_vae(args)
     vae = load_vae(vae_path)
     if vae.cfg.latent_channels != cfg.latent_channels:
-        raise ValueError(f"VAE {vae_path} has {vae.cfg.latent_channels} latent channels; the {args.size} enhancer "
-                         f"expects {cfg.latent_channels}")
+        raise ValueError(
+            f"VAE {vae_path} has {vae.cfg.latent_channels} latent channels; the {args.size} enhancer "
+            f"expects {cfg.latent_channels}"
+        )
     seen: set[str] = set()
 
     def load_new(limit=None, progress=True):
@@ -93,15 +109,17 @@ def run(args: argparse.Namespace) -> int:
             files = [f for f in files if not f.name.endswith("_dec.npz")]
         seeds = sorted({f.name[4:12] for f in files} - seen)
         if limit is not None:
-            seeds = seeds[:max(0, limit - len(seen))]
+            seeds = seeds[: max(0, limit - len(seen))]
         files = [f for f in files if f.name[4:12] in seeds]
         seen.update(seeds)
         samples = [load_sample(f) for f in files]
         caps = caption_encoder.encode_captions([s["caption"] for s in samples]) if samples else []
         from tqdm import tqdm
+
         d, c = [], []
-        for f, s, cap in tqdm(list(zip(files, samples, caps)), desc="encode pairs", mininterval=10,
-                              disable=not progress):
+        for f, s, cap in tqdm(
+            list(zip(files, samples, caps)), desc="encode pairs", mininterval=10, disable=not progress
+        ):
             is_clean = f.name.endswith("_clean.npz")
             item = encode_pair(vae, s, "3d" if is_clean else "4d", cfg.data.max_boxes, cap)
             item["from_decoder"] = f.name.endswith("_dec.npz")
@@ -112,34 +130,51 @@ def run(args: argparse.Namespace) -> int:
     if not degraded:
         raise FileNotFoundError(f"no training pairs under {args.cache / 'train'}")
     n_dec = sum(bool(d.get("from_decoder")) for d in degraded)
-    print(f"{len(degraded)} degraded ({n_dec} from the decoder) and {len(clean)} clean pairs from {len(seen)} clips; "
-          f"mixed={cfg.mixed}")
+    print(
+        f"{len(degraded)} degraded ({n_dec} from the decoder) and {len(clean)} clean pairs from {len(seen)} clips; "
+        f"mixed={cfg.mixed}"
+    )
     torch.manual_seed(args.seed)
     model = Enhancer(cfg)
     t0 = time.time()
     grow = (lambda: load_new(args.use_pairs, progress=False)) if args.grow else None
-    hist = train(model, degraded, clean, args.steps, args.work, name, lr=args.lr, seed=args.seed,
-                 minutes=args.minutes, grow=grow)
+    hist = train(
+        model, degraded, clean, args.steps, args.work, name, lr=args.lr, seed=args.seed, minutes=args.minutes, grow=grow
+    )
     seeds = sorted(seen)
     wall = time.time() - t0
     val = [load_sample(p) for p in val_paths]
     metrics = heldout_metrics(model, vae, val)
     state = torch.load(args.work / f"{name}.ckpt.pt", map_location="cpu", weights_only=False)
-    prov = {"size": args.size, "mixed": cfg.mixed, "steps": int(state["step"]), "train_clips": len(seeds),
-            "train_seeds": sorted(int(s) for s in seeds),
-            "degraded_pairs": len(degraded), "decoder_pairs": n_dec, "clean_pairs": len(clean), "seed": args.seed,
-            "lr": args.lr, "steps_target": args.steps, "pairs_arg": args.pairs,
-            "vae": str(vae_path.name), "vae_meta": {k: v for k, v in vae.meta.items() if k != "config"},
-            "wall_s_this_run": round(wall), "threads": args.threads, "grow": bool(args.grow),
-            "heldout_val": {"seeds": sorted({s["seed"] for s in val}), "shifts": sorted({s["shift_m"] for s in val}),
-                            **metrics},
-            "command": f"worldsplat train-enhancer --size {args.size}"
-                       f"{' --no-mix' if not cfg.mixed else ''}{' --no-decoder-pairs' if args.no_decoder_pairs else ''}"
-                       f" --pairs {args.pairs} --steps {args.steps} --threads {args.threads} --out {args.out}"}
+    prov = {
+        "size": args.size,
+        "mixed": cfg.mixed,
+        "steps": int(state["step"]),
+        "train_clips": len(seeds),
+        "train_seeds": sorted(int(s) for s in seeds),
+        "degraded_pairs": len(degraded),
+        "decoder_pairs": n_dec,
+        "clean_pairs": len(clean),
+        "seed": args.seed,
+        "lr": args.lr,
+        "steps_target": args.steps,
+        "pairs_arg": args.pairs,
+        "vae": str(vae_path.name),
+        "vae_meta": {k: v for k, v in vae.meta.items() if k != "config"},
+        "wall_s_this_run": round(wall),
+        "threads": args.threads,
+        "grow": bool(args.grow),
+        "heldout_val": {
+            "seeds": sorted({s["seed"] for s in val}),
+            "shifts": sorted({s["shift_m"] for s in val}),
+            **metrics,
+        },
+        "command": f"worldsplat train-enhancer --size {args.size}"
+        f"{' --no-mix' if not cfg.mixed else ''}{' --no-decoder-pairs' if args.no_decoder_pairs else ''}"
+        f" --pairs {args.pairs} --steps {args.steps} --threads {args.threads} --out {args.out}",
+    }
     path = save_enhancer(model, vae, args.out / f"{name}.safetensors", {"provenance": prov})
     (args.work / f"{name}.metrics.json").write_text(json.dumps(prov, indent=1) + "\n")
     print(json.dumps(prov["heldout_val"], indent=1))
     print(f"wrote {path} ({len(hist)} steps this run)")
     return 0
-
-

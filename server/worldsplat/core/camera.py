@@ -3,6 +3,7 @@
 Everything here is plain numpy float64 so the world renderer, the Gaussian core and the tests share one
 definition of a pinhole camera and of `world_to_camera`.
 """
+
 from __future__ import annotations
 
 import json
@@ -84,8 +85,12 @@ class Camera:
 
     def to_json(self) -> dict:
         return {
-            "width": int(self.width), "height": int(self.height),
-            "fx": float(self.fx), "fy": float(self.fy), "cx": float(self.cx), "cy": float(self.cy),
+            "width": int(self.width),
+            "height": int(self.height),
+            "fx": float(self.fx),
+            "fy": float(self.fy),
+            "cx": float(self.cx),
+            "cy": float(self.cy),
             "world_to_camera": self.world_to_camera.tolist(),
         }
 
@@ -105,8 +110,16 @@ class Camera:
         for k in ("width", "height"):
             if not isinstance(obj[k], int) or obj[k] <= 0 or obj[k] > 8192:
                 raise ValueError(f"camera json: {k} must be an integer in 1..8192")
-        return Camera(obj["width"], obj["height"], float(obj["fx"]), float(obj["fy"]), float(obj["cx"]),
-                      float(obj["cy"]), m.reshape(4, 4), obj.get("name", ""))
+        return Camera(
+            obj["width"],
+            obj["height"],
+            float(obj["fx"]),
+            float(obj["fy"]),
+            float(obj["cx"]),
+            float(obj["cy"]),
+            m.reshape(4, 4),
+            obj.get("name", ""),
+        )
 
 
 def rigid_inverse(m: np.ndarray) -> np.ndarray:
@@ -156,13 +169,29 @@ class RigCamera:
         return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, rigid_inverse(c2w), self.name)
 
     def to_json(self) -> dict:
-        return {"name": self.name, "width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
-                "cx": self.cx, "cy": self.cy, "camera_to_ego": self.camera_to_ego.tolist()}
+        return {
+            "name": self.name,
+            "width": self.width,
+            "height": self.height,
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+            "camera_to_ego": self.camera_to_ego.tolist(),
+        }
 
     @staticmethod
     def from_json(obj: dict) -> RigCamera:
-        return RigCamera(obj["name"], int(obj["width"]), int(obj["height"]), float(obj["fx"]), float(obj["fy"]),
-                         float(obj["cx"]), float(obj["cy"]), np.asarray(obj["camera_to_ego"], float).reshape(4, 4))
+        return RigCamera(
+            obj["name"],
+            int(obj["width"]),
+            int(obj["height"]),
+            float(obj["fx"]),
+            float(obj["fy"]),
+            float(obj["cx"]),
+            float(obj["cy"]),
+            np.asarray(obj["camera_to_ego"], float).reshape(4, 4),
+        )
 
 
 def camera_to_ego_from_yaw(yaw_deg: float, position: tuple[float, float, float]) -> np.ndarray:
@@ -184,6 +213,5 @@ def default_rig(width: int, height: int, names: tuple[str, ...] | None = None) -
         if names is not None and name not in names:
             continue
         f = width / (2.0 * math.tan(math.radians(hfov) / 2.0))
-        rig.append(RigCamera(name, width, height, f, f, width / 2.0, height / 2.0,
-                             camera_to_ego_from_yaw(yaw, pos)))
+        rig.append(RigCamera(name, width, height, f, f, width / 2.0, height / 2.0, camera_to_ego_from_yaw(yaw, pos)))
     return rig

@@ -1,5 +1,6 @@
 """The one cancellation exception: every stage of every job (scene generation, rendering, refinement, evaluation)
 raises it when its `cancelled()` callback says so, and the job queue recognises it by type."""
+
 from __future__ import annotations
 
 

@@ -1,5 +1,6 @@
 """Atomic file writes: a temporary file in the destination folder, fsync, rename, folder fsync. A reader never sees
 a torn file, an interrupted writer leaves none behind."""
+
 from __future__ import annotations
 
 import io
@@ -38,8 +39,9 @@ def atomic_write_bytes(path: str | Path, data: bytes, tmp_dir: Path | None = Non
     fsync_dir(path.parent)
 
 
-def write_json_atomic(path: str | Path, obj: object, tmp_dir: Path | None = None, *, sort_keys: bool = True,
-                      allow_nan: bool = True) -> None:
+def write_json_atomic(
+    path: str | Path, obj: object, tmp_dir: Path | None = None, *, sort_keys: bool = True, allow_nan: bool = True
+) -> None:
     """JSON (indent 1) to `path` atomically."""
     atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=sort_keys, allow_nan=allow_nan).encode(), tmp_dir)
 

@@ -1,4 +1,5 @@
 """Limits shared by every entry point (FastAPI, CLI, refinement) and mirrored by the viewer (wasm/, web/)."""
+
 from __future__ import annotations
 
 import math

@@ -3,6 +3,7 @@ SSIM, depth AbsRel, mask IoU, and `image_metrics` (PSNR + SSIM + PSNR inside hol
 
 Images are channels last (..., H, W, C): float in [0, 1] (torch or numpy) or uint8 (scaled by 1/255).
 """
+
 from __future__ import annotations
 
 import math
@@ -33,13 +34,13 @@ def psnr(a, b, mask=None, peak: float = 1.0) -> float:
 
 def _gauss_window(size: int = 11, sigma: float = 1.5, device=None) -> torch.Tensor:
     x = torch.arange(size, dtype=torch.float32, device=device) - (size - 1) / 2
-    g = torch.exp(-x ** 2 / (2 * sigma ** 2))
+    g = torch.exp(-(x**2) / (2 * sigma**2))
     return g / g.sum()
 
 
 def ssim_map(a: torch.Tensor, b: torch.Tensor, size: int = 11) -> torch.Tensor:
     """SSIM map of (N, C, H, W) images in [0, 1] with an 11x11 Gaussian window (sigma 1.5), reflect padding."""
-    C1, C2 = 0.01 ** 2, 0.03 ** 2
+    C1, C2 = 0.01**2, 0.03**2
     c = a.shape[1]
     g = _gauss_window(size, device=a.device)
     kx = g.view(1, 1, 1, size).expand(c, 1, 1, size)
@@ -52,10 +53,10 @@ def ssim_map(a: torch.Tensor, b: torch.Tensor, size: int = 11) -> torch.Tensor:
 
     a, b = a.float(), b.float()
     mu_a, mu_b = blur(a), blur(b)
-    saa = blur(a * a) - mu_a ** 2
-    sbb = blur(b * b) - mu_b ** 2
+    saa = blur(a * a) - mu_a**2
+    sbb = blur(b * b) - mu_b**2
     sab = blur(a * b) - mu_a * mu_b
-    return ((2 * mu_a * mu_b + C1) * (2 * sab + C2)) / ((mu_a ** 2 + mu_b ** 2 + C1) * (saa + sbb + C2))
+    return ((2 * mu_a * mu_b + C1) * (2 * sab + C2)) / ((mu_a**2 + mu_b**2 + C1) * (saa + sbb + C2))
 
 
 def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -69,8 +70,10 @@ def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def depth_abs_rel(pred, gt, valid=None, max_depth: float = 80.0) -> float:
     """mean |pred - gt| / gt over pixels with finite gt below max_depth (sky and the far range excluded); torch or
     numpy depths in metres."""
-    pred, gt = torch.as_tensor(np.asarray(pred) if not isinstance(pred, torch.Tensor) else pred), \
-        torch.as_tensor(np.asarray(gt) if not isinstance(gt, torch.Tensor) else gt)
+    pred, gt = (
+        torch.as_tensor(np.asarray(pred) if not isinstance(pred, torch.Tensor) else pred),
+        torch.as_tensor(np.asarray(gt) if not isinstance(gt, torch.Tensor) else gt),
+    )
     gt = gt.float()
     ok = torch.isfinite(gt) & (gt > 0) & (gt < max_depth) & torch.isfinite(pred)
     if valid is not None:

@@ -2,6 +2,7 @@
 vectors, git-ignored run and cache folders). One place finds the checkout: `$WORLDSPLAT_ROOT`, else the nearest
 folder above this file that holds both `pyproject.toml` and `web/`, else the working directory. Every function
 that needs one of these folders takes it as an argument and defaults to the function here."""
+
 from __future__ import annotations
 
 import os

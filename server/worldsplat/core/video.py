@@ -1,5 +1,6 @@
 """Video files from frames: H.264 MP4 (yuv420p, faststart: plays in Chromium) or VP9 WebM, written atomically
 through imageio-ffmpeg's bundled ffmpeg binary (no system ffmpeg needed)."""
+
 from __future__ import annotations
 
 import os
@@ -20,6 +21,7 @@ CODECS = {
 
 def ffmpeg_exe() -> str:
     import imageio_ffmpeg  # noqa: PLC0415 - ffmpeg, only for videos
+
     return imageio_ffmpeg.get_ffmpeg_exe()
 
 
@@ -60,7 +62,7 @@ def mosaic(views: np.ndarray, cameras: list[str] | None = None) -> np.ndarray:
         for r, row in enumerate(rows):
             for c, name in enumerate(row):
                 if name in index:
-                    out[:, r * H:(r + 1) * H, c * W:(c + 1) * W] = views[:, index[name]]
+                    out[:, r * H : (r + 1) * H, c * W : (c + 1) * W] = views[:, index[name]]
     return out[0] if single else out
 
 
@@ -80,8 +82,27 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 10.0) -> Path
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=ext)
     os.close(fd)
-    cmd = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{W}x{H}",
-           "-r", f"{fps:g}", "-i", "-", "-an", *CODECS[ext], "-threads", "1", tmp]
+    cmd = [
+        ffmpeg_exe(),
+        "-y",
+        "-loglevel",
+        "error",
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "rgb24",
+        "-s",
+        f"{W}x{H}",
+        "-r",
+        f"{fps:g}",
+        "-i",
+        "-",
+        "-an",
+        *CODECS[ext],
+        "-threads",
+        "1",
+        tmp,
+    ]
     try:
         proc = subprocess.run(cmd, input=frames.tobytes(), capture_output=True, timeout=600)
         if proc.returncode != 0:
@@ -105,5 +126,12 @@ def probe(path: str | Path) -> dict:
     w, h = int(m.group(2)), int(m.group(3))
     n = len(proc.stdout) // (w * h * 3)
     pix = m.group(0)
-    return {"codec": m.group(1), "width": w, "height": h, "frames": n, "yuv420p": "yuv420p" in err,
-            "data": np.frombuffer(proc.stdout, dtype=np.uint8).reshape(n, h, w, 3), "stream": pix}
+    return {
+        "codec": m.group(1),
+        "width": w,
+        "height": h,
+        "frames": n,
+        "yuv420p": "yuv420p" in err,
+        "data": np.frombuffer(proc.stdout, dtype=np.uint8).reshape(n, h, w, 3),
+        "stream": pix,
+    }

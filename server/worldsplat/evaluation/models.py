@@ -12,6 +12,7 @@
   GT depth (pixels with GT < 80 m).
 - Steps vs error: N-step samples vs a 64-step sample from the same noise, PSNR of the VAE-decoded RGB, and time.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,9 +48,17 @@ SHIFTS = (0.0, -1.0, 1.0, -2.0, 2.0, -4.0, 4.0)
 def clip_view(sample: dict, rig) -> Clip:
     """A shard sample as the simulated clip reconstruct() and oracle_scene() take."""
     T = sample["rgb"].shape[0]
-    return Clip(rig=rig, ego_to_world=sample["ego_to_world"].astype(np.float64), frame_times=np.arange(T) / 4.0,
-                fps=4.0, rgb=sample["rgb"], depth=sample["depth"], dynamic=sample["dynamic"],
-                semantic=np.zeros(sample["rgb"].shape[:4], np.uint8), caption=str(sample["caption"]))
+    return Clip(
+        rig=rig,
+        ego_to_world=sample["ego_to_world"].astype(np.float64),
+        frame_times=np.arange(T) / 4.0,
+        fps=4.0,
+        rgb=sample["rgb"],
+        depth=sample["depth"],
+        dynamic=sample["dynamic"],
+        semantic=np.zeros(sample["rgb"].shape[:4], np.uint8),
+        caption=str(sample["caption"]),
+    )
 
 
 def rig_of(sample: dict):
@@ -81,13 +90,25 @@ def eval_vae(models: Models, ds: ShardDataset, n: int) -> dict:
         depth = denormalize_depth(dn[:, 0], d.depth_near, d.depth_far).reshape(T, V, d.height, d.width)
         ab.append(depth_abs_rel(depth, torch.as_tensor(s["depth"])))
         iou.append(mask_iou(m[:, 0].reshape(T, V, d.height, d.width) > 0.5, torch.as_tensor(s["dynamic"])))
-    return {"clips": len(ps), "rgb_psnr": float(np.mean(ps)), "depth_absrel": float(np.nanmean(ab)),
-            "mask_iou": float(np.mean(iou)), "per_clip_psnr": [round(p, 2) for p in ps]}
+    return {
+        "clips": len(ps),
+        "rgb_psnr": float(np.mean(ps)),
+        "depth_absrel": float(np.nanmean(ab)),
+        "mask_iou": float(np.mean(iou)),
+        "per_clip_psnr": [round(p, 2) for p in ps],
+    }
 
 
 @torch.no_grad()
-def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int, ...] | None = None,
-                     shifts=SHIFTS, oracle: bool = True, model: bool = True) -> dict:
+def eval_reconstruct(
+    models: Models,
+    ds: ShardDataset,
+    n: int,
+    frames: tuple[int, ...] | None = None,
+    shifts=SHIFTS,
+    oracle: bool = True,
+    model: bool = True,
+) -> dict:
     """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips."""
     res = {s: {"model_psnr": [], "model_ssim": [], "oracle_psnr": [], "oracle_ssim": []} for s in shifts}
     for i in range(min(n, len(ds))):
@@ -106,7 +127,7 @@ def eval_reconstruct(models: Models, ds: ShardDataset, n: int, frames: tuple[int
             gt = by_shift[sh]
             for name, sc in scenes.items():
                 pv, sv = [], []
-                for t in (frames or range(T)):
+                for t in frames or range(T):
                     g = sc.at_frame(t)
                     for v in range(V):
                         img = _img(render_view(g, sc.camera(t, v, sh)).rgb)
@@ -122,6 +143,7 @@ def projected_box_mask(corners_world: np.ndarray, cam) -> np.ndarray:
     """(K,8,3) world corners of moving boxes -> (H,W) bool: union of the filled hulls of their projections
     (corners behind the camera are dropped; boxes with fewer than 3 corners in front are skipped)."""
     from matplotlib.path import Path as MPath  # noqa: PLC0415 - matplotlib, only for plots
+
     H, W = cam.height, cam.width
     ys, xs = np.mgrid[0:H, 0:W]
     pix = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], -1)
@@ -147,6 +169,7 @@ def _hull(p: np.ndarray) -> np.ndarray:
 
     def cross(o, a, b):
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
     lower, upper = [], []
     for q in pts:
         while len(lower) >= 2 and cross(lower[-2], lower[-1], q) <= 0:
@@ -160,8 +183,15 @@ def _hull(p: np.ndarray) -> np.ndarray:
 
 
 @torch.no_grad()
-def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed: int = 0,
-                  frames: tuple[int, ...] | None = None, latents: str = "sample") -> dict:
+def eval_generate(
+    models: Models,
+    ds: ShardDataset,
+    n: int,
+    steps: int = 8,
+    seed: int = 0,
+    frames: tuple[int, ...] | None = None,
+    latents: str = "sample",
+) -> dict:
     """Layout fidelity of generated scenes. latents="encode" swaps the DiT sample for the VAE encoding of the
     ground-truth clip: the same metrics then measure the ceiling of the VAE + Gaussian-decoder path, i.e. what a
     perfect diffusion model could reach with these weights."""
@@ -174,17 +204,23 @@ def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed
         rig = rig_of(s)
         ego = s["ego_to_world"].astype(np.float64)
         T, V = s["rgb"].shape[:2]
-        boxes = [[{"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
-                  for k in range(z["box_corners"].shape[1])] for t in range(T)]
-        cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
-                                          "ego_traj": s["traj"]}, ego)
+        boxes = [
+            [
+                {"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+                for k in range(z["box_corners"].shape[1])
+            ]
+            for t in range(T)
+        ]
+        cond = condition_tensors(
+            models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}, ego
+        )
         if latents == "sample":
             L = sample_latents(models, cond, steps=steps, seed=seed)
         else:
             L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
         scene = to_scene4d(decode_gaussians(models, L, rig, ego, np.arange(T) / 4.0, {}))
         moving = np.asarray(z["box_moving"], bool)
-        for t in (frames or range(T)):
+        for t in frames or range(T):
             g = scene.at_frame(t)
             for v in range(V):
                 cam = scene.camera(t, v)
@@ -199,10 +235,15 @@ def eval_generate(models: Models, ds: ShardDataset, n: int, steps: int = 8, seed
                 ceiling.append(_inter_union(gm, bm))  # reference: exact silhouettes vs the boxier hulls
                 rd = out["depth"] / out["alpha"].clamp_min(1e-3)
                 absrel.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v])))
-    return {"clips": min(n, len(ds)), "steps": steps if latents == "sample" else None, "latents": latents,
-            "dynamic_iou_vs_projected_boxes": _pooled(iou_box),
-            "dynamic_iou_vs_gt_mask": _pooled(iou_gt), "depth_absrel": float(np.nanmean(absrel)),
-            "gt_mask_iou_vs_projected_boxes": _pooled(ceiling)}
+    return {
+        "clips": min(n, len(ds)),
+        "steps": steps if latents == "sample" else None,
+        "latents": latents,
+        "dynamic_iou_vs_projected_boxes": _pooled(iou_box),
+        "dynamic_iou_vs_gt_mask": _pooled(iou_gt),
+        "depth_absrel": float(np.nanmean(absrel)),
+        "gt_mask_iou_vs_projected_boxes": _pooled(ceiling),
+    }
 
 
 def _inter_union(a: torch.Tensor, b: torch.Tensor) -> tuple[int, int]:
@@ -216,8 +257,14 @@ def _pooled(pairs: list[tuple[int, int]]) -> float:
 
 
 @torch.no_grad()
-def steps_vs_error_for(models: Models, cond: dict, steps_list=(1, 2, 4, 8, 16, 32), ref_steps: int = 64,
-                       seed: int = 0, shift: float | None = None) -> list[dict]:
+def steps_vs_error_for(
+    models: Models,
+    cond: dict,
+    steps_list=(1, 2, 4, 8, 16, 32),
+    ref_steps: int = 64,
+    seed: int = 0,
+    shift: float | None = None,
+) -> list[dict]:
     """Error of N-step samples against a ref_steps sample from the same noise, for one condition set
     (`inference.condition_tensors(models, world.conditions(), ego_to_world)`): PSNR of the VAE-decoded RGB (range
     [0, 1]), latent RMSE, and the sampling time (torch eager, this machine). Used by the benchmark (issue 8)."""
@@ -229,8 +276,14 @@ def steps_vs_error_for(models: Models, cond: dict, steps_list=(1, 2, 4, 8, 16, 3
         L = sample_latents(models, cond, steps=k, seed=seed, shift=shift)
         dt = time.perf_counter() - t0
         rgb = (models.vae.decode_joint(L.flatten(0, 1))[0] + 1) / 2
-        rows.append({"steps": k, "psnr": psnr(rgb, ref_rgb), "latent_rmse": float(torch.sqrt(torch.mean((L - ref) ** 2))),
-                     "time_s": dt})
+        rows.append(
+            {
+                "steps": k,
+                "psnr": psnr(rgb, ref_rgb),
+                "latent_rmse": float(torch.sqrt(torch.mean((L - ref) ** 2))),
+                "time_s": dt,
+            }
+        )
     return rows
 
 
@@ -238,25 +291,53 @@ def shard_conditions(models: Models, ds: ShardDataset, i: int) -> dict:
     s = ds[i]
     z = ds.load(i)
     T = s["rgb"].shape[0]
-    boxes = [[{"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
-              for k in range(z["box_corners"].shape[1])] for t in range(T)]
-    return condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
-                                      "ego_traj": s["traj"]}, s["ego_to_world"].astype(np.float64))
+    boxes = [
+        [
+            {"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+            for k in range(z["box_corners"].shape[1])
+        ]
+        for t in range(T)
+    ]
+    return condition_tensors(
+        models,
+        {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]},
+        s["ego_to_world"].astype(np.float64),
+    )
 
 
-def steps_vs_error(models: Models, ds: ShardDataset, n: int = 1, steps_list=(1, 2, 4, 8, 16, 32), ref_steps: int = 64,
-                   seed: int = 0, shift: float | None = None) -> list[dict]:
+def steps_vs_error(
+    models: Models,
+    ds: ShardDataset,
+    n: int = 1,
+    steps_list=(1, 2, 4, 8, 16, 32),
+    ref_steps: int = 64,
+    seed: int = 0,
+    shift: float | None = None,
+) -> list[dict]:
     """steps_vs_error_for averaged over the first n clips of a split (shift: the sampler's timestep shift,
     default the DiT config's)."""
-    per = [steps_vs_error_for(models, shard_conditions(models, ds, i), steps_list, ref_steps, seed, shift)
-           for i in range(min(n, len(ds)))]
-    return [{"steps": r[0]["steps"], **{m: float(np.mean([x[m] for x in r])) for m in ("psnr", "latent_rmse", "time_s")}}
-            for r in zip(*per)]
+    per = [
+        steps_vs_error_for(models, shard_conditions(models, ds, i), steps_list, ref_steps, seed, shift)
+        for i in range(min(n, len(ds)))
+    ]
+    return [
+        {"steps": r[0]["steps"], **{m: float(np.mean([x[m] for x in r])) for m in ("psnr", "latent_rmse", "time_s")}}
+        for r in zip(*per)
+    ]
 
 
 @torch.no_grad()
-def figure(models: Models, ds: ShardDataset, index: int, out_png: Path, t: int = 1, views=(5, 0, 1),
-           shift_m: float = 2.0, steps: int = 8, seed: int = 0) -> Path:
+def figure(
+    models: Models,
+    ds: ShardDataset,
+    index: int,
+    out_png: Path,
+    t: int = 1,
+    views=(5, 0, 1),
+    shift_m: float = 2.0,
+    steps: int = 8,
+    seed: int = 0,
+) -> Path:
     """One PNG, a row per source and a column per camera (FRONT_LEFT, FRONT, FRONT_RIGHT by default):
     GT | VAE decode | reconstruct render | GT at +shift | reconstruct render at +shift | generated render."""
     s = ds[index]
@@ -275,10 +356,16 @@ def figure(models: Models, ds: ShardDataset, index: int, out_png: Path, t: int =
     if "generate" in models.modes:
         z = ds.load(index)
         ego = s["ego_to_world"].astype(np.float64)
-        boxes = [[{"corners": z["box_corners"][tt, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
-                  for k in range(z["box_corners"].shape[1])] for tt in range(T)]
-        cond = condition_tensors(models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"],
-                                          "ego_traj": s["traj"]}, ego)
+        boxes = [
+            [
+                {"corners": z["box_corners"][tt, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+                for k in range(z["box_corners"].shape[1])
+            ]
+            for tt in range(T)
+        ]
+        cond = condition_tensors(
+            models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}, ego
+        )
         Lg = sample_latents(models, cond, steps=steps, seed=seed)
         gscene = to_scene4d(decode_gaussians(models, Lg, rig, ego, np.arange(T) / 4.0, {}))
         rows.append([(s["sketch"][t, v] * 255).astype(np.uint8) for v in views])
@@ -296,14 +383,20 @@ def main(argv=None) -> int:
     p.add_argument("--weights", type=Path, default=None)
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--clips", type=int, default=4)
-    p.add_argument("--parts", default="vae,reconstruct,generate,steps",
-                   help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
-                        "(generate's layout metrics on VAE-encoded ground truth), steps")
+    p.add_argument(
+        "--parts",
+        default="vae,reconstruct,generate,steps",
+        help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
+        "(generate's layout metrics on VAE-encoded ground truth), steps",
+    )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
     p.add_argument("--figure", type=Path, default=None, help="also write the qualitative PNG of test clip 0")
-    p.add_argument("--sampler-shifts", default=None,
-                   help="comma list of timestep shifts: the steps part is measured at each (key steps_vs_error_by_shift)")
+    p.add_argument(
+        "--sampler-shifts",
+        default=None,
+        help="comma list of timestep shifts: the steps part is measured at each (key steps_vs_error_by_shift)",
+    )
     a = p.parse_args(argv)
     frames = tuple(int(x) for x in a.frames.split(","))
     torch.set_num_threads(a.threads)
@@ -317,8 +410,7 @@ def main(argv=None) -> int:
         out["vae"] = eval_vae(models, ds, a.clips)
         print("vae", out["vae"], flush=True)
     if "reconstruct" in parts or "oracle" in parts:
-        r = eval_reconstruct(models, ds, a.clips, frames=frames, model="reconstruct" in parts,
-                             oracle="oracle" in parts)
+        r = eval_reconstruct(models, ds, a.clips, frames=frames, model="reconstruct" in parts, oracle="oracle" in parts)
         prev = out.get("reconstruct", {})
         for sh, row in r.items():  # merge, so the oracle and the model can run separately
             prev.setdefault(sh, {}).update({k: v for k, v in row.items() if v is not None})
@@ -336,7 +428,8 @@ def main(argv=None) -> int:
         if a.sampler_shifts:
             out["steps_vs_error_by_shift"] = {
                 r: steps_vs_error(models, ds, max(1, min(2, a.clips)), steps_list=(2, 4, 8), shift=float(r))
-                for r in a.sampler_shifts.split(",")}
+                for r in a.sampler_shifts.split(",")
+            }
             print("steps by shift", out["steps_vs_error_by_shift"], flush=True)
     if a.figure is not None:
         figure(models, ds, 0, a.figure)

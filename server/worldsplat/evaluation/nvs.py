@@ -17,6 +17,7 @@ Mapping of the paper's versions (C-Reprojection / 3D Gs / 4D Gs / Mixed Aug / En
 Metrics per shift: PSNR and SSIM over all pixels of every camera and frame, PSNR inside the 4D render's holes
 (alpha < 0.5), and depth AbsRel where a version has depth (the renders).
 """
+
 from __future__ import annotations
 
 import json
@@ -66,8 +67,10 @@ def load_enhancers(weights_dir: Path):
     for key, name in (("mixed", "enhancer_small.safetensors"), ("degraded", "enhancer_small_nomix.safetensors")):
         path = Path(weights_dir) / name
         if not path.exists():
-            raise FileNotFoundError(f"{path} not found: train it with `worldsplat train-enhancer "
-                                    f"--size small{' --no-mix' if key == 'degraded' else ''} --out {weights_dir}`")
+            raise FileNotFoundError(
+                f"{path} not found: train it with `worldsplat train-enhancer "
+                f"--size small{' --no-mix' if key == 'degraded' else ''} --out {weights_dir}`"
+            )
         out[key] = load_enhancer(path)
     return out
 
@@ -75,8 +78,9 @@ def load_enhancers(weights_dir: Path):
 def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int = 0) -> dict:
     """All versions' frames (T,V,H,W,3) uint8 for one novel-view sample with render_4d and render_3d."""
     mixed, degraded = models["mixed"], models["degraded"]
-    kw = dict(sketch=sample["sketch"], boxes=sample, traj=sample["traj"], caption_emb=caption_emb, steps=steps,
-              seed=seed)
+    kw = dict(
+        sketch=sample["sketch"], boxes=sample, traj=sample["traj"], caption_emb=caption_emb, steps=steps, seed=seed
+    )
     r4, a4 = sample["render_4d"], sample["alpha_4d"].astype(np.float32)
     r3, a3 = sample["render_3d"], sample["alpha_3d"].astype(np.float32)
     out = {
@@ -94,8 +98,9 @@ def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int 
         rd, ad = sample["render_dec"], sample["alpha_dec"].astype(np.float32)
         out["D-dec"] = rd
         out["E-dec"] = enhance(*mixed, rd, ad, **kw)
-        out["E-dec+holes"] = np.round(np.clip(ad, 0, 1)[..., None] * rd
-                                      + (1 - np.clip(ad, 0, 1)[..., None]) * out["E-dec"]).astype(np.uint8)
+        out["E-dec+holes"] = np.round(
+            np.clip(ad, 0, 1)[..., None] * rd + (1 - np.clip(ad, 0, 1)[..., None]) * out["E-dec"]
+        ).astype(np.uint8)
     vae = mixed[1]
     T, V, H, W, _ = sample["target"].shape
     flat = sample["target"].reshape(T * V, H, W, 3)
@@ -124,14 +129,24 @@ def prepare_samples(cache: Path, split: str, seed: int, shifts, decoder_models=N
                 if dec_scene is None:
                     dec_scene = to_scene4d(reconstruct(source, decoder_models))
                 r = render_scene_track(dec_scene, s)
-                sample.update(render_dec=r.rgb, alpha_dec=r.alpha.astype(np.float16), depth_dec=r.depth.astype(np.float16))
+                sample.update(
+                    render_dec=r.rgb, alpha_dec=r.alpha.astype(np.float16), depth_dec=r.depth.astype(np.float16)
+                )
             save_sample(path, sample)
     return paths
 
 
-def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, steps: int = 8,
-             weights_dir: Path | None = None, cache: Path | None = None, out: Path | None = None,
-             progress: bool = True, keep_frames: bool = False) -> dict:
+def evaluate(
+    split: str = "test",
+    shifts=(0.0, 1.0, 2.0, 4.0),
+    count: int = 6,
+    steps: int = 8,
+    weights_dir: Path | None = None,
+    cache: Path | None = None,
+    out: Path | None = None,
+    progress: bool = True,
+    keep_frames: bool = False,
+) -> dict:
     """Scores of every version per shift, averaged over `count` held-out clips of `split`."""
     weights_dir = Path(weights_dir or default_weights_dir())
     cache = Path(cache or runs_dir() / "enhancer_pairs")
@@ -165,8 +180,11 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
             if "depth_dec" in sample:
                 depth_dec[s].append(depth_abs_rel(sample["depth_dec"].astype(np.float32), sample["target_depth"]))
             if seed == seeds[0]:
-                examples[s] = {"target": sample["target"], "alpha": sample["alpha_4d"],
-                               **({k: frames[k] for k in ("D", "E", "E+holes", "A")})}
+                examples[s] = {
+                    "target": sample["target"],
+                    "alpha": sample["alpha_4d"],
+                    **({k: frames[k] for k in ("D", "E", "E+holes", "A")}),
+                }
             if bar is not None:
                 bar.update(1)
     if bar is not None:
@@ -176,21 +194,32 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
         vals = [x[k] for x in xs if k in x and math.isfinite(x[k])]
         return float(np.mean(vals)) if vals else float("nan")
 
-    table = {v: {str(s): {k: mean(per[v][s], k) for k in ("psnr", "ssim", "psnr_holes", "hole_frac")}
-                 for s in shifts} for v in versions}
+    table = {
+        v: {str(s): {k: mean(per[v][s], k) for k in ("psnr", "ssim", "psnr_holes", "hole_frac")} for s in shifts}
+        for v in versions
+    }
     for s in shifts:
         for v in ("D", "oracle"):
             table[v][str(s)]["depth_absrel"] = float(np.nanmean(depth[s]))
         if depth_dec[s]:
             table["D-dec"][str(s)]["depth_absrel"] = float(np.nanmean(depth_dec[s]))
-    result = {"split": split, "seeds": seeds, "shifts": list(shifts), "steps": steps, "versions": list(versions),
-              "descriptions": DESCRIPTIONS, "table": table, "wall_s": round(time.time() - t_start, 1),
-              "weights": {k: m[0].meta.get("provenance", {}) for k, m in models.items()}}
+    result = {
+        "split": split,
+        "seeds": seeds,
+        "shifts": list(shifts),
+        "steps": steps,
+        "versions": list(versions),
+        "descriptions": DESCRIPTIONS,
+        "table": table,
+        "wall_s": round(time.time() - t_start, 1),
+        "weights": {k: m[0].meta.get("provenance", {}) for k, m in models.items()},
+    }
     if out is not None:
         write_report(result, Path(out))
         if examples:
-            np.savez_compressed(Path(out) / "examples.npz", **{f"{k}_{s}": v for s, d in examples.items()
-                                                                for k, v in d.items()})
+            np.savez_compressed(
+                Path(out) / "examples.npz", **{f"{k}_{s}": v for s, d in examples.items() for k, v in d.items()}
+            )
     if keep_frames:
         result["examples"] = examples
     return result
@@ -198,34 +227,53 @@ def evaluate(split: str = "test", shifts=(0.0, 1.0, 2.0, 4.0), count: int = 6, s
 
 def markdown_table(result: dict) -> str:
     shifts = [str(s) for s in result["shifts"]]
-    head = "| version | what | " + " | ".join(f"PSNR {s} m" for s in shifts) + " | " + \
-        " | ".join(f"SSIM {s} m" for s in shifts) + " | " + " | ".join(f"hole PSNR {s} m" for s in shifts) + " |"
+    head = (
+        "| version | what | "
+        + " | ".join(f"PSNR {s} m" for s in shifts)
+        + " | "
+        + " | ".join(f"SSIM {s} m" for s in shifts)
+        + " | "
+        + " | ".join(f"hole PSNR {s} m" for s in shifts)
+        + " |"
+    )
     sep = "|" + "---|" * (2 + 3 * len(shifts))
     rows = [head, sep]
     for v in result["versions"]:
         r = result["table"][v]
-        cells = [f"{r[s]['psnr']:.2f}" for s in shifts] + [f"{r[s]['ssim']:.3f}" for s in shifts] + \
-            [f"{r[s]['psnr_holes']:.2f}" for s in shifts]
+        cells = (
+            [f"{r[s]['psnr']:.2f}" for s in shifts]
+            + [f"{r[s]['ssim']:.3f}" for s in shifts]
+            + [f"{r[s]['psnr_holes']:.2f}" for s in shifts]
+        )
         rows.append(f"| {v} | {result['descriptions'][v]} | " + " | ".join(cells) + " |")
     d = result["table"]["D"]
     rows.append("")
-    rows.append("Depth AbsRel of the 4D render vs exact depth (covered pixels, < 80 m): " +
-                ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts) +
-                ". Hole fraction of the 4D render: " +
-                ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts) + ".")
+    rows.append(
+        "Depth AbsRel of the 4D render vs exact depth (covered pixels, < 80 m): "
+        + ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts)
+        + ". Hole fraction of the 4D render: "
+        + ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts)
+        + "."
+    )
     if "D-dec" in result["table"]:
         d = result["table"]["D-dec"]
         rows.append("")
-        rows.append("The same for the learned decoder's 4D render (D-dec): depth AbsRel " +
-                    ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts) +
-                    "; hole fraction " + ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts) + ".")
+        rows.append(
+            "The same for the learned decoder's 4D render (D-dec): depth AbsRel "
+            + ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts)
+            + "; hole fraction "
+            + ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts)
+            + "."
+        )
     return "\n".join(rows)
 
 
 def plot(result: dict, path: Path) -> Path:
     import matplotlib  # noqa: PLC0415 - matplotlib, only for plots
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415 - matplotlib, only for plots
+
     shifts = result["shifts"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for v in result["versions"]:
@@ -255,9 +303,16 @@ def write_report(result: dict, out: Path) -> None:
 
 # --- the side-by-side figure (raw | refined | ground truth) ---------------------------------------------------------
 
-def side_by_side(scenario=None, shift_m: float = 4.0, cameras: tuple[str, ...] = ("CAM_FRONT", "CAM_BACK",
-                 "CAM_FRONT_RIGHT"), frame: int | None = None, steps: int = 8, weights: Path | None = None,
-                 scale: int = 2) -> tuple[np.ndarray, dict]:
+
+def side_by_side(
+    scenario=None,
+    shift_m: float = 4.0,
+    cameras: tuple[str, ...] = ("CAM_FRONT", "CAM_BACK", "CAM_FRONT_RIGHT"),
+    frame: int | None = None,
+    steps: int = 8,
+    weights: Path | None = None,
+    scale: int = 2,
+) -> tuple[np.ndarray, dict]:
     """The playground's path on a scenario (default preset): its oracle scene from the pipeline -> `refine_track` at
     `shift_m` ->
     one frame of `cameras` as rows of [raw render | refined | exact ground truth], upscaled by `scale`
@@ -275,10 +330,16 @@ def side_by_side(scenario=None, shift_m: float = 4.0, cameras: tuple[str, ...] =
     for i, cam in enumerate(cameras):
         r, f, g = raw.rgb[t, i], refined[t, i], truth.rgb[t, i]
         holes = raw.alpha[t, i] < 0.5
-        stats[cam] = {"raw": image_metrics(r[None], g[None], holes[None]),
-                      "refined": image_metrics(f[None], g[None], holes[None])}
-        rows.append(np.concatenate([r, np.full((r.shape[0], 4, 3), 255, np.uint8), f,
-                                    np.full((r.shape[0], 4, 3), 255, np.uint8), g], axis=1))
+        stats[cam] = {
+            "raw": image_metrics(r[None], g[None], holes[None]),
+            "refined": image_metrics(f[None], g[None], holes[None]),
+        }
+        rows.append(
+            np.concatenate(
+                [r, np.full((r.shape[0], 4, 3), 255, np.uint8), f, np.full((r.shape[0], 4, 3), 255, np.uint8), g],
+                axis=1,
+            )
+        )
         rows.append(np.full((4, rows[-1].shape[1], 3), 255, np.uint8))
     img = np.concatenate(rows[:-1], axis=0)
     img = img.repeat(scale, 0).repeat(scale, 1)

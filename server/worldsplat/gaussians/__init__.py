@@ -1,5 +1,6 @@
 """Gaussian core: one splatting math (web/docs/splatting-math.md), the torch reference rasterizer, oracle lifting,
 4D aggregation (paper eq. 3), the .wsplat v1 stream format and PLY interop. See web/docs/gaussians.md."""
+
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.raster import rasterize
 from worldsplat.gaussians.types import Gaussians, Scene4D
@@ -12,5 +13,6 @@ def __getattr__(name):
     # `aggregate`: that name is the submodule, which Python binds here once it has been imported.
     if name == "aggregate_4d":
         from worldsplat.gaussians.aggregate import aggregate_4d as fn  # noqa: PLC0415 - lazy on purpose (above)
+
         return fn
     raise AttributeError(name)

@@ -18,6 +18,7 @@ The naive union repeats every surface once per frame and view that sees it. The 
    the stream is a coarser whole scene) and caps by a budget.
 `python -m worldsplat.gaussians.economy` measures kept Gaussians and PSNR change against exact ground truth.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,8 +32,8 @@ from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.lift import SKY_CHANNEL
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
-DYNAMIC_THRESHOLD = 0.5   # extras[:, 0] (dynamic probability / mask) above this -> dynamic
-SKY_COVER = 0.5           # a merged sky Gaussian's std is at least this fraction of its cell
+DYNAMIC_THRESHOLD = 0.5  # extras[:, 0] (dynamic probability / mask) above this -> dynamic
+SKY_COVER = 0.5  # a merged sky Gaussian's std is at least this fraction of its cell
 
 
 @dataclass
@@ -40,26 +41,26 @@ class Economy:
     """Thresholds of the economy (defaults measured in web/docs/gaussians.md)."""
 
     enabled: bool = True
-    min_opacity: float = 0.02          # "transparent": below this a Gaussian barely shows
-    max_range: float = 150.0           # m from the nearest camera position ("out of range")
-    cell_factor: float = 3.0           # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
-    sky_cell_factor: float = 3.0       # the same for the sky shell (far and smooth: may be coarser)
-    opacity_merge: str = "mean"        # merged opacity: "mean" of the members or "union" 1 - prod(1 - o)
-    static_budget: int | None = None   # cap on static Gaussians (most important kept)
+    min_opacity: float = 0.02  # "transparent": below this a Gaussian barely shows
+    max_range: float = 150.0  # m from the nearest camera position ("out of range")
+    cell_factor: float = 3.0  # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
+    sky_cell_factor: float = 3.0  # the same for the sky shell (far and smooth: may be coarser)
+    opacity_merge: str = "mean"  # merged opacity: "mean" of the members or "union" 1 - prod(1 - o)
+    static_budget: int | None = None  # cap on static Gaussians (most important kept)
     dynamic_budget: int | None = None  # cap per frame
 
 
 @dataclass
 class AggregateStats:
-    naive: int = 0                     # V * T * H * W (every pixel of every view and frame)
-    lifted: int = 0                    # Gaussians handed to aggregate (oracle: every pixel, the sky on its shell)
+    naive: int = 0  # V * T * H * W (every pixel of every view and frame)
+    lifted: int = 0  # Gaussians handed to aggregate (oracle: every pixel, the sky on its shell)
     static_union: int = 0
     dynamic_union: int = 0
     static_kept: int = 0
     dynamic_kept: int = 0
     dropped_transparent: int = 0
     dropped_range: int = 0
-    sky_kept: int = 0                  # static Gaussians of the sky shell (part of static_kept)
+    sky_kept: int = 0  # static Gaussians of the sky shell (part of static_kept)
     merged_away: int = 0
     extra: dict = field(default_factory=dict)
 
@@ -98,8 +99,15 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     aw, ax, ay, az = a.unbind(-1)
     bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+    return torch.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
 
 
 def transform(g: Gaussians, m: np.ndarray) -> Gaussians:
@@ -138,14 +146,20 @@ def _cell_keys(p: np.ndarray, level: np.ndarray, sky: np.ndarray) -> np.ndarray:
 def nearest_distance(p: np.ndarray, centres: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
     out = np.full(len(p), np.inf)
     for s in range(0, len(p), chunk):
-        q = p[s:s + chunk]
+        q = p[s : s + chunk]
         for c in centres:
-            out[s:s + chunk] = np.minimum(out[s:s + chunk], np.sqrt(((q - c) ** 2).sum(1)))
+            out[s : s + chunk] = np.minimum(out[s : s + chunk], np.sqrt(((q - c) ** 2).sum(1)))
     return out
 
 
-def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: float,
-              stats: AggregateStats | None = None, budget: int | None = None) -> Gaussians:
+def economize(
+    g: Gaussians,
+    eco: Economy,
+    camera_centres: np.ndarray,
+    focal: float,
+    stats: AggregateStats | None = None,
+    budget: int | None = None,
+) -> Gaussians:
     """Drop, merge, order by importance, cap (see the module docstring). Works on detached numpy copies; the
     result is a new Gaussians (isotropic inputs stay isotropic; a merged cell takes the rotation of its most
     opaque member)."""
@@ -159,8 +173,11 @@ def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: flo
     stats.dropped_transparent += int(transparent.sum())
     keep &= ~transparent
     a = {k: v[keep] for k, v in a.items()}
-    sky = a["extras"][:, SKY_CHANNEL] > 0.5 if "extras" in a and a["extras"].shape[1] > SKY_CHANNEL else \
-        np.zeros(len(a["means"]), dtype=bool)
+    sky = (
+        a["extras"][:, SKY_CHANNEL] > 0.5
+        if "extras" in a and a["extras"].shape[1] > SKY_CHANNEL
+        else np.zeros(len(a["means"]), dtype=bool)
+    )
     dist = nearest_distance(a["means"], camera_centres)
     far = (dist > eco.max_range) & ~sky
     stats.dropped_range += int(far.sum())
@@ -178,16 +195,18 @@ def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: flo
     uniq, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
     m = len(uniq)
     stats.merged_away += n - m
-    w = a["opacities"] / np.exp(2 * np.log(s).mean(1))   # finer observations weigh more
+    w = a["opacities"] / np.exp(2 * np.log(s).mean(1))  # finer observations weigh more
     wsum = np.bincount(inv, weights=w, minlength=m)
 
     def wmean(x):
         if x.ndim == 1:
             return np.bincount(inv, weights=x * w, minlength=m) / wsum
-        return np.stack([np.bincount(inv, weights=x[:, j] * w, minlength=m) for j in range(x.shape[1])], 1) / \
-            wsum[:, None]
+        return (
+            np.stack([np.bincount(inv, weights=x[:, j] * w, minlength=m) for j in range(x.shape[1])], 1) / wsum[:, None]
+        )
+
     means = wmean(a["means"])
-    spread = wmean(((a["means"] - means[inv]) ** 2).sum(1)) / 3.0   # per-axis variance of the member centres
+    spread = wmean(((a["means"] - means[inv]) ** 2).sum(1)) / 3.0  # per-axis variance of the member centres
     scales = np.sqrt(np.exp(2 * wmean(np.log(s))) + spread[:, None])
     # A sky cell's Gaussian covers its cell (sigma >= cell / 2): the shell is one smooth backdrop behind everything,
     # and member spread alone (a few footprints in a cell of many) leaves see-through gaps between cells.
@@ -196,8 +215,9 @@ def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: flo
     scales = np.where(cell_sky[:, None], np.maximum(scales, SKY_COVER * cell_size[:, None]), scales)
     colors = wmean(a["colors"])
     if eco.opacity_merge == "union":
-        opac = np.clip(1 - np.exp(np.bincount(inv, weights=np.log1p(-np.minimum(a["opacities"], 0.999)),
-                                              minlength=m)), 0, 1)
+        opac = np.clip(
+            1 - np.exp(np.bincount(inv, weights=np.log1p(-np.minimum(a["opacities"], 0.999)), minlength=m)), 0, 1
+        )
     elif eco.opacity_merge == "mean":
         opac = np.bincount(inv, weights=a["opacities"], minlength=m) / counts
     else:
@@ -210,8 +230,13 @@ def economize(g: Gaussians, eco: Economy, camera_centres: np.ndarray, focal: flo
     idx = np.argsort(-importance, kind="stable")
     if budget is not None:
         idx = idx[:budget]
-    out = {"means": means[idx], "quats": quats[idx], "scales": scales[idx], "opacities": opac[idx],
-           "colors": colors[idx]}
+    out = {
+        "means": means[idx],
+        "quats": quats[idx],
+        "scales": scales[idx],
+        "opacities": opac[idx],
+        "colors": colors[idx],
+    }
     if extras is not None:
         out["extras"] = extras[idx]
     return Gaussians.from_numpy(**out, dtype=torch.float64 if g.means.dtype == torch.float64 else torch.float32)
@@ -223,9 +248,17 @@ def importance_order(g: Gaussians) -> Gaussians:
     return g.subset(torch.argsort(-imp, stable=True))
 
 
-def aggregate_4d(per_view: list[list[Gaussians]], frame_times, rig: list[RigCamera], ego_to_world: np.ndarray, *,
-              in_ego_frame: bool = False, economy: Economy | None = None, meta: dict | None = None,
-              image_size: tuple[int, int] | None = None) -> tuple[Scene4D, AggregateStats]:
+def aggregate_4d(
+    per_view: list[list[Gaussians]],
+    frame_times,
+    rig: list[RigCamera],
+    ego_to_world: np.ndarray,
+    *,
+    in_ego_frame: bool = False,
+    economy: Economy | None = None,
+    meta: dict | None = None,
+    image_size: tuple[int, int] | None = None,
+) -> tuple[Scene4D, AggregateStats]:
     """Paper eq. 3. `per_view[t][v]`: Gaussians of frame t, view v, with extras[:, 0] = dynamic probability
     (> 0.5 = dynamic); in world coordinates, or in the ego frame of frame t when `in_ego_frame`.
     Returns the Scene4D (static in importance order) and the statistics of the economy."""
@@ -233,8 +266,9 @@ def aggregate_4d(per_view: list[list[Gaussians]], frame_times, rig: list[RigCame
     ego_to_world = np.asarray(ego_to_world, dtype=np.float64)
     T = len(per_view)
     if T != len(ego_to_world) or T != len(frame_times):
-        raise ValueError(f"aggregate: {T} frames of Gaussians, {len(ego_to_world)} ego poses, "
-                         f"{len(frame_times)} frame times")
+        raise ValueError(
+            f"aggregate: {T} frames of Gaussians, {len(ego_to_world)} ego poses, {len(frame_times)} frame times"
+        )
     stats = AggregateStats()
     if image_size is not None:
         stats.naive = T * len(rig) * image_size[0] * image_size[1]
@@ -252,12 +286,14 @@ def aggregate_4d(per_view: list[list[Gaussians]], frame_times, rig: list[RigCame
     static = Gaussians.cat(statics) if statics else Gaussians.empty()
     stats.static_union = len(static)
     stats.dynamic_union = sum(len(d) for d in dynamics)
-    centres = np.array([[rc.at(e).position for rc in rig] for e in ego_to_world])   # (T,V,3)
+    centres = np.array([[rc.at(e).position for rc in rig] for e in ego_to_world])  # (T,V,3)
     focal = float(np.median([np.sqrt(rc.fx * rc.fy) for rc in rig])) if rig else 1.0
     if economy.enabled:
         static = economize(static, economy, centres.reshape(-1, 3), focal, stats, economy.static_budget)
-        dynamics = [economize(d, economy, centres[t], focal, stats, economy.dynamic_budget) if len(d)
-                    else d.detach() for t, d in enumerate(dynamics)]
+        dynamics = [
+            economize(d, economy, centres[t], focal, stats, economy.dynamic_budget) if len(d) else d.detach()
+            for t, d in enumerate(dynamics)
+        ]
     else:
         static = importance_order(static.detach())
         dynamics = [d.detach() for d in dynamics]
@@ -265,5 +301,6 @@ def aggregate_4d(per_view: list[list[Gaussians]], frame_times, rig: list[RigCame
     if static.extras is not None and static.extras.shape[1] > SKY_CHANNEL:
         stats.sky_kept = int((static.extras[:, SKY_CHANNEL] > 0.5).sum())
     stats.dynamic_kept = sum(len(d) for d in dynamics)
-    return Scene4D(static, dynamics, np.asarray(frame_times, dtype=np.float64), list(rig), ego_to_world,
-                   dict(meta or {})), stats
+    return Scene4D(
+        static, dynamics, np.asarray(frame_times, dtype=np.float64), list(rig), ego_to_world, dict(meta or {})
+    ), stats

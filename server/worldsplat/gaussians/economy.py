@@ -7,6 +7,7 @@ Prints a markdown table (the one in web/docs/gaussians.md). Renders use the refe
 pixels of the 8-bit renders (sky included: the oracle lifts the sky onto a far shell of static Gaussians) and over
 non-sky pixels.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,8 +35,10 @@ def render_frame_views(scene: Scene4D, t: int, shift_m: float, views: list[int])
 
 def lift_clip(clip, **kw) -> list[list]:
     T, V = clip.rgb.shape[:2]
-    return [[lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v), **kw) for v in range(V)]
-            for t in range(T)]
+    return [
+        [lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v), **kw) for v in range(V)]
+        for t in range(T)
+    ]
 
 
 def measure(preset: str, shifts: list[float], frames: list[int] | None, economy: Economy, log=print) -> dict:
@@ -44,23 +47,35 @@ def measure(preset: str, shifts: list[float], frames: list[int] | None, economy:
     T, V, H, W = clip.depth.shape
     per_view = lift_clip(clip)
     t0 = time.time()
-    naive, nst = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False),
-                           image_size=(H, W))
-    eco, st = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy,
-                        image_size=(H, W))
-    log(f"aggregate: {time.time() - t0:.1f}s  naive union {nst.static_union}+{nst.dynamic_union}, "
-        f"kept {st.kept} ({100 * st.kept / st.naive:.1f}% of V*T*H*W={st.naive})")
+    naive, nst = aggregate_4d(
+        per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False), image_size=(H, W)
+    )
+    eco, st = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
+    log(
+        f"aggregate: {time.time() - t0:.1f}s  naive union {nst.static_union}+{nst.dynamic_union}, "
+        f"kept {st.kept} ({100 * st.kept / st.naive:.1f}% of V*T*H*W={st.naive})"
+    )
     data = wsplat.encode(eco)
     quant = wsplat.decode(data)
     size = wsplat_sizes(data, quant)
-    log(f"wsplat: {len(data)} bytes; static {size['static_bytes_per_gaussian']:.3f} B/G, dynamic "
-        f"{size['dynamic_bytes_per_gaussian']:.3f} B/G per frame (block headers included)")
+    log(
+        f"wsplat: {len(data)} bytes; static {size['static_bytes_per_gaussian']:.3f} B/G, dynamic "
+        f"{size['dynamic_bytes_per_gaussian']:.3f} B/G per frame (block headers included)"
+    )
     frames = frames if frames is not None else list(range(T))
     rows = []
     for s in shifts:
         gt = clip if s == 0 else simulate(world, shift_m=s, frames=frames)
-        res = {"shift_m": s, "naive": [], "economy": [], "naive_fg": [], "economy_fg": [], "quantized": [],
-               "quantized_fg": [], "quantized_vs_float": []}
+        res = {
+            "shift_m": s,
+            "naive": [],
+            "economy": [],
+            "naive_fg": [],
+            "economy_fg": [],
+            "quantized": [],
+            "quantized_fg": [],
+            "quantized_vs_float": [],
+        }
         for i, t in enumerate(frames):
             gi = t if s == 0 else i
             a = render_frame_views(naive, t, s, list(range(V)))
@@ -80,50 +95,72 @@ def measure(preset: str, shifts: list[float], frames: list[int] | None, economy:
         row["delta_fg"] = row["economy_fg"] - row["naive_fg"]
         row["quant_delta"] = row["quantized"] - row["economy"]
         row["quant_delta_fg"] = row["quantized_fg"] - row["economy_fg"]
-        log(f"shift {s:+.0f} m: naive {row['naive']:.2f} dB, economy {row['economy']:.2f} dB "
+        log(
+            f"shift {s:+.0f} m: naive {row['naive']:.2f} dB, economy {row['economy']:.2f} dB "
             f"(delta {row['delta']:+.3f}); non-sky {row['naive_fg']:.2f} -> {row['economy_fg']:.2f} "
             f"({row['delta_fg']:+.3f}); .wsplat vs float32 {row['quant_delta']:+.3f} / non-sky "
-            f"{row['quant_delta_fg']:+.3f} dB (render-vs-render {row['quantized_vs_float']:.1f} dB)")
+            f"{row['quant_delta_fg']:+.3f} dB (render-vs-render {row['quantized_vs_float']:.1f} dB)"
+        )
         rows.append(row)
-    return {"preset": preset, "frames": frames, "stats": st.as_dict(), "naive_stats": nst.as_dict(), "rows": rows,
-            "dynamic_per_frame": [len(d) for d in eco.dynamic], "wsplat": size,
-            "cell_factor": economy.cell_factor, "sky_cell_factor": economy.sky_cell_factor,
-            "opacity_merge": economy.opacity_merge}
+    return {
+        "preset": preset,
+        "frames": frames,
+        "stats": st.as_dict(),
+        "naive_stats": nst.as_dict(),
+        "rows": rows,
+        "dynamic_per_frame": [len(d) for d in eco.dynamic],
+        "wsplat": size,
+        "cell_factor": economy.cell_factor,
+        "sky_cell_factor": economy.sky_cell_factor,
+        "opacity_merge": economy.opacity_merge,
+    }
 
 
 def wsplat_sizes(data: bytes, scene: Scene4D) -> dict:
     """Bytes per Gaussian of the STAT and DYNA payloads (block headers included, chunk framing excluded)."""
     pos, stat, dyna = 12, 0, 0
     while pos < len(data):
-        tag, (length,) = data[pos:pos + 4], struct.unpack_from("<I", data, pos + 4)
+        tag, (length,) = data[pos : pos + 4], struct.unpack_from("<I", data, pos + 4)
         if tag == b"STAT":
             stat += length - 4
         elif tag == b"DYNA":
             dyna += length - 8
         pos += 12 + length
     nd = sum(len(d) for d in scene.dynamic)
-    return {"bytes": len(data), "static_bytes_per_gaussian": stat / max(1, len(scene.static)),
-            "dynamic_bytes_per_gaussian": dyna / max(1, nd), "static_layout": scene.meta["static_layout"],
-            "dynamic_layout": scene.meta["dynamic_layout"],
-            "file_bytes_per_gaussian": len(data) / max(1, len(scene.static) + nd)}
+    return {
+        "bytes": len(data),
+        "static_bytes_per_gaussian": stat / max(1, len(scene.static)),
+        "dynamic_bytes_per_gaussian": dyna / max(1, nd),
+        "static_layout": scene.meta["static_layout"],
+        "dynamic_layout": scene.meta["dynamic_layout"],
+        "file_bytes_per_gaussian": len(data) / max(1, len(scene.static) + nd),
+    }
 
 
 def table(result: dict) -> str:
     st = result["stats"]
-    lines = [f"preset `{result['preset']}`: kept {st['kept']} of naive V*T*H*W = {st['naive']} "
-             f"(**{100 * st['kept_fraction_of_naive']:.1f}%**; static {st['static_kept']}, dynamic "
-             f"{st['dynamic_kept']} over all frames, sky {st['sky_kept']} of the static; lifted {st['lifted']})", "",
-             "| shift (m) | PSNR naive union (dB) | PSNR economy (dB) | change (dB) | non-sky naive | non-sky economy "
-             "| change | .wsplat non-sky | quantization change (non-sky / all) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"preset `{result['preset']}`: kept {st['kept']} of naive V*T*H*W = {st['naive']} "
+        f"(**{100 * st['kept_fraction_of_naive']:.1f}%**; static {st['static_kept']}, dynamic "
+        f"{st['dynamic_kept']} over all frames, sky {st['sky_kept']} of the static; lifted {st['lifted']})",
+        "",
+        "| shift (m) | PSNR naive union (dB) | PSNR economy (dB) | change (dB) | non-sky naive | non-sky economy "
+        "| change | .wsplat non-sky | quantization change (non-sky / all) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in result["rows"]:
-        lines.append(f"| {r['shift_m']:+.0f} | {r['naive']:.2f} | {r['economy']:.2f} | {r['delta']:+.3f} | "
-                     f"{r['naive_fg']:.2f} | {r['economy_fg']:.2f} | {r['delta_fg']:+.3f} | "
-                     f"{r['quantized_fg']:.2f} | {r['quant_delta_fg']:+.3f} / {r['quant_delta']:+.3f} |")
+        lines.append(
+            f"| {r['shift_m']:+.0f} | {r['naive']:.2f} | {r['economy']:.2f} | {r['delta']:+.3f} | "
+            f"{r['naive_fg']:.2f} | {r['economy_fg']:.2f} | {r['delta_fg']:+.3f} | "
+            f"{r['quantized_fg']:.2f} | {r['quant_delta_fg']:+.3f} / {r['quant_delta']:+.3f} |"
+        )
     w = result["wsplat"]
-    lines += ["", f".wsplat: {w['bytes']} bytes; static {w['static_bytes_per_gaussian']:.3f} B/Gaussian "
-              f"(layout {w['static_layout']}), dynamic {w['dynamic_bytes_per_gaussian']:.3f} B/Gaussian per frame "
-              f"(layout {w['dynamic_layout']}); whole file {w['file_bytes_per_gaussian']:.3f} B/Gaussian."]
+    lines += [
+        "",
+        f".wsplat: {w['bytes']} bytes; static {w['static_bytes_per_gaussian']:.3f} B/Gaussian "
+        f"(layout {w['static_layout']}), dynamic {w['dynamic_bytes_per_gaussian']:.3f} B/Gaussian per frame "
+        f"(layout {w['dynamic_layout']}); whole file {w['file_bytes_per_gaussian']:.3f} B/Gaussian.",
+    ]
     return "\n".join(lines)
 
 

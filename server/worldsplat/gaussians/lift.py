@@ -8,6 +8,7 @@ pixels at its depth (`scale = FOOTPRINT * z / f`), so neighbouring splats overla
   flagged in extras[:, SKY_CHANNEL]: the sky is a static backdrop rendered by the same rasterizer (at 300 m a
   +-4 m track shift moves it by ~1 % of the focal length in pixels, which is what "at infinity" looks like).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,17 +16,26 @@ import numpy as np
 from worldsplat.core.camera import Camera
 from worldsplat.gaussians.types import Gaussians
 
-FOOTPRINT = 0.7          # px: splat std relative to the pixel pitch (tuned on the presets, see gaussians.md)
+FOOTPRINT = 0.7  # px: splat std relative to the pixel pitch (tuned on the presets, see gaussians.md)
 OPACITY = 0.98
-MAX_DEPTH = 200.0        # m: farther pixels join the sky shell
-SKY_DISTANCE = 300.0     # m along the ray: the sky shell
-DYNAMIC_CHANNEL = 0      # extras[:, 0]: 1.0 for moving-agent pixels
-SKY_CHANNEL = 1          # extras[:, 1]: 1.0 for sky-shell pixels (the economy keeps them beyond its range cut)
+MAX_DEPTH = 200.0  # m: farther pixels join the sky shell
+SKY_DISTANCE = 300.0  # m along the ray: the sky shell
+DYNAMIC_CHANNEL = 0  # extras[:, 0]: 1.0 for moving-agent pixels
+SKY_CHANNEL = 1  # extras[:, 1]: 1.0 for sky-shell pixels (the economy keeps them beyond its range cut)
 
 
-def lift(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray | None, camera: Camera, *,
-         footprint: float = FOOTPRINT, opacity: float = OPACITY, max_depth: float = MAX_DEPTH,
-         sky: bool = True, sky_distance: float = SKY_DISTANCE) -> Gaussians:
+def lift(
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    dynamic: np.ndarray | None,
+    camera: Camera,
+    *,
+    footprint: float = FOOTPRINT,
+    opacity: float = OPACITY,
+    max_depth: float = MAX_DEPTH,
+    sky: bool = True,
+    sky_distance: float = SKY_DISTANCE,
+) -> Gaussians:
     """rgb (H,W,3) uint8 or float in [0,1], depth (H,W) camera z (sky = +inf), dynamic (H,W) bool or None.
     Returns Gaussians in world coordinates with extras[:, 0] = dynamic mask, extras[:, 1] = sky flag.
     `sky=False` drops sky pixels instead of lifting them onto the shell."""
@@ -48,7 +58,13 @@ def lift(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray | None, camera:
     scale = footprint * d / f
     n = len(d)
     dyn = np.zeros(n) if dynamic is None else np.asarray(dynamic, dtype=bool)[keep].astype(np.float64)
-    dyn = np.where(is_sky[keep], 0.0, dyn)            # the sky never moves
+    dyn = np.where(is_sky[keep], 0.0, dyn)  # the sky never moves
     extras = np.stack([dyn, is_sky[keep].astype(np.float64)], 1)
-    return Gaussians.from_numpy(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.repeat(scale[:, None], 3, 1),
-                                np.full(n, opacity), col[keep], extras=extras)
+    return Gaussians.from_numpy(
+        means,
+        np.tile([1.0, 0, 0, 0], (n, 1)),
+        np.repeat(scale[:, None], 3, 1),
+        np.full(n, opacity),
+        col[keep],
+        extras=extras,
+    )

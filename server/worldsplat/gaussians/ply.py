@@ -4,6 +4,7 @@ Per vertex: x y z, optional nx ny nz (written as 0), f_dc_0..2 (colour = 0.5 + S
 (higher SH degrees: read and ignored, never written), opacity (logit), scale_0..2 (natural log of the std in m),
 rot_0..3 (quaternion w x y z, not necessarily normalized).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,11 +16,40 @@ from worldsplat.core.io import atomic_write_bytes
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
 SH_C0 = 0.28209479177387814
-_TYPES = {"float": "f4", "float32": "f4", "double": "f8", "float64": "f8", "uchar": "u1", "uint8": "u1",
-          "char": "i1", "int8": "i1", "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-          "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4"}
-REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-            "rot_0", "rot_1", "rot_2", "rot_3"]
+_TYPES = {
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+    "uchar": "u1",
+    "uint8": "u1",
+    "char": "i1",
+    "int8": "i1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+}
+REQUIRED = [
+    "x",
+    "y",
+    "z",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+]
 MAX_HEADER = 64 * 1024
 
 
@@ -27,8 +57,14 @@ def write_ply(g: Gaussians, path: str | Path) -> Path:
     a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
     n = len(a["means"])
     o = np.clip(a["opacities"], 1e-6, 1 - 1e-6)
-    cols = {"x": a["means"][:, 0], "y": a["means"][:, 1], "z": a["means"][:, 2],
-            "nx": np.zeros(n), "ny": np.zeros(n), "nz": np.zeros(n)}
+    cols = {
+        "x": a["means"][:, 0],
+        "y": a["means"][:, 1],
+        "z": a["means"][:, 2],
+        "nx": np.zeros(n),
+        "ny": np.zeros(n),
+        "nz": np.zeros(n),
+    }
     for i in range(3):
         cols[f"f_dc_{i}"] = (a["colors"][:, i] - 0.5) / SH_C0
     cols["opacity"] = np.log(o / (1 - o))
@@ -81,7 +117,7 @@ def read_ply(path: str | Path) -> Gaussians:
     if missing:
         raise ValueError(f"{path}: missing 3DGS vertex properties: {', '.join(missing)}")
     dtype = np.dtype(props)
-    body = data[end + len(b"end_header\n"):]
+    body = data[end + len(b"end_header\n") :]
     if len(body) < count * dtype.itemsize:
         raise ValueError(f"{path}: {count} vertices need {count * dtype.itemsize} bytes, file has {len(body)}")
     rec = np.frombuffer(body, dtype=dtype, count=count)
@@ -99,5 +135,11 @@ def scene_from_ply(path: str | Path, fps: float = 10.0) -> Scene4D:
     """A PLY as a one-frame scene: the Gaussians in the file's order (the input order that breaks depth ties,
     web/docs/splatting-math.md), the default rig at the identity ego pose (a PLY has no frames, rig or trajectory)."""
     path = Path(path)
-    return Scene4D(read_ply(path), [Gaussians.empty()], np.zeros(1), default_rig(200, 112), np.eye(4)[None],
-                   {"mode": "import", "caption": f"imported from {path.name}", "fps": fps})
+    return Scene4D(
+        read_ply(path),
+        [Gaussians.empty()],
+        np.zeros(1),
+        default_rig(200, 112),
+        np.eye(4)[None],
+        {"mode": "import", "caption": f"imported from {path.name}", "fps": fps},
+    )

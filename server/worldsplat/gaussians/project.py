@@ -4,6 +4,7 @@ Every formula follows web/docs/splatting-math.md. All stages are differentiable 
 (culling decisions are made on detached values and applied by index selection, so a dropped Gaussian, even one
 holding NaN, never contributes a NaN to the gradient).
 """
+
 from __future__ import annotations
 
 import math
@@ -20,14 +21,14 @@ from worldsplat.gaussians.types import Gaussians
 class Projected:
     """The M Gaussians that survive sanitizing and projection, in input order."""
 
-    index: torch.Tensor      # (M,) int64 rows of the input
-    uv: torch.Tensor         # (M,2) pixel centre
-    conic: torch.Tensor      # (M,3) inverse 2D covariance (A, B, C): d = A dx^2 + 2 B dx dy + C dy^2
-    depth: torch.Tensor      # (M,) camera z
-    radius: torch.Tensor     # (M,) int64 px
-    extent: torch.Tensor     # (M,2) px: half-size of the support's bounding box, min(radius, 3 sqrt(cov_xx|yy))
-    opacity: torch.Tensor    # (M,)
-    features: torch.Tensor   # (M,3+K) colour then extras, composited alike
+    index: torch.Tensor  # (M,) int64 rows of the input
+    uv: torch.Tensor  # (M,2) pixel centre
+    conic: torch.Tensor  # (M,3) inverse 2D covariance (A, B, C): d = A dx^2 + 2 B dx dy + C dy^2
+    depth: torch.Tensor  # (M,) camera z
+    radius: torch.Tensor  # (M,) int64 px
+    extent: torch.Tensor  # (M,2) px: half-size of the support's bounding box, min(radius, 3 sqrt(cov_xx|yy))
+    opacity: torch.Tensor  # (M,)
+    features: torch.Tensor  # (M,3+K) colour then extras, composited alike
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -41,11 +42,20 @@ def compute_dtype(g: Gaussians) -> torch.dtype:
 def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     """Unit quaternions (N,4) wxyz -> rotation matrices (N,3,3) (local -> world)."""
     w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(q.shape[:-1] + (3, 3))
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(q.shape[:-1] + (3, 3))
 
 
 def sanitize(g: Gaussians) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -62,9 +72,9 @@ def sanitize(g: Gaussians) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     f = {k: t[index] for k, t in f.items()}
     q = f["quats"]
     sq = (q * q).sum(-1, keepdim=True)
-    norm = torch.sqrt(sq.clamp_min(C.QUAT_EPS ** 2))  # clamp keeps the gradient finite at q = 0
+    norm = torch.sqrt(sq.clamp_min(C.QUAT_EPS**2))  # clamp keeps the gradient finite at q = 0
     ident = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dt, device=q.device)
-    f["quats"] = torch.where(sq >= C.QUAT_EPS ** 2, q / norm, ident)
+    f["quats"] = torch.where(sq >= C.QUAT_EPS**2, q / norm, ident)
     f["scales"] = f["scales"].clamp(C.SCALE_MIN, C.SCALE_MAX)
     f["opacities"] = f["opacities"].clamp(0.0, 1.0)
     f["colors"] = f["colors"].clamp(0.0, 1.0)
@@ -134,7 +144,7 @@ def project(g: Gaussians, camera: Camera) -> Projected:
     # det(cov2d) = |T0 x T1|^2 + DILATION (a0 + c0) + DILATION^2 (Cauchy-Binet). Equal to a c - b^2, but without
     # its catastrophic cancellation in float32 for needle Gaussians.
     cross = torch.linalg.cross(T0, T1, dim=-1)
-    det = (cross * cross).sum(-1) + C.DILATION * (a0 + c0) + C.DILATION ** 2
+    det = (cross * cross).sum(-1) + C.DILATION * (a0 + c0) + C.DILATION**2
     u = camera.fx * x / z + camera.cx
     v = camera.fy * y / z + camera.cy
     with torch.no_grad():
@@ -153,8 +163,9 @@ def project(g: Gaussians, camera: Camera) -> Projected:
         ext = torch.stack([C.EXTENT_SIGMA * torch.sqrt(a[keep]), C.EXTENT_SIGMA * torch.sqrt(c[keep])], -1)
         ext = torch.minimum(torch.nan_to_num(ext, nan=0.0, posinf=C.RADIUS_MAX), radius[keep, None].to(ext.dtype))
     index = index[keep] if pre is None else pre[index[keep]]
-    return Projected(index, torch.stack([u[keep], v[keep]], -1), conic, z[keep], radius[keep], ext,
-                     f["opacities"][keep], feats)
+    return Projected(
+        index, torch.stack([u[keep], v[keep]], -1), conic, z[keep], radius[keep], ext, f["opacities"][keep], feats
+    )
 
 
 def depth_order(proj: Projected) -> torch.Tensor:
@@ -167,8 +178,8 @@ class TileLists:
     tile_size: int
     tiles_x: int
     tiles_y: int
-    offsets: torch.Tensor    # (tiles+1,) int64: tile k's Gaussians are ids[offsets[k]:offsets[k+1]]
-    ids: torch.Tensor        # (pairs,) int64 rows of the Projected set, depth-sorted within each tile
+    offsets: torch.Tensor  # (tiles+1,) int64: tile k's Gaussians are ids[offsets[k]:offsets[k+1]]
+    ids: torch.Tensor  # (pairs,) int64 rows of the Projected set, depth-sorted within each tile
 
 
 def tile_intersect(proj: Projected, width: int, height: int, tile_size: int = C.TILE_SIZE) -> TileLists:
@@ -193,7 +204,7 @@ def tile_intersect(proj: Projected, width: int, height: int, tile_size: int = C.
         tx = x0[rank] + local % nx[rank]
         ty = y0[rank] + local // nx[rank]
         tile = ty * tiles_x + tx
-        key = tile * max(1, len(order)) + rank       # tile-major, depth rank within the tile
+        key = tile * max(1, len(order)) + rank  # tile-major, depth rank within the tile
         key, perm = torch.sort(key)
         ids = order[rank[perm]]
         offsets = torch.zeros(ntiles + 1, dtype=torch.int64, device=dev)

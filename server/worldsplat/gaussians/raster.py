@@ -5,6 +5,7 @@ autograd, on the device of the Gaussians. Two paths share `composite`: "tiled" (
 Gaussians processed in chunks of CHUNK so memory is bounded by TILE_SIZE^2 * CHUNK per tensor) and "brute"
 (every pixel against every projected Gaussian; for tests).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,8 +19,9 @@ from worldsplat.gaussians.project import Projected, depth_order, project, tile_i
 from worldsplat.gaussians.types import Gaussians
 
 
-def composite(pixels: torch.Tensor, ids: torch.Tensor, proj: Projected, chunk: int = C.CHUNK
-              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def composite(
+    pixels: torch.Tensor, ids: torch.Tensor, proj: Projected, chunk: int = C.CHUNK
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Front-to-back compositing of the depth-sorted Gaussians `ids` at pixel centres `pixels` (P,2).
 
     Returns features (P,F), expected depth (P,) and alpha (P,). `Tv` is the transmittance of the pixel as if every
@@ -34,10 +36,10 @@ def composite(pixels: torch.Tensor, ids: torch.Tensor, proj: Projected, chunk: i
     weight_sum = torch.zeros(P, dtype=dt, device=dev)
     Tv = torch.ones(P, dtype=dt, device=dev)
     active = torch.arange(P, device=dev)
-    support = C.EXTENT_SIGMA ** 2
+    support = C.EXTENT_SIGMA**2
     s, step = 0, min(256, chunk)
     while s < ids.shape[0] and active.numel() > 0:
-        k = ids[s:s + step]
+        k = ids[s : s + step]
         s, step = s + step, min(chunk, 2 * step)
         px, T0 = pixels[active], Tv[active]
         uv, con, r = proj.uv[k], proj.conic[k], proj.radius[k]
@@ -65,8 +67,9 @@ def composite(pixels: torch.Tensor, ids: torch.Tensor, proj: Projected, chunk: i
     return feats, depth, weight_sum  # alpha = 1 - T = sum of weights (telescoping)
 
 
-def composite_pairs(proj: Projected, width: int, height: int, pair_budget: int = 1 << 22
-                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def composite_pairs(
+    proj: Projected, width: int, height: int, pair_budget: int = 1 << 22
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Sparse compositing over (pixel, Gaussian) pairs: each Gaussian meets only the pixel centres inside its
     support's bounding box. Gaussians are taken in depth order in batches of <= `pair_budget` pairs (memory bound); within a batch
     pairs are grouped by pixel and composited with a segmented (float64 log-space) scan, carrying each pixel's
@@ -90,7 +93,7 @@ def composite_pairs(proj: Projected, width: int, height: int, pair_budget: int =
         nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
         counts = nx * ny
         ends = torch.cumsum(counts, 0)
-    support = C.EXTENT_SIGMA ** 2
+    support = C.EXTENT_SIGMA**2
     start = 0
     while start < len(order):
         with torch.no_grad():
@@ -118,7 +121,7 @@ def composite_pairs(proj: Projected, width: int, height: int, pair_budget: int =
         with torch.no_grad():
             hit = ((d <= support) & (alpha >= C.ALPHA_MIN)).nonzero().squeeze(1)
             pix_h = pix[hit]
-            grouped = torch.sort(pix_h, stable=True).indices   # by pixel, depth order kept inside
+            grouped = torch.sort(pix_h, stable=True).indices  # by pixel, depth order kept inside
             idx = hit[grouped]
             pix_s = pix_h[grouped]
             first = torch.ones_like(pix_s, dtype=torch.bool)
@@ -127,7 +130,7 @@ def composite_pairs(proj: Projected, width: int, height: int, pair_budget: int =
         a = alpha[idx]
         la = torch.log1p(-a.to(torch.float64))
         cs = torch.cumsum(la, 0)
-        excl = cs - la - (cs - la)[seg_start]            # sum of log(1 - alpha) before this pair, within its pixel
+        excl = cs - la - (cs - la)[seg_start]  # sum of log(1 - alpha) before this pair, within its pixel
         T_before = Tv[pix_s] * torch.exp(excl).to(dt)
         T_after = T_before * (1 - a)
         with torch.no_grad():
@@ -142,16 +145,20 @@ def composite_pairs(proj: Projected, width: int, height: int, pair_budget: int =
 
 
 def pixel_centres(x0: int, x1: int, y0: int, y1: int, dtype, device) -> torch.Tensor:
-    ys, xs = torch.meshgrid(torch.arange(y0, y1, device=device, dtype=dtype),
-                            torch.arange(x0, x1, device=device, dtype=dtype), indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(y0, y1, device=device, dtype=dtype),
+        torch.arange(x0, x1, device=device, dtype=dtype),
+        indexing="ij",
+    )
     return torch.stack([xs.reshape(-1) + 0.5, ys.reshape(-1) + 0.5], -1)
 
 
 METHODS = ("tiled", "pairs", "brute")
 
 
-def rasterize(g: Gaussians, camera: Camera, *, method: str = "tiled", tile_size: int = C.TILE_SIZE,
-              chunk: int = C.CHUNK) -> dict[str, torch.Tensor]:
+def rasterize(
+    g: Gaussians, camera: Camera, *, method: str = "tiled", tile_size: int = C.TILE_SIZE, chunk: int = C.CHUNK
+) -> dict[str, torch.Tensor]:
     """Render Gaussians at a camera per web/docs/splatting-math.md (black background).
 
     Returns rgb (H,W,3), depth (H,W) expected camera z (not normalized), alpha (H,W), extras (H,W,K) (K may be 0)
@@ -175,7 +182,7 @@ def _rasterize(g: Gaussians, camera: Camera, *, method: str, tile_size: int, chu
     elif method == "brute":
         order = depth_order(proj)
         pix = pixel_centres(0, W, 0, H, dt, dev)
-        parts = [composite(pix[s:s + 4096], order, proj, chunk) for s in range(0, pix.shape[0], 4096)]
+        parts = [composite(pix[s : s + 4096], order, proj, chunk) for s in range(0, pix.shape[0], 4096)]
         feats = torch.cat([p[0] for p in parts]).reshape(H, W, nf)
         depth = torch.cat([p[1] for p in parts]).reshape(H, W)
         alpha = torch.cat([p[2] for p in parts]).reshape(H, W)
@@ -190,7 +197,7 @@ def _rasterize(g: Gaussians, camera: Camera, *, method: str, tile_size: int, chu
                 x0, x1 = tx * tile_size, min(W, (tx + 1) * tile_size)
                 k = ty * tl.tiles_x + tx
                 pix = pixel_centres(x0, x1, y0, y1, dt, dev)
-                f, d, a = composite(pix, tl.ids[offsets[k]:offsets[k + 1]], proj, chunk)
+                f, d, a = composite(pix, tl.ids[offsets[k] : offsets[k + 1]], proj, chunk)
                 tf.append(f.reshape(y1 - y0, x1 - x0, nf))
                 td.append(d.reshape(y1 - y0, x1 - x0))
                 ta.append(a.reshape(y1 - y0, x1 - x0))
@@ -198,8 +205,7 @@ def _rasterize(g: Gaussians, camera: Camera, *, method: str, tile_size: int, chu
             rows_d.append(torch.cat(td, 1))
             rows_a.append(torch.cat(ta, 1))
         feats, depth, alpha = torch.cat(rows_f, 0), torch.cat(rows_d, 0), torch.cat(rows_a, 0)
-    return {"rgb": feats[..., :3], "depth": depth, "alpha": alpha, "extras": feats[..., 3:],
-            "visible": len(proj)}
+    return {"rgb": feats[..., :3], "depth": depth, "alpha": alpha, "extras": feats[..., 3:], "visible": len(proj)}
 
 
 @dataclass

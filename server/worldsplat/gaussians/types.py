@@ -1,4 +1,5 @@
 """The two data types of the Gaussian core: a set of Gaussians and a 4D scene (static base + per-frame dynamics)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -47,9 +48,16 @@ class Gaussians:
     @staticmethod
     def from_numpy(means, quats, scales, opacities, colors, extras=None, dtype=torch.float32) -> Gaussians:
         t = lambda a: torch.as_tensor(np.array(a), dtype=dtype)  # noqa: E731 (copy: inputs may be read-only)
-        return Gaussians(t(means).reshape(-1, 3), t(quats).reshape(-1, 4), t(scales).reshape(-1, 3),
-                         t(opacities).reshape(-1), t(colors).reshape(-1, 3),
-                         None if extras is None else t(extras).reshape(len(np.asarray(means).reshape(-1, 3)), np.asarray(extras).shape[-1]))
+        return Gaussians(
+            t(means).reshape(-1, 3),
+            t(quats).reshape(-1, 4),
+            t(scales).reshape(-1, 3),
+            t(opacities).reshape(-1),
+            t(colors).reshape(-1, 3),
+            None
+            if extras is None
+            else t(extras).reshape(len(np.asarray(means).reshape(-1, 3)), np.asarray(extras).shape[-1]),
+        )
 
     def numpy(self) -> dict[str, np.ndarray]:
         out = {k: getattr(self, k).detach().cpu().numpy() for k in _FIELDS}
@@ -81,9 +89,14 @@ class Gaussians:
         k = {0 if p.extras is None else p.extras.shape[1] for p in parts}
         if len(k) > 1:  # mixed: pad missing extras with zeros
             kmax = max(k)
-            parts = [p if p.extras is not None and p.extras.shape[1] == kmax else
-                     Gaussians(p.means, p.quats, p.scales, p.opacities, p.colors,
-                               torch.zeros(len(p), kmax, dtype=p.means.dtype)) for p in parts]
+            parts = [
+                p
+                if p.extras is not None and p.extras.shape[1] == kmax
+                else Gaussians(
+                    p.means, p.quats, p.scales, p.opacities, p.colors, torch.zeros(len(p), kmax, dtype=p.means.dtype)
+                )
+                for p in parts
+            ]
         ex = None if parts[0].extras is None else torch.cat([p.extras for p in parts])
         return Gaussians(*(torch.cat([getattr(p, f) for p in parts]) for f in _FIELDS), ex)
 
@@ -105,8 +118,9 @@ class Scene4D:
         self.ego_to_world = np.asarray(self.ego_to_world, dtype=np.float64).reshape(-1, 4, 4)
         t = len(self.frame_times)
         if len(self.dynamic) != t or len(self.ego_to_world) != t:
-            raise ValueError(f"Scene4D: {t} frame times but {len(self.dynamic)} dynamic sets and "
-                             f"{len(self.ego_to_world)} ego poses")
+            raise ValueError(
+                f"Scene4D: {t} frame times but {len(self.dynamic)} dynamic sets and {len(self.ego_to_world)} ego poses"
+            )
 
     @property
     def num_frames(self) -> int:

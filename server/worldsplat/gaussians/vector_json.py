@@ -1,5 +1,6 @@
 """Gaussians in the JSON form of the shared test vectors (tests/vectors, web/docs/splatting-math.md): arrays of
 numbers where non-finite values are the strings "NaN", "Infinity" and "-Infinity"."""
+
 from __future__ import annotations
 
 import math

@@ -5,6 +5,7 @@ isotropic Gaussians do not pay for a rotation, constant opacity costs one bit). 
 `read(path)` validate everything and raise `WsplatError(kind, offset, field)`. `ProgressiveDecoder` takes bytes as
 they arrive and yields chunks; it never trusts a count before the bytes behind it are present.
 """
+
 from __future__ import annotations
 
 import json
@@ -42,23 +43,62 @@ def _canon_steps(bits: int) -> int:
     return (1 << bits) - 2
 
 
-ERROR_KINDS = ("bad_magic", "bad_version", "truncated", "chunk_too_large", "bad_crc", "bad_tag", "bad_order",
-               "bad_header", "bad_layout", "bad_payload", "count_mismatch", "trailing_data")
+ERROR_KINDS = (
+    "bad_magic",
+    "bad_version",
+    "truncated",
+    "chunk_too_large",
+    "bad_crc",
+    "bad_tag",
+    "bad_order",
+    "bad_header",
+    "bad_layout",
+    "bad_payload",
+    "count_mismatch",
+    "trailing_data",
+)
 
 # Default layouts (measured in web/docs/gaussians.md): bytes per Gaussian incl. the 32-byte block headers at
 # DEFAULT_BLOCK_SIZE = 256 records: static iso 10.125, static aniso 11.125, dynamic iso 7.125, dynamic aniso 7.125.
 STATIC_ISO = [["px", 14], ["py", 14], ["pz", 14], ["s", 8], ["o", 6], ["r", 8], ["g", 8], ["b", 8]]
-STATIC_ANISO = [["px", 10], ["py", 10], ["pz", 10], ["qi", 2], ["qa", 7], ["qb", 7], ["qc", 7],
-                ["sx", 5], ["sy", 5], ["sz", 5], ["o", 5], ["r", 5], ["g", 5], ["b", 5]]
+STATIC_ANISO = [
+    ["px", 10],
+    ["py", 10],
+    ["pz", 10],
+    ["qi", 2],
+    ["qa", 7],
+    ["qb", 7],
+    ["qc", 7],
+    ["sx", 5],
+    ["sy", 5],
+    ["sz", 5],
+    ["o", 5],
+    ["r", 5],
+    ["g", 5],
+    ["b", 5],
+]
 DYNAMIC_ISO = [["px", 10], ["py", 10], ["pz", 10], ["s", 6], ["o", 4], ["r", 5], ["g", 6], ["b", 5]]
 # 56 bits: the canonical rotation (3 x 3 bits, ~ smallest-three at 5 bits) pays for 3-bit scales and opacity.
-DYNAMIC_ANISO = [["px", 7], ["py", 7], ["pz", 7], ["qx", 3], ["qy", 3], ["qz", 3],
-                 ["sx", 3], ["sy", 3], ["sz", 3], ["o", 3], ["r", 5], ["g", 5], ["b", 4]]
+DYNAMIC_ANISO = [
+    ["px", 7],
+    ["py", 7],
+    ["pz", 7],
+    ["qx", 3],
+    ["qy", 3],
+    ["qz", 3],
+    ["sx", 3],
+    ["sy", 3],
+    ["sz", 3],
+    ["o", 3],
+    ["r", 5],
+    ["g", 5],
+    ["b", 4],
+]
 DEFAULT_BLOCK_SIZE = 256
-FIRST_CHUNK = 4096       # the first static chunk is small so a browser draws early; chunks then double
+FIRST_CHUNK = 4096  # the first static chunk is small so a browser draws early; chunks then double
 MAX_CHUNK_RECORDS = 262144
 ISOTROPY_TOL = 1e-3
-FAR_FACTOR = 4.0         # see _block_order
+FAR_FACTOR = 4.0  # see _block_order
 
 
 class WsplatError(ValueError):
@@ -98,12 +138,18 @@ class Layout:
 def parse_layout(obj, offset: int, name: str) -> Layout:
     def bad(msg):
         raise WsplatError("bad_layout", offset, f"HEAD.{name}", msg)
+
     if not isinstance(obj, list) or not obj:
         bad("expected a non-empty list of [field, bits]")
     fields = []
     for item in obj:
-        if (not isinstance(item, list) or len(item) != 2 or not isinstance(item[0], str)
-                or not isinstance(item[1], int) or isinstance(item[1], bool)):
+        if (
+            not isinstance(item, list)
+            or len(item) != 2
+            or not isinstance(item[0], str)
+            or not isinstance(item[1], int)
+            or isinstance(item[1], bool)
+        ):
             bad(f"entry {item!r} is not [field, bits]")
         f, b = item
         if f not in FIELDS:
@@ -147,12 +193,12 @@ def pack_records(values: dict[str, np.ndarray], layout: Layout) -> bytes:
                 continue
             words[:, w] |= (x << np.uint64(lo)) if lo >= 0 else (x >> np.uint64(-lo))
         off += b
-    return words.view(np.uint8).reshape(n, 16)[:, :layout.record_size].tobytes()
+    return words.view(np.uint8).reshape(n, 16)[:, : layout.record_size].tobytes()
 
 
 def unpack_records(raw: bytes | memoryview, n: int, layout: Layout) -> dict[str, np.ndarray]:
     buf = np.zeros((n, 16), dtype=np.uint8)
-    buf[:, :layout.record_size] = np.frombuffer(raw, dtype=np.uint8).reshape(n, layout.record_size)
+    buf[:, : layout.record_size] = np.frombuffer(raw, dtype=np.uint8).reshape(n, layout.record_size)
     words = buf.view(np.uint64).reshape(n, 2)
     out, off = {}, 0
     for f, b in layout.fields:
@@ -210,20 +256,27 @@ CUBE_ROTATIONS = _octahedral_rotations()
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
 
 
 def canonical_rotation(q: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit quaternions (N,4) wxyz + scales (N,3) -> the same covariances as q * g (g the cube rotation that brings
     q closest to the identity, made w >= 0) with the scales permuted to match: |x|, |y|, |z| <= sin(pi/8)."""
-    cand = _quat_mul(q[:, None, :], CUBE_ROTATIONS[None, :, :])          # (N,24,4)
+    cand = _quat_mul(q[:, None, :], CUBE_ROTATIONS[None, :, :])  # (N,24,4)
     k = np.argmax(np.abs(cand[:, :, 0]), axis=1)
     out = cand[np.arange(len(q)), k]
     out *= np.where(out[:, :1] < 0, -1.0, 1.0)
     # R(q g) = R(q) R(g); S'^2 = R(g)^T S^2 R(g): axis j of the new frame is old axis argmax_i |R(g)[i, j]|.
-    rg = quat_to_rotmat(torch.as_tensor(CUBE_ROTATIONS)).numpy()          # (24,3,3)
-    perm = np.argmax(np.abs(rg), axis=1)                                  # (24,3): new axis j <- old axis
+    rg = quat_to_rotmat(torch.as_tensor(CUBE_ROTATIONS)).numpy()  # (24,3,3)
+    perm = np.argmax(np.abs(rg), axis=1)  # (24,3): new axis j <- old axis
     return out, np.take_along_axis(scales, perm[k], axis=1)
 
 
@@ -282,7 +335,7 @@ def encode_blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int) -> 
     out = bytearray()
     bits = dict(layout.fields)
     for s in range(0, len(a["means"]), block_size):
-        blk = {k: v[s:s + block_size] for k, v in a.items()}
+        blk = {k: v[s : s + block_size] for k, v in a.items()}
         p = blk["means"].astype(np.float32)
         plo, phi = p.min(0), p.max(0)
         ls = np.log(blk["scales"][:, :1] if layout.isotropic else blk["scales"]).astype(np.float32)
@@ -323,8 +376,13 @@ def choose_layouts(scene: Scene4D) -> tuple[Layout, Layout]:
     return static, dynamic
 
 
-def encode(scene: Scene4D, *, block_size: int = DEFAULT_BLOCK_SIZE, static_layout: list | None = None,
-           dynamic_layout: list | None = None) -> bytes:
+def encode(
+    scene: Scene4D,
+    *,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    static_layout: list | None = None,
+    dynamic_layout: list | None = None,
+) -> bytes:
     """Scene4D -> .wsplat bytes. Static Gaussians keep their (importance) order at chunk granularity: chunk k holds
     the next FIRST_CHUNK * 2^k of them, Morton-ordered inside so block boxes stay small."""
     sl, dl = choose_layouts(scene)
@@ -338,17 +396,30 @@ def encode(scene: Scene4D, *, block_size: int = DEFAULT_BLOCK_SIZE, static_layou
     dyn = [_sanitized_numpy(d, dl) for d in scene.dynamic]
     if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
         raise ValueError(f"wsplat: 1..{MAX_FRAMES} frames required, got {len(scene.frame_times)}")
-    allm = np.concatenate([st["means"]] + [d["means"] for d in dyn]) if len(st["means"]) + sum(
-        len(d["means"]) for d in dyn) else np.zeros((1, 3))
+    allm = (
+        np.concatenate([st["means"]] + [d["means"] for d in dyn])
+        if len(st["means"]) + sum(len(d["means"]) for d in dyn)
+        else np.zeros((1, 3))
+    )
     meta = scene.meta
     head = {
-        "format": "wsplat", "version": VERSION, "scenario_id": str(meta.get("scenario_id", "")),
-        "mode": str(meta.get("mode", "")), "model_version": str(meta.get("model_version", "")),
-        "caption": str(meta.get("caption", "")), "num_static": int(len(st["means"])),
-        "num_dynamic": [int(len(d["means"])) for d in dyn], "frame_times": [float(t) for t in scene.frame_times],
-        "fps": float(scene.fps), "bounds": {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()},
-        "rig": [c.to_json() for c in scene.rig], "ego_to_world": scene.ego_to_world.tolist(),
-        "block_size": block_size, "static_layout": sl.to_json(), "dynamic_layout": dl.to_json(), "sh_degree": 0,
+        "format": "wsplat",
+        "version": VERSION,
+        "scenario_id": str(meta.get("scenario_id", "")),
+        "mode": str(meta.get("mode", "")),
+        "model_version": str(meta.get("model_version", "")),
+        "caption": str(meta.get("caption", "")),
+        "num_static": int(len(st["means"])),
+        "num_dynamic": [int(len(d["means"])) for d in dyn],
+        "frame_times": [float(t) for t in scene.frame_times],
+        "fps": float(scene.fps),
+        "bounds": {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()},
+        "rig": [c.to_json() for c in scene.rig],
+        "ego_to_world": scene.ego_to_world.tolist(),
+        "block_size": block_size,
+        "static_layout": sl.to_json(),
+        "dynamic_layout": dl.to_json(),
+        "sh_degree": 0,
     }
     for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields
         if k not in head and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
@@ -357,14 +428,14 @@ def encode(scene: Scene4D, *, block_size: int = DEFAULT_BLOCK_SIZE, static_layou
     out += _chunk(b"HEAD", json.dumps(head, separators=(",", ":")).encode())
     n, s, size = len(st["means"]), 0, FIRST_CHUNK
     while s < n:
-        part = {k: v[s:s + size] for k, v in st.items()}
+        part = {k: v[s : s + size] for k, v in st.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
         out += _chunk(b"STAT", struct.pack("<I", len(order)) + encode_blocks(part, sl, block_size))
         s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
     for t, d in enumerate(dyn):
         for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
-            part = {k: v[s:s + MAX_CHUNK_RECORDS] for k, v in d.items()}
+            part = {k: v[s : s + MAX_CHUNK_RECORDS] for k, v in d.items()}
             order = _block_order(part["means"])
             part = {k: v[order] for k, v in part.items()}
             out += _chunk(b"DYNA", struct.pack("<II", t, len(order)) + encode_blocks(part, dl, block_size))
@@ -389,13 +460,17 @@ def _is_int(v) -> bool:
 
 
 def _matrix(v, rows: int, cols: int) -> bool:
-    return (isinstance(v, list) and len(v) == rows
-            and all(isinstance(r, list) and len(r) == cols and all(_is_num(x) for x in r) for r in v))
+    return (
+        isinstance(v, list)
+        and len(v) == rows
+        and all(isinstance(r, list) and len(r) == cols and all(_is_num(x) for x in r) for r in v)
+    )
 
 
 def parse_head(payload: bytes, offset: int) -> dict:
     def bad(field, msg):
         raise WsplatError("bad_header", offset, f"HEAD.{field}", msg)
+
     if len(payload) > MAX_HEAD:
         bad("payload", f"{len(payload)} bytes > {MAX_HEAD}")
     try:
@@ -425,8 +500,9 @@ def parse_head(payload: bytes, offset: int) -> dict:
     if not _is_num(h.get("fps")) or not h["fps"] > 0:
         bad("fps", "must be a number > 0")
     b = h.get("bounds")
-    if not isinstance(b, dict) or not all(isinstance(b.get(k), list) and len(b[k]) == 3 and all(
-            _is_num(x) for x in b[k]) for k in ("min", "max")):
+    if not isinstance(b, dict) or not all(
+        isinstance(b.get(k), list) and len(b[k]) == 3 and all(_is_num(x) for x in b[k]) for k in ("min", "max")
+    ):
         bad("bounds", "must be {min: [3 numbers], max: [3 numbers]}")
     rig = h.get("rig")
     if not isinstance(rig, list):
@@ -456,8 +532,9 @@ def parse_head(payload: bytes, offset: int) -> dict:
     return h
 
 
-def decode_blocks(payload: memoryview, pos: int, count: int, layout: Layout, block_size: int, base: int,
-                  name: str) -> dict[str, np.ndarray]:
+def decode_blocks(
+    payload: memoryview, pos: int, count: int, layout: Layout, block_size: int, base: int, name: str
+) -> dict[str, np.ndarray]:
     """Decode `count` records from payload[pos:] (length already checked exactly). `base` = absolute offset of
     payload[0] for error messages."""
     rs, bits = layout.record_size, dict(layout.fields)
@@ -465,11 +542,11 @@ def decode_blocks(payload: memoryview, pos: int, count: int, layout: Layout, blo
     left = count
     while left > 0:
         n = min(block_size, left)
-        box = np.frombuffer(payload[pos:pos + BLOCK_HEADER], dtype="<f4").astype(np.float64)
+        box = np.frombuffer(payload[pos : pos + BLOCK_HEADER], dtype="<f4").astype(np.float64)
         if not np.all(np.isfinite(box)) or np.any(box[0:3] > box[3:6]) or box[6] > box[7]:
             raise WsplatError("bad_payload", base + pos, f"{name}.block", "box not finite or lo > hi")
         pos += BLOCK_HEADER
-        v = unpack_records(payload[pos:pos + n * rs], n, layout)
+        v = unpack_records(payload[pos : pos + n * rs], n, layout)
         pos += n * rs
         deq = lambda f, lo, hi: lo + (hi - lo) * v[f].astype(np.float64) / ((1 << bits[f]) - 1)  # noqa: E731
         means.append(np.stack([deq(f, box[i], box[3 + i]) for i, f in enumerate(("px", "py", "pz"))], 1))
@@ -479,14 +556,21 @@ def decode_blocks(payload: memoryview, pos: int, count: int, layout: Layout, blo
             quats.append(np.tile([1.0, 0, 0, 0], (n, 1)))
         elif layout.canonical:
             scales.append(np.exp(np.stack([deq(f, box[6], box[7]) for f in ("sx", "sy", "sz")], 1)))
-            xyz = np.stack([Q_CANON * (2 * np.minimum(v[f], _canon_steps(bits[f])).astype(np.float64)
-                                       / _canon_steps(bits[f]) - 1) for f in ("qx", "qy", "qz")], 1)
-            quats.append(np.concatenate([np.sqrt(np.maximum(0.0, 1 - (xyz ** 2).sum(1)))[:, None], xyz], 1))
+            xyz = np.stack(
+                [
+                    Q_CANON
+                    * (2 * np.minimum(v[f], _canon_steps(bits[f])).astype(np.float64) / _canon_steps(bits[f]) - 1)
+                    for f in ("qx", "qy", "qz")
+                ],
+                1,
+            )
+            quats.append(np.concatenate([np.sqrt(np.maximum(0.0, 1 - (xyz**2).sum(1)))[:, None], xyz], 1))
         else:
             scales.append(np.exp(np.stack([deq(f, box[6], box[7]) for f in ("sx", "sy", "sz")], 1)))
-            three = np.stack([(v[f].astype(np.float64) / ((1 << bits[f]) - 1) * 2 - 1) / math.sqrt(2)
-                              for f in ("qa", "qb", "qc")], 1)
-            largest = np.sqrt(np.maximum(0.0, 1 - (three ** 2).sum(1)))
+            three = np.stack(
+                [(v[f].astype(np.float64) / ((1 << bits[f]) - 1) * 2 - 1) / math.sqrt(2) for f in ("qa", "qb", "qc")], 1
+            )
+            largest = np.sqrt(np.maximum(0.0, 1 - (three**2).sum(1)))
             qi = v["qi"].astype(np.int64)
             q = np.zeros((n, 4))
             q[np.arange(n), qi] = largest
@@ -497,10 +581,20 @@ def decode_blocks(payload: memoryview, pos: int, count: int, layout: Layout, blo
         cols.append(np.stack([deq(f, 0.0, 1.0) for f in "rgb"], 1))
         left -= n
     if not means:
-        return {"means": np.zeros((0, 3)), "quats": np.zeros((0, 4)), "scales": np.zeros((0, 3)),
-                "opacities": np.zeros(0), "colors": np.zeros((0, 3))}
-    return {"means": np.concatenate(means), "quats": np.concatenate(quats), "scales": np.concatenate(scales),
-            "opacities": np.concatenate(opac), "colors": np.concatenate(cols)}
+        return {
+            "means": np.zeros((0, 3)),
+            "quats": np.zeros((0, 4)),
+            "scales": np.zeros((0, 3)),
+            "opacities": np.zeros(0),
+            "colors": np.zeros((0, 3)),
+        }
+    return {
+        "means": np.concatenate(means),
+        "quats": np.concatenate(quats),
+        "scales": np.concatenate(scales),
+        "opacities": np.concatenate(opac),
+        "colors": np.concatenate(cols),
+    }
 
 
 def _payload_size(count: int, layout: Layout, block_size: int) -> int:
@@ -514,13 +608,13 @@ class ProgressiveDecoder:
 
     def __init__(self) -> None:
         self.buf = bytearray()
-        self.base = 0             # absolute offset of buf[0]
+        self.base = 0  # absolute offset of buf[0]
         self.header: dict | None = None
         self.static: list[Gaussians] = []
         self.dynamic: dict[int, list[Gaussians]] = {}
         self.num_static = 0
         self.num_dynamic: list[int] = []
-        self.stage = "magic"      # magic -> head -> stat -> dyna -> done
+        self.stage = "magic"  # magic -> head -> stat -> dyna -> done
         self.bytes_fed = 0
 
     @property
@@ -549,7 +643,7 @@ class ProgressiveDecoder:
         if self.stage == "magic":
             if len(self.buf) >= 8 and bytes(self.buf[:8]) != MAGIC:
                 raise WsplatError("bad_magic", 0, "magic", "not a .wsplat file")
-            if len(self.buf) < 8 and bytes(self.buf) != MAGIC[:len(self.buf)]:
+            if len(self.buf) < 8 and bytes(self.buf) != MAGIC[: len(self.buf)]:
                 raise WsplatError("bad_magic", 0, "magic", "not a .wsplat file")
             if len(self.buf) < 12:
                 return None
@@ -574,15 +668,19 @@ class ProgressiveDecoder:
             raise WsplatError("chunk_too_large", at + 4, "chunk.length", f"{length} bytes > MAX_CHUNK")
         expect = {"head": (b"HEAD",), "stat": (b"STAT", b"DYNA", b"END!"), "dyna": (b"DYNA", b"END!")}[self.stage]
         if tag not in expect:
-            raise WsplatError("bad_order", at, "chunk.tag",
-                              f"{tag.decode(errors='replace')} not allowed here (expected {'/'.join(t.decode() for t in expect)})")
+            raise WsplatError(
+                "bad_order",
+                at,
+                "chunk.tag",
+                f"{tag.decode(errors='replace')} not allowed here (expected {'/'.join(t.decode() for t in expect)})",
+            )
         if tag == b"HEAD" and length > MAX_HEAD:
             raise WsplatError("bad_header", at + 4, "HEAD.length", f"{length} bytes > {MAX_HEAD}")
         if len(self.buf) < 12 + length:
             return None
-        payload = memoryview(bytes(self.buf[8:8 + length]))
+        payload = memoryview(bytes(self.buf[8 : 8 + length]))
         (crc,) = struct.unpack_from("<I", self.buf, 8 + length)
-        if crc != zlib.crc32(bytes(self.buf[:8 + length])):
+        if crc != zlib.crc32(bytes(self.buf[: 8 + length])):
             raise WsplatError("bad_crc", at + 8 + length, "chunk.crc", f"CRC mismatch in {tag.decode()} chunk")
         pbase = at + 8
         ev = self._chunk(tag, payload, pbase, at)
@@ -600,12 +698,17 @@ class ProgressiveDecoder:
             if len(payload) != 0:
                 raise WsplatError("bad_payload", pbase, "END!.length", "END! payload must be empty")
             if self.num_static != h["num_static"]:
-                raise WsplatError("count_mismatch", at, "HEAD.num_static",
-                                  f"STAT chunks hold {self.num_static}, header says {h['num_static']}")
+                raise WsplatError(
+                    "count_mismatch",
+                    at,
+                    "HEAD.num_static",
+                    f"STAT chunks hold {self.num_static}, header says {h['num_static']}",
+                )
             for t, (got, want) in enumerate(zip(self.num_dynamic, h["num_dynamic"])):
                 if got != want:
-                    raise WsplatError("count_mismatch", at, f"HEAD.num_dynamic[{t}]",
-                                      f"DYNA chunks hold {got}, header says {want}")
+                    raise WsplatError(
+                        "count_mismatch", at, f"HEAD.num_dynamic[{t}]", f"DYNA chunks hold {got}, header says {want}"
+                    )
             self.stage = "done"
             return ("end", None)
         if tag == b"STAT":
@@ -627,14 +730,19 @@ class ProgressiveDecoder:
         # Check the length implied by count against the bytes present before decoding anything.
         need = head_len + _payload_size(count, layout, h["block_size"])
         if len(payload) != need:
-            raise WsplatError("bad_payload", coff, f"{name}.count",
-                              f"count {count} implies {need} payload bytes, chunk has {len(payload)}")
+            raise WsplatError(
+                "bad_payload",
+                coff,
+                f"{name}.count",
+                f"count {count} implies {need} payload bytes, chunk has {len(payload)}",
+            )
         if tag == b"STAT":
             if self.num_static + count > h["num_static"]:
                 raise WsplatError("count_mismatch", coff, "STAT.count", "more static Gaussians than HEAD.num_static")
         elif self.num_dynamic[frame] + count > h["num_dynamic"][frame]:
-            raise WsplatError("count_mismatch", coff, "DYNA.count", f"more dynamic Gaussians than "
-                              f"HEAD.num_dynamic[{frame}]")
+            raise WsplatError(
+                "count_mismatch", coff, "DYNA.count", f"more dynamic Gaussians than HEAD.num_dynamic[{frame}]"
+            )
         a = decode_blocks(payload, head_len, count, layout, h["block_size"], pbase, name)
         g = Gaussians.from_numpy(**a)
         if tag == b"STAT":
@@ -652,13 +760,23 @@ class ProgressiveDecoder:
         h = self.header
         rig = [RigCamera.from_json(c) for c in h["rig"]]
         dyn = [Gaussians.cat(self.dynamic.get(t, [])) for t in range(len(h["frame_times"]))]
-        meta = {k: v for k, v in h.items() if k not in ("static_layout", "dynamic_layout", "rig", "ego_to_world",
-                                                         "frame_times", "num_dynamic", "bounds")}
+        meta = {
+            k: v
+            for k, v in h.items()
+            if k
+            not in ("static_layout", "dynamic_layout", "rig", "ego_to_world", "frame_times", "num_dynamic", "bounds")
+        }
         meta["static_layout"] = h["static_layout"].to_json()
         meta["dynamic_layout"] = h["dynamic_layout"].to_json()
         meta["bounds"] = h["bounds"]
-        return Scene4D(Gaussians.cat(self.static), dyn, np.asarray(h["frame_times"]), rig,
-                       np.asarray(h["ego_to_world"], dtype=np.float64), meta)
+        return Scene4D(
+            Gaussians.cat(self.static),
+            dyn,
+            np.asarray(h["frame_times"]),
+            rig,
+            np.asarray(h["ego_to_world"], dtype=np.float64),
+            meta,
+        )
 
     def finish(self) -> Scene4D:
         if self.stage != "done":

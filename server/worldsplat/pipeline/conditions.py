@@ -1,5 +1,6 @@
 """The models' condition arrays from the world: boxes packed in each frame's ego frame, sketches as RGB, and the
 reprojected conditions (S', B', T', caption) of a shifted track (paper §3.5) that refinement reads."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,9 +47,15 @@ def conditions_for_track(world, shift_m: float, max_boxes: int = 32, cameras: li
     sk = np.asarray(cond["sketch"], np.float32)
     if sk.ndim == 4:
         sk = np.repeat(sk[..., None], 3, axis=-1)
-    return {"sketch": (sk > 0.5).astype(np.uint8), "box_corners": corners.astype(np.float32), "box_cls": cls,
-            "box_moving": moving, "box_mask": mask, "traj": np.asarray(cond["ego_traj"], np.float32),
-            "caption": str(cond["caption"])}
+    return {
+        "sketch": (sk > 0.5).astype(np.uint8),
+        "box_corners": corners.astype(np.float32),
+        "box_cls": cls,
+        "box_moving": moving,
+        "box_mask": mask,
+        "traj": np.asarray(cond["ego_traj"], np.float32),
+        "caption": str(cond["caption"]),
+    }
 
 
 def rig_tensors(rig, ego_to_world: np.ndarray, native_hw: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:

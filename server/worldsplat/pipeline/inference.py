@@ -18,6 +18,7 @@ sizes are resampled to it (the Gaussians live in world metres, so they render at
 are processed in consecutive 4-frame windows (the last one padded by repeating its final frame). The rig must have
 the 6 default cameras in order. Deterministic for a given seed; float32 on CPU; `torch.no_grad` throughout.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -52,7 +53,7 @@ class Models:
     decoder: torch.nn.Module | None
     dit: torch.nn.Module | None
     data: DataConfig
-    version: str                     # short hash of the weight files (for cache keys)
+    version: str  # short hash of the weight files (for cache keys)
     weights_dir: Path
 
     @property
@@ -67,12 +68,12 @@ class Models:
 
 @dataclass
 class DecodedFrames:
-    gaussians: list[list]            # [t][v] Gaussians
-    dynamic_logits: list[list]       # [t][v] (N,) tensors
+    gaussians: list[list]  # [t][v] Gaussians
+    dynamic_logits: list[list]  # [t][v] (N,) tensors
     frame_times: np.ndarray
     rig: list
     ego_to_world: np.ndarray
-    latents: torch.Tensor            # (T, V, C, h, w) normalised L
+    latents: torch.Tensor  # (T, V, C, h, w) normalised L
     meta: dict = field(default_factory=dict)
 
     def frame(self, t: int):
@@ -115,8 +116,9 @@ def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -
             h.update(p.read_bytes())
         else:
             loaded[k] = None
-    m = Models(loaded["vae"], loaded["decoder"], loaded["dit"], get_config(SIZE).data, h.hexdigest()[:12],
-               paths["vae"].parent)
+    m = Models(
+        loaded["vae"], loaded["decoder"], loaded["dit"], get_config(SIZE).data, h.hexdigest()[:12], paths["vae"].parent
+    )
     if backend == "onnx":
         use_onnx(m, paths["vae"].parent / "onnx")
     _CACHE[key] = m
@@ -126,12 +128,14 @@ def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -
 def _require(models: Models | None, mode: str) -> Models:
     models = models or load_models()
     if mode not in models.modes:
-        raise FileNotFoundError(f"{mode} mode needs weights that are missing in {models.weights_dir} "
-                                f"(have modes: {models.modes or 'none'})")
+        raise FileNotFoundError(
+            f"{mode} mode needs weights that are missing in {models.weights_dir} (have modes: {models.modes or 'none'})"
+        )
     return models
 
 
 # --- geometry helpers ----------------------------------------------------------------------------------------------
+
 
 def _resize(x: torch.Tensor, hw: tuple[int, int], mode: str) -> torch.Tensor:
     """(N, C, H, W) -> (N, C, h, w). mode: area | nearest | max (thin sketch lines survive down-sampling)."""
@@ -141,8 +145,7 @@ def _resize(x: torch.Tensor, hw: tuple[int, int], mode: str) -> torch.Tensor:
         return F.adaptive_max_pool2d(x, hw)
     if mode == "area" and x.shape[-2] >= hw[0]:
         return F.adaptive_avg_pool2d(x, hw)
-    return F.interpolate(x, size=hw, mode="nearest" if mode in ("nearest", "max") else "bilinear",
-                         align_corners=False)
+    return F.interpolate(x, size=hw, mode="nearest" if mode in ("nearest", "max") else "bilinear", align_corners=False)
 
 
 def _windows(T: int, F_: int) -> list[list[int]]:
@@ -160,8 +163,9 @@ def _check_rig(rig, V: int) -> None:
         raise ValueError(f"the models were trained on the default {V}-camera rig {CAMERA_NAMES}; got {names}")
 
 
-def decode_gaussians(models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times,
-                      meta: dict) -> DecodedFrames:
+def decode_gaussians(
+    models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times, meta: dict
+) -> DecodedFrames:
     """L (T,V,C,h,w) normalised -> DecodedFrames (window by window)."""
     d = models.data
     T = L.shape[0]
@@ -171,16 +175,20 @@ def decode_gaussians(models: Models, L: torch.Tensor, rig, ego_to_world: np.ndar
         out = models.decoder(L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
         for i, t in enumerate(win):
             for v in range(len(rig)):
-                f = {k: x[0, i, v].reshape(-1, x.shape[-1]) if x.dim() == 6 else x[0, i, v].reshape(-1)
-                     for k, x in out.items()}
+                f = {
+                    k: x[0, i, v].reshape(-1, x.shape[-1]) if x.dim() == 6 else x[0, i, v].reshape(-1)
+                    for k, x in out.items()
+                }
                 p = torch.sigmoid(f["dynamic_logit"])
                 gs[t][v] = Gaussians(f["means"], f["quats"], f["scales"], f["opacities"], f["colors"], p[:, None])
                 logits[t][v] = f["dynamic_logit"]
-    return DecodedFrames(gs, logits, np.asarray(frame_times, np.float64), list(rig),
-                         np.asarray(ego_to_world, np.float64), L, meta)
+    return DecodedFrames(
+        gs, logits, np.asarray(frame_times, np.float64), list(rig), np.asarray(ego_to_world, np.float64), L, meta
+    )
 
 
 # --- modes -----------------------------------------------------------------------------------------------------------
+
 
 @torch.no_grad()
 def encode_clip(models: Models, rgb, depth, dynamic) -> torch.Tensor:
@@ -210,15 +218,21 @@ def reconstruct(clip, models: Models | None = None) -> DecodedFrames:
     t0 = time.perf_counter()
     L = encode_clip(models, clip.rgb, clip.depth, clip.dynamic)
     t1 = time.perf_counter()
-    dec = decode_gaussians(models, L, clip.rig, clip.ego_to_world, clip.frame_times,
-                            {"mode": "reconstruct", "model_version": models.version,
-                             "caption": getattr(clip, "caption", "")})
+    dec = decode_gaussians(
+        models,
+        L,
+        clip.rig,
+        clip.ego_to_world,
+        clip.frame_times,
+        {"mode": "reconstruct", "model_version": models.version, "caption": getattr(clip, "caption", "")},
+    )
     dec.meta["timing_s"] = {"vae_encode": t1 - t0, "gs_decoder": time.perf_counter() - t1}
     return dec
 
 
-def condition_tensors(models: Models, conditions: dict, ego_to_world: np.ndarray, caption_emb: torch.Tensor | None
-                      = None) -> dict:
+def condition_tensors(
+    models: Models, conditions: dict, ego_to_world: np.ndarray, caption_emb: torch.Tensor | None = None
+) -> dict:
     """world.conditions() -> the DiT's condition dict for all T frames (control = sketch latent)."""
     d = models.data
     for k in ("sketch", "boxes", "caption"):
@@ -238,10 +252,15 @@ def condition_tensors(models: Models, conditions: dict, ego_to_world: np.ndarray
     if caption_emb is None:
         caption_emb = encode_captions([str(conditions["caption"])])[0]
     traj = np.asarray(conditions.get("ego_traj", ego_to_world), np.float32)
-    return {"box_corners": torch.from_numpy(corners), "box_cls": torch.from_numpy(cls),
-            "box_moving": torch.from_numpy(moving), "box_mask": torch.from_numpy(mask),
-            "traj": torch.from_numpy(traj), "caption": caption_emb.float(),
-            "control": ctl.reshape(T, V, *ctl.shape[1:])}
+    return {
+        "box_corners": torch.from_numpy(corners),
+        "box_cls": torch.from_numpy(cls),
+        "box_moving": torch.from_numpy(moving),
+        "box_mask": torch.from_numpy(mask),
+        "traj": torch.from_numpy(traj),
+        "caption": caption_emb.float(),
+        "control": ctl.reshape(T, V, *ctl.shape[1:]),
+    }
 
 
 def window_cond(cond: dict, win: list[int]) -> dict:
@@ -251,8 +270,15 @@ def window_cond(cond: dict, win: list[int]) -> dict:
 
 
 @torch.no_grad()
-def sample_latents(models: Models, cond: dict, steps: int = 8, seed: int = 0, cfg_scale: float | None = None,
-                   shift: float | None = None, progress: Callable[[float], None] | None = None) -> torch.Tensor:
+def sample_latents(
+    models: Models,
+    cond: dict,
+    steps: int = 8,
+    seed: int = 0,
+    cfg_scale: float | None = None,
+    shift: float | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> torch.Tensor:
     """Rectified-flow sampling of L (T,V,C,h,w), window by window; the noise depends only on (seed, window)."""
     d, dcfg = models.data, models.dit.cfg
     T = cond["control"].shape[0]
@@ -265,16 +291,25 @@ def sample_latents(models: Models, cond: dict, steps: int = 8, seed: int = 0, cf
         g = torch.Generator().manual_seed(int(seed) * 1000 + wi)
         noise = torch.randn(1, len(win), d.views, dcfg.in_channels, *L.shape[-2:], generator=g)
         cb = None if progress is None else (lambda k, n, wi=wi: progress((wi + k / n) / len(wins)))
-        z = rflow.sample(models.dit, noise, c, steps=steps, shift=shift, cfg_scale=cfg_scale, uncond=dropped(c),
-                         callback=cb)
+        z = rflow.sample(
+            models.dit, noise, c, steps=steps, shift=shift, cfg_scale=cfg_scale, uncond=dropped(c), callback=cb
+        )
         L[win] = z[0]
     return L
 
 
 @torch.no_grad()
-def generate(conditions: dict, steps: int = 8, seed: int = 0, models: Models | None = None, rig=None,
-             frame_times=None, cfg_scale: float | None = None, progress: Callable[[float], None] | None = None,
-             caption_embedding: torch.Tensor | None = None) -> DecodedFrames:
+def generate(
+    conditions: dict,
+    steps: int = 8,
+    seed: int = 0,
+    models: Models | None = None,
+    rig=None,
+    frame_times=None,
+    cfg_scale: float | None = None,
+    progress: Callable[[float], None] | None = None,
+    caption_embedding: torch.Tensor | None = None,
+) -> DecodedFrames:
     """Generate mode: conditions -> DiT (rectified flow, `steps` Euler steps) -> Gaussian decoder."""
     models = _require(models, "generate")
     if not isinstance(steps, int) or not 1 <= steps <= 256:
@@ -294,9 +329,20 @@ def generate(conditions: dict, steps: int = 8, seed: int = 0, models: Models | N
     L = sample_latents(models, cond, steps, seed, cfg_scale, progress=progress)
     t2 = time.perf_counter()
     ft = np.arange(T, dtype=np.float64) if frame_times is None else frame_times
-    dec = decode_gaussians(models, L, rig, ego, ft, {"mode": "generate", "steps": steps, "seed": seed,
-                                                     "model_version": models.version,
-                                                     "caption": str(conditions["caption"])})
+    dec = decode_gaussians(
+        models,
+        L,
+        rig,
+        ego,
+        ft,
+        {
+            "mode": "generate",
+            "steps": steps,
+            "seed": seed,
+            "model_version": models.version,
+            "caption": str(conditions["caption"]),
+        },
+    )
     # stage times for the benchmark's efficiency table (conditions incl. caption encoding, diffusion, decoder)
     dec.meta["timing_s"] = {"conditions": t1 - t0, "diffusion": t2 - t1, "gs_decoder": time.perf_counter() - t2}
     return dec
@@ -306,8 +352,15 @@ def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tup
     """Paper eq. 3 on decoded Gaussians, exactly as the playground serves them (`aggregate_4d`: static = every
     frame's Gaussians with p_dynamic <= 0.5, dynamic[t] = frame t's others, then the economy)."""
     H, W = dec.rig[0].height, dec.rig[0].width
-    return aggregate_4d(dec.gaussians, dec.frame_times, dec.rig, dec.ego_to_world, economy=economy,
-                        meta=dict(dec.meta), image_size=(H, W))
+    return aggregate_4d(
+        dec.gaussians,
+        dec.frame_times,
+        dec.rig,
+        dec.ego_to_world,
+        economy=economy,
+        meta=dict(dec.meta),
+        image_size=(H, W),
+    )
 
 
 def to_scene4d(dec: DecodedFrames, meta: dict | None = None, economy: Economy | None = None) -> Scene4D:

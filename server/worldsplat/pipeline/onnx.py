@@ -9,6 +9,7 @@ Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V vie
 Parity tolerance (documented in web/docs/models.md): max |ORT - torch| <= 1e-3 (absolute) on every output at
 float32, checked by tests/python/test_models_onnx.py; `speed_ratio` times both side by side.
 """
+
 from __future__ import annotations
 
 import time
@@ -50,8 +51,16 @@ class _DiTStep(torch.nn.Module):
         self.dit = dit
 
     def forward(self, z, s, box_corners, box_cls, box_moving, box_mask, traj, caption, control, drop):
-        cond = dict(box_corners=box_corners, box_cls=box_cls, box_moving=box_moving, box_mask=box_mask, traj=traj,
-                    caption=caption, control=control, drop=drop)
+        cond = dict(
+            box_corners=box_corners,
+            box_cls=box_cls,
+            box_moving=box_moving,
+            box_mask=box_mask,
+            traj=traj,
+            caption=caption,
+            control=control,
+            drop=drop,
+        )
         return self.dit(z, s, cond)
 
 
@@ -81,42 +90,52 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
     if kind == "dit_step":
         c = models.dit.cfg
         N = d.max_boxes
-        return {"z": torch.randn(1, T, V, c.in_channels, h, w, generator=g), "s": torch.tensor([0.4]),
-                "box_corners": torch.randn(1, T, N, 8, 3, generator=g) * 10,
-                "box_cls": torch.randint(0, d.num_classes, (1, T, N), generator=g),
-                "box_moving": torch.rand(1, T, N, generator=g) > 0.5,
-                "box_mask": torch.rand(1, T, N, generator=g) > 0.5, "traj": torch.eye(4).repeat(1, T, 1, 1),
-                "caption": torch.nn.functional.normalize(torch.randn(1, 384, generator=g), dim=-1),
-                "control": torch.randn(1, T, V, c.control_channels, h, w, generator=g),
-                "drop": torch.tensor([False])}
+        return {
+            "z": torch.randn(1, T, V, c.in_channels, h, w, generator=g),
+            "s": torch.tensor([0.4]),
+            "box_corners": torch.randn(1, T, N, 8, 3, generator=g) * 10,
+            "box_cls": torch.randint(0, d.num_classes, (1, T, N), generator=g),
+            "box_moving": torch.rand(1, T, N, generator=g) > 0.5,
+            "box_mask": torch.rand(1, T, N, generator=g) > 0.5,
+            "traj": torch.eye(4).repeat(1, T, 1, 1),
+            "caption": torch.nn.functional.normalize(torch.randn(1, 384, generator=g), dim=-1),
+            "control": torch.randn(1, T, V, c.control_channels, h, w, generator=g),
+            "drop": torch.tensor([False]),
+        }
     if kind == "gs_decoder":
         rig = default_rig(W, H)[:V]
         ego = np.stack([np.eye(4)] * T)
         ego[:, 0, 3] = np.arange(T) * 2.0
         intr, c2w = rig_tensors(rig, ego, (H, W))
-        return {"L": torch.randn(1, T, V, models.decoder.cfg.in_channels, h, w, generator=g),
-                "intrinsics": intr[None], "cam_to_world": c2w[None]}
+        return {
+            "L": torch.randn(1, T, V, models.decoder.cfg.in_channels, h, w, generator=g),
+            "intrinsics": intr[None],
+            "cam_to_world": c2w[None],
+        }
     raise ValueError(f"unknown graph {kind!r}; expected one of {', '.join(GRAPHS)}")
 
 
 def wrapper(models, kind: str) -> torch.nn.Module:
     d = models.data
-    return {"vae_encoder": lambda: _Enc(models.vae), "vae_decoder": lambda: _Dec(models.vae),
-            "dit_step": lambda: _DiTStep(models.dit),
-            "gs_decoder": lambda: _GSDec(models.decoder, (d.height, d.width))}[kind]().eval()
+    return {
+        "vae_encoder": lambda: _Enc(models.vae),
+        "vae_decoder": lambda: _Dec(models.vae),
+        "dit_step": lambda: _DiTStep(models.dit),
+        "gs_decoder": lambda: _GSDec(models.decoder, (d.height, d.width)),
+    }[kind]().eval()
 
 
 def output_names(kind: str) -> list[str]:
-    return {"vae_encoder": ["mean"], "vae_decoder": ["image"], "dit_step": ["velocity"],
-            "gs_decoder": list(OUT_KEYS)}[kind]
+    return {"vae_encoder": ["mean"], "vae_decoder": ["image"], "dit_step": ["velocity"], "gs_decoder": list(OUT_KEYS)}[
+        kind
+    ]
 
 
 def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
     """Write <out_dir>/<kind>.onnx for each graph whose model is loaded."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    need = {"vae_encoder": models.vae, "vae_decoder": models.vae, "dit_step": models.dit,
-            "gs_decoder": models.decoder}
+    need = {"vae_encoder": models.vae, "vae_decoder": models.vae, "dit_step": models.dit, "gs_decoder": models.decoder}
     paths = {}
     for kind in kinds:
         if need[kind] is None:
@@ -125,11 +144,20 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
         path = out_dir / f"{kind}.onnx"
         tmp = path.with_suffix(".tmp.onnx")
         with torch.no_grad():
-            dyn = {"vae_encoder": {"image": {0: "n"}, "mean": {0: "n"}},
-                   "vae_decoder": {"latent": {0: "n"}, "image": {0: "n"}}}.get(kind)
-            torch.onnx.export(wrapper(models, kind), tuple(inputs.values()), str(tmp),
-                              input_names=list(inputs), output_names=output_names(kind), opset_version=18,
-                              dynamo=False, dynamic_axes=dyn)
+            dyn = {
+                "vae_encoder": {"image": {0: "n"}, "mean": {0: "n"}},
+                "vae_decoder": {"latent": {0: "n"}, "image": {0: "n"}},
+            }.get(kind)
+            torch.onnx.export(
+                wrapper(models, kind),
+                tuple(inputs.values()),
+                str(tmp),
+                input_names=list(inputs),
+                output_names=output_names(kind),
+                opset_version=18,
+                dynamo=False,
+                dynamic_axes=dyn,
+            )
         tmp.replace(path)
         paths[kind] = path
     return paths
@@ -137,6 +165,7 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
 
 def session(path: str | Path, threads: int = 2):
     import onnxruntime as ort  # noqa: PLC0415 - only for the onnx backend
+
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1
@@ -189,6 +218,7 @@ def speed_ratio(models, onnx_dir: str | Path, kind: str, repeats: int = 5, threa
 
 # --- serving with onnxruntime (inference.load_models(backend="onnx")) ------------------------------------------------
 
+
 class OrtDiT:
     """Callable like DiT4D(z, s, cond) for one 4-frame window, backed by dit_step.onnx."""
 
@@ -196,8 +226,12 @@ class OrtDiT:
         self.cfg, self.sess = torch_dit.cfg, sess
 
     def __call__(self, z, s, cond):
-        feed = {"z": z.float(), "s": s.float().reshape(1), **{k: cond[k] for k in _DiTStep.KEYS if k != "drop"},
-                "drop": cond.get("drop", torch.tensor([False]))}
+        feed = {
+            "z": z.float(),
+            "s": s.float().reshape(1),
+            **{k: cond[k] for k in _DiTStep.KEYS if k != "drop"},
+            "drop": cond.get("drop", torch.tensor([False])),
+        }
         return torch.from_numpy(run_ort(self.sess, feed)[0])
 
 
@@ -208,8 +242,9 @@ class OrtGSDecoder:
         self.cfg, self.sess = torch_dec.cfg, sess
 
     def __call__(self, L, intrinsics, cam_to_world, image_hw):
-        out = run_ort(self.sess, {"L": L.float(), "intrinsics": intrinsics.float(),
-                                  "cam_to_world": cam_to_world.float()})
+        out = run_ort(
+            self.sess, {"L": L.float(), "intrinsics": intrinsics.float(), "cam_to_world": cam_to_world.float()}
+        )
         return {k: torch.from_numpy(v) for k, v in zip(OUT_KEYS, out)}
 
 

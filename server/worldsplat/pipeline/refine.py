@@ -9,6 +9,7 @@ The scenario that produced the scene is needed for the conditions: it is read fr
 or JSON string; the pipeline stores it there, and it travels in the .wsplat header) or passed as `scenario=`.
 See web/docs/refinement.md.
 """
+
 from __future__ import annotations
 
 import json
@@ -52,8 +53,10 @@ def scenario_of(scene, scenario=None):
         return scenario if isinstance(scenario, Scenario) else Scenario.parse(scenario)
     s = scene.meta.get("scenario")
     if s is None:
-        raise ValueError("refinement needs the scene's scenario (for the reprojected sketch and boxes): the scene's "
-                         "meta has no 'scenario'; pass scenario=")
+        raise ValueError(
+            "refinement needs the scene's scenario (for the reprojected sketch and boxes): the scene's "
+            "meta has no 'scenario'; pass scenario="
+        )
     return Scenario.parse(json.loads(s) if isinstance(s, str) else s)
 
 
@@ -71,9 +74,20 @@ def track_conditions(world, shift_m: float, max_boxes: int) -> dict:
     return conditions_for_track(world, shift_m, max_boxes)
 
 
-def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps: int = 8, progress=None,
-                 cancelled=None, scenario=None, blend: str = DEFAULT_BLEND, seed: int = 0,
-                 weights: Path | None = None, timings: dict | None = None, render=None) -> np.ndarray:
+def refine_track(
+    scene,
+    shift_m: float,
+    cameras: list[str] | None = None,
+    steps: int = 8,
+    progress=None,
+    cancelled=None,
+    scenario=None,
+    blend: str = DEFAULT_BLEND,
+    seed: int = 0,
+    weights: Path | None = None,
+    timings: dict | None = None,
+    render=None,
+) -> np.ndarray:
     """Refined frames (T,V',H,W,3) uint8 of the scene seen from the track shifted `shift_m` m left, for `cameras`
     (names, rig order; None = all). progress(stage, fraction) with stages "render", "conditions", "refine";
     cancelled() is checked between stages (raises worldsplat.core.errors.Cancelled). blend "holes" (default) keeps the
@@ -100,10 +114,20 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
     t0 = time.perf_counter()
     # the model reads every view at its own resolution; the output keeps the requested cameras at full size
     if render is None:
-        low = render_scene_track(scene, shift_m, cancelled=cancelled, size=(w, h),
-                                 progress=lambda st, f: prog("render", f * (0.5 if (H, W) != (h, w) else 1.0)))
-        full = low if (H, W) == (h, w) else render_scene_track(
-            scene, shift_m, views=idx, cancelled=cancelled, progress=lambda st, f: prog("render", 0.5 + 0.5 * f))
+        low = render_scene_track(
+            scene,
+            shift_m,
+            cancelled=cancelled,
+            size=(w, h),
+            progress=lambda st, f: prog("render", f * (0.5 if (H, W) != (h, w) else 1.0)),
+        )
+        full = (
+            low
+            if (H, W) == (h, w)
+            else render_scene_track(
+                scene, shift_m, views=idx, cancelled=cancelled, progress=lambda st, f: prog("render", 0.5 + 0.5 * f)
+            )
+        )
         full_idx = idx if full is low else list(range(len(idx)))
     else:
         low, full, full_idx = render, render, idx
@@ -119,8 +143,21 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
     prog("conditions", 1.0)
     if check():
         raise Cancelled("cancelled after the conditions")
-    refined = enhance(model, vae, low.rgb, low.alpha, cond["sketch"], cond, cond["traj"], cap, steps=steps,
-                      seed=seed, blend="none", callback=lambda f: prog("refine", f), timings=tm)
+    refined = enhance(
+        model,
+        vae,
+        low.rgb,
+        low.alpha,
+        cond["sketch"],
+        cond,
+        cond["traj"],
+        cap,
+        steps=steps,
+        seed=seed,
+        blend="none",
+        callback=lambda f: prog("refine", f),
+        timings=tm,
+    )
     t0 = time.perf_counter()
     out = finish(refined[:, idx], full.rgb[:, full_idx], full.alpha[:, full_idx], blend)
     tm["decode"] = tm.get("decode", 0.0) + time.perf_counter() - t0
@@ -128,8 +165,15 @@ def refine_track(scene, shift_m: float, cameras: list[str] | None = None, steps:
     return out
 
 
-def stage_timings(scene=None, shift_m: float = 4.0, scenario=None, steps: int = 8, cameras: list[str] | None = None,
-                  blend: str = DEFAULT_BLEND, weights: Path | None = None) -> dict:
+def stage_timings(
+    scene=None,
+    shift_m: float = 4.0,
+    scenario=None,
+    steps: int = 8,
+    cameras: list[str] | None = None,
+    blend: str = DEFAULT_BLEND,
+    weights: Path | None = None,
+) -> dict:
     """Seconds per stage of one refined video (render, conditions, encode, denoise, decode, video) and per
     camera-frame, for the bench. Without a scene: the playground's scene of the default preset (or `scenario`),
     `worldsplat.pipeline.scene.generate_scene(..., mode="oracle")`."""
@@ -138,8 +182,9 @@ def stage_timings(scene=None, shift_m: float = 4.0, scenario=None, steps: int = 
         scene = generate_scene(scenario, mode="oracle")
     tm: dict = {}
     t0 = time.perf_counter()
-    frames = refine_track(scene, shift_m, cameras, steps=steps, scenario=scenario, blend=blend, weights=weights,
-                          timings=tm)
+    frames = refine_track(
+        scene, shift_m, cameras, steps=steps, scenario=scenario, blend=blend, weights=weights, timings=tm
+    )
     t1 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         T, V, H, W, _ = frames.shape

@@ -9,6 +9,7 @@ with their alpha, which marks the holes (disocclusions, unobserved sky) the refi
 rendered here: any Scene4D (the pipeline's, a .wsplat read back, the learned decoder's), and ablation B's
 single-frame 3D Gaussians (`render_single_frame_track`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -30,8 +31,9 @@ class TrackRender:
 
 
 def _stack(views: list[list[View]]) -> TrackRender:
-    return TrackRender(*(np.stack([np.stack([getattr(v, k) for v in row]) for row in views])
-                         for k in ("rgb", "alpha", "depth")))
+    return TrackRender(
+        *(np.stack([np.stack([getattr(v, k) for v in row]) for row in views]) for k in ("rgb", "alpha", "depth"))
+    )
 
 
 def resized(cam: Camera, size: tuple[int, int] | None) -> Camera:
@@ -39,13 +41,20 @@ def resized(cam: Camera, size: tuple[int, int] | None) -> Camera:
     if size is None or (cam.width, cam.height) == tuple(size):
         return cam
     sx, sy = size[0] / cam.width, size[1] / cam.height
-    return Camera(int(size[0]), int(size[1]), cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy,
-                  cam.world_to_camera, cam.name)
+    return Camera(
+        int(size[0]), int(size[1]), cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, cam.world_to_camera, cam.name
+    )
 
 
-def render_scene_track(scene: Scene4D, shift_m: float, views: list[int] | None = None,
-                       frames: list[int] | None = None, progress=None, cancelled=None,
-                       size: tuple[int, int] | None = None) -> TrackRender:
+def render_scene_track(
+    scene: Scene4D,
+    shift_m: float,
+    views: list[int] | None = None,
+    frames: list[int] | None = None,
+    progress=None,
+    cancelled=None,
+    size: tuple[int, int] | None = None,
+) -> TrackRender:
     """Render a Scene4D (static + frame t's dynamic Gaussians) from the track shifted `shift_m` m to the left,
     optionally at another image size (width, height). `progress("render", fraction)` after every view;
     `cancelled()` is checked before every view (raises worldsplat.core.errors.Cancelled)."""
@@ -67,8 +76,14 @@ def render_scene_track(scene: Scene4D, shift_m: float, views: list[int] | None =
     return _stack(out)
 
 
-def render_track(scene: Scene4D, shift_m: float = 0.0, cameras: list[str] | None = None,
-                 progress=None, cancelled=None, frames: list[int] | None = None) -> np.ndarray:
+def render_track(
+    scene: Scene4D,
+    shift_m: float = 0.0,
+    cameras: list[str] | None = None,
+    progress=None,
+    cancelled=None,
+    frames: list[int] | None = None,
+) -> np.ndarray:
     """Render every frame (or `frames`) at every camera (or `cameras`) of the rig with the track shifted `shift_m`
     metres left. Returns uint8 (T,V,H,W,3); black background."""
     names = [c.name for c in scene.rig]
@@ -86,8 +101,12 @@ def render_track(scene: Scene4D, shift_m: float = 0.0, cameras: list[str] | None
 
 def single_frame_gaussians(clip, t: int) -> Gaussians:
     """Ablation B: 3D Gaussians lifted from frame t's views only (no temporal aggregation)."""
-    return Gaussians.cat([lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v))
-                          for v in range(clip.rgb.shape[1])])
+    return Gaussians.cat(
+        [
+            lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v))
+            for v in range(clip.rgb.shape[1])
+        ]
+    )
 
 
 def render_single_frame_track(clip, shift_m: float) -> TrackRender:

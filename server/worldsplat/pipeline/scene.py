@@ -10,6 +10,7 @@ generate    world conditions -> 4D-aware DiT -> latent Gaussian decoder; needs s
 `progress(stage, fraction)` is called as stages advance; `cancelled()` is checked between stages and frames and
 raises worldsplat.core.errors.Cancelled.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -76,9 +77,15 @@ def _check(cancelled: CancelCheck | None) -> None:
     _check_cancelled(cancelled)
 
 
-def generate_scene(scenario, mode: str | None = None, steps: int = 8, progress: Progress | None = None,
-                   cancelled: CancelCheck | None = None, seed: int | None = None,
-                   economy: Economy | None = None) -> Scene4D:
+def generate_scene(
+    scenario,
+    mode: str | None = None,
+    steps: int = 8,
+    progress: Progress | None = None,
+    cancelled: CancelCheck | None = None,
+    seed: int | None = None,
+    economy: Economy | None = None,
+) -> Scene4D:
     """Build the 4D Gaussian scene of a scenario. `meta` records scenario_id, mode, model_version, caption, fps
     and the aggregation statistics. `mode` None is `default_mode()`."""
     mode = default_mode() if mode is None else mode
@@ -89,8 +96,13 @@ def generate_scene(scenario, mode: str | None = None, steps: int = 8, progress: 
     prog("world", 0.0)
     world = build_world(scenario)
     # the scenario travels in the .wsplat header so a scene read back can be refined (conditions S', B') anywhere
-    meta = {"scenario_id": scenario_id(scenario), "mode": mode, "caption": world.caption, "fps": float(world.fps),
-            "scenario": scenario.model_dump(mode="json")}
+    meta = {
+        "scenario_id": scenario_id(scenario),
+        "mode": mode,
+        "caption": world.caption,
+        "fps": float(world.fps),
+        "scenario": scenario.model_dump(mode="json"),
+    }
     _check(cancelled)
     if mode == "oracle":
         scene, stats = _oracle(world, prog, cancelled, economy)
@@ -100,8 +112,10 @@ def generate_scene(scenario, mode: str | None = None, steps: int = 8, progress: 
         if inf is None:
             raise FileNotFoundError(f"mode {mode!r} needs the worldsplat_models package, which is not importable")
         if mode not in set(inf.available_modes()):
-            raise FileNotFoundError(f"mode {mode!r} needs model weights that are not shipped here; available modes: "
-                                    f"{', '.join(available_modes())}")
+            raise FileNotFoundError(
+                f"mode {mode!r} needs model weights that are not shipped here; available modes: "
+                f"{', '.join(available_modes())}"
+            )
         models = inf.load_models()
         if mode == "reconstruct":
             prog("simulate", 0.0)
@@ -114,9 +128,15 @@ def generate_scene(scenario, mode: str | None = None, steps: int = 8, progress: 
             cond = world.conditions()
             _check(cancelled)
             prog("generate", 0.0)
-            dec = inf.generate(cond, steps=steps, seed=int(scenario.seed if seed is None else seed), models=models,
-                               rig=world.rig, frame_times=world.frame_times,
-                               progress=lambda f: prog("generate", float(f)))
+            dec = inf.generate(
+                cond,
+                steps=steps,
+                seed=int(scenario.seed if seed is None else seed),
+                models=models,
+                rig=world.rig,
+                frame_times=world.frame_times,
+                progress=lambda f: prog("generate", float(f)),
+            )
         _check(cancelled)
         prog("aggregate", 0.0)
         scene, stats = inf.aggregate_decoded(dec, economy=economy)
@@ -129,22 +149,25 @@ def generate_scene(scenario, mode: str | None = None, steps: int = 8, progress: 
     return scene
 
 
-def _oracle(world, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None
-            ) -> tuple[Scene4D, AggregateStats]:
+def _oracle(
+    world, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None
+) -> tuple[Scene4D, AggregateStats]:
     prog("simulate", 0.0)
     clip = simulate(world)
     _check(cancelled)
     return _aggregate_clip(clip, economy, prog, cancelled)
 
 
-def _aggregate_clip(clip, economy: Economy | None, prog: Progress, cancelled: CancelCheck | None
-                    ) -> tuple[Scene4D, AggregateStats]:
+def _aggregate_clip(
+    clip, economy: Economy | None, prog: Progress, cancelled: CancelCheck | None
+) -> tuple[Scene4D, AggregateStats]:
     T, V, H, W = clip.depth.shape
     per_view = []
     for t in range(T):
         prog("lift", t / T)
-        per_view.append([lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v))
-                         for v in range(V)])
+        per_view.append(
+            [lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v)) for v in range(V)]
+        )
         _check(cancelled)
     prog("aggregate", 0.0)
     return aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
@@ -155,6 +178,14 @@ def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None)
     playground serves it (paper eq. 3 + economy, `aggregate_4d`): the reference the learned models, the refinement
     pairs and the evaluation are measured on."""
     scene, stats = _aggregate_clip(clip, economy, lambda stage, f: None, None)
-    scene.meta.update({"mode": "oracle", "model_version": ORACLE_VERSION, "caption": getattr(clip, "caption", ""),
-                       "fps": float(clip.fps), "aggregate": stats.as_dict(), **(meta or {})})
+    scene.meta.update(
+        {
+            "mode": "oracle",
+            "model_version": ORACLE_VERSION,
+            "caption": getattr(clip, "caption", ""),
+            "fps": float(clip.fps),
+            "aggregate": stats.as_dict(),
+            **(meta or {}),
+        }
+    )
     return scene

@@ -8,6 +8,7 @@ Sample fields (T frames, V views, H x W images, N = DataConfig.max_boxes):
     box_mask (T,N) bool            traj (T,4,4) ego pose relative to frame 0            caption str
 Boxes beyond N are dropped nearest-first-kept.
 """
+
 from __future__ import annotations
 
 import os
@@ -43,11 +44,19 @@ def sample_from_simulation(clip, conditions: dict, max_boxes: int) -> dict:
     ego = np.asarray(clip.ego_to_world, np.float64)
     corners, cls, moving, mask = pack_boxes(conditions["boxes"], ego, max_boxes)
     return {
-        "rgb": np.asarray(clip.rgb, np.uint8), "depth": np.asarray(clip.depth, np.float32),
-        "dynamic": np.asarray(clip.dynamic, bool), "sketch": sketch_rgb(conditions["sketch"]),
-        "intrinsics": intr, "cam_to_world": c2w, "ego_to_world": ego.astype(np.float32),
-        "box_corners": corners, "box_cls": cls, "box_moving": moving, "box_mask": mask,
-        "traj": np.asarray(conditions["ego_traj"], np.float32), "caption": str(conditions["caption"]),
+        "rgb": np.asarray(clip.rgb, np.uint8),
+        "depth": np.asarray(clip.depth, np.float32),
+        "dynamic": np.asarray(clip.dynamic, bool),
+        "sketch": sketch_rgb(conditions["sketch"]),
+        "intrinsics": intr,
+        "cam_to_world": c2w,
+        "ego_to_world": ego.astype(np.float32),
+        "box_corners": corners,
+        "box_cls": cls,
+        "box_moving": moving,
+        "box_mask": mask,
+        "traj": np.asarray(conditions["ego_traj"], np.float32),
+        "caption": str(conditions["caption"]),
     }
 
 
@@ -69,15 +78,24 @@ def synthetic_sample(cfg: DataConfig, seed: int) -> dict:
     depth[:, :, : H // 3] = np.inf
     corners = rng.normal(0, 10, (T, N, 8, 3)).astype(np.float32)
     return {
-        "rgb": rng.integers(0, 256, (T, V, H, W, 3), dtype=np.uint8), "depth": depth,
-        "dynamic": rng.random((T, V, H, W)) > 0.8, "sketch": (rng.random((T, V, H, W, 3)) > 0.9).astype(np.float32),
-        "intrinsics": intr, "cam_to_world": c2w, "ego_to_world": ego.astype(np.float32),
-        "box_corners": corners, "box_cls": rng.integers(12, 17, (T, N)), "box_moving": rng.random((T, N)) > 0.5,
-        "box_mask": rng.random((T, N)) > 0.5, "traj": ego.astype(np.float32), "caption": f"synthetic {seed}",
+        "rgb": rng.integers(0, 256, (T, V, H, W, 3), dtype=np.uint8),
+        "depth": depth,
+        "dynamic": rng.random((T, V, H, W)) > 0.8,
+        "sketch": (rng.random((T, V, H, W, 3)) > 0.9).astype(np.float32),
+        "intrinsics": intr,
+        "cam_to_world": c2w,
+        "ego_to_world": ego.astype(np.float32),
+        "box_corners": corners,
+        "box_cls": rng.integers(12, 17, (T, N)),
+        "box_moving": rng.random((T, N)) > 0.5,
+        "box_mask": rng.random((T, N)) > 0.5,
+        "traj": ego.astype(np.float32),
+        "caption": f"synthetic {seed}",
     }
 
 
 # --- dataset shards (`worldsplat dataset --out DIR`: one clip_XXXXXX.npz per clip, keys in web/docs/world.md) -----
+
 
 def sample_from_shard(z: dict, max_boxes: int, shift_index: int | None = None) -> dict:
     """A loaded shard (dict of arrays) -> one sample. shift_index selects a shifted-track truth (`shifts` key)."""
@@ -93,18 +111,33 @@ def sample_from_shard(z: dict, max_boxes: int, shift_index: int | None = None) -
     intr = np.broadcast_to(np.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], -1), (T, V, 4))
     corners_w = np.asarray(z["box_corners"], np.float64)
     n = corners_w.shape[1]
-    boxes = [[{"corners": corners_w[t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
-              for k in range(n)] for t in range(T)]
+    boxes = [
+        [
+            {"corners": corners_w[t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
+            for k in range(n)
+        ]
+        for t in range(T)
+    ]
     corners, cls, moving, mask = pack_boxes(boxes, ego, max_boxes)
     sfx = "" if shift_index is None else "_shifted"
     pick_ = (lambda a: a) if shift_index is None else (lambda a: a[shift_index])
     return {
-        "rgb": pick_(z["rgb" + sfx]), "depth": pick_(z["depth" + sfx]).astype(np.float32),
-        "dynamic": pick_(z["dynamic" + sfx]).astype(bool), "sketch": sketch_rgb(pick_(z["sketch" + sfx])),
-        "intrinsics": np.ascontiguousarray(intr, dtype=np.float32), "cam_to_world": c2w,
-        "ego_to_world": ego.astype(np.float32), "box_corners": corners, "box_cls": cls, "box_moving": moving,
-        "box_mask": mask, "traj": np.asarray(z["ego_traj"], np.float32), "caption": str(z["caption"]),
-        "seed": int(z["seed"]), "scenario": str(z["scenario"]), "shift_m": shift,
+        "rgb": pick_(z["rgb" + sfx]),
+        "depth": pick_(z["depth" + sfx]).astype(np.float32),
+        "dynamic": pick_(z["dynamic" + sfx]).astype(bool),
+        "sketch": sketch_rgb(pick_(z["sketch" + sfx])),
+        "intrinsics": np.ascontiguousarray(intr, dtype=np.float32),
+        "cam_to_world": c2w,
+        "ego_to_world": ego.astype(np.float32),
+        "box_corners": corners,
+        "box_cls": cls,
+        "box_moving": moving,
+        "box_mask": mask,
+        "traj": np.asarray(z["ego_traj"], np.float32),
+        "caption": str(z["caption"]),
+        "seed": int(z["seed"]),
+        "scenario": str(z["scenario"]),
+        "shift_m": shift,
     }
 
 
@@ -114,8 +147,10 @@ class ShardDataset:
     def __init__(self, root: str | os.PathLike, split: str, max_boxes: int = 32, limit: int | None = None):
         self.dir = Path(root) / split
         if not self.dir.is_dir():
-            raise FileNotFoundError(f"dataset split directory {self.dir} does not exist "
-                                    f"(make it with `worldsplat dataset --split {split} --out {root}`)")
+            raise FileNotFoundError(
+                f"dataset split directory {self.dir} does not exist "
+                f"(make it with `worldsplat dataset --split {split} --out {root}`)"
+            )
         self.files = sorted(self.dir.glob("clip_*.npz"))[:limit]
         if not self.files:
             raise FileNotFoundError(f"no clip_*.npz shards in {self.dir}")

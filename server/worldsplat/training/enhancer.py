@@ -15,6 +15,7 @@ Phases (all run by default; each resumes):
    probability `clean_prob`; `--no-mix` trains on degraded renders only (ablation B/C's model).
 3. export: fp32 safetensors with config + provenance in the metadata, and held-out metrics in a JSON beside it.
 """
+
 from __future__ import annotations
 
 import json
@@ -43,10 +44,12 @@ from worldsplat_models.weights import load_weights, save_weights, weights_dir
 def default_cache() -> Path:
     return runs_dir() / "enhancer_pairs"
 
+
 TRAIN_SHIFTS = (-4.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 4.0)
 
 
 # --- phase 1: pairs --------------------------------------------------------------------------------------------------
+
 
 def train_shift(seed: int) -> float:
     """The shift of a training seed's degraded pair (deterministic)."""
@@ -68,8 +71,17 @@ def decoder_scene(clip, models):
     return to_scene4d(reconstruct(clip, models))
 
 
-def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset: int = 0, size=(112, 64),
-               frames: int = 4, progress: bool = True, models=None) -> list[Path]:
+def make_pairs(
+    cache: Path,
+    count: int,
+    start: int = 0,
+    stride: int = 1,
+    offset: int = 0,
+    size=(112, 64),
+    frames: int = 4,
+    progress: bool = True,
+    models=None,
+) -> list[Path]:
     """Write the training pairs of train seeds [start, start+count) (every `stride`-th from `offset`, so several
     processes can share the work); existing files are kept (resume). `models` (inference.Models with a decoder)
     adds the `_dec` pairs; without it only oracle and clean pairs are made."""
@@ -82,8 +94,9 @@ def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset:
         shift = train_shift(seed)
         p_deg = sample_path(cache, "train", seed, shift)
         p_clean = sample_path(cache, "train", seed, 0.0, "_clean") if has_clean_pair(seed) else None
-        p_dec = (sample_path(cache, "train", seed, shift, "_dec")
-                 if models is not None and has_decoder_pair(seed) else None)
+        p_dec = (
+            sample_path(cache, "train", seed, shift, "_dec") if models is not None and has_decoder_pair(seed) else None
+        )
         if not all(p.exists() for p in (p_deg, p_clean, p_dec) if p is not None):
             world = build_world(sample_scenario(seed, size[0], size[1], frames))
             source = simulate(world, 0.0)
@@ -92,8 +105,9 @@ def make_pairs(cache: Path, count: int, start: int = 0, stride: int = 1, offset:
             if p_clean is not None and not p_clean.exists():
                 save_sample(p_clean, make_sample(world, 0.0, ("3d",), source=source))
             if p_dec is not None and not p_dec.exists():
-                save_sample(p_dec, make_sample(world, shift, ("4d",), source=source,
-                                               scene=decoder_scene(source, models)))
+                save_sample(
+                    p_dec, make_sample(world, shift, ("4d",), source=source, scene=decoder_scene(source, models))
+                )
         paths += [p for p in (p_deg, p_clean, p_dec) if p is not None]
     return paths
 
@@ -115,6 +129,7 @@ def make_val_pairs(cache: Path, count: int = 3, shifts=(2.0, 4.0), size=(112, 64
 
 # --- phase 2: train --------------------------------------------------------------------------------------------------
 
+
 def default_vae_path() -> Path:
     return weights_dir() / "vae_small.safetensors"
 
@@ -135,13 +150,16 @@ def encode_pair(vae, sample: dict, render_key: str, max_boxes: int, caption_emb:
 
     cover = coverage(np.asarray(sample[f"alpha_{render_key}"], np.float32).reshape(T * V, H, W), f)
     return {
-        "target": lat(sample["target"]), "render": lat(sample[f"render_{render_key}"]),
-        "sketch": lat(sample["sketch"].astype(np.float32)), "cover": cover.reshape(T, V, *cover.shape[1:]),
+        "target": lat(sample["target"]),
+        "render": lat(sample[f"render_{render_key}"]),
+        "sketch": lat(sample["sketch"].astype(np.float32)),
+        "cover": cover.reshape(T, V, *cover.shape[1:]),
         "box_corners": torch.from_numpy(sample["box_corners"][:, :max_boxes]),
         "box_cls": torch.from_numpy(sample["box_cls"][:, :max_boxes]),
         "box_moving": torch.from_numpy(sample["box_moving"][:, :max_boxes]),
         "box_mask": torch.from_numpy(sample["box_mask"][:, :max_boxes]),
-        "traj": torch.from_numpy(sample["traj"]), "caption": caption_emb.float(),
+        "traj": torch.from_numpy(sample["traj"]),
+        "caption": caption_emb.float(),
     }
 
 
@@ -156,9 +174,22 @@ def batch_of(items: list[dict], use_render: torch.Tensor | bool = True) -> tuple
     return st("target"), cond
 
 
-def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: Path, name: str, lr: float = 3e-4,
-          seed: int = 0, ckpt_every: int = 100, minutes: float | None = None, progress: bool = True,
-          log_every: int = 10, grow=None, grow_every: int = 100) -> list[dict]:
+def train(
+    model,
+    degraded: list[dict],
+    clean: list[dict],
+    steps: int,
+    out_dir: Path,
+    name: str,
+    lr: float = 3e-4,
+    seed: int = 0,
+    ckpt_every: int = 100,
+    minutes: float | None = None,
+    progress: bool = True,
+    log_every: int = 10,
+    grow=None,
+    grow_every: int = 100,
+) -> list[dict]:
     """Rectified-flow training of the enhancer with the shared loop (`worldsplat.training.loop.train_loop`), batch 1
     clip (T x V images). Each step's randomness comes from the loop's generator seeded by (seed, step), so a resumed
     run over the same pairs sees the same stream. Resumes from out_dir/<name>.ckpt.pt. `grow()` (optional) is
@@ -182,8 +213,17 @@ def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: P
         cond["drop"] = torch.rand(1, generator=gen) < cfg.dit.cond_drop
         return model.loss(x, cond, generator=gen), {"clean": bool(use_clean), "render": bool(use_render)}
 
-    tcfg = TrainConfig(steps=steps, lr=lr, weight_decay=0.01, warmup=100, grad_clip=1.0, seed=seed,
-                       ckpt_every=ckpt_every, log_every=log_every, threads=torch.get_num_threads())
+    tcfg = TrainConfig(
+        steps=steps,
+        lr=lr,
+        weight_decay=0.01,
+        warmup=100,
+        grad_clip=1.0,
+        seed=seed,
+        ckpt_every=ckpt_every,
+        log_every=log_every,
+        threads=torch.get_num_threads(),
+    )
     history = train_loop(name, model, step_fn, tcfg, Path(out_dir), progress=progress, minutes=minutes)
     model.eval()
     return history
@@ -191,8 +231,10 @@ def train(model, degraded: list[dict], clean: list[dict], steps: int, out_dir: P
 
 # --- the frozen VAE -----------------------------------------------------------------------------------------------
 
-def train_fallback_vae(out: Path, steps: int = 1500, seed: int = 0, clips: int = 48, minutes: float | None = None,
-                       progress: bool = True):
+
+def train_fallback_vae(
+    out: Path, steps: int = 1500, seed: int = 0, clips: int = 48, minutes: float | None = None, progress: bool = True
+):
     """Used only when the models engineer's VAE (models/weights/vae_small.safetensors) is absent: the same
     MultiModalVAE (small config) trained on RGB and sketch images of train-split world clips (the enhancer uses
     only those two modalities), L1 + 0.5 (1 - SSIM) + KL, random 32x56 crops. The enhancer bundles whichever VAE it
@@ -216,31 +258,51 @@ def train_fallback_vae(out: Path, steps: int = 1500, seed: int = 0, clips: int =
             idx = torch.randint(len(pool), (k,), generator=gen)
             y = int(torch.randint(0, 5, (1,), generator=gen)) * 8
             x = int(torch.randint(0, 8, (1,), generator=gen)) * 8
-            xs.append(pool[idx, :, y:y + 32, x:x + 56])
+            xs.append(pool[idx, :, y : y + 32, x : x + 56])
         x = torch.cat(xs)
         recon, kl = vae(x, generator=gen)
         s = ssim(((recon + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((x + 1) / 2).permute(0, 2, 3, 1))
         return (recon - x).abs().mean() + 0.5 * (1 - s) + vae.cfg.kl_weight * kl, {}
 
     t0 = time.time()
-    tcfg = TrainConfig(steps=steps, lr=1e-3, weight_decay=0.0, warmup=50, grad_clip=1.0, seed=seed, ckpt_every=250,
-                       log_every=50, threads=torch.get_num_threads())
+    tcfg = TrainConfig(
+        steps=steps,
+        lr=1e-3,
+        weight_decay=0.0,
+        warmup=50,
+        grad_clip=1.0,
+        seed=seed,
+        ckpt_every=250,
+        log_every=50,
+        threads=torch.get_num_threads(),
+    )
     train_loop(Path(out).stem, vae, step_fn, tcfg, Path(out).parent, progress=progress, minutes=minutes)
-    done = int(torch.load(Path(out).parent / f"{Path(out).stem}.ckpt.pt", map_location="cpu",
-                          weights_only=False)["step"])
+    done = int(
+        torch.load(Path(out).parent / f"{Path(out).stem}.ckpt.pt", map_location="cpu", weights_only=False)["step"]
+    )
     vae.eval()
     with torch.no_grad():  # latent statistics of the RGB channels (the only ones the enhancer reads)
-        z = torch.cat([vae.encode(images[i:i + 64]) for i in range(0, len(images), 64)])
+        z = torch.cat([vae.encode(images[i : i + 64]) for i in range(0, len(images), 64)])
         c = vae.cfg.latent_channels
         vae.latent_mean[:c] = z.mean(dim=(0, 2, 3))
         vae.latent_std[:c] = z.std(dim=(0, 2, 3)).clamp_min(1e-3)
         rgb_psnr = psnr((vae.decode(z[:64]).clamp(-1, 1) + 1) / 2, (images[:64] + 1) / 2)
-    save_weights(vae, out, "vae", {"trained_by": "worldsplat.training.enhancer.train_fallback_vae", "steps": done,
-                                   "rgb_psnr_train": round(float(rgb_psnr), 2), "wall_s": round(time.time() - t0)})
+    save_weights(
+        vae,
+        out,
+        "vae",
+        {
+            "trained_by": "worldsplat.training.enhancer.train_fallback_vae",
+            "steps": done,
+            "rgb_psnr_train": round(float(rgb_psnr), 2),
+            "wall_s": round(time.time() - t0),
+        },
+    )
     return vae
 
 
 # --- phase 3: held-out metrics and export ----------------------------------------------------------------------------
+
 
 @torch.no_grad()
 def heldout_metrics(model, vae, samples: list[dict], steps: int = 8) -> dict:
@@ -256,16 +318,22 @@ def heldout_metrics(model, vae, samples: list[dict], steps: int = 8) -> dict:
         blend = np.round(a[..., None] * s["render_4d"] + (1 - a[..., None]) * out).astype(np.uint8)
         for k, img in (("raw", s["render_4d"]), ("refined", out), ("refined_holes", blend)):
             rows[k].append(image_metrics(img.reshape(-1, H, W, 3), gt, holes))
-    return {k: {m: round(float(np.nanmean([r[m] for r in v])), 3) for m in ("psnr", "ssim", "psnr_holes")}
-            for k, v in rows.items()}
+    return {
+        k: {m: round(float(np.nanmean([r[m] for r in v])), 3) for m in ("psnr", "ssim", "psnr_holes")}
+        for k, v in rows.items()
+    }
 
 
 def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
     """models/weights/MODEL_CARD_enhancer.md from the provenance stored in the shipped weight files."""
-    lines = ["# Enhanced diffusion model (refinement) - model card", "",
-             "Paper §3.4: refines renders of shifted (novel) tracks in latent space. Architecture and training: "
-             "`models/worldsplat_models/enhancer.py`, `train_enhancer.py`; use: `server/worldsplat/refine.py`; "
-             "evaluation: `web/docs/refinement.md`.", ""]
+    lines = [
+        "# Enhanced diffusion model (refinement) - model card",
+        "",
+        "Paper §3.4: refines renders of shifted (novel) tracks in latent space. Architecture and training: "
+        "`models/worldsplat_models/enhancer.py`, `train_enhancer.py`; use: `server/worldsplat/refine.py`; "
+        "evaluation: `web/docs/refinement.md`.",
+        "",
+    ]
     for name in ("enhancer_small.safetensors", "enhancer_small_nomix.safetensors"):
         p = Path(weights_dir) / name
         if not p.exists():
@@ -276,38 +344,48 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
         nv = sum(t.numel() for t in vae.parameters())
         cfg = model.meta["config"]
         hv = prov.get("heldout_val", {})
-        lines += [f"## `{name}` ({'mixed conditioning, shipped default' if prov.get('mixed') else 'degraded renders only, ablation B/C'})",
-                  "", f"- file: {p.stat().st_size / 1e6:.1f} MB fp32 safetensors: enhancer {n / 1e6:.2f} M parameters "
-                  f"+ its frozen VAE {nv / 1e6:.2f} M (bundled, tensors prefixed `vae.`)",
-                  f"- config: DiT4D dim {cfg['dit']['dim']}, depth {cfg['dit']['depth']}, heads {cfg['dit']['heads']}, "
-                  f"ControlNet depth {cfg['dit']['control_depth']}, patch {cfg['dit']['patch']}; latent channels "
-                  f"{cfg['latent_channels']}; control = render latent + sketch latent + coverage "
-                  f"({cfg['dit']['control_channels']} ch); images {cfg['data']['width']}x{cfg['data']['height']}, "
-                  f"{cfg['data']['views']} views x {cfg['data']['frames']} frames; clean_prob {cfg['clean_prob']}, "
-                  f"render_drop {cfg['render_drop']}, cond_drop {cfg['dit']['cond_drop']}; sampler: rectified flow, "
-                  f"{cfg['dit']['sampler_steps']} Euler steps, shift {cfg['dit']['sampler_shift']}",
-                  f"- data: {prov.get('train_clips')} train-split clips (seeds {prov.get('train_seeds')}): "
-                  f"{prov.get('degraded_pairs')} degraded pairs at +-1..4 m"
-                  f"{', ' + str(prov.get('clean_pairs')) + ' clean pairs at 0 m' if prov.get('mixed') else ' (the clean pairs are not used without mixing)'}"
-                  "; 112x64, 6 cameras, 4 frames; degraded input = the original track's 4D-aggregated ORACLE "
-                  "lifting rendered on the shifted track"
-                  + (f", and for {prov['decoder_pairs']} of the degraded pairs the learned Gaussian decoder's "
-                     "reconstruction of the original track rendered there (decoder_small, the shipped one)"
-                     if prov.get("decoder_pairs") else " (no decoder renders)"),
-                  f"- VAE (frozen, bundled): `{prov.get('vae')}`, trained by `worldsplat train vae` (models "
-                  f"engineer's code; this snapshot: {json.dumps(prov.get('vae_meta', {}), sort_keys=True)})",
-                  f"- training: {prov.get('steps')} steps, batch 1 clip (24 images), AdamW lr {prov.get('lr')} "
-                  f"(warm-up + cosine), seed {prov.get('seed')}, {prov.get('threads')} thread(s); wall time "
-                  f"{prov.get('wall_s_this_run')} s on a 2-core CPU (no GPU), shared with other jobs",
-                  f"- held-out (val seeds {hv.get('seeds')}, shifts {hv.get('shifts')} m, 8 steps): "
-                  f"raw render PSNR {hv.get('raw', {}).get('psnr')} dB (holes {hv.get('raw', {}).get('psnr_holes')}), "
-                  f"refined {hv.get('refined', {}).get('psnr')} dB (holes {hv.get('refined', {}).get('psnr_holes')}), "
-                  f"refined in holes only {hv.get('refined_holes', {}).get('psnr')} dB; test-split ablation in "
-                  "web/docs/refinement.md",
-                  (f"- this run: `{prov.get('command')}` --grow (with --grow the pool of pairs grew while the pair "
-                   "generator ran, so the step stream is not bit-reproducible)" if prov.get("grow") else
-                   f"- reproduce (the exact command of this file; makes the pairs first, then trains on all of "
-                   f"them with the shipped VAE and decoder): `{prov.get('command')}`"), ""]
+        lines += [
+            f"## `{name}` ({'mixed conditioning, shipped default' if prov.get('mixed') else 'degraded renders only, ablation B/C'})",
+            "",
+            f"- file: {p.stat().st_size / 1e6:.1f} MB fp32 safetensors: enhancer {n / 1e6:.2f} M parameters "
+            f"+ its frozen VAE {nv / 1e6:.2f} M (bundled, tensors prefixed `vae.`)",
+            f"- config: DiT4D dim {cfg['dit']['dim']}, depth {cfg['dit']['depth']}, heads {cfg['dit']['heads']}, "
+            f"ControlNet depth {cfg['dit']['control_depth']}, patch {cfg['dit']['patch']}; latent channels "
+            f"{cfg['latent_channels']}; control = render latent + sketch latent + coverage "
+            f"({cfg['dit']['control_channels']} ch); images {cfg['data']['width']}x{cfg['data']['height']}, "
+            f"{cfg['data']['views']} views x {cfg['data']['frames']} frames; clean_prob {cfg['clean_prob']}, "
+            f"render_drop {cfg['render_drop']}, cond_drop {cfg['dit']['cond_drop']}; sampler: rectified flow, "
+            f"{cfg['dit']['sampler_steps']} Euler steps, shift {cfg['dit']['sampler_shift']}",
+            f"- data: {prov.get('train_clips')} train-split clips (seeds {prov.get('train_seeds')}): "
+            f"{prov.get('degraded_pairs')} degraded pairs at +-1..4 m"
+            f"{', ' + str(prov.get('clean_pairs')) + ' clean pairs at 0 m' if prov.get('mixed') else ' (the clean pairs are not used without mixing)'}"
+            "; 112x64, 6 cameras, 4 frames; degraded input = the original track's 4D-aggregated ORACLE "
+            "lifting rendered on the shifted track"
+            + (
+                f", and for {prov['decoder_pairs']} of the degraded pairs the learned Gaussian decoder's "
+                "reconstruction of the original track rendered there (decoder_small, the shipped one)"
+                if prov.get("decoder_pairs")
+                else " (no decoder renders)"
+            ),
+            f"- VAE (frozen, bundled): `{prov.get('vae')}`, trained by `worldsplat train vae` (models "
+            f"engineer's code; this snapshot: {json.dumps(prov.get('vae_meta', {}), sort_keys=True)})",
+            f"- training: {prov.get('steps')} steps, batch 1 clip (24 images), AdamW lr {prov.get('lr')} "
+            f"(warm-up + cosine), seed {prov.get('seed')}, {prov.get('threads')} thread(s); wall time "
+            f"{prov.get('wall_s_this_run')} s on a 2-core CPU (no GPU), shared with other jobs",
+            f"- held-out (val seeds {hv.get('seeds')}, shifts {hv.get('shifts')} m, 8 steps): "
+            f"raw render PSNR {hv.get('raw', {}).get('psnr')} dB (holes {hv.get('raw', {}).get('psnr_holes')}), "
+            f"refined {hv.get('refined', {}).get('psnr')} dB (holes {hv.get('refined', {}).get('psnr_holes')}), "
+            f"refined in holes only {hv.get('refined_holes', {}).get('psnr')} dB; test-split ablation in "
+            "web/docs/refinement.md",
+            (
+                f"- this run: `{prov.get('command')}` --grow (with --grow the pool of pairs grew while the pair "
+                "generator ran, so the step stream is not bit-reproducible)"
+                if prov.get("grow")
+                else f"- reproduce (the exact command of this file; makes the pairs first, then trains on all of "
+                f"them with the shipped VAE and decoder): `{prov.get('command')}`"
+            ),
+            "",
+        ]
     path = path or Path(weights_dir) / "MODEL_CARD_enhancer.md"
     path.write_text("\n".join(lines))
     return path

@@ -10,6 +10,7 @@ Order (each stage reads the previous one's weights):
     dit      rectified-flow loss on L with conditions (dropped with p = cond_drop for CFG)
 Each step draws its data from a generator seeded by (seed, rank, step), so a resumed run sees the same stream.
 """
+
 from __future__ import annotations
 
 import json
@@ -36,6 +37,7 @@ from worldsplat_models.vae import normalize_depth
 
 # --- infrastructure ----------------------------------------------------------------------------------------------
 
+
 def setup_distributed() -> tuple[int, int]:
     """(rank, world_size); initialises the process group when launched by torchrun (WORLD_SIZE > 1)."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
@@ -47,7 +49,7 @@ def setup_distributed() -> tuple[int, int]:
 
 def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
-    np.random.seed(seed % (2 ** 32))
+    np.random.seed(seed % (2**32))
 
 
 def lr_at(step: int, tcfg: TrainConfig) -> float:
@@ -58,8 +60,9 @@ def lr_at(step: int, tcfg: TrainConfig) -> float:
     return tcfg.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * p)))
 
 
-def optimizer_step(model: torch.nn.Module, opt: torch.optim.Optimizer, loss: torch.Tensor,
-                   grad_clip: float) -> tuple[float, bool]:
+def optimizer_step(
+    model: torch.nn.Module, opt: torch.optim.Optimizer, loss: torch.Tensor, grad_clip: float
+) -> tuple[float, bool]:
     """Backward, clip the global gradient norm to `grad_clip`, step; a non-finite loss or gradient skips the
     update (returns skipped=True) so one bad batch cannot poison the weights."""
     opt.zero_grad(set_to_none=True)
@@ -81,14 +84,20 @@ def unwrap(model: torch.nn.Module) -> torch.nn.Module:
 
 def save_checkpoint(path: Path, model, opt, step: int, extra: dict | None = None) -> None:
     tmp = path.with_suffix(".tmp")
-    torch.save({"model": unwrap(model).state_dict(), "opt": opt.state_dict(), "step": step, "extra": extra or {}},
-               tmp)
+    torch.save({"model": unwrap(model).state_dict(), "opt": opt.state_dict(), "step": step, "extra": extra or {}}, tmp)
     tmp.replace(path)
 
 
-def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: TrainConfig, out_dir: Path,
-               progress: bool = True, on_checkpoint: Callable | None = None,
-               minutes: float | None = None) -> list[dict]:
+def train_loop(
+    name: str,
+    model: torch.nn.Module,
+    step_fn: Callable,
+    tcfg: TrainConfig,
+    out_dir: Path,
+    progress: bool = True,
+    on_checkpoint: Callable | None = None,
+    minutes: float | None = None,
+) -> list[dict]:
     """Generic loop. step_fn(model, step, generator) -> (loss tensor, logs dict). Resumes from
     out_dir/<name>.ckpt.pt when present. Returns the log history of this run (rank 0 writes it to <name>.log.jsonl).
     on_checkpoint(model, steps_done) runs after each checkpoint (e.g. to export weights). `minutes`: stop (with a
@@ -100,8 +109,12 @@ def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: Train
     torch.set_num_threads(tcfg.threads)
     seed_everything(tcfg.seed)
     ckpt = out_dir / f"{name}.ckpt.pt"
-    opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=tcfg.lr,
-                            weight_decay=tcfg.weight_decay, betas=(0.9, 0.99))
+    opt = torch.optim.AdamW(
+        [p for p in model.parameters() if p.requires_grad],
+        lr=tcfg.lr,
+        weight_decay=tcfg.weight_decay,
+        betas=(0.9, 0.99),
+    )
     start = 0
     if ckpt.exists():
         state = torch.load(ckpt, map_location="cpu", weights_only=False)
@@ -125,8 +138,15 @@ def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: Train
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=tcfg.bf16):
             loss, logs = step_fn(model, step, gen)
         gnorm, skipped = optimizer_step(model, opt, loss, tcfg.grad_clip)
-        rec = {"step": step + 1, "loss": float(loss.detach()), "grad_norm": gnorm, "skipped": skipped,
-               "lr": lr_at(step, tcfg), "time": round(time.time() - t0, 2), **logs}
+        rec = {
+            "step": step + 1,
+            "loss": float(loss.detach()),
+            "grad_norm": gnorm,
+            "skipped": skipped,
+            "lr": lr_at(step, tcfg),
+            "time": round(time.time() - t0, 2),
+            **logs,
+        }
         history.append(rec)
         out_of_time = minutes is not None and time.time() - t0 > 60 * minutes
         if rank == 0:
@@ -149,6 +169,7 @@ def train_loop(name: str, model: torch.nn.Module, step_fn: Callable, tcfg: Train
 
 # --- data in memory ------------------------------------------------------------------------------------------------
 
+
 def load_samples(dataset, limit: int | None = None, progress: bool = True) -> list[dict]:
     n = len(dataset) if limit is None else min(limit, len(dataset))
     it = range(n)
@@ -164,10 +185,12 @@ def pick(samples: list, gen: torch.Generator, k: int = 1) -> list:
 
 # --- VAE -------------------------------------------------------------------------------------------------------------
 
+
 def vae_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4, crop: tuple[int, int] = (32, 56)):
     """Each step: `images_per_step` random (clip, frame, view) images, each modality a separate VAE input,
     random crops (the VAE is fully convolutional). Loss: L1 (dynamic pixels of the mask weighted 10x)
     + 0.5 * (1 - SSIM) on RGB + KL."""
+
     def step(vae, step_i, gen):
         model = unwrap(vae)
         xs = []
@@ -193,6 +216,7 @@ def vae_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4,
         s = ssim(((rgb_r + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((rgb_x + 1) / 2).permute(0, 2, 3, 1))
         loss = l1 + 0.5 * (1 - s) + model.cfg.kl_weight * kl
         return loss, {"l1": float(l1.detach()), "ssim": float(s.detach()), "kl": float(kl.detach()), "n": n}
+
     return step
 
 
@@ -212,6 +236,7 @@ def fit_latent_stats(vae, samples: list[dict], dcfg: DataConfig) -> None:
 
 # --- latent cache ----------------------------------------------------------------------------------------------------
 
+
 @torch.no_grad()
 def encode_sample(vae, s: dict, dcfg: DataConfig) -> dict:
     """One sample -> tensors for the decoder and the DiT (L normalised; sketch latent normalised with the RGB stats)."""
@@ -225,8 +250,9 @@ def encode_sample(vae, s: dict, dcfg: DataConfig) -> dict:
     return {"L": L.reshape(T, V, -1, h, w).float(), "control": sk.reshape(T, V, -1, h, w).float()}
 
 
-def build_cache(vae, samples: list[dict], dcfg: DataConfig, captions: Callable | None = None,
-                progress: bool = True) -> list[dict]:
+def build_cache(
+    vae, samples: list[dict], dcfg: DataConfig, captions: Callable | None = None, progress: bool = True
+) -> list[dict]:
     """Adds "L", "control" and "caption_emb" to each sample (in place) and returns the list."""
     captions = captions or encode_captions
     emb = captions([s["caption"] for s in samples])
@@ -240,6 +266,7 @@ def build_cache(vae, samples: list[dict], dcfg: DataConfig, captions: Callable |
 
 
 # --- Gaussian decoder --------------------------------------------------------------------------------------------------
+
 
 def area_down(x: torch.Tensor, factor: int) -> torch.Tensor:
     """(..., H, W) average-pooled by `factor`."""
@@ -265,8 +292,13 @@ def aggregate_soft(g: dict, t: int, p_dyn: torch.Tensor):
     others = torch.arange(T) != t
     keep[others] = 1 - p_dyn[others]
     flat = lambda x, k: x.reshape(-1, k)  # noqa: E731
-    return Gaussians(flat(g["means"], 3), flat(g["quats"], 4), flat(g["scales"], 3),
-                     (g["opacities"] * keep).reshape(-1), flat(g["colors"], 3))
+    return Gaussians(
+        flat(g["means"], 3),
+        flat(g["quats"], 4),
+        flat(g["scales"], 3),
+        (g["opacities"] * keep).reshape(-1),
+        flat(g["colors"], 3),
+    )
 
 
 def cull_to_camera(gs, cam, margin: float = 0.25):
@@ -278,14 +310,27 @@ def cull_to_camera(gs, cam, margin: float = 0.25):
         z = pc[:, 2]
         u = cam.fx * pc[:, 0] / z.clamp_min(1e-3) + cam.cx
         v = cam.fy * pc[:, 1] / z.clamp_min(1e-3) + cam.cy
-        ok = (z > 0.3) & (u > -margin * cam.width) & (u < (1 + margin) * cam.width) & \
-             (v > -margin * cam.height) & (v < (1 + margin) * cam.height)
+        ok = (
+            (z > 0.3)
+            & (u > -margin * cam.width)
+            & (u < (1 + margin) * cam.width)
+            & (v > -margin * cam.height)
+            & (v < (1 + margin) * cam.height)
+        )
     return gs.subset(ok)
 
 
-def decoder_losses(dec, s: dict, dcfg: DataConfig, gen: torch.Generator, render_views: int = 1,
-                   render_down: int = 2, latent_noise: float = 0.05, weights=(0.2, 0.5, 0.1, 0.5),
-                   render: bool = True):
+def decoder_losses(
+    dec,
+    s: dict,
+    dcfg: DataConfig,
+    gen: torch.Generator,
+    render_views: int = 1,
+    render_down: int = 2,
+    latent_noise: float = 0.05,
+    weights=(0.2, 0.5, 0.1, 0.5),
+    render: bool = True,
+):
     """Eq. 5: rendered L1 + w_ssim (1 - SSIM) + w_depth depth L1 (log-normalised) + w_mask BCE (dynamic logits vs
     the GT mask), plus a direct pixel-aligned term (colour and depth of each Gaussian vs its own pixel) weighted
     w_direct that speeds up the start. Rendering: a random target frame, `render_views` random views,
@@ -303,8 +348,8 @@ def decoder_losses(dec, s: dict, dcfg: DataConfig, gen: torch.Generator, render_
     T, V, gh, gw = g["depth"].shape
     f = H // gh
     near, far = dcfg.depth_near, dcfg.depth_far
-    gt_rgb = torch.as_tensor(s["rgb"]).float().div(255).permute(0, 1, 4, 2, 3)        # T,V,3,H,W
-    gt_dn = normalize_depth(torch.as_tensor(s["depth"]), near, far)                    # T,V,H,W
+    gt_rgb = torch.as_tensor(s["rgb"]).float().div(255).permute(0, 1, 4, 2, 3)  # T,V,3,H,W
+    gt_dn = normalize_depth(torch.as_tensor(s["depth"]), near, far)  # T,V,H,W
     gt_dyn = torch.as_tensor(s["dynamic"]).float()
     # direct pixel-aligned terms on the Gaussian grid
     rgb_g = area_down(gt_rgb, f).permute(0, 1, 3, 4, 2)
@@ -343,8 +388,10 @@ def decoder_losses(dec, s: dict, dcfg: DataConfig, gen: torch.Generator, render_
 def decoder_step_fn(samples: list[dict], dcfg: DataConfig, render_every: int = 1, **kw):
     """Rendering losses every `render_every` steps (the rasterizer dominates the cost on CPU), the pixel-aligned
     and mask terms every step."""
+
     def step(dec, step_i, gen):
         return decoder_losses(dec, pick(samples, gen)[0], dcfg, gen, render=step_i % render_every == 0, **kw)
+
     return step
 
 
@@ -369,4 +416,5 @@ def dit_step_fn(samples: list[dict], batch: int = 1):
         cond["drop"] = torch.rand(x.shape[0], generator=gen) < model.cfg.cond_drop
         loss = rflow.training_loss(dit, x, cond, shift=model.cfg.sampler_shift, generator=gen)
         return loss, {"dropped": int(cond["drop"].sum())}
+
     return step

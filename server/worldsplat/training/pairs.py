@@ -12,6 +12,7 @@ A sample is a dict of numpy arrays (T frames, V views, H x W images):
     render_3d / alpha_3d / depth_3d   single-frame 3D Gaussians (ablation B), same cameras
 Only the render kinds asked for are present. Files: one .npz per (seed, shift) under a cache directory.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -38,16 +39,22 @@ def sample_scenario(seed: int, width: int = 112, height: int = 64, frames: int =
     return random_scenario(seed, width=width, height=height, frames=frames)
 
 
-def make_sample(world, shift_m: float, renders: tuple[str, ...] = ("4d",), source=None, scene=None,
-                max_boxes: int = 32) -> dict:
+def make_sample(
+    world, shift_m: float, renders: tuple[str, ...] = ("4d",), source=None, scene=None, max_boxes: int = 32
+) -> dict:
     """One novel-view sample of `world` at `shift_m` (see the module doc). `source` (the unshifted clip) and
     `scene` (its oracle Scene4D) can be passed in to share them between shifts."""
     unknown = set(renders) - {"4d", "3d"}
     if unknown:
         raise ValueError(f"unknown render kind(s) {sorted(unknown)}; expected 4d and/or 3d")
     truth = simulate(world, shift_m=shift_m)
-    out = {"shift_m": np.float32(shift_m), "seed": np.int64(world.scenario.seed), "target": truth.rgb,
-           "target_depth": truth.depth.astype(np.float32), **conditions_for_track(world, shift_m, max_boxes)}
+    out = {
+        "shift_m": np.float32(shift_m),
+        "seed": np.int64(world.scenario.seed),
+        "target": truth.rgb,
+        "target_depth": truth.depth.astype(np.float32),
+        **conditions_for_track(world, shift_m, max_boxes),
+    }
     if renders:
         source = source if source is not None else (truth if shift_m == 0 else simulate(world, shift_m=0.0))
     if "4d" in renders:

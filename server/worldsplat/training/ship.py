@@ -1,5 +1,6 @@
 """Ship trained weights: float16 safetensors in the weights folder and the ONNX serving graphs exported from exactly
 those (rounded) weights."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,8 +12,13 @@ from worldsplat.pipeline.onnx import export
 from worldsplat_models.weights import load_weights, save_weights, weights_dir
 
 
-def ship(run_dir: str | Path, out_dir: str | Path | None = None, kinds=("vae", "decoder", "dit"),
-         size: str = "small", onnx: bool = True) -> list[Path]:
+def ship(
+    run_dir: str | Path,
+    out_dir: str | Path | None = None,
+    kinds=("vae", "decoder", "dit"),
+    size: str = "small",
+    onnx: bool = True,
+) -> list[Path]:
     """Copy trained weights from a run directory into the shipped set: float16 safetensors (half the bytes;
     loaded as float32) and the ONNX serving graphs exported from exactly those (rounded) weights."""
     run_dir, out_dir = Path(run_dir), Path(out_dir or weights_dir())

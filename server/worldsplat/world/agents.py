@@ -5,6 +5,7 @@ values, and a follower never gets closer than a safe gap to its leader (ego incl
 plane (each footprint covered by circles) rejects any spawn that would overlap another agent in any frame,
 so agents never drive through each other.
 """
+
 from __future__ import annotations
 
 import math
@@ -13,31 +14,54 @@ from dataclasses import dataclass
 import numpy as np
 
 from worldsplat.world.classes import BUS, CAR, CYCLIST, PEDESTRIAN, TRUCK
-from worldsplat.world.prims import (M_CABIN, M_CAR_BODY, M_BUS, M_PERSON, M_PLAIN, PrimBuilder, Prims)
+from worldsplat.world.prims import M_BUS, M_CABIN, M_CAR_BODY, M_PERSON, M_PLAIN, PrimBuilder, Prims
 from worldsplat.world.road import RoadGeometry
 
-VEHICLE_COLOURS = (("white", (0.82, 0.83, 0.84)), ("black", (0.05, 0.05, 0.06)), ("silver", (0.58, 0.6, 0.63)),
-                   ("grey", (0.32, 0.33, 0.35)), ("red", (0.62, 0.07, 0.06)), ("blue", (0.1, 0.2, 0.55)),
-                   ("green", (0.12, 0.34, 0.16)), ("yellow", (0.86, 0.68, 0.1)), ("brown", (0.36, 0.22, 0.12)))
-BUS_COLOURS = (("red", (0.7, 0.08, 0.06)), ("yellow", (0.9, 0.7, 0.08)), ("blue", (0.1, 0.25, 0.6)),
-               ("white", (0.85, 0.86, 0.88)))
-TRUCK_COLOURS = (("white", (0.85, 0.85, 0.86)), ("orange", (0.85, 0.4, 0.08)), ("green", (0.15, 0.4, 0.2)),
-                 ("blue", (0.12, 0.22, 0.5)))
-CLOTHES = ((0.7, 0.1, 0.1), (0.1, 0.3, 0.7), (0.9, 0.9, 0.85), (0.15, 0.15, 0.15), (0.85, 0.65, 0.1),
-           (0.2, 0.5, 0.3), (0.6, 0.3, 0.5))
-EGO_LENGTH, EGO_WIDTH, EGO_REAR_OVERHANG = 4.6, 1.9, 1.0   # ego origin is the rear axle
+VEHICLE_COLOURS = (
+    ("white", (0.82, 0.83, 0.84)),
+    ("black", (0.05, 0.05, 0.06)),
+    ("silver", (0.58, 0.6, 0.63)),
+    ("grey", (0.32, 0.33, 0.35)),
+    ("red", (0.62, 0.07, 0.06)),
+    ("blue", (0.1, 0.2, 0.55)),
+    ("green", (0.12, 0.34, 0.16)),
+    ("yellow", (0.86, 0.68, 0.1)),
+    ("brown", (0.36, 0.22, 0.12)),
+)
+BUS_COLOURS = (
+    ("red", (0.7, 0.08, 0.06)),
+    ("yellow", (0.9, 0.7, 0.08)),
+    ("blue", (0.1, 0.25, 0.6)),
+    ("white", (0.85, 0.86, 0.88)),
+)
+TRUCK_COLOURS = (
+    ("white", (0.85, 0.85, 0.86)),
+    ("orange", (0.85, 0.4, 0.08)),
+    ("green", (0.15, 0.4, 0.2)),
+    ("blue", (0.12, 0.22, 0.5)),
+)
+CLOTHES = (
+    (0.7, 0.1, 0.1),
+    (0.1, 0.3, 0.7),
+    (0.9, 0.9, 0.85),
+    (0.15, 0.15, 0.15),
+    (0.85, 0.65, 0.1),
+    (0.2, 0.5, 0.3),
+    (0.6, 0.3, 0.5),
+)
+EGO_LENGTH, EGO_WIDTH, EGO_REAR_OVERHANG = 4.6, 1.9, 1.0  # ego origin is the rear axle
 
 
 @dataclass
 class Agent:
     track_id: int
     cls: int
-    size: tuple[float, float, float]       # length, width, height (m)
+    size: tuple[float, float, float]  # length, width, height (m)
     color: tuple[float, float, float]
     color_name: str
-    moving: bool                           # a moving agent (its pixels are dynamic)
-    poses: np.ndarray                      # (T,3) x, y, yaw of the footprint centre (z = 0 is the ground)
-    where: tuple                           # ("lane", road, direction, lane) | ("sidewalk", side) | ("parked", side)
+    moving: bool  # a moving agent (its pixels are dynamic)
+    poses: np.ndarray  # (T,3) x, y, yaw of the footprint centre (z = 0 is the ground)
+    where: tuple  # ("lane", road, direction, lane) | ("sidewalk", side) | ("parked", side)
 
     def box_corners(self, t: int) -> np.ndarray:
         """(8,3) world corners at frame t: bottom face then top face, each counter-clockwise from rear-right."""
@@ -63,10 +87,26 @@ def agent_parts(agent: Agent, index: int, key: float) -> Prims:
         b.box((0, 0, (0.25 + h) / 2), 0, (l / 2, w / 2, (h - 0.25) / 2), BUS, col, M_BUS, key, index)
     elif agent.cls == TRUCK:
         cab = 2.3
-        b.box((l / 2 - cab / 2, 0, (0.3 + 0.85 * h) / 2), 0, (cab / 2, w / 2, (0.85 * h - 0.3) / 2), TRUCK, col,
-              M_CAR_BODY, key, index)
-        b.box((-cab / 2 - 0.1, 0, (0.5 + h) / 2), 0, ((l - cab - 0.2) / 2, w / 2, (h - 0.5) / 2), TRUCK,
-              (0.78, 0.78, 0.76), M_PLAIN, key, index)
+        b.box(
+            (l / 2 - cab / 2, 0, (0.3 + 0.85 * h) / 2),
+            0,
+            (cab / 2, w / 2, (0.85 * h - 0.3) / 2),
+            TRUCK,
+            col,
+            M_CAR_BODY,
+            key,
+            index,
+        )
+        b.box(
+            (-cab / 2 - 0.1, 0, (0.5 + h) / 2),
+            0,
+            ((l - cab - 0.2) / 2, w / 2, (h - 0.5) / 2),
+            TRUCK,
+            (0.78, 0.78, 0.76),
+            M_PLAIN,
+            key,
+            index,
+        )
     elif agent.cls == PEDESTRIAN:
         b.box((0, 0, 0.435 * h), 0, (0.14, 0.23, 0.435 * h), PEDESTRIAN, col, M_PERSON, key, index)
         b.sphere((0.0, 0, 0.92 * h), 0.075 * h, PEDESTRIAN, (0.85, 0.65, 0.5), M_PLAIN, key, index)
@@ -86,8 +126,17 @@ def place_parts(template: Prims, poses_t: np.ndarray) -> Prims:
     c, s = np.cos(yaw), np.sin(yaw)
     lx, ly, lz = template.center.T
     center = np.stack([x + c * lx - s * ly, y + s * lx + c * ly, lz], -1)
-    return Prims(center, yaw + template.yaw, template.half, template.shape, template.cls, template.color,
-                 template.material, template.key, template.agent)
+    return Prims(
+        center,
+        yaw + template.yaw,
+        template.half,
+        template.shape,
+        template.cls,
+        template.color,
+        template.material,
+        template.key,
+        template.agent,
+    )
 
 
 # -- the ego's path ---------------------------------------------------------------------------------------------
@@ -138,7 +187,7 @@ def ego_path(road: RoadGeometry, scenario, travel: float) -> Polyline:
         return Polyline(np.stack([x, y], -1))
     # Turns: straight to the junction, a cubic Bezier through it, then along the cross road.
     left = m == "turn_left"
-    direction = 1 if left else -1                    # cross road travel direction (+y for a left turn)
+    direction = 1 if left else -1  # cross road travel direction (+y for a left turn)
     d2 = road.lane_center_d(lane, direction)
     x_exit = road.cross_s - d2
     x_entry = road.cross_s - road.road_half - 0.5
@@ -149,7 +198,7 @@ def ego_path(road: RoadGeometry, scenario, travel: float) -> Polyline:
     l1, l2 = 0.55 * abs(x_exit - x_entry), 0.55 * abs(y_exit - y_entry)
     p1, p2 = p0 + [l1, 0.0], p3 - [0.0, direction * l2]
     u = np.linspace(0.0, 1.0, 200)[:, None]
-    bez = (1 - u) ** 3 * p0 + 3 * (1 - u) ** 2 * u * p1 + 3 * (1 - u) * u ** 2 * p2 + u ** 3 * p3
+    bez = (1 - u) ** 3 * p0 + 3 * (1 - u) ** 2 * u * p1 + 3 * (1 - u) * u**2 * p2 + u**3 * p3
     s_out = np.arange(0.25, travel + 80.0, 0.25)
     out = np.stack([np.full_like(s_out, x_exit), y_exit + direction * s_out], -1)
     xy = np.concatenate([np.stack([s_in, np.full_like(s_in, y_entry)], -1), bez, out])
@@ -207,8 +256,15 @@ def _colour(rng: np.random.Generator, table) -> tuple[str, tuple[float, float, f
 class TrafficBuilder:
     """Spawns agents one at a time with car following per lane and the planar overlap check."""
 
-    def __init__(self, road: RoadGeometry, scenario, rng: np.random.Generator, times: np.ndarray,
-                 ego_rear: np.ndarray, travel: float):
+    def __init__(
+        self,
+        road: RoadGeometry,
+        scenario,
+        rng: np.random.Generator,
+        times: np.ndarray,
+        ego_rear: np.ndarray,
+        travel: float,
+    ):
         self.road, self.sc, self.rng, self.times = road, scenario, rng, times
         self.travel = travel
         self.agents: list[Agent] = []
@@ -314,7 +370,7 @@ class TrafficBuilder:
         for _ in range(16):
             direction = 1 if rng.random() < 0.6 else -1
             road_name = "cross" if road.cross_s is not None and rng.random() < 0.25 else "main"
-            d = -direction * (road.lanes_edge - 0.75)      # the kerb side of lane 0
+            d = -direction * (road.lanes_edge - 0.75)  # the kerb side of lane 0
             s0 = float(rng.uniform(-70, 70)) if road_name == "cross" else float(rng.uniform(*self._s_range()))
             if road_name == "main" and self._blocked_s(s0, 1.0):
                 continue
@@ -324,8 +380,21 @@ class TrafficBuilder:
             poses = self._lane_pose(road_name, direction, s_traj, d)
             if not self.occ.free(poses, 1.8, 0.6, 0.3):
                 continue
-            self._accept(Agent(track_id, CYCLIST, (1.8, 0.6, 1.92), CLOTHES[int(rng.integers(len(CLOTHES)))],
-                               "", True, poses, ("lane", road_name, direction, 0)), 0.3, key, s_traj)
+            self._accept(
+                Agent(
+                    track_id,
+                    CYCLIST,
+                    (1.8, 0.6, 1.92),
+                    CLOTHES[int(rng.integers(len(CLOTHES)))],
+                    "",
+                    True,
+                    poses,
+                    ("lane", road_name, direction, 0),
+                ),
+                0.3,
+                key,
+                s_traj,
+            )
             return True
         return False
 
@@ -351,8 +420,12 @@ class TrafficBuilder:
             if not self.occ.free(poses, 0.5, 0.5, 0.15):
                 continue
             col = CLOTHES[int(rng.integers(len(CLOTHES)))]
-            self._accept(Agent(track_id, PEDESTRIAN, (0.5, 0.6, h), col, "", walking, poses,
-                               ("sidewalk", road_name, side)), 0.15, None, None)
+            self._accept(
+                Agent(track_id, PEDESTRIAN, (0.5, 0.6, h), col, "", walking, poses, ("sidewalk", road_name, side)),
+                0.15,
+                None,
+                None,
+            )
             return True
         return False
 
@@ -374,21 +447,24 @@ class TrafficBuilder:
             if not self.occ.free(poses, size[0], size[1], 0.3):
                 continue
             name, col = _colour(rng, VEHICLE_COLOURS)
-            self._accept(Agent(track_id, CAR, size, col, name, False, poses, ("parked", "main", side)), 0.3,
-                         None, None)
+            self._accept(Agent(track_id, CAR, size, col, name, False, poses, ("parked", "main", side)), 0.3, None, None)
             return True
         return False
 
 
-def build_agents(road: RoadGeometry, scenario, rng: np.random.Generator, times: np.ndarray,
-                 ego_rear: np.ndarray, travel: float) -> list[Agent]:
+def build_agents(
+    road: RoadGeometry, scenario, rng: np.random.Generator, times: np.ndarray, ego_rear: np.ndarray, travel: float
+) -> list[Agent]:
     tb = TrafficBuilder(road, scenario, rng, times, ego_rear, travel)
     t = scenario.traffic
     track = 1
-    for n, add in ((t.parked_vehicles, tb.add_parked), (t.moving_vehicles, tb.add_moving_vehicle),
-                   (t.cyclists, tb.add_cyclist), (t.pedestrians, tb.add_pedestrian)):
+    for n, add in (
+        (t.parked_vehicles, tb.add_parked),
+        (t.moving_vehicles, tb.add_moving_vehicle),
+        (t.cyclists, tb.add_cyclist),
+        (t.pedestrians, tb.add_pedestrian),
+    ):
         for _ in range(n):
             if add(track):
                 track += 1
     return tb.agents
-

@@ -3,6 +3,7 @@
 Times `simulate` for 6 cameras x 8 frames at 200x112 (the issue's target: <= 3 s on 2 cores) and prints seconds,
 rays per second and the ratio to the 3 s budget. Also times `build_world` and `world.conditions`.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,8 +33,16 @@ def bench(preset: str, repeat: int, width: int, height: int, frames: int) -> dic
     t_cond = time.perf_counter() - t0
     rays = clip.depth.size
     best = min(sims)
-    return {"preset": preset, "build_s": t_build, "simulate_s": best, "rays": rays, "rays_per_s": rays / best,
-            "conditions_s": t_cond, "budget_ratio": best / BUDGET_S, "cpu_s": min(cpus)}
+    return {
+        "preset": preset,
+        "build_s": t_build,
+        "simulate_s": best,
+        "rays": rays,
+        "rays_per_s": rays / best,
+        "conditions_s": t_cond,
+        "budget_ratio": best / BUDGET_S,
+        "cpu_s": min(cpus),
+    }
 
 
 def main() -> None:
@@ -46,14 +55,20 @@ def main() -> None:
     a = ap.parse_args()
     names = [p["name"] for p in list_presets()] if a.preset == "all" else [a.preset]
     print(f"load average {os.getloadavg()[0]:.1f} (other processes share the cores; 'cpu s' is this process)")
-    print(f"simulate: 6 cameras x {a.frames} frames at {a.width}x{a.height}, best of {a.repeat}; "
-          f"cpu count {os.cpu_count()}, budget {BUDGET_S} s")
-    print(f"{'preset':<22} {'build s':>8} {'simulate s':>11} {'cpu s':>6} {'Mrays/s':>8} {'x budget':>9} "
-          f"{'conditions s':>13}")
+    print(
+        f"simulate: 6 cameras x {a.frames} frames at {a.width}x{a.height}, best of {a.repeat}; "
+        f"cpu count {os.cpu_count()}, budget {BUDGET_S} s"
+    )
+    print(
+        f"{'preset':<22} {'build s':>8} {'simulate s':>11} {'cpu s':>6} {'Mrays/s':>8} {'x budget':>9} "
+        f"{'conditions s':>13}"
+    )
     for n in names:
         r = bench(n, a.repeat, a.width, a.height, a.frames)
-        print(f"{n:<22} {r['build_s']:>8.3f} {r['simulate_s']:>11.3f} {r['cpu_s']:>6.2f} {r['rays_per_s'] / 1e6:>8.3f} "
-              f"{r['budget_ratio']:>9.2f} {r['conditions_s']:>13.3f}")
+        print(
+            f"{n:<22} {r['build_s']:>8.3f} {r['simulate_s']:>11.3f} {r['cpu_s']:>6.2f} {r['rays_per_s'] / 1e6:>8.3f} "
+            f"{r['budget_ratio']:>9.2f} {r['conditions_s']:>13.3f}"
+        )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
 """A caption composed from the layout: weather, time, road, traffic counts and notable objects."""
+
 from __future__ import annotations
 
 import math
@@ -44,8 +45,11 @@ def compose_caption(world) -> str:
     env, road = sc.environment, sc.road
     weather = {"clear": "clear", "overcast": "overcast", "rain": "rainy", "fog": "foggy"}[env.weather]
     time = {"day": "day", "dusk": "dusk", "night": "night"}[env.time_of_day]
-    shape = {"straight": "straight", "curve": ("left-curving" if road.curvature > 0 else "right-curving")
-             if road.curvature != 0 else "straight", "intersection": "four-way intersection"}[road.kind]
+    shape = {
+        "straight": "straight",
+        "curve": ("left-curving" if road.curvature > 0 else "right-curving") if road.curvature != 0 else "straight",
+        "intersection": "four-way intersection",
+    }[road.kind]
     if road.kind == "intersection":
         road_text = f"{_article(road.setting)} {road.setting} road at a four-way intersection"
     elif road.setting == "highway":
@@ -54,8 +58,13 @@ def compose_caption(world) -> str:
         road_text = f"{_article(shape)} {shape} {road.setting} road"
     lanes = _count(road.lanes_per_direction, "lane")
     first = f"{_article(weather).capitalize()} {weather} {time} on {road_text} with {lanes} in each direction."
-    man = {"keep_lane": "keeps its lane", "lane_change_left": "changes lane to the left",
-           "lane_change_right": "changes lane to the right", "turn_left": "turns left", "turn_right": "turns right"}
+    man = {
+        "keep_lane": "keeps its lane",
+        "lane_change_left": "changes lane to the left",
+        "lane_change_right": "changes lane to the right",
+        "turn_left": "turns left",
+        "turn_right": "turns right",
+    }
     kmh = round(sc.ego.speed * 3.6)
     second = f"The ego car {man[sc.ego.manoeuvre]} at {kmh} km/h." if kmh > 0 else "The ego car is stopped."
     agents = world.agents
@@ -73,8 +82,12 @@ def compose_caption(world) -> str:
     if cyc:
         parts.append(_count(cyc, "cyclist"))
     if parts:
-        third = "There " + ("is " if parts[0].startswith("one ") else "are ") + \
-            (", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 else parts[0]) + "."
+        third = (
+            "There "
+            + ("is " if parts[0].startswith("one ") else "are ")
+            + (", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 else parts[0])
+            + "."
+        )
     else:
         third = "There is no other traffic."
     # Notable objects: big vehicles first, then the nearest vehicles in front of the ego.
@@ -86,7 +99,9 @@ def compose_caption(world) -> str:
         dist = math.hypot(x, y)
         if dist > 60:
             continue
-        score = dist - (40 if a.cls in (BUS, TRUCK) else 0) - (10 if x > 0 and a.moving else 0) + (0 if a.moving else 30)
+        score = (
+            dist - (40 if a.cls in (BUS, TRUCK) else 0) - (10 if x > 0 and a.moving else 0) + (0 if a.moving else 30)
+        )
         scored.append((score, a.track_id, a))
     scored.sort(key=lambda t: (t[0], t[1]))
     notes = []
@@ -101,4 +116,3 @@ def compose_caption(world) -> str:
     if world.lighting.lights_on:
         text += " Street lights are on."
     return text
-

@@ -8,6 +8,7 @@
 - `ego_traj` (T,4,4): poses of the (shifted) ego relative to its first frame.
 - `caption`.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -26,7 +27,7 @@ BEV_CHANNELS = ("drivable", "lane_divider", "crosswalk", "sidewalk", "vehicle", 
 SKETCH_CHANNELS = ("lane_lines", "vehicle_boxes", "vulnerable_boxes")
 BEV_SIZE, BEV_RES = 200, 0.5
 BOX_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])
-SKETCH_RANGE = 90.0     # metres: farther lines are not drawn
+SKETCH_RANGE = 90.0  # metres: farther lines are not drawn
 
 
 def bev_grid(size: int = BEV_SIZE, res: float = BEV_RES) -> tuple[np.ndarray, np.ndarray]:
@@ -51,16 +52,22 @@ def draw_segments(img: np.ndarray, cam: Camera, a: np.ndarray, b: np.ndarray, ne
     with np.errstate(divide="ignore", invalid="ignore"):
         fa = np.clip((near - za) / (zb - za), 0, 1)
         fb = np.clip((near - zb) / (za - zb), 0, 1)
-    pa, pb = (np.where((za < near)[:, None], pa + fa[:, None] * (pb - pa), pa),
-              np.where((zb < near)[:, None], pb + fb[:, None] * (pa - pb), pb))
+    pa, pb = (
+        np.where((za < near)[:, None], pa + fa[:, None] * (pb - pa), pa),
+        np.where((zb < near)[:, None], pb + fb[:, None] * (pa - pb), pb),
+    )
     ua = np.stack([cam.fx * pa[:, 0] / pa[:, 2] + cam.cx, cam.fy * pa[:, 1] / pa[:, 2] + cam.cy], -1)
     ub = np.stack([cam.fx * pb[:, 0] / pb[:, 2] + cam.cx, cam.fy * pb[:, 1] / pb[:, 2] + cam.cy], -1)
     h, w = img.shape
     # Liang-Barsky clip to the image rectangle.
     t0, t1 = np.zeros(len(ua)), np.ones(len(ua))
     delta = ub - ua
-    for p, q in ((-delta[:, 0], ua[:, 0]), (delta[:, 0], w - ua[:, 0]), (-delta[:, 1], ua[:, 1]),
-                 (delta[:, 1], h - ua[:, 1])):
+    for p, q in (
+        (-delta[:, 0], ua[:, 0]),
+        (delta[:, 0], w - ua[:, 0]),
+        (-delta[:, 1], ua[:, 1]),
+        (delta[:, 1], h - ua[:, 1]),
+    ):
         with np.errstate(divide="ignore", invalid="ignore"):
             r = q / p
         t0 = np.where(p < 0, np.maximum(t0, r), t0)
@@ -95,13 +102,21 @@ def lane_segments(world: World) -> tuple[np.ndarray, np.ndarray]:
 def boxes_at(world: World, t: int) -> list[dict]:
     out = []
     for a in world.agents:
-        out.append({"corners": a.box_corners(t), "cls": int(a.cls), "cls_name": CLASS_NAMES[a.cls],
-                    "track_id": int(a.track_id), "moving": bool(a.moving)})
+        out.append(
+            {
+                "corners": a.box_corners(t),
+                "cls": int(a.cls),
+                "cls_name": CLASS_NAMES[a.cls],
+                "track_id": int(a.track_id),
+                "moving": bool(a.moving),
+            }
+        )
     return out
 
 
-def bev_raster(world: World, t: int, ego_pose: np.ndarray, seg: tuple[np.ndarray, np.ndarray] | None = None
-               ) -> np.ndarray:
+def bev_raster(
+    world: World, t: int, ego_pose: np.ndarray, seg: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
     xe, ye = bev_grid()
     x = ego_pose[0, 0] * xe + ego_pose[0, 1] * ye + ego_pose[0, 3]
     y = ego_pose[1, 0] * xe + ego_pose[1, 1] * ye + ego_pose[1, 3]
@@ -135,8 +150,9 @@ def _to_bev_px(inv: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 def _draw_2d(img: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
     h, w = img.shape
-    inside = ((a[:, 0] > -w) & (a[:, 0] < 2 * w) & (a[:, 1] > -h) & (a[:, 1] < 2 * h)) | \
-        ((b[:, 0] > -w) & (b[:, 0] < 2 * w) & (b[:, 1] > -h) & (b[:, 1] < 2 * h))
+    inside = ((a[:, 0] > -w) & (a[:, 0] < 2 * w) & (a[:, 1] > -h) & (a[:, 1] < 2 * h)) | (
+        (b[:, 0] > -w) & (b[:, 0] < 2 * w) & (b[:, 1] > -h) & (b[:, 1] < 2 * h)
+    )
     a, b = a[inside], b[inside]
     if len(a) == 0:
         return
@@ -157,14 +173,18 @@ def sketch(world: World, t: int, cams: list[Camera], seg: tuple[np.ndarray, np.n
     for cam in cams:
         img = np.zeros((cam.height, cam.width, 3), np.float32)
         pos = cam.position
-        near = (np.linalg.norm(a[:, :2] - pos[:2], axis=1) < SKETCH_RANGE)
+        near = np.linalg.norm(a[:, :2] - pos[:2], axis=1) < SKETCH_RANGE
         draw_segments(img[..., 0], cam, a[near], b[near])
         for ch, classes in ((1, VEHICLE_CLASSES), (2, (PEDESTRIAN, CYCLIST))):
             cs = [c for ag, c in boxes if ag.cls in classes and np.linalg.norm(c[0, :2] - pos[:2]) < SKETCH_RANGE]
             if cs:
                 corners = np.stack(cs)
-                draw_segments(img[..., ch], cam, corners[:, BOX_EDGES[:, 0]].reshape(-1, 3),
-                              corners[:, BOX_EDGES[:, 1]].reshape(-1, 3))
+                draw_segments(
+                    img[..., ch],
+                    cam,
+                    corners[:, BOX_EDGES[:, 0]].reshape(-1, 3),
+                    corners[:, BOX_EDGES[:, 1]].reshape(-1, 3),
+                )
         out.append(img)
     return np.stack(out)
 
@@ -182,8 +202,15 @@ def _world_conditions(world: World, shift_m: float, cameras: list[str] | None) -
     bev = np.stack([bev_raster(world, t, poses[t], seg) for t in range(T)])
     sk = np.stack([sketch(world, t, [rc.at(world.ego_to_world[t], shift_m) for rc in rig], seg) for t in range(T)])
     inv0 = rigid_inverse(poses[0])
-    return {"bev": bev, "bev_channels": BEV_CHANNELS, "bev_resolution_m": BEV_RES,
-            "sketch": sk, "sketch_channels": SKETCH_CHANNELS, "cameras": [c.name for c in rig],
-            "boxes": [boxes_at(world, t) for t in range(T)],
-            "ego_traj": np.stack([inv0 @ poses[t] for t in range(T)]),
-            "caption": world.caption, "shift_m": float(shift_m)}
+    return {
+        "bev": bev,
+        "bev_channels": BEV_CHANNELS,
+        "bev_resolution_m": BEV_RES,
+        "sketch": sk,
+        "sketch_channels": SKETCH_CHANNELS,
+        "cameras": [c.name for c in rig],
+        "boxes": [boxes_at(world, t) for t in range(T)],
+        "ego_traj": np.stack([inv0 @ poses[t] for t in range(T)]),
+        "caption": world.caption,
+        "shift_m": float(shift_m),
+    }

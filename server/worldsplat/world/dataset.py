@@ -5,6 +5,7 @@ Split seed ranges never overlap: train [0, 1e6), val [1e6, 2e6), test [2e6, 3e6)
 A shard is written to a temporary file and renamed, so an existing `clip_XXXXXX.npz` is always complete and a
 re-run skips it. Shard keys are listed in `SHARD_KEYS` and documented in web/docs/world.md.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,9 +20,28 @@ from worldsplat.world import build_world, simulate
 
 SPLIT_BASE = {"train": 0, "val": 1_000_000, "test": 2_000_000}
 SPLIT_SIZE = 1_000_000
-SHARD_KEYS = ("rgb", "depth", "dynamic", "semantic", "bev", "bev_channels", "sketch", "box_corners", "box_cls",
-              "box_track_id", "box_moving", "ego_to_world", "ego_traj", "frame_times", "K", "camera_to_ego",
-              "camera_names", "caption", "scenario", "seed")
+SHARD_KEYS = (
+    "rgb",
+    "depth",
+    "dynamic",
+    "semantic",
+    "bev",
+    "bev_channels",
+    "sketch",
+    "box_corners",
+    "box_cls",
+    "box_track_id",
+    "box_moving",
+    "ego_to_world",
+    "ego_traj",
+    "frame_times",
+    "K",
+    "camera_to_ego",
+    "camera_names",
+    "caption",
+    "scenario",
+    "seed",
+)
 
 
 def split_seed(split: str, index: int) -> int:
@@ -49,17 +69,26 @@ def clip_arrays(scenario: Scenario, shifts: tuple[float, ...] = ()) -> dict[str,
         for k, b in enumerate(frame):
             corners[t, k] = b["corners"]
     out = {
-        "rgb": clip.rgb, "depth": clip.depth, "dynamic": clip.dynamic, "semantic": clip.semantic,
-        "bev": (cond["bev"] > 0.5).astype(np.uint8), "bev_channels": np.array(cond["bev_channels"]),
-        "sketch": (cond["sketch"] > 0.5).astype(np.uint8), "box_corners": corners,
+        "rgb": clip.rgb,
+        "depth": clip.depth,
+        "dynamic": clip.dynamic,
+        "semantic": clip.semantic,
+        "bev": (cond["bev"] > 0.5).astype(np.uint8),
+        "bev_channels": np.array(cond["bev_channels"]),
+        "sketch": (cond["sketch"] > 0.5).astype(np.uint8),
+        "box_corners": corners,
         "box_cls": np.array([a.cls for a in world.agents], np.uint8),
         "box_track_id": np.array([a.track_id for a in world.agents], np.int32),
         "box_moving": np.array([a.moving for a in world.agents], bool),
-        "ego_to_world": clip.ego_to_world, "ego_traj": cond["ego_traj"], "frame_times": clip.frame_times,
+        "ego_to_world": clip.ego_to_world,
+        "ego_traj": cond["ego_traj"],
+        "frame_times": clip.frame_times,
         "K": np.stack([np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]]) for c in clip.rig]),
         "camera_to_ego": np.stack([c.camera_to_ego for c in clip.rig]),
-        "camera_names": np.array(clip.camera_names), "caption": np.array(clip.caption),
-        "scenario": np.array(scenario.normalized_json()), "seed": np.array(scenario.seed, np.int64),
+        "camera_names": np.array(clip.camera_names),
+        "caption": np.array(clip.caption),
+        "scenario": np.array(scenario.normalized_json()),
+        "seed": np.array(scenario.seed, np.int64),
     }
     if shifts:
         shifted = [simulate(world, shift_m=s) for s in shifts]
@@ -87,9 +116,19 @@ def load_shard(path: str | Path) -> dict:
     return d
 
 
-def write_dataset(out: Path, split: str, count: int, width: int = 112, height: int = 64, frames: int = 4,
-                  fps: float = 4.0, preset_mix: bool = False, shifts: tuple[float, ...] = (), start: int = 0,
-                  progress: bool = True) -> dict:
+def write_dataset(
+    out: Path,
+    split: str,
+    count: int,
+    width: int = 112,
+    height: int = 64,
+    frames: int = 4,
+    fps: float = 4.0,
+    preset_mix: bool = False,
+    shifts: tuple[float, ...] = (),
+    start: int = 0,
+    progress: bool = True,
+) -> dict:
     """Write clips start..start+count-1 of a split; existing complete shards are skipped (resumable)."""
 
     out = Path(out)
@@ -111,9 +150,17 @@ def write_dataset(out: Path, split: str, count: int, width: int = 112, height: i
     mpath = out / split / "manifest.json"
     clips = {c["file"]: c for c in (json.loads(mpath.read_text())["clips"] if mpath.exists() else [])}
     clips.update({c["file"]: c for c in index})
-    manifest = {"format": "worldsplat-dataset-v1", "split": split,
-                "seed_range": [SPLIT_BASE[split], SPLIT_BASE[split] + SPLIT_SIZE], "image": [width, height],
-                "frames": frames, "fps": fps, "preset_mix": preset_mix, "shifts": list(shifts),
-                "keys": list(SHARD_KEYS), "clips": [clips[k] for k in sorted(clips)]}
+    manifest = {
+        "format": "worldsplat-dataset-v1",
+        "split": split,
+        "seed_range": [SPLIT_BASE[split], SPLIT_BASE[split] + SPLIT_SIZE],
+        "image": [width, height],
+        "frames": frames,
+        "fps": fps,
+        "preset_mix": preset_mix,
+        "shifts": list(shifts),
+        "keys": list(SHARD_KEYS),
+        "clips": [clips[k] for k in sorted(clips)],
+    }
     write_json_atomic(mpath, manifest, sort_keys=False)
     return {"written": written, "skipped": skipped, "manifest": str(mpath)}

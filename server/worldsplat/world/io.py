@@ -11,6 +11,7 @@ Layout of an output directory (documented in web/docs/world.md):
     meta.json                    scenario, id, caption, fps, times, rig intrinsics/extrinsics, poses, cameras
     mosaic.png, bev.png          frame-0 six-camera mosaic and BEV preview
 """
+
 from __future__ import annotations
 
 import io
@@ -42,8 +43,14 @@ def save_npz(path: Path, **arrays) -> None:
     write_npz_atomic(path, arrays, compressed=True)
 
 
-BEV_COLOURS = {"drivable": (90, 90, 95), "sidewalk": (200, 130, 180), "crosswalk": (230, 220, 120),
-               "lane_divider": (255, 255, 255), "vehicle": (40, 110, 255), "vulnerable": (255, 60, 60)}
+BEV_COLOURS = {
+    "drivable": (90, 90, 95),
+    "sidewalk": (200, 130, 180),
+    "crosswalk": (230, 220, 120),
+    "lane_divider": (255, 255, 255),
+    "vehicle": (40, 110, 255),
+    "vulnerable": (255, 60, 60),
+}
 
 
 def bev_image(bev: np.ndarray, channels: tuple[str, ...], scale: int = 2) -> np.ndarray:
@@ -53,7 +60,7 @@ def bev_image(bev: np.ndarray, channels: tuple[str, ...], scale: int = 2) -> np.
     for name in ("drivable", "sidewalk", "crosswalk", "lane_divider", "vehicle", "vulnerable"):
         img[bev[channels.index(name)] > 0.5] = BEV_COLOURS[name]
     # Ego footprint (rear axle at the centre, 4.6 m x 1.9 m at 0.5 m/px).
-    img[h // 2 - 7:h // 2 + 2, w // 2 - 2:w // 2 + 2] = (60, 220, 90)
+    img[h // 2 - 7 : h // 2 + 2, w // 2 - 2 : w // 2 + 2] = (60, 220, 90)
     return np.kron(img, np.ones((scale, scale, 1), np.uint8))
 
 
@@ -74,14 +81,22 @@ def meta_dict(world, clip, shift_m: float) -> dict:
         "fps": clip.fps,
         "frame_times": clip.frame_times.tolist(),
         "frames": list(clip.frame_indices),
-        "depth": {"file": "depth.npz", "key": "depth", "dtype": "float32", "unit": "metres (camera z)",
-                  "sky": "inf", "shape": "T,V,H,W"},
+        "depth": {
+            "file": "depth.npz",
+            "key": "depth",
+            "dtype": "float32",
+            "unit": "metres (camera z)",
+            "sky": "inf",
+            "shape": "T,V,H,W",
+        },
         "classes": list(CLASS_NAMES),
         "cameras": [c.to_json() for c in clip.rig],
         "ego_to_world": clip.ego_to_world.tolist(),
         "ego_to_world_shifted": poses_shifted.tolist(),
-        "world_to_camera": [[clip.camera(t, v).world_to_camera.tolist() for v in range(len(clip.rig))]
-                            for t in range(len(clip.frame_times))],
+        "world_to_camera": [
+            [clip.camera(t, v).world_to_camera.tolist() for v in range(len(clip.rig))]
+            for t in range(len(clip.frame_times))
+        ],
         "conventions": "web/docs/conventions.md (world FLU, camera OpenCV, pixel centres at +0.5)",
     }
 
@@ -101,17 +116,22 @@ def write_sim(out: Path, world, clip, cond: dict | None) -> None:
     save_npz(out / "depth.npz", depth=clip.depth, cameras=np.array(names))
     save_png(out / "mosaic.png", mosaic(clip.rgb[0], names))
     if cond is not None:
-        save_npz(out / "conditions" / "bev.npz", bev=cond["bev"], channels=np.array(cond["bev_channels"]),
-                 ego_traj=cond["ego_traj"])
+        save_npz(
+            out / "conditions" / "bev.npz",
+            bev=cond["bev"],
+            channels=np.array(cond["bev_channels"]),
+            ego_traj=cond["ego_traj"],
+        )
         for t in range(T):
             save_png(out / "conditions" / f"bev_{t:02d}.png", bev_image(cond["bev"][t], cond["bev_channels"]))
             for v, name in enumerate(names):
-                save_png(out / "conditions" / "sketch" / f"{name}_{t:02d}.png",
-                         np.round(cond["sketch"][t, v] * 255).astype(np.uint8))
-        write_json(out / "conditions" / "boxes.json",
-                   [[{**b, "corners": np.round(b["corners"], 6).tolist()} for b in frame] for frame in cond["boxes"]])
+                save_png(
+                    out / "conditions" / "sketch" / f"{name}_{t:02d}.png",
+                    np.round(cond["sketch"][t, v] * 255).astype(np.uint8),
+                )
+        write_json(
+            out / "conditions" / "boxes.json",
+            [[{**b, "corners": np.round(b["corners"], 6).tolist()} for b in frame] for frame in cond["boxes"]],
+        )
         save_png(out / "bev.png", bev_image(cond["bev"][0], cond["bev_channels"]))
     write_json(out / "meta.json", meta_dict(world, clip, clip.shift_m))
-
-
-

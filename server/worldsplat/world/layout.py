@@ -3,6 +3,7 @@
 All randomness flows from one `numpy.random.Generator(PCG64(seed))`, consumed in a fixed order, so the same
 scenario always builds the same world.
 """
+
 from __future__ import annotations
 
 import math
@@ -30,8 +31,17 @@ from worldsplat.world.prims import (
 )
 from worldsplat.world.road import RoadGeometry, make_road
 
-FACADES = ((0.78, 0.72, 0.62), (0.66, 0.42, 0.33), (0.58, 0.58, 0.6), (0.85, 0.83, 0.78), (0.55, 0.5, 0.44),
-           (0.72, 0.62, 0.48), (0.45, 0.47, 0.52), (0.8, 0.76, 0.7), (0.62, 0.32, 0.24))
+FACADES = (
+    (0.78, 0.72, 0.62),
+    (0.66, 0.42, 0.33),
+    (0.58, 0.58, 0.6),
+    (0.85, 0.83, 0.78),
+    (0.55, 0.5, 0.44),
+    (0.72, 0.62, 0.48),
+    (0.45, 0.47, 0.52),
+    (0.8, 0.76, 0.7),
+    (0.62, 0.32, 0.24),
+)
 HOUSES = ((0.9, 0.88, 0.82), (0.82, 0.74, 0.6), (0.7, 0.78, 0.82), (0.86, 0.8, 0.7), (0.75, 0.55, 0.45))
 LAMP_HEIGHT = 7.0
 
@@ -43,11 +53,11 @@ class World:
     lighting: Lighting
     static: Prims
     agents: list[Agent]
-    agent_template: Prims                 # agent parts in agent-local coordinates
-    ego_to_world: np.ndarray              # (T,4,4)
-    frame_times: np.ndarray               # (T,)
+    agent_template: Prims  # agent parts in agent-local coordinates
+    ego_to_world: np.ndarray  # (T,4,4)
+    frame_times: np.ndarray  # (T,)
     rig: list[RigCamera]
-    lamps: np.ndarray                     # (L,3) street-light heads (for night lighting)
+    lamps: np.ndarray  # (L,3) street-light heads (for night lighting)
     caption: str = ""
     extra_static: list[Prims] = field(default_factory=list)
 
@@ -136,8 +146,9 @@ class StaticBuilder:
                     if self._free(road_name, cs, width / 2, corner):
                         d = side * (r.walk_out + setback + depth / 2)
                         x, y, yaw = self._pose(road_name, cs, d)
-                        self.b.box((x, y, height / 2), yaw, (width / 2, depth / 2, height / 2), BUILDING, colour,
-                                   material, key)
+                        self.b.box(
+                            (x, y, height / 2), yaw, (width / 2, depth / 2, height / 2), BUILDING, colour, material, key
+                        )
                         if r.setting == "suburban":
                             self._tree(road_name, s + width + gap / 2, side * (r.walk_out + float(rng.uniform(2, 7))))
                     s += width + gap
@@ -189,10 +200,16 @@ class StaticBuilder:
                     arms = (-1, 1) if side == 0 else (-side,)
                     for arm in arms:
                         hx, hy, _ = self._pose(road_name, s, d + arm * 1.4)
-                        self.b.box(((x + hx) / 2, (y + hy) / 2, LAMP_HEIGHT), yaw + math.pi / 2, (0.75, 0.07, 0.06),
-                                   POLE, (0.35, 0.36, 0.38))
-                        self.b.box((hx, hy, LAMP_HEIGHT - 0.12), yaw, (0.3, 0.16, 0.07), POLE, (0.9, 0.88, 0.75),
-                                   M_LAMP)
+                        self.b.box(
+                            ((x + hx) / 2, (y + hy) / 2, LAMP_HEIGHT),
+                            yaw + math.pi / 2,
+                            (0.75, 0.07, 0.06),
+                            POLE,
+                            (0.35, 0.36, 0.38),
+                        )
+                        self.b.box(
+                            (hx, hy, LAMP_HEIGHT - 0.12), yaw, (0.3, 0.16, 0.07), POLE, (0.9, 0.88, 0.75), M_LAMP
+                        )
                         self.lamps.append((hx, hy, LAMP_HEIGHT - 0.2))
 
     def signs(self) -> None:
@@ -220,8 +237,15 @@ class StaticBuilder:
                 x = r.cross_s + sx * (r.curb_out + 0.4)
                 y = r.y0 + sy * (r.curb_out + 0.4)
                 self.b.box((x, y, 1.8), 0.0, (0.07, 0.07, 1.8), POLE, (0.2, 0.2, 0.2))
-                self.b.box((x, y, 3.9), 0.0, (0.18, 0.18, 0.45), SIGN, (0.08, 0.08, 0.08), M_TRAFFIC_LIGHT,
-                           0.25 * (sx + 1) + 0.5 * (sy + 1) / 2)
+                self.b.box(
+                    (x, y, 3.9),
+                    0.0,
+                    (0.18, 0.18, 0.45),
+                    SIGN,
+                    (0.08, 0.08, 0.08),
+                    M_TRAFFIC_LIGHT,
+                    0.25 * (sx + 1) + 0.5 * (sy + 1) / 2,
+                )
 
     def barriers(self) -> None:
         r = self.road
@@ -260,7 +284,7 @@ def build_world(scenario: Scenario) -> World:
     road = make_road(scenario, rng, travel, turn_entry)
     path = ego_path(road, scenario, travel)
     ego = path.pose(scenario.ego.speed * times)
-    ego[:, 2] -= ego[0, 2]                      # frame 0 faces +x exactly
+    ego[:, 2] -= ego[0, 2]  # frame 0 faces +x exactly
     ego_to_world = np.stack([yaw_pose(float(x), float(y), 0.0, float(a)) for x, y, a in ego])
     ego_to_world[0] = np.eye(4)
     lighting = make_lighting(scenario.environment.time_of_day, scenario.environment.weather, rng)
@@ -272,6 +296,3 @@ def build_world(scenario: Scenario) -> World:
     world = World(scenario, road, lighting, static, agents, template, ego_to_world, times, rig, lamps)
     world.caption = compose_caption(world)
     return world
-
-
-

@@ -1,4 +1,5 @@
 """Environment lighting from time of day and weather: sun direction and colour, sky, ambient, fog, rain."""
+
 from __future__ import annotations
 
 import math
@@ -11,14 +12,14 @@ import numpy as np
 class Lighting:
     time_of_day: str
     weather: str
-    sun_dir: np.ndarray          # (3,) unit vector towards the sun (or moon at night)
-    sun_color: np.ndarray        # (3,) direct light
-    ambient: np.ndarray          # (3,) sky light
+    sun_dir: np.ndarray  # (3,) unit vector towards the sun (or moon at night)
+    sun_color: np.ndarray  # (3,) direct light
+    ambient: np.ndarray  # (3,) sky light
     sky_zenith: np.ndarray
     sky_horizon: np.ndarray
     fog_color: np.ndarray
-    fog_distance: float          # metres for 1/e extinction
-    shadows: bool                # direct light strong enough to cast shadows
+    fog_distance: float  # metres for 1/e extinction
+    shadows: bool  # direct light strong enough to cast shadows
 
     @property
     def night(self) -> bool:
@@ -35,10 +36,14 @@ class Lighting:
 
 def make_lighting(time_of_day: str, weather: str, rng: np.random.Generator) -> Lighting:
     azimuth = float(rng.uniform(-math.pi, math.pi))
-    elevation = {"day": math.radians(float(rng.uniform(35, 60))), "dusk": math.radians(float(rng.uniform(4, 10))),
-                 "night": math.radians(40)}[time_of_day]
-    sun_dir = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth),
-                        math.sin(elevation)])
+    elevation = {
+        "day": math.radians(float(rng.uniform(35, 60))),
+        "dusk": math.radians(float(rng.uniform(4, 10))),
+        "night": math.radians(40),
+    }[time_of_day]
+    sun_dir = np.array(
+        [math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)]
+    )
     if time_of_day == "day":
         sun, amb = np.array([1.0, 0.96, 0.88]) * 0.95, np.array([0.42, 0.46, 0.55])
         zen, hor = np.array([0.22, 0.42, 0.78]), np.array([0.68, 0.8, 0.92])
@@ -59,5 +64,4 @@ def make_lighting(time_of_day: str, weather: str, rng: np.random.Generator) -> L
         if weather == "rain":
             zen, hor, amb = zen * 0.7, hor * 0.75, amb * 0.8
     fog_color = hor * (0.95 if weather != "fog" else 1.05)
-    return Lighting(time_of_day, weather, sun_dir, sun, amb, zen, hor, np.clip(fog_color, 0, 1), fog_distance,
-                    shadows)
+    return Lighting(time_of_day, weather, sun_dir, sun, amb, zen, hor, np.clip(fog_color, 0, 1), fog_distance, shadows)

@@ -7,6 +7,7 @@ views of a frame: procedural textures (asphalt noise, lane paint, paving, facade
 sun + sky ambient, shadows from a sun shadow map, street lights and headlights at night, wet roads and rain
 streaks, and exponential fog by depth. Sky pixels have depth +inf and class SKY.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -44,7 +45,7 @@ def single_threaded_blas():
     frames instead (worldsplat.world.simulate)."""
     try:
         from threadpoolctl import threadpool_limits  # noqa: PLC0415 - optional BLAS thread control
-    except ImportError:      # pragma: no cover - threadpoolctl ships with the pinned environment
+    except ImportError:  # pragma: no cover - threadpoolctl ships with the pinned environment
         return contextlib.nullcontext()
     return threadpool_limits(limits=1, user_api="blas")
 
@@ -52,9 +53,11 @@ def single_threaded_blas():
 # -- hashing noise (deterministic, vectorized) --------------------------------------------------------------------
 def hash01(a: np.ndarray, b: np.ndarray, c: int | np.ndarray = 0) -> np.ndarray:
     """Integer lattice coordinates -> pseudo-random float32 in [0, 1)."""
-    h = (np.asarray(a).astype(np.int64).astype(np.uint32) * np.uint32(374761393)
-         + np.asarray(b).astype(np.int64).astype(np.uint32) * np.uint32(668265263)
-         + np.asarray(c).astype(np.int64).astype(np.uint32) * np.uint32(2246822519))
+    h = (
+        np.asarray(a).astype(np.int64).astype(np.uint32) * np.uint32(374761393)
+        + np.asarray(b).astype(np.int64).astype(np.uint32) * np.uint32(668265263)
+        + np.asarray(c).astype(np.int64).astype(np.uint32) * np.uint32(2246822519)
+    )
     h = (h ^ (h >> np.uint32(13))) * np.uint32(1274126177)
     h = h ^ (h >> np.uint32(16))
     return (h >> np.uint32(8)).astype(np.float32) * np.float32(1.0 / (1 << 24))
@@ -74,8 +77,8 @@ def value_noise(x: np.ndarray, y: np.ndarray, scale: float, seed: int = 0) -> np
 # -- visibility ---------------------------------------------------------------------------------------------------
 @dataclass
 class Hits:
-    t: np.ndarray      # (H,W) float64 depth (camera z), inf for sky
-    pid: np.ndarray    # (H,W) int32 primitive index, PID_GROUND or PID_SKY
+    t: np.ndarray  # (H,W) float64 depth (camera z), inf for sky
+    pid: np.ndarray  # (H,W) int32 primitive index, PID_GROUND or PID_SKY
 
 
 def _box_hit(o: np.ndarray, d: np.ndarray, center, yaw, half) -> np.ndarray:
@@ -116,8 +119,12 @@ def cull(prims: Prims, cam: Camera, far: float = FAR) -> np.ndarray:
     r = prims.radius
     x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
     keep = (z + r > NEAR) & (z - r < far)
-    for tan_, coord in (((cam.width - cam.cx) / cam.fx, x), (cam.cx / cam.fx, -x),
-                        ((cam.height - cam.cy) / cam.fy, y), (cam.cy / cam.fy, -y)):
+    for tan_, coord in (
+        ((cam.width - cam.cx) / cam.fx, x),
+        (cam.cx / cam.fx, -x),
+        ((cam.height - cam.cy) / cam.fy, y),
+        (cam.cy / cam.fy, -y),
+    ):
         keep &= (coord - z * tan_) / math.sqrt(1 + tan_ * tan_) < r
     return np.nonzero(keep)[0]
 
@@ -181,11 +188,11 @@ def trace(cam: Camera, prims: Prims, far: float = FAR) -> tuple[Hits, np.ndarray
 # -- shadows: an orthographic depth map seen from the sun ---------------------------------------------------------
 @dataclass
 class ShadowMap:
-    origin: np.ndarray    # (3,) centre of the map plane
-    axes: np.ndarray      # (2,3) map u, v axes (unit, orthogonal to the light)
-    light: np.ndarray     # (3,) unit vector towards the light
-    extent: float         # half size in metres
-    depth: np.ndarray     # (N,N) distance along -light from the map plane to the first occluder
+    origin: np.ndarray  # (3,) centre of the map plane
+    axes: np.ndarray  # (2,3) map u, v axes (unit, orthogonal to the light)
+    light: np.ndarray  # (3,) unit vector towards the light
+    extent: float  # half size in metres
+    depth: np.ndarray  # (N,N) distance along -light from the map plane to the first occluder
 
     def lit(self, p: np.ndarray, normal_offset: np.ndarray | None = None) -> np.ndarray:
         """1 where points (...,3) see the light, 0 where an occluder is between them and the light."""
@@ -202,8 +209,7 @@ class ShadowMap:
         return np.where(inside & (occ < dist - 0.3), 0.0, 1.0).astype(np.float32)
 
 
-def shadow_map(prims: Prims, light: np.ndarray, center: np.ndarray, extent: float = 70.0,
-               size: int = 384) -> ShadowMap:
+def shadow_map(prims: Prims, light: np.ndarray, center: np.ndarray, extent: float = 70.0, size: int = 384) -> ShadowMap:
     light = light / np.linalg.norm(light)
     up = np.array([0.0, 0.0, 1.0])
     a0 = np.cross(up, light)
@@ -226,7 +232,7 @@ def shadow_map(prims: Prims, light: np.ndarray, center: np.ndarray, extent: floa
             continue
         uu = (np.arange(i0, i1) + 0.5) * cell - extent
         vv = (np.arange(j0, j1) + 0.5) * cell - extent
-        o = origin + uu[None, :, None] * a0 + vv[:, None, None] * a1      # (h,w,3) ray origins
+        o = origin + uu[None, :, None] * a0 + vv[:, None, None] * a1  # (h,w,3) ray origins
         dvec = -light
         if prims.shape[k] == BOX:
             tk = _box_hit_many(o, dvec, prims.center[k], prims.yaw[k], prims.half[k])
@@ -262,10 +268,10 @@ def _box_hit_many(o: np.ndarray, d: np.ndarray, center, yaw, half) -> np.ndarray
 # -- shading ------------------------------------------------------------------------------------------------------
 @dataclass
 class ShadeInput:
-    t: np.ndarray        # (N,) depth
-    pid: np.ndarray      # (N,)
-    p: np.ndarray        # (N,3) world hit points (garbage for sky)
-    d: np.ndarray        # (N,3) ray directions
+    t: np.ndarray  # (N,) depth
+    pid: np.ndarray  # (N,)
+    p: np.ndarray  # (N,3) world hit points (garbage for sky)
+    d: np.ndarray  # (N,3) ray directions
     ego_to_world: np.ndarray
 
 
@@ -329,7 +335,7 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         k = si.pid[h]
         sem[h] = prims.cls[k]
         c, s = np.cos(prims.yaw[k]).astype(np.float32), np.sin(prims.yaw[k]).astype(np.float32)
-        rel = (si.p[h] - prims.center[k]).astype(np.float32)      # small offsets: float32 is exact enough
+        rel = (si.p[h] - prims.center[k]).astype(np.float32)  # small offsets: float32 is exact enough
         lx, ly, lz = c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1], rel[:, 2]
         half = prims.half[k].astype(np.float32)
         sphere = prims.shape[k] == SPHERE
@@ -352,7 +358,7 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         key = prims.key[k]
         z = si.p[h, 2].astype(np.float32)
         side_face = axis < 2
-        along = np.where(axis == 0, ly, lx)             # horizontal coordinate on a vertical face
+        along = np.where(axis == 0, ly, lx)  # horizontal coordinate on a vertical face
         face_half = np.where(axis == 0, half[:, 1], half[:, 0])
 
         def windows(sel, floor_h, col_w, win_w, ground_floor):
@@ -361,27 +367,47 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
             fz = np.mod(zz, floor_h) / floor_h
             fa = np.mod(a + 100.0, col_w) / col_w
             inner = np.abs(a) < face_half[sel] - 0.6
-            win = side_face[sel] & inner & (fz > 0.3) & (fz < 0.78) & (np.abs(fa - 0.5) < win_w / 2) \
-                & (zz > ground_floor) & (zz < 2 * half[sel, 2] - 0.8)
+            win = (
+                side_face[sel]
+                & inner
+                & (fz > 0.3)
+                & (fz < 0.78)
+                & (np.abs(fa - 0.5) < win_w / 2)
+                & (zz > ground_floor)
+                & (zz < 2 * half[sel, 2] - 0.8)
+            )
             return win, np.floor(zz / floor_h), np.floor((a + 100.0) / col_w)
 
         b = (mat == M_BUILDING) | (mat == M_HOUSE)
         if b.any():
             bi = np.nonzero(b)[0]
             house = mat[bi] == M_HOUSE
-            win, fl, cl = windows(bi, np.where(house, 2.9, 3.3), np.where(house, 3.6, 2.6),
-                                  np.where(house, 0.35, 0.55), np.where(house, 0.6, 3.0))
-            shop = (~house) & side_face[bi] & (z[bi] > 0.4) & (z[bi] < 2.7) & \
-                (np.mod(along[bi] + 100.0, 5.0) > 0.6) & (np.abs(along[bi]) < face_half[bi] - 0.5)
+            win, fl, cl = windows(
+                bi,
+                np.where(house, 2.9, 3.3),
+                np.where(house, 3.6, 2.6),
+                np.where(house, 0.35, 0.55),
+                np.where(house, 0.6, 3.0),
+            )
+            shop = (
+                (~house)
+                & side_face[bi]
+                & (z[bi] > 0.4)
+                & (z[bi] < 2.7)
+                & (np.mod(along[bi] + 100.0, 5.0) > 0.6)
+                & (np.abs(along[bi]) < face_half[bi] - 0.5)
+            )
             glass = win | shop
             roof = axis[bi] == 2
             cb = col[bi]
             cb = cb * (0.95 + 0.05 * hash01(np.floor(z[bi] * 2), np.floor(along[bi] * 2), 5))[:, None]
-            cb[roof] = np.where(house[roof, None], np.array([0.42, 0.2, 0.15], np.float32),
-                                np.array([0.36, 0.36, 0.37], np.float32))
-            reflect = (0.1 + 0.25 * hash01(fl, cl, (key[bi] * 1000).astype(np.int64)))
-            cb[glass] = (np.array([0.08, 0.1, 0.13], np.float32) + reflect[glass, None]
-                         * L.sky_horizon.astype(np.float32) * 0.8)
+            cb[roof] = np.where(
+                house[roof, None], np.array([0.42, 0.2, 0.15], np.float32), np.array([0.36, 0.36, 0.37], np.float32)
+            )
+            reflect = 0.1 + 0.25 * hash01(fl, cl, (key[bi] * 1000).astype(np.int64))
+            cb[glass] = (
+                np.array([0.08, 0.1, 0.13], np.float32) + reflect[glass, None] * L.sky_horizon.astype(np.float32) * 0.8
+            )
             col[bi] = cb
             if L.lights_on:
                 lit = glass & (hash01(fl, cl, (key[bi] * 7919).astype(np.int64) + 11) < (0.45 if L.night else 0.25))
@@ -418,8 +444,12 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
             ci = np.nonzero(cab)[0]
             # Windows on every vertical face, framed by a thin band of body colour (pillars, sills).
             a_ci = np.abs(along[ci])
-            glass = side_face[ci] & (a_ci < face_half[ci] - 0.12) & (lz[ci] > -0.75 * half[ci, 2]) & \
-                (lz[ci] < 0.8 * half[ci, 2])
+            glass = (
+                side_face[ci]
+                & (a_ci < face_half[ci] - 0.12)
+                & (lz[ci] > -0.75 * half[ci, 2])
+                & (lz[ci] < 0.8 * half[ci, 2])
+            )
             cc = col[ci]
             cc[glass] = np.array([0.12, 0.15, 0.19], np.float32) + 0.3 * L.sky_horizon.astype(np.float32)
             col[ci] = cc
@@ -427,8 +457,7 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         if bus.any():
             bi2 = np.nonzero(bus)[0]
             zz = z[bi2]
-            band = side_face[bi2] & (zz > 1.25) & (zz < 2.5) & \
-                (np.mod(along[bi2] + 100, 1.6) > 0.12)
+            band = side_face[bi2] & (zz > 1.25) & (zz < 2.5) & (np.mod(along[bi2] + 100, 1.6) > 0.12)
             cb2 = col[bi2]
             cb2[band] = np.array([0.06, 0.08, 0.1], np.float32) + 0.2 * L.sky_horizon.astype(np.float32)
             cb2[zz < 0.6] *= 0.3
@@ -453,11 +482,15 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         if tl.any():
             ti = np.nonzero(tl)[0]
             disc = side_face[ti] & (np.abs(along[ti]) < 0.1) & (np.abs(np.mod(lz[ti] + 0.45, 0.3) - 0.15) < 0.09)
-            slot = np.floor((lz[ti] + 0.45) / 0.3)             # 0 bottom (green) .. 2 top (red)
+            slot = np.floor((lz[ti] + 0.45) / 0.3)  # 0 bottom (green) .. 2 top (red)
             on = np.where(key[ti] < 0.5, 2, 0)
-            colour = np.where((slot == 2)[:, None], np.array([1.0, 0.1, 0.05], np.float32),
-                              np.where((slot == 1)[:, None], np.array([1.0, 0.7, 0.1], np.float32),
-                                       np.array([0.1, 1.0, 0.4], np.float32)))
+            colour = np.where(
+                (slot == 2)[:, None],
+                np.array([1.0, 0.1, 0.05], np.float32),
+                np.where(
+                    (slot == 1)[:, None], np.array([1.0, 0.7, 0.1], np.float32), np.array([0.1, 1.0, 0.4], np.float32)
+                ),
+            )
             lit = disc & (slot == on)
             et = em[ti]
             et[lit] = colour[lit] * 1.5
@@ -479,8 +512,10 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
             # self-shadowing ("acne") at grazing light.
             facing = np.nonzero(lambert > 0)[0]
             lambert[facing] *= smap.lit(si.p[hi[facing]], 0.4 * nrm[facing])
-        light = L.ambient.astype(np.float32)[None] * (0.75 + 0.25 * nrm[:, 2:3]) + \
-            lambert[:, None] * L.sun_color.astype(np.float32)[None]
+        light = (
+            L.ambient.astype(np.float32)[None] * (0.75 + 0.25 * nrm[:, 2:3])
+            + lambert[:, None] * L.sun_color.astype(np.float32)[None]
+        )
         if L.lights_on:
             light = light + _artificial_light(world, si.p[hi], nrm, si.ego_to_world)
         rgb[hi] = albedo[hi] * light + emissive[hi]
@@ -494,7 +529,7 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
         sky = L.sky_horizon[None].astype(np.float32) * (1 - w) + L.sky_zenith[None].astype(np.float32) * w
         if L.weather in ("clear",) and L.time_of_day != "night":
             cosang = np.clip(dn @ L.sun_dir, 0, 1).astype(np.float32)
-            sky = sky + L.sun_color.astype(np.float32)[None] * (0.5 * cosang ** 48 + (cosang > 0.9995))[:, None]
+            sky = sky + L.sun_color.astype(np.float32)[None] * (0.5 * cosang**48 + (cosang > 0.9995))[:, None]
             # A few fair-weather clouds on a virtual plane above the scene.
             px, py = dn[:, 0] / (dn[:, 2] + 0.05), dn[:, 1] / (dn[:, 2] + 0.05)
             cl = 0.65 * value_noise(px, py, 0.9, 31) + 0.35 * value_noise(px, py, 0.3, 32)
@@ -505,8 +540,14 @@ def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[
             cl = value_noise(dn[:, 0] / (dn[:, 2] + 0.08), dn[:, 1] / (dn[:, 2] + 0.08), 0.6, 21)
             sky = sky * (0.88 + 0.2 * cl)[:, None]
         if L.night:
-            stars = (hash01(np.floor(dn[:, 0] * 400), np.floor(dn[:, 1] * 400) + np.floor(dn[:, 2] * 400) * 977, 17)
-                     > 0.9985) & (el > 0.05) & (L.weather == "clear")
+            stars = (
+                (
+                    hash01(np.floor(dn[:, 0] * 400), np.floor(dn[:, 1] * 400) + np.floor(dn[:, 2] * 400) * 977, 17)
+                    > 0.9985
+                )
+                & (el > 0.05)
+                & (L.weather == "clear")
+            )
             sky = sky + stars[:, None] * 0.6
         rgb[sk] = sky
 
@@ -524,16 +565,17 @@ def _artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.nd
     out = np.zeros((p.shape[0], 3), np.float32)
     lamps = world.lamps
     ego_xyz = ego_to_world[:3, 3]
-    rel = (p - ego_xyz).astype(np.float32)           # small magnitudes: float32 is plenty for lighting
+    rel = (p - ego_xyz).astype(np.float32)  # small magnitudes: float32 is plenty for lighting
     if len(lamps):
         dist = np.linalg.norm(lamps[:, :2] - ego_xyz[:2], axis=1)
-        near = lamps[np.argsort(dist, kind="stable")[:10]]        # the 10 nearest lamps light the scene
+        near = lamps[np.argsort(dist, kind="stable")[:10]]  # the 10 nearest lamps light the scene
         near = near[np.linalg.norm(near[:, :2] - ego_xyz[:2], axis=1) < 70.0]
         if len(near):
-            lrel = (near - ego_xyz).astype(np.float32)                         # (L,3)
+            lrel = (near - ego_xyz).astype(np.float32)  # (L,3)
             strength = np.float32(40.0 if world.lighting.night else 15.0)
-            dist2 = (np.einsum("ij,ij->i", rel, rel)[:, None] - 2 * rel @ lrel.T
-                     + np.einsum("ij,ij->i", lrel, lrel)[None])                 # (N,L)
+            dist2 = (
+                np.einsum("ij,ij->i", rel, rel)[:, None] - 2 * rel @ lrel.T + np.einsum("ij,ij->i", lrel, lrel)[None]
+            )  # (N,L)
             dist2 = np.maximum(dist2, 1e-4)
             vdotn = nrm @ lrel.T - np.einsum("ij,ij->i", rel, nrm)[:, None]
             inv_len = 1.0 / np.sqrt(dist2)
@@ -544,7 +586,7 @@ def _artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.nd
             out += total[:, None] * np.array([1.0, 0.78, 0.5], np.float32)
     if world.lighting.night:
         r = ego_to_world[:3, :3]
-        pe = rel @ r.astype(np.float32)                                     # world offset -> ego axes
+        pe = rel @ r.astype(np.float32)  # world offset -> ego axes
         xe, ye = pe[:, 0] - 2.0, pe[:, 1]
         width = 0.3 * np.maximum(xe, 0) + 1.0
         soft = np.clip(1.0 - np.abs(ye) / width, 0, 1)
@@ -568,8 +610,9 @@ def rain_streaks(rgb: np.ndarray, rng: np.random.Generator, count: int = 0) -> N
     rgb[ys[ok], xs[ok]] = rgb[ys[ok], xs[ok]] * 0.7 + 0.3 * 0.85
 
 
-def render_frame(world, t: int, cams: list[Camera], view_ids: list[int], ego_to_world: np.ndarray,
-                 smap: ShadowMap | None = None) -> dict:
+def render_frame(
+    world, t: int, cams: list[Camera], view_ids: list[int], ego_to_world: np.ndarray, smap: ShadowMap | None = None
+) -> dict:
     """Render all `cams` at frame t. Returns rgb (V,H,W,3) uint8, depth (V,H,W) float32, dynamic, semantic."""
     prims = world.prims_at(t)
     ts, pids, ps, ds, shapes = [], [], [], [], []
@@ -591,18 +634,21 @@ def render_frame(world, t: int, cams: list[Camera], view_ids: list[int], ego_to_
     off = 0
     for cam, vid, shp in zip(cams, view_ids, shapes):
         npx = shp[0] * shp[1]
-        img = rgb[off:off + npx].reshape(shp[0], shp[1], 3)
+        img = rgb[off : off + npx].reshape(shp[0], shp[1], 3)
         if world.lighting.rain:
             ss = np.random.SeedSequence([world.scenario.seed, 104729, t, vid])
             rain_streaks(img, np.random.Generator(np.random.PCG64(ss)))
         out_rgb.append(np.round(np.clip(img, 0, 1) * 255).astype(np.uint8))
-        tt = si.t[off:off + npx].reshape(shp)
+        tt = si.t[off : off + npx].reshape(shp)
         out_depth.append(tt.astype(np.float32))
-        pid = si.pid[off:off + npx].reshape(shp)
+        pid = si.pid[off : off + npx].reshape(shp)
         agent = np.where(pid >= 0, prims.agent[np.maximum(pid, 0)], -1)
-        out_dyn.append(moving[agent])            # agent -1 indexes the trailing False
-        out_sem.append(sem[off:off + npx].reshape(shp))
+        out_dyn.append(moving[agent])  # agent -1 indexes the trailing False
+        out_sem.append(sem[off : off + npx].reshape(shp))
         off += npx
-    return {"rgb": np.stack(out_rgb), "depth": np.stack(out_depth), "dynamic": np.stack(out_dyn),
-            "semantic": np.stack(out_sem)}
-
+    return {
+        "rgb": np.stack(out_rgb),
+        "depth": np.stack(out_depth),
+        "dynamic": np.stack(out_dyn),
+        "semantic": np.stack(out_sem),
+    }

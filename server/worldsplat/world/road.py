@@ -8,6 +8,7 @@ s = `cross_s`, with its own coordinates (s2 along +y, d2 left of +y, i.e. d2 = c
 `ground(x, y)` classifies ground points (road, lane marking, crosswalk, curb, sidewalk, terrain) for the
 renderer and the BEV raster, so both read the same layout.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,16 +26,16 @@ CURB_WIDTH = 0.2
 
 @dataclass(frozen=True)
 class RoadGeometry:
-    kind: str                 # straight | curve | intersection
-    setting: str              # urban | suburban | highway
-    lanes: int                # per direction
+    kind: str  # straight | curve | intersection
+    setting: str  # urban | suburban | highway
+    lanes: int  # per direction
     lane_width: float
-    curvature: float          # 1/m, left positive (0 unless kind == curve)
-    y0: float                 # world y of the centreline at x = 0 (the ego starts at world origin)
-    cross_s: float | None     # s of the cross road's centreline (intersection only)
-    crosswalks_s: tuple[float, ...] = ()   # mid-block crosswalks on the main road
+    curvature: float  # 1/m, left positive (0 unless kind == curve)
+    y0: float  # world y of the centreline at x = 0 (the ego starts at world origin)
+    cross_s: float | None  # s of the cross road's centreline (intersection only)
+    crosswalks_s: tuple[float, ...] = ()  # mid-block crosswalks on the main road
     lamp_spacing: float = 30.0
-    lamp_phase: tuple[float, float] = (0.0, 15.0)   # right side, left side
+    lamp_phase: tuple[float, float] = (0.0, 15.0)  # right side, left side
     median: float = field(default=0.0)
 
     # -- widths (all measured from the centreline, |d|) -----------------------------------------------------------
@@ -107,10 +108,11 @@ class RoadGeometry:
     # -- ground ------------------------------------------------------------------------------------------------------
     def _rank(self, ad: np.ndarray) -> np.ndarray:
         """0 road, 1 curb, 2 sidewalk, 3 beyond, by |d|."""
-        return ((ad >= self.road_half).astype(np.int8) + (ad >= self.curb_out) + (ad >= self.walk_out))
+        return (ad >= self.road_half).astype(np.int8) + (ad >= self.curb_out) + (ad >= self.walk_out)
 
-    def _markings(self, s: np.ndarray, d: np.ndarray, cross_along: float | None,
-                  crosswalks: tuple[float, ...]) -> np.ndarray:
+    def _markings(
+        self, s: np.ndarray, d: np.ndarray, cross_along: float | None, crosswalks: tuple[float, ...]
+    ) -> np.ndarray:
         """Marking kind on one road at (s, d); `cross_along` is where the other road crosses (s), if any."""
         ad = np.abs(d)
         out = np.zeros(s.shape, np.int8)
@@ -141,7 +143,7 @@ class RoadGeometry:
         return out
 
     def _other_walk_out(self) -> float:
-        return self.walk_out   # both roads share widths
+        return self.walk_out  # both roads share widths
 
     def crosswalks_on_main(self) -> tuple[float, ...]:
         cw = tuple(self.crosswalks_s)
@@ -219,7 +221,7 @@ class RoadGeometry:
                         if inside and seg_start is None:
                             seg_start = i
                         if (not inside or i == len(ss) - 1) and seg_start is not None:
-                            sub = ss[seg_start:i + 1]
+                            sub = ss[seg_start : i + 1]
                             if len(sub) >= 2:
                                 x, y, _ = xy_fn(sub, sign * dd)
                                 add(x, y, kind)
@@ -250,8 +252,13 @@ def make_road(scenario, rng: np.random.Generator, s_max: float, turn_entry: floa
     k = r.curvature if r.kind == "curve" else 0.0
     cross_s = None
     if r.kind == "intersection":
-        walk_out = median / 2 + lanes * w + {"urban": 2.3, "suburban": 1.6, "highway": 2.5}[r.setting] + CURB_WIDTH \
+        walk_out = (
+            median / 2
+            + lanes * w
+            + {"urban": 2.3, "suburban": 1.6, "highway": 2.5}[r.setting]
+            + CURB_WIDTH
             + {"urban": 3.5, "suburban": 1.8, "highway": 0.0}[r.setting]
+        )
         if turn_entry is not None:
             cross_s = turn_entry + walk_out
         else:
@@ -261,9 +268,19 @@ def make_road(scenario, rng: np.random.Generator, s_max: float, turn_entry: floa
         crosswalks = (float(rng.uniform(25.0, 50.0)),)
     spacing = 28.0 if r.setting != "highway" else 40.0
     phase = (float(rng.uniform(0, spacing)), float(rng.uniform(0, spacing)))
-    return RoadGeometry(kind=r.kind, setting=r.setting, lanes=lanes, lane_width=w, curvature=k, y0=-lane_d,
-                        cross_s=cross_s, crosswalks_s=crosswalks, lamp_spacing=spacing, lamp_phase=phase,
-                        median=median)
+    return RoadGeometry(
+        kind=r.kind,
+        setting=r.setting,
+        lanes=lanes,
+        lane_width=w,
+        curvature=k,
+        y0=-lane_d,
+        cross_s=cross_s,
+        crosswalks_s=crosswalks,
+        lamp_spacing=spacing,
+        lamp_phase=phase,
+        median=median,
+    )
 
 
 def bev_layers(road: RoadGeometry, x: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:

@@ -1,4 +1,5 @@
 """`simulate(world, shift_m, cameras, frames)`: render a world's exact ground truth into a `Clip`."""
+
 from __future__ import annotations
 
 import os
@@ -15,16 +16,16 @@ from worldsplat.world.render import render_frame, single_threaded_blas
 @dataclass
 class Clip:
     rig: list[RigCamera]
-    ego_to_world: np.ndarray      # (T,4,4) float64, the (unshifted) ego track
-    frame_times: np.ndarray       # (T,) float64 seconds
+    ego_to_world: np.ndarray  # (T,4,4) float64, the (unshifted) ego track
+    frame_times: np.ndarray  # (T,) float64 seconds
     fps: float
-    rgb: np.ndarray               # (T,V,H,W,3) uint8
-    depth: np.ndarray             # (T,V,H,W) float32 camera z in metres, sky = +inf
-    dynamic: np.ndarray           # (T,V,H,W) bool: pixels of moving agents
-    semantic: np.ndarray          # (T,V,H,W) uint8 class ids (worldsplat.world.classes)
+    rgb: np.ndarray  # (T,V,H,W,3) uint8
+    depth: np.ndarray  # (T,V,H,W) float32 camera z in metres, sky = +inf
+    dynamic: np.ndarray  # (T,V,H,W) bool: pixels of moving agents
+    semantic: np.ndarray  # (T,V,H,W) uint8 class ids (worldsplat.world.classes)
     caption: str
     shift_m: float = 0.0
-    frame_indices: tuple[int, ...] = ()   # which world frames these are
+    frame_indices: tuple[int, ...] = ()  # which world frames these are
 
     @property
     def camera_names(self) -> list[str]:
@@ -51,8 +52,9 @@ def render_threads() -> int:
     return min(2, os.cpu_count() or 1)
 
 
-def simulate(world: World, shift_m: float = 0.0, cameras: list[str] | None = None,
-             frames: list[int] | None = None) -> Clip:
+def simulate(
+    world: World, shift_m: float = 0.0, cameras: list[str] | None = None, frames: list[int] | None = None
+) -> Clip:
     """Render RGB, depth, dynamic mask and semantics for every camera and frame (the track shifted left by
     `shift_m` metres along the ego y axis)."""
     if not np.isfinite(shift_m) or abs(shift_m) > 50:
@@ -80,8 +82,16 @@ def simulate(world: World, shift_m: float = 0.0, cameras: list[str] | None = Non
                 outs = list(pool.map(one, frames))
         else:
             outs = [one(t) for t in frames]
-    return Clip(rig=list(rig), ego_to_world=world.ego_to_world[frames].copy(),
-                frame_times=world.frame_times[frames].copy(), fps=world.fps,
-                rgb=np.stack([o["rgb"] for o in outs]), depth=np.stack([o["depth"] for o in outs]),
-                dynamic=np.stack([o["dynamic"] for o in outs]), semantic=np.stack([o["semantic"] for o in outs]),
-                caption=world.caption, shift_m=float(shift_m), frame_indices=tuple(frames))
+    return Clip(
+        rig=list(rig),
+        ego_to_world=world.ego_to_world[frames].copy(),
+        frame_times=world.frame_times[frames].copy(),
+        fps=world.fps,
+        rgb=np.stack([o["rgb"] for o in outs]),
+        depth=np.stack([o["depth"] for o in outs]),
+        dynamic=np.stack([o["dynamic"] for o in outs]),
+        semantic=np.stack([o["semantic"] for o in outs]),
+        caption=world.caption,
+        shift_m=float(shift_m),
+        frame_indices=tuple(frames),
+    )

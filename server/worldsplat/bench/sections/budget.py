@@ -1,5 +1,6 @@
 """Model only what a scene needs: the static budget and the merge cell vs novel-view PSNR on exact ground truth,
 Gaussian count, .wsplat bytes and render time. Scene: an oracle-lifted preset clip aggregated per paper eq. 3."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,8 +20,12 @@ def run(quick: bool) -> Section:
     w, h, frames = (100, 56, 2) if quick else (200, 112, 4)
     shift = 2.0
     sc = load_preset("urban_straight")
-    sc = sc.model_copy(update={"image": sc.image.model_copy(update={"width": w, "height": h}),
-                               "clip": sc.clip.model_copy(update={"frames": frames})})
+    sc = sc.model_copy(
+        update={
+            "image": sc.image.model_copy(update={"width": w, "height": h}),
+            "clip": sc.clip.model_copy(update={"frames": frames}),
+        }
+    )
     world = build_world(sc)
     clip = simulate(world)
     gt = simulate(world, shift_m=shift)
@@ -30,15 +35,18 @@ def run(quick: bool) -> Section:
     fg = [[np.isfinite(gt.depth[t, v]) for v in range(V)] for t in range(T)]
 
     def evaluate(eco: Economy) -> tuple[list, float]:
-        scene, st = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=eco, image_size=(h, w))
+        scene, st = aggregate_4d(
+            per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=eco, image_size=(h, w)
+        )
         nbytes = len(wsplat.encode(scene))
         imgs = {}
         secs = time_once(lambda: imgs.update({t: render_frame_views(scene, t, shift, views) for t in range(T)}))
         p = float(np.mean([psnr(imgs[t][i], gt.rgb[t, v], fg[t][v]) for t in range(T) for i, v in enumerate(views)]))
         return [st.kept, st.kept / st.naive, nbytes, p, secs / (T * len(views))], p
 
-    union = aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False),
-                      image_size=(h, w))[1].static_union
+    union = aggregate_4d(
+        per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=Economy(enabled=False), image_size=(h, w)
+    )[1].static_union
     settings: dict[str, Economy] = {"naive union (no economy)": Economy(enabled=False)}
     fractions = [0.05, 0.1, 0.2] if quick else [0.025, 0.05, 0.1, 0.2]
     for f in fractions:
@@ -58,15 +66,25 @@ def run(quick: bool) -> Section:
         if eco.static_budget is not None:
             by_budget[eco.static_budget] = p
     return Section(
-        key="budget", title=f"Gaussian budget and merge cell (novel view at +{shift:.0f} m, non-sky pixels)",
-        columns=["setting", "Gaussians kept", "fraction of V*T*H*W", ".wsplat bytes", "PSNR vs exact GT (dB)",
-                 "render s / view"],
-        rows=rows, default=default,
+        key="budget",
+        title=f"Gaussian budget and merge cell (novel view at +{shift:.0f} m, non-sky pixels)",
+        columns=[
+            "setting",
+            "Gaussians kept",
+            "fraction of V*T*H*W",
+            ".wsplat bytes",
+            "PSNR vs exact GT (dB)",
+            "render s / view",
+        ],
+        rows=rows,
+        default=default,
         why="Merging static Gaussians that repeat across frames and views in cells of a few pixel footprints "
-            "keeps the novel-view PSNR of the naive union within a few hundredths of a dB at a fraction of the "
-            "Gaussians, bytes and render time; hard budgets below that cut visible detail first in the distance.",
+        "keeps the novel-view PSNR of the naive union within a few hundredths of a dB at a fraction of the "
+        "Gaussians, bytes and render time; hard budgets below that cut visible detail first in the distance.",
         pareto=Pareto("Gaussians kept", "PSNR vs exact GT (dB)", points, default=default, log_x=True),
-        notes=[f"Preset urban_straight, {T} frames x {V} views at {w}x{h}, oracle lifting; PSNR over "
-               f"{len(views)} view(s) per frame on non-sky pixels at +{shift:.0f} m; static union {union}."],
+        notes=[
+            f"Preset urban_straight, {T} frames x {V} views at {w}x{h}, oracle lifting; PSNR over "
+            f"{len(views)} view(s) per frame on non-sky pixels at +{shift:.0f} m; static union {union}."
+        ],
         data={"psnr_by_budget": by_budget},
     )

@@ -1,5 +1,6 @@
 """Rasterizer precision: the inputs stored as fp32 / fp16 / bf16 (the rasterizer upcasts to float32 by spec)
 against a float64 reference render, with time. Scene: an oracle-lifted preset view."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -38,15 +39,19 @@ def run(quick: bool) -> Section:
         e = float(np.abs(img - ref).max())
         err[t.name] = e
         p = psnr(img, ref)
-        rows.append([t.name, p if np.isfinite(p) else "exact", e, bool(np.isfinite(img).all()), t.median_s, t.ratio_to_baseline])
+        rows.append(
+            [t.name, p if np.isfinite(p) else "exact", e, bool(np.isfinite(img).all()), t.median_s, t.ratio_to_baseline]
+        )
         points.append((t.name, t.median_s, min(p, 150.0)))
     return Section(
-        key="precision", title="Rasterizer precision (reference: float64)",
+        key="precision",
+        title="Rasterizer precision (reference: float64)",
         columns=["inputs", "PSNR vs float64 (dB)", "max abs error", "finite", "seconds / view", "time ratio"],
-        rows=rows, default="float32",
+        rows=rows,
+        default="float32",
         why="float32 matches float64 far below one 8-bit level at about half the cost; fp16/bf16 storage halves "
-            "memory but bf16's 8-bit mantissa moves means by centimetres at 50 m, a visible error, and on CPU "
-            "the upcast makes neither faster.",
+        "memory but bf16's 8-bit mantissa moves means by centimetres at 50 m, a visible error, and on CPU "
+        "the upcast makes neither faster.",
         pareto=Pareto("seconds per view", "PSNR vs float64 (dB, capped at 150)", points, default="float32"),
         data={"error_by_dtype": err},
     )

@@ -1,5 +1,6 @@
 """.wsplat quantization: bits per field vs bytes per Gaussian and render PSNR (vs the float32 scene and vs the
 world's exact ground truth). Knob: position bits (and colour bits alongside), isotropic static layout."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -12,12 +13,24 @@ from worldsplat.gaussians import rasterize, wsplat
 
 
 def layout(pos_bits: int, col_bits: int, s_bits: int = 8, o_bits: int = 6) -> list:
-    return [["px", pos_bits], ["py", pos_bits], ["pz", pos_bits], ["s", s_bits], ["o", o_bits],
-            ["r", col_bits], ["g", col_bits], ["b", col_bits]]
+    return [
+        ["px", pos_bits],
+        ["py", pos_bits],
+        ["pz", pos_bits],
+        ["s", s_bits],
+        ["o", o_bits],
+        ["r", col_bits],
+        ["g", col_bits],
+        ["b", col_bits],
+    ]
 
 
 SETTINGS = {  # name -> (position bits, colour bits)
-    "8/5": (8, 5), "10/6": (10, 6), "12/7": (12, 7), "14/8 (default)": (14, 8), "16/8": (16, 8),
+    "8/5": (8, 5),
+    "10/6": (10, 6),
+    "12/7": (12, 7),
+    "14/8 (default)": (14, 8),
+    "16/8": (16, 8),
 }
 
 
@@ -49,15 +62,24 @@ def run(quick: bool) -> Section:
         by_bits[pb] = p_gt
     rows.append(["float32 (no quantization)", 56.0, float("inf"), psnr_gt_ref, 0.0])
     return Section(
-        key="quant", title=".wsplat quantization (static, isotropic layout)",
-        columns=["position/colour bits", "bytes per Gaussian (whole file)", "PSNR vs float32 render (dB)",
-                 "PSNR vs ground truth (dB)", "change vs float32 (dB)"],
-        rows=rows, default="14/8 (default)",
+        key="quant",
+        title=".wsplat quantization (static, isotropic layout)",
+        columns=[
+            "position/colour bits",
+            "bytes per Gaussian (whole file)",
+            "PSNR vs float32 render (dB)",
+            "PSNR vs ground truth (dB)",
+            "change vs float32 (dB)",
+        ],
+        rows=rows,
+        default="14/8 (default)",
         why="14-bit positions inside 256-Gaussian Morton blocks and 8-bit colour keep the loss against exact "
-            "ground truth within 0.1 dB at about 10 bytes per Gaussian; fewer bits save 1-2 bytes but cost "
-            "visibly, more bits buy nothing measurable.",
+        "ground truth within 0.1 dB at about 10 bytes per Gaussian; fewer bits save 1-2 bytes but cost "
+        "visibly, more bits buy nothing measurable.",
         pareto=Pareto("bytes per Gaussian", "PSNR vs ground truth (dB)", points, default="14/8 (default)"),
-        notes=[f"{n} static Gaussians, {len(cams)} view(s) at {w}x{h}; the float32 row counts 56 B/G "
-               "(14 float32 values) for comparison."],
+        notes=[
+            f"{n} static Gaussians, {len(cams)} view(s) at {w}x{h}; the float32 row counts 56 B/G "
+            "(14 float32 values) for comparison."
+        ],
         data={"psnr_by_bits": by_bits},
     )

@@ -1,5 +1,6 @@
 """The paper's efficiency table (Appendix B) for the small config on this machine: diffusion 1, Gaussian decoder,
 diffusion 2 (enhancer), VAE decode, total, peak memory."""
+
 from __future__ import annotations
 
 import resource
@@ -25,16 +26,39 @@ def run(quick: bool) -> Section:
     vae_dec = ref.get("decode", missing)
     total = t["conditions"] + t["diffusion"] + t["gs_decoder"] + (ref.get("total", 0.0) if ref else 0.0)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    rows = [[f"small, {d.width}x{d.height}, {d.views} views x {d.frames} frames, {steps} steps", t["diffusion"],
-             t["gs_decoder"], diff2, vae_dec, total / 60.0, "2-core CPU", peak_mb / 1024]]
-    notes = [f"Conditions (incl. caption encoding) took {t['conditions']:.2f} s. The enhancer stage table: "
-             + (", ".join(f"{k} {v:.2f}" for k, v in ref.items() if isinstance(v, float)) if ref else missing)]
+    rows = [
+        [
+            f"small, {d.width}x{d.height}, {d.views} views x {d.frames} frames, {steps} steps",
+            t["diffusion"],
+            t["gs_decoder"],
+            diff2,
+            vae_dec,
+            total / 60.0,
+            "2-core CPU",
+            peak_mb / 1024,
+        ]
+    ]
+    notes = [
+        f"Conditions (incl. caption encoding) took {t['conditions']:.2f} s. The enhancer stage table: "
+        + (", ".join(f"{k} {v:.2f}" for k, v in ref.items() if isinstance(v, float)) if ref else missing)
+    ]
     return Section(
-        key="stages", title="Stage table (paper Appendix B form)",
-        columns=["config", "Diff-1 (s)", "Gs Dec. (s)", "Diff-2 (s)", "VAE Dec. (s)", "Total (min)", "device",
-                 "peak memory (GB, process)"],
-        rows=rows, default=f"{steps} steps",
+        key="stages",
+        title="Stage table (paper Appendix B form)",
+        columns=[
+            "config",
+            "Diff-1 (s)",
+            "Gs Dec. (s)",
+            "Diff-2 (s)",
+            "VAE Dec. (s)",
+            "Total (min)",
+            "device",
+            "peak memory (GB, process)",
+        ],
+        rows=rows,
+        default=f"{steps} steps",
         why="As in the paper, the two diffusion passes dominate and the Gaussian decoder is a small fraction; "
-            "the rectified flow's few steps are what keep the total short.",
-        notes=notes, data={"timing": t, "refine": ref},
+        "the rectified flow's few steps are what keep the total short.",
+        notes=notes,
+        data={"timing": t, "refine": ref},
     )

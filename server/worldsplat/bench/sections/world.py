@@ -3,6 +3,7 @@
 Knob: image size. The world is exact at every size, so the "error" axis is the resolution lost (pixels per
 view); the cost is seconds per clip. Target from issue 2: 6 cameras x 8 frames at 112x200 in <= 3 s.
 """
+
 from __future__ import annotations
 
 from worldsplat.bench.report import Pareto, Section
@@ -18,11 +19,15 @@ def run(quick: bool) -> Section:
     base = load_preset("urban_straight")
     fns, worlds = {}, {}
     for h, w in sizes:
-        sc = base.model_copy(update={"image": base.image.model_copy(update={"width": w, "height": h}),
-                                     "clip": base.clip.model_copy(update={"frames": frames})})
+        sc = base.model_copy(
+            update={
+                "image": base.image.model_copy(update={"width": w, "height": h}),
+                "clip": base.clip.model_copy(update={"frames": frames}),
+            }
+        )
         world = build_world(sc)
         worlds[(h, w)] = world
-        fns[f"{w}x{h}"] = (lambda wd=world: simulate(wd))
+        fns[f"{w}x{h}"] = lambda wd=world: simulate(wd)
     timings = compare(fns, repeats=1 if quick else 2, warmup=0 if quick else 1)
     rows, points = [], []
     views = 6
@@ -31,12 +36,14 @@ def run(quick: bool) -> Section:
         rows.append([t.name, views, frames, t.median_s, rays / t.median_s / 1e6, t.ratio_to_baseline])
         points.append((t.name, t.median_s, float(h * w)))
     return Section(
-        key="world", title="Ground-truth world renderer",
+        key="world",
+        title="Ground-truth world renderer",
         columns=["image", "views", "frames", "seconds / clip", "Mrays/s", "time ratio"],
-        rows=rows, default="200x112",
+        rows=rows,
+        default="200x112",
         why="200x112 is the playground's default image: every issue-2 geometry test holds at it and a 6x8 clip "
-            "renders within the 3 s target on 2 cores; 400x224 quadruples the cost for detail the 64x112 models "
-            "never see.",
+        "renders within the 3 s target on 2 cores; 400x224 quadruples the cost for detail the 64x112 models "
+        "never see.",
         pareto=Pareto("seconds per clip", "pixels per view", points, default="200x112"),
         data={"seconds": {r[0]: r[3] for r in rows}},
     )

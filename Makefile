@@ -6,7 +6,7 @@ SETUP := bash package-config/setup.sh
 export XDG_RUNTIME_DIR ?= /tmp/worldsplat-xdg
 export PATH := $(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: demo test setup test-python test-rust test-wasm test-browser wasm bench lock clean
+.PHONY: demo test setup test-lint test-python test-rust test-wasm test-browser wasm bench lock clean
 
 demo: setup wasm
 	$(ROOT)/.venv/bin/worldsplat serve --host 127.0.0.1 --port 8000
@@ -16,7 +16,13 @@ setup:
 	@$(SETUP) all
 
 test: setup
-	@$(MAKE) --no-print-directory test-rust test-wasm test-python test-browser
+	@$(MAKE) --no-print-directory test-lint test-rust test-wasm test-python test-browser
+
+# Python layering (import-linter contracts in pyproject.toml), lint and format (ruff)
+test-lint:
+	$(ROOT)/.venv/bin/lint-imports
+	$(ROOT)/.venv/bin/ruff check server models tests
+	$(ROOT)/.venv/bin/ruff format --check server models tests
 
 test-python:
 	$(PY) -m pytest

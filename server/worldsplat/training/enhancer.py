@@ -324,14 +324,26 @@ def heldout_metrics(model, vae, samples: list[dict], steps: int = 8) -> dict:
     }
 
 
+def _current_command(cmd: str | None) -> str | None:
+    """A recorded command in today's spelling (`python -m worldsplat_models.train_enhancer` is now the CLI's)."""
+    return (
+        None if cmd is None else cmd.replace("python -m worldsplat_models.train_enhancer", "worldsplat train-enhancer")
+    )
+
+
 def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
     """models/weights/MODEL_CARD_enhancer.md from the provenance stored in the shipped weight files."""
     lines = [
         "# Enhanced diffusion model (refinement) - model card",
         "",
-        "Paper §3.4: refines renders of shifted (novel) tracks in latent space. Architecture and training: "
-        "`models/worldsplat_models/enhancer.py`, `train_enhancer.py`; use: `server/worldsplat/refine.py`; "
+        "Paper §3.4: refines renders of shifted (novel) tracks in latent space. Architecture: "
+        "`models/worldsplat_models/enhancer.py`; training: `server/worldsplat/training/enhancer.py` "
+        "(`worldsplat train-enhancer`); use: `server/worldsplat/pipeline/refine.py`; "
         "evaluation: `web/docs/refinement.md`.",
+        "",
+        "Since issue 16 the training pairs are rendered from the served oracle scene (eq. 3 via `aggregate_4d`, with the "
+        "economy) instead of the plain union these weights were trained on; re-running the command below trains on "
+        "those pairs, so its figures will differ from the ones recorded here until the model is retrained.",
         "",
     ]
     for name in ("enhancer_small.safetensors", "enhancer_small_nomix.safetensors"):
@@ -378,11 +390,11 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
             f"refined in holes only {hv.get('refined_holes', {}).get('psnr')} dB; test-split ablation in "
             "web/docs/refinement.md",
             (
-                f"- this run: `{prov.get('command')}` --grow (with --grow the pool of pairs grew while the pair "
+                f"- this run: `{_current_command(prov.get('command'))}` --grow (with --grow the pool of pairs grew while the pair "
                 "generator ran, so the step stream is not bit-reproducible)"
                 if prov.get("grow")
                 else f"- reproduce (the exact command of this file; makes the pairs first, then trains on all of "
-                f"them with the shipped VAE and decoder): `{prov.get('command')}`"
+                f"them with the shipped VAE and decoder): `{_current_command(prov.get('command'))}`"
             ),
             "",
         ]

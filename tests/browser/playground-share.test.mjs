@@ -43,6 +43,9 @@ test("the shift limit has one JS definition: share links, app.js and the slider 
   assert.equal(decodeShare(enc(-SHIFT_MAX_M)).view.shift_m, -SHIFT_MAX_M);
   assert.throws(() => decodeShare(enc(SHIFT_MAX_M + 0.1)), new RegExp(`\\[-${SHIFT_MAX_M}, ${SHIFT_MAX_M}\\]`));
   const web = (f) => readFileSync(new URL(`../../web/${f}`, import.meta.url), "utf8");
+  // the shared rig vector carries the Python limit (core.limits.MAX_SHIFT_M); Rust's test checks it too
+  const rig = JSON.parse(readFileSync(new URL("../vectors/rig/rig_shift.json", import.meta.url), "utf8"));
+  assert.equal(rig.shift_max_m, SHIFT_MAX_M, "JS and Python agree on the shift limit");
   const slider = web("index.html").match(/<input[^>]*id="shift"[^>]*>/)[0];
   assert.doesNotMatch(slider, /\b(min|max)=/, "the slider's bounds are set from limits.js, not in the HTML");
   for (const f of ["app.js", "share.js"]) {

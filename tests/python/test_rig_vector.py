@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from worldsplat.core.limits import MAX_SHIFT_M
 from worldsplat.core.scenario import load_preset
 from worldsplat.world.layout import build_world
 
@@ -27,7 +28,9 @@ def world(vector):
 
 def test_vector_covers_frames_shifts_and_rig(vector):
     assert len(vector["frames"]) >= 3 and len(vector["shifts_m"]) >= 6
-    assert -8.0 in vector["shifts_m"] and 8.0 in vector["shifts_m"]
+    # the shift limit of every language is pinned to this number (Rust SHIFT_MAX_M, JS web/limits.js SHIFT_MAX_M)
+    assert vector["shift_max_m"] == MAX_SHIFT_M
+    assert -MAX_SHIFT_M in vector["shifts_m"] and MAX_SHIFT_M in vector["shifts_m"]
     assert len(vector["cases"]) == len(vector["frames"]) * len(vector["shifts_m"]) * len(vector["rig"])
 
 

@@ -588,20 +588,22 @@ def write_wsplat(out_dir: Path) -> list[str]:
 
 # ---------------------------------------------------------------------------------------------- rig + shift
 RIG_PRESET = "suburban_curve"  # a curving road: the ego yaw changes from frame to frame
-RIG_SHIFTS_M = (-8.0, -2.0, 0.0, 1.5, 4.0, 8.0)  # both ends of the +-8 m limit included
+RIG_SHIFTS_INNER_M = (-2.0, 0.0, 1.5, 4.0)  # and both ends of the limit (MAX_SHIFT_M), which the vector also pins
 
 
 def rig_vector() -> dict:
     """The preset's rig and ego poses (inputs) and the world camera of every rig camera at every shift and at the
     first, middle and last frame (expected), as the Python world computes them (`World.camera`)."""
+    from worldsplat.core.limits import MAX_SHIFT_M
     from worldsplat.core.scenario import load_preset
     from worldsplat.world.layout import build_world
 
     world = build_world(load_preset(RIG_PRESET))
+    shifts = (-MAX_SHIFT_M, *RIG_SHIFTS_INNER_M, MAX_SHIFT_M)
     frames = sorted({0, world.num_frames // 2, world.num_frames - 1})
     cases = []
     for t in frames:
-        for shift in RIG_SHIFTS_M:
+        for shift in shifts:
             for rc in world.rig:
                 cam = world.camera(t, rc.name, shift)
                 cases.append(
@@ -624,7 +626,8 @@ def rig_vector() -> dict:
         "rig": [rc.to_json() for rc in world.rig],
         "ego_to_world": np.asarray(world.ego_to_world, np.float64).tolist(),
         "frame_times": [float(x) for x in world.frame_times],
-        "shifts_m": list(RIG_SHIFTS_M),
+        "shift_max_m": MAX_SHIFT_M,
+        "shifts_m": list(shifts),
         "frames": frames,
         "cases": cases,
     }

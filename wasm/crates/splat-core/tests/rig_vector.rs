@@ -50,6 +50,7 @@ fn vector_covers_frames_shifts_and_the_whole_rig() {
     let shifts: Vec<f64> = v["shifts_m"].as_array().unwrap().iter().map(|s| s.as_f64().unwrap()).collect();
     let frames = v["frames"].as_array().unwrap().len();
     assert!(frames >= 3 && shifts.len() >= 6, "{frames} frames, {} shifts", shifts.len());
+    assert_eq!(v["shift_max_m"].as_f64(), Some(SHIFT_MAX_M as f64), "the Python limit (core.limits.MAX_SHIFT_M) is Rust's");
     assert!(shifts.contains(&(SHIFT_MAX_M as f64)) && shifts.contains(&-(SHIFT_MAX_M as f64)), "both shift limits: {shifts:?}");
     assert_eq!(v["cases"].as_array().unwrap().len(), frames * shifts.len() * rig(&v).len());
 }

@@ -40,7 +40,7 @@ def test_presets_and_schema(client):
     assert r.status_code == 200
     presets = r.json()
     assert len(presets) >= 6 and sum(p["default"] for p in presets) == 1 and presets[0]["default"]
-    assert all("scenario" in p and p["scenario"]["version"] == 1 for p in presets)
+    assert all("scenario" in p and p["scenario"]["version"] == 2 for p in presets)
     assert client.get(f"/api/presets/{presets[1]['name']}").json() == presets[1]["scenario"]
     assert client.get("/api/presets/nope").status_code == 404
     schema = client.get("/api/schema").json()

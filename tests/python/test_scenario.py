@@ -21,7 +21,7 @@ OUT_OF_RANGE = [
     (("seed",), -1),
     (("seed",), 2**31),
     (("seed",), "7"),
-    (("version",), 2),
+    (("version",), 3),
     (("road", "kind"), "roundabout"),
     (("road", "setting"), "rural"),
     (("road", "lanes_per_direction"), 0),
@@ -105,7 +105,7 @@ def test_cross_field_rules_name_the_field(patch, field):
 def test_defaults_small_and_full_rig():
     s = Scenario()
     assert (s.image.width, s.image.height) == (200, 112)
-    assert len(s.rig.cameras) == 6 and s.version == 1
+    assert len(s.rig.cameras) == 6 and s.version == 2
 
 
 def test_normalized_json_is_canonical_and_id_stable():

@@ -4,12 +4,19 @@ Every field is bounded and every model forbids unknown keys, so bad input is rej
 field (`ScenarioError`, or pydantic's `ValidationError` whose `loc` names it). `Scenario.normalized_json()` is the
 canonical form the server hashes (`scenario_id`). Presets live in `presets/*.json` as
 `{"description": ..., "default": bool (optional), "scenario": {...}}`. See web/docs/world.md.
+
+Version 2 adds explicit `agents` (class, start placement, scripted motion or keyframes), an explicit ego `path`
+and a `caption`; version 1 documents are migrated on load (`migrate`). What needs the road geometry (overlaps,
+off-world positions along the road) is checked by `worldsplat.world.agents.check_scenario`, with the same
+"field: message" errors.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
+import re
 from importlib import resources
 from pathlib import Path
 from typing import Literal
@@ -20,7 +27,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from worldsplat.core.camera import CAMERA_NAMES
 from worldsplat.core.paths import docs_dir
 
-SCENARIO_VERSION = 1
+SCENARIO_VERSION = 2
+MAX_AGENTS = 64
 PRESETS_DIR = Path(str(resources.files("worldsplat") / "presets"))  # package data (pyproject.toml)
 PRESET_KEYS = {"description", "default", "scenario"}
 
@@ -78,10 +86,190 @@ class Environment(_Strict):
     weather: Weather = "clear"
 
 
+WORLD_X = (-140.0, 400.0)  # world extent (m) of free poses and keyframes: x along the ego's start heading
+WORLD_Y = 150.0  # |y| bound (m)
+
+
+class Keyframe(_Strict):
+    t: float = Field(ge=0.0, le=60.0, description="time in seconds from the clip start")
+    x: float = Field(ge=WORLD_X[0], le=WORLD_X[1], description="world x in metres (the ego starts at 0, facing +x)")
+    y: float = Field(ge=-WORLD_Y, le=WORLD_Y, description="world y in metres (left positive)")
+
+
+def _check_keyframes(kf: list[Keyframe], name: str, max_speed: float) -> None:
+    for i in range(1, len(kf)):
+        dt = kf[i].t - kf[i - 1].t
+        if dt <= 0:
+            raise ValueError(f"{name}[{i}].t: keyframe times must increase ({kf[i - 1].t:g} s then {kf[i].t:g} s)")
+        v = math.hypot(kf[i].x - kf[i - 1].x, kf[i].y - kf[i - 1].y) / dt
+        if v > max_speed + 1e-9:
+            raise ValueError(f"{name}[{i}]: {v:.1f} m/s from keyframe {i - 1} exceeds the {max_speed:g} m/s bound")
+
+
 class Ego(_Strict):
     speed: float = Field(8.0, ge=0.0, le=30.0, description="ego speed in m/s")
     start_lane: int = Field(0, ge=0, le=3, description="lane index counted from the kerb (0 = rightmost)")
     manoeuvre: Manoeuvre = "keep_lane"
+    path: list[Keyframe] | None = Field(
+        None,
+        min_length=2,
+        max_length=64,
+        description="explicit ego path (rear axle) as time-stamped keyframes in "
+        "the world frame, starting at t = 0, x = 0, y = 0; replaces "
+        "speed and manoeuvre; interpolated smoothly, heading from the "
+        "tangent (+x at t = 0)",
+    )
+
+    @field_validator("path")
+    @classmethod
+    def _path(cls, v: list[Keyframe] | None) -> list[Keyframe] | None:
+        if v is None:
+            return v
+        if v[0].t != 0.0 or abs(v[0].x) > 1e-6 or abs(v[0].y) > 1e-6:
+            raise ValueError("path[0]: the ego path starts at its start pose: t = 0, x = 0, y = 0")
+        _check_keyframes(v, "path", 30.0)
+        return v
+
+
+# -- explicit agents (v2) ---------------------------------------------------------------------------------------
+AgentClass = Literal["car", "bus", "truck", "pedestrian", "cyclist"]
+# Default size (length, width, height) and bounds per class, speed (m/s) and acceleration (m/s^2) bounds.
+CLASS_SIZE = {
+    "car": (4.5, 1.85, 1.5),
+    "bus": (11.0, 2.55, 3.15),
+    "truck": (7.5, 2.45, 3.3),
+    "pedestrian": (0.5, 0.6, 1.75),
+    "cyclist": (1.8, 0.6, 1.92),
+}
+CLASS_SIZE_BOUNDS = {
+    "car": ((3.0, 6.0), (1.4, 2.3), (1.1, 2.2)),
+    "bus": ((7.0, 15.0), (2.2, 2.8), (2.5, 4.2)),
+    "truck": ((5.0, 14.0), (2.0, 2.8), (2.2, 4.2)),
+    "pedestrian": ((0.3, 1.0), (0.3, 1.0), (0.9, 2.1)),
+    "cyclist": ((1.3, 2.2), (0.4, 1.0), (1.4, 2.2)),
+}
+CLASS_MAX_SPEED = {"car": 40.0, "bus": 30.0, "truck": 30.0, "pedestrian": 4.0, "cyclist": 12.0}
+CLASS_MAX_ACCEL = {"car": 9.0, "bus": 6.0, "truck": 6.0, "pedestrian": 3.0, "cyclist": 4.0}
+
+
+class AgentSize(_Strict):
+    length: float = Field(gt=0.0, le=15.0, description="metres (bounded per class)")
+    width: float = Field(gt=0.0, le=3.0, description="metres (bounded per class)")
+    height: float = Field(gt=0.0, le=4.5, description="metres (bounded per class)")
+
+
+class LaneStart(_Strict):
+    kind: Literal["lane"] = "lane"
+    direction: Literal["same", "opposite"] = Field(
+        "same", description="same: the ego's direction of travel; opposite: the oncoming lanes"
+    )
+    lane: int = Field(0, ge=0, le=3, description="lane index counted from the kerb (0 = rightmost in its direction)")
+    s: float = Field(
+        0.0,
+        ge=WORLD_X[0],
+        le=WORLD_X[1],
+        description="distance in metres along the main road from the ego's start (footprint centre)",
+    )
+    lateral: float = Field(
+        0.0, ge=-12.0, le=12.0, description="metres left of the lane centre, in the agent's direction of travel"
+    )
+
+
+class PoseStart(_Strict):
+    kind: Literal["pose"] = "pose"
+    x: float = Field(ge=WORLD_X[0], le=WORLD_X[1], description="world x in metres (footprint centre)")
+    y: float = Field(ge=-WORLD_Y, le=WORLD_Y, description="world y in metres")
+    yaw_deg: float = Field(0.0, ge=-360.0, le=360.0, description="heading in degrees, 0 = +x, left positive")
+
+
+class AgentEvent(_Strict):
+    t: float = Field(ge=0.0, le=60.0, description="when the event starts, seconds from the clip start")
+    action: Literal["lane_change", "stop", "set_speed"]
+    lane: int | None = Field(None, ge=0, le=3, description="lane_change: the target lane (same direction)")
+    speed: float | None = Field(None, ge=0.0, le=40.0, description="set_speed: the target speed in m/s")
+    duration: float = Field(2.0, ge=0.2, le=20.0, description="seconds the lane change, stop or speed change takes")
+
+
+class AgentMotion(_Strict):
+    speed: float = Field(0.0, ge=0.0, le=40.0, description="initial speed in m/s along the lane or heading")
+    events: list[AgentEvent] = Field(default_factory=list, max_length=16, description="scripted events in time order")
+    keyframes: list[Keyframe] | None = Field(
+        None,
+        min_length=2,
+        max_length=64,
+        description="an explicit trajectory (footprint centre) instead of a "
+        "start and events: interpolated smoothly, heading from "
+        "the tangent, held after the last keyframe",
+    )
+
+
+class AgentSpec(_Strict):
+    model_config = ConfigDict(
+        extra="forbid", strict=True, allow_inf_nan=False, frozen=True, populate_by_name=True, serialize_by_alias=True
+    )
+    id: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,32}$", description="unique name, reported in boxes.json")
+    cls: AgentClass = Field(alias="class", description="object class")
+    size: AgentSize | None = Field(None, description="overrides the class default size")
+    start: LaneStart | PoseStart | None = Field(
+        None, discriminator="kind", description="lane placement or free world pose (not with motion.keyframes)"
+    )
+    motion: AgentMotion = Field(default_factory=AgentMotion)
+
+    @property
+    def dims(self) -> tuple[float, float, float]:
+        if self.size is None:
+            return CLASS_SIZE[self.cls]
+        return (self.size.length, self.size.width, self.size.height)
+
+    @model_validator(mode="after")
+    def _rules(self) -> AgentSpec:
+        c, m = self.cls, self.motion
+        if self.size is not None:
+            for name, v, (lo, hi) in zip(("length", "width", "height"), self.dims, CLASS_SIZE_BOUNDS[c]):
+                if not lo <= v <= hi:
+                    raise ValueError(f"size.{name}: {v:g} m is outside {lo:g}..{hi:g} m for a {c}")
+        vmax, amax = CLASS_MAX_SPEED[c], CLASS_MAX_ACCEL[c]
+        if m.keyframes is not None:
+            if self.start is not None:
+                raise ValueError("start: give a start or motion.keyframes, not both")
+            if m.events or m.speed:
+                raise ValueError("motion.keyframes: keyframes replace motion.speed and motion.events")
+            _check_keyframes(m.keyframes, "motion.keyframes", vmax)
+            return self
+        if self.start is None:
+            raise ValueError("start: an agent needs a start placement or motion.keyframes")
+        if m.speed > vmax:
+            raise ValueError(f"motion.speed: {m.speed:g} m/s exceeds the {vmax:g} m/s bound for a {c}")
+        v, t_prev = m.speed, -1.0
+        for j, e in enumerate(m.events):
+            where = f"motion.events[{j}]"
+            if e.t < t_prev:
+                raise ValueError(f"{where}.t: events must be in time order ({t_prev:g} s then {e.t:g} s)")
+            t_prev = e.t
+            if e.action == "lane_change":
+                if self.start.kind != "lane":
+                    raise ValueError(f"{where}: lane_change needs a lane start")
+                if e.lane is None:
+                    raise ValueError(f"{where}.lane: lane_change needs a target lane")
+            elif e.lane is not None:
+                raise ValueError(f"{where}.lane: only for lane_change")
+            if e.action == "set_speed":
+                if e.speed is None:
+                    raise ValueError(f"{where}.speed: set_speed needs a target speed")
+                if e.speed > vmax:
+                    raise ValueError(f"{where}.speed: {e.speed:g} m/s exceeds the {vmax:g} m/s bound for a {c}")
+                target = e.speed
+            elif e.speed is not None:
+                raise ValueError(f"{where}.speed: only for set_speed")
+            else:
+                target = 0.0 if e.action == "stop" else v
+            if abs(target - v) / e.duration > amax + 1e-9:
+                raise ValueError(
+                    f"{where}.duration: {abs(target - v) / e.duration:.1f} m/s^2 exceeds the "
+                    f"{amax:g} m/s^2 bound for a {c} (make it at least {abs(target - v) / amax:.2f} s)"
+                )
+            v = target
+        return self
 
 
 class Clip(_Strict):
@@ -114,7 +302,7 @@ class Rig(_Strict):
 
 
 class Scenario(_Strict):
-    version: Literal[1] = Field(1, description="scenario format version")
+    version: Literal[2] = Field(2, description="scenario format version (version 1 documents are migrated)")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="world seed: the same scenario gives the same world")
     road: Road = Field(default_factory=Road)
     traffic: Traffic = Field(default_factory=Traffic)
@@ -123,6 +311,14 @@ class Scenario(_Strict):
     clip: Clip = Field(default_factory=Clip)
     image: Image = Field(default_factory=Image)
     rig: Rig = Field(default_factory=Rig)
+    agents: list[AgentSpec] = Field(
+        default_factory=list,
+        description=f"explicit agents (at most {MAX_AGENTS}); "
+        "the traffic counts fill the rest of the street around them",
+    )
+    caption: str | None = Field(
+        None, max_length=400, description="the scene's text prompt (default: composed from the world)"
+    )
 
     model_config = ConfigDict(
         extra="forbid",
@@ -133,8 +329,40 @@ class Scenario(_Strict):
         json_schema_extra={"$id": "https://worldsplat.local/scenario.schema.json"},
     )
 
+    @model_validator(mode="before")
+    @classmethod
+    def _migrate(cls, data):
+        return migrate(data)
+
+    @field_validator("agents", mode="before")
+    @classmethod
+    def _at_most(cls, v):
+        if isinstance(v, list) and len(v) > MAX_AGENTS:
+            raise ValueError(f"at most {MAX_AGENTS} agents (got {len(v)})")
+        return v
+
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
+        errors = []
+        ids: dict[str, int] = {}
+        for i, a in enumerate(self.agents):
+            if a.id in ids:
+                errors.append(f"agents[{i}].id: {a.id!r} is already agents[{ids[a.id]}]")
+            ids.setdefault(a.id, i)
+            lanes = self.road.lanes_per_direction
+            if a.start is not None and a.start.kind == "lane" and a.start.lane >= lanes:
+                errors.append(
+                    f"agents[{i}].start.lane: lane {a.start.lane} does not exist on a road with {lanes} "
+                    f"lane(s) per direction"
+                )
+            for j, e in enumerate(a.motion.events):
+                if e.lane is not None and e.lane >= lanes:
+                    errors.append(
+                        f"agents[{i}].motion.events[{j}].lane: lane {e.lane} does not exist on a road "
+                        f"with {lanes} lane(s) per direction"
+                    )
+        if errors:
+            raise ValueError("\n".join(errors))
         lanes, lane, m = self.road.lanes_per_direction, self.ego.start_lane, self.ego.manoeuvre
         if lane >= lanes:
             raise ValueError(
@@ -155,7 +383,11 @@ class Scenario(_Strict):
     # -- canonical form -------------------------------------------------------------------------------------------
     def normalized_json(self) -> str:
         """Canonical JSON: every field present, keys sorted, no whitespace (what the server hashes)."""
-        return json.dumps(self.model_dump(mode="json"), sort_keys=True, separators=(",", ":"), allow_nan=False)
+        return json.dumps(self.to_json_dict(), sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+    def to_json_dict(self) -> dict:
+        """The scenario as a JSON-ready dict (agent classes under "class")."""
+        return self.model_dump(mode="json", by_alias=True)
 
     @property
     def duration(self) -> float:
@@ -186,7 +418,7 @@ class Scenario(_Strict):
 
     def with_updates(self, **sections: dict) -> Scenario:
         """A copy with some fields replaced, validated again, e.g. `s.with_updates(seed=3, clip={"frames": 2})`."""
-        data = self.model_dump(mode="json")
+        data = self.to_json_dict()
         for key, value in sections.items():
             if isinstance(value, dict):
                 data[key] = {**data[key], **value}
@@ -195,16 +427,53 @@ class Scenario(_Strict):
         return Scenario.parse(data)
 
 
+def migrate(data):
+    """A version 1 document as version 2 (v1 fields keep their meaning; v2 adds agents, ego.path, caption)."""
+    if isinstance(data, dict) and "version" in data and data["version"] not in (1, 2):
+        raise ValueError(f"version: unsupported scenario version {data['version']!r} (this build reads 1 and 2)")
+    if isinstance(data, dict) and data.get("version") == 1:
+        data = {**data, "version": 2}
+    return data
+
+
 def format_errors(e: ValidationError) -> list[str]:
     out = []
     for err in e.errors():
-        loc = ".".join(str(p) for p in err["loc"])
+        loc = _loc(err["loc"])
         msg = err["msg"]
         if err["type"] == "extra_forbidden":
             msg = "unknown field"
         if msg.startswith("Value error, "):
             msg = msg[len("Value error, ") :]
-        out.append(f"{loc}: {msg}" if loc else msg)
+        for part in msg.split("\n") if err["type"] == "value_error" else [msg]:
+            sub = part.split(": ", 1)
+            if len(sub) == 2 and _FIELDLIKE.match(sub[0]):
+                # A validator naming a sub-field ("start: ...", "path[2].t: ...") extends the location.
+                last = loc.rsplit(".", 1)[-1]
+                if not loc:
+                    head = sub[0]
+                elif sub[0].startswith(last + "["):
+                    head = loc[: len(loc) - len(last)] + sub[0]
+                else:
+                    head = f"{loc}.{sub[0]}"
+                out.append(f"{head}: {sub[1]}")
+            else:
+                out.append(f"{loc}: {part}" if loc else part)
+    return out
+
+
+_FIELDLIKE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[\d+\])?(\.[A-Za-z_][A-Za-z0-9_]*(\[\d+\])?)*$")
+
+
+def _loc(parts) -> str:
+    out = ""
+    for p in parts:
+        if isinstance(p, int):
+            out += f"[{p}]"
+        elif p in ("lane", "pose") and out.endswith(".start"):
+            continue  # the discriminated union's tag adds nothing
+        else:
+            out += ("." if out else "") + str(p)
     return out
 
 
@@ -277,12 +546,60 @@ def resolve_scenario(arg: str) -> Scenario:
 
 # -- random scenarios (dataset) -----------------------------------------------------------------------------------
 def random_scenario(
-    seed: int, width: int = 112, height: int = 64, frames: int = 4, fps: float = 4.0, preset_mix: bool = False
+    seed: int,
+    width: int = 112,
+    height: int = 64,
+    frames: int = 4,
+    fps: float = 4.0,
+    preset_mix: bool = False,
+    explicit_agents: float = 0.0,
 ) -> Scenario:
     """A varied scenario for a dataset seed: road kind, setting, lanes, traffic, weather, time, ego manoeuvre.
 
     With `preset_mix`, a preset chosen by the seed is the starting point and only seed/traffic/weather vary.
+    With `explicit_agents` > 0, that fraction of the scenarios also gets 1-3 explicit v2 agents
+    (`add_random_agents`, its own random stream: the rest of the scenario is the same as without).
     """
+    sc = _random_scenario(seed, width, height, frames, fps, preset_mix)
+    if explicit_agents > 0.0:
+        sc = add_random_agents(sc, seed, explicit_agents)
+    return sc
+
+
+def add_random_agents(sc: Scenario, seed: int, probability: float = 1.0) -> Scenario:
+    """With `probability`, add 1-3 explicit agents (car, bus, truck, cyclist) ahead of the ego, each in a lane of
+    the ego's direction and faster than the ego (so they pull away), or standing in an oncoming lane far ahead;
+    overlap-free by construction (distinct lanes or >= 20 m apart). A scenario that already has agents is kept."""
+    rng = np.random.Generator(np.random.PCG64([seed, 18]))
+    if sc.agents or rng.random() >= probability:
+        return sc
+    lanes = sc.road.lanes_per_direction
+    v_ego = sc.ego.path[-1].x / max(sc.ego.path[-1].t, 1e-6) if sc.ego.path else sc.ego.speed
+    agents = []
+    for i in range(int(rng.integers(1, 4))):
+        cls = str(rng.choice(["car", "car", "car", "bus", "truck", "cyclist"]))
+        gap = 18.0 + 20.0 * i + float(rng.uniform(0.0, 6.0))
+        if rng.random() < 0.3:  # standing in an oncoming lane, beyond where the ego gets to
+            start = {
+                "kind": "lane",
+                "direction": "opposite",
+                "lane": int(rng.integers(lanes)),
+                "s": round(gap + v_ego * sc.duration + 12.0, 2),
+            }
+            motion = {"speed": 0.0}
+        else:
+            vmax = CLASS_MAX_SPEED[cls]
+            start = {"kind": "lane", "direction": "same", "lane": int(rng.integers(lanes)), "s": round(gap, 2)}
+            motion = {"speed": round(min(vmax, 1.6 * v_ego + 3.0), 2)}
+            if motion["speed"] < 1.6 * v_ego + 3.0 - 1e-9 or gap + (motion["speed"] - v_ego) * sc.duration > 150.0:
+                continue  # too fast for the class, or leaving the built world: skip it
+        agents.append({"id": f"rnd{i}", "class": cls, "start": start, "motion": motion})
+    if not agents:
+        return sc
+    return sc.with_updates(agents=agents)
+
+
+def _random_scenario(seed: int, width: int, height: int, frames: int, fps: float, preset_mix: bool) -> Scenario:
     rng = np.random.Generator(np.random.PCG64(seed))
     image = {"width": width, "height": height}
     clip = {"frames": frames, "fps": fps}

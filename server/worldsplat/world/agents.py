@@ -13,9 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from worldsplat.core.scenario import ScenarioError
 from worldsplat.world.classes import BUS, CAR, CYCLIST, PEDESTRIAN, TRUCK
 from worldsplat.world.prims import M_BUS, M_CABIN, M_CAR_BODY, M_PERSON, M_PLAIN, PrimBuilder, Prims
-from worldsplat.world.road import RoadGeometry
+from worldsplat.world.road import RoadGeometry, make_road
 
 VEHICLE_COLOURS = (
     ("white", (0.82, 0.83, 0.84)),
@@ -62,6 +63,7 @@ class Agent:
     moving: bool  # a moving agent (its pixels are dynamic)
     poses: np.ndarray  # (T,3) x, y, yaw of the footprint centre (z = 0 is the ground)
     where: tuple  # ("lane", road, direction, lane) | ("sidewalk", side) | ("parked", side)
+    agent_id: str | None = None  # the scenario's `agents[i].id` for an explicit agent (v2)
 
     def box_corners(self, t: int) -> np.ndarray:
         """(8,3) world corners at frame t: bottom face then top face, each counter-clockwise from rear-right."""
@@ -276,14 +278,31 @@ class TrafficBuilder:
         self.lane_members: dict[tuple, list[tuple[np.ndarray, float]]] = {}
         lanes = {scenario.ego.start_lane}
         m = scenario.ego.manoeuvre
-        if m == "lane_change_left":
+        if scenario.ego.path is not None:
+            _, d_ego = road.sd(ego_rear[:, 0], ego_rear[:, 1])
+            for dd in d_ego:
+                if -road.lanes_edge < dd < -road.median / 2:
+                    lanes.add(
+                        int(np.clip(road.lanes - 1 - (-dd - road.median / 2) // road.lane_width, 0, road.lanes - 1))
+                    )
+        elif m == "lane_change_left":
             lanes.add(scenario.ego.start_lane + 1)
-        if m == "lane_change_right":
+        elif m == "lane_change_right":
             lanes.add(scenario.ego.start_lane - 1)
         self.ego_lanes = lanes
         for ln in lanes:
             self.lane_members[("main", 1, ln)] = [(s_ego + (EGO_LENGTH / 2 - EGO_REAR_OVERHANG), EGO_LENGTH)]
         self.ego_speed = scenario.ego.speed
+
+    def add_explicit(self, agent: Agent) -> None:
+        """An explicit agent, accepted as is: the procedural traffic keeps clear of it and follows it in its lane."""
+        l, w, _ = agent.size
+        key = None
+        s_traj = None
+        if agent.where[0] == "lane":
+            key = agent.where[1:]
+            s_traj, _ = self.road.sd(agent.poses[:, 0], agent.poses[:, 1])
+        self._accept(agent, 0.35 if agent.cls in (CAR, BUS, TRUCK) else 0.2, key, s_traj)
 
     def _lane_pose(self, road_name: str, direction: int, s: np.ndarray, d: float) -> np.ndarray:
         fn = self.road.xy if road_name == "main" else self.road.cross_xy
@@ -456,8 +475,10 @@ def build_agents(
     road: RoadGeometry, scenario, rng: np.random.Generator, times: np.ndarray, ego_rear: np.ndarray, travel: float
 ) -> list[Agent]:
     tb = TrafficBuilder(road, scenario, rng, times, ego_rear, travel)
+    for agent in explicit_agents(road, scenario, times, ego_rear, travel):
+        tb.add_explicit(agent)
     t = scenario.traffic
-    track = 1
+    track = len(tb.agents) + 1
     for n, add in (
         (t.parked_vehicles, tb.add_parked),
         (t.moving_vehicles, tb.add_moving_vehicle),
@@ -468,3 +489,243 @@ def build_agents(
             if add(track):
                 track += 1
     return tb.agents
+
+
+# -- explicit agents (scenario v2) --------------------------------------------------------------------------------
+CLASS_IDS = {"car": CAR, "bus": BUS, "truck": TRUCK, "pedestrian": PEDESTRIAN, "cyclist": CYCLIST}
+FINE_DT = 0.02  # s, the grid explicit motion is integrated on before sampling the frames
+WORLD_BEHIND, WORLD_AHEAD, WORLD_BESIDE = 140.0, 160.0, 15.0  # the built world around the ego's travel (m)
+
+
+def hermite(
+    t_k: np.ndarray, p_k: np.ndarray, t: np.ndarray, start_tangent: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """C1 cubic Hermite through keyframes (t_k, p_k (K,2)) with Catmull-Rom tangents; held after the last one.
+
+    Returns positions (N,2) and velocities (N,2) at times t."""
+    K = len(t_k)
+    m = np.zeros_like(p_k)
+    m[0] = (p_k[1] - p_k[0]) / (t_k[1] - t_k[0])
+    m[-1] = (p_k[-1] - p_k[-2]) / (t_k[-1] - t_k[-2])
+    if K > 2:
+        m[1:-1] = (p_k[2:] - p_k[:-2]) / (t_k[2:] - t_k[:-2])[:, None]
+    if start_tangent is not None:
+        m[0] = start_tangent
+    tc = np.clip(t, t_k[0], t_k[-1])
+    i = np.clip(np.searchsorted(t_k, tc, side="right") - 1, 0, K - 2)
+    h = (t_k[i + 1] - t_k[i])[:, None]
+    u = ((tc - t_k[i])[:, None]) / h
+    h00, h10, h01, h11 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2, u**3 - u**2
+    pos = h00 * p_k[i] + h10 * h * m[i] + h01 * p_k[i + 1] + h11 * h * m[i + 1]
+    d00, d10, d01, d11 = 6 * u**2 - 6 * u, 3 * u**2 - 4 * u + 1, -6 * u**2 + 6 * u, 3 * u**2 - 2 * u
+    vel = (d00 * p_k[i] + d01 * p_k[i + 1]) / h + d10 * m[i] + d11 * m[i + 1]
+    vel = np.where((t > t_k[-1])[:, None], 0.0, vel)
+    return pos, vel
+
+
+def _heading(vel: np.ndarray, yaw0: float) -> np.ndarray:
+    """Heading from the velocity, held (from yaw0 at the start) wherever the agent stands still."""
+    speed = np.linalg.norm(vel, axis=1)
+    raw = np.arctan2(vel[:, 1], vel[:, 0])
+    moving = speed > 0.05
+    if moving.any() and not moving[0]:
+        yaw0 = float(raw[np.argmax(moving)]) if yaw0 is None else yaw0
+    out = np.empty(len(vel))
+    cur = 0.0 if yaw0 is None else yaw0
+    for k in range(len(vel)):
+        if moving[k]:
+            cur = float(raw[k])
+        out[k] = cur
+    return np.unwrap(out)
+
+
+def keyframe_poses(keyframes, times: np.ndarray, start_along_x: bool = False) -> np.ndarray:
+    """(T,3) x, y, yaw sampled at `times` from keyframes (objects with t, x, y)."""
+    t_k = np.array([k.t for k in keyframes], np.float64)
+    p_k = np.array([[k.x, k.y] for k in keyframes], np.float64)
+    tangent = None
+    if start_along_x:
+        tangent = np.array([np.linalg.norm(p_k[1] - p_k[0]) / (t_k[1] - t_k[0]), 0.0])
+    fine = np.union1d(np.arange(0.0, float(times[-1]) + FINE_DT, FINE_DT), times)
+    pos, vel = hermite(t_k, p_k, fine, tangent)
+    yaw = _heading(vel, 0.0 if start_along_x else None)
+    idx = np.searchsorted(fine, times)
+    return np.stack([pos[idx, 0], pos[idx, 1], yaw[idx]], -1)
+
+
+def _speed_profile(motion, fine: np.ndarray) -> np.ndarray:
+    """Speed on the fine grid: the initial speed, ramped linearly by each stop / set_speed event."""
+    v = np.full_like(fine, motion.speed)
+    cur = motion.speed
+    for e in motion.events:
+        if e.action == "lane_change":
+            continue
+        target = 0.0 if e.action == "stop" else float(e.speed)
+        u = np.clip((fine - e.t) / e.duration, 0.0, 1.0)
+        v = np.where(fine >= e.t, cur + (target - cur) * u, v)
+        cur = target
+    return v
+
+
+def spec_poses(spec, road: RoadGeometry, times: np.ndarray) -> np.ndarray:
+    """(T,3) footprint-centre poses of an explicit agent (scenario v2 `agents[i]`)."""
+    m = spec.motion
+    if m.keyframes is not None:
+        return keyframe_poses(m.keyframes, times)
+    fine = np.union1d(np.arange(0.0, float(times[-1]) + FINE_DT, FINE_DT), times)
+    v = _speed_profile(m, fine)
+    dist = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(fine))])
+    st = spec.start
+    if st.kind == "pose":
+        yaw = math.radians(st.yaw_deg)
+        x, y = st.x + dist * math.cos(yaw), st.y + dist * math.sin(yaw)
+        poses = np.stack([x, y, np.full_like(x, yaw)], -1)
+    else:
+        direction = 1 if st.direction == "same" else -1
+        d = np.full_like(fine, road.lane_center_d(st.lane, direction) + direction * st.lateral)
+        for e in m.events:
+            if e.action == "lane_change":
+                d_to = road.lane_center_d(e.lane, direction) + direction * st.lateral
+                d_from = np.interp(e.t, fine, d)
+                u = _smoothstep((fine - e.t) / e.duration)
+                d = np.where(fine >= e.t, d_from + (d_to - d_from) * u, d)
+        # Arc length along the lane: ds = v dt / (1 - k d).
+        k = road.curvature
+        ds = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(fine) / np.maximum(0.2, 1 - k * d[1:]))])
+        s = st.s + direction * ds
+        x, y, _ = road.xy(s, d)
+        vel = np.stack([np.gradient(x, fine), np.gradient(y, fine)], -1)
+        x0, y0, h0 = road.xy(np.array([st.s]), np.array([d[0]]))
+        yaw = _heading(vel, float(h0[0]) + (0.0 if direction > 0 else math.pi))
+        poses = np.stack([x, y, yaw], -1)
+    idx = np.searchsorted(fine, times)
+    return poses[idx]
+
+
+def ego_travel(scenario, times: np.ndarray) -> float:
+    """How far the ego gets along +x (m): sizes the built world."""
+    if scenario.ego.path is not None:
+        return max(0.0, max(k.x for k in scenario.ego.path))
+    return scenario.ego.speed * float(times[-1])
+
+
+def ego_rear_poses(road: RoadGeometry, scenario, times: np.ndarray, travel: float) -> np.ndarray:
+    """(T,3) rear-axle poses of the ego: the explicit path when given, else the manoeuvre at constant speed."""
+    if scenario.ego.path is not None:
+        ego = keyframe_poses(scenario.ego.path, times, start_along_x=True)
+    else:
+        ego = ego_path(road, scenario, travel).pose(scenario.ego.speed * times)
+    ego[:, 2] -= ego[0, 2]  # frame 0 faces +x exactly
+    return ego
+
+
+def _corners2d(poses: np.ndarray, length: float, width: float) -> np.ndarray:
+    """(T,4,2) footprint corners."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    lx = np.array([-1, 1, 1, -1]) * length / 2
+    ly = np.array([-1, -1, 1, 1]) * width / 2
+    x = poses[:, 0:1] + c[:, None] * lx - s[:, None] * ly
+    y = poses[:, 1:2] + s[:, None] * lx + c[:, None] * ly
+    return np.stack([x, y], -1)
+
+
+def rects_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per frame: do oriented rectangles a (T,4,2) and b (T,4,2) overlap (separating axis test)."""
+    hit = np.ones(len(a), bool)
+    for poly in (a, b):
+        for k in range(2):
+            axis = poly[:, k + 1] - poly[:, k]
+            axis = np.stack([-axis[:, 1], axis[:, 0]], -1)
+            pa = np.einsum("tcd,td->tc", a, axis)
+            pb = np.einsum("tcd,td->tc", b, axis)
+            hit &= (pa.max(1) > pb.min(1)) & (pb.max(1) > pa.min(1))
+    return hit
+
+
+def explicit_lane(road: RoadGeometry, spec, pose0: np.ndarray) -> tuple:
+    """The `where` of an explicit agent: its lane (from the placement or the position at t = 0) or the sidewalk."""
+    st = spec.start
+    if st is not None and st.kind == "lane":
+        return ("lane", "main", 1 if st.direction == "same" else -1, st.lane)
+    s, d = road.sd(np.array([pose0[0]]), np.array([pose0[1]]))
+    ad = abs(float(d[0]))
+    if ad >= road.lanes_edge or ad < road.median / 2:
+        return ("sidewalk", "main", 1 if d[0] > 0 else -1)
+    direction = 1 if d[0] < 0 else -1
+    lane = int(np.clip(road.lanes - 1 - (ad - road.median / 2) // road.lane_width, 0, road.lanes - 1))
+    return ("lane", "main", direction, lane)
+
+
+def explicit_agents(
+    road: RoadGeometry, scenario, times: np.ndarray, ego_rear: np.ndarray, travel: float
+) -> list[Agent]:
+    """The scenario's explicit agents as world agents (track ids 1..n); raises ScenarioError naming the field of
+    an overlap (with another agent or the ego) or of an off-world position."""
+    errors: list[str] = []
+    agents: list[Agent] = []
+    rects = []
+    ego_rect = _corners2d(ego_footprint(ego_rear), EGO_LENGTH, EGO_WIDTH)
+    for i, spec in enumerate(scenario.agents):
+        poses = spec_poses(spec, road, times)
+        l, w, h = spec.dims
+        cls = CLASS_IDS[spec.cls]
+        s, d = road.sd(poses[:, 0], poses[:, 1])
+        far = (s < -WORLD_BEHIND) | (s > travel + WORLD_AHEAD) | (np.abs(d) > road.walk_out + WORLD_BESIDE)
+        if road.cross_s is not None:
+            _, d2 = road.cross_sd(poses[:, 0], poses[:, 1])
+            far &= ~((np.abs(d2) <= road.walk_out + WORLD_BESIDE) & (np.abs(poses[:, 1]) <= 140.0))
+        if far.any():
+            k = int(np.argmax(far))
+            field = "start" if spec.start is not None else "motion.keyframes"
+            errors.append(
+                f"agents[{i}].{field}: off the world at t = {times[k]:.2f} s (x = {poses[k, 0]:.1f}, "
+                f"y = {poses[k, 1]:.1f}); the world spans {-WORLD_BEHIND:g}..{travel + WORLD_AHEAD:g} m "
+                f"along the road and {WORLD_BESIDE:g} m beyond the sidewalks"
+            )
+        rect = _corners2d(poses, l, w)
+        hit = rects_overlap(rect, ego_rect)
+        if hit.any():
+            errors.append(f"agents[{i}]: overlaps the ego at t = {times[int(np.argmax(hit))]:.2f} s")
+        for j, other in enumerate(rects):
+            hit = rects_overlap(rect, other)
+            if hit.any():
+                errors.append(f"agents[{i}]: overlaps agents[{j}] at t = {times[int(np.argmax(hit))]:.2f} s")
+        rects.append(rect)
+        if cls in (CAR,):
+            name, col = VEHICLE_COLOURS[i % len(VEHICLE_COLOURS)]
+        elif cls == BUS:
+            name, col = BUS_COLOURS[i % len(BUS_COLOURS)]
+        elif cls == TRUCK:
+            name, col = TRUCK_COLOURS[i % len(TRUCK_COLOURS)]
+        else:
+            name, col = "", CLOTHES[i % len(CLOTHES)]
+        moving = (
+            bool(np.max(np.linalg.norm(poses[:, :2] - poses[0, :2], axis=1)) > 0.05)
+            if len(times) > 1
+            else spec.motion.speed > 0 or spec.motion.keyframes is not None
+        )
+        agents.append(
+            Agent(
+                i + 1, cls, (l, w, h), col, name, moving, poses, explicit_lane(road, spec, poses[0]), agent_id=spec.id
+            )
+        )
+    if errors:
+        raise ScenarioError(errors)
+    return agents
+
+
+def check_scenario(scenario) -> list[str]:
+    """The checks that need the world's road (overlaps, off-world positions): [] or "field: message" strings."""
+
+    if not scenario.agents:
+        return []
+    rng = np.random.Generator(np.random.PCG64(scenario.seed))
+    times = np.arange(scenario.clip.frames, dtype=np.float64) / scenario.clip.fps
+    travel = ego_travel(scenario, times)
+    turn_entry = max(3.0, 0.25 * travel) if scenario.ego.manoeuvre in ("turn_left", "turn_right") else None
+    road = make_road(scenario, rng, travel, turn_entry)
+    try:
+        explicit_agents(road, scenario, times, ego_rear_poses(road, scenario, times, travel), travel)
+    except ScenarioError as e:
+        return e.errors
+    return []

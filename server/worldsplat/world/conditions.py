@@ -4,7 +4,8 @@
   ego +y left); channels `BEV_CHANNELS`.
 - `sketch` (T,V,H,W,3) float32 in {0,1}: lane lines and road edges (ch 0), vehicle box edges (ch 1), pedestrian and
   cyclist box edges (ch 2), projected into each (shifted) camera: the paper's reprojected S' and B'.
-- `boxes`: per frame a list of {corners (8,3) world metres, cls, cls_name, track_id, moving}.
+- `boxes`: per frame a list of {corners (8,3) world metres, cls, cls_name, track_id, moving, and for an explicit
+  scenario agent its `agent_id`}.
 - `ego_traj` (T,4,4): poses of the (shifted) ego relative to its first frame.
 - `caption`.
 """
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from worldsplat.core.camera import Camera, rigid_inverse, shifted_ego
+from worldsplat.world.agents import ego_travel
 from worldsplat.world.classes import CLASS_NAMES, CYCLIST, PEDESTRIAN, VEHICLE_CLASSES
 from worldsplat.world.render import single_threaded_blas
 from worldsplat.world.road import bev_layers
@@ -92,7 +94,7 @@ def draw_segments(img: np.ndarray, cam: Camera, a: np.ndarray, b: np.ndarray, ne
 
 def lane_segments(world: World) -> tuple[np.ndarray, np.ndarray]:
     """World-space segments (a, b) of every lane line, centre line, edge line and kerb."""
-    travel = world.scenario.ego.speed * float(world.frame_times[-1])
+    travel = ego_travel(world.scenario, world.frame_times)
     polys = world.road.line_polylines(-70.0, travel + 110.0, 2.0)
     a = np.concatenate([p[:-1] for p, _ in polys]) if polys else np.zeros((0, 3))
     b = np.concatenate([p[1:] for p, _ in polys]) if polys else np.zeros((0, 3))
@@ -109,6 +111,7 @@ def boxes_at(world: World, t: int) -> list[dict]:
                 "cls_name": CLASS_NAMES[a.cls],
                 "track_id": int(a.track_id),
                 "moving": bool(a.moving),
+                **({"agent_id": a.agent_id} if a.agent_id is not None else {}),
             }
         )
     return out

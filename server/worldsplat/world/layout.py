@@ -13,7 +13,7 @@ import numpy as np
 
 from worldsplat.core.camera import RigCamera, default_rig, shifted_ego, translation, yaw_pose  # noqa: F401 (re-export)
 from worldsplat.core.scenario import Scenario
-from worldsplat.world.agents import Agent, agent_parts, build_agents, ego_path, place_parts
+from worldsplat.world.agents import Agent, agent_parts, build_agents, ego_rear_poses, ego_travel, place_parts
 from worldsplat.world.caption import compose_caption
 from worldsplat.world.classes import BARRIER, BUILDING, POLE, SIGN, VEGETATION
 from worldsplat.world.conditions import world_conditions
@@ -277,14 +277,12 @@ def build_world(scenario: Scenario) -> World:
     rng = np.random.Generator(np.random.PCG64(scenario.seed))
     T = scenario.clip.frames
     times = np.arange(T, dtype=np.float64) / scenario.clip.fps
-    travel = scenario.ego.speed * float(times[-1])
+    travel = ego_travel(scenario, times)
     turn_entry = None
     if scenario.ego.manoeuvre in ("turn_left", "turn_right"):
         turn_entry = max(3.0, 0.25 * travel)
     road = make_road(scenario, rng, travel, turn_entry)
-    path = ego_path(road, scenario, travel)
-    ego = path.pose(scenario.ego.speed * times)
-    ego[:, 2] -= ego[0, 2]  # frame 0 faces +x exactly
+    ego = ego_rear_poses(road, scenario, times, travel)  # the explicit ego path, or the manoeuvre
     ego_to_world = np.stack([yaw_pose(float(x), float(y), 0.0, float(a)) for x, y, a in ego])
     ego_to_world[0] = np.eye(4)
     lighting = make_lighting(scenario.environment.time_of_day, scenario.environment.weather, rng)
@@ -294,5 +292,5 @@ def build_world(scenario: Scenario) -> World:
     template = Prims.concat([agent_parts(a, i, float(keys[i])) for i, a in enumerate(agents)])
     rig = default_rig(scenario.image.width, scenario.image.height, tuple(scenario.rig.cameras))
     world = World(scenario, road, lighting, static, agents, template, ego_to_world, times, rig, lamps)
-    world.caption = compose_caption(world)
+    world.caption = scenario.caption if scenario.caption else compose_caption(world)
     return world

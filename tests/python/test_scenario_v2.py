@@ -1,0 +1,228 @@
+"""Scenario format v2: explicit agents, the explicit ego path, the caption; v1 migration; errors naming the field;
+and the world rendering exactly those agents (boxes.json reports each with its id)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from worldsplat.core.scenario import MAX_AGENTS, Scenario, ScenarioError, load_preset
+
+SMALL = {"image": {"width": 48, "height": 32}, "clip": {"frames": 8, "fps": 4.0}}
+
+
+def car(id_, **start):
+    return {"id": id_, "class": "car", "start": {"kind": "lane", "lane": 0, "s": 20.0, **start}}
+
+
+def test_v1_document_is_migrated_and_keeps_its_meaning():
+    v1 = json.loads(load_preset("urban_straight").normalized_json())
+    v1 = {k: v for k, v in v1.items() if k not in ("agents", "caption")}
+    v1["version"] = 1
+    v1["ego"].pop("path")
+    s = Scenario.parse(v1)
+    assert s.version == 2 and s.agents == [] and s.caption is None and s.ego.path is None
+    assert s == load_preset("urban_straight")
+    assert json.loads(s.normalized_json())["version"] == 2
+
+
+def test_v2_round_trips_through_its_canonical_json():
+    s = Scenario.parse(
+        {
+            "agents": [
+                car("a", s=30.0),
+                {
+                    "id": "p",
+                    "class": "pedestrian",
+                    "motion": {"keyframes": [{"t": 0, "x": 20, "y": -8}, {"t": 2, "x": 20, "y": -5}]},
+                },
+            ],
+            "ego": {"path": [{"t": 0, "x": 0, "y": 0}, {"t": 2, "x": 16, "y": 0.5}]},
+            "caption": "a person crosses",
+        }
+    )
+    assert json.loads(s.normalized_json())["agents"][0]["class"] == "car"
+    assert Scenario.parse(s.normalized_json()) == s
+    assert s.agents[0].dims == (4.5, 1.85, 1.5)
+
+
+@pytest.mark.parametrize(
+    "agents,field",
+    [
+        ([car("a", lane=3)], "agents[0].start.lane"),
+        ([car("a"), car("a", s=40.0)], "agents[1].id"),
+        ([{**car("a"), "class": "tram"}], "agents[0].class"),
+        ([{**car("a"), "size": {"length": 9.0, "width": 1.8, "height": 1.5}}], "agents[0].size.length"),
+        ([{**car("a"), "motion": {"speed": 45.0}}], "agents[0].motion.speed"),
+        (
+            [{**car("a"), "motion": {"speed": 20.0, "events": [{"t": 1.0, "action": "stop", "duration": 0.5}]}}],
+            "agents[0].motion.events[0].duration",
+        ),
+        (
+            [
+                {
+                    **car("a"),
+                    "motion": {
+                        "speed": 5.0,
+                        "events": [{"t": 2.0, "action": "stop"}, {"t": 1.0, "action": "set_speed", "speed": 3.0}],
+                    },
+                }
+            ],
+            "agents[0].motion.events[1].t",
+        ),
+        (
+            [{**car("a"), "motion": {"events": [{"t": 1.0, "action": "lane_change"}]}}],
+            "agents[0].motion.events[0].lane",
+        ),
+        (
+            [
+                {
+                    "id": "k",
+                    "class": "cyclist",
+                    "motion": {
+                        "keyframes": [{"t": 0, "x": 5, "y": 0}, {"t": 1, "x": 6, "y": 0}, {"t": 0.5, "x": 7, "y": 0}]
+                    },
+                }
+            ],
+            "agents[0].motion.keyframes[2].t",
+        ),
+        (
+            [
+                {
+                    "id": "k",
+                    "class": "pedestrian",
+                    "motion": {"keyframes": [{"t": 0, "x": 5, "y": 0}, {"t": 1, "x": 25, "y": 0}]},
+                }
+            ],
+            "agents[0].motion.keyframes[1]",
+        ),
+        ([{"id": "p", "class": "car", "start": {"kind": "pose", "x": 900.0, "y": 0.0}}], "agents[0].start.x"),
+        ([{"id": "p", "class": "car"}], "agents[0].start"),
+        ([car(f"a{i}", s=-100.0 + 6 * i) for i in range(MAX_AGENTS + 1)], "agents"),
+    ],
+)
+def test_bad_agents_are_refused_naming_the_field(agents, field):
+    with pytest.raises(ScenarioError) as e:
+        Scenario.parse({"agents": agents})
+    assert any(m.startswith(field + ":") for m in e.value.errors), e.value.errors
+
+
+def test_bad_ego_path_is_refused_naming_the_field():
+    with pytest.raises(ScenarioError, match=r"ego\.path\[2\]\.t"):
+        Scenario.parse(
+            {"ego": {"path": [{"t": 0, "x": 0, "y": 0}, {"t": 1, "x": 5, "y": 0}, {"t": 1, "x": 6, "y": 0}]}}
+        )
+    with pytest.raises(ScenarioError, match=r"ego\.path\[0\]"):
+        Scenario.parse({"ego": {"path": [{"t": 0, "x": 3, "y": 0}, {"t": 1, "x": 5, "y": 0}]}})
+    with pytest.raises(ScenarioError, match="caption"):
+        Scenario.parse({"caption": "x" * 401})
+
+
+# -- the world ------------------------------------------------------------------------------------------------------
+def _world(data):
+    from worldsplat.world.layout import build_world
+
+    return build_world(Scenario.parse({**SMALL, **data}))
+
+
+def test_overlap_and_off_world_name_the_agent_and_the_time():
+    from worldsplat.world.agents import check_scenario
+
+    # agents[1] drives into the stopped agents[0]: first contact between 1.0 and 1.25 s (gap 10 m - 4.5 m at 4.8 m/s).
+    s = Scenario.parse({**SMALL, "agents": [car("stopped", s=30.0), {**car("late", s=20.0), "motion": {"speed": 4.8}}]})
+    assert check_scenario(s) == ["agents[1]: overlaps agents[0] at t = 1.25 s"]
+    with pytest.raises(ScenarioError, match=r"agents\[1\]: overlaps agents\[0\] at t = 1.25 s"):
+        _world(s.to_json_dict())
+    assert check_scenario(Scenario.parse({**SMALL, "agents": [car("on_ego", s=2.0)]})) == [
+        "agents[0]: overlaps the ego at t = 0.00 s"
+    ]
+    far = Scenario.parse(
+        {**SMALL, "agents": [{"id": "f", "class": "car", "start": {"kind": "pose", "x": 20.0, "y": 120.0}}]}
+    )
+    assert check_scenario(far)[0].startswith("agents[0].start: off the world at t = 0.00 s")
+
+
+def test_world_renders_exactly_the_explicit_agents_with_ids():
+    from worldsplat.world.agents import CLASS_IDS
+    from worldsplat.world.conditions import boxes_at
+
+    data = {
+        "traffic": {"moving_vehicles": 0, "parked_vehicles": 0, "pedestrians": 0, "cyclists": 0},
+        "agents": [
+            car("lead", s=30.0),
+            {
+                "id": "bus",
+                "class": "bus",
+                "start": {"kind": "lane", "direction": "opposite", "lane": 1, "s": 60.0},
+                "motion": {"speed": 8.0},
+            },
+            {
+                "id": "ped",
+                "class": "pedestrian",
+                "start": {"kind": "pose", "x": 25.0, "y": -7.0, "yaw_deg": 90.0},
+                "motion": {"speed": 1.2},
+            },
+        ],
+        "caption": "a bus passes a stopped car",
+    }
+    w = _world(data)
+    assert w.caption == "a bus passes a stopped car"
+    assert [a.agent_id for a in w.agents] == ["lead", "bus", "ped"] and [a.track_id for a in w.agents] == [1, 2, 3]
+    for t in (0, 7):
+        boxes = {b["agent_id"]: b for b in boxes_at(w, t)}
+        assert set(boxes) == {"lead", "bus", "ped"}
+        assert boxes["bus"]["cls"] == CLASS_IDS["bus"]
+        ped = boxes["ped"]["corners"][:4, :2].mean(0)
+        np.testing.assert_allclose(ped, [25.0, -7.0 + 1.2 * t / 4.0], atol=1e-6)
+        lead = boxes["lead"]["corners"][:4, :2].mean(0)
+        np.testing.assert_allclose(lead[0], 30.0, atol=1e-6)
+    # The bus drives against +x in the oncoming lanes.
+    b0, b7 = (boxes_at(w, t)[1]["corners"][:4, :2].mean(0) for t in (0, 7))
+    assert b0[1] > 0 and abs((b0[0] - b7[0]) - 8.0 * 7 / 4.0) < 1e-6
+    assert not w.agents[0].moving and w.agents[1].moving
+
+
+def test_procedural_traffic_fills_around_explicit_agents():
+    from worldsplat.world.agents import _corners2d, rects_overlap
+
+    w = _world(
+        {
+            "agents": [car("a", s=30.0), {**car("b", lane=1, s=25.0), "motion": {"speed": 9.0}}],
+            "traffic": {"moving_vehicles": 8, "parked_vehicles": 6, "pedestrians": 4, "cyclists": 1},
+        }
+    )
+    assert [a.agent_id for a in w.agents[:2]] == ["a", "b"] and len(w.agents) > 6
+    assert all(a.agent_id is None for a in w.agents[2:])
+    mine = [_corners2d(a.poses, a.size[0], a.size[1]) for a in w.agents[:2]]
+    for other in w.agents[2:]:
+        r = _corners2d(other.poses, other.size[0], other.size[1])
+        assert not any(rects_overlap(r, m).any() for m in mine)
+
+
+def test_lane_change_event_and_explicit_ego_path():
+    w = _world(
+        {
+            "road": {"lanes_per_direction": 2},
+            "traffic": {"moving_vehicles": 0, "parked_vehicles": 0, "pedestrians": 0, "cyclists": 0},
+            "ego": {"path": [{"t": 0, "x": 0, "y": 0}, {"t": 1, "x": 9, "y": 0.5}, {"t": 1.75, "x": 15, "y": 2}]},
+            "agents": [
+                {
+                    **car("cut", lane=1, s=12.0),
+                    "motion": {
+                        "speed": 10.0,
+                        "events": [{"t": 0.25, "action": "lane_change", "lane": 0, "duration": 1.0}],
+                    },
+                }
+            ],
+        }
+    )
+    ego = w.ego_to_world[:, :2, 3]
+    np.testing.assert_allclose(ego[0], [0, 0], atol=1e-9)
+    np.testing.assert_allclose(ego[4], [9, 0.5], atol=1e-6)
+    np.testing.assert_allclose(ego[7], [15, 2], atol=1e-6)
+    a = w.agents[0]
+    lane0 = w.road.lane_center_d(0, 1) + w.road.y0
+    lane1 = w.road.lane_center_d(1, 1) + w.road.y0
+    assert abs(a.poses[0, 1] - lane1) < 1e-9 and abs(a.poses[-1, 1] - lane0) < 1e-6
+    assert a.poses[3, 2] < -0.05  # heading follows the tangent while changing lanes
+    np.testing.assert_allclose(a.poses[-1, 0], 12.0 + 10.0 * 1.75, atol=1e-3)

@@ -226,3 +226,44 @@ def test_lane_change_event_and_explicit_ego_path():
     assert abs(a.poses[0, 1] - lane1) < 1e-9 and abs(a.poses[-1, 1] - lane0) < 1e-6
     assert a.poses[3, 2] < -0.05  # heading follows the tangent while changing lanes
     np.testing.assert_allclose(a.poses[-1, 0], 12.0 + 10.0 * 1.75, atol=1e-3)
+
+
+CORNER_CASES = ("cut_in", "crossing_pedestrian", "stopped_vehicle", "oncoming_overtaker")
+
+
+@pytest.mark.parametrize("name", CORNER_CASES)
+def test_corner_case_presets_validate_against_the_world(name):
+    from worldsplat.world.agents import check_scenario
+
+    s = load_preset(name)
+    assert s.agents and s.caption and check_scenario(s) == []
+
+
+def test_corner_case_presets_do_what_they_say():
+    from worldsplat.world.layout import build_world
+
+    w = {n: build_world(load_preset(n).with_updates(image={"width": 32, "height": 32})) for n in CORNER_CASES}
+    ego_y = 0.0
+    cut = next(a for a in w["cut_in"].agents if a.agent_id == "cutter")
+    assert cut.poses[0, 1] > 3.0 and abs(cut.poses[-1, 1] - ego_y) < 0.05 and cut.poses[-1, 0] > 15.0
+    ped = next(a for a in w["crossing_pedestrian"].agents if a.agent_id == "crosser")
+    assert ped.poses[0, 1] < -4.0 and ped.poses[-1, 1] > -1.0  # from the sidewalk into the ego lane
+    truck = next(a for a in w["stopped_vehicle"].agents if a.agent_id == "stopped_truck")
+    assert not truck.moving and abs(truck.poses[0, 1] - ego_y - 0.3) < 1e-6
+    over = next(a for a in w["oncoming_overtaker"].agents if a.agent_id == "overtaker")
+    assert min(over.poses[:, 1]) < 1.0 and over.poses[0, 1] > 3.0 and over.poses[-1, 0] < over.poses[0, 0] - 30
+
+
+def test_random_scenarios_can_carry_explicit_agents_and_they_fit_the_world():
+    from worldsplat.core.scenario import random_scenario
+    from worldsplat.world.agents import check_scenario
+
+    plain = [random_scenario(seed) for seed in range(30)]
+    mixed = [random_scenario(seed, frames=8, explicit_agents=0.5) for seed in range(30)]
+    assert all(not s.agents for s in plain)
+    with_agents = [s for s in mixed if s.agents]
+    assert 5 <= len(with_agents) <= 25
+    for s in with_agents:
+        assert check_scenario(s) == [], s.normalized_json()
+    # The rest of the scenario is what the seed gives without the hook.
+    assert all(m.with_updates(agents=[]) == random_scenario(i, frames=8) for i, m in enumerate(mixed))

@@ -29,6 +29,7 @@ setup_python() {
     log "python: installing pinned dependencies"
     "$venv/bin/pip" install -q --upgrade pip
     "$venv/bin/pip" install -q -r "$HERE/requirements.lock"
+    "$venv/bin/pip" install -q --no-deps -r "$HERE/requirements-nodeps.lock"
     cp "$HERE/requirements.lock" "$stamp"
   fi
   # The project itself, editable, so `worldsplat` runs the working tree.

@@ -24,6 +24,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train-enhancer": ("worldsplat.cli.train_enhancer", "train the enhanced diffusion model (refinement)"),
     "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
     "bench": ("worldsplat.cli.bench", "speed-against-error benchmark report"),
+    "import-scenario": ("worldsplat.cli.scenario_files", "OpenSCENARIO 1.x / CommonRoad XML -> scenario JSON"),
+    "export-scenario": ("worldsplat.cli.scenario_files", "scenario JSON -> OpenSCENARIO + OpenDRIVE"),
 }
 
 
@@ -34,9 +36,10 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, description=help_text)
         if only is None or name == only:
             mod = importlib.import_module(module)
-            configure = getattr(mod, f"configure_{name}", None) or mod.configure
+            attr = name.replace("-", "_")
+            configure = getattr(mod, f"configure_{attr}", None) or mod.configure
             configure(p)
-            p.set_defaults(_run=getattr(mod, f"run_{name}", None) or mod.run)
+            p.set_defaults(_run=getattr(mod, f"run_{attr}", None) or mod.run)
     return parser
 
 

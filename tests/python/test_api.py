@@ -203,7 +203,7 @@ def test_video_job_and_refine_gate(client):
     bad = client.post(f"/api/scenes/{scene_id}/videos", json={"shift_m": 9})
     assert bad.status_code == 422 and bad.json()["field"] == "shift_m"
     bad = client.post(f"/api/scenes/{scene_id}/videos", json={"cameras": ["CAM_UP"]})
-    assert bad.status_code == 422 and bad.json()["field"] == "cameras"
+    assert bad.status_code == 422 and bad.json()["field"] == "cameras.0"  # the list item that is not a camera
     bad = client.post(f"/api/scenes/{pair_id}/videos", json={"cameras": ["CAM_FRONT_LEFT"]})  # not in this rig
     assert bad.status_code == 422 and bad.json()["field"] == "cameras" and "rig" in bad.json()["error"]
     # raw track videos: the 2x3 mosaic of the whole rig, and a two-camera scene's mosaic (its two rows)
@@ -267,3 +267,57 @@ def test_cancel_running_scene_job(client):
     assert final.status == "cancelled", (final.status, final.error)
     assert client.get(f"/api/scenes/{r['scene_id']}/wsplat").status_code == 409
     assert list((client.app_state.cache.tmp).iterdir()) == []
+
+
+def test_allow_on_options_and_405_and_unknown_api_paths(client):
+    any_id = "0" * 32
+    for path, allow in [
+        ("/api/scenes", "OPTIONS, POST"),
+        (f"/api/jobs/{any_id}", "DELETE, GET, OPTIONS"),
+        (f"/api/jobs/{any_id}/cancel", "OPTIONS, POST"),
+        ("/api/health", "GET, OPTIONS"),
+    ]:
+        r = client.options(path)
+        assert r.status_code == 204 and r.headers["allow"] == allow, (path, r.headers)
+        r = client.put(path, json={})
+        assert r.status_code == 405 and r.headers["allow"] == allow and r.json()["error"], path
+    r = client.post("/api/nothing-here")
+    assert r.status_code == 404 and "no such API path" in r.json()["error"]
+    assert client.get("/docs").status_code == 200  # the guard leaves the docs page alone
+
+
+def test_every_answer_is_documented_with_the_error_model(client):
+    spec = client.get("/openapi.json").json()
+    for path, ops in spec["paths"].items():
+        for method, op in ops.items():
+            codes = set(op["responses"])
+            if "{" in path:
+                assert "404" in codes, (method, path)
+            if method == "post":
+                assert {"413", "422"} <= codes, (method, path)
+            for code in codes - {"200", "202", "206"}:
+                schema = op["responses"][code]["content"]["application/json"]["schema"]
+                assert schema["$ref"].endswith("/ErrorBody"), (method, path, code)
+    wsplat = spec["paths"]["/api/scenes/{scene_id}/wsplat"]["get"]["responses"]
+    assert "Content-Range" in wsplat["206"]["headers"] and "Accept-Ranges" in wsplat["200"]["headers"]
+    assert "Retry-After" in spec["paths"]["/api/scenes"]["post"]["responses"]["429"]["headers"]
+    assert "text/event-stream" in spec["paths"]["/api/jobs/{job_id}/events"]["get"]["responses"]["200"]["content"]
+    # a body FastAPI cannot parse is a 400 in the error model, not FastAPI's bare {"detail"}
+    r = client.post("/api/scenes", content=b"\x1c\x11", headers={"content-type": "application/json"})
+    assert r.status_code in (400, 422) and r.json()["error"]
+
+
+def test_delete_removes_the_job_and_cancel_keeps_it(client):
+    job = client.post("/api/scenes", json={"scenario": tiny_scenario(seed=61), "mode": "oracle"}).json()["job"]
+    assert client.post(f"/api/jobs/{job['id']}/cancel").status_code == 200
+    assert client.get(f"/api/jobs/{job['id']}").status_code == 200
+    assert client.delete(f"/api/jobs/{job['id']}").status_code == 200
+    for path in (f"/api/jobs/{job['id']}", f"/api/jobs/{job['id']}/events"):
+        assert client.get(path).status_code == 404, path
+    assert client.delete(f"/api/jobs/{job['id']}").status_code == 404
+
+
+def test_a_mode_without_weights_here_is_409(client):
+    client.app_state.modes = ["oracle"]
+    r = client.post("/api/scenes", json={"scenario": tiny_scenario(), "mode": "generate"})
+    assert r.status_code == 409 and r.json()["field"] == "mode" and "oracle" in r.json()["error"]

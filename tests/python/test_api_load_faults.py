@@ -223,7 +223,7 @@ def test_kill9_during_jobs_then_restart(tmp_path):
         again = httpx.post(f"{s2.url}/api/scenes", json={"scenario": big_scenario, "mode": "oracle"})
         assert again.status_code == 202 and again.json()["scene_id"] == big["scene_id"]
         assert again.json()["job"]["id"] != big["job"]["id"]
-        httpx.delete(f"{s2.url}/api/jobs/{again.json()['job']['id']}")
+        httpx.post(f"{s2.url}/api/jobs/{again.json()['job']['id']}/cancel")
         assert wait_job(s2.url, again.json()["job"]["id"])["status"] == "cancelled"
     finally:
         s2.stop()

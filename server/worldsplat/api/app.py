@@ -16,11 +16,13 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Annotated, Literal
 
-from fastapi import Body, FastAPI, Request
+from fastapi import Body, FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import worldsplat
 from worldsplat.core.camera import CAMERA_NAMES
@@ -29,7 +31,7 @@ from worldsplat.core.paths import web_dir as default_web_dir
 from worldsplat.core.scenario import Scenario, ScenarioError, default_preset_name, list_presets, load_preset
 
 from . import runners
-from .cache import ArtifactCache, InvalidId, validate_id
+from .cache import ArtifactCache, InvalidId, LiveFile, validate_id
 from .jobs import ACTIVE, Job, JobManager, QueueFull
 
 MAX_BODY = 64 * 1024
@@ -38,6 +40,8 @@ MAX_BODY = 64 * 1024
 MAX_SCENE_PIXELS = 16_000_000
 STREAM_CHUNK = 64 * 1024
 SSE_POLL = 0.1
+LIVE_POLL = 0.02  # how often a live .wsplat stream looks for new bytes
+LIVE_WAIT_S = 900.0  # longest a `wait=true` stream waits for its job to start writing
 SSE_HEARTBEAT = 10.0
 
 
@@ -47,22 +51,32 @@ class ApiError(Exception):
         self.status, self.message, self.headers, self.field = status, message, headers or {}, field
 
 
+PresetName = Literal[tuple(p["name"] for p in list_presets())]  # type: ignore[valid-type]
+CameraName = Literal[tuple(CAMERA_NAMES)]  # type: ignore[valid-type]
+
+
 # -- request models ------------------------------------------------------------------------------------------------
 class SceneRequest(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"preset": "urban_straight", "mode": "oracle"}, {}]}
+    )
     scenario: Scenario | None = Field(
         None, description="the scenario (see GET /api/schema); default: the default preset, or `preset` if given"
     )
-    preset: str | None = Field(None, max_length=64, description="start from this preset when `scenario` is absent")
-    mode: str | None = Field(
+    preset: PresetName | None = Field(None, description="start from this preset when `scenario` is absent")
+    mode: Literal["oracle", "reconstruct", "generate"] | None = Field(
         None,
-        max_length=32,
-        description="oracle | reconstruct | generate (GET /api/modes); default: the best mode whose weights exist",
+        description="oracle | reconstruct | generate; a mode whose weights this server lacks is 409 (GET "
+        "/api/modes lists those it has); default: the best mode whose weights exist",
     )
 
 
 class VideoRequest(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(
+        extra="forbid",
+        strict=True,
+        json_schema_extra={"examples": [{"shift_m": 2.0, "cameras": ["CAM_FRONT"], "format": "mp4"}]},
+    )
     shift_m: float = Field(
         0.0,
         ge=-MAX_SHIFT_M,
@@ -70,7 +84,7 @@ class VideoRequest(BaseModel):
         allow_inf_nan=False,
         description="lateral track shift in metres, left positive",
     )
-    cameras: list[str] | None = Field(
+    cameras: list[CameraName] | None = Field(
         None,
         min_length=1,
         max_length=6,
@@ -88,6 +102,164 @@ class VideoRequest(BaseModel):
         if unknown:
             raise ValueError(f"unknown camera(s) {unknown}; choose from {list(CAMERA_NAMES)}")
         return [c for c in CAMERA_NAMES if c in v]
+
+
+# -- the contract: error model, documented answers, response headers -------------------------------------------------
+class FieldProblem(BaseModel):
+    field: str = Field(description="dotted path of the bad field ('' for the body as a whole)")
+    message: str
+
+
+class ErrorBody(BaseModel):
+    """Every error answer (4xx, 5xx): `error` is one readable line; `field` names the bad field where there is one."""
+
+    detail: str | list[FieldProblem] = Field(description="the message, or one entry per bad field (422)")
+    error: str = Field(description="one readable line")
+    field: str | None = Field(None, description="the field the error names, if any")
+
+
+class JobOut(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    id: str
+    kind: str
+    target: str = Field(description="the artifact the job produces (scene id, video id)")
+    status: Literal["queued", "running", "done", "failed", "cancelled"]
+    stage: str
+    fraction: float
+    error: str | None = None
+    result: dict = {}
+    params: dict = {}
+    created: float
+    started: float | None = None
+    finished: float | None = None
+    version: int
+    events: str = Field(description="SSE progress of this job")
+
+
+class SceneState(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    scene_id: str
+    status: Literal["queued", "running", "ready", "failed", "missing"]
+    mode: str | None = None
+    model_version: str | None = None
+    bytes: int | None = Field(None, description="size of the whole .wsplat (ready)")
+    wsplat: str | None = Field(None, description="the stream: /api/scenes/{id}/wsplat")
+    job: JobOut | None = None
+
+
+class VideoState(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    video_id: str
+    status: Literal["queued", "running", "ready", "failed", "cancelled", "done", "missing"]
+    url: str
+    job: JobOut | None = None
+
+
+ERROR_TEXT = {
+    400: "malformed request (e.g. a non-numeric Content-Length)",
+    404: "no such resource, or a malformed id (ids are 32 lower-case hex digits)",
+    405: "method not allowed here (the `Allow` header lists those that are)",
+    409: "the resource is not in a state to serve this (still generating, refinement unavailable, mode not "
+    "offered here)",
+    413: "request body over 64 KiB",
+    416: "Range not satisfiable (`Content-Range: bytes */<size>`)",
+    422: "invalid request: names the field",
+    429: "the job queue is full; retry after `Retry-After` seconds",
+    503: "the pipeline is still loading (`Retry-After`) or failed to load",
+}
+RETRY_AFTER = {"Retry-After": {"description": "seconds to wait before retrying", "schema": {"type": "integer"}}}
+ERROR_HEADERS = {
+    409: RETRY_AFTER,
+    429: RETRY_AFTER,
+    503: RETRY_AFTER,
+    416: {"Content-Range": {"description": "bytes */<size>", "schema": {"type": "string"}}},
+}
+
+
+def errors(*codes: int) -> dict:
+    """OpenAPI `responses` entries for error answers: the error model, the description, the headers they carry."""
+    out = {}
+    for c in codes:
+        out[c] = {"model": ErrorBody, "description": ERROR_TEXT[c]}
+        if c in ERROR_HEADERS:
+            out[c]["headers"] = ERROR_HEADERS[c]
+    return out
+
+
+def ok(model=None, description: str = "OK", links: dict | None = None, **extra) -> dict:
+    d = {"description": description, **extra}
+    if model is not None:
+        d["model"] = model
+    if links:
+        d["links"] = links
+    return d
+
+
+def stream_responses(media_types: tuple[str, ...], what: str) -> dict:
+    binary = {"schema": {"type": "string", "format": "binary"}}
+    common = {
+        "Accept-Ranges": {"description": "bytes", "schema": {"type": "string"}},
+        "Content-Disposition": {"schema": {"type": "string"}},
+        "Cache-Control": {"description": "content-addressed: immutable", "schema": {"type": "string"}},
+    }
+    return {
+        200: {
+            "description": f"the whole {what}, streamed (chunked transfer)",
+            "content": {m: binary for m in media_types},
+            "headers": common
+            | {"X-Content-Length": {"description": "size of the whole file", "schema": {"type": "integer"}}},
+        },
+        206: {
+            "description": f"the requested byte range of the {what} (`Range: bytes=a-b`)",
+            "content": {m: binary for m in media_types},
+            "headers": common
+            | {
+                "Content-Range": {"description": "bytes a-b/size", "schema": {"type": "string"}},
+                "Content-Length": {"schema": {"type": "integer"}},
+            },
+        },
+    }
+
+
+SSE_EVENT = {  # OpenAPI 3.1: the schema of a text/event-stream describes one event
+    "type": "object",
+    "required": ["event", "data"],
+    "properties": {
+        "event": {"enum": ["progress", "done", "failed", "cancelled"]},
+        "data": {
+            "type": "string",
+            "contentMediaType": "application/json",
+            "description": "the job (JSON), as GET /api/jobs/{id}",
+        },
+    },
+}
+SSE = {
+    200: {
+        "description": "Server-Sent Events: `progress` (the job), then `done` / `failed` / `cancelled`; "
+        "`: keep-alive` comments every 10 s",
+        "content": {"text/event-stream": {"schema": SSE_EVENT}},
+    }
+}
+JOB_LINKS = {
+    "GetJob": {"operationId": "job_status", "parameters": {"job_id": "$response.body#/id"}},
+    "CancelJob": {"operationId": "job_cancel", "parameters": {"job_id": "$response.body#/id"}},
+}
+SCENE_LINKS = {
+    "GetScene": {"operationId": "scene_status", "parameters": {"scene_id": "$response.body#/scene_id"}},
+    "GetSceneWsplat": {"operationId": "scene_wsplat", "parameters": {"scene_id": "$response.body#/scene_id"}},
+    "GetSceneEvents": {"operationId": "scene_events", "parameters": {"scene_id": "$response.body#/scene_id"}},
+    "CreateVideo": {"operationId": "create_video", "parameters": {"scene_id": "$response.body#/scene_id"}},
+}
+SCENE_JOB_LINKS = {  # a 202 carries the job (a 200 from the cache may not)
+    "GetSceneJob": {"operationId": "job_status", "parameters": {"job_id": "$response.body#/job/id"}},
+    "CancelSceneJob": {"operationId": "job_cancel_post", "parameters": {"job_id": "$response.body#/job/id"}},
+    "DeleteSceneJob": {"operationId": "job_cancel", "parameters": {"job_id": "$response.body#/job/id"}},
+}
+VIDEO_LINKS = {
+    "GetVideo": {"operationId": "video_file", "parameters": {"video_id": "$response.body#/video_id"}},
+    "GetVideoStatus": {"operationId": "video_status", "parameters": {"video_id": "$response.body#/video_id"}},
+}
+VIDEO_JOB_LINKS = {"GetVideoJob": {"operationId": "job_status", "parameters": {"job_id": "$response.body#/job/id"}}}
 
 
 # -- helpers -----------------------------------------------------------------------------------------------------------
@@ -160,6 +332,11 @@ def file_response(path: Path, media_type: str, request: Request, filename: str) 
     return StreamingResponse(body(), status_code=206, media_type=media_type, headers=headers)
 
 
+class LiveStreamCut(RuntimeError):
+    """Raised inside a live .wsplat stream whose job stopped: the server closes the connection without the final HTTP
+    chunk, so the client sees an incomplete body (and, in the bytes, no END!)."""
+
+
 class BundleFiles(StaticFiles):
     """Static files from a directory that may not exist yet (web/pkg before `wasm/build.sh`): 404, not 500."""
 
@@ -215,18 +392,94 @@ class BodyLimit:
         await send({"type": "http.response.body", "body": data})
 
 
+class MethodGuard:
+    """ASGI middleware for the API paths: OPTIONS answers 204 with `Allow`, a method the path does not offer answers
+    405 with `Allow` (the methods the OpenAPI document lists for it, plus OPTIONS), and an /api path no route matches
+    answers 404 (without this the page's static mount at / would answer them, with its own `Allow: GET, HEAD`)."""
+
+    EXACT = ("/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc")
+
+    @classmethod
+    def guarded(cls, path: str) -> bool:
+        return path.startswith("/api/") or path in cls.EXACT
+
+    def __init__(self, app, routes):
+        self.app, self.routes, self._table = app, routes, None
+
+    def table(self) -> list[tuple[re.Pattern, set[str]]]:
+        if self._table is None:
+            by_path: dict[str, tuple[re.Pattern, set[str]]] = {}
+            for r in self.routes:
+                methods = getattr(r, "methods", None)
+                regex = getattr(r, "path_regex", None)
+                if methods and regex is not None and self.guarded(r.path):
+                    by_path.setdefault(r.path, (regex, set()))[1].update(m for m in methods if m != "HEAD")
+            self._table = list(by_path.values())
+        return self._table
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or not self.guarded(scope["path"]):
+            return await self.app(scope, receive, send)
+        allowed = set()
+        for regex, methods in self.table():
+            if regex.match(scope["path"]):
+                allowed |= methods
+        method = scope["method"]
+        if not allowed:
+            return await _send_error(send, 404, f"no such API path {scope['path'][:100]!r}")
+        if method in allowed:
+            return await self.app(scope, receive, send)
+        allow = ", ".join(sorted(allowed | {"OPTIONS"}))
+        if method == "OPTIONS":
+            await send(
+                {
+                    "type": "http.response.start",
+                    "status": 204,
+                    "headers": [(b"allow", allow.encode()), (b"content-length", b"0")],
+                }
+            )
+            return await send({"type": "http.response.body", "body": b""})
+        return await _send_error(
+            send, 405, f"{method} is not allowed here; allowed: {allow}", [(b"allow", allow.encode())]
+        )
+
+
+async def _send_error(send, status: int, message: str, headers: list | None = None) -> None:
+    data = json.dumps({"detail": message, "error": message}).encode()
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(data)).encode()),
+                *(headers or []),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": data})
+
+
 # -- the app -----------------------------------------------------------------------------------------------------------
 class Playground:
     """The server's state: cache, jobs and the pipeline facts (modes, versions) discovered at start."""
 
-    def __init__(self, cache_dir: Path, max_cache_bytes: int, max_queued: int, max_scene_pixels: int):
+    def __init__(
+        self,
+        cache_dir: Path,
+        max_cache_bytes: int,
+        max_queued: int,
+        max_scene_pixels: int,
+        pipeline: runners.Pipeline | None = None,
+    ):
+        self.pipeline = pipeline or runners.PIPELINE
         self.cache = ArtifactCache(cache_dir, max_cache_bytes)
         self.max_scene_pixels = max_scene_pixels
         self.jobs = JobManager(
             cache_dir / "state",
             {
-                "scene": lambda ctx: runners.run_scene(self.cache, ctx),
-                "video": lambda ctx: runners.run_video(self.cache, ctx),
+                "scene": lambda ctx: runners.run_scene(self.cache, ctx, self.pipeline),
+                "video": lambda ctx: runners.run_video(self.cache, ctx, self.pipeline),
             },
             max_queued=max_queued,
         )
@@ -239,8 +492,8 @@ class Playground:
     def discover(self, warm: bool) -> None:
         """Import the pipeline (torch) once, learn the modes, and queue the default scene (background thread)."""
         try:
-            self.modes = runners.available_modes()
-            self.default_mode = runners.default_mode()
+            self.modes = runners.available_modes(self.pipeline)
+            self.default_mode = runners.default_mode(self.pipeline)
             if warm:
                 scenario = load_preset(default_preset_name())
                 self.warm_scene = self.submit_scene(scenario, self.default_mode)["scene_id"]
@@ -284,14 +537,14 @@ class Playground:
         }
 
     def submit_scene(self, scenario: Scenario, mode: str) -> dict:
-        scene_id = runners.scene_id_for(scenario, mode)
+        scene_id = runners.scene_id_for(scenario, mode, self.pipeline)
         state = self.scene_state(scene_id)
         if state is not None and state["status"] in ("ready", "queued", "running"):
             return state
         params = {
             "scenario": scenario.model_dump(mode="json"),
             "mode": mode,
-            "model_version": runners.model_version(mode),
+            "model_version": runners.model_version(mode, self.pipeline),
         }
         try:
             self.jobs.submit("scene", scene_id, params)
@@ -307,9 +560,12 @@ def create_app(
     max_queued: int = 16,
     warm: bool = True,
     max_scene_pixels: int = MAX_SCENE_PIXELS,
+    pipeline: runners.Pipeline | None = None,
 ) -> FastAPI:
+    """The app. `pipeline` replaces the scene builder (`runners.Pipeline`: modes, model_version, generate_scene), e.g.
+    with a fast test double; everything else (routes, jobs, cache, streams) is the real server."""
     web = Path(web_dir) if web_dir else default_web_dir()
-    pg = Playground(Path(cache_dir), max_cache_bytes, max_queued, max_scene_pixels)
+    pg = Playground(Path(cache_dir), max_cache_bytes, max_queued, max_scene_pixels, pipeline)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -322,10 +578,12 @@ def create_app(
         title="WorldSplat Playground API",
         version=worldsplat.__version__,
         lifespan=lifespan,
+        generate_unique_id_function=lambda route: route.name,  # operationId = the function (links use it)
         description="Scenario -> 4D Gaussian scene (.wsplat stream) -> track videos. See web/docs/playground.md.",
     )
     app.state.playground = pg
     app.add_middleware(BodyLimit, max_bytes=MAX_BODY)
+    app.add_middleware(MethodGuard, routes=app.router.routes)  # outermost: OPTIONS / 405 / unknown /api paths
 
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, e: ApiError):
@@ -333,6 +591,14 @@ def create_app(
         if e.field:
             body["field"] = e.field
         return JSONResponse(body, status_code=e.status, headers=e.headers)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, e: StarletteHTTPException):
+        # FastAPI's own refusals (a body it cannot parse: 400; a route's 404/405) in the error model
+        message = e.detail if isinstance(e.detail, str) else json.dumps(e.detail)
+        return JSONResponse(
+            {"detail": message, "error": message}, status_code=e.status_code, headers=getattr(e, "headers", None)
+        )
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(request: Request, e: RequestValidationError):
@@ -366,16 +632,16 @@ def create_app(
             "recovered": {"cache": pg.cache.recovered, "jobs": pg.jobs.recovered},
         }
 
-    @app.get("/api/modes", tags=["meta"])
+    @app.get("/api/modes", tags=["meta"], responses=errors(503))
     def modes() -> dict:
         pg.require_ready()
-        refine, why = runners.refinement_status()
+        refine, why = runners.refinement_status(pg.pipeline)
         return {
             "modes": pg.modes,
             "default": pg.default_mode,
             "refine": refine,
             "refine_reason": why or None,
-            "versions": {m: runners.model_version(m) for m in pg.modes},
+            "versions": {m: runners.model_version(m, pg.pipeline) for m in pg.modes},
             "warm_scene": pg.warm_scene,
         }
 
@@ -383,7 +649,7 @@ def create_app(
     def presets() -> list[dict]:
         return [dict(p, scenario=load_preset(p["name"]).model_dump(mode="json")) for p in list_presets()]
 
-    @app.get("/api/presets/{name}", tags=["scenario"])
+    @app.get("/api/presets/{name}", tags=["scenario"], responses=errors(404))
     def preset(name: str) -> dict:
         names = {p["name"] for p in list_presets()}
         if name not in names:
@@ -399,10 +665,15 @@ def create_app(
         "/api/scenes",
         tags=["scenes"],
         status_code=202,
+        response_model=None,
         responses={
-            200: {"description": "already cached"},
-            422: {"description": "invalid scenario or mode"},
-            429: {"description": "queue full (Retry-After)"},
+            200: ok(SceneState, "already cached (status ready)", SCENE_LINKS),
+            202: ok(
+                SceneState,
+                "queued or running (an existing job for the same scene is returned)",
+                SCENE_LINKS | SCENE_JOB_LINKS,
+            ),
+            **errors(400, 409, 413, 422, 429, 503),
         },
     )
     def create_scene(req: Annotated[SceneRequest, Body()]) -> JSONResponse:
@@ -426,11 +697,20 @@ def create_app(
             )
         mode = req.mode or pg.default_mode
         if mode not in pg.modes:
-            raise ApiError(422, f"mode: {mode[:32]!r} is not available here; available modes: {pg.modes}", field="mode")
+            raise ApiError(
+                409,
+                f"mode: {mode!r} is not available here (its weights are not installed); available modes: {pg.modes}",
+                field="mode",
+            )
         state = pg.submit_scene(scenario, mode)
         return JSONResponse(state, status_code=200 if state["status"] == "ready" else 202)
 
-    @app.get("/api/scenes/{scene_id}", tags=["scenes"])
+    @app.get(
+        "/api/scenes/{scene_id}",
+        tags=["scenes"],
+        response_model=None,
+        responses={200: ok(SceneState, links=SCENE_LINKS), **errors(404)},
+    )
     def scene_status(scene_id: str) -> dict:
         state = pg.scene_state(checked_id(scene_id, "scene"))
         if state is None:
@@ -440,15 +720,31 @@ def create_app(
     @app.get(
         "/api/scenes/{scene_id}/wsplat",
         tags=["scenes"],
-        responses={
-            200: {"content": {"application/octet-stream": {}}},
-            206: {"description": "Range"},
-            409: {"description": "not generated yet"},
-        },
+        response_class=StreamingResponse,
+        responses={**stream_responses(("application/octet-stream",), ".wsplat"), **errors(404, 409, 416)},
     )
-    def scene_wsplat(scene_id: str, request: Request):
+    async def scene_wsplat(
+        scene_id: str,
+        request: Request,
+        wait: Annotated[
+            bool,
+            Query(
+                description="while the scene is queued or being generated, hold the request and stream the .wsplat "
+                "as the job writes it (static chunks first, in importance order, then the dynamics); the stream ends "
+                "with END! only when the file is whole, and is cut (no END!, no final HTTP chunk) if the job fails "
+                "or is cancelled. Ignored with `Range` and for a scene already in the cache."
+            ),
+        ] = False,
+    ):
         checked_id(scene_id, "scene")
         opened = pg.cache.open_artifact("scenes", scene_id)
+        if opened is None and wait and not request.headers.get("range"):
+            live = await wait_for_live(scene_id, request)
+            if live is not None:
+                response = live_response(live, scene_id)
+                if response is not None:
+                    return response
+            opened = pg.cache.open_artifact("scenes", scene_id)
         if opened is None:
             state = pg.scene_state(scene_id)
             if state is None:
@@ -458,7 +754,59 @@ def create_app(
             )
         return file_response(opened[0], "application/octet-stream", request, f"{scene_id}.wsplat")
 
-    @app.get("/api/scenes/{scene_id}/events", tags=["scenes"], responses={200: {"content": {"text/event-stream": {}}}})
+    async def wait_for_live(scene_id: str, request: Request) -> LiveFile | None:
+        """The scene's file being written, once its job gets there; None when the job ends first (or there is none),
+        the scene is whole in the cache meanwhile, or the client went away."""
+        end = asyncio.get_running_loop().time() + LIVE_WAIT_S
+        while asyncio.get_running_loop().time() < end:
+            live = pg.cache.live.get(("scenes", scene_id))
+            if live is not None:
+                return live
+            job = pg.jobs.latest_for("scene", scene_id)
+            if job is None or job.status not in ACTIVE or pg.cache.meta("scenes", scene_id) is not None:
+                return None
+            if await request.is_disconnected():
+                return None
+            await asyncio.sleep(LIVE_POLL)
+        return None
+
+    def live_response(live: LiveFile, scene_id: str) -> StreamingResponse | None:
+        try:
+            f = open(live.path, "rb")  # noqa: SIM115 - closed by the generator
+        except FileNotFoundError:
+            return None  # renamed into place (whole) or aborted in the meantime: the caller looks again
+
+        async def body():
+            sent = 0
+            try:
+                while True:
+                    state, size = live.state, live.size  # size is final once state says whole
+                    if size > sent:
+                        data = f.read(min(size - sent, STREAM_CHUNK))
+                        sent += len(data)
+                        yield data
+                    elif state == "whole":
+                        return
+                    elif state == "aborted":
+                        raise LiveStreamCut(f"scene {scene_id}: generation stopped after {sent} bytes")
+                    else:
+                        await asyncio.sleep(LIVE_POLL)
+            finally:
+                f.close()
+
+        headers = {
+            "Content-Disposition": f'inline; filename="{scene_id}.wsplat"',
+            "Cache-Control": "no-store",  # a live stream may be cut: no cache may keep it
+            "X-Wsplat-Live": "1",
+        }
+        return StreamingResponse(body(), media_type="application/octet-stream", headers=headers)
+
+    @app.get(
+        "/api/scenes/{scene_id}/events",
+        tags=["scenes"],
+        response_class=StreamingResponse,
+        responses={**SSE, **errors(404)},
+    )
     async def scene_events(scene_id: str, request: Request):
         checked_id(scene_id, "scene")
         job = pg.jobs.latest_for("scene", scene_id)
@@ -473,9 +821,11 @@ def create_app(
         "/api/scenes/{scene_id}/videos",
         tags=["videos"],
         status_code=202,
+        response_model=None,
         responses={
-            409: {"description": "refinement unavailable / scene not ready"},
-            429: {"description": "queue full"},
+            200: ok(VideoState, "already cached (status ready)", VIDEO_LINKS),
+            202: ok(VideoState, "queued or running", VIDEO_LINKS | VIDEO_JOB_LINKS),
+            **errors(400, 404, 409, 413, 422, 429),
         },
     )
     def create_video(scene_id: str, req: Annotated[VideoRequest, Body()]) -> JSONResponse:
@@ -488,10 +838,10 @@ def create_app(
             raise ApiError(409, f"scene {scene_id} is {state['status']}, not ready", {"Retry-After": "2"})
         rig = meta.get("cameras") or list(CAMERA_NAMES)
         if req.refine:
-            ok, why = runners.refinement_status()
+            ok, why = runners.refinement_status(pg.pipeline)
             if not ok:
                 raise ApiError(409, why, field="refine")
-            views = runners.refine_views()
+            views = runners.refine_views(pg.pipeline)
             if len(rig) != views:
                 raise ApiError(
                     409,
@@ -503,7 +853,7 @@ def create_app(
         missing = [c for c in cameras if c not in rig]
         if missing:
             raise ApiError(422, f"cameras: {missing} not in this scene's rig {rig}", field="cameras")
-        video_id = runners.video_id_for(scene_id, req.shift_m, cameras, req.refine, req.format)
+        video_id = runners.video_id_for(scene_id, req.shift_m, cameras, req.refine, req.format, pg.pipeline)
         vmeta = pg.cache.meta("videos", video_id)
         if vmeta is not None:
             return JSONResponse(video_state(video_id, vmeta, pg.jobs.latest_for("video", video_id)), 200)
@@ -523,7 +873,8 @@ def create_app(
     @app.get(
         "/api/videos/{video_id}",
         tags=["videos"],
-        responses={200: {"content": {"video/mp4": {}, "video/webm": {}}}, 206: {"description": "Range"}},
+        response_class=StreamingResponse,
+        responses={**stream_responses(("video/mp4", "video/webm"), "video"), **errors(404, 409, 416)},
     )
     def video_file(video_id: str, request: Request):
         checked_id(video_id, "video")
@@ -537,7 +888,12 @@ def create_app(
         media = "video/webm" if meta["ext"] == ".webm" else "video/mp4"
         return file_response(path, media, request, f"worldsplat-{video_id[:8]}{meta['ext']}")
 
-    @app.get("/api/videos/{video_id}/status", tags=["videos"])
+    @app.get(
+        "/api/videos/{video_id}/status",
+        tags=["videos"],
+        response_model=None,
+        responses={200: ok(VideoState, links=VIDEO_LINKS), **errors(404)},
+    )
     def video_status(video_id: str) -> dict:
         checked_id(video_id, "video")
         meta = pg.cache.meta("videos", video_id)
@@ -553,20 +909,48 @@ def create_app(
             raise ApiError(404, f"no such job {job_id}")
         return job
 
-    @app.get("/api/jobs/{job_id}", tags=["jobs"])
+    @app.get(
+        "/api/jobs/{job_id}",
+        tags=["jobs"],
+        response_model=None,
+        responses={200: ok(JobOut, links=JOB_LINKS), **errors(404)},
+    )
     def job_status(job_id: str) -> dict:
         return job_view(get_job(job_id))
 
-    @app.delete("/api/jobs/{job_id}", tags=["jobs"])
+    @app.delete(
+        "/api/jobs/{job_id}",
+        tags=["jobs"],
+        response_model=None,
+        responses={
+            200: ok(
+                JobOut,
+                "the job as it was deleted (cancelled, cancelling, or already finished); "
+                "the job's routes answer 404 from then on",
+            ),
+            **errors(404),
+        },
+    )
     def job_cancel(job_id: str) -> dict:
+        get_job(job_id)
+        return job_view(pg.jobs.delete(job_id))
+
+    @app.post(
+        "/api/jobs/{job_id}/cancel",
+        tags=["jobs"],
+        response_model=None,
+        responses={
+            200: ok(JobOut, "the job (cancelled, cancelling, or already finished); it stays readable"),
+            **errors(400, 404, 413),
+        },
+    )
+    def job_cancel_post(job_id: str) -> dict:
         get_job(job_id)
         return job_view(pg.jobs.cancel(job_id))
 
-    @app.post("/api/jobs/{job_id}/cancel", tags=["jobs"])
-    def job_cancel_post(job_id: str) -> dict:
-        return job_cancel(job_id)
-
-    @app.get("/api/jobs/{job_id}/events", tags=["jobs"], responses={200: {"content": {"text/event-stream": {}}}})
+    @app.get(
+        "/api/jobs/{job_id}/events", tags=["jobs"], response_class=StreamingResponse, responses={**SSE, **errors(404)}
+    )
     async def job_events(job_id: str, request: Request):
         return sse_job(get_job(job_id).id, request)
 
@@ -607,6 +991,27 @@ def create_app(
         if not (web / "index.html").is_file():
             return RedirectResponse("/docs")
         return FileResponse(web / "index.html", headers={"Cache-Control": "no-cache"})
+
+    def openapi() -> dict:
+        """FastAPI's document, with its default 422 (HTTPValidationError) replaced by the error model the
+        validation handler answers with."""
+        if app.openapi_schema is None:
+            spec = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
+            for ops in spec.get("paths", {}).values():
+                for op in ops.values():
+                    r422 = op.get("responses", {}).get("422")
+                    if r422 is not None:
+                        r422["description"] = ERROR_TEXT[422]
+                        r422["content"] = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
+            schemas = spec.setdefault("components", {}).setdefault("schemas", {})
+            schemas.pop("HTTPValidationError", None)
+            schemas.pop("ValidationError", None)
+            schemas.setdefault("ErrorBody", ErrorBody.model_json_schema(ref_template="#/components/schemas/{model}"))
+            schemas.setdefault("FieldProblem", FieldProblem.model_json_schema())
+            app.openapi_schema = spec
+        return app.openapi_schema
+
+    app.openapi = openapi
 
     # the wasm bundle (built by wasm/build.sh into web/pkg, git-ignored): may appear after the server started
     app.mount("/pkg", BundleFiles(directory=web / "pkg", check_dir=False), name="pkg")

@@ -43,6 +43,24 @@ def validate_id(value: str) -> str:
     return value
 
 
+class LiveFile:
+    """An artifact being written, readable while it grows (the scene stream while its job runs).
+
+    `path` is the temporary file in tmp/; `size` counts the bytes written and flushed so far; `state` is "writing",
+    "whole" (every byte written, fsynced and renamed into place; `size` is final) or "aborted" (the job failed, was
+    cancelled, or the server stopped: the file is deleted and never renamed, so the cache never serves it). `size` is
+    updated before `state`, so a reader that sees "whole" may read up to `size` and end the stream."""
+
+    def __init__(self, path: Path):
+        self.path, self.size, self.state = path, 0, "writing"
+        self._f = open(path, "wb")  # noqa: SIM115 - closed by the writer
+
+    def write(self, data: bytes) -> None:
+        self._f.write(data)
+        self._f.flush()
+        self.size += len(data)
+
+
 class ArtifactCache:
     def __init__(self, root: str | Path, max_bytes: int = 2 << 30):
         if max_bytes <= 0:
@@ -52,6 +70,7 @@ class ArtifactCache:
         self.tmp = self.root / "tmp"
         self._lock = threading.RLock()
         self._pins: dict[tuple[str, str], int] = {}
+        self.live: dict[tuple[str, str], LiveFile] = {}  # artifacts being written (readable while they grow)
         for d in (self.tmp, *(self.root / k for k in KINDS)):
             d.mkdir(parents=True, exist_ok=True)
         self.recovered = self.recover()
@@ -115,6 +134,36 @@ class ArtifactCache:
         finally:
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
+
+    @contextlib.contextmanager
+    def live_writer(self, kind: str, id_: str, ext: str) -> Iterator[LiveFile]:
+        """Like `writer`, but the file is written through the yielded `LiveFile` and readable while it grows
+        (`self.live[(kind, id_)]`). Only a whole file is renamed into place; on an exception it is deleted and marked
+        aborted, so a reader of the growing file learns that it will never be whole."""
+        final = self.artifact_path(kind, id_, ext)
+        tmp = self.tmp / f"{id_}.{secrets.token_hex(4)}{ext}"
+        live = LiveFile(tmp)
+        key = (kind, id_)
+        with self._lock:
+            self.live[key] = live
+        try:
+            yield live
+            live._f.flush()
+            os.fsync(live._f.fileno())
+            live._f.close()
+            os.replace(tmp, final)
+            fsync_dir(final.parent)
+            live.state = "whole"
+        except BaseException:
+            live.state = "aborted"
+            raise
+        finally:
+            live._f.close()
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            with self._lock:
+                if self.live.get(key) is live:
+                    del self.live[key]
 
     def commit_meta(self, kind: str, id_: str, meta: dict) -> dict:
         """Write the entry's meta (after its artifact), then enforce the size cap."""

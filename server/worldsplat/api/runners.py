@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import struct
 import time
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -23,92 +25,152 @@ from .jobs import JobContext, JobError
 VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
 
 
-def _pipeline():
-    import worldsplat.pipeline.scene as pipeline  # noqa: PLC0415 - heavy (torch), imported on first use
+class Pipeline:
+    """What the server needs from `worldsplat.pipeline.scene`: the modes, the version that enters a scene id, and
+    `generate_scene`. The app factory takes another object with these methods (`create_app(pipeline=...)`), e.g. the
+    fast test double the schemathesis run uses; this one imports the real pipeline (torch) on first use."""
 
-    return pipeline
+    @staticmethod
+    def module():
+        import worldsplat.pipeline.scene as pipeline  # noqa: PLC0415 - heavy (torch), imported on first use
+
+        return pipeline
+
+    def available_modes(self) -> list[str]:
+        return list(self.module().MODES)
+
+    def default_mode(self) -> str:
+        """`worldsplat.pipeline.scene.default_mode` (one definition, shared with `worldsplat generate`)."""
+        return self.module().default_mode()
+
+    def model_version(self, mode: str) -> str:
+        """The version string that, with the scenario and mode, determines a scene (part of the content hash)."""
+        p = self.module()
+        fn = getattr(p, "model_version", None)
+        if callable(fn):
+            return str(fn(mode))
+        if mode == "oracle":
+            return str(p.ORACLE_VERSION)
+        from worldsplat.pipeline.inference import load_models  # noqa: PLC0415 - the weights' hash (loaded once)
+
+        return f"{mode}-{load_models().version}"
+
+    def generate_scene(self, scenario: Scenario, mode: str, progress, cancelled):
+        return self.module().generate_scene(scenario, mode=mode, progress=progress, cancelled=cancelled)
+
+    def render_track(self, scene, shift_m: float, cameras: list[str], progress, cancelled):
+        from worldsplat.pipeline.render import render_track  # noqa: PLC0415 - heavy (torch), imported on first use
+
+        return render_track(scene, shift_m, cameras, progress=progress, cancelled=cancelled)
+
+    def refinement_status(self) -> tuple[bool, str]:
+        """(available, why not): refinement (issue 7) needs `worldsplat.pipeline.refine` and its enhancer weights."""
+        try:
+            from worldsplat.pipeline.refine import WEIGHTS, refine_available  # noqa: PLC0415
+        except ImportError as e:
+            return False, f"refinement is not available: worldsplat.pipeline.refine cannot be imported ({e})"
+        if not refine_available():
+            return False, f"refinement is not available: the enhancer weights ({WEIGHTS.name}) are not installed"
+        return True, ""
+
+    def refine_views(self) -> int:
+        """How many rig views the enhancer reads at once (it refines a whole rig: scenes need all of them)."""
+        from worldsplat.pipeline.refine import load_refiner  # noqa: PLC0415 - loaded once per process
+
+        return int(load_refiner()[0].cfg.data.views)
+
+    @functools.cache  # noqa: B019 - one instance per process
+    def refiner_version(self) -> str:
+        """The enhancer weights' content hash: a new model gives new video ids."""
+        from worldsplat.pipeline.refine import WEIGHTS  # noqa: PLC0415
+
+        h = hashlib.sha256()
+        with open(WEIGHTS, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        return f"enhancer-{h.hexdigest()[:16]}"
+
+    def refine_track(self, scene, shift_m: float, cameras: list[str], progress, cancelled, scenario):
+        from worldsplat.pipeline.refine import refine_track  # noqa: PLC0415
+
+        return refine_track(scene, shift_m, cameras, progress=progress, cancelled=cancelled, scenario=scenario)
 
 
-def available_modes() -> list[str]:
-    return list(_pipeline().MODES)
+PIPELINE = Pipeline()
 
 
-def default_mode() -> str:
-    """`worldsplat.pipeline.scene.default_mode` (one definition, shared with `worldsplat generate`)."""
-    return _pipeline().default_mode()
+def available_modes(pipe: Pipeline = PIPELINE) -> list[str]:
+    return list(pipe.available_modes())
 
 
-def model_version(mode: str) -> str:
-    """The version string that, with the scenario and mode, determines a scene (part of the content hash)."""
-    p = _pipeline()
-    fn = getattr(p, "model_version", None)
-    if callable(fn):
-        return str(fn(mode))
-    if mode == "oracle":
-        return str(p.ORACLE_VERSION)
-    from worldsplat.pipeline.inference import load_models  # noqa: PLC0415 - the weights' hash (loaded once)
-
-    return f"{mode}-{load_models().version}"
+def default_mode(pipe: Pipeline = PIPELINE) -> str:
+    return pipe.default_mode()
 
 
-def refinement_status() -> tuple[bool, str]:
-    """(available, why not): refinement (issue 7) needs `worldsplat.pipeline.refine` and its enhancer weights."""
-    try:
-        from worldsplat.pipeline.refine import WEIGHTS, refine_available  # noqa: PLC0415
-    except ImportError as e:
-        return False, f"refinement is not available: worldsplat.pipeline.refine cannot be imported ({e})"
-    if not refine_available():
-        return False, f"refinement is not available: the enhancer weights ({WEIGHTS.name}) are not installed"
-    return True, ""
+def model_version(mode: str, pipe: Pipeline = PIPELINE) -> str:
+    return str(pipe.model_version(mode))
 
 
-def refine_views() -> int:
-    """How many rig views the enhancer reads at once (it refines a whole rig: scenes need all of them)."""
-    from worldsplat.pipeline.refine import load_refiner  # noqa: PLC0415 - loaded once per process
-
-    return int(load_refiner()[0].cfg.data.views)
+def refinement_status(pipe: Pipeline = PIPELINE) -> tuple[bool, str]:
+    return pipe.refinement_status()
 
 
-@functools.lru_cache(maxsize=1)
-def refiner_version() -> str:
-    """The enhancer weights' content hash: a new model gives new video ids."""
-    from worldsplat.pipeline.refine import WEIGHTS  # noqa: PLC0415
-
-    h = hashlib.sha256()
-    with open(WEIGHTS, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return f"enhancer-{h.hexdigest()[:16]}"
+def refine_views(pipe: Pipeline = PIPELINE) -> int:
+    return int(pipe.refine_views())
 
 
 def content_id(*parts: str) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
 
 
-def scene_id_for(scenario: Scenario, mode: str) -> str:
+def scene_id_for(scenario: Scenario, mode: str, pipe: Pipeline = PIPELINE) -> str:
     """id = content hash of the normalized scenario + model version + mode."""
-    return content_id("scene", scenario.normalized_json(), model_version(mode), mode)
+    return content_id("scene", scenario.normalized_json(), model_version(mode, pipe), mode)
 
 
-def video_id_for(scene_id: str, shift_m: float, cameras: list[str], refine: bool, fmt: str) -> str:
-    refine_version = refiner_version() if refine else "raw"
+def video_id_for(
+    scene_id: str, shift_m: float, cameras: list[str], refine: bool, fmt: str, pipe: Pipeline = PIPELINE
+) -> str:
+    refine_version = pipe.refiner_version() if refine else "raw"
     return content_id("video", scene_id, f"{float(shift_m):.4f}", ",".join(cameras), refine_version, fmt)
 
 
 # -- jobs ---------------------------------------------------------------------------------------------------------
-def run_scene(cache: ArtifactCache, ctx: JobContext) -> dict:
+def wsplat_pieces(data: bytes) -> Iterator[bytes]:
+    """The .wsplat bytes as the stream delivers them: the preamble + HEAD, then each STAT / DYNA chunk, then END!
+    (chunk framing: tag, u32 length, payload, u32 CRC; web/docs/wsplat-v1.md)."""
+    pos = 12  # magic + version
+    first = True
+    while pos < len(data):
+        (n,) = struct.unpack_from("<I", data, pos + 4)
+        end = pos + 12 + n
+        yield data[:end] if first else data[pos:end]
+        first, pos = False, end
+
+
+def run_scene(cache: ArtifactCache, ctx: JobContext, pipe: Pipeline = PIPELINE) -> dict:
+    """Build the scene and write its .wsplat chunk by chunk through the cache's live writer: a stream opened while
+    the job runs (GET .../wsplat?wait=true) receives each chunk as it is flushed (static chunks in importance order,
+    then the dynamics frame by frame); the file is renamed into the cache only when whole (END!), and a cancel or a
+    failure between chunks aborts it (deleted; open streams are cut without END!)."""
     from worldsplat.gaussians import wsplat  # noqa: PLC0415
 
     p = ctx.params
     scenario, mode, scene_id = Scenario.parse(p["scenario"]), p["mode"], ctx.job.target
     t0 = time.monotonic()
     ctx.progress("loading models", 0.0)
-    scene = _pipeline().generate_scene(scenario, mode=mode, progress=ctx.progress, cancelled=ctx.cancelled)
+    scene = pipe.generate_scene(scenario, mode, ctx.progress, ctx.cancelled)
     ctx.check()
     ctx.progress("writing .wsplat", 0.0)
-    with cache.writer("scenes", scene_id, ".wsplat") as tmp:
-        wsplat.write(scene, tmp)
-    ctx.check()
+    data = wsplat.encode(scene)
+    pause = float(getattr(pipe, "chunk_pause_s", 0.0))  # test doubles slow the writer down to cut it mid-stream
+    with cache.live_writer("scenes", scene_id, ".wsplat") as live:
+        for piece in wsplat_pieces(data):
+            ctx.check()
+            live.write(piece)
+            ctx.progress("writing .wsplat", live.size / len(data))
+            if pause:
+                time.sleep(pause)
     meta = cache.commit_meta(
         "scenes",
         scene_id,
@@ -125,7 +187,7 @@ def run_scene(cache: ArtifactCache, ctx: JobContext) -> dict:
     return {"scene_id": scene_id, "bytes": meta["bytes"], "mode": mode, "seconds": meta["seconds"]}
 
 
-def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
+def run_video(cache: ArtifactCache, ctx: JobContext, pipe: Pipeline = PIPELINE) -> dict:
     from worldsplat.core.video import mosaic, write_video  # noqa: PLC0415
     from worldsplat.gaussians import wsplat  # noqa: PLC0415
 
@@ -139,23 +201,14 @@ def run_video(cache: ArtifactCache, ctx: JobContext) -> dict:
         scene = wsplat.read(opened[0])
     cameras = [c for c in CAMERA_NAMES if c in p["cameras"]]
     if p["refine"]:
-        ok, why = refinement_status()
+        ok, why = pipe.refinement_status()
         if not ok:
             raise JobError(why)
-        from worldsplat.pipeline.refine import refine_track  # noqa: PLC0415
-
-        frames = refine_track(
-            scene,
-            p["shift_m"],
-            cameras,
-            progress=ctx.progress,
-            cancelled=ctx.cancelled,
-            scenario=opened[1].get("scenario"),
+        frames = pipe.refine_track(
+            scene, p["shift_m"], cameras, ctx.progress, ctx.cancelled, scenario=opened[1].get("scenario")
         )
     else:
-        from worldsplat.pipeline.render import render_track  # noqa: PLC0415 - heavy (torch), imported on first use
-
-        frames = render_track(scene, p["shift_m"], cameras, progress=ctx.progress, cancelled=ctx.cancelled)
+        frames = pipe.render_track(scene, p["shift_m"], cameras, ctx.progress, ctx.cancelled)
     ctx.check()
     frames = np.asarray(frames)
     if frames.ndim != 5 or frames.dtype != np.uint8:

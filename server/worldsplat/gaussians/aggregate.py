@@ -13,7 +13,10 @@ The naive union repeats every surface once per frame and view that sees it. The 
    surface (any frame, view or depth) lands in the same cell; the members of a cell become one Gaussian (mean and
    colour averaged with finer observations weighing more, scale grown to cover the members' spread). The sky shell
    merges in its own cells (`sky_cell_factor` x its footprint), never with a surface, into Gaussians that cover
-   their cell (std >= SKY_COVER x cell);
+   their cell (std >= SKY_COVER x cell). Each frame's dynamic set is economized with that frame's cameras in
+   cells of `dynamic_cell_factor` (1) footprints: it is seen from those cameras only, at the distance it was
+   observed, so a coarser cell is a visible down-sampling (with the static factor 3 near vehicles became dot
+   grids, alpha 0.6-0.8 on their pixels; gaussians.md, "Dynamic objects stay solid");
 3. orders by importance (opacity x scale^2 x (1 + log merged count): big, solid, often-seen first, so any prefix of
    the stream is a coarser whole scene) and caps by a budget.
 `python -m worldsplat.gaussians.economy` measures kept Gaussians and PSNR change against exact ground truth.
@@ -34,6 +37,8 @@ from worldsplat.gaussians.types import Gaussians, Scene4D
 
 DYNAMIC_THRESHOLD = 0.5  # extras[:, 0] (dynamic probability / mask) above this -> dynamic
 SKY_COVER = 0.5  # a merged sky Gaussian's std is at least this fraction of its cell
+DYNAMIC_CELL_FACTOR = 1.0  # cell of the per-frame dynamic sets, in pixel footprints (static: Economy.cell_factor)
+DYNAMIC_COVER = 0.0  # > 0: merged dynamic std = this x the patch width (see merged_variance; 0.7 = FOOTPRINT)
 
 
 @dataclass
@@ -45,6 +50,12 @@ class Economy:
     max_range: float = 150.0  # m from the nearest camera position ("out of range")
     cell_factor: float = 3.0  # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
     sky_cell_factor: float = 3.0  # the same for the sky shell (far and smooth: may be coarser)
+    # A frame's dynamic set is seen only from that frame's cameras, at the distance it was observed (a static
+    # place is mostly seen from farther than its nearest camera), so its cells are one footprint. `dynamic_cover`
+    # > 0 lets coarser dynamic cells stay closed (merged std = cover x the patch width; see merged_variance): a
+    # cheaper, softer setting measured in gaussians.md.
+    dynamic_cell_factor: float = DYNAMIC_CELL_FACTOR
+    dynamic_cover: float = DYNAMIC_COVER
     opacity_merge: str = "mean"  # merged opacity: "mean" of the members or "union" 1 - prod(1 - o)
     static_budget: int | None = None  # cap on static Gaussians (most important kept)
     dynamic_budget: int | None = None  # cap per frame
@@ -152,6 +163,24 @@ def nearest_distance(p: np.ndarray, centres: np.ndarray, chunk: int = 1 << 18) -
     return out
 
 
+def merged_variance(total_var: np.ndarray, cover: float = 0.0) -> np.ndarray:
+    """The variance a merged Gaussian adds to its members' mean variance, from the members' centre spread
+    `total_var` (sum over the 3 axes of the weighted variance about the merged mean).
+
+    cover = 0: moment matching of the centres, total_var / 3 per axis. That is right for a cloud of repeats of one
+    place, but it under-covers a patch the members tile: n x n lifted splats at pitch p (std F p, F = FOOTPRINT)
+    have per-axis centre variance p^2 (n^2 - 1) / 12 on the patch's two axes, so the merged std is
+    sqrt(F^2 + (n^2 - 1) / 18) p (0.97 p for n = 3) while the next merged Gaussian sits n p away: a dot grid
+    (measured: alpha 0.6-0.8 on near vehicles with the static cells).
+    cover = c > 0: the members sample a surface patch (two in-plane axes: per-axis variance total_var / 2) of
+    width w (w^2 = 12 x that variance for a uniform patch); the merged Gaussian gets std c w, the lifting's own
+    closure rule (std F x pitch) one level up: F^2 p^2 + 12 c^2 p^2 (n^2 - 1) / 12 = (c n p)^2 for c = F,
+    exactly, for any n."""
+    if cover <= 0:
+        return total_var / 3.0
+    return 12.0 * cover**2 * (total_var / 2.0)
+
+
 def economize(
     g: Gaussians,
     eco: Economy,
@@ -159,10 +188,14 @@ def economize(
     focal: float,
     stats: AggregateStats | None = None,
     budget: int | None = None,
+    cell_factor: float | None = None,
+    cover: float = 0.0,
 ) -> Gaussians:
     """Drop, merge, order by importance, cap (see the module docstring). Works on detached numpy copies; the
     result is a new Gaussians (isotropic inputs stay isotropic; a merged cell takes the rotation of its most
-    opaque member)."""
+    opaque member). `cell_factor` overrides `eco.cell_factor` (the dynamic sets use `eco.dynamic_cell_factor`).
+    `cover` > 0: a merged Gaussian stands for the surface patch its members tile, not for their centres
+    (see `merged_variance`)."""
     stats = stats or AggregateStats()
     a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
     if len(a["means"]) == 0:
@@ -189,7 +222,8 @@ def economize(
     s = np.clip(a["scales"], C.SCALE_MIN, C.SCALE_MAX)
     # One resolution per place: the pixel footprint from the nearest camera, times cell_factor, rounded to a
     # power of two. Every observation of a surface (any frame, any view, any depth) lands in the same cell.
-    cell = np.where(sky, eco.sky_cell_factor, eco.cell_factor) * np.maximum(dist, 0.1) / focal
+    cf = eco.cell_factor if cell_factor is None else cell_factor
+    cell = np.where(sky, eco.sky_cell_factor, cf) * np.maximum(dist, 0.1) / focal
     level = np.round(np.log2(cell)).astype(np.int64)
     keys = _cell_keys(a["means"], level, sky)
     uniq, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
@@ -206,7 +240,7 @@ def economize(
         )
 
     means = wmean(a["means"])
-    spread = wmean(((a["means"] - means[inv]) ** 2).sum(1)) / 3.0  # per-axis variance of the member centres
+    spread = merged_variance(wmean(((a["means"] - means[inv]) ** 2).sum(1)), cover)
     scales = np.sqrt(np.exp(2 * wmean(np.log(s))) + spread[:, None])
     # A sky cell's Gaussian covers its cell (sigma >= cell / 2): the shell is one smooth backdrop behind everything,
     # and member spread alone (a few footprints in a cell of many) leaves see-through gaps between cells.
@@ -291,7 +325,18 @@ def aggregate_4d(
     if economy.enabled:
         static = economize(static, economy, centres.reshape(-1, 3), focal, stats, economy.static_budget)
         dynamics = [
-            economize(d, economy, centres[t], focal, stats, economy.dynamic_budget) if len(d) else d.detach()
+            economize(
+                d,
+                economy,
+                centres[t],
+                focal,
+                stats,
+                economy.dynamic_budget,
+                cell_factor=economy.dynamic_cell_factor,
+                cover=economy.dynamic_cover,
+            )
+            if len(d)
+            else d.detach()
             for t, d in enumerate(dynamics)
         ]
     else:

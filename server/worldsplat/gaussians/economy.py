@@ -171,10 +171,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", default=None, help="comma-separated frame indices to evaluate (default: all)")
     p.add_argument("--cell-factor", type=float, default=Economy.cell_factor)
     p.add_argument("--sky-cell-factor", type=float, default=Economy.sky_cell_factor)
+    p.add_argument("--dynamic-cell-factor", type=float, default=Economy.dynamic_cell_factor)
+    p.add_argument("--dynamic-cover", type=float, default=Economy.dynamic_cover)
     p.add_argument("--opacity-merge", default=Economy.opacity_merge, choices=["mean", "union"])
     p.add_argument("--json", default=None, help="also write the result as JSON here")
     a = p.parse_args(argv)
-    eco = Economy(cell_factor=a.cell_factor, sky_cell_factor=a.sky_cell_factor, opacity_merge=a.opacity_merge)
+    eco = Economy(
+        cell_factor=a.cell_factor,
+        sky_cell_factor=a.sky_cell_factor,
+        opacity_merge=a.opacity_merge,
+        dynamic_cell_factor=a.dynamic_cell_factor,
+        dynamic_cover=a.dynamic_cover,
+    )
     frames = None if a.frames is None else [int(x) for x in a.frames.split(",")]
     res = measure(a.preset, [float(x) for x in a.shifts.split(",")], frames, eco, log=lambda m: print(m, flush=True))
     print(table(res))

@@ -148,10 +148,17 @@ async function generate(scenario, mode, view = null) {
     state.sceneId = body.scene_id;
     $("scene-badge").textContent = `scene: ${body.scene_id.slice(0, 12)}`;
     $("scene-badge").title = body.scene_id;
+    let streamed = false;
     if (body.status !== "ready") {
       state.genJobId = body.job && body.job.id;
       setProgress("gen", body.job || body);
-      await followEvents(`/api/scenes/${body.scene_id}/events`, (job) => setProgress("gen", job));
+      // the scene streams into the viewer while it is generated (?wait=true), beside the progress bar
+      const [events, live] = await Promise.allSettled([
+        followEvents(`/api/scenes/${body.scene_id}/events`, (job) => setProgress("gen", job)),
+        streamScene(`/api/scenes/${body.scene_id}/wsplat?wait=true`),
+      ]);
+      if (events.status === "rejected") throw events.reason;
+      streamed = live.status === "fulfilled"; // else fetch it whole below
     }
     const { body: scene } = await apiJson(`/api/scenes/${body.scene_id}`);
     setProgress("gen", { stage: "streaming", fraction: 1 });
@@ -159,7 +166,7 @@ async function generate(scenario, mode, view = null) {
     state.sceneMode = scene.mode;
     $("mode-badge").textContent = `mode: ${scene.mode}`;
     $("mode-badge").classList.add("ok");
-    await streamScene(`/api/scenes/${body.scene_id}/wsplat`);
+    if (!streamed) await streamScene(`/api/scenes/${body.scene_id}/wsplat`);
     if (view) applyView(view);
     $("gen-progress").hidden = true;
     return body.scene_id;

@@ -3,6 +3,7 @@
 // No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
 import { SHIFT_MAX_M } from "./limits.js";
 import { decodeShare, shareUrl } from "./share.js";
+import { initEditor } from "./editor.js";
 
 const $ = (id) => document.getElementById(id);
 const CAMERAS = ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT"];
@@ -74,6 +75,7 @@ function fillForm(scenario) {
     const v = getPath(scenario, el.dataset.field);
     el.value = v == null ? "" : String(v);
   }
+  if (state.editor) state.editor.refresh();  // the bird's-eye editor (web/editor.js) edits state.base's agents
 }
 
 /** The scenario the form describes: the base scenario with every form field applied (numbers stay numbers). */
@@ -406,6 +408,8 @@ function share() {
 
 // ---- wiring ----------------------------------------------------------------------------------------------------------
 function wire() {
+  state.editor = initEditor({ host: $("scenario-editor"), getBase: () => state.base, getForm: readForm, selectPreset,
+    presetNames: () => state.presets.map((p) => p.name) });
   $("error-close").onclick = clearError;
   $("preset").onchange = (e) => selectPreset(e.target.value);
   $("scenario-form").onsubmit = (e) => {

@@ -1,0 +1,370 @@
+// The bird's-eye scenario editor: the road from above, explicit agents as boxes to add (click), drag, rotate
+// (shift-drag or the rotate buttons), delete and re-class; a path of waypoints per agent and for the ego; the caption;
+// a time scrubber previewing the motion; the four corner-case presets. It edits the scenario the form edits
+// (`getBase()`: agents, ego.path, caption), so generate and the share link carry all of it.
+// World frame (web/docs/world.md): the ego's rear axle starts at the origin facing +x, y left.
+
+const CLASSES = ["car", "bus", "truck", "pedestrian", "cyclist"];
+const SIZE = { car: [4.5, 1.85], bus: [11.0, 2.55], truck: [7.5, 2.45], pedestrian: [0.5, 0.6], cyclist: [1.8, 0.6] };
+const SPEED = { car: 8, bus: 6, truck: 6, pedestrian: 1.4, cyclist: 4 };
+const COLOUR = { car: "#4ea1ff", bus: "#f0b429", truck: "#e07b39", pedestrian: "#e85d75", cyclist: "#5ccf8f" };
+export const CORNER_CASES = ["cut_in", "crossing_pedestrian", "stopped_vehicle", "oncoming_overtaker"];
+const EGO = { length: 4.6, width: 1.9, rear: 1.0 };
+const VIEW = { x0: -20, x1: 80 };   // metres shown along x; y follows the canvas aspect
+
+// ---- road geometry (mirrors worldsplat.world.road) -----------------------------------------------------------------
+export function roadOf(s) {
+  const r = s.road || {}, lanes = r.lanes_per_direction ?? 2, w = r.lane_width ?? 3.5;
+  const median = r.setting === "highway" ? 2.6 : 0;
+  const k = r.kind === "curve" ? (r.curvature ?? 0) : 0;
+  const laneD = (lane, dir) => -dir * (median / 2 + (lanes - lane - 0.5) * w);
+  const y0 = -laneD((s.ego || {}).start_lane ?? 0, 1);
+  const xy = (sv, d) => {
+    if (k === 0) return [sv, y0 + d, 0];
+    const rr = 1 / k, th = sv / rr, rho = rr - d;
+    return [rho * Math.sin(th), y0 + rr - rho * Math.cos(th), th];
+  };
+  const sd = (x, y) => {
+    if (k === 0) return [x, y - y0];
+    const rr = 1 / k, sg = Math.sign(rr), dx = x, dy = y - (y0 + rr);
+    return [rr * Math.atan2(sg * dx, -sg * dy), rr - sg * Math.hypot(dx, dy)];
+  };
+  return { lanes, w, median, k, y0, laneD, xy, sd, edge: median / 2 + lanes * w };
+}
+
+function smoothstep(u) { u = Math.min(1, Math.max(0, u)); return u * u * (3 - 2 * u); }
+
+/** Pose [x, y, yaw] of an agent at time t (a preview: keyframes linear, events as the world scripts them). */
+export function agentPose(s, a, t) {
+  const road = roadOf(s), m = a.motion || {};
+  if (m.keyframes && m.keyframes.length) {
+    const kf = m.keyframes;
+    let i = 0;
+    while (i < kf.length - 2 && kf[i + 1].t < t) i++;
+    const p = kf[i], q = kf[Math.min(i + 1, kf.length - 1)];
+    const u = q.t > p.t ? Math.min(1, Math.max(0, (t - p.t) / (q.t - p.t))) : 0;
+    const yaw = Math.atan2(q.y - p.y, q.x - p.x);
+    return [p.x + u * (q.x - p.x), p.y + u * (q.y - p.y), Number.isFinite(yaw) ? yaw : 0];
+  }
+  // distance travelled: the speed ramps linearly over each stop / set_speed event
+  let dist = 0, v = m.speed || 0;
+  const dt = 0.02, events = m.events || [];
+  for (let tt = 0; tt < t - 1e-9; tt += dt) {
+    let cur = m.speed || 0;
+    for (const e of events) {
+      if (e.action === "lane_change" || tt < e.t) continue;
+      const target = e.action === "stop" ? 0 : e.speed;
+      cur = cur + (target - cur) * Math.min(1, (tt - e.t) / e.duration);
+    }
+    v = cur;
+    dist += v * Math.min(dt, t - tt);
+  }
+  const st = a.start || { kind: "pose", x: 0, y: 0, yaw_deg: 0 };
+  if (st.kind === "pose") {
+    const yaw = (st.yaw_deg || 0) * Math.PI / 180;
+    return [st.x + dist * Math.cos(yaw), st.y + dist * Math.sin(yaw), yaw];
+  }
+  const dir = st.direction === "opposite" ? -1 : 1;
+  let d = road.laneD(st.lane, dir) + dir * (st.lateral || 0);
+  for (const e of events) {
+    if (e.action !== "lane_change" || t < e.t) continue;
+    const to = road.laneD(e.lane, dir) + dir * (st.lateral || 0);
+    d = d + (to - d) * smoothstep((t - e.t) / e.duration);
+  }
+  const [x, y, h] = road.xy(st.s + dir * dist, d);
+  return [x, y, h + (dir < 0 ? Math.PI : 0)];
+}
+
+export function egoPose(s, t) {
+  const e = s.ego || {};
+  if (e.path && e.path.length > 1) return agentPose(s, { motion: { keyframes: e.path } }, t);
+  return [(e.speed || 0) * t, 0, 0];
+}
+
+// ---- the editor ----------------------------------------------------------------------------------------------------
+export function initEditor({ host, getBase, getForm, selectPreset, presetNames }) {
+  host.innerHTML = `
+    <fieldset class="editor"><legend>Agents &amp; paths</legend>
+      <div class="ed-tools">
+        <select id="ed-class" aria-label="class of the next agent">${CLASSES.map((c) => `<option>${c}</option>`).join("")}</select>
+        <button type="button" id="ed-add" class="btn small" aria-pressed="false" title="click the road to drop an agent">+ agent</button>
+        <button type="button" id="ed-path" class="btn small" aria-pressed="false" title="click waypoints for the selected agent (or the ego)">path</button>
+        <button type="button" id="ed-rot-l" class="btn small" title="rotate left 15°">⟲</button>
+        <button type="button" id="ed-rot-r" class="btn small" title="rotate right 15°">⟳</button>
+        <button type="button" id="ed-del" class="btn small" title="delete the selected agent (Delete)">✕</button>
+      </div>
+      <canvas id="ed-canvas" width="560" height="240" tabindex="0" aria-label="bird's-eye scenario editor"></canvas>
+      <div class="ed-row">
+        <label>Speed m/s <input type="number" id="ed-speed" min="0" max="40" step="0.5"></label>
+        <label>Class <select id="ed-reclass" aria-label="class of the selected agent">${CLASSES.map((c) => `<option>${c}</option>`).join("")}</select></label>
+        <span id="ed-sel" class="small muted">nothing selected</span>
+      </div>
+      <div class="ed-row">
+        <input type="range" id="ed-time" min="0" max="1" step="0.01" value="0" aria-label="preview time">
+        <output id="ed-time-label" class="mono small">t = 0.00 s</output>
+      </div>
+      <label class="ed-caption">Caption <textarea id="ed-caption" rows="2" maxlength="400" placeholder="composed from the world when empty"></textarea></label>
+      <div class="ed-presets small">Corner cases:
+        ${CORNER_CASES.map((n) => `<button type="button" class="link-btn" data-corner="${n}">${n.replaceAll("_", " ")}</button>`).join(" ")}
+      </div>
+    </fieldset>`;
+  const $ = (id) => host.querySelector(`#${id}`);
+  const canvas = $("ed-canvas"), ctx = canvas.getContext("2d");
+  // pathSpeed: the speed a path's waypoints are timed with (the agent's speed when its first waypoint was set)
+  const ui = { mode: "select", selected: null, drag: null, time: 0, pathSpeed: new WeakMap() };
+
+  const scenario = () => {
+    const base = getBase();
+    if (!base) return null;
+    base.agents = base.agents || [];
+    base.ego = base.ego || {};
+    return base;
+  };
+  // the scenario as the form describes it (road, ego, clip) with the editor's parts
+  const view = () => ({ ...getForm(), agents: scenario().agents, ego: { ...getForm().ego, path: scenario().ego.path } });
+  const duration = () => { const c = getForm().clip || {}; return Math.max(0, ((c.frames || 1) - 1) / (c.fps || 4)); };
+
+  function scale() {
+    const r = canvas.getBoundingClientRect();
+    const px = r.width / (VIEW.x1 - VIEW.x0);
+    return { px, r, cx: -VIEW.x0 * px, cy: r.height / 2 };
+  }
+  /** Canvas CSS pixel -> world metres, and back. */
+  function toWorld(u, v) { const { px, cx, cy } = scale(); return [(u - cx) / px, (cy - v) / px]; }
+  function toPixel(x, y) { const { px, cx, cy } = scale(); return [cx + x * px, cy - y * px]; }
+
+  function fit() {
+    const r = canvas.getBoundingClientRect(), dpr = window.devicePixelRatio || 1;
+    const w = Math.max(1, Math.round(r.width * dpr)), h = Math.max(1, Math.round(r.height * dpr));
+    if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
+  }
+
+  function box(x, y, yaw, l, w, fill, stroke) {
+    const { px } = scale(), [u, v] = toPixel(x, y);
+    ctx.save();
+    ctx.translate(u, v);
+    ctx.rotate(-yaw);
+    ctx.fillStyle = fill;
+    ctx.strokeStyle = stroke;
+    ctx.lineWidth = stroke === "#fff" ? 2 : 1;
+    ctx.fillRect(-l / 2 * px, -w / 2 * px, l * px, w * px);
+    ctx.strokeRect(-l / 2 * px, -w / 2 * px, l * px, w * px);
+    ctx.beginPath();            // heading tick
+    ctx.moveTo(0, 0);
+    ctx.lineTo(l / 2 * px, 0);
+    ctx.stroke();
+    ctx.restore();
+  }
+
+  function draw() {
+    const s = scenario();
+    if (!s) return;
+    fit();
+    const dpr = window.devicePixelRatio || 1, v = view(), road = roadOf(v);
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    const { r } = scale();
+    ctx.fillStyle = "#1d2330";
+    ctx.fillRect(0, 0, r.width, r.height);
+    // road surface and lane lines along s
+    const strip = (d0, d1, style) => {
+      ctx.fillStyle = style;
+      ctx.beginPath();
+      for (let sv = VIEW.x0 - 10; sv <= VIEW.x1 + 10; sv += 2) { const [x, y] = road.xy(sv, d0); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
+      for (let sv = VIEW.x1 + 10; sv >= VIEW.x0 - 10; sv -= 2) { const [x, y] = road.xy(sv, d1); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
+      ctx.fill();
+    };
+    strip(-road.edge - 2, road.edge + 2, "#3a4150");
+    ctx.strokeStyle = "#c8ccd4";
+    ctx.setLineDash([6, 8]);
+    for (let i = -road.lanes; i <= road.lanes; i++) {
+      const d = i === 0 ? 0 : Math.sign(i) * (road.median / 2 + Math.abs(i) * road.w);
+      ctx.setLineDash(i === 0 || Math.abs(i) === road.lanes ? [] : [6, 8]);
+      ctx.strokeStyle = i === 0 ? "#e2c044" : "#c8ccd4";
+      ctx.beginPath();
+      for (let sv = VIEW.x0 - 10; sv <= VIEW.x1 + 10; sv += 2) { const [x, y] = road.xy(sv, d); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
+      ctx.stroke();
+    }
+    ctx.setLineDash([]);
+    const t = ui.time;
+    // paths
+    const pathLine = (pts, colour) => {
+      ctx.strokeStyle = colour;
+      ctx.beginPath();
+      for (const k of pts) { const p = toPixel(k.x, k.y); ctx.lineTo(p[0], p[1]); }
+      ctx.stroke();
+      for (const k of pts) { const p = toPixel(k.x, k.y); ctx.fillStyle = colour; ctx.fillRect(p[0] - 2, p[1] - 2, 4, 4); }
+    };
+    if (v.ego.path) pathLine(v.ego.path, "#ffffff");
+    s.agents.forEach((a) => { if (a.motion && a.motion.keyframes) pathLine(a.motion.keyframes, COLOUR[a.class]); });
+    // the ego (rear axle pose -> footprint centre)
+    const [ex, ey, eh] = egoPose(v, t), off = EGO.length / 2 - EGO.rear;
+    box(ex + off * Math.cos(eh), ey + off * Math.sin(eh), eh, EGO.length, EGO.width, "#9aa3b2",
+      ui.selected === "ego" ? "#fff" : "#222");
+    s.agents.forEach((a, i) => {
+      const [x, y, yaw] = agentPose(v, a, t), [l, w] = dims(a);
+      box(x, y, yaw, l, w, COLOUR[a.class] || "#888", ui.selected === i ? "#fff" : "#111");
+    });
+    $("ed-time-label").textContent = `t = ${t.toFixed(2)} s`;
+  }
+
+  function dims(a) { return a.size ? [a.size.length, a.size.width] : SIZE[a.class]; }
+
+  function hit(x, y) {
+    const s = scenario(), v = view();
+    for (let i = s.agents.length - 1; i >= 0; i--) {
+      const a = s.agents[i], [ax, ay, yaw] = agentPose(v, a, ui.time), [l, w] = dims(a);
+      const dx = x - ax, dy = y - ay, c = Math.cos(yaw), sn = Math.sin(yaw);
+      const lx = c * dx + sn * dy, ly = -sn * dx + c * dy;
+      if (Math.abs(lx) <= Math.max(l, 1.2) / 2 && Math.abs(ly) <= Math.max(w, 1.2) / 2) return i;
+    }
+    const [ex, ey] = egoPose(v, ui.time);
+    if (Math.hypot(x - ex - 1.3, y - ey) < 2.4) return "ego";
+    return null;
+  }
+
+  function nextId(cls) {
+    const ids = new Set(scenario().agents.map((a) => a.id));
+    for (let n = 1; ; n++) if (!ids.has(`${cls}${n}`)) return `${cls}${n}`;
+  }
+
+  function select(i) {
+    ui.selected = i;
+    const s = scenario(), a = typeof i === "number" ? s.agents[i] : null;
+    $("ed-sel").textContent = i === "ego" ? "ego" : a ? `${a.id} (${a.class})` : "nothing selected";
+    $("ed-speed").disabled = !a;
+    $("ed-speed").value = a ? String(a.motion && a.motion.keyframes ? "" : (a.motion?.speed ?? 0)) : "";
+    $("ed-reclass").disabled = !a;
+    if (a) $("ed-reclass").value = a.class;
+    draw();
+  }
+
+  function setMode(m) {
+    ui.mode = ui.mode === m ? "select" : m;
+    $("ed-add").setAttribute("aria-pressed", String(ui.mode === "add"));
+    $("ed-path").setAttribute("aria-pressed", String(ui.mode === "path"));
+  }
+
+  /** Move an agent so its pose at t = 0 is at (x, y); keyframed agents move as a whole. */
+  function moveTo(a, x, y) {
+    const v = view(), [x0, y0] = agentPose(v, a, 0);
+    if (a.motion && a.motion.keyframes) {
+      for (const k of a.motion.keyframes) { k.x = round(k.x + x - x0); k.y = round(k.y + y - y0); }
+    } else if (a.start.kind === "lane") {
+      const road = roadOf(v), [sv, d] = road.sd(x, y), dir = a.start.direction === "opposite" ? -1 : 1;
+      a.start.s = round(sv);
+      a.start.lateral = round(dir * (d - road.laneD(a.start.lane, dir)));
+    } else {
+      a.start.x = round(x);
+      a.start.y = round(y);
+    }
+  }
+
+  function rotate(a, deg) {
+    if (!a || (a.motion && a.motion.keyframes) || a.start.kind !== "pose") return;
+    a.start.yaw_deg = round(((a.start.yaw_deg || 0) + deg + 540) % 360 - 180);
+  }
+
+  function addWaypoint(target, x, y) {
+    const s = scenario(), v = view();
+    if (target === "ego") {
+      const path = s.ego.path || [{ t: 0, x: 0, y: 0 }];
+      const last = path.at(-1), speed = Math.max(1, getForm().ego?.speed || 8);
+      path.push({ t: round(last.t + Math.hypot(x - last.x, y - last.y) / speed), x: round(x), y: round(y) });
+      s.ego.path = path;
+      return;
+    }
+    const a = s.agents[target];
+    if (!a.motion.keyframes) {
+      const [x0, y0] = agentPose(v, a, 0);
+      ui.pathSpeed.set(a, a.motion.speed || SPEED[a.class]);
+      a.motion = { keyframes: [{ t: 0, x: round(x0), y: round(y0) }] };
+      delete a.start;
+    }
+    const kf = a.motion.keyframes, last = kf.at(-1), speed = Math.max(0.5, ui.pathSpeed.get(a) || SPEED[a.class]);
+    kf.push({ t: round(last.t + Math.hypot(x - last.x, y - last.y) / speed), x: round(x), y: round(y) });
+  }
+
+  const round = (v) => Math.round(v * 100) / 100;
+
+  const local = (e) => { const r = canvas.getBoundingClientRect(); return [e.clientX - r.left, e.clientY - r.top]; };
+  canvas.addEventListener("pointerdown", (e) => {
+    const [u, v] = local(e), [x, y] = toWorld(u, v), s = scenario();
+    if (!s) return;
+    canvas.focus();
+    if (ui.mode === "add") {
+      const cls = $("ed-class").value;
+      s.agents.push({ id: nextId(cls), class: cls, start: { kind: "pose", x: round(x), y: round(y), yaw_deg: 0 },
+        motion: { speed: 0 } });
+      setMode("add");
+      select(s.agents.length - 1);
+      return;
+    }
+    if (ui.mode === "path" && ui.selected !== null) { addWaypoint(ui.selected, x, y); draw(); return; }
+    const i = hit(x, y);
+    select(i);
+    if (typeof i === "number") {
+      const [ax, ay] = agentPose(view(), s.agents[i], 0);
+      ui.drag = { i, dx: ax - x, dy: ay - y, rotate: e.shiftKey, u0: u, yaw0: s.agents[i].start?.yaw_deg || 0 };
+      canvas.setPointerCapture(e.pointerId);
+    }
+  });
+  canvas.addEventListener("pointermove", (e) => {
+    if (!ui.drag) return;
+    const [u, v] = local(e), [x, y] = toWorld(u, v), a = scenario().agents[ui.drag.i];
+    if (ui.drag.rotate) {
+      if (a.start && a.start.kind === "pose") a.start.yaw_deg = round(ui.drag.yaw0 + (u - ui.drag.u0));
+    } else {
+      moveTo(a, x + ui.drag.dx, y + ui.drag.dy);
+    }
+    draw();
+  });
+  const endDrag = () => { ui.drag = null; };
+  canvas.addEventListener("pointerup", endDrag);
+  canvas.addEventListener("pointercancel", endDrag);
+  canvas.addEventListener("keydown", (e) => {
+    if ((e.key === "Delete" || e.key === "Backspace") && typeof ui.selected === "number") { e.preventDefault(); del(); }
+  });
+  function del() {
+    const s = scenario();
+    if (typeof ui.selected === "number") s.agents.splice(ui.selected, 1);
+    else if (ui.selected === "ego") delete s.ego.path;
+    select(null);
+  }
+  $("ed-add").onclick = () => setMode("add");
+  $("ed-path").onclick = () => setMode("path");
+  $("ed-del").onclick = del;
+  $("ed-rot-l").onclick = () => { rotate(scenario().agents[ui.selected], 15); draw(); };
+  $("ed-rot-r").onclick = () => { rotate(scenario().agents[ui.selected], -15); draw(); };
+  $("ed-reclass").onchange = (e) => {
+    const a = scenario().agents[ui.selected];
+    if (a) { a.class = e.target.value; delete a.size; select(ui.selected); }
+  };
+  $("ed-speed").onchange = (e) => {
+    const a = scenario().agents[ui.selected], v = Number(e.target.value);
+    if (a && Number.isFinite(v) && !(a.motion && a.motion.keyframes)) { a.motion = { ...a.motion, speed: v }; draw(); }
+  };
+  $("ed-time").oninput = (e) => { ui.time = Number(e.target.value) * duration(); draw(); };
+  $("ed-caption").oninput = (e) => {
+    const s = scenario();
+    const text = e.target.value.trim();
+    if (text) s.caption = text; else s.caption = null;
+  };
+  host.querySelectorAll("[data-corner]").forEach((b) => {
+    b.onclick = () => { if (presetNames().includes(b.dataset.corner)) selectPreset(b.dataset.corner); };
+  });
+  new ResizeObserver(() => draw()).observe(canvas);
+
+  /** The scenario was replaced (a preset, a share link): show it. */
+  function refresh() {
+    const s = scenario();
+    if (!s) return;
+    $("ed-caption").value = s.caption || "";
+    ui.selected = null;
+    select(null);
+  }
+  const form = host.closest("form");
+  if (form) form.addEventListener("input", (e) => { if (!host.contains(e.target)) draw(); });
+  const api = { draw, refresh, toWorld, toPixel, select, ui };
+  window.scenarioEditor = api;   // console and test hook
+  return api;
+}

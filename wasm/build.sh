@@ -11,5 +11,6 @@ WANT="$(grep -o 'wasm-bindgen = "=[0-9.]*"' "$ROOT/wasm/crates/splat-web/Cargo.t
 "$WBG" --version | grep -q " $WANT" || { echo "wasm/build.sh: $("$WBG" --version) does not match the crate's $WANT" >&2; exit 1; }
 cd "$ROOT/wasm"
 nice -n 10 cargo build -p splat-web --target wasm32-unknown-unknown --profile wasm-release
-"$WBG" --target web --out-dir "$ROOT/web/pkg" target/wasm32-unknown-unknown/wasm-release/splat_web.wasm
-ls -l "$ROOT/web/pkg/splat_web_bg.wasm" | awk '{print "wasm/build.sh: web/pkg/splat_web_bg.wasm", $5, "bytes"}'
+TARGET_DIR="${CARGO_TARGET_DIR:-target}"  # honour a caller's target dir (a second build beside a native one)
+"$WBG" --target web --out-dir "${WASM_PKG_OUT:-$ROOT/web/pkg}" "$TARGET_DIR/wasm32-unknown-unknown/wasm-release/splat_web.wasm"
+ls -l "${WASM_PKG_OUT:-$ROOT/web/pkg}/splat_web_bg.wasm" | awk '{print "wasm/build.sh:", $9, $5, "bytes"}'

@@ -3,8 +3,14 @@
 // (the only sync point headless); sort = frame with the view moving minus frame with the view held (sort reused).
 // WebGL2 rows also time the depth sort per view change like a frame loop (`harness.sortLatency`): with the sort in
 // the Web Worker (path "webgl2", the default) or sliced on the main thread (path "webgl2-main", sort: "main").
+// Stages (bundles with `set_profile`): blank = a held frame drawing no splat (blit + readback + frame overhead), so
+// draw = held - blank; upload = the main thread's order upload; square = the same frames with the spec's full
+// square quads instead of the tight rectangles (the quad-extent change measured within one run).
 // Usage: NODE_PATH=package-config/node_modules node tests/browser/lib/viewer-bench.mjs [COUNTS] [WxH] [FRAMES] [PATHS]
-//   defaults: 100000,500000,1000000 640x360 2 webgpu,webgl2   (PATHS may add webgl2-main)
+//   defaults: 100000,500000,1000000 640x360 2 webgpu,webgl2   (PATHS may add webgl2-main, and webgl2-u8: the
+//   viewer created with accumulate: "unorm8", 8-bit blending instead of Rgba16Float)
+//   env VIEWER_PKG=DIR serves another build of web/pkg (a before/after of a renderer change: run it twice);
+//   BENCH_NO_LATENCY=1 skips the sort-latency rows
 import { mkdirSync } from "node:fs";
 import { join } from "node:path";
 import { ARTIFACTS, startServer, launch, openHarness, native } from "./viewer-harness.mjs";
@@ -22,24 +28,40 @@ for (const path of paths) {
   const backend = path.startsWith("webgl2") ? "webgl2" : path;
   const b = await launch(backend);
   try {
-    const { page, info } = await openHarness(b.context, server.url, backend, [width, height], path === "webgl2-main" ? { sort: "main" } : {});
+    const opts = path === "webgl2-main" ? { sort: "main" } : path === "webgl2-u8" ? { accumulate: "unorm8" } : {};
+    const { page, info } = await openHarness(b.context, server.url, backend, [width, height], opts);
     if (info.unavailable) { console.log(`${path}: unavailable`); continue; }
     for (const n of counts) {
-      const r = await page.evaluate(async ([url, k, b]) => {
+      const r = await page.evaluate(async ([url, k, b, latency]) => {
         const h = window.harness;
         const loadMs = await h.loadUrl(url);
         h.call("set_camera", "free");
         const held = await h.benchFrames(k, 0);
         const moving = await h.benchFrames(k, 0.02);
-        const sort = b === "webgl2" ? await h.sortLatency(k + 2, 0.02) : null;
-        return { loadMs, held, moving, sort };
-      }, [`/artifacts/bench/synth_${n}.ply`, frames, backend]);
+        let stages = null;
+        if (h.has("set_profile")) {
+          h.call("set_profile", { skip_splats: true });
+          const blank = await h.benchFrames(k, 0);
+          h.call("set_profile", { skip_splats: false, square_quads: true });
+          const sqHeld = await h.benchFrames(k, 0);
+          const sqMoving = await h.benchFrames(k, 0.02);
+          h.call("set_profile", { square_quads: false });
+          stages = { blank: blank.ms, sqHeld: sqHeld.ms, sqMoving: sqMoving.ms };
+        }
+        const sort = b === "webgl2" && latency ? await h.sortLatency(k + 2, 0.02) : null;
+        return { loadMs, held, moving, sort, stages };
+      }, [`/artifacts/bench/synth_${n}.ply`, frames, backend, !process.env.BENCH_NO_LATENCY]);
       const row = {
         path, adapter: info.adapter, gaussians: n, load_ms: r.loadMs.toFixed(0), gpu_mb: (r.moving.stats.bytes / 1e6).toFixed(1),
         frame_ms_moving: r.moving.ms.toFixed(1), frame_ms_held: r.held.ms.toFixed(1),
         // WebGL2: the sort's own time (in the worker; on the main thread the slices summed), WebGPU: moving - held.
         sort_ms: (r.sort ? r.sort.sortMs : r.moving.ms - r.held.ms).toFixed(1),
       };
+      if (r.stages) {
+        Object.assign(row, { blank_ms: r.stages.blank.toFixed(1), draw_ms: (r.held.ms - r.stages.blank).toFixed(1),
+          square_moving_ms: r.stages.sqMoving.toFixed(1), square_held_ms: r.stages.sqHeld.toFixed(1),
+          square_draw_ms: (r.stages.sqHeld - r.stages.blank).toFixed(1), upload_ms: (r.moving.stats.upload_ms ?? 0).toFixed(2) });
+      }
       if (r.sort) {
         Object.assign(row, { sort_thread: r.sort.thread, order_latency_ms: r.sort.latency.toFixed(1),
           renders_until_sorted: r.sort.renders.toFixed(1), render_call_ms: r.sort.renderMean.toFixed(2),
@@ -58,6 +80,15 @@ console.log(`\n${width}x${height}, ${frames} timed frames each (after one warm-u
 console.log("\n| path | Gaussians | load ms | GPU MB | frame ms (view moving) | frame ms (view held) | sort ms |");
 console.log("|---|---|---|---|---|---|---|");
 for (const r of rows) console.log(`| ${r.path} | ${r.gaussians} | ${r.load_ms} | ${r.gpu_mb} | ${r.frame_ms_moving} | ${r.frame_ms_held} | ${r.sort_ms} |`);
+const stageRows = rows.filter((r) => r.blank_ms);
+if (stageRows.length) {
+  console.log("\nStages (held view: draw = held - blank; blank = blit + readback + frame overhead) and the quad extent:");
+  console.log("| path | Gaussians | frame ms moving | held | blank | draw | square quads: moving | held | draw | draw tight / square |");
+  console.log("|---|---|---|---|---|---|---|---|---|---|");
+  for (const r of stageRows) {
+    console.log(`| ${r.path} | ${r.gaussians} | ${r.frame_ms_moving} | ${r.frame_ms_held} | ${r.blank_ms} | ${r.draw_ms} | ${r.square_moving_ms} | ${r.square_held_ms} | ${r.square_draw_ms} | ${(r.draw_ms / r.square_draw_ms).toFixed(2)} |`);
+  }
+}
 const sortRows = rows.filter((r) => r.sort_thread);
 if (sortRows.length) {
   console.log("\nWebGL2 depth sort per view change (32x18 canvas), rendering until the new order draws:");

@@ -15,7 +15,7 @@ const require = createRequire(import.meta.url);
 const { chromium } = require(join(ROOT, "package-config/node_modules/playwright-core"));
 
 const MOUNTS = {
-  "/pkg/": join(ROOT, "web/pkg"),
+  "/pkg/": process.env.VIEWER_PKG || join(ROOT, "web/pkg"), // VIEWER_PKG: another build of the bundle (benchmarks)
   "/fixtures/": join(ROOT, "tests/browser/fixtures"),
   "/vectors/": join(ROOT, "tests/vectors"),
   "/artifacts/": ARTIFACTS,

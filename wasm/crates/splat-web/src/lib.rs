@@ -51,8 +51,12 @@ struct Stats {
     sort_pending: bool,
     /// Main-thread ms the last render spent sorting (0 with the worker; sort slices on the main thread).
     sort_main_ms: f64,
-    /// Main-thread ms the last render spent gathering records in a new draw order and uploading them (both modes).
+    /// Main-thread ms the last render spent uploading a new draw order (4 B per Gaussian) and changed records.
     gather_ms: f64,
+    /// Main-thread ms of issuing the splat passes and the blit (WebGL2/WebGPU queue the work: the GPU-side cost
+    /// shows up in a readback, which is how the benchmark separates the stages).
+    draw_ms: f64,
+    blit_ms: f64,
     /// Worker: ms from sending a request to its order being applied.
     sort_latency_ms: f64,
     sorts_dropped: u64,
@@ -227,6 +231,8 @@ impl Inner {
         }
         self.stats.sort_main_ms = stats.cpu_sort_ms - stats.gather_ms;
         self.stats.gather_ms = stats.gather_ms;
+        self.stats.draw_ms = stats.draw_ms;
+        self.stats.blit_ms = stats.blit_ms;
         self.stats.sort_pending = stats.sort_pending;
         self.stats.sorts_dropped = stats.sorts_dropped;
         Ok(())
@@ -341,8 +347,17 @@ impl Viewer {
         if !matches!(sort.as_str(), "auto" | "worker" | "main") {
             return Err(js_err(format!("Viewer.create: sort {sort:?} is not one of auto, worker, main")));
         }
+        // The accumulation target: "f16" (default, Rgba16Float where blendable) or "unorm8" (8-bit blending, as a
+        // canvas does: faster on software rasterizers, less exact; web/docs/viewer.md measures both).
+        let accumulate = option("accumulate").unwrap_or_else(|| "f16".into());
+        if !matches!(accumulate.as_str(), "f16" | "unorm8") {
+            return Err(js_err(format!("Viewer.create: accumulate {accumulate:?} is not one of f16, unorm8")));
+        }
         let (instance, surface, adapter, backend) = make_gpu(&canvas, &backend).await.map_err(js_err)?;
-        let gpu = Gpu::new(&adapter).await.map_err(js_err)?;
+        let mut gpu = Gpu::new(&adapter).await.map_err(js_err)?;
+        if accumulate == "unorm8" {
+            gpu.accum_format = wgpu::TextureFormat::Rgba8Unorm;
+        }
         let caps = surface.get_capabilities(&adapter);
         let surface_format = [wgpu::TextureFormat::Rgba8Unorm, wgpu::TextureFormat::Bgra8Unorm]
             .into_iter()
@@ -585,10 +600,32 @@ impl Viewer {
             "path": if i.renderer.path == DrawPath::Storage { "gpu-sort" } else { "cpu-sort" },
             "dropped": i.scene().dropped, "sort_pending": i.stats.sort_pending,
             "sort_thread": i.sort_thread, "sort_note": i.sort_note, "sort_main_ms": i.stats.sort_main_ms, "gather_ms": i.stats.gather_ms,
+            "upload_ms": i.stats.gather_ms, "draw_ms": i.stats.draw_ms, "blit_ms": i.stats.blit_ms,
+            "skip_splats": i.renderer.skip_splats, "square_quads": i.renderer.square_quads,
+            "accumulate": format!("{:?}", i.renderer.accum_format()),
             "sort_latency_ms": i.stats.sort_latency_ms, "sorts_dropped": i.stats.sorts_dropped,
             "sort_worker_ready": i.sort_worker.as_ref().is_some_and(|w| w.ready),
         })
         .to_string()
+    }
+
+    /// Profiling knobs (not for pages): `{"skip_splats": bool}` sorts and uploads as usual but draws no splat (the
+    /// frame without its splat draw); `{"square_quads": bool}` draws the spec's full square per Gaussian instead
+    /// of the tight rectangle (same image, more fragments: the before/after of the tight quad in one build).
+    pub fn set_profile(&self, options: JsValue) -> Result<(), JsError> {
+        let mut i = self.inner.borrow_mut();
+        for key in ["skip_splats", "square_quads"] {
+            let v = js_sys::Reflect::get(&options, &key.into()).map_err(|_| js_err("set_profile: expected an object"))?;
+            if v.is_undefined() {
+                continue;
+            }
+            let on = v.as_bool().ok_or_else(|| js_err(format!("set_profile: {key} must be a boolean")))?;
+            match key {
+                "skip_splats" => i.renderer.skip_splats = on,
+                _ => i.renderer.square_quads = on,
+            }
+        }
+        Ok(())
     }
 
     /// Render the current view offscreen and read it back through a mapped wgpu buffer: RGBA8, rows top-down.

@@ -224,3 +224,43 @@ def test_kill9_during_job_leaves_no_forgotten_job(tmp_path):
         assert m.wait_done(second_id, 5).status == "done" and ran == [second_id]
     finally:
         m.stop()
+
+
+def test_live_writer_renames_only_whole_files(tmp_path):
+    cache = ArtifactCache(tmp_path / "c")
+    with pytest.raises(RuntimeError):
+        with cache.live_writer("scenes", ID_A, ".wsplat") as live:
+            live.write(b"WSPLAT")
+            assert cache.live[("scenes", ID_A)] is live and live.size == 6 and live.path.read_bytes() == b"WSPLAT"
+            raise RuntimeError("the job stopped")
+    assert live.state == "aborted" and not live.path.exists() and ("scenes", ID_A) not in cache.live
+    assert not (tmp_path / "c" / "scenes" / f"{ID_A}.wsplat").exists() and cache.meta("scenes", ID_A) is None
+    with cache.live_writer("scenes", ID_A, ".wsplat") as live:
+        live.write(b"x" * 10)
+        live.write(b"y" * 5)
+    assert live.state == "whole" and live.size == 15
+    assert (tmp_path / "c" / "scenes" / f"{ID_A}.wsplat").read_bytes() == b"x" * 10 + b"y" * 5
+    assert list((tmp_path / "c" / "tmp").iterdir()) == [] and not cache.live
+
+
+def test_wsplat_pieces_are_the_file_chunk_by_chunk():
+    import numpy as np
+    import torch
+
+    from worldsplat.api.runners import wsplat_pieces
+    from worldsplat.core.camera import default_rig
+    from worldsplat.gaussians import wsplat
+    from worldsplat.gaussians.types import Gaussians, Scene4D
+
+    def g(n):
+        t = lambda a: torch.as_tensor(np.asarray(a, np.float32))
+        return Gaussians(t(np.random.default_rng(n).normal(size=(n, 3))), t(np.tile([1, 0, 0, 0], (n, 1))),
+                         t(np.full((n, 3), 0.1)), t(np.full(n, 0.5)), t(np.full((n, 3), 0.5)))  # fmt: skip
+
+    scene = Scene4D(g(5000), [g(30), g(0)], np.arange(2.0), default_rig(32, 16, ("CAM_FRONT",)),
+                    np.tile(np.eye(4), (2, 1, 1)))  # fmt: skip
+    data = wsplat.encode(scene)
+    pieces = list(wsplat_pieces(data))
+    assert b"".join(pieces) == data
+    tags = [p[12:16] if i == 0 else p[:4] for i, p in enumerate(pieces)]
+    assert tags == [b"HEAD", b"STAT", b"STAT", b"DYNA", b"END!"]  # 4096 + 904 static, one dynamic frame

@@ -405,3 +405,47 @@ def test_cli_import_and_export(tmp_path, capsys):
     bad.write_text(src.read_text().replace('name="Ego"', 'name="Lead"', 1))
     assert main(["import-scenario", str(bad), "--out", str(tmp_path / "b.json")]) == 2
     assert "Entities: no ego entity" in capsys.readouterr().err
+
+
+def test_openscenario_clothoid_trajectory(tmp_path):
+    from worldsplat.world.scenario_io import import_scenario
+
+    k1, length = 0.004, 16.0  # curvature grows along the path: heading h = k1 s^2 / 2
+    clo = xosc.Clothoid(0.0, k1, length, xosc.WorldPosition(30, -8.0, 0, 0.0), 0.0, 2.0)
+    traj = xosc.Trajectory("bend", False)
+    traj.add_shape(clo)
+    ev = xosc.Event("bend", xosc.Priority.parallel)
+    ev.add_action(
+        "follow", xosc.FollowTrajectoryAction(traj, xosc.FollowingMode.position, xosc.ReferenceContext.absolute, 1, 0)
+    )
+    ev.add_trigger(AT("bend_start", 0))
+    path = write_xosc(tmp_path)
+    # a second file with a cyclist on the clothoid: the Cutter's events are replaced by it
+    doc = xosc.ParseOpenScenario(str(path))
+    bike = xosc.Vehicle(
+        "bike",
+        xosc.VehicleCategory.bicycle,
+        xosc.BoundingBox(0.6, 1.8, 1.9, 0, 0, 0.95),
+        xosc.Axle(0.5, 0.8, 1.6, 2.9, 0.4),
+        xosc.Axle(0, 0.8, 1.6, 0, 0.4),
+        12,
+        4,
+        4,
+    )
+    doc.entities.add_scenario_object("Bike", bike)
+    doc.storyboard.init.add_init_action("Bike", xosc.TeleportAction(xosc.WorldPosition(30, -8.0, 0, 0.0)))
+    man = xosc.Maneuver("m_bend")
+    man.add_event(ev)
+    mg = xosc.ManeuverGroup("mg_bend")
+    mg.add_actor("Bike")
+    mg.add_maneuver(man)
+    doc.storyboard.stories[0].acts[0].add_maneuver_group(mg)
+    doc.write_xml(str(tmp_path / "bend.xosc"))
+    sc, boxes = _boxes(import_scenario(tmp_path / "bend.xosc").scenario)
+    s = np.linspace(0, length, 20001)
+    h = 0.5 * k1 * s**2
+    x_end = 30 + np.trapezoid(np.cos(h), s)
+    y_end = -8.0 + np.trapezoid(np.sin(h), s)
+    ex, ey = 50.0, -1.5 * LANE_W
+    _close(boxes["Bike"][0], (30 - ex, -8.0 - ey, 0.0), "Bike t=0")
+    _close(boxes["Bike"][sc.clip.frames - 1], (x_end - ex, y_end - ey, float(h[-1])), "Bike at the clothoid's end")

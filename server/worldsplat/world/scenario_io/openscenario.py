@@ -334,11 +334,13 @@ class _Reader:
         if tr is None:
             raise ImportRefused([f"{where}/FollowTrajectoryAction/CatalogReference: not supported"])
         shape = tr.shapes
+        if _name(shape) == "Clothoid":
+            return self._clothoid(shape, where, t0)
         if _name(shape) != "Polyline":
             raise ImportRefused(
                 [
                     f"{where}/FollowTrajectoryAction/Trajectory/Shape/{_name(shape)}: not supported "
-                    "(Polyline with vertex times)"
+                    "(Polyline with vertex times, Clothoid with start and stop times)"
                 ]
             )
         times = list(getattr(shape, "time", []) or [])
@@ -354,6 +356,23 @@ class _Reader:
             x, y, h, _ = self.position(p, f"{where}/FollowTrajectoryAction/Trajectory/Shape/Polyline/Vertex")
             out.append(((t0 if relative else 0.0) + offset + scale * float(t), x, y, h))
         return out
+
+    def _clothoid(self, c, where: str, t0: float) -> list[tuple[float, float, float, float]]:
+        """A Clothoid shape as 33 timed vertices: heading h0 + k s + k' s^2 / 2, at constant speed from its start
+        time to its stop time."""
+        w = f"{where}/FollowTrajectoryAction/Trajectory/Shape/Clothoid"
+        if c.starttime is None or c.stoptime is None or c.stoptime <= c.starttime:
+            raise ImportRefused([f"{w}: needs startTime < stopTime (the world times every trajectory)"])
+        x0, y0, h0, _ = self.position(c.startposition, w)
+        k0, k1, length = float(c.curvature), float(c.curvature_change or 0.0), float(c.length)
+        s = np.linspace(0.0, length, 2049)
+        h = h0 + k0 * s + 0.5 * k1 * s**2
+        ds = np.diff(s)
+        x = x0 + np.concatenate([[0.0], np.cumsum(0.5 * (np.cos(h[1:]) + np.cos(h[:-1])) * ds)])
+        y = y0 + np.concatenate([[0.0], np.cumsum(0.5 * (np.sin(h[1:]) + np.sin(h[:-1])) * ds)])
+        idx = np.linspace(0, len(s) - 1, 33).round().astype(int)
+        ta, tb = float(c.starttime), float(c.stoptime)
+        return [(t0 + ta + (tb - ta) * s[i] / length, float(x[i]), float(y[i]), float(h[i])) for i in idx]
 
     def ego(self, obj, init, events) -> dict:
         where = f"Storyboard/Init/Actions/Private[{obj.name}]"

@@ -267,3 +267,24 @@ def test_random_scenarios_can_carry_explicit_agents_and_they_fit_the_world():
         assert check_scenario(s) == [], s.normalized_json()
     # The rest of the scenario is what the seed gives without the hook.
     assert all(m.with_updates(agents=[]) == random_scenario(i, frames=8) for i, m in enumerate(mixed))
+
+
+def test_api_refuses_overlapping_agents_naming_the_field(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from worldsplat.api.app import create_app
+
+    bad = {**SMALL, "agents": [car("stopped", s=30.0), {**car("late", s=20.0), "motion": {"speed": 4.8}}]}
+    with TestClient(create_app(tmp_path / "cache", warm=False, max_queued=4)) as c:
+        r = c.post("/api/scenes", json={"scenario": bad, "mode": "oracle"})
+    assert r.status_code == 422, r.text
+    assert r.json()["field"] == "scenario.agents[1]"
+    assert "scenario.agents[1]: overlaps agents[0] at t = 1.25 s" in r.json()["error"]
+
+
+@pytest.mark.parametrize("name", CORNER_CASES)
+def test_corner_cases_build_with_one_frame(name):
+    from worldsplat.world.layout import build_world
+
+    w = build_world(load_preset(name).with_updates(clip={"frames": 1}, image={"width": 32, "height": 32}))
+    assert all(a.poses.shape == (1, 3) for a in w.agents) and any(a.agent_id for a in w.agents)

@@ -29,6 +29,7 @@ from worldsplat.core.camera import CAMERA_NAMES
 from worldsplat.core.limits import MAX_SHIFT_M
 from worldsplat.core.paths import web_dir as default_web_dir
 from worldsplat.core.scenario import Scenario, ScenarioError, default_preset_name, list_presets, load_preset
+from worldsplat.world.agents import check_scenario
 
 from . import runners
 from .cache import ArtifactCache, InvalidId, LiveFile, validate_id
@@ -694,6 +695,11 @@ def create_app(
                 f"{pixels / 1e6:.1f}M pixels is over this server's limit of "
                 f"{pg.max_scene_pixels / 1e6:.1f}M (worldsplat serve --max-scene-mpix)",
                 field="scenario.image",
+            )
+        problems = check_scenario(scenario)  # what needs the road: overlaps, off-world agents (scenario v2)
+        if problems:
+            raise ApiError(
+                422, "; ".join(f"scenario.{p}" for p in problems), field="scenario." + problems[0].split(":", 1)[0]
             )
         mode = req.mode or pg.default_mode
         if mode not in pg.modes:

@@ -546,7 +546,7 @@ def keyframe_poses(keyframes, times: np.ndarray, start_along_x: bool = False) ->
     tangent = None
     if start_along_x:
         tangent = np.array([np.linalg.norm(p_k[1] - p_k[0]) / (t_k[1] - t_k[0]), 0.0])
-    fine = np.union1d(np.arange(0.0, float(times[-1]) + FINE_DT, FINE_DT), times)
+    fine = np.union1d(np.arange(0.0, max(float(times[-1]), FINE_DT) + FINE_DT, FINE_DT), times)
     pos, vel = hermite(t_k, p_k, fine, tangent)
     yaw = _heading(vel, 0.0 if start_along_x else None)
     idx = np.searchsorted(fine, times)
@@ -572,7 +572,7 @@ def spec_poses(spec, road: RoadGeometry, times: np.ndarray) -> np.ndarray:
     m = spec.motion
     if m.keyframes is not None:
         return keyframe_poses(m.keyframes, times)
-    fine = np.union1d(np.arange(0.0, float(times[-1]) + FINE_DT, FINE_DT), times)
+    fine = np.union1d(np.arange(0.0, max(float(times[-1]), FINE_DT) + FINE_DT, FINE_DT), times)
     v = _speed_profile(m, fine)
     dist = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(fine))])
     st = spec.start

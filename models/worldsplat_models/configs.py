@@ -36,12 +36,14 @@ class VAEConfig:
     in_channels: int = 3
     latent_channels: int = 4  # per modality; L has 3x this
     channels: tuple[int, ...] = (16, 32, 64)  # one level per 2x down-sampling
+    blocks: int = 1  # ResBlocks per level (encoder and decoder)
+    unshuffle: int = 1  # space-to-depth factor before the first level (1 = none)
     kl_weight: float = 1e-6
     modalities: tuple[str, ...] = ("rgb", "depth", "mask")
 
     @property
     def downsample(self) -> int:
-        return 2 ** len(self.channels)
+        return self.unshuffle * 2 ** len(self.channels)
 
     @property
     def joint_channels(self) -> int:
@@ -74,6 +76,10 @@ class DiTConfig:
     sampler_shift: float = 2.0  # timestep shift of the Euler sampler (OpenSora/SD3 form)
     sampler_steps: int = 8
     cfg_scale: float = 1.0
+    # Pixel-space layout control (v2): when > 0 the control input is a per-camera layout map of
+    # `control_channels` channels at `control_hint` times the token grid (pixels per token side), read by a small
+    # trainable conv encoder (ControlNet's hint encoder) instead of being patchified like a latent.
+    control_hint: int = 0
 
 
 @dataclass
@@ -97,6 +103,11 @@ class GSDecoderConfig:
     pixel_scale_range: tuple[float, float] = (0.25, 3.0)  # scale in pixel footprints before the metric clamp
     opacity_bias: float = 2.0  # start near-opaque: sigmoid(x + 2) ~ 0.88
     ray_scale: float = 20.0  # metres; Plucker origins are divided by this
+    patch: int = 1  # latent pixels per token side (attention runs on the h/patch x w/patch grid)
+    # Pixel guide (v2): the VAE-decoded rgb + normalised depth + mask (5 channels) re-read by every up-sampling
+    # block at its resolution, and the base that the colour, depth and dynamic heads add their residual to.
+    guide_channels: int = 0
+    reread_latent: bool = False  # every up-sampling block also re-reads L (nearest-resized) beside the rays
 
     @property
     def upsample(self) -> int:

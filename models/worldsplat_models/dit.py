@@ -118,6 +118,29 @@ class DiTBlock(nn.Module):
         return x + m[8] * self.mlp(h)
 
 
+class HintEncoder(nn.Module):
+    """Pixel-space layout map (N, C, H, W) -> one D-wide token per `factor` x `factor` pixels (N, S, D): a stack
+    of stride-2 convolutions, as ControlNet's hint encoder, so thin lane markings survive to the token grid."""
+
+    def __init__(self, cin: int, dim: int, factor: int):
+        super().__init__()
+        n = int(round(math.log2(factor)))
+        if 2**n != factor:
+            raise ValueError(f"HintEncoder: factor {factor} is not a power of two")
+        widths = [min(32 * 2**i, dim) for i in range(n + 1)]
+        layers = [nn.Conv2d(cin, widths[0], 3, padding=1), nn.SiLU()]
+        for i in range(n):
+            layers += [nn.Conv2d(widths[i], widths[i + 1], 3, stride=2, padding=1), nn.SiLU()]
+        layers.append(nn.Conv2d(widths[-1], dim, 1))
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor, grid: tuple[int, int]) -> torch.Tensor:
+        f = self.net(x)
+        if tuple(f.shape[-2:]) != tuple(grid):
+            raise ValueError(f"HintEncoder: layout map gives a {tuple(f.shape[-2:])} grid, the tokens are {grid}")
+        return f.flatten(2).transpose(1, 2)
+
+
 class DiT4D(nn.Module):
     def __init__(self, cfg: DiTConfig, num_classes: int = 17):
         super().__init__()
@@ -134,7 +157,10 @@ class DiT4D(nn.Module):
         # ControlNet branch
         if cfg.control_depth > cfg.depth:
             raise ValueError("DiTConfig: control_depth cannot exceed depth")
-        self.control_embed = nn.Linear(cfg.control_channels * p * p, D)
+        if cfg.control_hint:
+            self.control_embed = HintEncoder(cfg.control_channels, D, cfg.control_hint)
+        else:
+            self.control_embed = nn.Linear(cfg.control_channels * p * p, D)
         self.control_in = nn.Linear(D, D)
         self.control_blocks = nn.ModuleList(copy.deepcopy(self.blocks[i]) for i in range(cfg.control_depth))
         self.control_out = nn.ModuleList(nn.Linear(D, D) for _ in range(cfg.control_depth))
@@ -184,7 +210,11 @@ class DiT4D(nn.Module):
         control = cond["control"]
         if drop is not None:
             control = torch.where(drop.bool().view(B, 1, 1, 1, 1, 1), torch.zeros_like(control), control)
-        ctl = tok + self.control_in(self._tokens(control, self.control_embed).reshape(B, T, V * S, D))
+        if cfg.control_hint:
+            ctl_tok = self.control_embed(control.reshape(B * T * V, *control.shape[3:]), (hp, wp))
+        else:
+            ctl_tok = self._tokens(control, self.control_embed)
+        ctl = tok + self.control_in(ctl_tok.reshape(B, T, V * S, D))
         residuals = []
         for blk, out in zip(self.control_blocks, self.control_out):
             ctl = blk(ctl, t_emb, c_tok, c_mask, T, V)

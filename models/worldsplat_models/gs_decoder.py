@@ -106,6 +106,29 @@ def safe_normalize_quaternion(q: torch.Tensor) -> torch.Tensor:
     return torch.where(n > 1e-6, q / n.clamp_min(1e-6), ident)
 
 
+def _resize(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """Area-resample a pixel guide to a grid (identity at equal size)."""
+    if x.shape[-2:] == (h, w):
+        return x
+    return F.adaptive_avg_pool2d(x, (h, w)) if x.shape[-2] > h else F.interpolate(x, size=(h, w), mode="nearest")
+
+
+def _guide_prior(g: torch.Tensor, channels: int) -> torch.Tensor:
+    """Raw-head base from the pixel guide: the colour, depth and dynamic pre-activations that reproduce the
+    VAE-decoded rgb, depth and mask exactly, so the heads learn residuals (zeros elsewhere)."""
+    prior = torch.zeros(g.shape[0], channels, *g.shape[-2:], dtype=g.dtype, device=g.device)
+    names, sizes = list(HEAD_CHANNELS), list(HEAD_CHANNELS.values())
+    start = {n: sum(sizes[:i]) for i, n in enumerate(names)}
+    rgb01 = ((g[:, 0:3] + 1) * 0.5).clamp(0.01, 0.99)
+    d01 = ((g[:, 3:4] + 1) * 0.5).clamp(0.005, 0.995)
+    m01 = g[:, 4:5].clamp(0.02, 0.98)
+    c0, d0, k0 = start["color"], start["depth"], start["dynamic"]
+    prior[:, c0 : c0 + 3] = torch.log(rgb01 / (1 - rgb01))
+    prior[:, d0 : d0 + 1] = torch.log(d01 / (1 - d01))
+    prior[:, k0 : k0 + 1] = torch.log(m01 / (1 - m01))
+    return prior
+
+
 class Block(nn.Module):
     """Pre-LN cross-view spatial attention, temporal attention and MLP."""
 
@@ -130,7 +153,8 @@ class GaussianDecoder(nn.Module):
         super().__init__()
         self.cfg = cfg
         D = cfg.dim
-        self.embed = nn.Linear(cfg.in_channels + 6, D)
+        p = cfg.patch
+        self.embed = nn.Linear((cfg.in_channels + 6) * p * p, D)
         self.view_embed = nn.Parameter(torch.zeros(cfg.max_views, D))
         self.frame_embed = nn.Parameter(torch.zeros(cfg.max_frames, D))
         nn.init.normal_(self.view_embed, std=0.02)
@@ -139,8 +163,9 @@ class GaussianDecoder(nn.Module):
         self.norm = nn.LayerNorm(D)
         ups = []
         cin = D
+        extra = 6 + cfg.guide_channels + (cfg.in_channels if cfg.reread_latent else 0)
         for c in cfg.up_channels:
-            ups.append(nn.ModuleDict({"conv": nn.Conv2d(cin + 6, c, 3, padding=1), "res": ResBlock(c, c)}))
+            ups.append(nn.ModuleDict({"conv": nn.Conv2d(cin + extra, c, 3, padding=1), "res": ResBlock(c, c)}))
             cin = c
         self.ups = nn.ModuleList(ups)
         self.head = nn.Conv2d(cin, sum(HEAD_CHANNELS.values()), 3, padding=1)
@@ -148,12 +173,24 @@ class GaussianDecoder(nn.Module):
         nn.init.zeros_(self.head.bias)
 
     def forward(
-        self, L: torch.Tensor, intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: tuple[int, int]
+        self,
+        L: torch.Tensor,
+        intrinsics: torch.Tensor,
+        cam_to_world: torch.Tensor,
+        image_hw: tuple[int, int],
+        guide: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """L (B,T,V,C,h,w) normalised latents; intrinsics (B,T,V,4) fx,fy,cx,cy of the image_hw image;
-        cam_to_world (B,T,V,4,4) -> Gaussian fields, each (B,T,V,gh,gw,k) (k dropped when 1), in world metres."""
+        cam_to_world (B,T,V,4,4); guide (B,T,V,5,H',W') the VAE-decoded rgb [-1,1], normalised depth [-1,1] and
+        mask [0,1] when `guide_channels` = 5 -> Gaussian fields, each (B,T,V,gh,gw,k) (k dropped when 1), in
+        world metres."""
         cfg = self.cfg
         B, T, V, C, h, w = L.shape
+        if cfg.guide_channels and (guide is None or guide.shape[3] != cfg.guide_channels):
+            raise ValueError(f"Gaussian decoder: expects a pixel guide of {cfg.guide_channels} channels")
+        p = cfg.patch
+        if h % p or w % p:
+            raise ValueError(f"Gaussian decoder: latent size {h}x{w} not divisible by patch {p}")
         if C != cfg.in_channels:
             raise ValueError(f"Gaussian decoder: expected {cfg.in_channels} latent channels, got {C}")
         if V > cfg.max_views or T > cfg.max_frames:
@@ -161,24 +198,35 @@ class GaussianDecoder(nn.Module):
         D = cfg.dim
         o, d = pixel_rays(intrinsics, cam_to_world, image_hw, (h, w))
         rays = plucker(o, d, cfg.ray_scale).to(L.dtype)  # (B,T,V,6,h,w)
-        x = torch.cat([L, rays], dim=3).permute(0, 1, 2, 4, 5, 3)  # (B,T,V,h,w,C+6)
+        hp, wp = h // p, w // p
+        x = torch.cat([L, rays], dim=3).reshape(B, T, V, C + 6, hp, p, wp, p)
+        x = x.permute(0, 1, 2, 4, 6, 3, 5, 7).reshape(B, T, V, hp, wp, (C + 6) * p * p)
         pos = (
-            sincos_2d(h, w, D, L.device).reshape(1, 1, 1, h, w, D)
+            sincos_2d(hp, wp, D, L.device).reshape(1, 1, 1, hp, wp, D)
             + self.view_embed[:V].reshape(1, 1, V, 1, 1, D)
             + self.frame_embed[:T].reshape(1, T, 1, 1, 1, D)
         )
-        tok = (self.embed(x) + pos.to(x.dtype)).reshape(B, T, V * h * w, D)
+        tok = (self.embed(x) + pos.to(x.dtype)).reshape(B, T, V * hp * wp, D)
         for blk in self.blocks:
             tok = blk(tok, T)
-        f = self.norm(tok).reshape(B * T * V, h, w, D).permute(0, 3, 1, 2)
-        gh, gw = h, w
+        f = self.norm(tok).reshape(B * T * V, hp, wp, D).permute(0, 3, 1, 2)
+        gh, gw = hp, wp
+        L_img = L.reshape(B * T * V, C, h, w)
+        g_img = None if guide is None else guide.reshape(B * T * V, *guide.shape[3:]).to(f.dtype)
         for up in self.ups:
             gh, gw = gh * 2, gw * 2
             f = F.interpolate(f, scale_factor=2.0, mode="nearest")
             o_g, d_g = pixel_rays(intrinsics, cam_to_world, image_hw, (gh, gw))
-            r = plucker(o_g, d_g, cfg.ray_scale).reshape(B * T * V, 6, gh, gw).to(f.dtype)
-            f = up["res"](up["conv"](torch.cat([f, r], dim=1)))
-        raw = self.head(f).reshape(B, T, V, -1, gh, gw).permute(0, 1, 2, 4, 5, 3)
+            parts = [f, plucker(o_g, d_g, cfg.ray_scale).reshape(B * T * V, 6, gh, gw).to(f.dtype)]
+            if cfg.reread_latent:
+                parts.append(F.interpolate(L_img, size=(gh, gw), mode="nearest"))
+            if cfg.guide_channels:
+                parts.append(_resize(g_img, gh, gw))
+            f = up["res"](up["conv"](torch.cat(parts, dim=1)))
+        raw = self.head(f)
+        if cfg.guide_channels:
+            raw = raw + _guide_prior(_resize(g_img, gh, gw), raw.shape[1])
+        raw = raw.reshape(B, T, V, -1, gh, gw).permute(0, 1, 2, 4, 5, 3)
         o_g, d_g = pixel_rays(intrinsics, cam_to_world, image_hw, (gh, gw))
         fx_grid = intrinsics[..., 0].float() * (gw / image_hw[1])
         return self.activate(raw, o_g, d_g, fx_grid, cam_to_world)

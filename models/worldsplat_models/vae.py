@@ -59,12 +59,20 @@ class Encoder(nn.Module):
     def __init__(self, cfg: VAEConfig):
         super().__init__()
         ch = cfg.channels
-        self.stem = nn.Conv2d(cfg.in_channels, ch[0], 3, padding=1)
+        u = cfg.unshuffle
+        # space-to-depth first: the full-resolution convolutions dominate the cost on CPU
+        self.stem = (
+            nn.Sequential(nn.PixelUnshuffle(u), nn.Conv2d(cfg.in_channels * u * u, ch[0], 3, padding=1))
+            if u > 1
+            else nn.Conv2d(cfg.in_channels, ch[0], 3, padding=1)
+        )
         layers = []
         cin = ch[0]
         for c in ch:
-            layers += [ResBlock(cin, c), nn.Conv2d(c, c, 3, stride=2, padding=1)]
-            cin = c
+            for _ in range(cfg.blocks):
+                layers.append(ResBlock(cin, c))
+                cin = c
+            layers.append(nn.Conv2d(c, c, 3, stride=2, padding=1))
         self.down = nn.Sequential(*layers)
         self.mid = ResBlock(cin, cin)
         self.norm = nn.GroupNorm(_groups(cin), cin)
@@ -84,11 +92,17 @@ class Decoder(nn.Module):
         layers = []
         cin = ch[0]
         for c in ch:
-            layers += [nn.Upsample(scale_factor=2, mode="nearest"), nn.Conv2d(cin, c, 3, padding=1), ResBlock(c, c)]
+            layers += [nn.Upsample(scale_factor=2, mode="nearest"), nn.Conv2d(cin, c, 3, padding=1)]
+            layers += [ResBlock(c, c) for _ in range(cfg.blocks)]
             cin = c
         self.up = nn.Sequential(*layers)
         self.norm = nn.GroupNorm(_groups(cin), cin)
-        self.out = nn.Conv2d(cin, cfg.in_channels, 3, padding=1)
+        u = cfg.unshuffle
+        self.out = (
+            nn.Sequential(nn.Conv2d(cin, cfg.in_channels * u * u, 3, padding=1), nn.PixelShuffle(u))
+            if u > 1
+            else nn.Conv2d(cin, cfg.in_channels, 3, padding=1)
+        )
 
     def forward(self, z):
         h = self.up(self.mid(self.stem(z)))

@@ -163,6 +163,26 @@ def _check_rig(rig, V: int) -> None:
         raise ValueError(f"the models were trained on the default {V}-camera rig {CAMERA_NAMES}; got {names}")
 
 
+def _decoder_cfg(models: Models):
+    return models.decoder.cfg
+
+
+def pixel_guide(models: Models, L: torch.Tensor) -> torch.Tensor:
+    """The v2 decoder's pixel guide: the VAE's own decoding of L (T,V,C,h,w) -> (T,V,5,H,W) = rgb [-1,1],
+    normalised depth, mask probability."""
+    T, V = L.shape[:2]
+    rgb, dn, m = models.vae.decode_joint(L.reshape(T * V, *L.shape[2:]).float())
+    g = torch.cat([rgb, dn, m], 1)
+    return g.reshape(T, V, *g.shape[1:])
+
+
+def layout_size(models: Models) -> tuple[int, int] | None:
+    """(W, H) of the layout maps the DiT reads as control (v2), or None when it reads the sketch latent (v1)."""
+    if models.dit is None or not models.dit.cfg.control_hint:
+        return None
+    return (models.data.width, models.data.height)
+
+
 def decode_gaussians(
     models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times, meta: dict
 ) -> DecodedFrames:
@@ -172,7 +192,9 @@ def decode_gaussians(
     intr, c2w = rig_tensors(rig, ego_to_world, (d.height, d.width))
     gs, logits = [[None] * len(rig) for _ in range(T)], [[None] * len(rig) for _ in range(T)]
     for win in _windows(T, d.frames):
-        out = models.decoder(L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
+        guide = pixel_guide(models, L[win])[None] if _decoder_cfg(models).guide_channels else None
+        args = (L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
+        out = models.decoder(*args) if guide is None else models.decoder(*args, guide=guide)
         for i, t in enumerate(win):
             for v in range(len(rig)):
                 f = {
@@ -244,10 +266,17 @@ def condition_tensors(
         raise ValueError(f"generate: {V} sketch views, the models expect {d.views}")
     if len(conditions["boxes"]) != T:
         raise ValueError(f"generate: boxes for {len(conditions['boxes'])} frames, sketch has {T}")
-    sk = _resize(sk.reshape(T * V, *sk.shape[2:]).permute(0, 3, 1, 2), (d.height, d.width), "max") * 2 - 1
-    c = models.vae.cfg.latent_channels
-    vae = models.vae
-    ctl = (vae.encode(sk) - vae.latent_mean[:c].view(1, -1, 1, 1)) / vae.latent_std[:c].view(1, -1, 1, 1)
+    if layout_size(models) is not None:
+        # v2: the per-camera layout maps in pixel space, read by the DiT's hint encoder
+        if "layout" not in conditions:
+            raise ValueError("generate: these models read layout maps; pass world.conditions(layout_size=...)")
+        lay = torch.from_numpy(np.asarray(conditions["layout"], np.float32))
+        ctl = _resize(lay.reshape(T * V, *lay.shape[2:]).permute(0, 3, 1, 2), (d.height, d.width), "area")
+    else:
+        sk = _resize(sk.reshape(T * V, *sk.shape[2:]).permute(0, 3, 1, 2), (d.height, d.width), "max") * 2 - 1
+        c = models.vae.cfg.latent_channels
+        vae = models.vae
+        ctl = (vae.encode(sk) - vae.latent_mean[:c].view(1, -1, 1, 1)) / vae.latent_std[:c].view(1, -1, 1, 1)
     corners, cls, moving, mask = pack_boxes(conditions["boxes"], ego_to_world, d.max_boxes)
     if caption_emb is None:
         caption_emb = encode_captions([str(conditions["caption"])])[0]
@@ -285,7 +314,8 @@ def sample_latents(
     cfg_scale = dcfg.cfg_scale if cfg_scale is None else cfg_scale
     shift = dcfg.sampler_shift if shift is None else shift
     wins = _windows(T, d.frames)
-    L = torch.zeros(T, d.views, dcfg.out_channels, *cond["control"].shape[-2:])
+    ds = models.vae.cfg.downsample
+    L = torch.zeros(T, d.views, dcfg.out_channels, d.height // ds, d.width // ds)
     for wi, win in enumerate(wins):
         c = window_cond(cond, win)
         g = torch.Generator().manual_seed(int(seed) * 1000 + wi)

@@ -69,8 +69,8 @@ class _GSDec(torch.nn.Module):
         super().__init__()
         self.dec, self.image_hw = dec, image_hw
 
-    def forward(self, L, intrinsics, cam_to_world):
-        out = self.dec(L, intrinsics, cam_to_world, self.image_hw)
+    def forward(self, L, intrinsics, cam_to_world, guide=None):
+        out = self.dec(L, intrinsics, cam_to_world, self.image_hw, guide=guide)
         return tuple(out[k] for k in OUT_KEYS)
 
 
@@ -82,7 +82,8 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
     d = models.data
     g = torch.Generator().manual_seed(seed)
     T, V, H, W = d.frames, d.views, d.height, d.width
-    h, w = H // 8, W // 8
+    ds = models.vae.cfg.downsample if models.vae is not None else 8
+    h, w = H // ds, W // ds
     if kind == "vae_encoder":
         return {"image": torch.rand(2, 3, H, W, generator=g) * 2 - 1}
     if kind == "vae_decoder":
@@ -99,7 +100,9 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
             "box_mask": torch.rand(1, T, N, generator=g) > 0.5,
             "traj": torch.eye(4).repeat(1, T, 1, 1),
             "caption": torch.nn.functional.normalize(torch.randn(1, 384, generator=g), dim=-1),
-            "control": torch.randn(1, T, V, c.control_channels, h, w, generator=g),
+            "control": torch.rand(1, T, V, c.control_channels, H, W, generator=g)
+            if c.control_hint
+            else torch.randn(1, T, V, c.control_channels, h, w, generator=g),
             "drop": torch.tensor([False]),
         }
     if kind == "gs_decoder":
@@ -107,11 +110,14 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
         ego = np.stack([np.eye(4)] * T)
         ego[:, 0, 3] = np.arange(T) * 2.0
         intr, c2w = rig_tensors(rig, ego, (H, W))
-        return {
+        out = {
             "L": torch.randn(1, T, V, models.decoder.cfg.in_channels, h, w, generator=g),
             "intrinsics": intr[None],
             "cam_to_world": c2w[None],
         }
+        if models.decoder.cfg.guide_channels:
+            out["guide"] = torch.rand(1, T, V, models.decoder.cfg.guide_channels, H, W, generator=g) * 2 - 1
+        return out
     raise ValueError(f"unknown graph {kind!r}; expected one of {', '.join(GRAPHS)}")
 
 
@@ -241,10 +247,11 @@ class OrtGSDecoder:
     def __init__(self, torch_dec, sess):
         self.cfg, self.sess = torch_dec.cfg, sess
 
-    def __call__(self, L, intrinsics, cam_to_world, image_hw):
-        out = run_ort(
-            self.sess, {"L": L.float(), "intrinsics": intrinsics.float(), "cam_to_world": cam_to_world.float()}
-        )
+    def __call__(self, L, intrinsics, cam_to_world, image_hw, guide=None):
+        feed = {"L": L.float(), "intrinsics": intrinsics.float(), "cam_to_world": cam_to_world.float()}
+        if guide is not None:
+            feed["guide"] = guide.float()
+        out = run_ort(self.sess, feed)
         return {k: torch.from_numpy(v) for k, v in zip(OUT_KEYS, out)}
 
 

@@ -125,7 +125,7 @@ def generate_scene(
             dec = inf.reconstruct(clip, models=models)
         else:
             prog("conditions", 0.0)
-            cond = world.conditions()
+            cond = world.conditions(layout_size=inf.layout_size(models))
             _check(cancelled)
             prog("generate", 0.0)
             dec = inf.generate(

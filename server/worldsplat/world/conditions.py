@@ -19,6 +19,7 @@ import numpy as np
 from worldsplat.core.camera import Camera, rigid_inverse, shifted_ego
 from worldsplat.world.agents import ego_travel
 from worldsplat.world.classes import CLASS_NAMES, CYCLIST, PEDESTRIAN, VEHICLE_CLASSES
+from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_maps
 from worldsplat.world.render import single_threaded_blas
 from worldsplat.world.road import bev_layers
 
@@ -192,9 +193,17 @@ def sketch(world: World, t: int, cams: list[Camera], seg: tuple[np.ndarray, np.n
     return np.stack(out)
 
 
-def world_conditions(world: World, shift_m: float = 0.0, cameras: list[str] | None = None) -> dict:
+def world_conditions(
+    world: World, shift_m: float = 0.0, cameras: list[str] | None = None, layout_size: tuple[int, int] | None = None
+) -> dict:
+    """The models' conditions; with layout_size = (W, H) also the per-camera layout maps at that size
+    (`layout`, (T,V,H,W,7), see world.layout_maps), which the v2 DiT reads as its control."""
     with single_threaded_blas():
-        return _world_conditions(world, shift_m, cameras)
+        out = _world_conditions(world, shift_m, cameras)
+        if layout_size is not None:
+            out["layout"] = layout_maps(world, shift_m, cameras, size=tuple(layout_size))
+            out["layout_channels"] = LAYOUT_CHANNELS
+        return out
 
 
 def _world_conditions(world: World, shift_m: float, cameras: list[str] | None) -> dict:

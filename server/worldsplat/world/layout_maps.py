@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from worldsplat.core.camera import Camera
 from worldsplat.world.classes import CROSSWALK, CYCLIST, LANE_MARKING, PEDESTRIAN, VEHICLE_CLASSES
 from worldsplat.world.prims import BOX, Prims
 from worldsplat.world.render import PID_GROUND, trace
@@ -95,12 +96,26 @@ def layout_map(world, t: int, cam, near: float = 0.5, far: float = 80.0) -> np.n
     return out
 
 
-def layout_maps(world, shift_m: float = 0.0, cameras=None, near: float = 0.5, far: float = 80.0) -> np.ndarray:
-    """(T, V, H, W, 7) layout maps of every frame and rig camera (at the rig's resolution)."""
+def resized(cam, size: tuple[int, int] | None):
+    """The same camera with its image scaled to size = (width, height) (intrinsics scaled with it)."""
+    if size is None or (cam.width, cam.height) == tuple(size):
+        return cam
+    w, h = size
+    sx, sy = w / cam.width, h / cam.height
+    return Camera(w, h, cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, cam.world_to_camera)
+
+
+def layout_maps(
+    world, shift_m: float = 0.0, cameras=None, near: float = 0.5, far: float = 80.0, size=None
+) -> np.ndarray:
+    """(T, V, H, W, 7) layout maps of every frame and rig camera, at the rig's resolution or at size = (W, H)
+    (the models' own, so the cast costs what the model reads)."""
     rig = world.rig if cameras is None else [world.rig_camera(n) for n in cameras]
     return np.stack(
         [
-            np.stack([layout_map(world, t, rc.at(world.ego_to_world[t], shift_m), near, far) for rc in rig])
+            np.stack(
+                [layout_map(world, t, resized(rc.at(world.ego_to_world[t], shift_m), size), near, far) for rc in rig]
+            )
             for t in range(world.num_frames)
         ]
     )

@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("worldsplat.cli.serve", "serve the playground (page, wasm viewer, API)"),
     "train": ("worldsplat.cli.train", "train a generation model (vae, decoder, dit)"),
     "train-enhancer": ("worldsplat.cli.train_enhancer", "train the enhanced diffusion model (refinement)"),
+    "train-campaign": ("worldsplat.cli.train_campaign", "the v2 training campaign, stage by stage (resumable)"),
     "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
     "bench": ("worldsplat.cli.bench", "speed-against-error benchmark report"),
     "import-scenario": ("worldsplat.cli.scenario_files", "OpenSCENARIO 1.x / CommonRoad XML -> scenario JSON"),

@@ -40,6 +40,7 @@ from worldsplat.pipeline.inference import (
 from worldsplat.pipeline.scene import oracle_scene
 from worldsplat.training.data import ShardDataset
 from worldsplat.world import Clip
+from worldsplat.world.classes import CROSSWALK, LANE_MARKING, ROAD
 from worldsplat_models.vae import denormalize_depth
 
 SHIFTS = (0.0, -1.0, 1.0, -2.0, 2.0, -4.0, 4.0)
@@ -197,7 +198,7 @@ def eval_generate(
     perfect diffusion model could reach with these weights."""
     if latents not in ("sample", "encode"):
         raise ValueError(f"eval_generate: latents must be 'sample' or 'encode', got {latents!r}")
-    iou_box, iou_gt, absrel, ceiling = [], [], [], []
+    iou_box, iou_gt, absrel, absrel_road, ceiling = [], [], [], [], []
     for i in range(min(n, len(ds))):
         s = ds[i]
         z = ds.load(i)
@@ -211,9 +212,10 @@ def eval_generate(
             ]
             for t in range(T)
         ]
-        cond = condition_tensors(
-            models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}, ego
-        )
+        conditions = {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}
+        if "layout" in z:  # shards written since the layout maps (the v2 DiT's control)
+            conditions["layout"] = np.asarray(z["layout"], np.float32)
+        cond = condition_tensors(models, conditions, ego)
         if latents == "sample":
             L = sample_latents(models, cond, steps=steps, seed=seed)
         else:
@@ -235,6 +237,9 @@ def eval_generate(
                 ceiling.append(_inter_union(gm, bm))  # reference: exact silhouettes vs the boxier hulls
                 rd = out["depth"] / out["alpha"].clamp_min(1e-3)
                 absrel.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v])))
+                if "semantic" in z:  # road surface (road, markings, crosswalks): the layout the DiT is given
+                    road = torch.from_numpy(np.isin(z["semantic"][t, v], ROAD_CLASSES))
+                    absrel_road.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=road))
     return {
         "clips": min(n, len(ds)),
         "steps": steps if latents == "sample" else None,
@@ -242,8 +247,12 @@ def eval_generate(
         "dynamic_iou_vs_projected_boxes": _pooled(iou_box),
         "dynamic_iou_vs_gt_mask": _pooled(iou_gt),
         "depth_absrel": float(np.nanmean(absrel)),
+        "depth_absrel_road": float(np.nanmean(absrel_road)) if absrel_road else float("nan"),
         "gt_mask_iou_vs_projected_boxes": _pooled(ceiling),
     }
+
+
+ROAD_CLASSES = (ROAD, LANE_MARKING, CROSSWALK)
 
 
 def _inter_union(a: torch.Tensor, b: torch.Tensor) -> tuple[int, int]:
@@ -363,9 +372,10 @@ def figure(
             ]
             for tt in range(T)
         ]
-        cond = condition_tensors(
-            models, {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}, ego
-        )
+        conditions = {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}
+        if "layout" in z:  # shards written since the layout maps (the v2 DiT's control)
+            conditions["layout"] = np.asarray(z["layout"], np.float32)
+        cond = condition_tensors(models, conditions, ego)
         Lg = sample_latents(models, cond, steps=steps, seed=seed)
         gscene = to_scene4d(decode_gaussians(models, Lg, rig, ego, np.arange(T) / 4.0, {}))
         rows.append([(s["sketch"][t, v] * 255).astype(np.uint8) for v in views])

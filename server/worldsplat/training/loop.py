@@ -330,6 +330,7 @@ def decoder_losses(
     latent_noise: float = 0.05,
     weights=(0.2, 0.5, 0.1, 0.5),
     render: bool = True,
+    guide_fn: Callable | None = None,
 ):
     """Eq. 5: rendered L1 + w_ssim (1 - SSIM) + w_depth depth L1 (log-normalised) + w_mask BCE (dynamic logits vs
     the GT mask), plus a direct pixel-aligned term (colour and depth of each Gaussian vs its own pixel) weighted
@@ -343,7 +344,8 @@ def decoder_losses(
     intr = torch.as_tensor(s["intrinsics"])[None]
     c2w = torch.as_tensor(s["cam_to_world"])[None]
     H, W = s["rgb"].shape[2:4]
-    g = dec(L, intr, c2w, (H, W))
+    # v2 decoders re-read the VAE's own decoding of (the noisy) L as a pixel guide
+    g = dec(L, intr, c2w, (H, W)) if guide_fn is None else dec(L, intr, c2w, (H, W), guide=guide_fn(L))
     g = {k: v[0] for k, v in g.items()}
     T, V, gh, gw = g["depth"].shape
     f = H // gh

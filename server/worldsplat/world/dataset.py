@@ -28,6 +28,7 @@ SHARD_KEYS = (
     "bev",
     "bev_channels",
     "sketch",
+    "layout",
     "box_corners",
     "box_cls",
     "box_track_id",
@@ -61,7 +62,7 @@ def clip_arrays(scenario: Scenario, shifts: tuple[float, ...] = ()) -> dict[str,
 
     world = build_world(scenario)
     clip = simulate(world)
-    cond = world.conditions()
+    cond = world.conditions(layout_size=(clip.rgb.shape[3], clip.rgb.shape[2]))
     T = clip.rgb.shape[0]
     n = len(world.agents)
     corners = np.zeros((T, n, 8, 3), np.float32)
@@ -76,6 +77,7 @@ def clip_arrays(scenario: Scenario, shifts: tuple[float, ...] = ()) -> dict[str,
         "bev": (cond["bev"] > 0.5).astype(np.uint8),
         "bev_channels": np.array(cond["bev_channels"]),
         "sketch": (cond["sketch"] > 0.5).astype(np.uint8),
+        "layout": cond["layout"].astype(np.float16),
         "box_corners": corners,
         "box_cls": np.array([a.cls for a in world.agents], np.uint8),
         "box_track_id": np.array([a.track_id for a in world.agents], np.int32),

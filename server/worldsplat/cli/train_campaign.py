@@ -1,0 +1,54 @@
+"""`worldsplat train-campaign vae|cache|decoder|dit|snapshot ...`: the v2 training campaign, stage by stage
+(see `worldsplat.training.campaign`; checkpoints resume from --out, which belongs outside the work tree)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+STAGES = ("vae", "cache", "decoder", "dit", "snapshot")
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("stage", choices=STAGES)
+    p.add_argument("--data", type=Path, help="dataset root (`worldsplat dataset` shards; vae and cache stages)")
+    p.add_argument("--out", type=Path, required=True, help="checkpoints, logs and caches (outside the work tree)")
+    p.add_argument("--vae", type=Path, help="the frozen v2 VAE (cache, decoder and dit stages)")
+    p.add_argument("--split", default="train", choices=("train", "val", "test"), help="cache stage")
+    p.add_argument("--clips", type=int, default=None)
+    p.add_argument("--steps", type=int, default=1000)
+    p.add_argument("--batch", type=int, default=2, help="dit: clips per step")
+    p.add_argument("--lr", type=float, default=None)
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--ckpt-every", type=int, default=None)
+    p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/weights/campaign)")
+
+
+def run(a: argparse.Namespace) -> int:
+    from worldsplat.training import campaign as c
+
+    def need(*names):
+        for n in names:
+            if getattr(a, n) is None:
+                raise ValueError(f"train-campaign {a.stage}: --{n} is required")
+
+    kw = {} if a.ckpt_every is None else {"ckpt_every": a.ckpt_every}
+    if a.lr is not None:
+        kw["lr"] = a.lr
+    if a.stage == "vae":
+        need("data")
+        c.train_vae(a.data, a.out, clips=a.clips or 1500, steps=a.steps, threads=a.threads, **kw)
+    elif a.stage == "cache":
+        need("data", "vae")
+        print(c.build_cache(a.data, a.vae, a.out, a.split, a.clips))
+    elif a.stage == "decoder":
+        need("vae")
+        c.train_decoder(a.vae, a.out, a.steps, clips=a.clips, threads=a.threads, **kw)
+    elif a.stage == "dit":
+        need("vae")
+        c.train_dit(a.vae, a.out, a.steps, batch=a.batch, clips=a.clips, threads=a.threads, **kw)
+    else:
+        need("dest")
+        for p in c.snapshot(a.out, a.dest):
+            print(p)
+    return 0

@@ -1,0 +1,283 @@
+"""The v2 training campaign (issue 12): a 4x-down-sampling VAE with 8 latent channels per modality, the pixel-guided
+Gaussian decoder and the DiT with pixel-space layout control, trained stage by stage on world shards.
+
+    vae      crops of all three modalities; held-out RGB / 8x8-pooled RGB / depth AbsRel / mask IoU per checkpoint
+    cache    shards -> frozen-VAE latents + layout maps + conditions + caption embeddings (one .pt per split)
+    decoder  eq. 5 losses with the VAE's decoding of L as the pixel guide
+    dit      rectified flow on L, layout maps through the hint encoder; held-out flow loss per checkpoint
+
+Every stage runs `train_loop` (checkpoint + optimizer state in `out`, resumed when present), so `out` belongs
+outside the work tree (a later session on the same machine continues); `snapshot` writes the fp16 weights that are
+committed so that a fresh machine continues from them. Commands: `worldsplat train-campaign STAGE --help`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from worldsplat.training.data import collate, sample_from_shard, vae_inputs
+from worldsplat.training.loop import (
+    COND_KEYS,
+    decoder_step_fn,
+    fit_latent_stats,
+    pick,
+    train_loop,
+    unwrap,
+    vae_step_fn,
+)
+from worldsplat_models import rflow
+from worldsplat_models.conditions import encode_captions
+from worldsplat_models.configs import DataConfig, DiTConfig, GSDecoderConfig, TrainConfig, VAEConfig
+from worldsplat_models.dit import DiT4D
+from worldsplat_models.gs_decoder import GaussianDecoder
+from worldsplat_models.vae import MultiModalVAE, denormalize_depth
+from worldsplat_models.weights import load_weights, save_weights
+
+DCFG = DataConfig()
+LIGHT = ("rgb", "depth", "dynamic", "intrinsics", "cam_to_world", *COND_KEYS)
+
+
+def vae_config(channels=(32, 96), latent: int = 8, blocks: int = 1) -> VAEConfig:
+    return VAEConfig(channels=tuple(channels), latent_channels=latent, blocks=blocks)
+
+
+def dit_config(vae) -> DiTConfig:
+    C = vae.cfg.joint_channels
+    hint = vae.cfg.downsample * 4
+    return DiTConfig(in_channels=C, out_channels=C, patch=4, control_channels=7, control_hint=hint)
+
+
+def decoder_config(vae) -> GSDecoderConfig:
+    return GSDecoderConfig(
+        in_channels=vae.cfg.joint_channels, patch=2, up_channels=(64, 32), guide_channels=5, reread_latent=True
+    )
+
+
+def shard_files(data: Path, split: str, limit: int | None = None) -> list[Path]:
+    files = sorted((Path(data) / split).glob("clip_*.npz"))
+    if not files:
+        raise FileNotFoundError(f"no clip_*.npz shards in {Path(data) / split} (write them with `worldsplat dataset`)")
+    return files[:limit]
+
+
+def load_images(files) -> list[dict]:
+    """Only what the VAE trains on (rgb, depth, dynamic) of each shard."""
+    out = []
+    for f in files:
+        with np.load(f, allow_pickle=False) as z:
+            out.append({"rgb": z["rgb"], "depth": z["depth"].astype(np.float32), "dynamic": z["dynamic"].astype(bool)})
+    return out
+
+
+@torch.no_grad()
+def vae_heldout(vae, samples: list[dict], dcfg: DataConfig = DCFG) -> dict:
+    """RGB PSNR, 8x8-pooled RGB PSNR (colour), depth AbsRel (0.5 < GT < 80 m), pooled dynamic-mask IoU."""
+    was = vae.training
+    vae.eval()
+    ps, pp, rel, inter, union = [], [], [], 0.0, 0.0
+    for s in samples:
+        rgb, depth, mask, _ = vae_inputs(collate([s]), dcfg)
+        r, d, m = vae.decode_joint(vae.encode_joint(rgb, depth, mask))
+        a, b = (r + 1) / 2, (rgb + 1) / 2
+        ps += (-10 * torch.log10(((a - b) ** 2).mean(dim=(1, 2, 3)).clamp_min(1e-10))).tolist()
+        ap, bp = F.avg_pool2d(a, 8), F.avg_pool2d(b, 8)
+        pp += (-10 * torch.log10(((ap - bp) ** 2).mean(dim=(1, 2, 3)).clamp_min(1e-10))).tolist()
+        gt = torch.from_numpy(s["depth"]).reshape(-1, 1, *s["depth"].shape[-2:])
+        pr = denormalize_depth(d, dcfg.depth_near, dcfg.depth_far)
+        ok = torch.isfinite(gt) & (gt < 80) & (gt > 0.5)
+        rel.append(((pr[ok] - gt[ok]).abs() / gt[ok]).mean().item())
+        mb, gb = m > 0.5, mask > 0.5
+        inter += float((mb & gb).sum())
+        union += float((mb | gb).sum())
+    vae.train(was)
+    return {
+        "rgb_psnr": float(np.mean(ps)),
+        "rgb_psnr_pool8": float(np.mean(pp)),
+        "depth_absrel": float(np.mean(rel)),
+        "mask_iou": inter / max(union, 1.0),
+    }
+
+
+def train_vae(
+    data: Path,
+    out: Path,
+    clips: int,
+    steps: int,
+    lr: float = 1e-3,
+    channels=(32, 96),
+    latent: int = 8,
+    blocks: int = 1,
+    images: int = 4,
+    threads: int = 1,
+    ckpt_every: int = 250,
+    test_clips: int = 4,
+) -> None:
+    torch.set_num_threads(threads)
+    out.mkdir(parents=True, exist_ok=True)
+    samples = load_images(shard_files(data, "train", clips))
+    test = load_images(shard_files(data, "test", test_clips))
+    vae = MultiModalVAE(vae_config(channels, latent, blocks))
+    tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=50, threads=threads)
+    t0 = time.time()
+
+    def on_ckpt(model, done):
+        m = unwrap(model)
+        fit_latent_stats(m, samples[:12], DCFG)
+        fig = vae_heldout(m, test) | {"step": done, "wall_s": round(time.time() - t0, 1)}
+        print(json.dumps(fig), flush=True)
+        with open(out / "vae_v2_heldout.jsonl", "a") as f:
+            f.write(json.dumps(fig) + "\n")
+        save_weights(m, out / "vae_v2.safetensors", "vae", {"steps": done, "clips": len(samples)})
+
+    train_loop(
+        "vae_v2",
+        vae,
+        vae_step_fn(samples, DCFG, images_per_step=images),
+        tcfg,
+        out,
+        progress=False,
+        on_checkpoint=on_ckpt,
+    )
+
+
+@torch.no_grad()
+def build_cache(data: Path, vae_path: Path, out: Path, split: str, clips: int | None = None) -> Path:
+    vae = load_weights(vae_path, "vae").eval()
+    recs, caps = [], []
+    for f in shard_files(data, split, clips):
+        with np.load(f, allow_pickle=False) as z:
+            zz = {k: z[k] for k in z.files}
+        if "layout" not in zz:
+            raise ValueError(f"{f}: shard has no layout maps (written before them); re-run `worldsplat dataset`")
+        s = sample_from_shard(zz, DCFG.max_boxes)
+        rgb, depth, mask, _ = vae_inputs(collate([s]), DCFG)
+        T, V = s["rgb"].shape[:2]
+        L = vae.encode_joint(rgb, depth, mask)
+        rec = {k: s[k] for k in LIGHT}
+        rec["L"] = L.reshape(T, V, *L.shape[1:]).half()
+        rec["control"] = torch.from_numpy(np.ascontiguousarray(zz["layout"].transpose(0, 1, 4, 2, 3)))
+        caps.append(str(zz["caption"]))
+        recs.append(rec)
+    for r, e in zip(recs, encode_captions(caps)):
+        r["caption_emb"] = e.float()
+    path = Path(out) / f"cache_{split}_{len(recs)}.pt"
+    tmp = path.with_suffix(".tmp")
+    torch.save(recs, tmp)
+    tmp.replace(path)  # a half-written cache is never taken for whole
+    return path
+
+
+def load_cache(out: Path, split: str) -> list[dict]:
+    cands = sorted(Path(out).glob(f"cache_{split}_*.pt"), key=lambda p: int(p.stem.split("_")[-1]))
+    if not cands:
+        raise FileNotFoundError(f"no cache_{split}_*.pt in {out}: run `worldsplat train-campaign cache` first")
+    return torch.load(cands[-1], weights_only=False)
+
+
+def guide_from(vae):
+    @torch.no_grad()
+    def guide(L):  # (B,T,V,C,h,w) -> (B,T,V,5,H,W)
+        B, T, V = L.shape[:3]
+        rgb, dn, m = vae.decode_joint(L.reshape(B * T * V, *L.shape[3:]).float())
+        g = torch.cat([rgb, dn, m], 1)
+        return g.reshape(B, T, V, *g.shape[1:])
+
+    return guide
+
+
+def train_decoder(
+    vae_path: Path,
+    out: Path,
+    steps: int,
+    clips: int | None = None,
+    lr: float = 5e-4,
+    render_every: int = 4,
+    threads: int = 1,
+    ckpt_every: int = 25,
+) -> None:
+    torch.set_num_threads(threads)
+    vae = load_weights(vae_path, "vae").eval()
+    samples = load_cache(out, "train")[:clips]
+    for s in samples:
+        s["L"] = s["L"].float()
+    dec = GaussianDecoder(decoder_config(vae))
+    tcfg = TrainConfig(steps=steps, lr=lr, warmup=25, ckpt_every=ckpt_every, log_every=10, threads=threads)
+    step = decoder_step_fn(samples, DCFG, render_every=render_every, render_views=2, guide_fn=guide_from(vae))
+
+    def on_ckpt(model, done):
+        save_weights(unwrap(model), out / "decoder_v2.safetensors", "decoder", {"steps": done, "clips": len(samples)})
+
+    train_loop("decoder_v2", dec, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
+
+
+def dit_batch(samples: list[dict]) -> tuple[torch.Tensor, dict]:
+    x = torch.stack([s["L"].float() for s in samples])
+    cond = {k: torch.from_numpy(np.stack([np.asarray(s[k]) for s in samples])) for k in COND_KEYS}
+    cond["caption"] = torch.stack([s["caption_emb"] for s in samples])
+    cond["control"] = torch.stack([s["control"].float() for s in samples])
+    return x, cond
+
+
+def train_dit(
+    vae_path: Path,
+    out: Path,
+    steps: int,
+    batch: int = 2,
+    clips: int | None = None,
+    lr: float = 5e-4,
+    threads: int = 1,
+    ckpt_every: int = 100,
+) -> None:
+    torch.set_num_threads(threads)
+    vae = load_weights(vae_path, "vae").eval()
+    samples = load_cache(out, "train")[:clips]
+    test = load_cache(out, "test")[:4]
+    dit = DiT4D(dit_config(vae))
+    tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=10, threads=threads)
+
+    def step(model, step_i, gen):
+        m = unwrap(model)
+        x, cond = dit_batch(pick(samples, gen, batch))
+        cond["drop"] = torch.rand(x.shape[0], generator=gen) < m.cfg.cond_drop
+        return rflow.training_loss(model, x, cond, shift=m.cfg.sampler_shift, generator=gen), {}
+
+    @torch.no_grad()
+    def on_ckpt(model, done):
+        m = unwrap(model).eval()
+        save_weights(m, out / "dit_v2.safetensors", "dit", {"steps": done, "clips": len(samples)})
+        gen = torch.Generator().manual_seed(0)  # the same noise and times at every checkpoint
+        losses = [
+            float(rflow.training_loss(m, *dit_batch([s]), shift=m.cfg.sampler_shift, generator=gen)) for s in test
+        ]
+        rec = {"step": done, "heldout_flow_loss": float(np.mean(losses))}
+        with open(out / "dit_v2_heldout.jsonl", "a") as f:
+            f.write(json.dumps(rec) + "\n")
+        m.train()
+
+    train_loop("dit_v2", dit, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
+
+
+def snapshot(out: Path, dest: Path) -> list[Path]:
+    """fp16 copies of the campaign's latest weights (what a fresh machine continues from), named as the
+    pipeline loads them (<kind>_small.safetensors): `worldsplat ... --weights DEST` serves them."""
+    dest.mkdir(parents=True, exist_ok=True)
+    written = []
+    for kind in ("vae", "decoder", "dit"):
+        src = Path(out) / f"{kind}_v2.safetensors"
+        if src.exists():
+            written.append(
+                save_weights(
+                    load_weights(src, kind),
+                    dest / f"{kind}_small.safetensors",
+                    kind,
+                    {"campaign": "v2", "source": src.name},
+                    dtype=torch.float16,
+                )
+            )
+    return written

@@ -1,0 +1,40 @@
+"""The v2 campaign end to end at two steps a stage: shards with layout maps -> VAE -> cache -> decoder -> DiT ->
+fp16 snapshot that the pipeline serves; a second run resumes from the checkpoints instead of starting over."""
+
+import json
+
+import pytest
+import torch
+
+from worldsplat.pipeline.inference import load_models
+from worldsplat.training import campaign as c
+from worldsplat.world.dataset import write_dataset
+from worldsplat_models.weights import read_metadata
+
+
+@pytest.mark.slow
+def test_campaign_stages_resume_and_snapshot(tmp_path):
+    data, out = tmp_path / "data", tmp_path / "runs"
+    write_dataset(data, "train", 2, progress=False)
+    write_dataset(data, "test", 1, progress=False)
+    c.train_vae(data, out, clips=2, steps=2, ckpt_every=1, test_clips=1, channels=(8, 16), latent=2)
+    fig = [json.loads(line) for line in (out / "vae_v2_heldout.jsonl").read_text().splitlines()]
+    assert [f["step"] for f in fig] == [1, 2] and all(0 < f["rgb_psnr"] < 60 for f in fig)
+    vae = out / "vae_v2.safetensors"
+    for split in ("train", "test"):
+        c.build_cache(data, vae, out, split)
+    cache = c.load_cache(out, "train")
+    assert cache[0]["L"].shape[-2:] == (16, 28) and cache[0]["control"].shape[2:] == (7, 64, 112)
+    c.train_decoder(vae, out, steps=2, ckpt_every=1, render_every=2)
+    c.train_dit(vae, out, steps=2, batch=2, ckpt_every=1)
+    # resume: a longer target continues from the checkpoint (step 3 only), it does not start over
+    c.train_dit(vae, out, steps=3, batch=2, ckpt_every=1)
+    log = [json.loads(line)["step"] for line in (out / "dit_v2_heldout.jsonl").read_text().splitlines()]
+    assert log == [1, 2, 3]
+    dest = tmp_path / "snapshot"
+    paths = c.snapshot(out, dest)
+    assert {p.name for p in paths} == {"vae_small.safetensors", "decoder_small.safetensors", "dit_small.safetensors"}
+    assert read_metadata(dest / "dit_small.safetensors")["campaign"] == "v2"
+    m = load_models(dest)
+    assert m.modes == ["reconstruct", "generate"] and m.dit.cfg.control_hint == 16
+    assert all(p.dtype == torch.float32 for p in m.decoder.parameters())

@@ -307,11 +307,10 @@ def shard_conditions(models: Models, ds: ShardDataset, i: int) -> dict:
         ]
         for t in range(T)
     ]
-    return condition_tensors(
-        models,
-        {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]},
-        s["ego_to_world"].astype(np.float64),
-    )
+    conditions = {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}
+    if "layout" in z:
+        conditions["layout"] = np.asarray(z["layout"], np.float32)
+    return condition_tensors(models, conditions, s["ego_to_world"].astype(np.float64))
 
 
 def steps_vs_error(

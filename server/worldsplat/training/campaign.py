@@ -281,3 +281,44 @@ def snapshot(out: Path, dest: Path) -> list[Path]:
                 )
             )
     return written
+
+
+def plot_curves(out: Path, png: Path) -> Path:
+    """Training loss of every stage and the held-out figures per checkpoint, one PNG (matplotlib, Agg)."""
+    import matplotlib  # noqa: PLC0415 - matplotlib, only for plots
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - matplotlib, only for plots
+
+    def rows(name):
+        p = Path(out) / name
+        return [json.loads(line) for line in p.read_text().splitlines()] if p.exists() else []
+
+    fig, ax = plt.subplots(1, 4, figsize=(16, 3.4))
+    for i, kind in enumerate(("vae", "decoder", "dit")):
+        r = rows(f"{kind}_v2.log.jsonl")
+        if r:
+            ax[i].plot([x["step"] for x in r], [x["loss"] for x in r], lw=0.8, label="train loss")
+        h = rows(f"{kind}_v2_heldout.jsonl")
+        if kind == "dit" and h:
+            ax[i].plot([x["step"] for x in h], [x["heldout_flow_loss"] for x in h], "o-", label="held-out flow loss")
+        ax[i].set_title(f"{kind} v2")
+        ax[i].set_xlabel("step")
+        ax[i].legend(fontsize=7)
+    h = rows("vae_v2_heldout.jsonl")
+    if h:
+        s = [x["step"] for x in h]
+        ax[3].plot(s, [x["rgb_psnr"] for x in h], "o-", label="RGB PSNR (target 25)")
+        ax[3].plot(s, [x["rgb_psnr_pool8"] for x in h], "o-", label="8x8-pooled PSNR (target 32)")
+        ax3 = ax[3].twinx()
+        ax3.plot(s, [x["depth_absrel"] for x in h], "s--", c="k", label="depth AbsRel (target 0.05)")
+        ax3.plot(s, [x["mask_iou"] for x in h], "s--", c="r", label="mask IoU (target 0.8)")
+        ax3.legend(fontsize=7, loc="center right")
+        ax[3].set_title("VAE v2 held-out (test clips)")
+        ax[3].set_xlabel("step")
+        ax[3].legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
+    return png

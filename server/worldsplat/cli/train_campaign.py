@@ -21,7 +21,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--ckpt-every", type=int, default=None)
-    p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/weights/campaign)")
+    p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/campaign)")
 
 
 def run(a: argparse.Namespace) -> int:

@@ -205,17 +205,7 @@ def eval_generate(
         rig = rig_of(s)
         ego = s["ego_to_world"].astype(np.float64)
         T, V = s["rgb"].shape[:2]
-        boxes = [
-            [
-                {"corners": z["box_corners"][t, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
-                for k in range(z["box_corners"].shape[1])
-            ]
-            for t in range(T)
-        ]
-        conditions = {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}
-        if "layout" in z:  # shards written since the layout maps (the v2 DiT's control)
-            conditions["layout"] = np.asarray(z["layout"], np.float32)
-        cond = condition_tensors(models, conditions, ego)
+        cond = condition_tensors(models, shard_condition_dict(s, z), ego)
         if latents == "sample":
             L = sample_latents(models, cond, steps=steps, seed=seed)
         else:
@@ -296,9 +286,9 @@ def steps_vs_error_for(
     return rows
 
 
-def shard_conditions(models: Models, ds: ShardDataset, i: int) -> dict:
-    s = ds[i]
-    z = ds.load(i)
+def shard_condition_dict(s: dict, z: dict) -> dict:
+    """A shard's conditions in `world.conditions()` form (boxes per frame in world metres; the layout maps when
+    the shard has them, i.e. written since the v2 DiT's control existed)."""
     T = s["rgb"].shape[0]
     boxes = [
         [
@@ -310,7 +300,12 @@ def shard_conditions(models: Models, ds: ShardDataset, i: int) -> dict:
     conditions = {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}
     if "layout" in z:
         conditions["layout"] = np.asarray(z["layout"], np.float32)
-    return condition_tensors(models, conditions, s["ego_to_world"].astype(np.float64))
+    return conditions
+
+
+def shard_conditions(models: Models, ds: ShardDataset, i: int) -> dict:
+    s = ds[i]
+    return condition_tensors(models, shard_condition_dict(s, ds.load(i)), s["ego_to_world"].astype(np.float64))
 
 
 def steps_vs_error(
@@ -364,17 +359,7 @@ def figure(
     if "generate" in models.modes:
         z = ds.load(index)
         ego = s["ego_to_world"].astype(np.float64)
-        boxes = [
-            [
-                {"corners": z["box_corners"][tt, k], "cls": int(z["box_cls"][k]), "moving": bool(z["box_moving"][k])}
-                for k in range(z["box_corners"].shape[1])
-            ]
-            for tt in range(T)
-        ]
-        conditions = {"sketch": s["sketch"], "boxes": boxes, "caption": s["caption"], "ego_traj": s["traj"]}
-        if "layout" in z:  # shards written since the layout maps (the v2 DiT's control)
-            conditions["layout"] = np.asarray(z["layout"], np.float32)
-        cond = condition_tensors(models, conditions, ego)
+        cond = condition_tensors(models, shard_condition_dict(s, z), ego)
         Lg = sample_latents(models, cond, steps=steps, seed=seed)
         gscene = to_scene4d(decode_gaussians(models, Lg, rig, ego, np.arange(T) / 4.0, {}))
         rows.append([(s["sketch"][t, v] * 255).astype(np.uint8) for v in views])

@@ -318,6 +318,8 @@ def test_delete_removes_the_job_and_cancel_keeps_it(client):
 
 
 def test_a_mode_without_weights_here_is_409(client):
+    # discovery runs in a background thread at start-up and sets the modes: override them only after it is done
+    assert client.app_state.ready.wait(120)
     client.app_state.modes = ["oracle"]
     r = client.post("/api/scenes", json={"scenario": tiny_scenario(), "mode": "generate"})
     assert r.status_code == 409 and r.json()["field"] == "mode" and "oracle" in r.json()["error"]

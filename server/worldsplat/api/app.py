@@ -34,6 +34,7 @@ from worldsplat.world.agents import check_scenario
 from . import runners
 from .cache import ArtifactCache, InvalidId, LiveFile, validate_id
 from .jobs import ACTIVE, Job, JobManager, QueueFull
+from .scenario_files import MAX_IMPORT_BODY, FileProblems, ImportOut, ImportRequest, import_files
 
 MAX_BODY = 64 * 1024
 # frames x cameras x width x height a scene may have: the scenario allows 1600x900 x 32 x 6 (276M pixels), far more
@@ -346,20 +347,22 @@ class BundleFiles(StaticFiles):
 
 
 class BodyLimit:
-    """ASGI middleware: request bodies over `max_bytes` get 413 before the app sees them (declared or streamed)."""
+    """ASGI middleware: request bodies over `max_bytes` (or the path's own limit in `per_path`) get 413 before the
+    app sees them (declared or streamed)."""
 
-    def __init__(self, app, max_bytes: int):
-        self.app, self.max_bytes = app, max_bytes
+    def __init__(self, app, max_bytes: int, per_path: dict[str, int] | None = None):
+        self.app, self.max_bytes, self.per_path = app, max_bytes, per_path or {}
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http" or scope["method"] in ("GET", "HEAD", "OPTIONS", "DELETE"):
             return await self.app(scope, receive, send)
+        limit = self.per_path.get(scope["path"], self.max_bytes)
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None:
             if not declared.isdigit():
                 return await self._reply(send, 400, "invalid Content-Length header")
-            if int(declared) > self.max_bytes:
-                return await self._reply(send, 413, f"request body over {self.max_bytes} bytes")
+            if int(declared) > limit:
+                return await self._reply(send, 413, f"request body over {limit} bytes")
         body, more = b"", True
         while more:
             msg = await receive()
@@ -367,8 +370,8 @@ class BodyLimit:
                 return
             body += msg.get("body", b"")
             more = msg.get("more_body", False)
-            if len(body) > self.max_bytes:
-                return await self._reply(send, 413, f"request body over {self.max_bytes} bytes")
+            if len(body) > limit:
+                return await self._reply(send, 413, f"request body over {limit} bytes")
         sent = False
 
         async def replay():
@@ -583,7 +586,7 @@ def create_app(
         description="Scenario -> 4D Gaussian scene (.wsplat stream) -> track videos. See web/docs/playground.md.",
     )
     app.state.playground = pg
-    app.add_middleware(BodyLimit, max_bytes=MAX_BODY)
+    app.add_middleware(BodyLimit, max_bytes=MAX_BODY, per_path={"/api/scenario-files": MAX_IMPORT_BODY})
     app.add_middleware(MethodGuard, routes=app.router.routes)  # outermost: OPTIONS / 405 / unknown /api paths
 
     @app.exception_handler(ApiError)
@@ -660,6 +663,25 @@ def create_app(
     @app.get("/api/schema", tags=["scenario"])
     def schema() -> dict:
         return Scenario.model_json_schema()
+
+    @app.post(
+        "/api/scenario-files",
+        tags=["scenario"],
+        response_model=None,
+        responses={
+            200: ok(ImportOut, "the scenario file as a checked v2 scenario (load it into the form; POST /api/scenes)"),
+            **errors(400, 422),
+            413: {"model": ErrorBody, "description": f"request body over {MAX_IMPORT_BODY >> 20} MiB"},
+        },
+    )
+    def import_scenario_files(req: Annotated[ImportRequest, Body()]) -> JSONResponse:
+        """Scenario files (the page's drag and drop) read as `worldsplat import-scenario` reads them: an .xosc with
+        its .xodr road, a CommonRoad .xml, or a scenario / preset .json. 422 entries name the file and the element."""
+        try:
+            return JSONResponse(import_files(req))
+        except FileProblems as e:
+            problems = [{"field": f, "message": m} for f, m in e.problems]
+            return JSONResponse({"detail": problems, "error": str(e), "field": problems[0]["field"]}, status_code=422)
 
     # -- scenes ----------------------------------------------------------------------------------------------------
     @app.post(

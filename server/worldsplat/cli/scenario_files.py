@@ -10,7 +10,10 @@ from pathlib import Path
 
 
 def configure_import_scenario(p: argparse.ArgumentParser) -> None:
-    p.add_argument("file", help="FILE.xosc (OpenSCENARIO 1.x, its OpenDRIVE road beside it) or FILE.xml (CommonRoad)")
+    p.add_argument(
+        "file",
+        help="FILE.xosc (OpenSCENARIO 1.x, its OpenDRIVE road beside it), FILE.xml (CommonRoad) or a scenario .json",
+    )
     p.add_argument("--out", required=True, help="the scenario JSON to write")
     p.add_argument("--ego", help="OpenSCENARIO: the ego entity's name (default: Ego / Hero)")
     p.add_argument("--setting", default="urban", choices=["urban", "suburban"], help="the world's setting")
@@ -19,29 +22,19 @@ def configure_import_scenario(p: argparse.ArgumentParser) -> None:
 
 
 def run_import_scenario(args: argparse.Namespace) -> int:
-    from worldsplat.core.scenario import Scenario, ScenarioError
-    from worldsplat.world.agents import check_scenario
-    from worldsplat.world.scenario_io import ImportRefused, import_scenario
+    from worldsplat.world.scenario_io import ImportRefused, load_scenario_file
 
-    opts = {"setting": args.setting, "frames": args.frames}
-    if args.fps is not None:
-        opts["fps"] = args.fps
-    if args.ego and Path(args.file).suffix.lower() == ".xosc":
-        opts["ego"] = args.ego
-    try:
-        imp = import_scenario(args.file, **opts)
-        sc = Scenario.parse(imp.scenario)
-    except (ImportRefused, ScenarioError) as e:
+    try:  # the same code as POST /api/scenario-files (the page's drag and drop)
+        loaded = load_scenario_file(args.file, ego=args.ego, setting=args.setting, fps=args.fps, frames=args.frames)
+    except ImportRefused as e:
+        for w in e.warnings:
+            print(f"warning: {w}", file=sys.stderr)
         for m in e.errors:
             print(f"worldsplat import-scenario: {m}", file=sys.stderr)
         return 2
-    for w in imp.warnings:
+    for w in loaded.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    problems = check_scenario(sc)
-    if problems:
-        for m in problems:
-            print(f"worldsplat import-scenario: {m}", file=sys.stderr)
-        return 2
+    sc = loaded.scenario
     Path(args.out).write_text(json.dumps(sc.to_json_dict(), indent=2) + "\n")
     print(f"{args.out}: {len(sc.agents)} agents, {sc.clip.frames} frames at {sc.clip.fps:g} fps")
     return 0

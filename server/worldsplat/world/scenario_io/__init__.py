@@ -4,6 +4,10 @@
 frame (the ego's start: rear axle at the origin, facing +x). What cannot be represented raises `ImportRefused`,
 whose `errors` name the element (`Storyboard/.../ParameterSetAction: not supported`); what is approximated is
 listed in `warnings`. `export_openscenario(scenario, out)` writes .xosc + .xodr. Coverage: web/docs/world.md.
+
+`load_scenario_file(path)` is what `worldsplat import-scenario` and `POST /api/scenario-files` (the page's drag and
+drop) both run: the import (or a scenario / preset .json), validated (`Scenario.parse`) and checked against the
+road (`check_scenario`), every problem an `ImportRefused` message naming the element or field.
 """
 
 from __future__ import annotations
@@ -14,12 +18,17 @@ from pathlib import Path
 
 import numpy as np
 
+from worldsplat.core.scenario import Scenario, ScenarioError
+from worldsplat.world.agents import check_scenario
+
 
 class ImportRefused(ValueError):
-    """A file that cannot be represented; `errors` holds one "Element/Path: why" string per problem."""
+    """A file that cannot be represented; `errors` holds one "Element/Path: why" string per problem, `warnings` what
+    the import had noted before it was refused."""
 
-    def __init__(self, errors: list[str]):
+    def __init__(self, errors: list[str], warnings: list[str] | None = None):
         self.errors = errors
+        self.warnings = list(warnings or [])
         super().__init__("cannot import: " + "; ".join(errors))
 
 
@@ -83,3 +92,56 @@ def import_scenario(path: str | Path, **options) -> Imported:
 
         return import_commonroad(path, **options)
     raise ImportRefused([f"{path.name}: unknown scenario file type (expected .xosc or CommonRoad .xml)"])
+
+
+SCENARIO_SUFFIXES = {".xosc": "openscenario", ".xml": "commonroad", ".json": "scenario"}
+
+
+@dataclass
+class Loaded:
+    scenario: Scenario  # validated, and checked against the road
+    warnings: list[str]
+    format: str  # openscenario | commonroad | scenario
+
+
+def load_scenario_file(
+    path: str | Path,
+    ego: str | None = None,
+    setting: str = "urban",
+    fps: float | None = None,
+    frames: int | None = None,
+    road_dir: str | Path | None = None,
+) -> Loaded:
+    """An .xosc, CommonRoad .xml or scenario / preset .json file as a checked v2 scenario; raises ImportRefused.
+
+    `ego` (OpenSCENARIO), `setting`, `fps` and `frames` are the import's options (ignored for .json);
+    `road_dir` confines an .xosc's OpenDRIVE file to that folder, found by its bare name (uploads)."""
+    path = Path(path)
+    kind = SCENARIO_SUFFIXES.get(path.suffix.lower())
+    if kind is None:
+        raise ImportRefused([f"{path.name}: unknown scenario file type (expected .xosc, CommonRoad .xml or .json)"])
+    warnings: list[str] = []
+    try:
+        if kind == "scenario":
+            sc = Scenario.load(path)
+        else:
+            opts: dict = {"setting": setting, "frames": frames}
+            if fps is not None:
+                opts["fps"] = fps
+            if kind == "openscenario":
+                opts |= {"ego": ego, "road_dir": road_dir}
+            imp = import_scenario(path, **opts)
+            warnings = imp.warnings
+            sc = Scenario.parse(imp.scenario)
+    except ScenarioError as e:
+        raise ImportRefused(e.errors, warnings) from None
+    except ImportRefused as e:
+        raise ImportRefused(e.errors, warnings + e.warnings) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ImportRefused([f"{path.name}: cannot read: {e}"]) from None
+    except ValueError as e:  # a .json that is not JSON, or not a scenario
+        raise ImportRefused([f"{path.name}: {e}"]) from None
+    problems = check_scenario(sc)
+    if problems:
+        raise ImportRefused(problems, warnings)
+    return Loaded(sc, warnings, kind)

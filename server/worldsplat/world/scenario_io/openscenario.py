@@ -146,7 +146,9 @@ def _enum(e) -> str:
 
 
 class _Reader:
-    def __init__(self, path: Path, ego_name: str | None, setting: str, fps: float, frames: int | None):
+    def __init__(
+        self, path: Path, ego_name: str | None, setting: str, fps: float, frames: int | None, road_dir: Path | None
+    ):
         self.xosc = xosc
         self.path, self.setting, self.fps, self.frames_opt = path, setting, fps, frames
         try:
@@ -165,7 +167,15 @@ class _Reader:
         self.ego_name = ego_name
         self.road: OdrRoad | None = None
         rf = getattr(self.doc.roadnetwork, "road_file", None)
-        if rf:
+        if rf and road_dir is not None:
+            # uploaded files (POST /api/scenario-files): the road is one of them, by name; nothing else is read
+            name = Path(str(rf).replace("\\", "/")).name
+            if name in ("", ".", "..") or not (Path(road_dir) / name).is_file():
+                raise ImportRefused(
+                    [f"RoadNetwork/LogicFile[{rf}]: not among the files given (give the .xosc with its OpenDRIVE file)"]
+                )
+            self.road = read_opendrive(Path(road_dir) / name)
+        elif rf:
             self.road = read_opendrive((path.parent / rf) if not Path(rf).is_absolute() else Path(rf))
         else:
             self.warnings.append("RoadNetwork: no OpenDRIVE file; the world builds its default road")
@@ -571,12 +581,18 @@ def _safe_id(name: str) -> str:
 
 
 def import_openscenario(
-    path: str | Path, ego: str | None = None, setting: str = "urban", fps: float = 4.0, frames: int | None = None
+    path: str | Path,
+    ego: str | None = None,
+    setting: str = "urban",
+    fps: float = 4.0,
+    frames: int | None = None,
+    road_dir: str | Path | None = None,
 ) -> Imported:
-    """An OpenSCENARIO 1.x file (and its OpenDRIVE road) as a v2 scenario document."""
+    """An OpenSCENARIO 1.x file (and its OpenDRIVE road) as a v2 scenario document. With `road_dir`, the road file
+    the scenario names is looked up there by its bare name only (uploads: no other path is ever opened)."""
     if setting == "highway":
         raise ImportRefused(["--setting highway: the world's highway has a median the OpenDRIVE road lacks"])
-    return _Reader(Path(path), ego, setting, fps, frames).run()
+    return _Reader(Path(path), ego, setting, fps, frames, Path(road_dir) if road_dir is not None else None).run()
 
 
 # -- OpenSCENARIO export --------------------------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 // The playground page: scenario panel -> POST /api/scenes -> progress (SSE) -> .wsplat stream into the wasm viewer;
-// timeline, cameras, track shift, track videos (raw and refined), share links, drag-and-drop, stats.
+// timeline, cameras, track shift, track videos (raw and refined), share links, drag-and-drop (scenes to the viewer,
+// scenario files to the form), stats.
 // No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
 import { SHIFT_MAX_M } from "./limits.js";
 import { decodeShare, shareUrl } from "./share.js";
@@ -392,6 +393,45 @@ async function openLocalFile(file) {
   }
 }
 
+// ---- scenario files (drag and drop): the server reads them as `worldsplat import-scenario` does ----------------------
+const SCENARIO_FILE = /\.(xosc|xml|json)$/i;
+const ROAD_FILE = /\.xodr$/i;
+
+/** An .xosc (with its .xodr road), a CommonRoad .xml or a scenario / preset .json becomes the form's scenario
+ * (POST /api/scenario-files); resolves with the server's answer, or null after showing its error. */
+async function importScenarioFiles(files) {
+  clearError();
+  const list = [...files].filter((f) => SCENARIO_FILE.test(f.name) || ROAD_FILE.test(f.name));
+  const main = list.find((f) => SCENARIO_FILE.test(f.name));
+  try {
+    const payload = { files: await Promise.all(list.map(async (f) => ({ name: f.name, text: await f.text() }))) };
+    const { body } = await apiJson("/api/scenario-files", {
+      method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify(payload),
+    });
+    fillForm(body.scenario);
+    state.imported = body;
+    const warn = body.warnings.length ? `; ${body.warnings.length} warning(s): ${body.warnings.join("; ")}` : "";
+    $("preset-desc").textContent = `Imported from ${body.source} (${body.format}, ${body.agents} agent(s))${warn}. ` +
+      "Generate to see it.";
+    return body;
+  } catch (e) {
+    showError(`import ${main ? main.name : "files"}: ${e.message}`);
+    state.imported = null;
+    return null;
+  }
+}
+
+/** Files dropped on the page: a scene (.wsplat / .ply) goes to the viewer, a scenario file to the form. */
+function openDropped(files) {
+  const list = [...files];
+  const scene = list.find((f) => /\.(wsplat|ply)$/i.test(f.name));
+  if (scene) return openLocalFile(scene);
+  if (list.some((f) => SCENARIO_FILE.test(f.name))) return importScenarioFiles(list);
+  if (list.length) showError(`open: ${list.map((f) => f.name).join(", ")}: drop a .wsplat / .ply scene, or an .xosc ` +
+    "(with its .xodr), a CommonRoad .xml or a scenario .json");
+  return null;
+}
+
 // ---- share links ---------------------------------------------------------------------------------------------------
 function share() {
   const url = shareUrl(location.href, { scenario: state.scenario, mode: state.sceneMode, view: currentView() });
@@ -433,15 +473,15 @@ function wire() {
     if (e.code === "ArrowRight") setFrame(state.frame + 1);
     if (e.code === "ArrowLeft") setFrame(state.frame - 1);
   });
+  // the whole page takes dropped files (openDropped); the viewport shows the hint
   const vp = $("viewport");
-  vp.addEventListener("dragover", (e) => { e.preventDefault(); vp.classList.add("dragging"); $("drop-hint").hidden = false; });
-  vp.addEventListener("dragleave", () => { vp.classList.remove("dragging"); $("drop-hint").hidden = true; });
-  vp.addEventListener("drop", (e) => {
+  const dragging = (on) => { vp.classList.toggle("dragging", on); $("drop-hint").hidden = !on; };
+  document.addEventListener("dragover", (e) => { e.preventDefault(); dragging(true); });
+  document.addEventListener("dragleave", (e) => { if (!e.relatedTarget) dragging(false); });
+  document.addEventListener("drop", (e) => {
     e.preventDefault();
-    vp.classList.remove("dragging");
-    $("drop-hint").hidden = true;
-    const file = e.dataTransfer.files[0];
-    if (file) openLocalFile(file);
+    dragging(false);
+    if (e.dataTransfer && e.dataTransfer.files.length) openDropped(e.dataTransfer.files);
   });
   new ResizeObserver(() => fitCanvas()).observe(vp);
 }
@@ -504,7 +544,7 @@ async function main() {
 // Test and console hooks: the state, the viewer and a few actions (used by tests/browser/playground*.test.mjs).
 window.playground = {
   state, generate: (s, m, v) => generate(s, m, v), readForm, fillForm, setShift, setFrame, setCamera, share,
-  requestVideos, openLocalFile, render,
+  requestVideos, openLocalFile, importScenarioFiles, render,
   ready: null,
 };
 window.playground.ready = main();

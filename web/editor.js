@@ -1,12 +1,18 @@
 // The bird's-eye scenario editor: the road from above, explicit agents as boxes to add (click), drag, rotate
-// (shift-drag or the rotate buttons), delete and re-class; a path of waypoints per agent and for the ego; the caption;
-// a time scrubber previewing the motion; the four corner-case presets. It edits the scenario the form edits
-// (`getBase()`: agents, ego.path, caption), so generate and the share link carry all of it.
+// (shift-drag or the rotate buttons), nudge (arrow keys), delete and re-class; a path of waypoints per agent and for
+// the ego, its keyframes listed to re-time or remove; per agent a start (free pose or lane) and scripted events (lane
+// change, stop, set speed at time t) to add and remove; the caption; a time scrubber previewing the motion; the four
+// corner-case presets. It edits the scenario the form edits (`getBase()`: agents, ego.path, caption), so generate and
+// the share link carry all of it.
 // World frame (web/docs/world.md): the ego's rear axle starts at the origin facing +x, y left.
 
 const CLASSES = ["car", "bus", "truck", "pedestrian", "cyclist"];
 const SIZE = { car: [4.5, 1.85], bus: [11.0, 2.55], truck: [7.5, 2.45], pedestrian: [0.5, 0.6], cyclist: [1.8, 0.6] };
 const SPEED = { car: 8, bus: 6, truck: 6, pedestrian: 1.4, cyclist: 4 };
+// the scenario's bounds per class (worldsplat.core.scenario CLASS_MAX_SPEED / CLASS_MAX_ACCEL)
+const MAX_SPEED = { car: 40, bus: 30, truck: 30, pedestrian: 4, cyclist: 12 };
+const MAX_ACCEL = { car: 9, bus: 6, truck: 6, pedestrian: 3, cyclist: 4 };
+const ACTIONS = { lane_change: "lane change", stop: "stop", set_speed: "set speed" };
 const COLOUR = { car: "#4ea1ff", bus: "#f0b429", truck: "#e07b39", pedestrian: "#e85d75", cyclist: "#5ccf8f" };
 export const CORNER_CASES = ["cut_in", "crossing_pedestrian", "stopped_vehicle", "oncoming_overtaker"];
 const EGO = { length: 4.6, width: 1.9, rear: 1.0 };
@@ -46,18 +52,23 @@ export function agentPose(s, a, t) {
     const yaw = Math.atan2(q.y - p.y, q.x - p.x);
     return [p.x + u * (q.x - p.x), p.y + u * (q.y - p.y), Number.isFinite(yaw) ? yaw : 0];
   }
-  // distance travelled: the speed ramps linearly over each stop / set_speed event
-  let dist = 0, v = m.speed || 0;
+  // distance travelled: the speed ramps linearly over each stop / set_speed event, from the previous event's target
+  // (as worldsplat.world.agents._speed_profile)
+  let dist = 0;
   const dt = 0.02, events = m.events || [];
-  for (let tt = 0; tt < t - 1e-9; tt += dt) {
-    let cur = m.speed || 0;
+  const speedAt = (tt) => {
+    let v = m.speed || 0, cur = m.speed || 0;
     for (const e of events) {
-      if (e.action === "lane_change" || tt < e.t) continue;
+      if (e.action === "lane_change") continue;
       const target = e.action === "stop" ? 0 : e.speed;
-      cur = cur + (target - cur) * Math.min(1, (tt - e.t) / e.duration);
+      if (tt >= e.t) v = cur + (target - cur) * Math.min(1, (tt - e.t) / e.duration);
+      cur = target;
     }
-    v = cur;
-    dist += v * Math.min(dt, t - tt);
+    return v;
+  };
+  for (let tt = 0; tt < t - 1e-9; tt += dt) {
+    const h = Math.min(dt, t - tt);
+    dist += 0.5 * (speedAt(tt) + speedAt(tt + h)) * h;
   }
   const st = a.start || { kind: "pose", x: 0, y: 0, yaw_deg: 0 };
   if (st.kind === "pose") {
@@ -98,6 +109,23 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
         <label>Speed m/s <input type="number" id="ed-speed" min="0" max="40" step="0.5"></label>
         <label>Class <select id="ed-reclass" aria-label="class of the selected agent">${CLASSES.map((c) => `<option>${c}</option>`).join("")}</select></label>
         <span id="ed-sel" class="small muted">nothing selected</span>
+      </div>
+      <div id="ed-script" class="ed-script" hidden>
+        <div class="ed-row" id="ed-start-row">
+          <label>Start <select id="ed-start" aria-label="start placement of the selected agent">
+            <option value="pose">free pose</option><option value="lane">lane</option></select></label>
+          <button type="button" id="ed-unpath" class="btn small" title="drop the path: back to a start and a speed">clear path</button>
+        </div>
+        <ul id="ed-events" class="ed-list" aria-label="scripted events of the selected agent"></ul>
+        <div class="ed-row ed-new-event" id="ed-new-event">
+          <select id="ed-ev-action" aria-label="event to add">${Object.entries(ACTIONS).map(([v, n]) => `<option value="${v}">${n}</option>`).join("")}</select>
+          <label>at s <input type="number" id="ed-ev-t" min="0" max="60" step="0.25" value="0.5" aria-label="event time in seconds"></label>
+          <label id="ed-ev-arg-label"><span id="ed-ev-arg-name">lane</span> <input type="number" id="ed-ev-arg" min="0" max="40" step="1" aria-label="target lane or speed"></label>
+          <label>over s <input type="number" id="ed-ev-dur" min="0.2" max="20" step="0.1" value="2" aria-label="event duration in seconds"></label>
+          <button type="button" id="ed-ev-add" class="btn small" title="add the event (Enter)">+ event</button>
+        </div>
+        <ul id="ed-keys" class="ed-list" aria-label="path keyframes"></ul>
+        <p id="ed-note" class="small muted" aria-live="polite"></p>
       </div>
       <div class="ed-row">
         <input type="range" id="ed-time" min="0" max="1" step="0.01" value="0" aria-label="preview time">
@@ -235,7 +263,169 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
     $("ed-speed").value = a ? String(a.motion && a.motion.keyframes ? "" : (a.motion?.speed ?? 0)) : "";
     $("ed-reclass").disabled = !a;
     if (a) $("ed-reclass").value = a.class;
+    renderScript();
     draw();
+  }
+
+  // ---- the selected agent's script: start, events, path keyframes ------------------------------------------------
+  const note = (text) => { $("ed-note").textContent = text || ""; };
+  const esc = (v) => String(v).replace(/[&<>"]/g, (c) => `&#${c.charCodeAt(0)};`);
+
+  function renderScript() {
+    const s = scenario(), i = ui.selected, a = typeof i === "number" ? s.agents[i] : null;
+    const keyed = a ? Boolean(a.motion && a.motion.keyframes) : i === "ego";
+    $("ed-script").hidden = !(a || (i === "ego" && s.ego.path));
+    $("ed-start-row").hidden = !a;
+    $("ed-new-event").hidden = !a || keyed;
+    $("ed-events").hidden = !a || keyed;
+    $("ed-start").disabled = keyed;
+    $("ed-unpath").hidden = !keyed;
+    if (a && !keyed) $("ed-start").value = a.start.kind;
+    const events = a && !keyed ? a.motion.events || [] : [];
+    $("ed-events").innerHTML = events.map((e, j) => `<li><span class="mono">${esc(describe(e))}</span>
+      <button type="button" class="icon-btn" data-del-event="${j}" aria-label="remove event ${j}" title="remove">✕</button></li>`).join("")
+      || (a && !keyed ? `<li class="muted">no events: it keeps its speed and lane</li>` : "");
+    const kf = a ? (keyed ? a.motion.keyframes : []) : (s.ego.path || []);
+    $("ed-keys").hidden = !kf.length;
+    $("ed-keys").innerHTML = kf.map((k, j) => `<li><label class="kf">t <input type="number" data-kf-t="${j}" value="${k.t}"
+        min="0" max="60" step="0.1" aria-label="keyframe ${j} time" ${j === 0 && !a ? "disabled" : ""}></label>
+      <span class="mono">(${k.x.toFixed(1)}, ${k.y.toFixed(1)})</span>
+      <button type="button" class="icon-btn" data-del-kf="${j}" aria-label="remove keyframe ${j}" title="remove"
+        ${j === 0 && !a ? "disabled" : ""}>✕</button></li>`).join("");
+    eventArg();
+  }
+
+  function describe(e) {
+    const at = `t ${Number(e.t).toFixed(2)} s`, over = `over ${Number(e.duration ?? 2).toFixed(1)} s`;
+    if (e.action === "lane_change") return `${at} · lane change → lane ${e.lane} ${over}`;
+    if (e.action === "stop") return `${at} · stop ${over}`;
+    return `${at} · set speed ${e.speed} m/s ${over}`;
+  }
+
+  /** The new-event row's second input: the target lane (lane change), the speed (set speed) or nothing (stop). */
+  function eventArg() {
+    const act = $("ed-ev-action").value, a = scenario().agents[ui.selected];
+    $("ed-ev-arg-label").hidden = act === "stop";
+    $("ed-ev-arg-name").textContent = act === "lane_change" ? "lane" : "m/s";
+    const lanes = roadOf(view()).lanes;
+    $("ed-ev-arg").max = act === "lane_change" ? String(lanes - 1) : String(a ? MAX_SPEED[a.class] : 40);
+    $("ed-ev-arg").step = act === "lane_change" ? "1" : "0.5";
+    if ($("ed-ev-arg").value === "" && a && a.start && a.start.kind === "lane" && act === "lane_change") {
+      $("ed-ev-arg").value = String(a.start.lane + 1 < lanes ? a.start.lane + 1 : Math.max(0, a.start.lane - 1));
+    }
+  }
+
+  /** The agent's start as a lane placement (nearest lane at its t = 0 pose) or a free pose (where it is at t = 0). */
+  function setStart(a, kind) {
+    if (!a || !a.start || a.start.kind === kind) return;
+    const v = view(), road = roadOf(v), [x, y, yaw] = agentPose(v, a, 0);
+    if (kind === "lane") {
+      const [sv, d] = road.sd(x, y), dir = d < 0 ? 1 : -1;
+      const lane = Math.min(road.lanes - 1, Math.max(0,
+        Math.round(road.lanes - 0.5 - (Math.abs(d) - road.median / 2) / road.w)));
+      const lateral = Math.max(-12, Math.min(12, round(dir * (d - road.laneD(lane, dir)))));
+      a.start = { kind: "lane", direction: dir > 0 ? "same" : "opposite", lane, s: round(sv), lateral };
+      note(`${a.id}: in ${dir > 0 ? "the ego's direction" : "the oncoming lanes"}, lane ${lane}`);
+    } else {
+      const dropped = (a.motion.events || []).filter((e) => e.action === "lane_change").length;
+      a.start = { kind: "pose", x: round(x), y: round(y), yaw_deg: round(yaw * 180 / Math.PI) };
+      a.motion.events = (a.motion.events || []).filter((e) => e.action !== "lane_change");
+      note(dropped ? `${a.id}: ${dropped} lane change(s) removed (they need a lane start)` : "");
+    }
+  }
+
+  /** Event durations long enough for the class's acceleration bound (the scenario's validator walks them so). */
+  function fitDurations(a) {
+    let v = a.motion.speed || 0;
+    for (const e of a.motion.events || []) {
+      if (e.action === "lane_change") continue;
+      const target = e.action === "stop" ? 0 : e.speed;
+      const need = Math.ceil((Math.abs(target - v) / MAX_ACCEL[a.class]) * 10 - 1e-9) / 10;
+      if ((e.duration ?? 2) < need) e.duration = Math.max(0.2, need);
+      v = target;
+    }
+  }
+
+  function addEvent() {
+    const a = scenario().agents[ui.selected];
+    if (!a || (a.motion && a.motion.keyframes)) return;
+    const action = $("ed-ev-action").value, t = Number($("ed-ev-t").value), dur = Number($("ed-ev-dur").value);
+    const arg = Number($("ed-ev-arg").value);
+    if (!Number.isFinite(t) || t < 0 || t > 60) return note("event time: 0 to 60 s");
+    const e = { t: round(t), action, duration: Math.min(20, Math.max(0.2, Number.isFinite(dur) ? round(dur) : 2)) };
+    if (action === "lane_change") {
+      const lanes = roadOf(view()).lanes;
+      if ($("ed-ev-arg").value === "" || !Number.isInteger(arg) || arg < 0 || arg >= lanes) {
+        return note(`lane change: a target lane 0..${lanes - 1}`);
+      }
+      if (a.start.kind !== "lane") setStart(a, "lane");
+      e.lane = arg;
+    } else if (action === "set_speed") {
+      if ($("ed-ev-arg").value === "" || !Number.isFinite(arg) || arg < 0) return note("set speed: a target speed in m/s");
+      e.speed = Math.min(MAX_SPEED[a.class], round(arg));
+    }
+    const events = a.motion.events || [];
+    let k = events.length;
+    while (k > 0 && events[k - 1].t > e.t) k--;  // time order (equal times: after the earlier ones)
+    events.splice(k, 0, e);
+    a.motion = { ...a.motion, events };
+    const before = e.duration;
+    fitDurations(a);
+    note(e.duration > before ? `${e.action}: ${e.duration} s, the shortest a ${a.class} can do it in` : "");
+    renderScript();
+    draw();
+  }
+
+  function removeEvent(j) {
+    const a = scenario().agents[ui.selected];
+    if (!a || !a.motion.events) return;
+    a.motion.events.splice(j, 1);
+    fitDurations(a);
+    renderScript();
+    draw();
+  }
+
+  /** The keyframes being listed: the selected agent's path or the ego's. */
+  function keyframes() {
+    const s = scenario(), a = s.agents[ui.selected];
+    return a ? a.motion.keyframes : ui.selected === "ego" ? s.ego.path : null;
+  }
+
+  function removeKeyframe(j) {
+    const s = scenario(), a = s.agents[ui.selected], kf = keyframes();
+    if (!kf || (!a && j === 0)) return;
+    kf.splice(j, 1);
+    if (kf.length < 2) {
+      if (a) unpath(a); else delete s.ego.path;
+    } else if (a && j === 0) {
+      const t0 = kf[0].t;  // keyframes start at t = 0
+      for (const k of kf) k.t = round(k.t - t0);
+    }
+    renderScript();
+    draw();
+  }
+
+  function retimeKeyframe(j, value) {
+    const kf = keyframes(), t = Number(value);
+    if (!kf) return;
+    const lo = j > 0 ? kf[j - 1].t : -1, hi = j + 1 < kf.length ? kf[j + 1].t : 61;
+    if (!Number.isFinite(t) || t <= lo || t >= hi || t > 60 || (j === 0 && t !== 0 && !scenario().agents[ui.selected])) {
+      note(`keyframe ${j}: its time must lie between its neighbours' (${lo < 0 ? 0 : lo} and ${hi > 60 ? 60 : hi} s)`);
+    } else {
+      kf[j].t = round(t);
+      note("");
+    }
+    renderScript();
+    draw();
+  }
+
+  /** A keyframed agent back to a free pose at its first keyframe, heading along the path, at the path's speed. */
+  function unpath(a) {
+    const kf = a.motion.keyframes, p = kf[0], q = kf[Math.min(1, kf.length - 1)];
+    const len = Math.hypot(q.x - p.x, q.y - p.y), dt = q.t - p.t;
+    const speed = Math.min(MAX_SPEED[a.class], round(dt > 0 ? len / dt : ui.pathSpeed.get(a) || 0));
+    a.start = { kind: "pose", x: p.x, y: p.y, yaw_deg: round(len > 0 ? Math.atan2(q.y - p.y, q.x - p.x) * 180 / Math.PI : 0) };
+    a.motion = { speed, events: [] };
   }
 
   function setMode(m) {
@@ -299,7 +489,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
       select(s.agents.length - 1);
       return;
     }
-    if (ui.mode === "path" && ui.selected !== null) { addWaypoint(ui.selected, x, y); draw(); return; }
+    if (ui.mode === "path" && ui.selected !== null) { addWaypoint(ui.selected, x, y); renderScript(); draw(); return; }
     const i = hit(x, y);
     select(i);
     if (typeof i === "number") {
@@ -322,7 +512,23 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
   canvas.addEventListener("pointerup", endDrag);
   canvas.addEventListener("pointercancel", endDrag);
   canvas.addEventListener("keydown", (e) => {
-    if ((e.key === "Delete" || e.key === "Backspace") && typeof ui.selected === "number") { e.preventDefault(); del(); }
+    const s = scenario(), a = typeof ui.selected === "number" ? s.agents[ui.selected] : null;
+    if (e.key === "Backspace" && ui.mode === "path" && keyframes() && keyframes().length > 1) {
+      e.preventDefault();  // path mode: the last waypoint goes
+      removeKeyframe(keyframes().length - 1);
+    } else if ((e.key === "Delete" || e.key === "Backspace") && a) {
+      e.preventDefault();
+      del();
+    } else if (e.key === "Escape") {
+      if (ui.mode !== "select") setMode(ui.mode);
+      else select(null);
+    } else if (a && e.key.startsWith("Arrow")) {  // nudge: 0.5 m, with Shift 2 m
+      e.preventDefault();
+      const step = e.shiftKey ? 2 : 0.5, [x, y] = agentPose(view(), a, 0);
+      const d = { ArrowUp: [step, 0], ArrowDown: [-step, 0], ArrowLeft: [0, step], ArrowRight: [0, -step] }[e.key];
+      moveTo(a, x + d[0], y + d[1]);
+      draw();
+    }
   });
   function del() {
     const s = scenario();
@@ -330,6 +536,31 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
     else if (ui.selected === "ego") delete s.ego.path;
     select(null);
   }
+  $("ed-start").onchange = (e) => { setStart(scenario().agents[ui.selected], e.target.value); renderScript(); draw(); };
+  $("ed-unpath").onclick = () => {
+    const a = scenario().agents[ui.selected];
+    if (a && a.motion.keyframes) unpath(a); else if (ui.selected === "ego") delete scenario().ego.path;
+    select(ui.selected);
+  };
+  $("ed-ev-action").onchange = () => { $("ed-ev-arg").value = ""; eventArg(); };
+  $("ed-ev-add").onclick = addEvent;
+  for (const id of ["ed-ev-action", "ed-ev-t", "ed-ev-arg", "ed-ev-dur"]) {
+    $(id).addEventListener("keydown", (e) => {  // Enter adds the event (and does not submit the form)
+      if (e.key === "Enter") { e.preventDefault(); addEvent(); }
+    });
+  }
+  $("ed-events").addEventListener("click", (e) => {
+    const b = e.target.closest("[data-del-event]");
+    if (b) removeEvent(Number(b.dataset.delEvent));
+  });
+  $("ed-keys").addEventListener("click", (e) => {
+    const b = e.target.closest("[data-del-kf]");
+    if (b) removeKeyframe(Number(b.dataset.delKf));
+  });
+  $("ed-keys").addEventListener("change", (e) => {
+    if (e.target.dataset.kfT !== undefined) retimeKeyframe(Number(e.target.dataset.kfT), e.target.value);
+  });
+  $("ed-keys").addEventListener("keydown", (e) => { if (e.key === "Enter") { e.preventDefault(); e.target.blur(); } });
   $("ed-add").onclick = () => setMode("add");
   $("ed-path").onclick = () => setMode("path");
   $("ed-del").onclick = del;
@@ -337,11 +568,16 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
   $("ed-rot-r").onclick = () => { rotate(scenario().agents[ui.selected], -15); draw(); };
   $("ed-reclass").onchange = (e) => {
     const a = scenario().agents[ui.selected];
-    if (a) { a.class = e.target.value; delete a.size; select(ui.selected); }
+    if (a) { a.class = e.target.value; delete a.size; if (a.motion.events) fitDurations(a); select(ui.selected); }
   };
   $("ed-speed").onchange = (e) => {
     const a = scenario().agents[ui.selected], v = Number(e.target.value);
-    if (a && Number.isFinite(v) && !(a.motion && a.motion.keyframes)) { a.motion = { ...a.motion, speed: v }; draw(); }
+    if (a && Number.isFinite(v) && !(a.motion && a.motion.keyframes)) {
+      a.motion = { ...a.motion, speed: v };
+      fitDurations(a);
+      renderScript();
+      draw();
+    }
   };
   $("ed-time").oninput = (e) => { ui.time = Number(e.target.value) * duration(); draw(); };
   $("ed-caption").oninput = (e) => {

@@ -2,15 +2,18 @@
 // rotate it, drop a pedestrian and draw its path, add, re-class and delete a cyclist, write the caption; generate (oracle) and
 // check that the world's box of each agent is where it was dropped (the scene's own scenario, boxes from the world);
 // a share link carries agents, path and caption to a fresh page; the four corner-case presets load with their
-// agents. Layout: with classic scrollbars (not Playwright's hidden ones) the scenario panel never scrolls sideways
+// agents. Scripted events (lane change, stop, set speed) and keyframed paths typed and clicked in, the JSON, the
+// world's boxes after generating and a share link checked; .xosc (+ .xodr) / CommonRoad .xml / scenario .json files
+// written by scenariogeneration / commonroad-io dropped on the page (a real DragEvent) load as the scenario, bad
+// ones are refused naming the element. Layout: with classic scrollbars (not Playwright's hidden ones) the scenario panel never scrolls sideways
 // and the Mode select stays inside it at 1280x720, 1920x1080 and 390x844. Screenshots go to tests/artifacts/.
 import { test, before, after } from "node:test";
 import assert from "node:assert/strict";
 import { execFileSync } from "node:child_process";
 import { createRequire } from "node:module";
-import { mkdtempSync, rmSync, mkdirSync } from "node:fs";
+import { mkdtempSync, rmSync, mkdirSync, readFileSync, writeFileSync } from "node:fs";
 import { tmpdir } from "node:os";
-import { join } from "node:path";
+import { basename, dirname, join } from "node:path";
 import { startServer, ROOT, PYTHON } from "./lib/playground-server.mjs";
 
 const require = createRequire(import.meta.url);
@@ -192,6 +195,220 @@ test("the four corner-case presets load with their agents", T, async () => {
       agents: window.playground.readForm().agents.map((a) => a.id) }));
     assert.equal(s.preset, name);
     assert.ok(s.agents.length >= 1, `${name}: ${JSON.stringify(s)}`);
+  }
+});
+
+/** Type into an input as a person does: focus it by a click, select what is there, type, leave it with Tab. */
+async function typeInto(selector, text, leave = "Tab") {
+  await page.click(selector, { clickCount: 3 });
+  await page.keyboard.press("Control+A");
+  await page.keyboard.type(text);
+  if (leave) await page.keyboard.press(leave);
+}
+
+async function generateOracle(scenario) {
+  const post = async () => (await fetch(`${server.url}/api/scenes`, { method: "POST",
+    headers: { "content-type": "application/json" }, body: JSON.stringify({ scenario, mode: "oracle" }) })).json();
+  let s = await post();
+  while (s.status !== "ready") {
+    assert.ok(["queued", "running"].includes(s.status), JSON.stringify(s));
+    await new Promise((r) => setTimeout(r, 500));
+    s = await (await fetch(`${server.url}/api/scenes/${s.scene_id}`)).json();
+  }
+  return s.scenario;
+}
+
+test("scripted events and keyframed paths by pointer and keyboard: the JSON, the boxes and the share link follow", T,
+  async () => {
+    await page.selectOption("#preset", "empty_road");
+    for (const [field, value] of [["road.lanes_per_direction", "2"], ["clip.frames", "9"], ["image.width", "64"],
+      ["image.height", "48"]]) {
+      await page.fill(`[data-field="${field}"]`, value);
+    }
+    await page.evaluate(() => {
+      window.playground.state.base.rig = { cameras: ["CAM_FRONT"] };
+      const r = document.getElementById("ed-time");  // the preview at t = 0: agents are clicked where they start
+      r.value = "0";
+      r.dispatchEvent(new Event("input", { bubbles: true }));
+    });
+    let map = null;
+    // a car dropped 20 m ahead in the ego's lane, 10 m/s, its start made a lane placement
+    await page.selectOption("#ed-class", "car");
+    await page.click("#ed-add");
+    await pointer(20, 0, map);
+    await typeInto("#ed-speed", "10");
+    await page.selectOption("#ed-start", "lane");
+    // events typed in: a lane change to lane 1 at 0.25 s over 1 s (Enter adds it), a stop at 1 s asked over 1 s
+    // (the editor lengthens it to 1.2 s, a car's 9 m/s^2), a set-speed added and removed again
+    await page.selectOption("#ed-ev-action", "lane_change");
+    await typeInto("#ed-ev-t", "0.25");
+    await typeInto("#ed-ev-arg", "1");
+    await typeInto("#ed-ev-dur", "1", "Enter");
+    await page.selectOption("#ed-ev-action", "stop");
+    await typeInto("#ed-ev-t", "1");
+    await typeInto("#ed-ev-dur", "1");
+    await page.click("#ed-ev-add");
+    await page.selectOption("#ed-ev-action", "set_speed");
+    await typeInto("#ed-ev-t", "0.5");
+    await typeInto("#ed-ev-arg", "5");
+    await typeInto("#ed-ev-dur", "2", "Enter");
+    assert.deepEqual(await page.$$eval("#ed-events li span", (els) => els.map((e) => e.textContent)), [
+      "t 0.25 s · lane change → lane 1 over 1.0 s", "t 0.50 s · set speed 5 m/s over 2.0 s", "t 1.00 s · stop over 1.2 s"]);
+    await page.click('[data-del-event="1"]');
+    // the car nudged 1 m ahead with the arrow keys (the canvas has the focus once the car is clicked)
+    await pointer(20, 0, map);
+    await page.keyboard.press("ArrowUp");
+    await page.keyboard.press("ArrowUp");
+    // a pedestrian on the right sidewalk with a path of three waypoints, one more taken back with Backspace, the
+    // middle one removed from the list and the last re-timed to 2.5 s
+    await page.selectOption("#ed-class", "pedestrian");
+    await page.click("#ed-add");
+    await pointer(30, -3.5, map);
+    await page.click("#ed-path");
+    await pointer(30, -1, map);
+    await pointer(30, 1.5, map);
+    await pointer(30, 4, map);
+    await page.keyboard.press("Backspace");
+    await page.click("#ed-path");
+    await page.click('[data-del-kf="1"]');
+    await typeInto('[data-kf-t="1"]', "2.5", "Enter");
+    await page.screenshot({ path: join(ARTIFACTS, "scenario-editor-events.png") });
+
+    const scenario = await page.evaluate(() => window.playground.readForm());
+    const [car, ped] = scenario.agents;
+    assert.deepEqual(car.start, { kind: "lane", direction: "same", lane: 0, s: 21, lateral: 0 });
+    assert.deepEqual(car.motion, { speed: 10, events: [
+      { t: 0.25, action: "lane_change", duration: 1, lane: 1 }, { t: 1, action: "stop", duration: 1.2 }] });
+    assert.equal(ped.start, undefined);
+    assert.deepEqual(ped.motion.keyframes.map((k) => [k.t, k.x, k.y]), [[0, 30, -3.5], [2.5, 30, 1.5]]);
+
+    // generate (oracle); the world's boxes (boxes.json) follow the script: at 2 s the car has moved to lane 1
+    // (y = 3.5 m) and covered 10 m + 10 m/s braking over 1.2 s for 1 s (5.83 m) from s = 21 m
+    const sceneScenario = await generateOracle(scenario);
+    assert.deepEqual(sceneScenario.agents[0].motion.events.map((e) => [e.t, e.action, e.lane, e.duration]),
+      [[0.25, "lane_change", 1, 1], [1, "stop", null, 1.2]]);  // as the server normalized them
+    const first = worldBoxes(sceneScenario, 0), last = worldBoxes(sceneScenario, 8);
+    const near = (got, x, y, yawDeg, what) => {
+      assert.ok(Math.hypot(got[0] - x, got[1] - y) < 0.3, `${what}: box at ${got} not (${x}, ${y})`);
+      if (yawDeg !== null) assert.ok(Math.abs(got[2] * 180 / Math.PI - yawDeg) < 3, `${what}: yaw ${got[2]}`);
+    };
+    near(first.car1, 21, 0, 0, "car at t = 0");
+    near(last.car1, 21 + 10 + 10 - (10 / 1.2) / 2, 3.5, 0, "car at t = 2 s: changed lane, braking");
+    near(first.pedestrian1, 30, -3.5, 90, "pedestrian at t = 0");
+    near(last.pedestrian1, 30, -3.5 + 5 * (2 / 2.5), 90, "pedestrian at t = 2 s on its path");
+
+    // a share link carries the events and the path
+    const url = await page.evaluate(async (s) => {
+      const { shareUrl } = await import("/share.js");
+      return shareUrl(location.href, { scenario: s, mode: "oracle", view: { camera: "CAM_FRONT" } });
+    }, scenario);
+    const other = await context.newPage();
+    await other.goto(url);
+    await other.waitForFunction(() => ((window.playground && window.playground.state.base || {}).agents || []).length > 1,
+      null, { timeout: 180_000 });
+    assert.deepEqual((await other.evaluate(() => window.playground.readForm())).agents, scenario.agents);
+    await other.close();
+  });
+
+/** Files written by scenariogeneration and commonroad-io (the Python tests' writers), and where they put each agent. */
+function writeScenarioFiles(dir) {
+  const code = `
+import json, math, sys, pathlib
+sys.path.insert(0, "tests/python")
+from test_scenario_io import AT, LANE_W, write_commonroad, write_xosc, xosc
+out = pathlib.Path(sys.argv[1])
+for d in ("ok", "bad", "cr"):
+    (out / d).mkdir()
+ev = xosc.Event("tweak", xosc.Priority.parallel)
+ev.add_action("set_param", xosc.ParameterSetAction("p", 3))
+ev.add_trigger(AT("tweak_start", 1.0))
+ex, ey = 50.0, -1.5 * LANE_W  # the ego's rear axle in the .xosc's frame
+ox, oy = 5.0 - 1.3, -1.75     # the ego's rear axle in the CommonRoad file's frame
+print(json.dumps({
+    "xosc": str(write_xosc(out / "ok")), "bad": str(write_xosc(out / "bad", extra_event=ev, minor=1)),
+    "cr": str(write_commonroad(out / "cr")),
+    "want_xosc": {"Cutter": [62 + 1.3 - ex, -0.5 * LANE_W - ey, 0.0], "Truck": [110 - ex, 0.5 * LANE_W + 0.2 - ey, math.pi],
+                  "Parked": [80 - ex, -9.2 - ey, 0.05], "Walker": [75 - ex, -11 - ey, math.pi / 2]},
+    "want_cr": {"dyn_10": [30 - ox, -5.25 - oy, 0.0], "dyn_11": [90 - ox, 1.75 - oy, math.pi],
+                "dyn_12": [45 - ox, -8.5 - oy, math.pi / 2], "static_13": [60 - ox, -8.2 - oy, 0.0]},
+}))`;
+  return JSON.parse(execFileSync(PYTHON, ["-c", code, dir], { cwd: ROOT, stdio: ["ignore", "pipe", "ignore"] }).toString());
+}
+
+/** Drop files (paths on disk) on the page as a person does: a real DragEvent carrying them, on the scenario panel. */
+async function drop(paths) {
+  const files = paths.map((p) => ({ name: basename(p), text: readFileSync(p, "utf8") }));
+  return page.evaluate(async (files) => {
+    const pg = window.playground;
+    pg.state.imported = undefined;
+    pg.state.lastError = null;
+    const dt = new DataTransfer();
+    for (const f of files) dt.items.add(new File([f.text], f.name));
+    const target = document.querySelector(".scenario-panel");
+    target.dispatchEvent(new DragEvent("dragover", { dataTransfer: dt, bubbles: true, cancelable: true }));
+    target.dispatchEvent(new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+    const end = Date.now() + 60_000;
+    while (pg.state.imported === undefined && Date.now() < end) await new Promise((r) => setTimeout(r, 50));
+    return { imported: pg.state.imported, error: pg.state.lastError, scenario: pg.readForm(),
+      desc: document.getElementById("preset-desc").textContent };
+  }, files);
+}
+
+function cliImport(file) {
+  const out = join(dirname(file), "cli.json");
+  execFileSync(PYTHON, ["-m", "worldsplat.cli", "import-scenario", file, "--out", out], { cwd: ROOT, stdio: "ignore" });
+  return JSON.parse(readFileSync(out, "utf8"));
+}
+
+test("OpenSCENARIO, CommonRoad and scenario JSON files dropped on the page load as the scenario", T, async () => {
+  const dir = mkdtempSync(join(tmpdir(), "ws-drop-"));
+  try {
+    const f = writeScenarioFiles(dir);
+    const checkBoxes = (scenario, want, what) => {
+      const boxes = worldBoxes(scenario, 0);
+      assert.deepEqual(Object.keys(boxes).sort(), Object.keys(want).sort(), what);
+      for (const [id, [x, y, yaw]] of Object.entries(want)) {
+        const b = boxes[id], dyaw = ((b[2] - yaw + 3 * Math.PI) % (2 * Math.PI)) - Math.PI;
+        assert.ok(Math.hypot(b[0] - x, b[1] - y) < 0.3 && Math.abs(dyaw) < 3 * Math.PI / 180,
+          `${what} ${id}: box ${b} not ${[x, y, yaw]}`);
+      }
+    };
+    // .xosc with its .xodr road: the scenario the CLI writes for the same file, every agent where the file put it
+    let r = await drop([f.xosc, join(dirname(f.xosc), "road.xodr")]);
+    assert.equal(r.error, null);
+    assert.equal(r.imported.format, "openscenario");
+    assert.deepEqual(r.scenario, cliImport(f.xosc));
+    assert.match(r.desc, /Imported from cut_in\.xosc \(openscenario, 4 agent/);
+    checkBoxes(r.scenario, f.want_xosc, "OpenSCENARIO");
+    // CommonRoad
+    r = await drop([f.cr]);
+    assert.equal(r.error, null);
+    assert.equal(r.imported.format, "commonroad");
+    assert.deepEqual(r.scenario, cliImport(f.cr));
+    assert.match(r.desc, /warning/);
+    checkBoxes(r.scenario, f.want_cr, "CommonRoad");
+    assert.deepEqual(await page.evaluate(() => window.scenarioEditor.ui.selected), null);
+    // a scenario JSON (version 1: migrated)
+    const v1 = join(dir, "mine.json");
+    writeFileSync(v1, JSON.stringify({ version: 1, seed: 11, traffic: { moving_vehicles: 2 } }));
+    r = await drop([v1]);
+    assert.equal(r.error, null);
+    assert.equal(r.scenario.version, 2);
+    assert.equal(r.scenario.seed, 11);
+    assert.equal(await page.inputValue('[data-field="seed"]'), "11");
+    // a file the world cannot represent: the error banner names the element; the scenario stays as it was
+    r = await drop([f.bad, join(dirname(f.bad), "road.xodr")]);
+    assert.equal(r.imported, null);
+    assert.match(r.error, /import cut_in\.xosc: .*Event\[tweak\]\/Action\[set_param\]\/ParameterSetAction: not supported/);
+    assert.match(r.error, /HTTP 422/);
+    assert.equal(r.scenario.seed, 11);
+    assert.ok(await page.isVisible("#error"));
+    // the .xosc without its road: refused by name
+    r = await drop([f.xosc]);
+    assert.match(r.error, /RoadNetwork\/LogicFile\[road\.xodr\]: not among the files given/);
+    await page.click("#error-close");
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
   }
 });
 

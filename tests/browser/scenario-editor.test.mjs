@@ -413,6 +413,9 @@ test("OpenSCENARIO, CommonRoad and scenario JSON files dropped on the page load 
 });
 
 test("the scenario panel holds at 1280x720, 1920x1080 and 390x844 with classic scrollbars", T, async () => {
+  // the longest panel: an agent with scripted events selected, so the editor's event rows show too
+  await page.selectOption("#preset", "cut_in");
+  await page.evaluate(() => window.scenarioEditor.select(0));
   for (const [w, h] of [[1280, 720], [1920, 1080], [390, 844]]) {
     await page.setViewportSize({ width: w, height: h });
     await page.waitForTimeout(200);
@@ -421,10 +424,18 @@ test("the scenario panel holds at 1280x720, 1920x1080 and 390x844 with classic s
       const mode = document.getElementById("mode").getBoundingClientRect();
       const pr = panel.getBoundingClientRect();
       const scrollbar = panel.offsetWidth - panel.clientWidth - 2;  // minus the 1 px borders
-      return { scrollW: panel.scrollWidth, clientW: panel.clientWidth, modeRight: mode.right,
-        innerRight: pr.left + panel.clientLeft + panel.clientWidth, scrollbar,
-        docW: document.documentElement.scrollWidth, vw: window.innerWidth };
+      const stage = document.querySelector(".stage"), controls = document.querySelector(".controls");
+      const innerRight = pr.left + panel.clientLeft + panel.clientWidth;
+      const out = [...document.querySelectorAll("#ed-script *")].filter((el) => {
+        const r = el.getBoundingClientRect();
+        return r.width > 0 && r.right > innerRight + 0.5;
+      }).map((el) => el.id || el.tagName);
+      return { scrollW: panel.scrollWidth, clientW: panel.clientWidth, modeRight: mode.right, innerRight, scrollbar,
+        docW: document.documentElement.scrollWidth, vw: window.innerWidth, script: !document.getElementById("ed-script").hidden,
+        out, stage: [stage.scrollWidth, stage.clientWidth], controls: [controls.scrollWidth, controls.clientWidth] };
     });
+    assert.ok(m.script && m.out.length === 0, `${w}x${h}: the event rows leave the panel ${JSON.stringify(m)}`);
+    assert.ok(m.stage[0] <= m.stage[1] && m.controls[0] <= m.controls[1], `${w}x${h}: the stage scrolls sideways ${JSON.stringify(m)}`);
     await page.screenshot({ path: join(ARTIFACTS, `scenario-panel-${w}x${h}.png`) });
     assert.ok(m.scrollW <= m.clientW, `${w}x${h}: the panel scrolls sideways ${JSON.stringify(m)}`);
     assert.ok(m.modeRight <= m.innerRight + 0.5, `${w}x${h}: the Mode select is cut off ${JSON.stringify(m)}`);

@@ -119,9 +119,9 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
         <ul id="ed-events" class="ed-list" aria-label="scripted events of the selected agent"></ul>
         <div class="ed-row ed-new-event" id="ed-new-event">
           <select id="ed-ev-action" aria-label="event to add">${Object.entries(ACTIONS).map(([v, n]) => `<option value="${v}">${n}</option>`).join("")}</select>
-          <label>at s <input type="number" id="ed-ev-t" min="0" max="60" step="0.25" value="0.5" aria-label="event time in seconds"></label>
+          <label>at (s) <input type="number" id="ed-ev-t" min="0" max="60" step="0.25" value="0.5" aria-label="event time in seconds"></label>
           <label id="ed-ev-arg-label"><span id="ed-ev-arg-name">lane</span> <input type="number" id="ed-ev-arg" min="0" max="40" step="1" aria-label="target lane or speed"></label>
-          <label>over s <input type="number" id="ed-ev-dur" min="0.2" max="20" step="0.1" value="2" aria-label="event duration in seconds"></label>
+          <label>over (s) <input type="number" id="ed-ev-dur" min="0.2" max="20" step="0.1" value="2" aria-label="event duration in seconds"></label>
           <button type="button" id="ed-ev-add" class="btn small" title="add the event (Enter)">+ event</button>
         </div>
         <ul id="ed-keys" class="ed-list" aria-label="path keyframes"></ul>

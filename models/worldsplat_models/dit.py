@@ -134,11 +134,48 @@ class HintEncoder(nn.Module):
         layers.append(nn.Conv2d(widths[-1], dim, 1))
         self.net = nn.Sequential(*layers)
 
-    def forward(self, x: torch.Tensor, grid: tuple[int, int]) -> torch.Tensor:
-        f = self.net(x)
+        self.widths = widths
+
+    def forward(self, x: torch.Tensor, grid: tuple[int, int], fine_stride: int = 0):
+        """-> tokens (N, S, D); with `fine_stride` also the feature map after that much down-sampling
+        (N, widths[log2 fine_stride], H/fine_stride, W/fine_stride), for the latent-resolution head."""
+        fine, stride = None, 1
+        f = x
+        for layer in self.net:
+            f = layer(f)
+            if isinstance(layer, nn.SiLU) and stride == fine_stride and fine is None:
+                fine = f
+            if isinstance(layer, nn.Conv2d) and layer.stride[0] == 2:
+                stride *= 2
         if tuple(f.shape[-2:]) != tuple(grid):
             raise ValueError(f"HintEncoder: layout map gives a {tuple(f.shape[-2:])} grid, the tokens are {grid}")
-        return f.flatten(2).transpose(1, 2)
+        tokens = f.flatten(2).transpose(1, 2)
+        if fine_stride:
+            if fine is None:
+                raise ValueError(f"HintEncoder: no feature map at stride {fine_stride}")
+            return tokens, fine
+        return tokens
+
+
+class LatentRefiner(nn.Module):
+    """Convolutional head at latent resolution (v3): residual on the unpatchified token output, from [token output,
+    z_s, layout features], with the flow time as a per-channel bias. The last conv starts at zero, so a fresh head
+    leaves the token output as it is."""
+
+    def __init__(self, latent_channels: int, out_channels: int, hint_channels: int, width: int, dim: int):
+        super().__init__()
+        self.inp = nn.Conv2d(out_channels + latent_channels + hint_channels, width, 3, padding=1)
+        self.time = nn.Linear(dim, width)
+        self.mid = nn.Conv2d(width, width, 3, padding=1)
+        self.out = nn.Conv2d(width, out_channels, 3, padding=1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, out: torch.Tensor, z: torch.Tensor, hint: torch.Tensor, t_emb: torch.Tensor) -> torch.Tensor:
+        """out (N, Co, h, w), z (N, C, h, w), hint (N, Ch, h, w), t_emb (N, dim) -> (N, Co, h, w)."""
+        h = F.silu(self.inp(torch.cat([out, z, hint], 1)) + self.time(t_emb)[:, :, None, None])
+        h = F.silu(self.mid(h))
+        return out + self.out(h)
 
 
 class DiT4D(nn.Module):
@@ -167,6 +204,17 @@ class DiT4D(nn.Module):
         for lin in [self.control_in, *self.control_out]:
             nn.init.zeros_(lin.weight)
             nn.init.zeros_(lin.bias)
+        if cfg.control_at_input or cfg.refine_channels:
+            if not cfg.control_hint:
+                raise ValueError("DiTConfig: control_at_input / refine_channels need pixel-space layout (control_hint)")
+        if cfg.control_at_input:
+            self.control_input = nn.Linear(D, D)  # layout tokens into the main stream, trained from the start
+        self.fine_stride = cfg.control_hint // p
+        if cfg.refine_channels:
+            if self.fine_stride < 1 or cfg.control_hint % p:
+                raise ValueError(f"DiTConfig: control_hint {cfg.control_hint} is not a multiple of patch {p}")
+            hint_ch = self.control_embed.widths[int(round(math.log2(self.fine_stride)))]
+            self.refiner = LatentRefiner(cfg.in_channels, cfg.out_channels, hint_ch, cfg.refine_channels, D)
         # output
         self.final_norm = nn.LayerNorm(D, elementwise_affine=False, eps=1e-6)
         self.final_ada = nn.Sequential(nn.SiLU(), nn.Linear(D, 2 * D))
@@ -210,11 +258,19 @@ class DiT4D(nn.Module):
         control = cond["control"]
         if drop is not None:
             control = torch.where(drop.bool().view(B, 1, 1, 1, 1, 1), torch.zeros_like(control), control)
+        hint = None
         if cfg.control_hint:
-            ctl_tok = self.control_embed(control.reshape(B * T * V, *control.shape[3:]), (hp, wp))
+            flat = control.reshape(B * T * V, *control.shape[3:])
+            if cfg.refine_channels:
+                ctl_tok, hint = self.control_embed(flat, (hp, wp), self.fine_stride)
+            else:
+                ctl_tok = self.control_embed(flat, (hp, wp))
         else:
             ctl_tok = self._tokens(control, self.control_embed)
-        ctl = tok + self.control_in(ctl_tok.reshape(B, T, V * S, D))
+        ctl_tok = ctl_tok.reshape(B, T, V * S, D)
+        if cfg.control_at_input:
+            tok = tok + self.control_input(ctl_tok)
+        ctl = tok + self.control_in(ctl_tok)
         residuals = []
         for blk, out in zip(self.control_blocks, self.control_out):
             ctl = blk(ctl, t_emb, c_tok, c_mask, T, V)
@@ -229,7 +285,12 @@ class DiT4D(nn.Module):
         out = self.final(modulate(self.final_norm(tok), shift, scale))
         Co = cfg.out_channels
         out = out.reshape(B, T, V, hp, wp, Co, p, p).permute(0, 1, 2, 5, 3, 6, 4, 7)
-        return out.reshape(B, T, V, Co, h, w)
+        out = out.reshape(B, T, V, Co, h, w)
+        if cfg.refine_channels:
+            t_rep = t_emb[:, None].expand(B, T * V, D).reshape(B * T * V, D)
+            out = self.refiner(out.reshape(B * T * V, Co, h, w), x.reshape(B * T * V, C, h, w), hint, t_rep)
+            out = out.reshape(B, T, V, Co, h, w)
+        return out
 
     def init_control_from_base(self) -> None:
         """ControlNet convention: the control blocks start as copies of the base blocks."""

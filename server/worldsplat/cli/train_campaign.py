@@ -21,6 +21,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--ckpt-every", type=int, default=None)
+    p.add_argument("--init", type=Path, help="vae|decoder|dit: warm start from a weight file (matching tensors)")
     p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/campaign)")
 
 
@@ -33,6 +34,8 @@ def run(a: argparse.Namespace) -> int:
                 raise ValueError(f"train-campaign {a.stage}: --{n} is required")
 
     kw = {} if a.ckpt_every is None else {"ckpt_every": a.ckpt_every}
+    if a.init is not None and a.stage in ("vae", "decoder", "dit"):
+        kw["init"] = a.init
     if a.lr is not None:
         kw["lr"] = a.lr
     if a.stage == "vae":

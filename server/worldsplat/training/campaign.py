@@ -48,15 +48,40 @@ def vae_config(channels=(32, 96), latent: int = 8, blocks: int = 1) -> VAEConfig
 
 
 def dit_config(vae) -> DiTConfig:
+    """v3: layout tokens at the main stream's input and a latent-resolution conv head (no ControlNet copies: the
+    v2 DiT, with them, had not learned to follow the layout after 600 steps)."""
     C = vae.cfg.joint_channels
     hint = vae.cfg.downsample * 4
-    return DiTConfig(in_channels=C, out_channels=C, patch=4, control_channels=7, control_hint=hint)
+    return DiTConfig(
+        in_channels=C,
+        out_channels=C,
+        patch=4,
+        control_channels=7,
+        control_hint=hint,
+        control_depth=0,
+        control_at_input=True,
+        refine_channels=64,
+    )
 
 
 def decoder_config(vae) -> GSDecoderConfig:
     return GSDecoderConfig(
         in_channels=vae.cfg.joint_channels, patch=2, up_channels=(64, 32), guide_channels=5, reread_latent=True
     )
+
+
+def warm_start(model: torch.nn.Module, init: Path | None, kind: str) -> torch.nn.Module:
+    """Copy every tensor of the weight file `init` whose name and shape match (a fresh machine continues from the
+    committed fp16 snapshot; a changed architecture keeps what it shares). The checkpoint in `out`, when present,
+    still wins: train_loop resumes from it after this."""
+    if init is None:
+        return model
+    src = load_weights(init, kind).state_dict()
+    own = model.state_dict()
+    same = {k: v for k, v in src.items() if k in own and own[k].shape == v.shape}
+    model.load_state_dict(same, strict=False)
+    print(json.dumps({"warm_start": str(init), "copied": len(same), "of": len(own)}), flush=True)
+    return model
 
 
 def shard_files(data: Path, split: str, limit: int | None = None) -> list[Path]:
@@ -117,12 +142,13 @@ def train_vae(
     threads: int = 1,
     ckpt_every: int = 250,
     test_clips: int = 4,
+    init: Path | None = None,
 ) -> None:
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
     samples = load_images(shard_files(data, "train", clips))
     test = load_images(shard_files(data, "test", test_clips))
-    vae = MultiModalVAE(vae_config(channels, latent, blocks))
+    vae = warm_start(MultiModalVAE(vae_config(channels, latent, blocks)), init, "vae")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=50, threads=threads)
     t0 = time.time()
 
@@ -200,13 +226,14 @@ def train_decoder(
     render_every: int = 4,
     threads: int = 1,
     ckpt_every: int = 25,
+    init: Path | None = None,
 ) -> None:
     torch.set_num_threads(threads)
     vae = load_weights(vae_path, "vae").eval()
     samples = load_cache(out, "train")[:clips]
     for s in samples:
         s["L"] = s["L"].float()
-    dec = GaussianDecoder(decoder_config(vae))
+    dec = warm_start(GaussianDecoder(decoder_config(vae)), init, "decoder")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=25, ckpt_every=ckpt_every, log_every=10, threads=threads)
     step = decoder_step_fn(samples, DCFG, render_every=render_every, render_views=2, guide_fn=guide_from(vae))
 
@@ -233,12 +260,13 @@ def train_dit(
     lr: float = 5e-4,
     threads: int = 1,
     ckpt_every: int = 100,
+    init: Path | None = None,
 ) -> None:
     torch.set_num_threads(threads)
     vae = load_weights(vae_path, "vae").eval()
     samples = load_cache(out, "train")[:clips]
     test = load_cache(out, "test")[:4]
-    dit = DiT4D(dit_config(vae))
+    dit = warm_start(DiT4D(dit_config(vae)), init, "dit")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=10, threads=threads)
 
     def step(model, step_i, gen):

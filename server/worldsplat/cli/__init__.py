@@ -14,7 +14,9 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "presets": ("worldsplat.cli.presets", "list the shipped scenario presets"),
     "sim": ("worldsplat.cli.sim", "render a scenario's exact ground truth (RGB, depth, masks, conditions)"),
-    "dataset": ("worldsplat.cli.dataset", "write a sharded, resumable training dataset"),
+    "dataset": ("worldsplat.cli.dataset", "write a sharded, resumable training dataset (locally or on Ray)"),
+    "batch": ("worldsplat.cli.batch", "many scenarios -> many scenes, resumable (locally or on Ray)"),
+    "export-nuscenes": ("worldsplat.cli.export_nuscenes", "scenes or dataset clips -> the nuScenes layout"),
     "generate": ("worldsplat.cli.generate", "scenario -> 4D Gaussian scene (.wsplat)"),
     "render": ("worldsplat.cli.render", "render a .wsplat/.ply at a rig camera or any camera"),
     "export": ("worldsplat.cli.ply", "export a .wsplat to a standard 3DGS .ply"),

@@ -1,9 +1,12 @@
-"""`worldsplat dataset --count N --split train|val|test --out DIR`: sharded, resumable world dataset."""
+"""`worldsplat dataset --count N --split train|val|test --out DIR [--ray [auto|local|ADDRESS]]`: sharded,
+resumable world dataset, on this machine or as Ray tasks (the same shards either way; web/docs/scale-out.md)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+from worldsplat.scale.ray_runner import TaskFailures, add_ray_arguments, ray_session, resources_from_args
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -18,6 +21,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset-mix", action="store_true", help="vary the shipped presets instead of fully random")
     p.add_argument("--shifts", default="", help="comma-separated lateral shifts (m) to also render, e.g. 1,2,-2")
     p.add_argument("--no-progress", action="store_true")
+    add_ray_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,10 +30,7 @@ def run(args: argparse.Namespace) -> int:
     if args.count < 1:
         raise ValueError("--count must be at least 1")
     shifts = tuple(float(s) for s in args.shifts.split(",") if s.strip())
-    res = write_dataset(
-        args.out,
-        args.split,
-        args.count,
+    kw = dict(
         width=args.width,
         height=args.height,
         frames=args.frames,
@@ -39,5 +40,17 @@ def run(args: argparse.Namespace) -> int:
         start=args.start,
         progress=not args.no_progress,
     )
+    if args.ray is None:
+        res = write_dataset(args.out, args.split, args.count, **kw)
+    else:
+        from worldsplat.scale.dataset import write_dataset_ray
+
+        resources = resources_from_args(args)
+        try:
+            with ray_session(args.ray):
+                res = write_dataset_ray(args.out, args.split, args.count, resources=resources, **kw)
+        except TaskFailures as e:
+            print(f"worldsplat dataset: {e} (finished shards are kept; run the same command again to do the rest)")
+            return 1
     print(f"{args.split}: wrote {res['written']} clip(s), skipped {res['skipped']} complete; {res['manifest']}")
     return 0

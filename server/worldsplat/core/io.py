@@ -7,6 +7,7 @@ import io
 import json
 import os
 import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -46,8 +47,21 @@ def write_json_atomic(
     atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=sort_keys, allow_nan=allow_nan).encode(), tmp_dir)
 
 
-def write_npz_atomic(path: str | Path, arrays: dict, compressed: bool = False) -> None:
-    """An .npz of `arrays` to `path` atomically."""
+def npz_bytes(arrays: dict, compressed: bool = False) -> bytes:
+    """What `np.savez[_compressed]` writes, but reproducible: every member carries the same fixed zip timestamp
+    (numpy stamps the wall clock), so the same arrays always give the same bytes (a dataset written twice, or by
+    another machine, compares equal byte for byte)."""
     buf = io.BytesIO()
-    (np.savez_compressed if compressed else np.savez)(buf, **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+    method = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
+    with zipfile.ZipFile(buf, "w", compression=method, allowZip64=True) as zf:
+        for key, value in arrays.items():
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = method
+            with zf.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=True)
+    return buf.getvalue()
+
+
+def write_npz_atomic(path: str | Path, arrays: dict, compressed: bool = False) -> None:
+    """An .npz of `arrays` to `path` atomically (reproducible bytes: `npz_bytes`)."""
+    atomic_write_bytes(path, npz_bytes(arrays, compressed))

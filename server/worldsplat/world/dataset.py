@@ -118,6 +118,81 @@ def load_shard(path: str | Path) -> dict:
     return d
 
 
+def clip_scenario(
+    split: str, index: int, width: int = 112, height: int = 64, frames: int = 4, fps: float = 4.0, preset_mix=False
+) -> Scenario:
+    """The scenario of clip `index` of a split (its seed is `split_seed(split, index)`)."""
+    seed = split_seed(split, index)
+    return random_scenario(seed, width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix)
+
+
+def write_clip(out: Path, split: str, index: int, shifts: tuple[float, ...] = (), **scenario_kw) -> tuple[dict, bool]:
+    """Clip `index`: its manifest entry, and its shard written unless a complete one exists (-> entry, written).
+    The one per-clip step of `write_dataset`, also what a worker of a distributed run calls
+    (worldsplat.scale.dataset), so both write the same bytes."""
+    sc = clip_scenario(split, index, **scenario_kw)
+    path = shard_path(out, split, index)
+    entry = {"file": path.name, "seed": sc.seed, "scenario_id": scenario_id(sc)}
+    if path.exists():
+        return entry, False
+    write_shard(path, clip_arrays(sc, shifts))
+    return entry, True
+
+
+def run_params(width: int, height: int, frames: int, fps: float, preset_mix: bool, shifts) -> dict:
+    """What the manifest records about how its clips were made; a later run into the same folder must match."""
+    return {"image": [width, height], "frames": frames, "fps": fps, "preset_mix": preset_mix, "shifts": list(shifts)}
+
+
+def check_same_run(out: Path, split: str, indices: range, shifts: tuple[float, ...] = (), **scenario_kw) -> None:
+    """Refuse to resume into a split folder written by another run (other image size, frames, fps, preset mix or
+    shifts): its manifest, and the first complete shard in `indices`, must be what this run would write."""
+    folder = Path(out) / split
+    mpath = folder / "manifest.json"
+    kw = {"width": 112, "height": 64, "frames": 4, "fps": 4.0, "preset_mix": False, **scenario_kw}
+    mine = run_params(kw["width"], kw["height"], kw["frames"], kw["fps"], kw["preset_mix"], shifts)
+    if mpath.exists():
+        theirs = json.loads(mpath.read_text())
+        diff = [f"{k} {theirs.get(k)} (this run: {v})" for k, v in mine.items() if theirs.get(k) != v]
+        if diff:
+            raise ValueError(f"{folder} holds a dataset of another run: {'; '.join(diff)}; write to another --out")
+    for i in indices:
+        path = shard_path(out, split, i)
+        if path.exists():
+            with np.load(path, allow_pickle=False) as z:
+                theirs = str(z["scenario"]) if "scenario" in z.files else ""
+            if theirs != clip_scenario(split, i, **scenario_kw).normalized_json():
+                raise ValueError(
+                    f"{path} was written by another run (its scenario differs from clip {i} of this one: other "
+                    f"image size, frames, fps or preset mix); write to another --out"
+                )
+            break
+
+
+def write_manifest(out: Path, split: str, entries: list[dict], params: dict) -> Path:
+    """Merge `entries` into OUT/SPLIT/manifest.json (atomic); `params` from `run_params`."""
+    mpath = Path(out) / split / "manifest.json"
+    clips = {c["file"]: c for c in (json.loads(mpath.read_text())["clips"] if mpath.exists() else [])}
+    clips.update({c["file"]: c for c in entries})
+    manifest = {
+        "format": "worldsplat-dataset-v1",
+        "split": split,
+        "seed_range": [SPLIT_BASE[split], SPLIT_BASE[split] + SPLIT_SIZE],
+        **params,
+        "keys": list(SHARD_KEYS),
+        "clips": [clips[k] for k in sorted(clips)],
+    }
+    write_json_atomic(mpath, manifest, sort_keys=False)
+    return mpath
+
+
+def prepare_split(out: Path, split: str) -> None:
+    """Create OUT/SPLIT and remove the temporary files an interrupted writer left (never taken for shards)."""
+    (Path(out) / split).mkdir(parents=True, exist_ok=True)
+    for stale in (Path(out) / split).glob(".clip_*.tmp"):
+        stale.unlink(missing_ok=True)
+
+
 def write_dataset(
     out: Path,
     split: str,
@@ -134,35 +209,16 @@ def write_dataset(
     """Write clips start..start+count-1 of a split; existing complete shards are skipped (resumable)."""
 
     out = Path(out)
-    (out / split).mkdir(parents=True, exist_ok=True)
-    for stale in (out / split).glob(".clip_*.tmp"):
-        stale.unlink()
+    kw = dict(width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix)
+    indices = range(start, start + count)
+    check_same_run(out, split, indices, shifts, **kw)
+    prepare_split(out, split)
     written = skipped = 0
     index = []
-    for i in tqdm(range(start, start + count), desc=f"dataset {split}", unit="clip", disable=not progress):
-        seed = split_seed(split, i)
-        sc = random_scenario(seed, width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix)
-        path = shard_path(out, split, i)
-        index.append({"file": path.name, "seed": seed, "scenario_id": scenario_id(sc)})
-        if path.exists():
-            skipped += 1
-            continue
-        write_shard(path, clip_arrays(sc, shifts))
-        written += 1
-    mpath = out / split / "manifest.json"
-    clips = {c["file"]: c for c in (json.loads(mpath.read_text())["clips"] if mpath.exists() else [])}
-    clips.update({c["file"]: c for c in index})
-    manifest = {
-        "format": "worldsplat-dataset-v1",
-        "split": split,
-        "seed_range": [SPLIT_BASE[split], SPLIT_BASE[split] + SPLIT_SIZE],
-        "image": [width, height],
-        "frames": frames,
-        "fps": fps,
-        "preset_mix": preset_mix,
-        "shifts": list(shifts),
-        "keys": list(SHARD_KEYS),
-        "clips": [clips[k] for k in sorted(clips)],
-    }
-    write_json_atomic(mpath, manifest, sort_keys=False)
+    for i in tqdm(indices, desc=f"dataset {split}", unit="clip", disable=not progress):
+        entry, wrote = write_clip(out, split, i, shifts, **kw)
+        index.append(entry)
+        written += wrote
+        skipped += not wrote
+    mpath = write_manifest(out, split, index, run_params(width, height, frames, fps, preset_mix, shifts))
     return {"written": written, "skipped": skipped, "manifest": str(mpath)}

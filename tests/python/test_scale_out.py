@@ -1,0 +1,199 @@
+"""Beyond one machine (issue 14): the dataset and a scene batch through a local Ray equal the local runs byte for
+byte, a task whose worker is killed mid-way is redone, bad input is refused clearly, and the nuScenes export loads
+in the official devkit with every box on its agent's pixels."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from worldsplat.cli import main as cli_main
+from worldsplat.core.scenario import load_preset
+
+pytestmark = pytest.mark.slow
+
+DATASET = ["--count", "3", "--split", "val", "--width", "48", "--height", "32", "--frames", "2", "--no-progress"]
+CAMERAS = ["CAM_FRONT", "CAM_BACK"]
+
+
+def scenario_lines(seeds=(1, 2, 3)) -> str:
+    base = load_preset("urban_straight")
+    return "".join(
+        base.with_updates(
+            seed=s, image={"width": 48, "height": 32}, clip={"frames": 2}, rig={"cameras": CAMERAS}
+        ).normalized_json()
+        + "\n"
+        for s in seeds
+    )
+
+
+def files(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def local(tmp_path_factory):
+    """The local runs, in a fresh interpreter: the reference outputs, and proof that without --ray nothing imports
+    Ray (then an unreachable --ray address, which must fail before Ray connects anywhere)."""
+    root = tmp_path_factory.mktemp("local")
+    (root / "scenarios.jsonl").write_text(scenario_lines())
+    script = textwrap.dedent(
+        f"""
+        import sys
+        from worldsplat.cli import main
+        assert main(["dataset", *{DATASET!r}, "--out", {str(root / "data")!r}]) == 0
+        assert main(["batch", {str(root / "scenarios.jsonl")!r}, "--mode", "oracle", "--out", {str(root / "batch")!r},
+                     "--no-progress"]) == 0
+        assert not [m for m in sys.modules if m == "ray" or m.startswith("ray.")], "ray imported without --ray"
+        print("RAY-NOT-IMPORTED")
+        sys.exit(main(["batch", {str(root / "scenarios.jsonl")!r}, "--mode", "oracle", "--out",
+                       {str(root / "unreachable")!r}, "--ray", "127.0.0.1:9", "--no-progress"]))
+        """
+    )
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert "RAY-NOT-IMPORTED" in p.stdout, p.stderr[-3000:]
+    assert p.returncode == 2 and "cannot reach a Ray cluster at 127.0.0.1:9" in p.stderr, p.stderr[-2000:]
+    assert not (root / "unreachable" / "run.json").exists()
+    return root
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_dataset_and_batch_on_ray_equal_the_local_run(local, ray_local, tmp_path, capsys):
+    assert cli_main(["dataset", *DATASET, "--out", str(tmp_path / "data"), "--ray", "--ray-memory-gb", "0.25"]) == 0
+    assert files(tmp_path / "data") == files(local / "data")  # shards and manifest, byte for byte
+    batch = ["batch", str(local / "scenarios.jsonl"), "--mode", "oracle", "--no-progress"]
+    assert cli_main([*batch, "--out", str(tmp_path / "batch"), "--ray", "--ray-memory-gb", "0.25"]) == 0
+    assert files(tmp_path / "batch") == files(local / "batch")
+    assert len(list((tmp_path / "batch" / "scenes").glob("*.wsplat"))) == 3
+    capsys.readouterr()
+    # A finished scene or shard is never redone.
+    assert cli_main([*batch, "--out", str(tmp_path / "batch"), "--ray"]) == 0
+    assert "wrote 0 scene(s), skipped 3" in capsys.readouterr().out
+    # The folder of another run is refused on Ray too, before any task.
+    assert cli_main(["dataset", *DATASET, "--out", str(tmp_path / "data"), "--ray", "--width", "40"]) == 2
+    assert "another run" in capsys.readouterr().err
+
+
+def test_a_task_whose_worker_is_killed_midway_is_redone(local, ray_local, tmp_path):
+    from worldsplat.scale.dataset import write_dataset_ray
+    from worldsplat.scale.ray_runner import TaskResources
+
+    marker, split_dir = str(tmp_path / "killed"), str(tmp_path / "data" / "val")
+
+    def die_once(index):  # nested: Ray ships it by value to the worker
+        if index == 1 and not os.path.exists(marker):
+            open(marker, "w").close()
+            with open(os.path.join(split_dir, ".clip_000001.npz.torn.tmp"), "wb") as f:
+                f.write(b"half a shard")  # what a writer killed mid-write leaves
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    res = write_dataset_ray(
+        tmp_path / "data", "val", 3, width=48, height=32, frames=2, progress=False,
+        resources=TaskResources(memory_gb=0.25, retries=2), fault=die_once,
+    )  # fmt: skip
+    assert os.path.exists(marker)  # the worker did die
+    assert (res["written"], res["skipped"]) == (3, 0)
+    assert files(tmp_path / "data") == files(local / "data")  # redone, and no torn temporary left behind
+
+
+def test_bad_input_is_refused_clearly(local, tmp_path, capsys):
+    good = scenario_lines((1,)).strip()
+    bad = json.loads(good)
+    bad["road"]["lanes_per_direction"] = 9
+    (tmp_path / "bad.jsonl").write_text(f"{good}\n\n{json.dumps(bad)}\nnot json\n")
+    assert cli_main(["batch", str(tmp_path / "bad.jsonl"), "--mode", "oracle", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.jsonl line 3: invalid scenario: road.lanes_per_direction" in err and "line 4: not JSON" in err
+    assert not (tmp_path / "o").exists()
+    # An output folder of another run: other mode, other scenarios, not a batch at all.
+    out = str(local / "batch")
+    assert cli_main(["batch", str(local / "scenarios.jsonl"), "--mode", "reconstruct", "--out", out]) == 2
+    assert "holds a batch of another run (mode 'oracle' (this run: 'reconstruct'))" in capsys.readouterr().err
+    (tmp_path / "two.jsonl").write_text(scenario_lines((1, 2)))
+    assert cli_main(["batch", str(tmp_path / "two.jsonl"), "--mode", "oracle", "--out", out]) == 2
+    assert "other scenarios" in capsys.readouterr().err
+    assert cli_main(["batch", str(local / "scenarios.jsonl"), "--mode", "oracle", "--out", str(local / "data")]) == 2
+    assert "holds no worldsplat batch" in capsys.readouterr().err
+    assert cli_main(["dataset", *DATASET, "--out", str(local / "data"), "--frames", "3"]) == 2
+    assert "holds a dataset of another run: frames 2 (this run: 3)" in capsys.readouterr().err
+
+
+def test_nuscenes_export_loads_in_the_devkit_with_every_box_on_its_agent(local, tmp_path):
+    pytest.importorskip("nuscenes")
+    from nuscenes.nuscenes import NuScenes
+    from nuscenes.utils.geometry_utils import BoxVisibility, view_points
+    from PIL import Image
+
+    from worldsplat.gaussians import wsplat
+    from worldsplat.pipeline.refine import scenario_of
+    from worldsplat.pipeline.render import render_scene_track
+    from worldsplat.world import build_world
+    from worldsplat.world.instances import instance_mask
+
+    src = tmp_path / "two"
+    src.mkdir()
+    for p in sorted((local / "batch" / "scenes").glob("*.wsplat"))[:2]:
+        shutil.copy(p, src / p.name)
+    root = tmp_path / "nusc"
+    assert cli_main(["export-nuscenes", str(src), "--out", str(root), "--shifts", "2", "--no-progress"]) == 0
+    assert not list(root.glob(".*"))  # the tables' staging folder is renamed into place
+    nusc = NuScenes(version="v1.0-mini-like", dataroot=str(root), verbose=False)
+    side = json.loads((root / "v1.0-mini-like" / "worldsplat.json").read_text())
+    info = {s["scene_token"]: s for s in side["scenes"]}
+    assert len(nusc.scene) == 4 and sorted(s["shift_m"] for s in info.values()) == [0, 0, 2, 2]  # shifted: extra logs
+    assert len(nusc.log) == 4 and len(nusc.map) == 2
+    checked = whole = 0
+    for scene in nusc.scene:
+        src_scene = wsplat.read(info[scene["token"]]["source"])
+        world = build_world(scenario_of(src_scene))
+        shift = info[scene["token"]]["shift_m"]
+        names = [c.name for c in world.rig]
+        token, t = scene["first_sample_token"], 0
+        while token:
+            sample = nusc.get("sample", token)
+            assert sorted(sample["data"]) == sorted(CAMERAS)
+            for channel, sd in sample["data"].items():
+                path, boxes, K = nusc.get_sample_data(sd, box_vis_level=BoxVisibility.ANY)
+                v = names.index(channel)
+                cam = world.rig[v].at(world.ego_to_world[t], shift)
+                if t == 0 and channel == "CAM_FRONT":  # the image is the scene's rendered track at that camera
+                    ref = render_scene_track(src_scene, shift, views=[v], frames=[0]).rgb[0, 0].astype(float)
+                    assert np.abs(np.asarray(Image.open(path), float) - ref).mean() < 4.0
+                ids = instance_mask(world, t, cam)
+                for box in boxes:
+                    ann = nusc.get("sample_annotation", box.token)
+                    k = side["instances"][ann["instance_token"]]["agent"]
+                    pix = np.argwhere(ids == k)  # (row, col) of the agent's pixels
+                    corners = box.corners()
+                    if len(pix) < 4 or (corners[2] <= 0.1).any():
+                        continue
+                    uv = view_points(corners, K, normalize=True)[:2]
+                    u0, u1, v0, v1 = uv[0].min(), uv[0].max(), uv[1].min(), uv[1].max()
+                    cu, cv = pix[:, 1] + 0.5, pix[:, 0] + 0.5
+                    inside = ((cu >= u0 - 1) & (cu <= u1 + 1) & (cv >= v0 - 1) & (cv <= v1 + 1)).mean()
+                    assert inside >= 0.99, (channel, t, k, inside)  # the agent's pixels lie within its box
+                    checked += 1
+                    if ann["visibility_token"] == "4" and len(pix) >= 8 and u0 >= 0 and v0 >= 0:
+                        if u1 <= cam.width and v1 <= cam.height:  # wholly seen: the box fits its pixels
+                            pu0, pu1, pv0, pv1 = cu.min() - 0.5, cu.max() + 0.5, cv.min() - 0.5, cv.max() + 0.5
+                            iw = max(0.0, min(u1, pu1) - max(u0, pu0))
+                            ih = max(0.0, min(v1, pv1) - max(v0, pv0))
+                            union = (u1 - u0) * (v1 - v0) + (pu1 - pu0) * (pv1 - pv0) - iw * ih
+                            assert iw * ih / union > 0.5, (channel, t, k)
+                            whole += 1
+            token, t = sample["next"], t + 1
+        assert t == world.num_frames
+    assert checked >= 20 and whole >= 5, (checked, whole)

@@ -1,8 +1,9 @@
 """Scenes that stream while they are generated (GET /api/scenes/{id}/wsplat?wait=true), over real HTTP against the
 real server app (tests/python/api_double.py: the fast pipeline double, its writer slowed to 0.25 s per chunk so a test
-can act between chunks). The live stream is byte for byte the file the cache later serves; a partial stream is never
-mistaken for a whole one (the HTTP body is cut without its final chunk and the bytes lack END!); and a client that
-disconnects, a job cancelled mid-stream and a server killed mid-stream leave no partial file the cache serves."""
+can act between chunks). The live stream is byte for byte the file the cache later serves (content-coded br as
+httpx's Accept-Encoding allows, identity when asked); a partial stream is never mistaken for a whole one (the HTTP
+body is cut without its final chunk and the bytes lack END!); and a client that disconnects, a job cancelled
+mid-stream and a server killed mid-stream leave no partial file the cache serves."""
 
 from __future__ import annotations
 
@@ -114,7 +115,9 @@ def test_live_stream_is_the_whole_file_and_starts_early(server):
     t0 = time.monotonic()
     with httpx.stream("GET", f"{server.url}/api/scenes/{body['scene_id']}/wsplat?wait=true", timeout=60) as r:
         assert r.status_code == 200 and r.headers["x-wsplat-live"] == "1" and r.headers["cache-control"] == "no-store"
-        it = r.iter_raw()
+        # httpx offers br (brotli is installed): the live stream is coded piece by piece, decoded as it arrives
+        assert r.headers["content-encoding"] == "br" and r.headers["vary"] == "Accept-Encoding"
+        it = r.iter_bytes()
         first, dec = read_until_static(it)
         t_first = time.monotonic() - t0
         assert not dec.done and dec.header["num_static"] == 100000
@@ -139,7 +142,9 @@ def test_live_stream_is_the_whole_file_and_starts_early(server):
 
 def test_client_disconnect_mid_stream_leaves_the_job_and_cache_whole(server):
     body = post_scene(server.url, 3)
-    with httpx.stream("GET", f"{server.url}/api/scenes/{body['scene_id']}/wsplat?wait=true", timeout=60) as r:
+    url = f"{server.url}/api/scenes/{body['scene_id']}/wsplat?wait=true"
+    with httpx.stream("GET", url, headers={"Accept-Encoding": "identity"}, timeout=60) as r:
+        assert "content-encoding" not in r.headers  # identity, as asked: the raw bytes are the file's
         read_until_static(r.iter_raw())
     # the client went away after one chunk: the job goes on and the cache gets the whole file
     assert job_status(server.url, body["job"]["id"])["status"] == "done"
@@ -153,7 +158,8 @@ def test_job_cancelled_mid_stream_cuts_the_stream_and_caches_nothing(server):
     got = bytearray()
     with pytest.raises(httpx.RemoteProtocolError):  # the body ends without its final chunk
         with httpx.stream("GET", f"{server.url}/api/scenes/{body['scene_id']}/wsplat?wait=true", timeout=60) as r:
-            it = r.iter_raw()
+            assert r.headers["content-encoding"] == "br"
+            it = r.iter_bytes()
             first, _ = read_until_static(it)
             got += first
             assert httpx.post(f"{server.url}/api/jobs/{body['job']['id']}/cancel").status_code == 200
@@ -174,7 +180,7 @@ def test_server_killed_mid_stream_leaves_no_partial_file(server):
     def reader():
         try:
             with httpx.stream("GET", f"{server.url}/api/scenes/{body['scene_id']}/wsplat?wait=true", timeout=60) as r:
-                for piece in r.iter_raw():
+                for piece in r.iter_bytes():  # decoded (br)
                     got.extend(piece)
         except httpx.HTTPError as e:
             errors.append(e)

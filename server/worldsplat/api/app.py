@@ -33,6 +33,7 @@ from worldsplat.world.agents import check_scenario
 
 from . import runners
 from .cache import ArtifactCache, InvalidId, LiveFile, validate_id
+from .encoding import StreamEncoder, negotiate
 from .jobs import ACTIVE, Job, JobManager, QueueFull
 from .scenario_files import MAX_IMPORT_BODY, FileProblems, ImportOut, ImportRequest, import_files
 
@@ -197,19 +198,31 @@ def ok(model=None, description: str = "OK", links: dict | None = None, **extra) 
     return d
 
 
-def stream_responses(media_types: tuple[str, ...], what: str) -> dict:
+def stream_responses(media_types: tuple[str, ...], what: str, coded: bool = False) -> dict:
     binary = {"schema": {"type": "string", "format": "binary"}}
     common = {
         "Accept-Ranges": {"description": "bytes", "schema": {"type": "string"}},
         "Content-Disposition": {"schema": {"type": "string"}},
         "Cache-Control": {"description": "content-addressed: immutable", "schema": {"type": "string"}},
     }
+    whole = {
+        "X-Content-Length": {
+            "description": "size of the whole file (before any content coding)",
+            "schema": {"type": "integer"},
+        }
+    }
+    if coded:
+        common["Vary"] = {"description": "Accept-Encoding", "schema": {"type": "string"}}
+        whole["Content-Encoding"] = {
+            "description": "br | gzip | zstd, as the request's Accept-Encoding allows (each piece flushed, so a "
+            "prefix of the body decodes to a prefix of the file); absent: identity. A Range is answered identity",
+            "schema": {"type": "string", "enum": ["br", "gzip", "zstd"]},
+        }
     return {
         200: {
             "description": f"the whole {what}, streamed (chunked transfer)",
             "content": {m: binary for m in media_types},
-            "headers": common
-            | {"X-Content-Length": {"description": "size of the whole file", "schema": {"type": "integer"}}},
+            "headers": common | whole,
         },
         206: {
             "description": f"the requested byte range of the {what} (`Range: bytes=a-b`)",
@@ -295,9 +308,14 @@ def parse_range(header: str, size: int) -> tuple[int, int] | None:
     return start, end
 
 
-def file_response(path: Path, media_type: str, request: Request, filename: str) -> StreamingResponse:
+def file_response(
+    path: Path, media_type: str, request: Request, filename: str, compress: bool = False
+) -> StreamingResponse:
     """Stream a cached artifact: chunked when whole (so a viewer can start on the first chunks), 206 for a Range.
-    The file is opened before responding, so a concurrent eviction cannot tear the response."""
+    The file is opened before responding, so a concurrent eviction cannot tear the response. With `compress`, a
+    whole-file answer is content-coded as the client's Accept-Encoding allows (encoding.negotiate), each piece
+    flushed; a Range is always answered identity-encoded: its offsets are bytes of the file, as `Content-Range`
+    and `X-Content-Length` say."""
     try:
         f = open(path, "rb")  # noqa: SIM115 - closed by the generator
     except FileNotFoundError:
@@ -309,8 +327,10 @@ def file_response(path: Path, media_type: str, request: Request, filename: str) 
         f.close()
         raise
     start, end = rng or (0, size)
+    coding = negotiate(request.headers.get("accept-encoding")) if compress and rng is None else None
 
     def body():
+        enc = StreamEncoder(coding) if coding else None
         try:
             f.seek(start)
             left = end - start
@@ -319,7 +339,9 @@ def file_response(path: Path, media_type: str, request: Request, filename: str) 
                 if not chunk:
                     break
                 left -= len(chunk)
-                yield chunk
+                yield enc.piece(chunk) if enc else chunk
+            if enc:
+                yield enc.finish()
         finally:
             f.close()
 
@@ -328,8 +350,13 @@ def file_response(path: Path, media_type: str, request: Request, filename: str) 
         "Content-Disposition": f'inline; filename="{filename}"',
         "Cache-Control": "public, max-age=31536000, immutable",
     }  # content-addressed: never changes
+    if compress:
+        headers["Vary"] = "Accept-Encoding"  # the same URL answers coded or identity bytes
     if rng is None:
-        return StreamingResponse(body(), media_type=media_type, headers=headers | {"X-Content-Length": str(size)})
+        headers["X-Content-Length"] = str(size)  # the file's size, whatever the coding on the wire
+        if coding:
+            headers["Content-Encoding"] = coding
+        return StreamingResponse(body(), media_type=media_type, headers=headers)
     headers |= {"Content-Range": f"bytes {start}-{end - 1}/{size}", "Content-Length": str(end - start)}
     return StreamingResponse(body(), status_code=206, media_type=media_type, headers=headers)
 
@@ -749,7 +776,7 @@ def create_app(
         "/api/scenes/{scene_id}/wsplat",
         tags=["scenes"],
         response_class=StreamingResponse,
-        responses={**stream_responses(("application/octet-stream",), ".wsplat"), **errors(404, 409, 416)},
+        responses={**stream_responses(("application/octet-stream",), ".wsplat", coded=True), **errors(404, 409, 416)},
     )
     async def scene_wsplat(
         scene_id: str,
@@ -769,7 +796,7 @@ def create_app(
         if opened is None and wait and not request.headers.get("range"):
             live = await wait_for_live(scene_id, request)
             if live is not None:
-                response = live_response(live, scene_id)
+                response = live_response(live, scene_id, negotiate(request.headers.get("accept-encoding")))
                 if response is not None:
                     return response
             opened = pg.cache.open_artifact("scenes", scene_id)
@@ -780,7 +807,7 @@ def create_app(
             raise ApiError(
                 409, f"scene {scene_id} is {state['status']}; wait for its events to say done", {"Retry-After": "2"}
             )
-        return file_response(opened[0], "application/octet-stream", request, f"{scene_id}.wsplat")
+        return file_response(opened[0], "application/octet-stream", request, f"{scene_id}.wsplat", compress=True)
 
     async def wait_for_live(scene_id: str, request: Request) -> LiveFile | None:
         """The scene's file being written, once its job gets there; None when the job ends first (or there is none),
@@ -798,7 +825,8 @@ def create_app(
             await asyncio.sleep(LIVE_POLL)
         return None
 
-    def live_response(live: LiveFile, scene_id: str) -> StreamingResponse | None:
+    def live_response(live: LiveFile, scene_id: str, coding: str | None) -> StreamingResponse | None:
+        """The growing file, content-coded as `coding` (None: identity), each piece flushed as it is read."""
         try:
             f = open(live.path, "rb")  # noqa: SIM115 - closed by the generator
         except FileNotFoundError:
@@ -806,14 +834,17 @@ def create_app(
 
         async def body():
             sent = 0
+            enc = StreamEncoder(coding) if coding else None
             try:
                 while True:
                     state, size = live.state, live.size  # size is final once state says whole
                     if size > sent:
                         data = f.read(min(size - sent, STREAM_CHUNK))
                         sent += len(data)
-                        yield data
+                        yield enc.piece(data) if enc else data
                     elif state == "whole":
+                        if enc:
+                            yield enc.finish()
                         return
                     elif state == "aborted":
                         raise LiveStreamCut(f"scene {scene_id}: generation stopped after {sent} bytes")
@@ -826,7 +857,10 @@ def create_app(
             "Content-Disposition": f'inline; filename="{scene_id}.wsplat"',
             "Cache-Control": "no-store",  # a live stream may be cut: no cache may keep it
             "X-Wsplat-Live": "1",
+            "Vary": "Accept-Encoding",
         }
+        if coding:
+            headers["Content-Encoding"] = coding
         return StreamingResponse(body(), media_type="application/octet-stream", headers=headers)
 
     @app.get(

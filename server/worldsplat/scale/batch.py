@@ -8,7 +8,8 @@ string; blank lines are skipped. Every line is validated before anything runs (e
     DIR/manifest.json                    written last: every scene with its size and Gaussian counts
 
 A re-run with the same input resumes; a folder of another run (other scenarios, mode or steps) is refused. Scenes
-are the same bytes locally and on Ray: each runs with `threads` torch/render threads (default 1) either way.
+are the same bytes locally and on Ray: each runs with `threads` torch/render threads (default 1) either way, and
+the wall-clock stage timings the pipeline records (`VOLATILE_META`) are left out of the file.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ from worldsplat.scale.ray_runner import TaskResources, run_tasks
 from worldsplat.world.agents import check_scenario
 
 BATCH_FORMAT = "worldsplat-batch-v1"
+# Scene meta that differs from run to run (the models' wall-clock stage timings): left out of batch scenes, whose
+# bytes are then the same locally and on Ray (the Gaussians already are).
+VOLATILE_META = ("timing_s",)
 
 
 def read_scenarios(path: str | Path) -> list[tuple[int, Scenario]]:
@@ -84,6 +88,8 @@ def check_out(out: Path, record: dict) -> None:
         raise ValueError(f"{out} is not empty and holds no worldsplat batch (no run.json): choose another --out")
     theirs = json.loads(rpath.read_text())
     diff = [k for k in ("format", "mode", "steps", "scenes") if theirs.get(k) != record[k]]
+    if diff and not any((out / "scenes").glob("*.wsplat")):
+        return  # that run finished no scene (it failed or was stopped at once): nothing to mix with, take the folder
     if diff:
         what = ", ".join(f"{k} {theirs.get(k)!r} (this run: {record[k]!r})" for k in diff if k != "scenes")
         if "scenes" in diff:
@@ -105,6 +111,8 @@ def scene_task(
         if fault is not None:
             fault(name)
         scene = generate_scene(Scenario.parse(scenario_json), mode=mode, steps=steps)
+        for key in VOLATILE_META:
+            scene.meta.pop(key, None)
         wsplat.write(scene, path)
         entry["written"] = True
     entry["bytes"] = path.stat().st_size

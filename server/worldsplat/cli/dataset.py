@@ -19,6 +19,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=4)
     p.add_argument("--fps", type=float, default=4.0)
     p.add_argument("--preset-mix", action="store_true", help="vary the shipped presets instead of fully random")
+    p.add_argument(
+        "--explicit-agents",
+        type=float,
+        metavar="P",
+        help="fraction of clips that also get 1-3 explicit (scenario v2) agents (default 0.5: "
+        "worldsplat.world.dataset.EXPLICIT_AGENTS; 0: none, as datasets written before)",
+    )
     p.add_argument("--shifts", default="", help="comma-separated lateral shifts (m) to also render, e.g. 1,2,-2")
     p.add_argument("--no-progress", action="store_true")
     add_ray_arguments(p)
@@ -40,6 +47,10 @@ def run(args: argparse.Namespace) -> int:
         start=args.start,
         progress=not args.no_progress,
     )
+    if args.explicit_agents is not None:
+        if not 0.0 <= args.explicit_agents <= 1.0:
+            raise ValueError("--explicit-agents must be a probability in [0, 1]")
+        kw["explicit_agents"] = args.explicit_agents
     if args.ray is None:
         res = write_dataset(args.out, args.split, args.count, **kw)
     else:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from worldsplat.scale.ray_runner import TaskResources, run_tasks
 from worldsplat.world.dataset import (
+    EXPLICIT_AGENTS,
     check_same_run,
     prepare_split,
     run_params,
@@ -45,11 +46,14 @@ def write_dataset_ray(
     progress: bool = True,
     resources: TaskResources | None = None,
     fault: Callable | None = None,
+    explicit_agents: float = EXPLICIT_AGENTS,
 ) -> dict:
     """Like `write_dataset`, inside a `ray_session`; returns written / skipped / manifest."""
     res = resources or TaskResources()
     out = Path(out).resolve()  # the workers' view of the folder: absolute (shared storage on a cluster)
-    kw = dict(width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix)
+    kw = dict(
+        width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix, explicit_agents=explicit_agents
+    )
     indices = range(start, start + count)
     check_same_run(out, split, indices, shifts, **kw)
     prepare_split(out, split)
@@ -70,6 +74,9 @@ def write_dataset_ray(
         written += wrote
     prepare_split(out, split)  # temporaries of workers killed mid-way
     mpath = write_manifest(
-        out, split, [entries[i] for i in indices], run_params(width, height, frames, fps, preset_mix, shifts)
+        out,
+        split,
+        [entries[i] for i in indices],
+        run_params(width, height, frames, fps, preset_mix, shifts, explicit_agents),
     )
     return {"written": written, "skipped": len(indices) - written, "manifest": str(mpath)}

@@ -1,7 +1,8 @@
 """Sharded training data from the world: one compressed .npz per clip, resumable, non-overlapping split seeds.
 
 Split seed ranges never overlap: train [0, 1e6), val [1e6, 2e6), test [2e6, 3e6); clip i of a split uses seed
-`SPLIT_BASE[split] + i` and a random scenario drawn from that seed (`worldsplat.core.scenario.random_scenario`).
+`SPLIT_BASE[split] + i` and a random scenario drawn from that seed (`worldsplat.core.scenario.random_scenario`), which
+carries explicit agents with probability `EXPLICIT_AGENTS` (0.5).
 A shard is written to a temporary file and renamed, so an existing `clip_XXXXXX.npz` is always complete and a
 re-run skips it. Shard keys are listed in `SHARD_KEYS` and documented in web/docs/world.md.
 """
@@ -20,6 +21,12 @@ from worldsplat.world import build_world, simulate
 
 SPLIT_BASE = {"train": 0, "val": 1_000_000, "test": 2_000_000}
 SPLIT_SIZE = 1_000_000
+# The fraction of clips whose scenario also gets 1-3 explicit (scenario v2) agents, so the models learn placed and
+# scripted agents beside the procedural traffic (`worldsplat.core.scenario.add_random_agents`: lanes of the ego's
+# direction, faster than the ego, or standing in an oncoming lane; drawn from a random stream of their own seeded by
+# the clip's seed, so a clip is the same on every run and the split seed ranges keep them disjoint).
+# `worldsplat dataset --explicit-agents P` changes it; 0 gives the datasets written before it (no explicit agents).
+EXPLICIT_AGENTS = 0.5
 SHARD_KEYS = (
     "rgb",
     "depth",
@@ -119,11 +126,21 @@ def load_shard(path: str | Path) -> dict:
 
 
 def clip_scenario(
-    split: str, index: int, width: int = 112, height: int = 64, frames: int = 4, fps: float = 4.0, preset_mix=False
+    split: str,
+    index: int,
+    width: int = 112,
+    height: int = 64,
+    frames: int = 4,
+    fps: float = 4.0,
+    preset_mix=False,
+    explicit_agents: float = EXPLICIT_AGENTS,
 ) -> Scenario:
-    """The scenario of clip `index` of a split (its seed is `split_seed(split, index)`)."""
+    """The scenario of clip `index` of a split (its seed is `split_seed(split, index)`); with probability
+    `explicit_agents` it carries explicit agents."""
     seed = split_seed(split, index)
-    return random_scenario(seed, width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix)
+    return random_scenario(
+        seed, width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix, explicit_agents=explicit_agents
+    )
 
 
 def write_clip(out: Path, split: str, index: int, shifts: tuple[float, ...] = (), **scenario_kw) -> tuple[dict, bool]:
@@ -139,9 +156,22 @@ def write_clip(out: Path, split: str, index: int, shifts: tuple[float, ...] = ()
     return entry, True
 
 
-def run_params(width: int, height: int, frames: int, fps: float, preset_mix: bool, shifts) -> dict:
+def run_params(
+    width: int, height: int, frames: int, fps: float, preset_mix: bool, shifts, explicit_agents: float = EXPLICIT_AGENTS
+) -> dict:
     """What the manifest records about how its clips were made; a later run into the same folder must match."""
-    return {"image": [width, height], "frames": frames, "fps": fps, "preset_mix": preset_mix, "shifts": list(shifts)}
+    return {
+        "image": [width, height],
+        "frames": frames,
+        "fps": fps,
+        "preset_mix": preset_mix,
+        "explicit_agents": float(explicit_agents),
+        "shifts": list(shifts),
+    }
+
+
+# a manifest written before a parameter existed was written with this value of it
+RUN_PARAM_BEFORE = {"explicit_agents": 0.0}
 
 
 def check_same_run(out: Path, split: str, indices: range, shifts: tuple[float, ...] = (), **scenario_kw) -> None:
@@ -149,10 +179,21 @@ def check_same_run(out: Path, split: str, indices: range, shifts: tuple[float, .
     shifts): its manifest, and the first complete shard in `indices`, must be what this run would write."""
     folder = Path(out) / split
     mpath = folder / "manifest.json"
-    kw = {"width": 112, "height": 64, "frames": 4, "fps": 4.0, "preset_mix": False, **scenario_kw}
-    mine = run_params(kw["width"], kw["height"], kw["frames"], kw["fps"], kw["preset_mix"], shifts)
+    kw = {
+        "width": 112,
+        "height": 64,
+        "frames": 4,
+        "fps": 4.0,
+        "preset_mix": False,
+        "explicit_agents": EXPLICIT_AGENTS,
+        **scenario_kw,
+    }
+    mine = run_params(
+        kw["width"], kw["height"], kw["frames"], kw["fps"], kw["preset_mix"], shifts, kw["explicit_agents"]
+    )
     if mpath.exists():
         theirs = json.loads(mpath.read_text())
+        theirs = {**RUN_PARAM_BEFORE, **theirs}
         diff = [f"{k} {theirs.get(k)} (this run: {v})" for k, v in mine.items() if theirs.get(k) != v]
         if diff:
             raise ValueError(f"{folder} holds a dataset of another run: {'; '.join(diff)}; write to another --out")
@@ -164,7 +205,7 @@ def check_same_run(out: Path, split: str, indices: range, shifts: tuple[float, .
             if theirs != clip_scenario(split, i, **scenario_kw).normalized_json():
                 raise ValueError(
                     f"{path} was written by another run (its scenario differs from clip {i} of this one: other "
-                    f"image size, frames, fps or preset mix); write to another --out"
+                    f"image size, frames, fps, preset mix or explicit agents); write to another --out"
                 )
             break
 
@@ -205,11 +246,16 @@ def write_dataset(
     shifts: tuple[float, ...] = (),
     start: int = 0,
     progress: bool = True,
+    explicit_agents: float = EXPLICIT_AGENTS,
 ) -> dict:
     """Write clips start..start+count-1 of a split; existing complete shards are skipped (resumable)."""
 
     out = Path(out)
-    kw = dict(width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix)
+    if not 0.0 <= explicit_agents <= 1.0:
+        raise ValueError(f"explicit_agents must be a probability in [0, 1], got {explicit_agents}")
+    kw = dict(
+        width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix, explicit_agents=explicit_agents
+    )
     indices = range(start, start + count)
     check_same_run(out, split, indices, shifts, **kw)
     prepare_split(out, split)
@@ -220,5 +266,6 @@ def write_dataset(
         index.append(entry)
         written += wrote
         skipped += not wrote
-    mpath = write_manifest(out, split, index, run_params(width, height, frames, fps, preset_mix, shifts))
+    params = run_params(width, height, frames, fps, preset_mix, shifts, explicit_agents)
+    mpath = write_manifest(out, split, index, params)
     return {"written": written, "skipped": skipped, "manifest": str(mpath)}

@@ -1,4 +1,4 @@
-"""The inference glue with the v2 networks (tiny, random): pixel-guided decoder, layout-map control, 4x VAE;
+"""The inference glue with the v2 (and v3 DiT) networks (tiny, random): pixel-guided decoder, layout-map control, 4x VAE;
 torch and the ONNX serving graphs agree."""
 
 import copy
@@ -19,12 +19,15 @@ torch.set_num_threads(1)
 CFG = get_config("tiny")
 
 
-@pytest.fixture(scope="module")
-def models_v2():
+@pytest.fixture(scope="module", params=["v2", "v3"])
+def models_v2(request):
+    """v2: layout through a zero-initialised ControlNet branch; v3: layout at the input + latent-resolution head."""
     torch.manual_seed(0)
     vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)  # 4x down-sampling
     C = vae_cfg.joint_channels
     dit_cfg = dataclasses.replace(CFG.dit, in_channels=C, out_channels=C, patch=2, control_channels=7, control_hint=8)
+    if request.param == "v3":
+        dit_cfg = dataclasses.replace(dit_cfg, control_depth=0, control_at_input=True, refine_channels=8)
     dec_cfg = dataclasses.replace(
         CFG.decoder, in_channels=C, patch=2, up_channels=(8, 8, 8), guide_channels=5, reread_latent=True
     )

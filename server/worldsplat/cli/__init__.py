@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train-enhancer": ("worldsplat.cli.train_enhancer", "train the enhanced diffusion model (refinement)"),
     "train-campaign": ("worldsplat.cli.train_campaign", "the v2 training campaign, stage by stage (resumable)"),
     "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
+    "gallery": ("worldsplat.cli.gallery", "GT | VAE | reconstruct | generate PNGs of presets and held-out scenarios"),
     "bench": ("worldsplat.cli.bench", "speed-against-error benchmark report"),
     "import-scenario": ("worldsplat.cli.scenario_files", "OpenSCENARIO 1.x / CommonRoad XML -> scenario JSON"),
     "export-scenario": ("worldsplat.cli.scenario_files", "scenario JSON -> OpenSCENARIO + OpenDRIVE"),

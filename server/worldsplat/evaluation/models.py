@@ -32,6 +32,7 @@ from worldsplat.pipeline.inference import (
     condition_tensors,
     decode_gaussians,
     encode_clip,
+    generate,
     load_models,
     reconstruct,
     sample_latents,
@@ -330,6 +331,13 @@ def steps_vs_error(
 
 
 @torch.no_grad()
+def vae_decode_rgb(models: Models, L: torch.Tensor, t: int) -> np.ndarray:
+    """(V,H,W,3) uint8: the VAE's RGB decoding of frame t of normalised latents L (T,V,C,h,w)."""
+    rgb = (models.vae.decode_joint(L[t])[0] + 1) / 2
+    return (rgb.permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
+
+
+@torch.no_grad()
 def figure(
     models: Models,
     ds: ShardDataset,
@@ -347,9 +355,8 @@ def figure(
     rig = rig_of(s)
     T, V = s["rgb"].shape[:2]
     rows = [[s["rgb"][t, v] for v in views]]
-    L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
-    rgb = (models.vae.decode_joint(L[t])[0] + 1) / 2
-    rows.append([(rgb[v].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8) for v in views])
+    rgb = vae_decode_rgb(models, encode_clip(models, s["rgb"], s["depth"], s["dynamic"]), t)
+    rows.append([rgb[v] for v in views])
     scene = to_scene4d(reconstruct(clip_view(s, rig), models))
     rows.append([render_view(scene.at_frame(t), scene.camera(t, v)).rgb for v in views])
     shifted = {float(x["shift_m"]): x for x in ds.shifted(index)}
@@ -357,11 +364,10 @@ def figure(
         rows.append([shifted[shift_m]["rgb"][t, v] for v in views])
         rows.append([render_view(scene.at_frame(t), scene.camera(t, v, shift_m)).rgb for v in views])
     if "generate" in models.modes:
-        z = ds.load(index)
-        ego = s["ego_to_world"].astype(np.float64)
-        cond = condition_tensors(models, shard_condition_dict(s, z), ego)
-        Lg = sample_latents(models, cond, steps=steps, seed=seed)
-        gscene = to_scene4d(decode_gaussians(models, Lg, rig, ego, np.arange(T) / 4.0, {}))
+        cond = shard_condition_dict(s, ds.load(index))
+        gscene = to_scene4d(
+            generate(cond, steps=steps, seed=seed, models=models, rig=rig, frame_times=np.arange(T) / 4.0)
+        )
         rows.append([(s["sketch"][t, v] * 255).astype(np.uint8) for v in views])
         rows.append([render_view(gscene.at_frame(t), gscene.camera(t, v)).rgb for v in views])
     grid = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)

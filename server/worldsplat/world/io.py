@@ -26,6 +26,7 @@ from worldsplat.core.scenario import scenario_id
 from worldsplat.core.video import mosaic
 from worldsplat.world.classes import CLASS_NAMES
 from worldsplat.world.layout import shifted_ego
+from worldsplat.world.layout_maps import LAYOUT_CHANNELS
 
 
 def save_png(path: Path, array: np.ndarray) -> None:
@@ -62,6 +63,26 @@ def bev_image(bev: np.ndarray, channels: tuple[str, ...], scale: int = 2) -> np.
     # Ego footprint (rear axle at the centre, 4.6 m x 1.9 m at 0.5 m/px).
     img[h // 2 - 7 : h // 2 + 2, w // 2 - 2 : w // 2 + 2] = (60, 220, 90)
     return np.kron(img, np.ones((scale, scale, 1), np.uint8))
+
+
+LAYOUT_GROUND = (70, 62, 50)  # road-plane pixels that are neither drivable nor sidewalk
+
+
+def layout_image(layout: np.ndarray) -> np.ndarray:
+    """(H,W,7) per-camera layout map (world.layout_maps) -> RGB preview in the BEV colours: drivable grey, sidewalk
+    pink, markings white, vehicle boxes blue and pedestrian/cyclist boxes red, each box shaded dark at its rear to
+    bright at its front (the heading channel); everything dimmed with the layout depth (near bright, far half), and
+    black where the ray meets nothing the conditions state (sky, beyond range)."""
+    ch = {name: layout[..., i] for i, name in enumerate(LAYOUT_CHANNELS)}
+    img = np.zeros(layout.shape[:2] + (3,), np.float32)
+    img[ch["depth"] < 1.0] = LAYOUT_GROUND
+    for name, key in (("drivable", "drivable"), ("sidewalk", "sidewalk"), ("markings", "lane_divider")):
+        img[ch[name] > 0.5] = BEV_COLOURS[key]
+    for name in ("vehicle", "vulnerable"):
+        on = ch[name] > 0.5
+        img[on] = np.asarray(BEV_COLOURS[name], np.float32) * (0.35 + 0.65 * ch["heading"][on, None])
+    img *= (1.0 - 0.25 * (np.clip(ch["depth"], -1.0, 1.0) + 1.0))[..., None]
+    return np.round(np.clip(img, 0, 255)).astype(np.uint8)
 
 
 def depth_preview(depth: np.ndarray) -> np.ndarray:

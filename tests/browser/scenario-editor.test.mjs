@@ -406,6 +406,23 @@ test("OpenSCENARIO, CommonRoad and scenario JSON files dropped on the page load 
     // the .xosc without its road: refused by name
     r = await drop([f.xosc]);
     assert.match(r.error, /RoadNetwork\/LogicFile\[road\.xodr\]: not among the files given/);
+    // a scene file still goes to the viewer (here not a real .wsplat: the viewer's own error), never to the import
+    const junk = join(dir, "dropped.wsplat");
+    writeFileSync(junk, "not a scene");
+    const before = await page.evaluate(() => window.playground.readForm());
+    await page.evaluate(() => { window.playground.state.imported = "untouched"; window.playground.state.lastError = null; });
+    const files = [{ name: "dropped.wsplat", text: readFileSync(junk, "utf8") }];
+    const got = await page.evaluate(async (files) => {
+      const dt = new DataTransfer();
+      for (const f of files) dt.items.add(new File([f.text], f.name));
+      document.body.dispatchEvent(new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+      const end = Date.now() + 30_000;
+      while (!window.playground.state.lastError && Date.now() < end) await new Promise((r) => setTimeout(r, 50));
+      return { error: window.playground.state.lastError, imported: window.playground.state.imported };
+    }, files);
+    assert.match(got.error, /^open dropped\.wsplat: /);
+    assert.equal(got.imported, "untouched");
+    assert.deepEqual(await page.evaluate(() => window.playground.readForm()), before);
     await page.click("#error-close");
   } finally {
     rmSync(dir, { recursive: true, force: true });

@@ -9,8 +9,8 @@ import json
 
 import pytest
 from fastapi.testclient import TestClient
-from test_scenario_io import AT, write_commonroad, write_xosc, xosc
 
+from test_scenario_io import AT, write_commonroad, write_xosc, xosc
 from worldsplat.api.app import create_app
 from worldsplat.api.scenario_files import MAX_IMPORT_BODY
 from worldsplat.cli import main as cli_main

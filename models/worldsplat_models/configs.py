@@ -88,6 +88,7 @@ class DiTConfig:
     # token output from [token output, z_s, layout features at latent resolution]: a 4x4-latent token cannot draw
     # a lane marking, the head can.
     refine_channels: int = 0
+    hint_stem_stride: int = 1  # 2: the hint encoder's first conv already down-samples (v3; see HintEncoder)
 
 
 @dataclass

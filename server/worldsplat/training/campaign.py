@@ -61,6 +61,7 @@ def dit_config(vae) -> DiTConfig:
         control_depth=0,
         control_at_input=True,
         refine_channels=64,
+        hint_stem_stride=2,
     )
 
 
@@ -233,6 +234,7 @@ def train_decoder(
     samples = load_cache(out, "train")[:clips]
     for s in samples:
         s["L"] = s["L"].float()
+        s.pop("control", None)  # the decoder never reads the layout maps (the largest field of a record)
     dec = warm_start(GaussianDecoder(decoder_config(vae)), init, "decoder")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=25, ckpt_every=ckpt_every, log_every=10, threads=threads)
     step = decoder_step_fn(samples, DCFG, render_every=render_every, render_views=2, guide_fn=guide_from(vae))
@@ -266,6 +268,9 @@ def train_dit(
     vae = load_weights(vae_path, "vae").eval()
     samples = load_cache(out, "train")[:clips]
     test = load_cache(out, "test")[:4]
+    for s in samples + test:  # the DiT reads L, the layout and the conditions; not the images
+        for k in ("rgb", "depth", "dynamic"):
+            s.pop(k, None)
     dit = warm_start(DiT4D(dit_config(vae)), init, "dit")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=10, threads=threads)
 

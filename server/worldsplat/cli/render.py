@@ -19,7 +19,7 @@ import numpy as np
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", help="a .wsplat or a 3DGS .ply")
+    p.add_argument("scene", help="a .wsplat, or a .ply / .glb / .spz / .sog / .splat (one frame)")
     p.add_argument("--shift-m", type=float, default=0.0, help="lateral track shift in metres (left positive)")
     p.add_argument("--camera", default=None, help="rig camera name or 'all' (default CAM_FRONT; 'all' for DIR)")
     p.add_argument("--frame", type=int, default=None, help="frame index (default: 0 for PNG, all for video/DIR)")
@@ -38,10 +38,10 @@ def load_scene(path: str | Path):
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"scene {path} not found")
-    if path.suffix.lower() == ".ply":
-        from worldsplat.gaussians.ply import scene_from_ply
+    if path.suffix.lower() in (".ply", ".glb", ".spz", ".sog", ".splat"):
+        from worldsplat.gaussians.formats import scene_from_file
 
-        return scene_from_ply(path)
+        return scene_from_file(path)
     from worldsplat.gaussians import wsplat
 
     return wsplat.read(path)

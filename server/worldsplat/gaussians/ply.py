@@ -13,9 +13,9 @@ import numpy as np
 
 from worldsplat.core.camera import default_rig
 from worldsplat.core.io import atomic_write_bytes
+from worldsplat.gaussians.fileformat import SH_C0, FormatError, check_count, check_finite
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
-SH_C0 = 0.28209479177387814
 _TYPES = {
     "float": "f4",
     "float32": "f4",
@@ -83,15 +83,24 @@ def write_ply(g: Gaussians, path: str | Path) -> Path:
 
 
 def read_ply(path: str | Path) -> Gaussians:
-    data = Path(path).read_bytes()
+    return decode_ply(Path(path).read_bytes(), str(path))
+
+
+def decode_ply(data: bytes, name: str = "PLY") -> Gaussians:
+    """PLY bytes -> Gaussians. Errors (FormatError, a ValueError) name the header line or the vertex property and
+    the byte offset; the vertex count is checked against the bytes present before anything is read."""
     end = data.find(b"end_header\n", 0, MAX_HEADER)
     if not data.startswith(b"ply\n") or end < 0:
-        raise ValueError(f"{path}: not a PLY file (missing 'ply' magic or 'end_header' in the first 64 KiB)")
-    lines = data[:end].decode("ascii", errors="replace").splitlines()
-    fmt, count, props, element = None, None, [], None
-    for ln in lines[1:]:
+        raise FormatError(
+            "ply", 0, "header", f"{name}: not a PLY file (missing 'ply' magic or 'end_header' in the first 64 KiB)"
+        )
+    fmt, count, props, element, count_at = None, None, [], None, 0
+    pos = 0
+    for raw in data[:end].split(b"\n"):
+        at, pos = pos, pos + len(raw) + 1
+        ln = raw.decode("ascii", errors="replace").strip()
         parts = ln.split()
-        if not parts or parts[0] in ("comment", "obj_info"):
+        if not parts or parts[0] in ("comment", "obj_info", "ply"):
             continue
         if parts[0] == "format":
             fmt = parts[1] if len(parts) > 1 else None
@@ -101,26 +110,42 @@ def read_ply(path: str | Path) -> Gaussians:
                 try:
                     count = int(parts[2])
                 except (IndexError, ValueError):
-                    raise ValueError(f"{path}: bad vertex element line {ln!r}") from None
+                    raise FormatError("ply", at, "element vertex", f"{name}: bad vertex element line {ln!r}") from None
+                count_at = at
         elif parts[0] == "property" and element == "vertex":
             if len(parts) != 3 or parts[1] not in _TYPES:
-                raise ValueError(f"{path}: unsupported vertex property {ln!r} (lists are not 3DGS)")
+                raise FormatError(
+                    "ply", at, "property", f"{name}: unsupported vertex property {ln!r} (lists are not 3DGS)"
+                )
             props.append((parts[2], "<" + _TYPES[parts[1]]))
         elif parts[0] == "property":
-            raise ValueError(f"{path}: elements after 'vertex' are not supported ({element})")
+            raise FormatError("ply", at, "element", f"{name}: elements after 'vertex' are not supported ({element})")
     if fmt != "binary_little_endian":
-        raise ValueError(f"{path}: format {fmt!r} not supported (3DGS files are binary_little_endian)")
-    if count is None or count < 0:
-        raise ValueError(f"{path}: no vertex element")
+        raise FormatError(
+            "ply", 4, "format", f"{name}: format {fmt!r} not supported (3DGS files are binary_little_endian)"
+        )
+    if count is None:
+        raise FormatError("ply", 0, "element vertex", f"{name}: no vertex element")
+    check_count("ply", count, count_at, "element vertex")
     names = [p for p, _ in props]
     missing = [k for k in REQUIRED if k not in names]
     if missing:
-        raise ValueError(f"{path}: missing 3DGS vertex properties: {', '.join(missing)}")
+        raise FormatError("ply", 0, "property", f"{name}: missing 3DGS vertex properties: {', '.join(missing)}")
+    if len(set(names)) != len(names):
+        raise FormatError("ply", 0, "property", f"{name}: a vertex property appears twice")
     dtype = np.dtype(props)
-    body = data[end + len(b"end_header\n") :]
+    body_at = end + len(b"end_header\n")
+    body = data[body_at:]
     if len(body) < count * dtype.itemsize:
-        raise ValueError(f"{path}: {count} vertices need {count * dtype.itemsize} bytes, file has {len(body)}")
+        raise FormatError(
+            "ply",
+            body_at + (len(body) // dtype.itemsize) * dtype.itemsize,
+            f"vertex[{len(body) // dtype.itemsize}]",
+            f"{name}: {count} vertices need {count * dtype.itemsize} bytes, file has {len(body)}",
+        )
     rec = np.frombuffer(body, dtype=dtype, count=count)
+    for k in REQUIRED:
+        check_finite("ply", rec[k], k, body_at + dtype.fields[k][1], dtype.itemsize)
     f = lambda k: rec[k].astype(np.float64)  # noqa: E731
     means = np.stack([f("x"), f("y"), f("z")], 1)
     colors = np.clip(0.5 + SH_C0 * np.stack([f(f"f_dc_{i}") for i in range(3)], 1), 0, 1)

@@ -51,8 +51,10 @@ setup_rust() {
 }
 
 setup_browser() {
-  if ! [[ -d "$HERE/node_modules/playwright-core" ]]; then
-    log "browser: npm install playwright-core"
+  # playwright-core (browser tests) and the dev-only @playcanvas/splat-transform (format interop tests,
+  # tests/python/test_interop_splat_transform.py), both pinned in package.json / package-lock.json
+  if ! [[ -d "$HERE/node_modules/playwright-core" && -d "$HERE/node_modules/@playcanvas/splat-transform" ]]; then
+    log "browser: npm install playwright-core @playcanvas/splat-transform"
     (cd "$HERE" && npm install --no-audit --no-fund --silent)
   fi
 }

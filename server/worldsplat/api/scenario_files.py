@@ -26,7 +26,7 @@ log = logging.getLogger("worldsplat.api")
 class ScenarioFileIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str = Field(pattern=NAME_PATTERN, description="the file's name, without folders (e.g. cut_in.xosc)")
-    text: str = Field(max_length=MAX_IMPORT_BODY, description="the file's content as UTF-8 text")
+    text: str = Field(description="the file's content as UTF-8 text (all files together: at most 4 MiB of request)")
 
 
 class ImportRequest(BaseModel):

@@ -66,7 +66,9 @@ def local(tmp_path_factory):
 @pytest.fixture(scope="module")
 def ray_local():
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    from worldsplat.scale.ray_runner import start_local
+
+    start_local(num_cpus=2)  # ray.init(num_cpus=2), tried again if a busy machine misses Ray's start-up deadline
     yield ray
     ray.shutdown()
 

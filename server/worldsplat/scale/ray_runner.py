@@ -73,6 +73,21 @@ def check_reachable(address: str, timeout_s: float = 3.0) -> None:
         raise ValueError(f"--ray: cannot reach a Ray cluster at {address} ({e.strerror or e})") from None
 
 
+def start_local(num_cpus: int | None = None, tries: int = 3) -> None:
+    """A private Ray instance on this machine, tried again when its node times out starting (Ray waits 30 s for
+    its raylet, which a machine loaded several times over its cores can miss)."""
+    import ray  # noqa: PLC0415 - heavy optional dependency: only a --ray run imports it
+
+    for i in range(tries):
+        try:
+            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+            return
+        except Exception as e:  # Ray raises a bare Exception for the start-up time-out
+            if "timed out during startup" not in str(e) or i + 1 == tries:
+                raise
+            ray.shutdown()
+
+
 @contextlib.contextmanager
 def ray_session(address: str) -> Iterator[None]:
     """Connected to Ray for the duration; a Ray already initialised by the caller is used as it is and left up."""
@@ -82,7 +97,7 @@ def ray_session(address: str) -> Iterator[None]:
         yield
         return
     if address == "local":
-        ray.init(include_dashboard=False, log_to_driver=False)
+        start_local()
     else:
         if address != "auto":
             check_reachable(address)

@@ -65,7 +65,8 @@ def test_gallery_grid(models, tmp_path):
         p = res["panels"][case.name]
         x0, y0 = p.origin
         assert p.tile == (2 * DATA.width, 2 * DATA.height)
-        assert img.shape == (y0 + 5 * p.tile[1], x0 + 3 * p.tile[0], 3)
+        gap = gallery.GAP
+        assert img.shape == (y0 + 5 * p.tile[1] + 4 * gap, x0 + 3 * p.tile[0] + 2 * gap, 3)
         assert [lab.split("\n")[0] for lab in p.labels] == [
             "ground truth",
             "VAE decode",

@@ -48,6 +48,7 @@ LABEL_W = 150  # left margin (row labels), pixels
 HEADER_H = 18  # column titles
 LINE_H = 15  # one title line
 PAD = 4
+GAP = 2  # white between tiles
 
 
 @dataclass
@@ -74,6 +75,8 @@ def preset_case(models: Models, preset: str) -> Case:
 
 def shard_case(models: Models, z: dict, name: str, title: str) -> Case:
     """A dataset clip (a loaded shard or `clip_arrays` output) with the conditions stored in it."""
+    if layout_size(models) is not None and "layout" not in z:
+        raise ValueError(f"{name}: these models read layout maps and the shard has none (written before they existed)")
     s = sample_from_shard(z, models.data.max_boxes)
     clip = clip_view(s, rig_of(s))
     return Case(name, f"{title}, seed {int(z['seed'])}", clip, shard_condition_dict(s, z), int(z["seed"]))
@@ -181,7 +184,7 @@ class Panel:
     labels: list[str]  # row labels, top to bottom
 
     def tile_at(self, row: int, col: int) -> np.ndarray:
-        x, y = self.origin[0] + col * self.tile[0], self.origin[1] + row * self.tile[1]
+        x, y = self.origin[0] + col * (self.tile[0] + GAP), self.origin[1] + row * (self.tile[1] + GAP)
         return self.image[y : y + self.tile[1], x : x + self.tile[0]]
 
 
@@ -190,18 +193,19 @@ def panel(rows: list[tuple[str, list]], titles: list[str], views=VIEWS, scale: i
     h, w = rows[0][1][0].shape[:2]
     tw, th = w * scale, h * scale
     x0, y0 = LABEL_W, PAD + LINE_H * len(titles) + HEADER_H
-    img = Image.new("RGB", (x0 + tw * len(views), y0 + th * len(rows)), (255, 255, 255))
+    size = (x0 + (tw + GAP) * len(views) - GAP, y0 + (th + GAP) * len(rows) - GAP)
+    img = Image.new("RGB", size, (255, 255, 255))
     draw = ImageDraw.Draw(img)
     font = _font()
     for i, line in enumerate(titles):
         draw.text((PAD, PAD + i * LINE_H), _clipped(line, font, img.width - 2 * PAD), fill=(0, 0, 0), font=font)
     for c, name in enumerate(views):
         label = _clipped(name, font, tw - 4)
-        draw.text((x0 + c * tw + tw // 2, y0 - HEADER_H // 2), label, fill=(0, 0, 0), font=font, anchor="mm")
+        draw.text((x0 + c * (tw + GAP) + tw // 2, y0 - HEADER_H // 2), label, fill=(0, 0, 0), font=font, anchor="mm")
     for r, (label, imgs) in enumerate(rows):
-        draw.multiline_text((PAD, y0 + r * th + th // 2), label, fill=(0, 0, 0), font=font, anchor="lm")
+        draw.multiline_text((PAD, y0 + r * (th + GAP) + th // 2), label, fill=(0, 0, 0), font=font, anchor="lm")
         for c, tile in enumerate(imgs):
-            img.paste(Image.fromarray(tile).resize((tw, th), Image.NEAREST), (x0 + c * tw, y0 + r * th))
+            img.paste(Image.fromarray(tile).resize((tw, th), Image.NEAREST), (x0 + c * (tw + GAP), y0 + r * (th + GAP)))
     return Panel(np.asarray(img), (x0, y0), (tw, th), [r[0] for r in rows])
 
 

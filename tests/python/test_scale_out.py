@@ -66,9 +66,12 @@ def local(tmp_path_factory):
 @pytest.fixture(scope="module")
 def ray_local():
     ray = pytest.importorskip("ray")
-    from worldsplat.scale.ray_runner import start_local
+    from worldsplat.scale.ray_runner import RayStartTimeout, start_local
 
-    start_local(num_cpus=2)  # ray.init(num_cpus=2), tried again if a busy machine misses Ray's start-up deadline
+    try:
+        start_local(num_cpus=2, tries=2)  # ray.init(num_cpus=2), tried again if a busy machine misses Ray's deadline
+    except RayStartTimeout as e:  # the machine, not the code: Ray's own node did not come up (said in the summary)
+        pytest.skip(f"a local Ray could not start on this machine (load {os.getloadavg()[0]:.0f}): {e}")
     yield ray
     ray.shutdown()
 

@@ -19,6 +19,10 @@ from dataclasses import dataclass
 from tqdm import tqdm
 
 
+class RayStartTimeout(RuntimeError):
+    """A local Ray instance could not start (its node missed Ray's start-up deadline every time)."""
+
+
 class TaskFailures(RuntimeError):
     """Some tasks failed after their retries; what finished is on disk and a re-run does only the rest."""
 
@@ -74,8 +78,9 @@ def check_reachable(address: str, timeout_s: float = 3.0) -> None:
 
 
 def start_local(num_cpus: int | None = None, tries: int = 3) -> None:
-    """A private Ray instance on this machine, tried again when its node times out starting (Ray waits 30 s for
-    its raylet, which a machine loaded several times over its cores can miss)."""
+    """A private Ray instance on this machine, tried again when its node times out starting: on a machine loaded
+    several times over its cores, Ray 2.60's raylet gives up on its dashboard agent (a Python process) before that
+    is up, and the driver then reports "timed out during startup" (RayStartTimeout after `tries`)."""
     import ray  # noqa: PLC0415 - heavy optional dependency: only a --ray run imports it
 
     for i in range(tries):
@@ -83,9 +88,11 @@ def start_local(num_cpus: int | None = None, tries: int = 3) -> None:
             ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
             return
         except Exception as e:  # Ray raises a bare Exception for the start-up time-out
-            if "timed out during startup" not in str(e) or i + 1 == tries:
+            if "timed out during startup" not in str(e):
                 raise
             ray.shutdown()
+            if i + 1 == tries:
+                raise RayStartTimeout(f"Ray did not start in {tries} tries: {e}") from None
 
 
 @contextlib.contextmanager
@@ -97,7 +104,10 @@ def ray_session(address: str) -> Iterator[None]:
         yield
         return
     if address == "local":
-        start_local()
+        try:
+            start_local()
+        except RayStartTimeout as e:
+            raise ValueError(f"--ray local: {e}") from None
     else:
         if address != "auto":
             check_reachable(address)

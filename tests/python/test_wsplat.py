@@ -291,3 +291,65 @@ def test_fuzz_mutations_raise_wsplat_error_only(data):
     else:
         for g in [sc.static] + sc.dynamic:
             assert bool(torch.isfinite(g.means).all())
+
+
+# ---- streamed files (totals in END!, STAT and DYNA interleaved; web/docs/wsplat-v1.md "Streamed files") ----------
+def test_streamed_file_decodes_like_the_classic_one():
+    sc = make_scene(n_static=9000, n_dyn=(30, 0, 12, 5))
+    classic = wsplat.decode(wsplat.encode(sc))
+    data = wsplat.encode_streamed(sc, [[0, 1], [2, 3]], static_split=[5000], end_meta={"aggregate": {"kept": 1}})
+    dec = ProgressiveDecoder()
+    kinds = []
+    for s in range(0, len(data), 1013):
+        kinds += [k for k, _ in dec.feed(data[s : s + 1013])]
+    assert kinds == ["header", "static", "static", "dynamic", "static", "dynamic", "dynamic", "end"]
+    back = dec.finish()
+    assert dec.header["streamed"] and len(back.static) == 9000 and [len(d) for d in back.dynamic] == [30, 0, 12, 5]
+    assert back.meta["num_static"] == 9000 and back.meta["aggregate"] == {"kept": 1}
+    assert back.meta["bounds"]["min"] == pytest.approx(classic.meta["bounds"]["min"])
+    err = matched_error(classic.static, back.static)
+    assert err["means"] < 0.05 and err["colors"] < 0.04, err
+    # re-encoding a decoded streamed scene gives a classic file
+    assert not ProgressiveDecoder().feed(wsplat.encode(back))[0][1]["streamed"]
+
+
+def test_streamed_prefix_is_never_whole_and_end_checks_the_totals():
+    sc = make_scene(n_static=5000, n_dyn=(3, 4))
+    data = wsplat.encode_streamed(sc, [[0], [1]], static_split=[2000])
+    ch = split_chunks(data)
+    end_at = len(data) - 12 - len(ch[-1][1])
+    for cut in (end_at, end_at + 11, end_at - 1):  # every prefix short of END! is incomplete, never whole
+        dec = ProgressiveDecoder()
+        dec.feed(data[:cut])
+        assert not dec.done
+        with pytest.raises(WsplatError) as e:
+            wsplat.decode(data[:cut])
+        assert e.value.kind == "truncated"
+    # a chunk lost in the middle: END!'s totals refuse the file
+    pos, pieces = 12, []
+    while pos < len(data):
+        (n,) = struct.unpack_from("<I", data, pos + 4)
+        pieces.append(data[pos : pos + 12 + n])
+        pos += 12 + n
+    dropped = data[:12] + b"".join(p for i, p in enumerate(pieces) if i != 2)
+    with pytest.raises(WsplatError) as e:
+        wsplat.decode(dropped)
+    assert e.value.kind == "count_mismatch" and e.value.field.startswith("END!.")
+    # a classic END! (empty) cannot close a streamed file
+    with pytest.raises(WsplatError) as e:
+        wsplat.decode(data[:end_at] + wsplat._chunk(b"END!", b""))
+    assert (e.value.kind, e.value.field) == ("bad_payload", "END!")
+
+
+def test_stream_writer_first_chunk_is_small_and_layout_is_fixed_by_the_head():
+    sc = make_scene(n_static=6000, n_dyn=(2,), iso=True)
+    sl, dl = wsplat.layouts_for(sc.static, sc.dynamic)
+    w = wsplat.StreamWriter(sc, sl, dl)
+    pieces = [
+        w.head(),
+        *w.static(sc.static.subset(torch.arange(0, 100))),
+        *w.static(sc.static.subset(torch.arange(100, 6000))),
+    ]
+    pieces += [*w.dynamic(0, sc.dynamic[0]), w.end()]
+    sizes = [len(g) for k, g in ProgressiveDecoder().feed(b"".join(pieces)) if k == "static"]
+    assert sizes == [100, 5900]  # a window's statics end with their own chunk; the sizes double on from 4096

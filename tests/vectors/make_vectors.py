@@ -343,8 +343,8 @@ def write_wsplat(out_dir: Path) -> list[str]:
     rng = np.random.default_rng(7)
     names = []
 
-    def valid(name, scene, **kw):
-        data = wsplat.encode(scene, **kw)
+    def valid(name, scene, encoder=None, **kw):
+        data = (encoder or wsplat.encode)(scene, **kw)
         back = wsplat.decode(data)
         g = back.static.numpy()
         first = (
@@ -583,6 +583,57 @@ def write_wsplat(out_dir: Path) -> list[str]:
     bad("count_mismatch_dynamic_excess", d, "count_mismatch", chunk_offset(split_chunks(d), 3) + 8 + 4, "DYNA.count")
     bad("trailing_data", base + b"\x00", "trailing_data", len(base), "file")
     bad("bad_end_payload", join_chunks(ch[:-1] + [(b"END!", b"x")]), "bad_payload", end_at + 8, "END!.length")
+
+    # streamed files (wsplat-v1.md "Streamed files"): totals in END!, STAT after DYNA allowed
+    sbase = valid(
+        "valid_streamed",
+        _scene(rng, 5000, [20, 0, 35, 7], 4, iso=True),
+        encoder=wsplat.encode_streamed,
+        parts=[[0, 1], [2, 3]],
+        static_split=[3000],
+        end_meta={"aggregate": {"kept": 1}},
+        block_size=128,
+    )
+    valid(
+        "valid_streamed_aniso",
+        _scene(rng, 600, [9, 4], 2, iso=False),
+        encoder=wsplat.encode_streamed,
+        parts=[[0], [1]],
+        static_split=[100],
+    )
+    sch = split_chunks(sbase)
+    assert [t for t, _ in sch] == [b"HEAD", b"STAT", b"DYNA", b"STAT", b"DYNA", b"DYNA", b"END!"], [t for t, _ in sch]
+    shead, send = json.loads(sch[0][1]), json.loads(sch[-1][1])
+    send_at = chunk_offset(sch, len(sch) - 1)
+
+    def with_end(**changes):
+        e = dict(send)
+        e.update(changes)
+        return join_chunks(sch[:-1] + [(b"END!", json.dumps(e).encode())])
+
+    bad("truncated_streamed_before_end", sbase[:send_at], "truncated", send_at, "file")
+    d = with_end(num_static=send["num_static"] + 1)
+    bad("count_mismatch_streamed_static", d, "count_mismatch", send_at, "END!.num_static")
+    d = with_end(num_dynamic=[20, 0, 34, 7])
+    bad("count_mismatch_streamed_dynamic", d, "count_mismatch", send_at, "END!.num_dynamic[2]")
+    bad(  # a lost chunk in the middle: the totals of END! refuse the file
+        "count_mismatch_streamed_lost_chunk",
+        join_chunks(sch[:3] + sch[4:]),
+        "count_mismatch",
+        chunk_offset(sch[:3] + sch[4:], len(sch) - 2),
+        "END!.num_static",
+    )
+    bad("bad_payload_streamed_end_empty", join_chunks(sch[:-1] + [(b"END!", b"")]), "bad_payload", send_at + 8, "END!")
+    d = join_chunks(sch[:-1] + [(b"END!", json.dumps({"num_static": 5000}).encode())])
+    bad("bad_payload_streamed_end_fields", d, "bad_payload", send_at + 8, "END!.num_dynamic")
+    h = dict(shead, num_dynamic=[0, 0, 0, 0])  # num_static null, num_dynamic not: neither classic nor streamed
+    bad(
+        "bad_header_streamed_half",
+        join_chunks([(b"HEAD", json.dumps(h).encode())] + sch[1:]),
+        "bad_header",
+        20,
+        "HEAD.num_dynamic",
+    )
     return names
 
 

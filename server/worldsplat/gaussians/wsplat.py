@@ -1,9 +1,11 @@
 """.wsplat v1 encoder and decoders (web/docs/wsplat-v1.md).
 
 `encode(scene) -> bytes` / `write(scene, path)` (atomic) choose the record layouts ("model only what a scene needs":
-isotropic Gaussians do not pay for a rotation, constant opacity costs one bit). `decode(data) -> Scene4D` /
-`read(path)` validate everything and raise `WsplatError(kind, offset, field)`. `ProgressiveDecoder` takes bytes as
-they arrive and yields chunks; it never trusts a count before the bytes behind it are present.
+isotropic Gaussians do not pay for a rotation, constant opacity costs one bit). `StreamWriter` writes a *streamed*
+file piece by piece while the scene is generated (totals and bounds in END!, STAT and DYNA chunks interleaved window
+by window). `decode(data) -> Scene4D` / `read(path)` validate everything and raise `WsplatError(kind, offset,
+field)`. `ProgressiveDecoder` takes bytes as they arrive and yields chunks; it never trusts a count before the bytes
+behind it are present.
 """
 
 from __future__ import annotations
@@ -370,10 +372,76 @@ def _chunk(tag: bytes, payload: bytes) -> bytes:
 
 
 def choose_layouts(scene: Scene4D) -> tuple[Layout, Layout]:
-    dyn = Gaussians.cat(scene.dynamic) if any(len(d) for d in scene.dynamic) else Gaussians.empty()
-    static = Layout(tuple(map(tuple, STATIC_ISO if is_isotropic(scene.static) else STATIC_ANISO)))
-    dynamic = Layout(tuple(map(tuple, DYNAMIC_ISO if is_isotropic(dyn) else DYNAMIC_ANISO)))
-    return static, dynamic
+    return layouts_for(scene.static, scene.dynamic)
+
+
+def layouts_for(static: Gaussians, dynamic: list[Gaussians]) -> tuple[Layout, Layout]:
+    """The default layouts for these Gaussians (isotropic ones do not pay for a rotation)."""
+    dyn = Gaussians.cat(list(dynamic)) if any(len(d) for d in dynamic) else Gaussians.empty()
+    sl = Layout(tuple(map(tuple, STATIC_ISO if is_isotropic(static) else STATIC_ANISO)))
+    dl = Layout(tuple(map(tuple, DYNAMIC_ISO if is_isotropic(dyn) else DYNAMIC_ANISO)))
+    return sl, dl
+
+
+def _head(scene: Scene4D, sl: Layout, dl: Layout, block_size: int, num_static, num_dynamic, bounds) -> bytes:
+    """The HEAD chunk: the scene's frames, rig and poses, its layouts, the totals (None: a streamed file) and its
+    extra meta (unknown fields, ignored by readers)."""
+    if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
+        raise ValueError(f"wsplat: 1..{MAX_FRAMES} frames required, got {len(scene.frame_times)}")
+    if not 1 <= block_size <= 65536:
+        raise ValueError("wsplat: block_size must be in 1..65536")
+    meta = scene.meta
+    head = {
+        "format": "wsplat",
+        "version": VERSION,
+        "scenario_id": str(meta.get("scenario_id", "")),
+        "mode": str(meta.get("mode", "")),
+        "model_version": str(meta.get("model_version", "")),
+        "caption": str(meta.get("caption", "")),
+        "num_static": num_static,
+        "num_dynamic": num_dynamic,
+        "frame_times": [float(t) for t in scene.frame_times],
+        "fps": float(scene.fps),
+        "bounds": bounds,
+        "rig": [c.to_json() for c in scene.rig],
+        "ego_to_world": np.asarray(scene.ego_to_world).tolist(),
+        "block_size": block_size,
+        "static_layout": sl.to_json(),
+        "dynamic_layout": dl.to_json(),
+        "sh_degree": 0,
+    }
+    for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields
+        if k not in head and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
+            head[k] = v
+    return _chunk(b"HEAD", json.dumps(head, separators=(",", ":")).encode())
+
+
+def _bounds(means: list[np.ndarray]) -> dict:
+    allm = np.concatenate(means) if sum(len(m) for m in means) else np.zeros((1, 3))
+    return {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()}
+
+
+def _stat_chunks(st: dict[str, np.ndarray], sl: Layout, block_size: int, size: int) -> tuple[list[bytes], int]:
+    """STAT chunks of importance-ordered sanitized statics: chunk k holds the next `size` * 2^k of them, Morton-ordered
+    inside so block boxes stay small. Returns the chunks and the size the next chunk would have."""
+    out, n, s = [], len(st["means"]), 0
+    while s < n:
+        part = {k: v[s : s + size] for k, v in st.items()}
+        order = _block_order(part["means"])
+        part = {k: v[order] for k, v in part.items()}
+        out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + encode_blocks(part, sl, block_size)))
+        s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
+    return out, size
+
+
+def _dyna_chunks(t: int, d: dict[str, np.ndarray], dl: Layout, block_size: int) -> list[bytes]:
+    out = []
+    for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
+        part = {k: v[s : s + MAX_CHUNK_RECORDS] for k, v in d.items()}
+        order = _block_order(part["means"])
+        part = {k: v[order] for k, v in part.items()}
+        out.append(_chunk(b"DYNA", struct.pack("<II", t, len(order)) + encode_blocks(part, dl, block_size)))
+    return out
 
 
 def encode(
@@ -390,56 +458,105 @@ def encode(
         sl = parse_layout(static_layout, 0, "static_layout")
     if dynamic_layout is not None:
         dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
-    if not 1 <= block_size <= 65536:
-        raise ValueError("wsplat: block_size must be in 1..65536")
     st = _sanitized_numpy(scene.static, sl)
     dyn = [_sanitized_numpy(d, dl) for d in scene.dynamic]
-    if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
-        raise ValueError(f"wsplat: 1..{MAX_FRAMES} frames required, got {len(scene.frame_times)}")
-    allm = (
-        np.concatenate([st["means"]] + [d["means"] for d in dyn])
-        if len(st["means"]) + sum(len(d["means"]) for d in dyn)
-        else np.zeros((1, 3))
-    )
-    meta = scene.meta
-    head = {
-        "format": "wsplat",
-        "version": VERSION,
-        "scenario_id": str(meta.get("scenario_id", "")),
-        "mode": str(meta.get("mode", "")),
-        "model_version": str(meta.get("model_version", "")),
-        "caption": str(meta.get("caption", "")),
-        "num_static": int(len(st["means"])),
-        "num_dynamic": [int(len(d["means"])) for d in dyn],
-        "frame_times": [float(t) for t in scene.frame_times],
-        "fps": float(scene.fps),
-        "bounds": {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()},
-        "rig": [c.to_json() for c in scene.rig],
-        "ego_to_world": scene.ego_to_world.tolist(),
-        "block_size": block_size,
-        "static_layout": sl.to_json(),
-        "dynamic_layout": dl.to_json(),
-        "sh_degree": 0,
-    }
-    for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields
-        if k not in head and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
-            head[k] = v
+    bounds = _bounds([st["means"]] + [d["means"] for d in dyn])
     out = bytearray(MAGIC + struct.pack("<I", VERSION))
-    out += _chunk(b"HEAD", json.dumps(head, separators=(",", ":")).encode())
-    n, s, size = len(st["means"]), 0, FIRST_CHUNK
-    while s < n:
-        part = {k: v[s : s + size] for k, v in st.items()}
-        order = _block_order(part["means"])
-        part = {k: v[order] for k, v in part.items()}
-        out += _chunk(b"STAT", struct.pack("<I", len(order)) + encode_blocks(part, sl, block_size))
-        s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
+    out += _head(scene, sl, dl, block_size, int(len(st["means"])), [int(len(d["means"])) for d in dyn], bounds)
+    for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK)[0]:
+        out += c
     for t, d in enumerate(dyn):
-        for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
-            part = {k: v[s : s + MAX_CHUNK_RECORDS] for k, v in d.items()}
-            order = _block_order(part["means"])
-            part = {k: v[order] for k, v in part.items()}
-            out += _chunk(b"DYNA", struct.pack("<II", t, len(order)) + encode_blocks(part, dl, block_size))
+        for c in _dyna_chunks(t, d, dl, block_size):
+            out += c
     out += _chunk(b"END!", b"")
+    return bytes(out)
+
+
+class StreamWriter:
+    """A *streamed* .wsplat, written piece by piece while its scene is generated (web/docs/wsplat-v1.md, "Streamed
+    files"): HEAD without totals (`num_static`, `num_dynamic` and `bounds` are null), then STAT and DYNA chunks in
+    any order (a window's static Gaussians, then its frames' dynamics, window after window), then END! whose JSON
+    payload carries the totals, the bounds and the meta known only at the end. Readers check the totals against the
+    chunks, so only END! closes the file and a file missing a chunk is refused.
+
+        w = StreamWriter(skeleton, static_layout, dynamic_layout)   # skeleton: frames, rig, poses, meta
+        pieces = [w.head(), *w.static(g), *w.dynamic(t, g), ..., w.end(extra_meta)]
+
+    The layouts are fixed by the HEAD (`layouts_for` the first window); static Gaussians given to an isotropic layout
+    must be isotropic (an anisotropic one is written with its geometric-mean scale)."""
+
+    def __init__(self, skeleton: Scene4D, static_layout: Layout, dynamic_layout: Layout, block_size: int = 0):
+        self.skeleton, self.sl, self.dl = skeleton, static_layout, dynamic_layout
+        self.block_size = block_size or DEFAULT_BLOCK_SIZE
+        self.num_static, self.num_dynamic = 0, [0] * len(skeleton.frame_times)
+        self._means: list[np.ndarray] = []
+        self._next_size = FIRST_CHUNK
+        self.closed = False
+
+    @classmethod
+    def for_window(cls, skeleton: Scene4D, static: Gaussians, dynamic: list[Gaussians]) -> StreamWriter:
+        """A writer whose layouts fit the first window's Gaussians (`layouts_for`; no dynamics yet: they are taken
+        to look like the static ones)."""
+        dyn = [d for d in dynamic if len(d)]
+        return cls(skeleton, *layouts_for(static, dyn or [static]))
+
+    def head(self) -> bytes:
+        """The preamble and HEAD."""
+        return MAGIC + struct.pack("<I", VERSION) + _head(self.skeleton, self.sl, self.dl, self.block_size, None,
+                                                          None, None)  # fmt: skip
+
+    def _numpy(self, g: Gaussians, layout: Layout) -> dict[str, np.ndarray]:
+        a = _sanitized_numpy(g, layout)
+        if layout.isotropic and len(a["means"]):
+            a["scales"] = np.repeat(np.exp(np.log(a["scales"]).mean(1, keepdims=True)), 3, axis=1)
+        self._means.append(a["means"])
+        return a
+
+    def static(self, g: Gaussians) -> list[bytes]:
+        """STAT chunks of static Gaussians in importance order (the first chunk of the file is FIRST_CHUNK records,
+        then they double)."""
+        st = self._numpy(g, self.sl)
+        chunks, self._next_size = _stat_chunks(st, self.sl, self.block_size, self._next_size)
+        self.num_static += len(st["means"])
+        return chunks
+
+    def dynamic(self, t: int, g: Gaussians) -> list[bytes]:
+        """DYNA chunks of frame t's dynamic Gaussians (none when it has none)."""
+        if not 0 <= t < len(self.num_dynamic):
+            raise ValueError(f"wsplat: frame {t} out of range")
+        d = self._numpy(g, self.dl)
+        self.num_dynamic[t] += len(d["means"])
+        return _dyna_chunks(t, d, self.dl, self.block_size)
+
+    def end(self, meta: dict | None = None) -> bytes:
+        """END! with the totals, the bounds and `meta` (extra fields, ignored by readers)."""
+        body = {"num_static": self.num_static, "num_dynamic": list(self.num_dynamic), "bounds": _bounds(self._means)}
+        for k, v in (meta or {}).items():
+            if k not in body and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
+                body[k] = v
+        self.closed = True
+        return _chunk(b"END!", json.dumps(body, separators=(",", ":")).encode())
+
+
+def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, block_size: int = DEFAULT_BLOCK_SIZE,
+                    static_split: list[int] | None = None, end_meta: dict | None = None) -> bytes:  # fmt: skip
+    """A streamed file of a whole scene (tests, vectors): its static set cut at `static_split` (indices into the
+    importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame)."""
+    T = len(scene.frame_times)
+    parts = parts or [list(range(T))]
+    cuts = [0, *(static_split or []), len(scene.static)]
+    if len(cuts) != len(parts) + 1:
+        raise ValueError("wsplat: static_split needs one cut fewer than parts")
+    sl, dl = choose_layouts(scene)
+    w = StreamWriter(scene, sl, dl, block_size)
+    out = bytearray(w.head())
+    for i, frames in enumerate(parts):
+        for c in w.static(scene.static.subset(torch.arange(cuts[i], cuts[i + 1]))):
+            out += c
+        for t in frames:
+            for c in w.dynamic(t, scene.dynamic[t]):
+                out += c
+    out += w.end(end_meta)
     return bytes(out)
 
 
@@ -467,6 +584,40 @@ def _matrix(v, rows: int, cols: int) -> bool:
     )
 
 
+def _check_totals(h: dict, T: int, bad) -> None:
+    """num_static, num_dynamic[T] and bounds of a HEAD (or a streamed file's END!)."""
+    if not _is_int(h.get("num_static")) or h["num_static"] < 0:
+        bad("num_static", "must be an integer >= 0")
+    nd = h.get("num_dynamic")
+    if not isinstance(nd, list) or len(nd) != T or not all(_is_int(x) and x >= 0 for x in nd):
+        bad("num_dynamic", f"must be {T} integers >= 0")
+    b = h.get("bounds")
+    if not isinstance(b, dict) or not all(
+        isinstance(b.get(k), list) and len(b[k]) == 3 and all(_is_num(x) for x in b[k]) for k in ("min", "max")
+    ):
+        bad("bounds", "must be {min: [3 numbers], max: [3 numbers]}")
+
+
+def parse_end(payload: bytes, offset: int, T: int) -> dict:
+    """A streamed file's END! payload: UTF-8 JSON with num_static, num_dynamic[T], bounds (+ ignored extras)."""
+
+    def bad(field, msg):
+        raise WsplatError("bad_payload", offset, f"END!.{field}" if field else "END!", msg)
+
+    if len(payload) > MAX_HEAD:
+        bad("length", f"{len(payload)} bytes > {MAX_HEAD}")
+    try:
+        e = json.loads(bytes(payload).decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise WsplatError(
+            "bad_payload", offset, "END!", f"a streamed file's END! must carry its totals as JSON: {err}"
+        ) from None
+    if not isinstance(e, dict):
+        bad("", "not a JSON object")
+    _check_totals(e, T, bad)
+    return e
+
+
 def parse_head(payload: bytes, offset: int) -> dict:
     def bad(field, msg):
         raise WsplatError("bad_header", offset, f"HEAD.{field}", msg)
@@ -492,18 +643,16 @@ def parse_head(payload: bytes, offset: int) -> dict:
     if any(b < a for a, b in zip(ft, ft[1:])):
         bad("frame_times", "must be non-decreasing")
     T = len(ft)
-    if not _is_int(h.get("num_static")) or h["num_static"] < 0:
-        bad("num_static", "must be an integer >= 0")
-    nd = h.get("num_dynamic")
-    if not isinstance(nd, list) or len(nd) != T or not all(_is_int(x) and x >= 0 for x in nd):
-        bad("num_dynamic", f"must be {T} integers >= 0")
+    # streamed file: the totals and bounds are null here and come in END! (all three null, or none)
+    streamed = "num_static" in h and h["num_static"] is None
+    if streamed:
+        for k in ("num_dynamic", "bounds"):
+            if k not in h or h[k] is not None:
+                bad(k, "must be null in a streamed file (num_static is null)")
+    else:
+        _check_totals(h, T, bad)
     if not _is_num(h.get("fps")) or not h["fps"] > 0:
         bad("fps", "must be a number > 0")
-    b = h.get("bounds")
-    if not isinstance(b, dict) or not all(
-        isinstance(b.get(k), list) and len(b[k]) == 3 and all(_is_num(x) for x in b[k]) for k in ("min", "max")
-    ):
-        bad("bounds", "must be {min: [3 numbers], max: [3 numbers]}")
     rig = h.get("rig")
     if not isinstance(rig, list):
         bad("rig", "must be a list of cameras")
@@ -529,6 +678,7 @@ def parse_head(payload: bytes, offset: int) -> dict:
         if k not in h:
             bad(k, "missing")
         h[k] = parse_layout(h[k], offset, k)
+    h["streamed"] = streamed  # derived: the decoders' own flag (a HEAD field of that name is overridden)
     return h
 
 
@@ -614,7 +764,8 @@ class ProgressiveDecoder:
         self.dynamic: dict[int, list[Gaussians]] = {}
         self.num_static = 0
         self.num_dynamic: list[int] = []
-        self.stage = "magic"  # magic -> head -> stat -> dyna -> done
+        self.end: dict | None = None  # a streamed file's END! payload (totals, bounds, extra meta)
+        self.stage = "magic"  # magic -> head -> stat -> dyna -> done; a streamed file: magic -> head -> stream -> done
         self.bytes_fed = 0
 
     @property
@@ -666,7 +817,12 @@ class ProgressiveDecoder:
             raise WsplatError("bad_tag", at, "chunk.tag", f"unknown chunk tag {tag!r}")
         if length > MAX_CHUNK:
             raise WsplatError("chunk_too_large", at + 4, "chunk.length", f"{length} bytes > MAX_CHUNK")
-        expect = {"head": (b"HEAD",), "stat": (b"STAT", b"DYNA", b"END!"), "dyna": (b"DYNA", b"END!")}[self.stage]
+        expect = {
+            "head": (b"HEAD",),
+            "stat": (b"STAT", b"DYNA", b"END!"),
+            "dyna": (b"DYNA", b"END!"),
+            "stream": (b"STAT", b"DYNA", b"END!"),
+        }[self.stage]
         if tag not in expect:
             raise WsplatError(
                 "bad_order",
@@ -691,24 +847,30 @@ class ProgressiveDecoder:
         if tag == b"HEAD":
             self.header = parse_head(bytes(payload), pbase)
             self.num_dynamic = [0] * len(self.header["frame_times"])
-            self.stage = "stat"
+            self.stage = "stream" if self.header["streamed"] else "stat"
             return ("header", self.header)
         h = self.header
+        streamed = h["streamed"]
         if tag == b"END!":
-            if len(payload) != 0:
+            if streamed:
+                totals, src = parse_end(payload, pbase, len(h["frame_times"])), "END!"
+            elif len(payload) != 0:
                 raise WsplatError("bad_payload", pbase, "END!.length", "END! payload must be empty")
-            if self.num_static != h["num_static"]:
+            else:
+                totals, src = h, "HEAD"
+            if self.num_static != totals["num_static"]:
                 raise WsplatError(
                     "count_mismatch",
                     at,
-                    "HEAD.num_static",
-                    f"STAT chunks hold {self.num_static}, header says {h['num_static']}",
+                    f"{src}.num_static",
+                    f"STAT chunks hold {self.num_static}, {src} says {totals['num_static']}",
                 )
-            for t, (got, want) in enumerate(zip(self.num_dynamic, h["num_dynamic"])):
+            for t, (got, want) in enumerate(zip(self.num_dynamic, totals["num_dynamic"])):
                 if got != want:
                     raise WsplatError(
-                        "count_mismatch", at, f"HEAD.num_dynamic[{t}]", f"DYNA chunks hold {got}, header says {want}"
+                        "count_mismatch", at, f"{src}.num_dynamic[{t}]", f"DYNA chunks hold {got}, {src} says {want}"
                     )
+            self.end = totals if streamed else None
             self.stage = "done"
             return ("end", None)
         if tag == b"STAT":
@@ -717,7 +879,7 @@ class ProgressiveDecoder:
                 raise WsplatError("bad_payload", pbase, "STAT.count", "payload shorter than its count")
             (count,) = struct.unpack_from("<I", payload, 0)
         else:
-            self.stage = "dyna"
+            self.stage = "stream" if streamed else "dyna"
             layout, head_len, name = h["dynamic_layout"], 8, "DYNA"
             if len(payload) < 8:
                 raise WsplatError("bad_payload", pbase, "DYNA.frame", "payload shorter than frame + count")
@@ -736,7 +898,9 @@ class ProgressiveDecoder:
                 f"{name}.count",
                 f"count {count} implies {need} payload bytes, chunk has {len(payload)}",
             )
-        if tag == b"STAT":
+        if streamed:
+            pass  # the totals come with END!
+        elif tag == b"STAT":
             if self.num_static + count > h["num_static"]:
                 raise WsplatError("count_mismatch", coff, "STAT.count", "more static Gaussians than HEAD.num_static")
         elif self.num_dynamic[frame] + count > h["num_dynamic"][frame]:
@@ -760,15 +924,24 @@ class ProgressiveDecoder:
         h = self.header
         rig = [RigCamera.from_json(c) for c in h["rig"]]
         dyn = [Gaussians.cat(self.dynamic.get(t, [])) for t in range(len(h["frame_times"]))]
-        meta = {
-            k: v
-            for k, v in h.items()
-            if k
-            not in ("static_layout", "dynamic_layout", "rig", "ego_to_world", "frame_times", "num_dynamic", "bounds")
-        }
+        skip = (
+            "static_layout",
+            "dynamic_layout",
+            "rig",
+            "ego_to_world",
+            "frame_times",
+            "num_dynamic",
+            "bounds",
+            "streamed",
+        )
+        meta = {k: v for k, v in h.items() if k not in skip}
         meta["static_layout"] = h["static_layout"].to_json()
         meta["dynamic_layout"] = h["dynamic_layout"].to_json()
         meta["bounds"] = h["bounds"]
+        if self.end is not None:  # a whole streamed file: the totals, bounds and late meta of its END!
+            meta.update({k: v for k, v in self.end.items() if k != "num_dynamic"})
+        elif h["streamed"]:
+            meta["num_static"] = self.num_static
         return Scene4D(
             Gaussians.cat(self.static),
             dyn,
@@ -781,6 +954,7 @@ class ProgressiveDecoder:
     def finish(self) -> Scene4D:
         if self.stage != "done":
             where = {"magic": "file header", "head": "HEAD chunk", "stat": "END! chunk", "dyna": "END! chunk"}
+            where["stream"] = where["stat"]
             raise WsplatError("truncated", self.base, "file", f"stream ended before the {where[self.stage]}")
         return self.scene()
 

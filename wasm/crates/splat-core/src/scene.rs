@@ -55,7 +55,7 @@ impl Scene {
         self.caption = h.caption.clone();
         self.scenario_id = h.scenario_id.clone();
         self.mode = h.mode.clone();
-        self.bounds = Some((h.bounds_min, h.bounds_max));
+        self.bounds = if h.streamed { None } else { Some((h.bounds_min, h.bounds_max)) }; // streamed: known at END!
         self.dynamic = vec![Vec::new(); h.frame_times.len()];
     }
 
@@ -94,6 +94,9 @@ impl StreamingScene {
     pub fn push(&mut self, bytes: &[u8]) -> Result<Progress, WsplatError> {
         let events = self.decoder.push(bytes)?;
         self.scene.apply(events);
+        if let Some(h) = self.decoder.header().filter(|h| h.streamed && self.decoder.progress().done) {
+            self.scene.bounds = Some((h.bounds_min, h.bounds_max)); // a streamed file's END! brought them
+        }
         Ok(self.decoder.progress())
     }
     pub fn finish(&mut self) -> Result<Progress, WsplatError> {

@@ -245,8 +245,12 @@ pub struct Header {
     pub mode: String,
     pub model_version: String,
     pub caption: String,
+    /// Totals: from HEAD, or (a streamed file) 0 until its END! arrives with them.
     pub num_static: u64,
     pub num_dynamic: Vec<u64>,
+    /// A streamed file (HEAD `num_static`, `num_dynamic`, `bounds` null): totals and bounds come in END!, and STAT
+    /// may follow DYNA (web/docs/wsplat-v1.md, "Streamed files").
+    pub streamed: bool,
     pub frame_times: Vec<f64>,
     pub fps: f64,
     pub bounds_min: [f64; 3],
@@ -268,10 +272,6 @@ impl Header {
         let string = |k: &str| get(k)?.as_str().map(str::to_string).ok_or_else(|| bad(format!("{k}: expected a string")));
         let uint = |k: &str| get(k)?.as_u64().ok_or_else(|| bad(format!("{k}: expected an integer >= 0")));
         let num = |k: &str, x: &Value| x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| bad(format!("{k}: expected finite numbers")));
-        let vec3 = |k: &str, x: Option<&Value>| -> Result<[f64; 3], WsplatError> {
-            let a = x.and_then(Value::as_array).filter(|a| a.len() == 3).ok_or_else(|| bad(format!("{k}: expected 3 numbers")))?;
-            Ok([num(k, &a[0])?, num(k, &a[1])?, num(k, &a[2])?])
-        };
         if get("format")?.as_str() != Some("wsplat") {
             return Err(bad("format: must be \"wsplat\"".into()));
         }
@@ -291,22 +291,21 @@ impl Header {
         if frame_times.windows(2).any(|w| w[1] < w[0]) {
             return Err(bad("frame_times: must be non-decreasing".into()));
         }
-        let num_dynamic: Vec<u64> = get("num_dynamic")?
-            .as_array()
-            .ok_or_else(|| bad("num_dynamic: expected a list".into()))?
-            .iter()
-            .map(|x| x.as_u64().ok_or_else(|| bad("num_dynamic: expected integers >= 0".into())))
-            .collect::<Result<_, _>>()?;
-        if num_dynamic.len() != t {
-            return Err(bad(format!("num_dynamic: length {} != {t} frames", num_dynamic.len())));
-        }
+        let streamed = v.get("num_static").is_some_and(Value::is_null);
+        let totals = if streamed {
+            for k in ["num_dynamic", "bounds"] {
+                if !get(k)?.is_null() {
+                    return Err(bad(format!("{k}: must be null in a streamed file (num_static is null)")));
+                }
+            }
+            Totals { num_static: 0, num_dynamic: vec![0; t], bounds_min: [0.0; 3], bounds_max: [0.0; 3] }
+        } else {
+            Totals::from_json(v, t).map_err(|m| bad(m))?
+        };
         let fps = num("fps", get("fps")?)?;
         if fps <= 0.0 {
             return Err(bad("fps: must be > 0".into()));
         }
-        let bounds = get("bounds")?;
-        let bounds_min = vec3("bounds.min", bounds.get("min"))?;
-        let bounds_max = vec3("bounds.max", bounds.get("max"))?;
         let rig = get("rig")?
             .as_array()
             .ok_or_else(|| bad("rig: expected a list".into()))?
@@ -335,18 +334,51 @@ impl Header {
             mode: string("mode")?,
             model_version: string("model_version")?,
             caption: string("caption")?,
-            num_static: uint("num_static")?,
-            num_dynamic,
+            num_static: totals.num_static,
+            num_dynamic: totals.num_dynamic,
+            streamed,
             frame_times,
             fps,
-            bounds_min,
-            bounds_max,
+            bounds_min: totals.bounds_min,
+            bounds_max: totals.bounds_max,
             rig,
             ego_to_world,
             block_size: block_size as usize,
             static_layout: Layout::from_json(get("static_layout")?, "static_layout", offset)?,
             dynamic_layout: Layout::from_json(get("dynamic_layout")?, "dynamic_layout", offset)?,
         })
+    }
+}
+
+/// num_static, num_dynamic[T] and bounds: of a HEAD, or of a streamed file's END!.
+struct Totals {
+    num_static: u64,
+    num_dynamic: Vec<u64>,
+    bounds_min: [f64; 3],
+    bounds_max: [f64; 3],
+}
+
+impl Totals {
+    /// Errors are "field: message".
+    fn from_json(v: &Value, t: usize) -> Result<Totals, String> {
+        let num_static = v.get("num_static").and_then(Value::as_u64).ok_or("num_static: expected an integer >= 0")?;
+        let num_dynamic: Vec<u64> = v
+            .get("num_dynamic")
+            .and_then(Value::as_array)
+            .ok_or("num_dynamic: expected a list")?
+            .iter()
+            .map(|x| x.as_u64().ok_or("num_dynamic: expected integers >= 0"))
+            .collect::<Result<_, _>>()?;
+        if num_dynamic.len() != t {
+            return Err(format!("num_dynamic: length {} != {t} frames", num_dynamic.len()));
+        }
+        let vec3 = |k: &str| -> Result<[f64; 3], String> {
+            let a = v.get("bounds").and_then(|b| b.get(k)).and_then(Value::as_array).filter(|a| a.len() == 3);
+            let a = a.ok_or(format!("bounds.{k}: expected 3 numbers"))?;
+            let n = |x: &Value| x.as_f64().filter(|x| x.is_finite()).ok_or(format!("bounds.{k}: expected finite numbers"));
+            Ok([n(&a[0])?, n(&a[1])?, n(&a[2])?])
+        };
+        Ok(Totals { num_static, num_dynamic, bounds_min: vec3("min")?, bounds_max: vec3("max")? })
     }
 }
 
@@ -365,6 +397,8 @@ enum Stage {
     Head,
     Static,
     Dynamic,
+    /// after the HEAD of a streamed file: STAT, DYNA or END!
+    Stream,
     Done,
 }
 
@@ -458,7 +492,7 @@ impl Decoder {
         match self.stage {
             Stage::Magic => "file header (magic + version)",
             Stage::Head => "HEAD chunk",
-            Stage::Static | Stage::Dynamic => "chunk (no END! yet)",
+            Stage::Static | Stage::Dynamic | Stage::Stream => "chunk (no END! yet)",
             Stage::Done => "nothing",
         }
     }
@@ -535,15 +569,15 @@ impl Decoder {
                     })?;
                     let h = Header::from_json(&v, payload_off)?;
                     self.dynamic_counts = vec![0; h.frame_times.len()];
+                    self.stage = if h.streamed { Stage::Stream } else { Stage::Static };
                     self.header = Some(h.clone());
-                    self.stage = Stage::Static;
                     events.push(Event::Header(Box::new(h)));
                 }
-                (b"STAT", Stage::Static) => {
+                (b"STAT", Stage::Static | Stage::Stream) => {
                     let h = self.header.as_ref().unwrap();
                     let (gs, _) = decode_records(payload, payload_off, 0, h.block_size, &h.static_layout)?;
                     self.static_count += gs.len() as u64;
-                    if self.static_count > h.num_static {
+                    if !h.streamed && self.static_count > h.num_static {
                         return err(
                             ErrorKind::CountMismatch,
                             payload_off,
@@ -552,7 +586,7 @@ impl Decoder {
                     }
                     events.push(Event::Static(gs));
                 }
-                (b"DYNA", Stage::Static | Stage::Dynamic) => {
+                (b"DYNA", Stage::Static | Stage::Dynamic | Stage::Stream) => {
                     let h = self.header.as_ref().unwrap();
                     if payload.len() < 4 {
                         return err(ErrorKind::BadPayload, payload_off, "DYNA frame: payload shorter than 4 bytes");
@@ -563,26 +597,41 @@ impl Decoder {
                     }
                     let (gs, _) = decode_records(payload, payload_off, 4, h.block_size, &h.dynamic_layout)?;
                     self.dynamic_counts[frame] += gs.len() as u64;
-                    if self.dynamic_counts[frame] > h.num_dynamic[frame] {
+                    if !h.streamed && self.dynamic_counts[frame] > h.num_dynamic[frame] {
                         return err(
                             ErrorKind::CountMismatch,
                             payload_off + 4,
                             format!("DYNA count: frame {frame} exceeds HEAD.num_dynamic[{frame}] = {}", h.num_dynamic[frame]),
                         );
                     }
-                    self.stage = Stage::Dynamic;
+                    if !h.streamed {
+                        self.stage = Stage::Dynamic;
+                    }
                     events.push(Event::Dynamic { frame, gaussians: gs });
                 }
-                (b"END!", Stage::Static | Stage::Dynamic) => {
-                    let h = self.header.as_ref().unwrap();
-                    if len != 0 {
+                (b"END!", Stage::Static | Stage::Dynamic | Stage::Stream) => {
+                    let h = self.header.as_mut().unwrap();
+                    let src = if h.streamed { "END!" } else { "HEAD" };
+                    if h.streamed {
+                        // the totals and bounds of a streamed file: JSON in END!, checked against the chunks below
+                        if len > MAX_HEAD {
+                            return err(ErrorKind::BadPayload, payload_off, format!("END! length: {len} bytes exceeds {MAX_HEAD}"));
+                        }
+                        let bad = |m: String| WsplatError { kind: ErrorKind::BadPayload, offset: payload_off, message: format!("END!: {m}") };
+                        let v: Value = serde_json::from_slice(payload).map_err(|e| bad(format!("a streamed file's totals: invalid JSON: {e}")))?;
+                        if !v.is_object() {
+                            return Err(bad("not a JSON object".into()));
+                        }
+                        let t = Totals::from_json(&v, h.frame_times.len()).map_err(bad)?;
+                        (h.num_static, h.num_dynamic, h.bounds_min, h.bounds_max) = (t.num_static, t.num_dynamic, t.bounds_min, t.bounds_max);
+                    } else if len != 0 {
                         return err(ErrorKind::BadPayload, payload_off, format!("END! payload: {len} bytes, must be empty"));
                     }
                     if self.static_count != h.num_static {
                         return err(
                             ErrorKind::CountMismatch,
                             off,
-                            format!("END!: {} static Gaussians, HEAD.num_static says {}", self.static_count, h.num_static),
+                            format!("END!: {} static Gaussians, {src}.num_static says {}", self.static_count, h.num_static),
                         );
                     }
                     if let Some(f) = (0..h.num_dynamic.len()).find(|&f| self.dynamic_counts[f] != h.num_dynamic[f]) {
@@ -590,7 +639,7 @@ impl Decoder {
                             ErrorKind::CountMismatch,
                             off,
                             format!(
-                                "END!: frame {f} has {} dynamic Gaussians, HEAD.num_dynamic[{f}] says {}",
+                                "END!: frame {f} has {} dynamic Gaussians, {src}.num_dynamic[{f}] says {}",
                                 self.dynamic_counts[f], h.num_dynamic[f]
                             ),
                         );
@@ -609,6 +658,7 @@ impl Decoder {
                                 Stage::Head => "before HEAD",
                                 Stage::Static => "here (after HEAD/STAT)",
                                 Stage::Dynamic => "after DYNA",
+                                Stage::Stream => "here (streamed file)",
                                 _ => "here",
                             }
                         ),

@@ -16,6 +16,7 @@ const state = {
   frames: 0, fps: 4, frame: 0, playing: false, shift: 0, camera: "CAM_FRONT",
   dirty: true, events: [], errors: [], lastError: null, genJobId: null, videoJobId: null,
   videos: {}, streamBytes: 0,
+  timing: null,  // the last generate: ms from its POST to firstByte, firstStatic, firstDraw, whole (stream_latency)
 };
 
 // ---- errors -----------------------------------------------------------------------------------------------------
@@ -144,6 +145,7 @@ function followEvents(url, onProgress) {
 async function generate(scenario, mode, view = null) {
   clearError();
   $("generate-btn").disabled = true;
+  state.timing = { t0: performance.now() };
   try {
     const { body } = await apiJson("/api/scenes", {
       method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify({ scenario, mode }),
@@ -204,12 +206,15 @@ async function streamScene(url) {
     if (done) break;
     got += value.length;
     const p = parseJson(v.push_bytes(value));
+    mark("firstByte");
+    if (p && p.static_loaded > 0) mark("firstStatic");
     $("load-state").textContent = `streaming ${fmtBytes(got)}${total ? ` / ${fmtBytes(total)}` : ""}` +
       (p && p.static_loaded != null ? ` · ${p.static_loaded} static` : "");
     if (!state.loaded && v.num_frames() > 0) onSceneReady(false);
     state.dirty = true;
   }
   v.end_stream();
+  mark("whole");
   state.streamBytes = got;
   $("load-state").textContent = "";
   onSceneReady(true);
@@ -292,6 +297,12 @@ function render() {
   if (!state.viewer || !state.loaded) return;
   state.viewer.render();
   state.dirty = false;
+  if (state.timing && state.timing.firstStatic != null) mark("firstDraw");
+}
+
+/** Time of a milestone of the last generate, in ms since its POST (first time only). */
+function mark(what) {
+  if (state.timing && state.timing[what] == null) state.timing[what] = performance.now() - state.timing.t0;
 }
 
 let lastTick = performance.now();

@@ -22,7 +22,8 @@ from worldsplat.core.camera import default_rig
 from worldsplat.core.errors import Cancelled
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
-VERSION = "double-1"
+VERSION = "double-2"  # 2: built window by window
+WINDOW = 4  # frames per window, as the real pipeline's
 
 
 def _gaussians(rng: np.random.Generator, n: int, centre: np.ndarray) -> Gaussians:
@@ -53,39 +54,42 @@ class FastPipeline:
     def model_version(self, mode: str) -> str:
         return f"{VERSION}-{mode}"
 
-    def generate_scene(self, scenario, mode, progress, cancelled):
+    def generate_scene(self, scenario, mode, progress, cancelled, sink=None):
+        """Like pipeline.scene.generate_scene: windows of WINDOW frames, each handed to `sink` when done (its share
+        of the static set in importance order, its frames' dynamics)."""
         seed = int.from_bytes(hashlib.sha256(scenario.normalized_json().encode()).digest()[:8], "little")
         rng = np.random.default_rng(seed)
         T = int(scenario.clip.frames)
         rig = default_rig(int(scenario.image.width), int(scenario.image.height), tuple(scenario.rig.cameras))
         ego = np.tile(np.eye(4), (T, 1, 1))
         ego[:, 0, 3] = np.arange(T) * 1.0
+        meta = {"mode": mode, "model_version": self.model_version(mode), "caption": "double"}
+        meta["fps"] = float(scenario.clip.fps)
+        times = np.arange(T) / float(scenario.clip.fps)
         progress("world", 0.0)
-        dynamic = []
-        for t in range(T):
-            if cancelled():
-                raise Cancelled("cancelled")
-            progress("lift", t / T)
-            if self.seconds_per_frame:
-                time.sleep(self.seconds_per_frame)
-            dynamic.append(_gaussians(rng, 40, np.array([10.0 + t, 0, 0])))
-        static = _gaussians(rng, self.statics, np.array([10.0, 0, 0]))
-        imp = static.opacities * static.scales.mean(1) ** 2
-        static = static.subset(torch.argsort(-imp, stable=True))
-        progress("aggregate", 0.0)
-        return Scene4D(
-            static,
-            dynamic,
-            np.arange(T) / float(scenario.clip.fps),
-            rig,
-            ego,
-            {
-                "mode": mode,
-                "model_version": self.model_version(mode),
-                "caption": "double",
-                "fps": float(scenario.clip.fps),
-            },
-        )
+        if sink is not None:
+            sink.begin(Scene4D(Gaussians.empty(), [Gaussians.empty()] * T, times, rig, ego, dict(meta)))
+        wins = [list(range(s, min(T, s + WINDOW))) for s in range(0, T, WINDOW)]
+        statics, dynamic = [], []
+        for wi, frames in enumerate(wins):
+            dyn = {}
+            for t in frames:
+                if cancelled():
+                    raise Cancelled("cancelled")
+                progress("lift", t / T)
+                if self.seconds_per_frame:
+                    time.sleep(self.seconds_per_frame)
+                dyn[t] = _gaussians(rng, 40, np.array([10.0 + t, 0, 0]))
+            n = self.statics // len(wins) + (wi < self.statics % len(wins))
+            static = _gaussians(rng, n, np.array([10.0 + 4 * wi, 0, 0]))
+            imp = static.opacities * static.scales.mean(1) ** 2
+            static = static.subset(torch.argsort(-imp, stable=True))
+            progress("aggregate", (wi + 1) / len(wins))
+            if sink is not None:
+                sink.window(frames, static, dyn)
+            statics.append(static)
+            dynamic += [dyn[t] for t in frames]
+        return Scene4D(Gaussians.cat(statics), dynamic, times, rig, ego, meta)
 
     # videos: frames of the rig's size (the real mosaic, encoder and cache run on them), no rasterization
     def render_track(self, scene, shift_m, cameras, progress, cancelled):

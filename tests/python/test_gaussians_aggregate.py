@@ -239,3 +239,28 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
         assert float(out["alpha"].numpy()[inner_sky].min()) > 0.9, v
         assert psnr(b, gt.rgb[0, i], inner_sky) > 28.0, v
     assert np.mean(d_all) >= -0.2, d_all
+
+
+def test_window_by_window_keeps_the_cells_of_one_union_and_never_changes_a_sent_window():
+    from worldsplat.gaussians.aggregate import WindowAggregator
+
+    T, V = 4, 2
+    rig = default_rig(32, 18, ("CAM_FRONT", "CAM_BACK"))
+    per_view = _views(T, V, 400, 3, dynamic_frac=0.2)
+    ego = np.stack([yaw_pose(t, 0, 0, 0) for t in range(T)])
+    whole, st = aggregate_4d(per_view, np.arange(T) * 0.1, rig, ego, image_size=(18, 32))
+    one = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32))
+    s1, d1 = one.add(list(range(T)), per_view)  # one window of every frame is aggregate_4d
+    assert torch.equal(s1.means, whole.static.means) and one.stats.as_dict() == st.as_dict()
+    agg = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32))
+    a_static, a_dyn = agg.add([0, 1], per_view[:2])
+    first = a_static.means.clone()
+    b_static, b_dyn = agg.add([2, 3], per_view[2:])
+    scene = agg.scene([a_static, b_static], {**a_dyn, **b_dyn})
+    # every cell once: exactly as many static Gaussians as one union over all frames makes, none of them repeated
+    assert len(scene.static) == len(whole.static) and agg.stats.static_kept == st.static_kept
+    assert torch.equal(scene.static.means[: len(first)], first)  # the first window's Gaussians are final
+    for t in range(T):  # a frame's dynamic set depends on that frame alone
+        assert torch.equal(scene.dynamic[t].means, whole.dynamic[t].means)
+    with pytest.raises(ValueError, match="added twice"):
+        agg.add([3], per_view[3:])

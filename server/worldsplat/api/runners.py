@@ -7,8 +7,10 @@ background while warming the default scene.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
+import inspect
 import struct
 import time
 from collections.abc import Iterator
@@ -55,8 +57,9 @@ class Pipeline:
 
         return f"{mode}-{load_models().version}"
 
-    def generate_scene(self, scenario: Scenario, mode: str, progress, cancelled):
-        return self.module().generate_scene(scenario, mode=mode, progress=progress, cancelled=cancelled)
+    def generate_scene(self, scenario: Scenario, mode: str, progress, cancelled, sink=None):
+        """`sink` (pipeline.scene.SceneSink) takes each window as it is done."""
+        return self.module().generate_scene(scenario, mode=mode, progress=progress, cancelled=cancelled, sink=sink)
 
     def render_track(self, scene, shift_m: float, cameras: list[str], progress, cancelled):
         from worldsplat.pipeline.render import render_track  # noqa: PLC0415 - heavy (torch), imported on first use
@@ -148,29 +151,89 @@ def wsplat_pieces(data: bytes) -> Iterator[bytes]:
         first, pos = False, end
 
 
+class StreamSink:
+    """A `pipeline.scene.SceneSink` that writes a streamed .wsplat (web/docs/wsplat-v1.md, "Streamed files") through
+    the cache's live writer as windows arrive: the preamble + HEAD with the first window (its Gaussians fix the
+    layouts), then each window's STAT chunks (importance order) and its frames' DYNA chunks, flushed one by one; `end`
+    writes END! with the totals and the meta known only at the end. The live file is opened with the first byte, so a
+    job that fails before its first window leaves no file at all."""
+
+    def __init__(self, open_live, ctx: JobContext, pause: float = 0.0):
+        from worldsplat.gaussians import wsplat  # noqa: PLC0415 - heavy (torch), imported on first use
+
+        self.wsplat, self.open_live, self.ctx, self.pause = wsplat, open_live, ctx, pause
+        self.live = self.writer = self.skeleton = None
+        self.head_meta: set[str] = set()
+
+    def _put(self, piece: bytes) -> None:
+        self.ctx.check()
+        if self.live is None:
+            self.live = self.open_live()
+        self.live.write(piece)
+        if self.pause:  # test doubles slow the writer down to cut it mid-stream
+            time.sleep(self.pause)
+
+    def begin(self, skeleton) -> None:
+        self.skeleton, self.head_meta = skeleton, set(skeleton.meta)
+
+    def window(self, frames: list[int], static, dynamic: dict) -> None:
+        if self.writer is None:
+            self.writer = self.wsplat.StreamWriter.for_window(self.skeleton, static, list(dynamic.values()))
+            self._put(self.writer.head())
+        for piece in self.writer.static(static):
+            self._put(piece)
+        for t in frames:
+            for piece in self.writer.dynamic(t, dynamic[t]):
+                self._put(piece)
+
+    def end(self, scene) -> None:
+        if self.writer is None:  # no window at all (cannot happen: a clip has >= 1 frame)
+            raise RuntimeError("the pipeline handed over no window")
+        self._put(self.writer.end({k: v for k, v in scene.meta.items() if k not in self.head_meta}))
+
+
+def _takes_sink(pipe) -> bool:
+    try:
+        return "sink" in inspect.signature(pipe.generate_scene).parameters
+    except (TypeError, ValueError):
+        return False
+
+
 def run_scene(cache: ArtifactCache, ctx: JobContext, pipe: Pipeline = PIPELINE) -> dict:
-    """Build the scene and write its .wsplat chunk by chunk through the cache's live writer: a stream opened while
-    the job runs (GET .../wsplat?wait=true) receives each chunk as it is flushed (static chunks in importance order,
-    then the dynamics frame by frame); the file is renamed into the cache only when whole (END!), and a cancel or a
-    failure between chunks aborts it (deleted; open streams are cut without END!)."""
+    """Build the scene and write its .wsplat through the cache's live writer while it is generated: a stream opened
+    while the job runs (GET .../wsplat?wait=true) receives each window's chunks as they are flushed (`StreamSink`;
+    a pipeline without `sink` writes the whole file at the end, static chunks first). The file is renamed into the
+    cache only when whole (END!); a cancel, a failure or a stop between chunks aborts it (deleted; open streams are
+    cut without END!), and a server killed meanwhile leaves it in tmp/, which the next start empties."""
     from worldsplat.gaussians import wsplat  # noqa: PLC0415
 
     p = ctx.params
     scenario, mode, scene_id = Scenario.parse(p["scenario"]), p["mode"], ctx.job.target
     t0 = time.monotonic()
     ctx.progress("loading models", 0.0)
-    scene = pipe.generate_scene(scenario, mode, ctx.progress, ctx.cancelled)
-    ctx.check()
-    ctx.progress("writing .wsplat", 0.0)
-    data = wsplat.encode(scene)
-    pause = float(getattr(pipe, "chunk_pause_s", 0.0))  # test doubles slow the writer down to cut it mid-stream
-    with cache.live_writer("scenes", scene_id, ".wsplat") as live:
-        for piece in wsplat_pieces(data):
+    pause = float(getattr(pipe, "chunk_pause_s", 0.0))
+    with contextlib.ExitStack() as stack:
+
+        def open_live():
+            return stack.enter_context(cache.live_writer("scenes", scene_id, ".wsplat"))
+
+        if _takes_sink(pipe):
+            sink = StreamSink(open_live, ctx, pause)
+            scene = pipe.generate_scene(scenario, mode, ctx.progress, ctx.cancelled, sink=sink)
             ctx.check()
-            live.write(piece)
-            ctx.progress("writing .wsplat", live.size / len(data))
-            if pause:
-                time.sleep(pause)
+            sink.end(scene)
+        else:
+            scene = pipe.generate_scene(scenario, mode, ctx.progress, ctx.cancelled)
+            ctx.check()
+            ctx.progress("writing .wsplat", 0.0)
+            data = wsplat.encode(scene)
+            live = open_live()
+            for piece in wsplat_pieces(data):
+                ctx.check()
+                live.write(piece)
+                ctx.progress("writing .wsplat", live.size / len(data))
+                if pause:
+                    time.sleep(pause)
     meta = cache.commit_meta(
         "scenes",
         scene_id,

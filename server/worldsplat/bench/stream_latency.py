@@ -1,17 +1,23 @@
 """Time from POST /api/scenes to the first static chunk and to the whole scene, through the live stream
-(GET /api/scenes/{id}/wsplat?wait=true, opened right after the POST), cold and warm, per mode.
+(GET /api/scenes/{id}/wsplat?wait=true, opened right after the POST), cold and warm, per mode; with `--browser` also
+the time to the first frame the page's viewer drew (headless Chromium, WebGL2: tests/browser/stream-latency.mjs).
 
-    python -m worldsplat.bench.stream_latency [--modes oracle,generate] [--preset NAME] [--out FILE.json]
+    python -m worldsplat.bench.stream_latency [--modes oracle,generate] [--preset NAME] [--browser [--shots DIR]]
+                                              [--out FILE.json]
+    python -m worldsplat.bench.stream_latency --profile [--modes ...]    # in-process stage times, warm, per window
 
 Cold: a fresh `worldsplat serve --no-warm` process and an empty cache, so the request pays the pipeline import and the
 model load. Warm: the next request on the same server (another seed, so nothing is cached). Each row also gives the
 time to the same milestones the way the page fetched a scene before (SSE `done`, then GET .wsplat): the whole file
-arrives only then, so its first static chunk does too."""
+arrives only then, so its first static chunk does too. The browser rows run on another fresh server per mode: cold is
+the scene the page generates on load (a share link carries scenario and mode), warm the next one it generates.
+The server inherits this process's environment (OMP_NUM_THREADS, OMP_WAIT_POLICY: see playground.md)."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import socket
 import struct
 import subprocess
@@ -23,8 +29,11 @@ from pathlib import Path
 
 import httpx
 
+from worldsplat.core.paths import source_root
 from worldsplat.core.scenario import default_preset_name, load_preset
 from worldsplat.gaussians.wsplat import ProgressiveDecoder
+
+IDENTITY = {"Accept-Encoding": "identity"}  # the file's own bytes, framed as they arrive (no content coding)
 
 
 def _free_port() -> int:
@@ -84,7 +93,8 @@ def measure(url: str, preset: str, mode: str, seed: int) -> dict:
     sse = threading.Thread(target=_sse_done, args=(url, body["scene_id"], t0, row))
     sse.start()
     buf, tags = bytearray(), []
-    with httpx.stream("GET", f"{url}/api/scenes/{body['scene_id']}/wsplat?wait=true", timeout=600) as s:
+    live = f"{url}/api/scenes/{body['scene_id']}/wsplat?wait=true"
+    with httpx.stream("GET", live, headers=IDENTITY, timeout=600) as s:
         s.raise_for_status()
         for piece in s.iter_raw():
             buf += piece
@@ -98,18 +108,95 @@ def measure(url: str, preset: str, mode: str, seed: int) -> dict:
     sse.join(600)
     # the old path: the whole file once the job's events say done
     t1 = time.monotonic()
-    httpx.get(f"{url}/api/scenes/{body['scene_id']}/wsplat", timeout=120).raise_for_status()
+    httpx.get(f"{url}/api/scenes/{body['scene_id']}/wsplat", headers=IDENTITY, timeout=120).raise_for_status()
     row["before_whole_s"] = row["sse_end_s"] + (time.monotonic() - t1)
     return {k: round(v, 2) if isinstance(v, float) else v for k, v in row.items()}
+
+
+class _TimingSink:
+    """A SceneSink that encodes the stream as the playground's writer does (wsplat.StreamWriter) and notes when each
+    window was handed over and when its first STAT chunk was encoded."""
+
+    def __init__(self, t0: float):
+        self.t0, self.writer, self.skeleton, self.rows = t0, None, None, []
+        self.cpu0 = time.process_time()
+
+    def begin(self, skeleton) -> None:
+        self.skeleton, self.begin_s = skeleton, time.perf_counter() - self.t0
+
+    def window(self, frames, static, dynamic) -> None:
+        from worldsplat.gaussians import wsplat  # noqa: PLC0415 - heavy (torch)
+
+        row = {"frames": list(frames), "handed_over_s": time.perf_counter() - self.t0, "static": len(static)}
+        row["cpu_s"] = time.process_time() - self.cpu0  # CPU seconds of this process since the call (all threads)
+        if self.writer is None:
+            self.writer = wsplat.StreamWriter.for_window(self.skeleton, static, list(dynamic.values()))
+            self.writer.head()
+        chunks = self.writer.static(static)
+        row["first_stat_encoded_s"] = time.perf_counter() - self.t0
+        for t in frames:
+            self.writer.dynamic(t, dynamic[t])
+        row["written_s"] = time.perf_counter() - self.t0
+        row["stat_chunks"] = len(chunks)
+        self.rows.append(row)
+
+
+def profile(preset: str, mode: str, seed: int) -> dict:
+    """In-process stage times of a warm request (the same process ran one scene before): per window, the models'
+    stages (conditions incl. caption encoding, diffusion, Gaussian decoder; oracle: simulate, lift), the aggregation
+    and the .wsplat encoding, and when each window was handed over, from the call."""
+    import torch  # noqa: PLC0415 - heavy
+
+    from worldsplat.pipeline.scene import generate_scene  # noqa: PLC0415 - heavy (torch)
+
+    sc = load_preset(preset)
+    generate_scene(sc.with_updates(seed=seed - 1), mode=mode)  # warm: models, caption encoder, allocator
+    t0 = time.perf_counter()
+    sink = _TimingSink(t0)
+    scene = generate_scene(sc.with_updates(seed=seed), mode=mode, sink=sink)
+    total = time.perf_counter() - t0
+    cpu = time.process_time() - sink.cpu0
+    return {
+        "preset": preset, "mode": mode, "seed": seed, "threads": torch.get_num_threads(),
+        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", ""), "total_s": round(total, 3), "total_cpu_s": round(cpu, 3),
+        "begin_s": round(sink.begin_s, 3),
+        "windows": [
+            {**{k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}, "stages_s": st}
+            for r, st in zip(sink.rows, scene.meta["timing_s"]["windows"], strict=True)
+        ],
+        "static": len(scene.static), "dynamic": sum(len(d) for d in scene.dynamic),
+    }  # fmt: skip
+
+
+def browser_rows(url: str, preset: str, mode: str, tmp: Path, shots: Path | None) -> list[dict]:
+    """Cold and warm rows of the page in headless Chromium (tests/browser/stream-latency.mjs)."""
+    sc = tmp / "scenario.json"
+    sc.write_text(json.dumps(load_preset(preset).model_dump(mode="json")))
+    script = source_root() / "tests" / "browser" / "stream-latency.mjs"
+    cmd = ["node", str(script), url, mode, str(sc), "201", "202"] + ([str(shots)] if shots else [])
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    if out.returncode:
+        raise RuntimeError(f"browser run failed: {out.stderr[-2000:]}")
+    return [{"preset": preset, "client": "chromium", **json.loads(line)} for line in out.stdout.splitlines() if line]
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--modes", default="oracle,generate")
     ap.add_argument("--preset", default=default_preset_name())
+    ap.add_argument("--browser", action="store_true", help="also the page: POST -> first drawn frame (Chromium)")
+    ap.add_argument("--shots", type=Path, help="with --browser: screenshots of a scene growing, into this folder")
+    ap.add_argument("--profile", action="store_true", help="only the in-process stage profile of a warm request")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     rows = []
+    if a.profile:
+        for mode in a.modes.split(","):
+            rows.append(profile(a.preset, mode, 301))
+            print(json.dumps(rows[-1]), flush=True)
+        if a.out:
+            a.out.write_text(json.dumps(rows, indent=1) + "\n")
+        return
     for mode in a.modes.split(","):
         with tempfile.TemporaryDirectory() as tmp:
             proc, url = _start(Path(tmp) / "cache")
@@ -119,12 +206,24 @@ def main(argv=None) -> None:
                     print(f"{mode}: not available here ({modes})", file=sys.stderr)
                     continue
                 for label, seed in (("cold", 101), ("warm", 102)):
-                    row = {"preset": a.preset, "server": label, **measure(url, a.preset, mode, seed)}
+                    row = {"preset": a.preset, "client": "httpx", "server": label, **measure(url, a.preset, mode, seed)}
                     print(json.dumps(row), flush=True)
                     rows.append(row)
             finally:
                 proc.terminate()
                 proc.wait(30)
+        if a.browser:
+            with tempfile.TemporaryDirectory() as tmp:
+                proc, url = _start(Path(tmp) / "cache")
+                try:
+                    if a.shots:
+                        a.shots.mkdir(parents=True, exist_ok=True)
+                    for row in browser_rows(url, a.preset, mode, Path(tmp), a.shots):
+                        print(json.dumps(row), flush=True)
+                        rows.append(row)
+                finally:
+                    proc.terminate()
+                    proc.wait(30)
     if a.out:
         a.out.write_text(json.dumps(rows, indent=1) + "\n")
 

@@ -40,6 +40,10 @@ def run(args: argparse.Namespace) -> int:
 
     from worldsplat.api.app import create_app  # noqa: PLC0415
 
+    # torch's OpenMP threads spin while they wait: on a 2-core machine shared with other work (training, the
+    # browser, other servers) a spinning thread starves its sibling, and one DiT window took 24-30 s instead of
+    # 2.5 s (playground.md, "Threads"). Passive waiting, unless the caller chose; read when torch is imported (later).
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     if not 1 <= args.port <= 65535:
         raise ValueError(f"--port must be in 1..65535, got {args.port}")
     if args.cache_max_mb <= 0 or args.max_queued <= 0 or not args.max_scene_mpix > 0:

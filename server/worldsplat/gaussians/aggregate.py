@@ -196,10 +196,29 @@ def economize(
     opaque member). `cell_factor` overrides `eco.cell_factor` (the dynamic sets use `eco.dynamic_cell_factor`).
     `cover` > 0: a merged Gaussian stands for the surface patch its members tile, not for their centres
     (see `merged_variance`)."""
+    return _economize(g, eco, camera_centres, focal, stats, budget, cell_factor, cover)[0]
+
+
+def _economize(
+    g: Gaussians,
+    eco: Economy,
+    camera_centres: np.ndarray,
+    focal: float,
+    stats: AggregateStats | None = None,
+    budget: int | None = None,
+    cell_factor: float | None = None,
+    cover: float = 0.0,
+    taken: CellTable | None = None,
+) -> tuple[Gaussians, np.ndarray, np.ndarray]:
+    """`economize`, also returning the cell key and the log of the geometric-mean scale of every output Gaussian.
+    `taken`: cells already emitted by earlier windows (`WindowAggregator`); a cell found there is emitted again only
+    when this window sees it at least `FINER` times finer (see WindowAggregator), else its members count as
+    merged away."""
     stats = stats or AggregateStats()
     a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
+    none = np.zeros(0, np.int64), np.zeros(0)
     if len(a["means"]) == 0:
-        return g.detach()
+        return g.detach(), *none
     keep = _finite_rows(a)
     a["opacities"] = np.clip(np.nan_to_num(a["opacities"]), 0, 1)
     transparent = keep & (a["opacities"] < max(eco.min_opacity, C.ALPHA_MIN))
@@ -218,7 +237,7 @@ def economize(
     dist, sky = dist[~far], sky[~far]
     n = len(a["means"])
     if n == 0:
-        return Gaussians.empty(0 if g.extras is None else g.extras.shape[1])
+        return Gaussians.empty(0 if g.extras is None else g.extras.shape[1]), *none
     s = np.clip(a["scales"], C.SCALE_MIN, C.SCALE_MAX)
     # One resolution per place: the pixel footprint from the nearest camera, times cell_factor, rounded to a
     # power of two. Every observation of a surface (any frame, any view, any depth) lands in the same cell.
@@ -260,8 +279,13 @@ def economize(
     first = order[np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]]
     quats = a["quats"][first]
     extras = wmean(a["extras"]) if "extras" in a else None
-    importance = opac * np.exp(2 * np.log(scales).mean(1)) * (1 + np.log(counts))
+    log_scale = np.log(scales).mean(1)
+    importance = opac * np.exp(2 * log_scale) * (1 + np.log(counts))
     idx = np.argsort(-importance, kind="stable")
+    if taken is not None and len(taken.keys):
+        again = taken.emit(uniq[idx], log_scale[idx])
+        stats.merged_away += int((~again).sum())  # their members merged into the cell's earlier Gaussian
+        idx = idx[again]
     if budget is not None:
         idx = idx[:budget]
     out = {
@@ -273,13 +297,148 @@ def economize(
     }
     if extras is not None:
         out["extras"] = extras[idx]
-    return Gaussians.from_numpy(**out, dtype=torch.float64 if g.means.dtype == torch.float64 else torch.float32)
+    dtype = torch.float64 if g.means.dtype == torch.float64 else torch.float32
+    return Gaussians.from_numpy(**out, dtype=dtype), uniq[idx], log_scale[idx]
 
 
 def importance_order(g: Gaussians) -> Gaussians:
     s = g.scales.detach().double().clamp(C.SCALE_MIN, C.SCALE_MAX)
     imp = g.opacities.detach().double().clamp(0, 1) * torch.exp(2 * s.log().mean(1))
     return g.subset(torch.argsort(-imp, stable=True))
+
+
+class CellTable:
+    """The static cells a streamed scene has emitted so far (sorted int64 keys of `_cell_keys`) and the log of the
+    geometric-mean scale of the Gaussian each got. A later window emits a cell again only when it sees it at least
+    `finer` times finer (the ego drives towards what it first saw far away); else that window's members of the cell
+    are merged away into the Gaussian already sent."""
+
+    def __init__(self, finer: float):
+        self.keys, self.log_scale = np.zeros(0, np.int64), np.zeros(0)
+        self.log_finer = math.log(finer) if 0 < finer < math.inf else (math.inf if finer > 0 else -math.inf)
+
+    def emit(self, keys: np.ndarray, log_scale: np.ndarray) -> np.ndarray:
+        if not len(self.keys):
+            return np.ones(len(keys), dtype=bool)
+        i = np.minimum(np.searchsorted(self.keys, keys), len(self.keys) - 1)
+        hit = self.keys[i] == keys
+        return ~hit | (log_scale < self.log_scale[i] - self.log_finer)
+
+    def add(self, keys: np.ndarray, log_scale: np.ndarray) -> None:
+        k, ls = np.concatenate([self.keys, keys]), np.concatenate([self.log_scale, log_scale])
+        order = np.lexsort((ls, k))
+        k, ls = k[order], ls[order]
+        first = np.r_[True, k[1:] != k[:-1]] if len(k) else np.zeros(0, dtype=bool)
+        self.keys, self.log_scale = k[first], ls[first]
+
+
+# A later window re-emits a static cell it sees at least this many times finer. Measured (gaussians.md, "Window by
+# window"): never re-emitting keeps exactly the cells of one union over all frames and rendered as well; 2 and 1.5
+# added 1-4% Gaussians for no gain.
+WINDOW_FINER = math.inf
+
+
+class WindowAggregator:
+    """Paper eq. 3 + economy over a clip that arrives window by window (the models' 4-frame windows), so a scene can
+    be streamed while it is generated: `add(frames, per_view)` returns that window's static Gaussians (importance
+    order, final: nothing later changes them) and each of its frames' dynamic set (final too).
+
+    The cell of a static place is the same as `aggregate_4d`'s (its footprint from the nearest camera of the whole
+    track: the track is known before any frame is generated). What differs from one union over all frames: a cell
+    already emitted by an earlier window is not merged with a later window's members (those bytes are sent); a later
+    window emits it again only when it sees it `finer` times finer (see `CellTable`). One window with every frame is
+    exactly `aggregate_4d`."""
+
+    def __init__(
+        self,
+        frame_times,
+        rig: list[RigCamera],
+        ego_to_world: np.ndarray,
+        *,
+        in_ego_frame: bool = False,
+        economy: Economy | None = None,
+        image_size: tuple[int, int] | None = None,
+        finer: float = WINDOW_FINER,
+    ):
+        self.economy = economy or Economy()
+        self.ego_to_world = np.asarray(ego_to_world, dtype=np.float64)
+        self.frame_times = np.asarray(frame_times, dtype=np.float64)
+        self.rig, self.in_ego_frame = list(rig), in_ego_frame
+        T = len(self.ego_to_world)
+        if T != len(self.frame_times):
+            raise ValueError(f"aggregate: {T} ego poses, {len(self.frame_times)} frame times")
+        self.stats = AggregateStats()
+        if image_size is not None:
+            self.stats.naive = T * len(rig) * image_size[0] * image_size[1]
+        self.centres = np.array([[rc.at(e).position for rc in rig] for e in self.ego_to_world]).reshape(T, -1, 3)
+        self.focal = float(np.median([np.sqrt(rc.fx * rc.fy) for rc in rig])) if rig else 1.0
+        self.cells = CellTable(finer)
+        self.seen: set[int] = set()
+
+    def add(self, frames: list[int], per_view: list[list[Gaussians]]) -> tuple[Gaussians, dict[int, Gaussians]]:
+        """`per_view[i][v]`: Gaussians of frame `frames[i]`, view v (see `aggregate_4d`). Each frame once."""
+        if len(frames) != len(per_view):
+            raise ValueError(f"aggregate: {len(per_view)} frames of Gaussians for frames {frames}")
+        T = len(self.ego_to_world)
+        for t in frames:
+            if not 0 <= t < T or t in self.seen:
+                raise ValueError(f"aggregate: frame {t} out of range 0..{T - 1} or added twice")
+        self.seen.update(frames)
+        eco, st = self.economy, self.stats
+        statics, dynamics = [], {}
+        for t, views in zip(frames, per_view, strict=True):
+            dyn_t = []
+            for g in views:
+                st.lifted += len(g)
+                if self.in_ego_frame:
+                    g = transform(g, self.ego_to_world[t])
+                s, d = split_dynamic(g)
+                statics.append(s)
+                dyn_t.append(d)
+            dynamics[t] = Gaussians.cat(dyn_t) if dyn_t else Gaussians.empty()
+        static = Gaussians.cat(statics) if statics else Gaussians.empty()
+        st.static_union += len(static)
+        st.dynamic_union += sum(len(d) for d in dynamics.values())
+        if eco.enabled:
+            budget = None if eco.static_budget is None else max(0, eco.static_budget - st.static_kept)
+            static, keys, log_scale = _economize(
+                static, eco, self.centres.reshape(-1, 3), self.focal, st, budget, taken=self.cells
+            )
+            self.cells.add(keys, log_scale)
+            dynamics = {
+                t: economize(
+                    d,
+                    eco,
+                    self.centres[t],
+                    self.focal,
+                    st,
+                    eco.dynamic_budget,
+                    cell_factor=eco.dynamic_cell_factor,
+                    cover=eco.dynamic_cover,
+                )
+                if len(d)
+                else d.detach()
+                for t, d in dynamics.items()
+            }
+        else:
+            static = importance_order(static.detach())
+            dynamics = {t: d.detach() for t, d in dynamics.items()}
+        st.static_kept += len(static)
+        if static.extras is not None and static.extras.shape[1] > SKY_CHANNEL:
+            st.sky_kept += int((static.extras[:, SKY_CHANNEL] > 0.5).sum())
+        st.dynamic_kept += sum(len(d) for d in dynamics.values())
+        return static, dynamics
+
+    def scene(self, statics: list[Gaussians], dynamics: dict[int, Gaussians], meta: dict | None = None) -> Scene4D:
+        """The Scene4D of the windows added (their static parts in the order sent, every frame's dynamic set)."""
+        T = len(self.ego_to_world)
+        if set(dynamics) != set(range(T)):
+            raise ValueError(f"aggregate: dynamics for frames {sorted(dynamics)}, the clip has {T}")
+        static = Gaussians.cat(statics) if len(statics) > 1 else (statics[0] if statics else Gaussians.empty())
+        return Scene4D(
+            static, [dynamics[t] for t in range(T)], self.frame_times.copy(), self.rig, self.ego_to_world,
+            dict(meta or {}),
+        )  # fmt: skip
 
 
 def aggregate_4d(
@@ -295,57 +454,15 @@ def aggregate_4d(
 ) -> tuple[Scene4D, AggregateStats]:
     """Paper eq. 3. `per_view[t][v]`: Gaussians of frame t, view v, with extras[:, 0] = dynamic probability
     (> 0.5 = dynamic); in world coordinates, or in the ego frame of frame t when `in_ego_frame`.
-    Returns the Scene4D (static in importance order) and the statistics of the economy."""
-    economy = economy or Economy()
-    ego_to_world = np.asarray(ego_to_world, dtype=np.float64)
+    Returns the Scene4D (static in importance order) and the statistics of the economy. (One window of every
+    frame of `WindowAggregator`.)"""
     T = len(per_view)
     if T != len(ego_to_world) or T != len(frame_times):
         raise ValueError(
             f"aggregate: {T} frames of Gaussians, {len(ego_to_world)} ego poses, {len(frame_times)} frame times"
         )
-    stats = AggregateStats()
-    if image_size is not None:
-        stats.naive = T * len(rig) * image_size[0] * image_size[1]
-    statics, dynamics = [], []
-    for t, views in enumerate(per_view):
-        dyn_t = []
-        for g in views:
-            stats.lifted += len(g)
-            if in_ego_frame:
-                g = transform(g, ego_to_world[t])
-            st, dy = split_dynamic(g)
-            statics.append(st)
-            dyn_t.append(dy)
-        dynamics.append(Gaussians.cat(dyn_t) if dyn_t else Gaussians.empty())
-    static = Gaussians.cat(statics) if statics else Gaussians.empty()
-    stats.static_union = len(static)
-    stats.dynamic_union = sum(len(d) for d in dynamics)
-    centres = np.array([[rc.at(e).position for rc in rig] for e in ego_to_world])  # (T,V,3)
-    focal = float(np.median([np.sqrt(rc.fx * rc.fy) for rc in rig])) if rig else 1.0
-    if economy.enabled:
-        static = economize(static, economy, centres.reshape(-1, 3), focal, stats, economy.static_budget)
-        dynamics = [
-            economize(
-                d,
-                economy,
-                centres[t],
-                focal,
-                stats,
-                economy.dynamic_budget,
-                cell_factor=economy.dynamic_cell_factor,
-                cover=economy.dynamic_cover,
-            )
-            if len(d)
-            else d.detach()
-            for t, d in enumerate(dynamics)
-        ]
-    else:
-        static = importance_order(static.detach())
-        dynamics = [d.detach() for d in dynamics]
-    stats.static_kept = len(static)
-    if static.extras is not None and static.extras.shape[1] > SKY_CHANNEL:
-        stats.sky_kept = int((static.extras[:, SKY_CHANNEL] > 0.5).sum())
-    stats.dynamic_kept = sum(len(d) for d in dynamics)
-    return Scene4D(
-        static, dynamics, np.asarray(frame_times, dtype=np.float64), list(rig), ego_to_world, dict(meta or {})
-    ), stats
+    agg = WindowAggregator(
+        frame_times, rig, ego_to_world, in_ego_frame=in_ego_frame, economy=economy, image_size=image_size
+    )
+    static, dynamics = agg.add(list(range(T)), per_view)
+    return agg.scene([static], dynamics, meta), agg.stats

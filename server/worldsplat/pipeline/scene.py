@@ -9,21 +9,35 @@ reconstruct ground-truth multi-view video -> VAE encoder -> latent Gaussian deco
 generate    world conditions -> 4D-aware DiT -> latent Gaussian decoder; needs shipped weights.
 `progress(stage, fraction)` is called as stages advance; `cancelled()` is checked between stages and frames and
 raises worldsplat.core.errors.Cancelled.
+
+Every mode builds the scene window by window (the models' 4-frame windows; the oracle uses the same size): each
+window is generated, decoded and aggregated (`gaussians.aggregate.WindowAggregator`: its static Gaussians and its
+frames' dynamic sets are final once it is done), and handed to `sink` (`SceneSink`: `begin(skeleton)` once, with the
+frames, rig, poses and the meta known before generation, then `window(frames, static, dynamic)` per window), so the
+playground can stream the scene while the next window is generated (api.runners.run_scene).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
 
 from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
-from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_4d
+from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator
 from worldsplat.gaussians.lift import lift
-from worldsplat.gaussians.types import Scene4D
+from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.world import build_world, simulate
 
 ALL_MODES = ("oracle", "reconstruct", "generate")
-ORACLE_VERSION = "oracle-2"  # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none)
+# 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none). 3: aggregated window by window
+# (WindowAggregator; same cells, first window to see a cell makes its Gaussian).
+ORACLE_VERSION = "oracle-3"
+STREAM_VERSION = "w1"  # enters the id of learned-mode scenes: window-by-window aggregation and per-window noise
+ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 
 Progress = Callable[[str, float], None]
 CancelCheck = Callable[[], bool]
@@ -77,6 +91,50 @@ def _check(cancelled: CancelCheck | None) -> None:
     _check_cancelled(cancelled)
 
 
+class SceneSink(Protocol):
+    """Takes a scene as it is built: `begin` once (an empty Scene4D with the frame times, rig, ego poses and the meta
+    known before generation), then `window` per window, in order (its static Gaussians in importance order and the
+    dynamic set of each of its frames; all final)."""
+
+    def begin(self, skeleton: Scene4D) -> None: ...
+
+    def window(self, frames: list[int], static: Gaussians, dynamic: dict[int, Gaussians]) -> None: ...
+
+
+def model_version(mode: str) -> str:
+    """The version that, with the scenario and mode, determines a scene (the playground's cache key)."""
+    if mode == "oracle":
+        return ORACLE_VERSION
+    inf = _models_inference()
+    if inf is None:
+        raise FileNotFoundError(f"mode {mode!r} needs the worldsplat_models package, which is not importable")
+    return f"{mode}-{inf.load_models().version}-{STREAM_VERSION}"
+
+
+def windows(T: int, size: int) -> list[list[int]]:
+    """Consecutive windows of `size` frames covering 0..T-1 (the last may be shorter)."""
+    return [list(range(s, min(T, s + size))) for s in range(0, T, size)]
+
+
+def window_seed(seed: int, index: int) -> int:
+    """The sampler seed of window `index` (each window is sampled by its own `generate` call): window 0 keeps the
+    scene's seed, so it draws the same noise as one call over the whole clip; later windows draw their own."""
+    return int(seed) if index == 0 else int(seed) * 1000 + index
+
+
+def frames_of(conditions: dict, frames: list[int], T: int) -> dict:
+    """The conditions of a window: every per-frame array (first axis T) and per-frame list indexed by `frames`."""
+    out = {}
+    for k, v in conditions.items():
+        if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == T:
+            out[k] = v[frames]
+        elif isinstance(v, list) and len(v) == T:
+            out[k] = [v[i] for i in frames]
+        else:
+            out[k] = v
+    return out
+
+
 def generate_scene(
     scenario,
     mode: str | None = None,
@@ -85,9 +143,11 @@ def generate_scene(
     cancelled: CancelCheck | None = None,
     seed: int | None = None,
     economy: Economy | None = None,
+    sink: SceneSink | None = None,
 ) -> Scene4D:
-    """Build the 4D Gaussian scene of a scenario. `meta` records scenario_id, mode, model_version, caption, fps
-    and the aggregation statistics. `mode` None is `default_mode()`."""
+    """Build the 4D Gaussian scene of a scenario, window by window (handed to `sink` as they are done). `meta`
+    records scenario_id, mode, model_version, caption, fps and the aggregation statistics. `mode` None is
+    `default_mode()`."""
     mode = default_mode() if mode is None else mode
     if mode not in ALL_MODES:
         raise ValueError(f"unknown mode {mode!r}; modes are {', '.join(ALL_MODES)}")
@@ -105,79 +165,139 @@ def generate_scene(
     }
     _check(cancelled)
     if mode == "oracle":
-        scene, stats = _oracle(world, prog, cancelled, economy)
         meta["model_version"] = ORACLE_VERSION
+        scene, stats = _oracle(world, meta, prog, cancelled, economy, sink)
     else:
-        inf = _models_inference()
-        if inf is None:
-            raise FileNotFoundError(f"mode {mode!r} needs the worldsplat_models package, which is not importable")
-        if mode not in set(inf.available_modes()):
-            raise FileNotFoundError(
-                f"mode {mode!r} needs model weights that are not shipped here; available modes: "
-                f"{', '.join(available_modes())}"
-            )
-        models = inf.load_models()
-        if mode == "reconstruct":
-            prog("simulate", 0.0)
-            clip = simulate(world)
-            _check(cancelled)
-            prog("reconstruct", 0.0)
-            dec = inf.reconstruct(clip, models=models)
-        else:
-            prog("conditions", 0.0)
-            cond = world.conditions(layout_size=inf.layout_size(models))
-            _check(cancelled)
-            prog("generate", 0.0)
-            dec = inf.generate(
-                cond,
-                steps=steps,
-                seed=int(scenario.seed if seed is None else seed),
-                models=models,
-                rig=world.rig,
-                frame_times=world.frame_times,
-                progress=lambda f: prog("generate", float(f)),
-            )
-        _check(cancelled)
-        prog("aggregate", 0.0)
-        scene, stats = inf.aggregate_decoded(dec, economy=economy)
-        meta["model_version"] = str(dec.meta.get("model_version", models.version))
-        if mode == "generate":
-            meta["steps"] = int(steps)
-    meta["aggregate"] = stats.as_dict()
-    scene.meta.update(meta)
+        scene, stats = _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink)
+    scene.meta["aggregate"] = stats.as_dict()
     prog("done", 1.0)
     return scene
 
 
-def _oracle(
-    world, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None
-) -> tuple[Scene4D, AggregateStats]:
-    prog("simulate", 0.0)
-    clip = simulate(world)
-    _check(cancelled)
-    return _aggregate_clip(clip, economy, prog, cancelled)
+class _Collect:
+    """Gathers the windows into the served Scene4D (and forwards them to the caller's sink)."""
+
+    def __init__(self, agg: WindowAggregator, meta: dict, sink: SceneSink | None):
+        self.agg, self.sink, self.statics, self.dynamic, self.timing = agg, sink, [], {}, []
+        self.skeleton = agg.scene([], {t: Gaussians.empty() for t in range(len(agg.frame_times))}, meta)
+        if sink is not None:
+            sink.begin(self.skeleton)
+
+    def window(self, frames: list[int], per_view: list[list[Gaussians]], timing: dict | None = None) -> None:
+        t0 = time.perf_counter()
+        static, dynamic = self.agg.add(frames, per_view)
+        t1 = time.perf_counter()
+        self.statics.append(static)
+        self.dynamic.update(dynamic)
+        if self.sink is not None:
+            self.sink.window(frames, static, dynamic)
+        # per window: the stages' seconds (the models' own, aggregation, the sink's writing)
+        row = {**(timing or {}), "aggregate": t1 - t0, "sink": time.perf_counter() - t1}
+        self.timing.append({k: round(v, 4) for k, v in row.items()})
+
+    def scene(self, timing: dict | None = None) -> tuple[Scene4D, AggregateStats]:
+        """The whole scene; meta `timing_s`: the stage totals in `timing` and `windows`, each window's stages."""
+        scene = self.agg.scene(self.statics, self.dynamic, self.skeleton.meta)
+        scene.meta["timing_s"] = {**(timing or {}), "windows": self.timing}
+        return scene, self.agg.stats
 
 
-def _aggregate_clip(
-    clip, economy: Economy | None, prog: Progress, cancelled: CancelCheck | None
-) -> tuple[Scene4D, AggregateStats]:
-    T, V, H, W = clip.depth.shape
+def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink):
+    inf = _models_inference()
+    if inf is None:
+        raise FileNotFoundError(f"mode {mode!r} needs the worldsplat_models package, which is not importable")
+    if mode not in set(inf.available_modes()):
+        raise FileNotFoundError(
+            f"mode {mode!r} needs model weights that are not shipped here; available modes: "
+            f"{', '.join(available_modes())}"
+        )
+    models = inf.load_models()
+    meta["model_version"] = str(models.version)
+    T, wins = len(world.frame_times), windows(len(world.frame_times), models.data.frames)
+    if mode == "generate":
+        seed = int(scenario.seed if seed is None else seed)
+        meta.update(steps=int(steps), seed=seed)
+        prog("conditions", 0.0)
+        cond = world.conditions(layout_size=inf.layout_size(models))
+        ego_to_world = np.asarray(cond["ego_traj"], np.float64)  # generated Gaussians live in the first frame's ego
+    else:
+        ego_to_world = world.ego_to_world
+    H, W = world.rig[0].height, world.rig[0].width
+    agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=economy, image_size=(H, W))
+    out = _Collect(agg, meta, sink)
+    timing: dict[str, float] = {}
+    for wi, frames in enumerate(wins):
+        _check(cancelled)
+        if mode == "generate":
+            prog("generate", wi / len(wins))
+            dec = inf.generate(
+                frames_of(cond, frames, T),
+                steps=steps,
+                seed=window_seed(seed, wi),
+                models=models,
+                rig=world.rig,
+                frame_times=world.frame_times[frames],
+                progress=lambda f, wi=wi: prog("generate", (wi + float(f)) / len(wins)),
+            )
+        else:
+            prog("simulate", wi / len(wins))
+            clip = simulate(world, frames=frames)
+            _check(cancelled)
+            prog("reconstruct", wi / len(wins))
+            dec = inf.reconstruct(clip, models=models)
+        for k, v in dec.meta.get("timing_s", {}).items():
+            timing[k] = timing.get(k, 0.0) + float(v)
+        _check(cancelled)
+        prog("aggregate", (wi + 1) / len(wins))
+        out.window(frames, dec.gaussians[: len(frames)], dict(dec.meta.get("timing_s", {})))
+    return out.scene(timing)
+
+
+def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None, sink):
+    H, W = world.rig[0].height, world.rig[0].width
+    agg = WindowAggregator(world.frame_times, world.rig, world.ego_to_world, economy=economy, image_size=(H, W))
+    out = _Collect(agg, meta, sink)
+    wins = windows(len(world.frame_times), ORACLE_WINDOW)
+    for wi, frames in enumerate(wins):
+        _check(cancelled)
+        prog("simulate", wi / len(wins))
+        t0 = time.perf_counter()
+        clip = simulate(world, frames=frames)
+        _check(cancelled)
+        t1 = time.perf_counter()
+        per_view = _lift_clip(clip, lambda f, wi=wi: prog("lift", (wi + f) / len(wins)), cancelled)
+        out.window(frames, per_view, {"simulate": t1 - t0, "lift": time.perf_counter() - t1})
+    return out.scene()
+
+
+def _lift_clip(clip, prog: Callable[[float], None], cancelled: CancelCheck | None) -> list[list[Gaussians]]:
+    T, V = clip.depth.shape[:2]
     per_view = []
     for t in range(T):
-        prog("lift", t / T)
+        prog(t / T)
         per_view.append(
             [lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v)) for v in range(V)]
         )
         _check(cancelled)
-    prog("aggregate", 0.0)
-    return aggregate_4d(per_view, clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
+    return per_view
+
+
+def _aggregate_clip(clip, economy: Economy | None) -> tuple[Scene4D, AggregateStats]:
+    """The oracle's aggregation of a simulated clip, window by window exactly as `generate_scene` serves it."""
+    T, V, H, W = clip.depth.shape
+    agg = WindowAggregator(clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
+    out = _Collect(agg, {}, None)
+    per_view = _lift_clip(clip, lambda f: None, None)
+    for frames in windows(T, ORACLE_WINDOW):
+        out.window(frames, [per_view[t] for t in frames])
+    return out.scene()
 
 
 def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None) -> Scene4D:
     """The oracle scene of a simulated clip (exact RGB + depth + dynamic masks, lifted), aggregated exactly as the
     playground serves it (paper eq. 3 + economy, `aggregate_4d`): the reference the learned models, the refinement
     pairs and the evaluation are measured on."""
-    scene, stats = _aggregate_clip(clip, economy, lambda stage, f: None, None)
+    scene, stats = _aggregate_clip(clip, economy)
     scene.meta.update(
         {
             "mode": "oracle",

@@ -25,6 +25,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("worldsplat.cli.train", "train a generation model (vae, decoder, dit)"),
     "train-enhancer": ("worldsplat.cli.train_enhancer", "train the enhanced diffusion model (refinement)"),
     "train-campaign": ("worldsplat.cli.train_campaign", "the v2 training campaign, stage by stage (resumable)"),
+    "train-accelerator": (
+        "worldsplat.cli.train_accelerator",
+        "data on every core + the whole v2/v3 stack on a lent GPU in one budgeted run (weights, card, logs)",
+    ),
     "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
     "gallery": ("worldsplat.cli.gallery", "GT | VAE | reconstruct | generate PNGs of presets and held-out scenarios"),
     "bench": ("worldsplat.cli.bench", "speed-against-error benchmark report"),

@@ -106,15 +106,17 @@ def vae_heldout(vae, samples: list[dict], dcfg: DataConfig = DCFG) -> dict:
     """RGB PSNR, 8x8-pooled RGB PSNR (colour), depth AbsRel (0.5 < GT < 80 m), pooled dynamic-mask IoU."""
     was = vae.training
     vae.eval()
+    dev = next(vae.parameters()).device  # the CPU, or an accelerator (training.accelerator)
     ps, pp, rel, inter, union = [], [], [], 0.0, 0.0
     for s in samples:
         rgb, depth, mask, _ = vae_inputs(collate([s]), dcfg)
+        rgb, depth, mask = rgb.to(dev), depth.to(dev), mask.to(dev)
         r, d, m = vae.decode_joint(vae.encode_joint(rgb, depth, mask))
         a, b = (r + 1) / 2, (rgb + 1) / 2
         ps += (-10 * torch.log10(((a - b) ** 2).mean(dim=(1, 2, 3)).clamp_min(1e-10))).tolist()
         ap, bp = F.avg_pool2d(a, 8), F.avg_pool2d(b, 8)
         pp += (-10 * torch.log10(((ap - bp) ** 2).mean(dim=(1, 2, 3)).clamp_min(1e-10))).tolist()
-        gt = torch.from_numpy(s["depth"]).reshape(-1, 1, *s["depth"].shape[-2:])
+        gt = torch.from_numpy(s["depth"]).reshape(-1, 1, *s["depth"].shape[-2:]).to(dev)
         pr = denormalize_depth(d, dcfg.depth_near, dcfg.depth_far)
         ok = torch.isfinite(gt) & (gt < 80) & (gt > 0.5)
         rel.append(((pr[ok] - gt[ok]).abs() / gt[ok]).mean().item())

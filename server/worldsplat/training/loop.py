@@ -97,11 +97,13 @@ def train_loop(
     progress: bool = True,
     on_checkpoint: Callable | None = None,
     minutes: float | None = None,
+    device: str | torch.device = "cpu",
 ) -> list[dict]:
     """Generic loop. step_fn(model, step, generator) -> (loss tensor, logs dict). Resumes from
     out_dir/<name>.ckpt.pt when present. Returns the log history of this run (rank 0 writes it to <name>.log.jsonl).
     on_checkpoint(model, steps_done) runs after each checkpoint (e.g. to export weights). `minutes`: stop (with a
-    checkpoint) once this much wall time has passed; a later run resumes.
+    checkpoint) once this much wall time has passed; a later run resumes. `device`: where the model trains (the
+    step function puts its batch there; the step's generator stays on the CPU); bf16 autocast follows it.
     """
     rank, world = setup_distributed()
     out_dir = Path(out_dir)
@@ -109,6 +111,8 @@ def train_loop(
     torch.set_num_threads(tcfg.threads)
     seed_everything(tcfg.seed)
     ckpt = out_dir / f"{name}.ckpt.pt"
+    device = torch.device(device)
+    model.to(device)  # before the optimizer, so its state lives beside the parameters (a no-op on the CPU)
     opt = torch.optim.AdamW(
         [p for p in model.parameters() if p.requires_grad],
         lr=tcfg.lr,
@@ -135,7 +139,7 @@ def train_loop(
         for g in opt.param_groups:
             g["lr"] = lr_at(step, tcfg)
         gen = torch.Generator().manual_seed(tcfg.seed * 1_000_003 + rank * 7919 + step)
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=tcfg.bf16):
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=tcfg.bf16):
             loss, logs = step_fn(model, step, gen)
         gnorm, skipped = optimizer_step(model, opt, loss, tcfg.grad_clip)
         rec = {
@@ -289,7 +293,7 @@ def aggregate_soft(g: dict, t: int, p_dyn: torch.Tensor):
     and the static part of every other frame (opacity * (1 - p_dynamic)). g fields are (T,V,gh,gw,k)."""
     T = g["means"].shape[0]
     keep = torch.ones_like(p_dyn)
-    others = torch.arange(T) != t
+    others = torch.arange(T, device=p_dyn.device) != t
     keep[others] = 1 - p_dyn[others]
     flat = lambda x, k: x.reshape(-1, k)  # noqa: E731
     return Gaussians(
@@ -305,7 +309,7 @@ def cull_to_camera(gs, cam, margin: float = 0.25):
     """Keep Gaussians whose mean projects inside the (enlarged) image in front of the camera (speed only)."""
     with torch.no_grad():
         m = gs.means.double()
-        w2c = torch.from_numpy(cam.world_to_camera)
+        w2c = torch.from_numpy(cam.world_to_camera).to(m.device)
         pc = m @ w2c[:3, :3].T + w2c[:3, 3]
         z = pc[:, 2]
         u = cam.fx * pc[:, 0] / z.clamp_min(1e-3) + cam.cx
@@ -339,10 +343,11 @@ def decoder_losses(
     cheap steps of `decoder_step_fn(render_every=k)`)."""
     w_ssim, w_depth, w_mask, w_direct = weights
     L = s["L"][None]
+    dev = L.device  # the sample's latents may live on an accelerator (training.accelerator); noise is drawn on the CPU
     if latent_noise > 0:
-        L = L + latent_noise * torch.randn(L.shape, generator=gen)
-    intr = torch.as_tensor(s["intrinsics"])[None]
-    c2w = torch.as_tensor(s["cam_to_world"])[None]
+        L = L + latent_noise * torch.randn(L.shape, generator=gen).to(dev)
+    intr = torch.as_tensor(s["intrinsics"])[None].to(dev)
+    c2w = torch.as_tensor(s["cam_to_world"])[None].to(dev)
     H, W = s["rgb"].shape[2:4]
     # v2 decoders re-read the VAE's own decoding of (the noisy) L as a pixel guide
     g = dec(L, intr, c2w, (H, W)) if guide_fn is None else dec(L, intr, c2w, (H, W), guide=guide_fn(L))
@@ -350,9 +355,9 @@ def decoder_losses(
     T, V, gh, gw = g["depth"].shape
     f = H // gh
     near, far = dcfg.depth_near, dcfg.depth_far
-    gt_rgb = torch.as_tensor(s["rgb"]).float().div(255).permute(0, 1, 4, 2, 3)  # T,V,3,H,W
-    gt_dn = normalize_depth(torch.as_tensor(s["depth"]), near, far)  # T,V,H,W
-    gt_dyn = torch.as_tensor(s["dynamic"]).float()
+    gt_rgb = torch.as_tensor(s["rgb"]).to(dev).float().div(255).permute(0, 1, 4, 2, 3)  # T,V,3,H,W
+    gt_dn = normalize_depth(torch.as_tensor(s["depth"]).to(dev), near, far)  # T,V,H,W
+    gt_dyn = torch.as_tensor(s["dynamic"]).to(dev).float()
     # direct pixel-aligned terms on the Gaussian grid
     rgb_g = area_down(gt_rgb, f).permute(0, 1, 3, 4, 2)
     dn_g = area_down(gt_dn, f)
@@ -372,7 +377,7 @@ def decoder_losses(
     l1 = d1 = ss = 0.0
     for v in views:
         cam = camera_at(s["intrinsics"][t, v], torch.as_tensor(s["cam_to_world"][t, v]), Wr, Hr, W)
-        with torch.autocast(device_type="cpu", enabled=False):  # rasterize in float32 (STORM's bf16 guard)
+        with torch.autocast(device_type=dev.type, enabled=False):  # rasterize in float32 (STORM's bf16 guard)
             out = rasterize(cull_to_camera(gs_all, cam).map(lambda x: x.float()), cam)
         tgt = area_down(gt_rgb[t, v], render_down).permute(1, 2, 0)
         tgt_dn = area_down(gt_dn[t, v], render_down)

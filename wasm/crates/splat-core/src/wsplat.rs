@@ -300,7 +300,7 @@ impl Header {
             }
             Totals { num_static: 0, num_dynamic: vec![0; t], bounds_min: [0.0; 3], bounds_max: [0.0; 3] }
         } else {
-            Totals::from_json(v, t).map_err(|m| bad(m))?
+            Totals::from_json(v, t).map_err(&bad)?
         };
         let fps = num("fps", get("fps")?)?;
         if fps <= 0.0 {
@@ -374,8 +374,8 @@ impl Totals {
         }
         let vec3 = |k: &str| -> Result<[f64; 3], String> {
             let a = v.get("bounds").and_then(|b| b.get(k)).and_then(Value::as_array).filter(|a| a.len() == 3);
-            let a = a.ok_or(format!("bounds.{k}: expected 3 numbers"))?;
-            let n = |x: &Value| x.as_f64().filter(|x| x.is_finite()).ok_or(format!("bounds.{k}: expected finite numbers"));
+            let a = a.ok_or_else(|| format!("bounds.{k}: expected 3 numbers"))?;
+            let n = |x: &Value| x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| format!("bounds.{k}: expected finite numbers"));
             Ok([n(&a[0])?, n(&a[1])?, n(&a[2])?])
         };
         Ok(Totals { num_static, num_dynamic, bounds_min: vec3("min")?, bounds_max: vec3("max")? })

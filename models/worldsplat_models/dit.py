@@ -11,6 +11,11 @@ Self-attention and MLP are modulated by adaLN-zero from the flow time s. A Contr
 latents for the enhancement model), and adds its outputs to the main stream through zero-initialised projections,
 so a fresh ControlNet leaves the base model unchanged.
 
+v3 (DiTConfig.control_at_input / refine_channels; the campaign generator since session 4, not yet served):
+the layout does not need ControlNet's protection of a pretrained base, so its hint tokens are added to the main
+stream's input, and a small conv head at latent resolution (LatentRefiner) draws what a 4x4-latent token cannot
+(markings, box edges) from the hint encoder's latent-resolution features; no ControlNet copies (control_depth 0).
+
 The backbone is generic in `in_channels`, `control_channels` and `out_channels` (DiTConfig), so the enhancement
 model (issue 7) is `DiT4D(DiTConfig(in_channels=4, control_channels=8, out_channels=4), num_classes)`.
 """

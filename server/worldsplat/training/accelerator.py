@@ -43,10 +43,9 @@ import numpy as np
 import torch
 
 from worldsplat.core.io import atomic_write_bytes, write_json_atomic
-from worldsplat.core.metrics import ssim
 from worldsplat.training import campaign
 from worldsplat.training.data import sample_from_shard
-from worldsplat.training.loop import COND_KEYS, decoder_losses, train_loop, unwrap
+from worldsplat.training.loop import COND_KEYS, decoder_losses, train_loop, unwrap, vae_loss
 from worldsplat.world import build_world
 from worldsplat.world.dataset import clip_scenario
 from worldsplat_models import conditions as caption_module
@@ -296,14 +295,7 @@ def vae_step(imgs: Images, batch: int, seed: int):
         x = torch.stack([rgb, depth.expand(-1, 3, -1, -1), (mask * 2 - 1).expand(-1, 3, -1, -1)], 1).flatten(0, 1)
         with torch.device(dev):  # the VAE draws its posterior noise without naming a device
             recon, kl = vae(x, generator=device_generator(dev, seed * 1_000_003 + step_i))
-        err = (recon.float() - x).abs()
-        w = torch.ones_like(err)
-        w[2::3] = 1.0 + 9.0 * (x[2::3] > 0).float()
-        l1 = (err * w).sum() / w.sum()
-        rgb_r, rgb_x = recon[0::3].float(), x[0::3]
-        s = ssim(((rgb_r + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((rgb_x + 1) / 2).permute(0, 2, 3, 1))
-        loss = l1 + 0.5 * (1 - s) + model.cfg.kl_weight * kl
-        return loss, {"l1": float(l1.detach()), "ssim": float(s.detach()), "kl": float(kl.detach()), "n": batch}
+        return vae_loss(recon, x, kl, model.cfg.kl_weight, batch)
 
     return step
 

@@ -210,18 +210,23 @@ def vae_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4,
             xs += [rgb[sl], depth[sl].expand(-1, 3, -1, -1), (mask[sl] * 2 - 1).expand(-1, 3, -1, -1)]
         x = torch.cat(xs)
         recon, kl = vae(x, generator=gen)
-        n = images_per_step
-        err = (recon.float() - x).abs()
-        # dynamic pixels are rare: weight them 10x in the mask modality so the mask latent is not ignored
-        w = torch.ones_like(err)
-        w[2::3] = 1.0 + 9.0 * (x[2::3] > 0).float()
-        l1 = (err * w).sum() / w.sum()
-        rgb_r, rgb_x = recon[0::3].float(), x[0::3]
-        s = ssim(((rgb_r + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((rgb_x + 1) / 2).permute(0, 2, 3, 1))
-        loss = l1 + 0.5 * (1 - s) + model.cfg.kl_weight * kl
-        return loss, {"l1": float(l1.detach()), "ssim": float(s.detach()), "kl": float(kl.detach()), "n": n}
+        return vae_loss(recon, x, kl, model.cfg.kl_weight, images_per_step)
 
     return step
+
+
+def vae_loss(recon: torch.Tensor, x: torch.Tensor, kl: torch.Tensor, kl_weight: float, n: int):
+    """The VAE objective on interleaved (rgb, depth, mask) images: weighted L1 + 0.5 (1 - SSIM on rgb) + KL
+    -> (loss, logs). Shared by the CPU step above and the accelerator's step."""
+    err = (recon.float() - x).abs()
+    # dynamic pixels are rare: weight them 10x in the mask modality so the mask latent is not ignored
+    w = torch.ones_like(err)
+    w[2::3] = 1.0 + 9.0 * (x[2::3] > 0).float()
+    l1 = (err * w).sum() / w.sum()
+    rgb_r, rgb_x = recon[0::3].float(), x[0::3]
+    s = ssim(((rgb_r + 1) / 2).clamp(0, 1).permute(0, 2, 3, 1), ((rgb_x + 1) / 2).permute(0, 2, 3, 1))
+    loss = l1 + 0.5 * (1 - s) + kl_weight * kl
+    return loss, {"l1": float(l1.detach()), "ssim": float(s.detach()), "kl": float(kl.detach()), "n": n}
 
 
 @torch.no_grad()

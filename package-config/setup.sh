@@ -37,6 +37,9 @@ setup_python() {
     log "python: installing worldsplat (editable)"
     "$venv/bin/pip" install -q --no-deps --no-build-isolation -e "$ROOT"
   fi
+  # The onnxruntime graphs are derived from the committed weights (not committed themselves); a no-op when
+  # models/weights/onnx/VERSION already names the weights.
+  "$venv/bin/worldsplat" export-onnx >/dev/null
 }
 
 setup_rust() {

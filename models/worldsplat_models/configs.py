@@ -89,6 +89,30 @@ class DiTConfig:
     # a lane marking, the head can.
     refine_channels: int = 0
     hint_stem_stride: int = 1  # 2: the hint encoder's first conv already down-samples (v3; see HintEncoder)
+    # v4: what the flow generates. "latent": L itself; "prior_residual": (L - mu) / residual_scale, mu being the
+    # LayoutPrior's regression of L from the layout (layout_prior.py), so generation = mu + residual_scale * sample.
+    target: str = "latent"
+    residual_scale: float = 1.0
+
+    def __post_init__(self):
+        if self.target not in ("latent", "prior_residual"):
+            raise ValueError(f"DiTConfig.target must be 'latent' or 'prior_residual', got {self.target!r}")
+        if not self.residual_scale > 0:
+            raise ValueError(f"DiTConfig.residual_scale must be positive, got {self.residual_scale}")
+
+
+@dataclass
+class LayoutPriorConfig:
+    """Layout map -> E[normalised L] regression U-Net (layout_prior.py), FiLM-conditioned on caption and camera."""
+
+    in_channels: int = 7  # world.layout_maps.LAYOUT_CHANNELS
+    out_channels: int = 24  # the VAE's joint latent channels
+    downsample: int = 4  # the VAE's image -> latent factor
+    widths: tuple[int, ...] = (32, 64, 128, 192)  # full res, each 2x down to the latent grid, one level below it
+    blocks: int = 2  # FiLM ResBlocks at the lowest level and at the latent grid
+    cond_dim: int = 128
+    caption_dim: int = 384
+    max_views: int = 6
 
 
 @dataclass
@@ -200,6 +224,7 @@ def from_dict(cls, d: dict):
             "VAEConfig": VAEConfig,
             "DiTConfig": DiTConfig,
             "GSDecoderConfig": GSDecoderConfig,
+            "LayoutPriorConfig": LayoutPriorConfig,
         }.get(ftype if isinstance(ftype, str) else ftype.__name__)
         if sub is not None and isinstance(v, dict):
             v = from_dict(sub, v)

@@ -1,6 +1,6 @@
 """Weight files: safetensors with the model kind and its config (JSON) in the metadata, so a file is self-describing.
 
-`<weights_dir()>/<kind>_<size>.safetensors` for kind in vae | decoder | dit (the enhancer: `enhancer_<size>`).
+`<weights_dir()>/<kind>_<size>.safetensors` for kind in vae | decoder | dit | prior (the enhancer: `enhancer_<size>`).
 The shipped weights and their model cards live in `models/weights/`, beside this package; `weights_dir()` is the
 one place that says so (`$WORLDSPLAT_WEIGHTS` points it elsewhere).
 """
@@ -16,12 +16,13 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 
-from .configs import DiTConfig, GSDecoderConfig, VAEConfig, from_dict
+from .configs import DiTConfig, GSDecoderConfig, LayoutPriorConfig, VAEConfig, from_dict
 from .dit import DiT4D
 from .gs_decoder import GaussianDecoder
+from .layout_prior import LayoutPrior
 from .vae import MultiModalVAE
 
-KINDS = {"vae": VAEConfig, "decoder": GSDecoderConfig, "dit": DiTConfig}
+KINDS = {"vae": VAEConfig, "decoder": GSDecoderConfig, "dit": DiTConfig, "prior": LayoutPriorConfig}
 
 
 def weights_dir() -> Path:
@@ -37,6 +38,8 @@ def build(kind: str, cfg, num_classes: int = 17) -> torch.nn.Module:
         return GaussianDecoder(cfg)
     if kind == "dit":
         return DiT4D(cfg, num_classes)
+    if kind == "prior":
+        return LayoutPrior(cfg)
     raise ValueError(f"unknown model kind {kind!r}; expected one of {', '.join(KINDS)}")
 
 

@@ -1,5 +1,5 @@
-"""The inference glue with the v2 (and v3 DiT) networks (tiny, random): pixel-guided decoder, layout-map control, 4x VAE;
-torch and the ONNX serving graphs agree."""
+"""The inference glue with the v2 (and v3, v4 DiT) networks (tiny, random): pixel-guided decoder, layout-map control,
+4x VAE, the layout prior whose residual the v4 DiT generates; torch and the ONNX serving graphs agree."""
 
 import copy
 import dataclasses
@@ -12,22 +12,28 @@ import torch
 from test_models_inference import tiny_clip
 from worldsplat.pipeline import inference as inf
 from worldsplat.pipeline import onnx as ox
-from worldsplat_models.configs import get_config
+from worldsplat_models.configs import LayoutPriorConfig, get_config
 from worldsplat_models.weights import build
 
 torch.set_num_threads(1)
 CFG = get_config("tiny")
 
 
-@pytest.fixture(scope="module", params=["v2", "v3"])
+@pytest.fixture(scope="module", params=["v2", "v3", "v4"])
 def models_v2(request):
-    """v2: layout through a zero-initialised ControlNet branch; v3: layout at the input + latent-resolution head."""
+    """v2: layout through a zero-initialised ControlNet branch; v3: layout at the input + latent-resolution head;
+    v4: v3 generating the residual of a layout prior."""
     torch.manual_seed(0)
     vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)  # 4x down-sampling
     C = vae_cfg.joint_channels
     dit_cfg = dataclasses.replace(CFG.dit, in_channels=C, out_channels=C, patch=2, control_channels=7, control_hint=8)
-    if request.param == "v3":
+    if request.param in ("v3", "v4"):
         dit_cfg = dataclasses.replace(dit_cfg, control_depth=0, control_at_input=True, refine_channels=8)
+    prior = None
+    if request.param == "v4":
+        dit_cfg = dataclasses.replace(dit_cfg, target="prior_residual", residual_scale=0.5)
+        prior_cfg = LayoutPriorConfig(out_channels=C, downsample=4, widths=(8, 8, 8, 8), blocks=1, cond_dim=16)
+        prior = build("prior", prior_cfg).eval()
     dec_cfg = dataclasses.replace(
         CFG.decoder, in_channels=C, patch=2, up_channels=(8, 8, 8), guide_channels=5, reread_latent=True
     )
@@ -38,9 +44,11 @@ def models_v2(request):
         CFG.data,
         "test-v2",
         Path("."),
+        prior,
     )
     with torch.no_grad():
-        for p in list(m.dit.parameters()) + list(m.decoder.head.parameters()):
+        extra = list(prior.parameters()) if prior is not None else []
+        for p in list(m.dit.parameters()) + list(m.decoder.head.parameters()) + extra:
             p.add_(0.05 * torch.randn_like(p))
     return m
 
@@ -83,9 +91,28 @@ def test_v2_reconstruct_decodes_with_the_vae_guide(models_v2):
     assert (g.colors[: want.shape[0]] - want).abs().mean() < 0.1
 
 
+def test_v4_sample_is_prior_plus_scaled_residual(models_v2):
+    """L = mu + residual_scale * (the flow's sample); without its prior a v4 DiT offers no generate mode."""
+    if models_v2.prior is None:
+        pytest.skip("v2/v3 DiTs generate L itself")
+    clip, s = tiny_clip(T=2)
+    emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
+    cond = inf.condition_tensors(models_v2, _cond(clip, s), clip.ego_to_world, emb)
+    L = inf.sample_latents(models_v2, cond, steps=2, seed=3)
+    mu = models_v2.prior.clip(cond["control"][None].float(), emb[None])[0]
+    flow_only = dataclasses.replace(models_v2, prior=None)
+    flow_only.dit = copy.deepcopy(models_v2.dit)
+    flow_only.dit.cfg = dataclasses.replace(models_v2.dit.cfg, target="latent")
+    r = inf.sample_latents(flow_only, cond, steps=2, seed=3)
+    assert torch.allclose(L, mu + 0.5 * r, atol=1e-5)
+    assert "generate" not in dataclasses.replace(models_v2, prior=None).modes
+    assert "generate" in models_v2.modes
+
+
 def test_v2_onnx_matches_torch(models_v2, tmp_path):
-    ox.export(models_v2, tmp_path)
-    for kind in ox.GRAPHS:
+    graphs = ox.export(models_v2, tmp_path)
+    assert ("layout_prior" in graphs) == (models_v2.prior is not None)
+    for kind in graphs:
         assert ox.parity(models_v2, tmp_path, kind) < ox.PARITY_ATOL, kind
     ort = ox.use_onnx(copy.deepcopy(models_v2), tmp_path, threads=1)
     clip, s = tiny_clip(T=2)

@@ -1,5 +1,6 @@
-"""The v2 campaign end to end at two steps a stage: shards with layout maps -> VAE -> cache -> decoder -> DiT ->
-fp16 snapshot that the pipeline serves; a second run resumes from the checkpoints instead of starting over."""
+"""The v2 campaign end to end at two steps a stage: shards with layout maps -> VAE -> cache (in two parts, merged)
+-> decoder -> DiT -> layout prior -> residual (v4) DiT -> fp16 snapshot that the pipeline serves; a second run
+resumes from the checkpoints instead of starting over."""
 
 import json
 
@@ -21,9 +22,14 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     fig = [json.loads(line) for line in (out / "vae_v2_heldout.jsonl").read_text().splitlines()]
     assert [f["step"] for f in fig] == [1, 2] and all(0 < f["rgb_psnr"] < 60 for f in fig)
     vae = out / "vae_v2.safetensors"
-    for split in ("train", "test"):
-        c.build_cache(data, vae, out, split)
+    c.build_cache(data, vae, out, "test")
+    c.build_cache(data, vae, out, "train", clips=1)
+    c.build_cache(data, vae, out, "train", start=1)  # the second part, as a second process would write it
+    with pytest.raises(FileNotFoundError, match="cache_train_"):
+        c.load_cache(out, "train_x")
+    assert c.merge_cache(out, "train").name == "cache_train_2.pt"
     cache = c.load_cache(out, "train")
+    assert len(cache) == 2
     assert cache[0]["L"].shape[-2:] == (16, 28) and cache[0]["control"].shape[2:] == (7, 64, 112)
     c.train_decoder(vae, out, steps=2, ckpt_every=1, render_every=2)
     c.train_dit(vae, out, steps=2, batch=2, ckpt_every=1)
@@ -31,10 +37,27 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     c.train_dit(vae, out, steps=3, batch=2, ckpt_every=1)
     log = [json.loads(line)["step"] for line in (out / "dit_v2_heldout.jsonl").read_text().splitlines()]
     assert log == [1, 2, 3]
+    c.train_prior(vae, out, steps=2, batch=4, ckpt_every=1)
+    fig = [json.loads(line) for line in (out / "prior_v2_heldout.jsonl").read_text().splitlines()]
+    assert [f["step"] for f in fig] == [1, 2] and len(fig[0]["heldout_mse"]) == 3
+    # v4: the DiT generates the frozen prior's residual (its own run folder, beside the same cache)
+    out4 = tmp_path / "runs4"
+    out4.mkdir()
+    for p in out.glob("cache_*.pt"):
+        (out4 / p.name).symlink_to(p)
+    c.train_dit(vae, out4, steps=2, batch=2, ckpt_every=1, prior_path=out / "prior_v2.safetensors")
+    cfg4 = read_metadata(out4 / "dit_v2.safetensors")["config"]
+    assert cfg4["target"] == "prior_residual" and cfg4["residual_scale"] > 0
     dest = tmp_path / "snapshot"
     paths = c.snapshot(out, dest)
-    assert {p.name for p in paths} == {"vae_small.safetensors", "decoder_small.safetensors", "dit_small.safetensors"}
+    names = {"vae_small.safetensors", "decoder_small.safetensors", "dit_small.safetensors", "prior_small.safetensors"}
+    assert {p.name for p in paths} == names
     assert read_metadata(dest / "dit_small.safetensors")["campaign"] == "v2"
     m = load_models(dest)
     assert m.modes == ["reconstruct", "generate"] and m.dit.cfg.control_hint == 16
     assert all(p.dtype == torch.float32 for p in m.decoder.parameters())
+    c.snapshot(out4, dest)  # the v4 DiT over the v2 one: served with the prior beside it
+    m4 = load_models(dest)
+    assert m4.modes == ["reconstruct", "generate"] and m4.prior is not None and m4.dit.cfg.target == "prior_residual"
+    (dest / "prior_small.safetensors").unlink()
+    assert load_models(dest).modes == ["reconstruct"]  # a v4 DiT without its prior cannot generate

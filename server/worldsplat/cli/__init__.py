@@ -21,6 +21,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "render": ("worldsplat.cli.render", "render a .wsplat/.ply at a rig camera or any camera"),
     "export": ("worldsplat.cli.ply", "export a .wsplat to .ply / .glb (KHR_gaussian_splatting) / .spz / .sog / .splat"),
     "import": ("worldsplat.cli.ply", "import a .ply / .glb / .spz / .sog / .splat to .wsplat"),
+    "export-onnx": (
+        "worldsplat.cli.export_onnx",
+        "derive the onnxruntime serving graphs from the weights (set-up runs it)",
+    ),
     "serve": ("worldsplat.cli.serve", "serve the playground (page, wasm viewer, API)"),
     "train": ("worldsplat.cli.train", "train a generation model (vae, decoder, dit)"),
     "train-enhancer": ("worldsplat.cli.train_enhancer", "train the enhanced diffusion model (refinement)"),

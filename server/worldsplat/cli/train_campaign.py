@@ -1,4 +1,4 @@
-"""`worldsplat train-campaign vae|cache|decoder|dit|snapshot ...`: the v2 training campaign, stage by stage
+"""`worldsplat train-campaign vae|cache|decoder|prior|dit|snapshot ...`: the v2 training campaign, stage by stage
 (see `worldsplat.training.campaign`; checkpoints resume from --out, which belongs outside the work tree)."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-STAGES = ("vae", "cache", "decoder", "dit", "snapshot")
+STAGES = ("vae", "cache", "decoder", "prior", "dit", "snapshot")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -16,12 +16,15 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vae", type=Path, help="the frozen v2 VAE (cache, decoder and dit stages)")
     p.add_argument("--split", default="train", choices=("train", "val", "test"), help="cache stage")
     p.add_argument("--clips", type=int, default=None)
+    p.add_argument("--start", type=int, default=0, help="cache: first shard (a part; join parts with --merge)")
+    p.add_argument("--merge", action="store_true", help="cache: join the parts written with --start")
     p.add_argument("--steps", type=int, default=1000)
-    p.add_argument("--batch", type=int, default=2, help="dit: clips per step")
+    p.add_argument("--batch", type=int, default=None, help="dit: clips per step (2); prior: images per step (16)")
+    p.add_argument("--prior", type=Path, help="dit: generate the residual of this frozen layout prior (v4)")
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--ckpt-every", type=int, default=None)
-    p.add_argument("--init", type=Path, help="vae|decoder|dit: warm start from a weight file (matching tensors)")
+    p.add_argument("--init", type=Path, help="vae|decoder|prior|dit: warm start from a weight file (matching tensors)")
     p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/campaign)")
 
 
@@ -34,7 +37,7 @@ def run(a: argparse.Namespace) -> int:
                 raise ValueError(f"train-campaign {a.stage}: --{n} is required")
 
     kw = {} if a.ckpt_every is None else {"ckpt_every": a.ckpt_every}
-    if a.init is not None and a.stage in ("vae", "decoder", "dit"):
+    if a.init is not None and a.stage in ("vae", "decoder", "prior", "dit"):
         kw["init"] = a.init
     if a.lr is not None:
         kw["lr"] = a.lr
@@ -42,14 +45,22 @@ def run(a: argparse.Namespace) -> int:
         need("data")
         c.train_vae(a.data, a.out, clips=a.clips or 1500, steps=a.steps, threads=a.threads, **kw)
     elif a.stage == "cache":
-        need("data", "vae")
-        print(c.build_cache(a.data, a.vae, a.out, a.split, a.clips))
+        if a.merge:
+            print(c.merge_cache(a.out, a.split))
+        else:
+            need("data", "vae")
+            print(c.build_cache(a.data, a.vae, a.out, a.split, a.clips, a.start))
     elif a.stage == "decoder":
         need("vae")
         c.train_decoder(a.vae, a.out, a.steps, clips=a.clips, threads=a.threads, **kw)
+    elif a.stage == "prior":
+        need("vae")
+        c.train_prior(a.vae, a.out, a.steps, batch=a.batch or 16, clips=a.clips, threads=a.threads, **kw)
     elif a.stage == "dit":
         need("vae")
-        c.train_dit(a.vae, a.out, a.steps, batch=a.batch, clips=a.clips, threads=a.threads, **kw)
+        c.train_dit(
+            a.vae, a.out, a.steps, batch=a.batch or 2, clips=a.clips, threads=a.threads, prior_path=a.prior, **kw
+        )
     else:
         need("dest")
         for p in c.snapshot(a.out, a.dest):

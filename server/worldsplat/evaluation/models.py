@@ -196,10 +196,15 @@ def eval_generate(
 ) -> dict:
     """Layout fidelity of generated scenes. latents="encode" swaps the DiT sample for the VAE encoding of the
     ground-truth clip: the same metrics then measure the ceiling of the VAE + Gaussian-decoder path, i.e. what a
-    perfect diffusion model could reach with these weights."""
-    if latents not in ("sample", "encode"):
-        raise ValueError(f"eval_generate: latents must be 'sample' or 'encode', got {latents!r}")
-    iou_box, iou_gt, absrel, absrel_road, ceiling = [], [], [], [], []
+    perfect diffusion model could reach with these weights. latents="prior" takes the layout prior's mean alone
+    (a v4 DiT's residual set to zero): what the DiT adds on top of it. RGB PSNR against the ground truth, on all
+    pixels and 8x8-pooled (colour layout: a generated scene need not copy the textures, but road, facade and
+    vehicle colours should be where the ground truth has them)."""
+    if latents not in ("sample", "encode", "prior"):
+        raise ValueError(f"eval_generate: latents must be 'sample', 'encode' or 'prior', got {latents!r}")
+    if latents == "prior" and getattr(models, "prior", None) is None:
+        raise ValueError("eval_generate: latents='prior' needs models with a layout prior (prior_small.safetensors)")
+    iou_box, iou_gt, absrel, absrel_road, ceiling, ps, ps8 = [], [], [], [], [], [], []
     for i in range(min(n, len(ds))):
         s = ds[i]
         z = ds.load(i)
@@ -209,6 +214,8 @@ def eval_generate(
         cond = condition_tensors(models, shard_condition_dict(s, z), ego)
         if latents == "sample":
             L = sample_latents(models, cond, steps=steps, seed=seed)
+        elif latents == "prior":
+            L = models.prior.clip(cond["control"][None].float(), cond["caption"][None])[0]
         else:
             L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
         scene = to_scene4d(decode_gaussians(models, L, rig, ego, np.arange(T) / 4.0, {}))
@@ -226,6 +233,10 @@ def eval_generate(
                 iou_box.append(_inter_union(pred_dyn, bm))
                 iou_gt.append(_inter_union(pred_dyn, gm))
                 ceiling.append(_inter_union(gm, bm))  # reference: exact silhouettes vs the boxier hulls
+                gt_rgb = torch.as_tensor(s["rgb"][t, v]).float() / 255.0
+                ps.append(psnr(out["rgb"].clamp(0, 1), gt_rgb))
+                pool = lambda x: torch.nn.functional.avg_pool2d(x.permute(2, 0, 1)[None], 8)  # noqa: E731
+                ps8.append(psnr(pool(out["rgb"].clamp(0, 1)), pool(gt_rgb)))
                 rd = out["depth"] / out["alpha"].clamp_min(1e-3)
                 absrel.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v])))
                 if "semantic" in z:  # road surface (road, markings, crosswalks): the layout the DiT is given
@@ -240,6 +251,8 @@ def eval_generate(
         "depth_absrel": float(np.nanmean(absrel)),
         "depth_absrel_road": float(np.nanmean(absrel_road)) if absrel_road else float("nan"),
         "gt_mask_iou_vs_projected_boxes": _pooled(ceiling),
+        "rgb_psnr": float(np.mean(ps)),
+        "rgb_psnr_pool8": float(np.mean(ps8)),
     }
 
 
@@ -387,7 +400,7 @@ def main(argv=None) -> int:
         "--parts",
         default="vae,reconstruct,generate,steps",
         help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
-        "(generate's layout metrics on VAE-encoded ground truth), steps",
+        "(generate's layout metrics on VAE-encoded ground truth), prior (on the layout prior's mean alone), steps",
     )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
@@ -422,6 +435,9 @@ def main(argv=None) -> int:
     if "ceiling" in parts:
         out["generate_ceiling"] = eval_generate(models, ds, a.clips, frames=frames, latents="encode")
         print("generate_ceiling", out["generate_ceiling"], flush=True)
+    if "prior" in parts:
+        out["generate_prior_only"] = eval_generate(models, ds, a.clips, frames=frames, latents="prior")
+        print("generate_prior_only", out["generate_prior_only"], flush=True)
     if "steps" in parts and "generate" in models.modes:
         out["steps_vs_error"] = steps_vs_error(models, ds, max(1, min(2, a.clips)))
         print("steps", out["steps_vs_error"], flush=True)

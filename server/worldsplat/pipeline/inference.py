@@ -35,13 +35,13 @@ from worldsplat.core.camera import CAMERA_NAMES, default_rig
 from worldsplat.gaussians import Gaussians, Scene4D
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_4d
 from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
-from worldsplat.pipeline.onnx import use_onnx
+from worldsplat.pipeline.onnx import ensure_exported, use_onnx
 from worldsplat_models import rflow
 from worldsplat_models.conditions import encode_captions
 from worldsplat_models.configs import DataConfig, get_config
 from worldsplat_models.dit import dropped
 from worldsplat_models.vae import normalize_depth
-from worldsplat_models.weights import load_weights
+from worldsplat_models.weights import load_weights, read_metadata
 from worldsplat_models.weights import weights_dir as default_weights_dir
 
 SIZE = "small"
@@ -55,15 +55,20 @@ class Models:
     data: DataConfig
     version: str  # short hash of the weight files (for cache keys)
     weights_dir: Path
+    prior: torch.nn.Module | None = None  # the layout prior, for a DiT that generates its residual (v4)
 
     @property
     def modes(self) -> list[str]:
         out = []
         if self.vae is not None and self.decoder is not None:
             out.append("reconstruct")
-            if self.dit is not None:
+            if self.dit is not None and (self.prior is not None or not needs_prior(self.dit)):
                 out.append("generate")
         return out
+
+
+def needs_prior(dit) -> bool:
+    return getattr(dit.cfg, "target", "latent") == "prior_residual"
 
 
 @dataclass
@@ -85,7 +90,7 @@ _CACHE: dict[str, Models] = {}
 
 def weight_paths(weights_dir: str | Path | None = None) -> dict[str, Path]:
     d = Path(weights_dir) if weights_dir is not None else default_weights_dir()
-    return {k: d / f"{k}_{SIZE}.safetensors" for k in ("vae", "decoder", "dit")}
+    return {k: d / f"{k}_{SIZE}.safetensors" for k in ("vae", "decoder", "dit", "prior")}
 
 
 def available_modes(weights_dir: str | Path | None = None) -> list[str]:
@@ -93,19 +98,23 @@ def available_modes(weights_dir: str | Path | None = None) -> list[str]:
     out = []
     if p["vae"].exists() and p["decoder"].exists():
         out.append("reconstruct")
-        if p["dit"].exists():
+        if p["dit"].exists() and (
+            p["prior"].exists() or read_metadata(p["dit"])["config"].get("target") != "prior_residual"
+        ):
             out.append("generate")
     return out
 
 
 def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -> Models:
-    """Load whichever of vae / decoder / dit exist (missing ones are None; `Models.modes` says what works).
+    """Load whichever of vae / decoder / dit / prior exist (missing ones are None; `Models.modes` says what works).
+    Cached per folder and per state of its weight files (a re-shipped or removed file loads anew).
     backend "onnx" serves the VAE, the DiT step and the Gaussian decoder with onnxruntime from
     <weights_dir>/onnx (same outputs within the documented 1e-3 parity tolerance)."""
     if backend not in ("torch", "onnx"):
         raise ValueError(f"backend must be 'torch' or 'onnx', got {backend!r}")
     paths = weight_paths(weights_dir)
-    key = str(paths["vae"].parent.resolve()) + ":" + backend
+    stamp = [(p.name, p.stat().st_mtime_ns, p.stat().st_size) for p in paths.values() if p.exists()]
+    key = f"{paths['vae'].parent.resolve()}:{backend}:{stamp}"
     if key in _CACHE:
         return _CACHE[key]
     h = hashlib.sha256()
@@ -117,9 +126,16 @@ def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -
         else:
             loaded[k] = None
     m = Models(
-        loaded["vae"], loaded["decoder"], loaded["dit"], get_config(SIZE).data, h.hexdigest()[:12], paths["vae"].parent
+        loaded["vae"],
+        loaded["decoder"],
+        loaded["dit"],
+        get_config(SIZE).data,
+        h.hexdigest()[:12],
+        paths["vae"].parent,
+        loaded["prior"],
     )
     if backend == "onnx":
+        ensure_exported(m)  # derived from the weights, exported here when set-up has not done it
         use_onnx(m, paths["vae"].parent / "onnx")
     _CACHE[key] = m
     return m
@@ -308,7 +324,8 @@ def sample_latents(
     shift: float | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> torch.Tensor:
-    """Rectified-flow sampling of L (T,V,C,h,w), window by window; the noise depends only on (seed, window)."""
+    """Rectified-flow sampling of L (T,V,C,h,w), window by window; the noise depends only on (seed, window).
+    A DiT that generates the layout prior's residual (v4) gives L = mu + residual_scale * sample."""
     d, dcfg = models.data, models.dit.cfg
     T = cond["control"].shape[0]
     cfg_scale = dcfg.cfg_scale if cfg_scale is None else cfg_scale
@@ -324,6 +341,8 @@ def sample_latents(
         z = rflow.sample(
             models.dit, noise, c, steps=steps, shift=shift, cfg_scale=cfg_scale, uncond=dropped(c), callback=cb
         )
+        if needs_prior(models.dit):
+            z = models.prior.clip(c["control"].float(), c["caption"]) + dcfg.residual_scale * z
         L[win] = z[0]
     return L
 

@@ -6,13 +6,19 @@ Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V vie
     dit_step      z, s, box_corners, box_cls, box_moving, box_mask, traj, caption, control, drop -> velocity
     gs_decoder    L (1,T,V,C,h,w), intrinsics (1,T,V,4), cam_to_world (1,T,V,4,4) -> means, quats, scales,
                   opacities, colors, depth, dynamic_logit
+    layout_prior  control (1,T,V,7,H,W), caption (1,384) -> mu (1,T,V,C,h,w)   (v4 models only)
 Parity tolerance (documented in web/docs/models.md): max |ORT - torch| <= 1e-3 (absolute) on every output at
 float32, checked by tests/python/test_models_onnx.py; `speed_ratio` times both side by side.
+
+The graphs are derived files, like web/pkg: `ensure_exported` writes <weights>/onnx from the committed fp16
+safetensors (float32 graphs are twice their size) and records the weights' version in onnx/VERSION, so set-up
+(`worldsplat export-onnx`, run by package-config/setup.sh) and the onnx backend re-export only when the weights change.
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +28,7 @@ from worldsplat.core.camera import default_rig
 from worldsplat.pipeline.conditions import rig_tensors
 
 PARITY_ATOL = 1e-3
-GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder")
+GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder", "layout_prior")
 
 
 class _Enc(torch.nn.Module):
@@ -62,6 +68,15 @@ class _DiTStep(torch.nn.Module):
             drop=drop,
         )
         return self.dit(z, s, cond)
+
+
+class _Prior(torch.nn.Module):
+    def __init__(self, prior):
+        super().__init__()
+        self.prior = prior
+
+    def forward(self, control, caption):
+        return self.prior.clip(control, caption)
 
 
 class _GSDec(torch.nn.Module):
@@ -118,6 +133,11 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
         if models.decoder.cfg.guide_channels:
             out["guide"] = torch.rand(1, T, V, models.decoder.cfg.guide_channels, H, W, generator=g) * 2 - 1
         return out
+    if kind == "layout_prior":
+        return {
+            "control": torch.rand(1, T, V, models.prior.cfg.in_channels, H, W, generator=g),
+            "caption": torch.nn.functional.normalize(torch.randn(1, 384, generator=g), dim=-1),
+        }
     raise ValueError(f"unknown graph {kind!r}; expected one of {', '.join(GRAPHS)}")
 
 
@@ -128,20 +148,31 @@ def wrapper(models, kind: str) -> torch.nn.Module:
         "vae_decoder": lambda: _Dec(models.vae),
         "dit_step": lambda: _DiTStep(models.dit),
         "gs_decoder": lambda: _GSDec(models.decoder, (d.height, d.width)),
+        "layout_prior": lambda: _Prior(models.prior),
     }[kind]().eval()
 
 
 def output_names(kind: str) -> list[str]:
-    return {"vae_encoder": ["mean"], "vae_decoder": ["image"], "dit_step": ["velocity"], "gs_decoder": list(OUT_KEYS)}[
-        kind
-    ]
+    return {
+        "vae_encoder": ["mean"],
+        "vae_decoder": ["image"],
+        "dit_step": ["velocity"],
+        "gs_decoder": list(OUT_KEYS),
+        "layout_prior": ["mu"],
+    }[kind]
 
 
 def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
     """Write <out_dir>/<kind>.onnx for each graph whose model is loaded."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    need = {"vae_encoder": models.vae, "vae_decoder": models.vae, "dit_step": models.dit, "gs_decoder": models.decoder}
+    need = {
+        "vae_encoder": models.vae,
+        "vae_decoder": models.vae,
+        "dit_step": models.dit,
+        "gs_decoder": models.decoder,
+        "layout_prior": getattr(models, "prior", None),
+    }
     paths = {}
     for kind in kinds:
         if need[kind] is None:
@@ -149,7 +180,9 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
         inputs = example_inputs(models, kind)
         path = out_dir / f"{kind}.onnx"
         tmp = path.with_suffix(".tmp.onnx")
-        with torch.no_grad():
+        with torch.no_grad(), warnings.catch_warnings():
+            # the shape checks in the models' forward are constants at the fixed export shapes, as intended
+            warnings.simplefilter("ignore", torch.jit.TracerWarning)
             dyn = {
                 "vae_encoder": {"image": {0: "n"}, "mean": {0: "n"}},
                 "vae_decoder": {"latent": {0: "n"}, "image": {0: "n"}},
@@ -166,6 +199,21 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
             )
         tmp.replace(path)
         paths[kind] = path
+    return paths
+
+
+def ensure_exported(models, onnx_dir: str | Path | None = None) -> dict[str, Path]:
+    """The serving graphs of `models` in onnx_dir (default <weights>/onnx), exported unless onnx/VERSION already
+    names these weights' version (a half-written export leaves no VERSION, so it is redone)."""
+    onnx_dir = Path(onnx_dir) if onnx_dir is not None else Path(models.weights_dir) / "onnx"
+    stamp = onnx_dir / "VERSION"
+    if stamp.exists() and stamp.read_text().strip() == models.version:
+        return {k: onnx_dir / f"{k}.onnx" for k in GRAPHS if (onnx_dir / f"{k}.onnx").exists()}
+    stamp.unlink(missing_ok=True)
+    paths = export(models, onnx_dir)
+    tmp = stamp.with_suffix(".tmp")
+    tmp.write_text(models.version + "\n")
+    tmp.replace(stamp)
     return paths
 
 
@@ -241,6 +289,16 @@ class OrtDiT:
         return torch.from_numpy(run_ort(self.sess, feed)[0])
 
 
+class OrtPrior:
+    """Callable like LayoutPrior.clip(control, caption) for one window, backed by layout_prior.onnx."""
+
+    def __init__(self, torch_prior, sess):
+        self.cfg, self.sess = torch_prior.cfg, sess
+
+    def clip(self, control, caption):
+        return torch.from_numpy(run_ort(self.sess, {"control": control.float(), "caption": caption.float()})[0])
+
+
 class OrtGSDecoder:
     """Callable like GaussianDecoder(L, intrinsics, cam_to_world, image_hw), backed by gs_decoder.onnx."""
 
@@ -267,4 +325,6 @@ def use_onnx(models, onnx_dir: str | Path, threads: int = 2):
         models.dit = OrtDiT(models.dit, session(onnx_dir / "dit_step.onnx", threads))
     if models.decoder is not None:
         models.decoder = OrtGSDecoder(models.decoder, session(onnx_dir / "gs_decoder.onnx", threads))
+    if getattr(models, "prior", None) is not None:
+        models.prior = OrtPrior(models.prior, session(onnx_dir / "layout_prior.onnx", threads))
     return models

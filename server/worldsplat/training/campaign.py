@@ -4,7 +4,9 @@ Gaussian decoder and the DiT with pixel-space layout control, trained stage by s
     vae      crops of all three modalities; held-out RGB / 8x8-pooled RGB / depth AbsRel / mask IoU per checkpoint
     cache    shards -> frozen-VAE latents + layout maps + conditions + caption embeddings (one .pt per split)
     decoder  eq. 5 losses with the VAE's decoding of L as the pixel guide
-    dit      rectified flow on L, layout maps through the hint encoder; held-out flow loss per checkpoint
+    prior    the layout prior (v4): MSE regression of L from each camera's layout map; held-out MSE per modality
+    dit      rectified flow on L (or, with --prior, on the residual L - mu), layout maps through the hint encoder;
+             held-out flow loss per checkpoint
 
 Every stage runs `train_loop` (checkpoint + optimizer state in `out`, resumed when present), so `out` belongs
 outside the work tree (a later session on the same machine continues); `snapshot` writes the fp16 weights that are
@@ -33,9 +35,17 @@ from worldsplat.training.loop import (
 )
 from worldsplat_models import rflow
 from worldsplat_models.conditions import encode_captions
-from worldsplat_models.configs import DataConfig, DiTConfig, GSDecoderConfig, TrainConfig, VAEConfig
+from worldsplat_models.configs import (
+    DataConfig,
+    DiTConfig,
+    GSDecoderConfig,
+    LayoutPriorConfig,
+    TrainConfig,
+    VAEConfig,
+)
 from worldsplat_models.dit import DiT4D
 from worldsplat_models.gs_decoder import GaussianDecoder
+from worldsplat_models.layout_prior import LayoutPrior
 from worldsplat_models.vae import MultiModalVAE, denormalize_depth
 from worldsplat_models.weights import load_weights, save_weights
 
@@ -47,9 +57,10 @@ def vae_config(channels=(32, 96), latent: int = 8, blocks: int = 1) -> VAEConfig
     return VAEConfig(channels=tuple(channels), latent_channels=latent, blocks=blocks)
 
 
-def dit_config(vae) -> DiTConfig:
+def dit_config(vae, target: str = "latent", residual_scale: float = 1.0) -> DiTConfig:
     """v3: layout tokens at the main stream's input and a latent-resolution conv head (no ControlNet copies: the
-    v2 DiT, with them, had not learned to follow the layout after 600 steps)."""
+    v2 DiT, with them, had not learned to follow the layout after 600 steps). v4: the same network generating the
+    layout prior's residual (target "prior_residual")."""
     C = vae.cfg.joint_channels
     hint = vae.cfg.downsample * 4
     return DiTConfig(
@@ -62,7 +73,13 @@ def dit_config(vae) -> DiTConfig:
         control_at_input=True,
         refine_channels=64,
         hint_stem_stride=2,
+        target=target,
+        residual_scale=residual_scale,
     )
+
+
+def prior_config(vae) -> LayoutPriorConfig:
+    return LayoutPriorConfig(out_channels=vae.cfg.joint_channels, downsample=vae.cfg.downsample)
 
 
 def decoder_config(vae) -> GSDecoderConfig:
@@ -176,10 +193,13 @@ def train_vae(
 
 
 @torch.no_grad()
-def build_cache(data: Path, vae_path: Path, out: Path, split: str, clips: int | None = None) -> Path:
+def build_cache(data: Path, vae_path: Path, out: Path, split: str, clips: int | None = None, start: int = 0) -> Path:
+    """Shards start..start+clips-1 of a split -> OUT/cache_SPLIT_N.pt (N records; with start > 0 the name is
+    cache_SPLIT_part<start>_N.pt, a part that `merge_cache` joins: one process per core builds one)."""
     vae = load_weights(vae_path, "vae").eval()
     recs, caps = [], []
-    for f in shard_files(data, split, clips):
+    files = shard_files(data, split)[start:]
+    for f in files[:clips]:
         with np.load(f, allow_pickle=False) as z:
             zz = {k: z[k] for k in z.files}
         if "layout" not in zz:
@@ -195,15 +215,41 @@ def build_cache(data: Path, vae_path: Path, out: Path, split: str, clips: int | 
         recs.append(rec)
     for r, e in zip(recs, encode_captions(caps)):
         r["caption_emb"] = e.float()
-    path = Path(out) / f"cache_{split}_{len(recs)}.pt"
+    part = f"part{start}_" if start else ""
+    return _save_cache(recs, Path(out) / f"cache_{split}_{part}{len(recs)}.pt")
+
+
+def _save_cache(recs: list[dict], path: Path) -> Path:
     tmp = path.with_suffix(".tmp")
     torch.save(recs, tmp)
     tmp.replace(path)  # a half-written cache is never taken for whole
     return path
 
 
+def merge_cache(out: Path, split: str) -> Path:
+    """cache_SPLIT_N.pt (from start 0) + every cache_SPLIT_part<S>_M.pt, in shard order -> cache_SPLIT_<total>.pt.
+    The parts must tile the shards without a gap (each starts where the one before ends)."""
+    whole = [
+        p for p in Path(out).glob(f"cache_{split}_*.pt") if p.stem.split("_")[-1].isdigit() and "part" not in p.stem
+    ]
+    parts = sorted(Path(out).glob(f"cache_{split}_part*_*.pt"), key=lambda p: int(p.stem.split("_")[-2][4:]))
+    if not whole or not parts:
+        raise FileNotFoundError(f"merge_cache: need cache_{split}_N.pt and cache_{split}_part<S>_M.pt in {out}")
+    first = max(whole, key=lambda p: int(p.stem.split("_")[-1]))
+    recs = torch.load(first, weights_only=False)
+    for p in parts:
+        s = int(p.stem.split("_")[-2][4:])
+        if s != len(recs):
+            raise ValueError(f"merge_cache: {p.name} starts at shard {s}, the records so far end at {len(recs)}")
+        recs += torch.load(p, weights_only=False)
+    return _save_cache(recs, Path(out) / f"cache_{split}_{len(recs)}.pt")
+
+
 def load_cache(out: Path, split: str) -> list[dict]:
-    cands = sorted(Path(out).glob(f"cache_{split}_*.pt"), key=lambda p: int(p.stem.split("_")[-1]))
+    cands = sorted(
+        (p for p in Path(out).glob(f"cache_{split}_*.pt") if "part" not in p.stem),
+        key=lambda p: int(p.stem.split("_")[-1]),
+    )
     if not cands:
         raise FileNotFoundError(f"no cache_{split}_*.pt in {out}: run `worldsplat train-campaign cache` first")
     return torch.load(cands[-1], weights_only=False)
@@ -247,12 +293,97 @@ def train_decoder(
     train_loop("decoder_v2", dec, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
+def prior_batch(samples: list[dict], gen: torch.Generator, k: int) -> tuple[torch.Tensor, ...]:
+    """k random camera images of random clips: layout (k,7,H,W), caption (k,384), view (k,), L (k,C,h,w)."""
+    lay, cap, view, lat = [], [], [], []
+    for s in pick(samples, gen, k):
+        T, V = s["L"].shape[:2]
+        t, v = int(torch.randint(0, T, (1,), generator=gen)), int(torch.randint(0, V, (1,), generator=gen))
+        lay.append(s["control"][t, v].float())
+        cap.append(s["caption_emb"])
+        view.append(v)
+        lat.append(s["L"][t, v].float())
+    return torch.stack(lay), torch.stack(cap), torch.tensor(view), torch.stack(lat)
+
+
+def modality_mse(mu: torch.Tensor, L: torch.Tensor, groups: int = 3) -> list[float]:
+    """MSE per modality (rgb, depth, mask channel groups of the joint latent) of (..., C, h, w) tensors."""
+    C = L.shape[-3]
+    return [float(((mu - L)[..., g * C // groups : (g + 1) * C // groups, :, :] ** 2).mean()) for g in range(groups)]
+
+
+@torch.no_grad()
+def prior_of(prior, s: dict) -> torch.Tensor:
+    """The prior's mu (T, V, C, h, w) for one cache record."""
+    return prior.clip(s["control"][None].float(), s["caption_emb"][None])[0]
+
+
+def train_prior(
+    vae_path: Path,
+    out: Path,
+    steps: int,
+    batch: int = 16,
+    clips: int | None = None,
+    lr: float = 1e-3,
+    threads: int = 1,
+    ckpt_every: int = 200,
+    init: Path | None = None,
+) -> None:
+    """MSE of mu = LayoutPrior(layout, caption, camera) against the frozen VAE's normalised L, `batch` images per
+    step; held-out MSE per modality (and that of predicting the mean latent, the grey-blur baseline) per checkpoint."""
+    torch.set_num_threads(threads)
+    vae = load_weights(vae_path, "vae").eval()
+    samples = load_cache(out, "train")[:clips]
+    test = load_cache(out, "test")[:8]
+    for s in samples + test:
+        for k in ("rgb", "depth", "dynamic"):
+            s.pop(k, None)
+    prior = warm_start(LayoutPrior(prior_config(vae)), init, "prior")
+    tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=20, threads=threads)
+    mean_L = torch.stack([s["L"].float().mean(dim=(0, 1, 3, 4)) for s in samples]).mean(0)[:, None, None]
+
+    def step(model, step_i, gen):
+        lay, cap, view, L = prior_batch(samples, gen, batch)
+        return F.mse_loss(model(lay, cap, view), L), {}
+
+    @torch.no_grad()
+    def on_ckpt(model, done):
+        m = unwrap(model).eval()
+        save_weights(m, out / "prior_v2.safetensors", "prior", {"steps": done, "clips": len(samples)})
+        per, base = [], []
+        for s in test:
+            L = s["L"].float()
+            per.append(modality_mse(prior_of(m, s), L))
+            base.append(modality_mse(mean_L.expand_as(L), L))
+        rec = {"step": done, "heldout_mse": np.mean(per, 0).round(4).tolist()}
+        rec["mean_latent_mse"] = np.mean(base, 0).round(4).tolist()
+        print(json.dumps(rec), flush=True)
+        with open(out / "prior_v2_heldout.jsonl", "a") as f:
+            f.write(json.dumps(rec) + "\n")
+        m.train()
+
+    train_loop("prior_v2", prior, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
+
+
 def dit_batch(samples: list[dict]) -> tuple[torch.Tensor, dict]:
-    x = torch.stack([s["L"].float() for s in samples])
+    """The flow's data x (the residual R when the records carry one, else L) and the DiT's conditions."""
+    x = torch.stack([(s["R"] if "R" in s else s["L"]).float() for s in samples])
     cond = {k: torch.from_numpy(np.stack([np.asarray(s[k]) for s in samples])) for k in COND_KEYS}
     cond["caption"] = torch.stack([s["caption_emb"] for s in samples])
     cond["control"] = torch.stack([s["control"].float() for s in samples])
     return x, cond
+
+
+def attach_residuals(prior, samples: list[dict], scale: float | None = None) -> float:
+    """R = (L - mu) / scale on every record (fp16); scale = the residual's RMS over `samples` when not given."""
+    mus = [prior_of(prior, s) for s in samples]
+    if scale is None:
+        scale = float(
+            torch.sqrt(torch.stack([((s["L"].float() - m) ** 2).mean() for s, m in zip(samples, mus)]).mean())
+        )
+    for s, m in zip(samples, mus):
+        s["R"] = ((s["L"].float() - m) / scale).half()
+    return scale
 
 
 def train_dit(
@@ -265,7 +396,9 @@ def train_dit(
     threads: int = 1,
     ckpt_every: int = 100,
     init: Path | None = None,
+    prior_path: Path | None = None,
 ) -> None:
+    """Rectified flow on L, or with `prior_path` on the frozen layout prior's residual (L - mu) / scale (v4)."""
     torch.set_num_threads(threads)
     vae = load_weights(vae_path, "vae").eval()
     samples = load_cache(out, "train")[:clips]
@@ -273,7 +406,15 @@ def train_dit(
     for s in samples + test:  # the DiT reads L, the layout and the conditions; not the images
         for k in ("rgb", "depth", "dynamic"):
             s.pop(k, None)
-    dit = warm_start(DiT4D(dit_config(vae)), init, "dit")
+    if prior_path is not None:
+        prior = load_weights(prior_path, "prior")
+        scale = attach_residuals(prior, samples)
+        attach_residuals(prior, test, scale)
+        print(json.dumps({"prior": str(prior_path), "residual_scale": scale}), flush=True)
+        cfg = dit_config(vae, "prior_residual", scale)
+    else:
+        cfg = dit_config(vae)
+    dit = warm_start(DiT4D(cfg), init, "dit")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=10, threads=threads)
 
     def step(model, step_i, gen):
@@ -303,7 +444,7 @@ def snapshot(out: Path, dest: Path) -> list[Path]:
     pipeline loads them (<kind>_small.safetensors): `worldsplat ... --weights DEST` serves them."""
     dest.mkdir(parents=True, exist_ok=True)
     written = []
-    for kind in ("vae", "decoder", "dit"):
+    for kind in ("vae", "decoder", "dit", "prior"):
         src = Path(out) / f"{kind}_v2.safetensors"
         if src.exists():
             written.append(

@@ -7,20 +7,21 @@ from pathlib import Path
 
 import torch
 
-from worldsplat.pipeline.inference import _CACHE, load_models
-from worldsplat.pipeline.onnx import export
+from worldsplat.pipeline.inference import load_models
+from worldsplat.pipeline.onnx import ensure_exported
 from worldsplat_models.weights import load_weights, save_weights, weights_dir
 
 
 def ship(
     run_dir: str | Path,
     out_dir: str | Path | None = None,
-    kinds=("vae", "decoder", "dit"),
+    kinds=("vae", "decoder", "dit", "prior"),
     size: str = "small",
     onnx: bool = True,
 ) -> list[Path]:
     """Copy trained weights from a run directory into the shipped set: float16 safetensors (half the bytes;
-    loaded as float32) and the ONNX serving graphs exported from exactly those (rounded) weights."""
+    loaded as float32) and the ONNX serving graphs exported from exactly those (rounded) weights (derived files,
+    not committed: set-up exports them again on a fresh clone)."""
     run_dir, out_dir = Path(run_dir), Path(out_dir or weights_dir())
     written = []
     for kind in kinds:
@@ -31,6 +32,5 @@ def ship(
         meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
         written.append(save_weights(m, out_dir / src.name, kind, meta, dtype=torch.float16))
     if onnx:
-        _CACHE.clear()
-        written += list(export(load_models(out_dir), out_dir / "onnx").values())
+        written += list(ensure_exported(load_models(out_dir)).values())
     return written

@@ -458,7 +458,7 @@ def write_wsplat(out_dir: Path) -> list[str]:
         return join_chunks([(b"HEAD", json.dumps(h).encode())] + ch[1:])
 
     bad("bad_magic", b"WSPLAT\n\n" + base[8:], "bad_magic", 0, "magic")
-    bad("bad_version", base[:8] + struct.pack("<I", 2) + base[12:], "bad_version", 8, "version")
+    bad("bad_version", base[:8] + struct.pack("<I", 3) + base[12:], "bad_version", 8, "version")
     bad("truncated_file_header", base[:10], "truncated", 0, "file")
     bad("truncated_in_stat", base[: stat_at + 100], "truncated", stat_at, "file")
     bad("truncated_before_end", base[:end_at], "truncated", end_at, "file")
@@ -634,7 +634,161 @@ def write_wsplat(out_dir: Path) -> list[str]:
         20,
         "HEAD.num_dynamic",
     )
+    _write_v2(valid, bad)
     return names
+
+
+def v2_sections(payload: bytes, start: int) -> list[tuple[int, int, bytes]]:
+    """The sections of a v2 STAT (start 4) / DYNA (start 8) payload: (offset in the payload, filter, frame)."""
+    import struct
+
+    out, pos = [], start
+    while pos < len(payload):
+        filt, n = struct.unpack_from("<BI", payload, pos)
+        out.append((pos, filt, payload[pos + 5 : pos + 5 + n]))
+        pos += 5 + n
+    return out
+
+
+def _write_v2(valid, bad) -> None:
+    """v2 vectors (web/docs/wsplat-v2.md): valid files, and every malformed field v2 adds."""
+    import struct
+
+    import zstandard
+
+    from worldsplat.gaussians import wsplat
+
+    rng = np.random.default_rng(11)
+    base = valid("valid_v2_iso", _scene(rng, 300, [20, 0, 35], 3, iso=True), block_size=128, version=2)
+    valid("valid_v2_aniso", _scene(rng, 700, [40, 41], 2, iso=False), version=2)
+    valid("valid_v2_multi_chunk", _scene(rng, 5000, [3], 1, iso=True), version=2)
+    valid("valid_v2_empty", _scene(rng, 0, [0, 0], 2, iso=True), version=2)
+    valid(
+        "valid_v2_custom_layout",  # 2-byte fields (9 bits) and a 6-byte Morton delta (3 x 14 bits), blocks of 7
+        _scene(rng, 100, [5], 1, iso=False),
+        block_size=7,
+        version=2,
+        static_layout=[
+            ["r", 8],
+            ["px", 14],
+            ["py", 14],
+            ["pz", 14],
+            ["qi", 2],
+            ["qa", 9],
+            ["qb", 9],
+            ["qc", 9],
+            ["sx", 7],
+            ["sy", 7],
+            ["sz", 7],
+            ["o", 8],
+            ["g", 7],
+            ["b", 9],
+        ],
+    )
+    valid(
+        "valid_v2_streamed",
+        _scene(rng, 5000, [20, 0, 35, 7], 4, iso=True),
+        encoder=wsplat.encode_streamed,
+        parts=[[0, 1], [2, 3]],
+        static_split=[3000],
+        block_size=128,
+        version=2,
+    )
+    v2 = b"WSPLAT\r\n\x02\x00\x00\x00"
+    ch = split_chunks(base)
+    assert [t for t, _ in ch] == [b"HEAD", b"STAT", b"DYNA", b"DYNA", b"END!"], [t for t, _ in ch]
+    head, stat = json.loads(ch[0][1]), ch[1][1]
+    stat_at = chunk_offset(ch, 1)
+    p0 = stat_at + 8  # the STAT payload's first byte (its count)
+    secs = v2_sections(stat, 4)  # boxes, pos[0..5] (3 x 14 bits), s, o, r, g, b
+
+    def with_head(**changes):
+        h = dict(head)
+        h.update(changes)
+        return join_chunks([(b"HEAD", json.dumps(h).encode())] + ch[1:], v2)
+
+    def with_stat(payload):
+        return join_chunks([ch[0], (b"STAT", payload)] + ch[2:], v2)
+
+    def with_section(i, filt=None, frame=None, length=None):
+        at, f, fr = secs[i]
+        fr = fr if frame is None else frame
+        sec = struct.pack("<BI", f if filt is None else filt, len(fr) if length is None else length) + fr
+        return with_stat(stat[:at] + sec + stat[at + 5 + len(secs[i][2]) :])
+
+    def frame(raw: bytes) -> bytes:
+        return zstandard.ZstdCompressor(level=3, write_checksum=False, write_content_size=True).compress(raw)
+
+    labels = ["boxes"] + [wsplat._section_label(f, k, wsplat.parse_layout(head["static_layout"], 0, "s"))
+                          for f, k in wsplat.v2_planes(wsplat.parse_layout(head["static_layout"], 0, "s"))]  # fmt: skip
+    n = struct.unpack_from("<I", stat)[0]
+    o_i, pos_top = labels.index("o"), labels.index("pos[5]")
+    bad("bad_v2_version_3", base[:8] + struct.pack("<I", 3) + base[12:], "bad_version", 8, "version")
+    bad("bad_v2_header_codec", with_head(codec="lz4"), "bad_header", 20, "HEAD.codec")
+    bad("bad_v2_header_version", with_head(version=1), "bad_header", 20, "HEAD.version")
+    bad(
+        "bad_v2_layout_pos_bits",
+        with_head(static_layout=[["py", 12] if f == "py" else [f, b] for f, b in head["static_layout"]]),
+        "bad_layout",
+        20,
+        "HEAD.static_layout",
+    )
+    bad("bad_v2_payload_count_zero", with_stat(struct.pack("<I", 0) + stat[4:]), "bad_payload", p0, "STAT.count")
+    bad(  # a count far beyond what the bytes can hold: refused before anything is decompressed or allocated
+        "bad_v2_payload_count_ratio", with_stat(struct.pack("<I", 1 << 30) + stat[4:]), "bad_payload", p0, "STAT.count"
+    )
+    bad("bad_v2_section_filter", with_section(2, filt=7), "bad_payload", p0 + secs[2][0], "STAT.pos[1].filter")
+    bad("bad_v2_boxes_filter", with_section(0, filt=1), "bad_payload", p0 + secs[0][0], "STAT.boxes.filter")
+    bad(
+        "bad_v2_section_length",
+        with_section(o_i, length=len(stat)),
+        "bad_payload",
+        p0 + secs[o_i][0] + 1,
+        "STAT.o.length",
+    )
+    bad(
+        "bad_v2_section_truncated_header", with_stat(stat[: secs[-1][0] + 3]), "bad_payload", p0 + secs[-1][0], "STAT.b"
+    )
+    bad(
+        "bad_v2_section_not_zstd",
+        with_section(1, frame=bytes(len(secs[1][2]))),
+        "bad_payload",
+        p0 + secs[1][0] + 5,
+        "STAT.pos[0]",
+    )
+    bad(  # a frame that declares one byte more than the section holds
+        "bad_v2_section_content_size",
+        with_section(o_i, frame=frame(bytes(n + 1))),
+        "bad_payload",
+        p0 + secs[o_i][0] + 5,
+        "STAT.o",
+    )
+    bad(  # a whole frame plus a byte: a section is exactly one frame
+        "bad_v2_section_extra_byte",
+        with_section(o_i, frame=secs[o_i][2] + b"\x00"),
+        "bad_payload",
+        p0 + secs[o_i][0] + 5,
+        "STAT.o",
+    )
+    bad("bad_v2_payload_after_sections", with_stat(stat + b"\x00"), "bad_payload", p0 + len(stat), "STAT.length")
+    bad(  # opacity has 6 bits: 255 does not fit
+        "bad_v2_value_range",
+        with_section(o_i, filt=0, frame=frame(bytes([255]) * n)),
+        "bad_payload",
+        p0 + secs[o_i][0],
+        "STAT.o",
+    )
+    bad(  # Morton deltas whose sum passes 2^42 - 1
+        "bad_v2_morton_overflow",
+        with_section(pos_top, filt=0, frame=frame(bytes([3]) * n)),
+        "bad_payload",
+        p0 + secs[1][0],
+        "STAT.pos",
+    )
+    boxes = bytearray(zstandard.ZstdDecompressor().decompress(secs[0][2]))
+    struct.pack_into("<f", boxes, 0, float("nan"))
+    bad("bad_v2_box_nan", with_section(0, frame=frame(bytes(boxes))), "bad_payload", p0 + secs[0][0], "STAT.boxes")
+    bad("truncated_v2_in_stat", base[: stat_at + 100], "truncated", stat_at, "file")
 
 
 # ---------------------------------------------------------------------------------------------- rig + shift

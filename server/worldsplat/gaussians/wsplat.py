@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import zstandard
 
 from worldsplat.core.camera import RigCamera
 from worldsplat.core.io import atomic_write_bytes
@@ -97,10 +98,19 @@ DYNAMIC_ANISO = [
     ["b", 4],
 ]
 DEFAULT_BLOCK_SIZE = 256
+# v2 default layouts: the v1 ones (v2 stores the same integers, entropy-coded; px py pz already share their bits)
+V2_STATIC_ISO, V2_STATIC_ANISO, V2_DYNAMIC_ISO, V2_DYNAMIC_ANISO = STATIC_ISO, STATIC_ANISO, DYNAMIC_ISO, DYNAMIC_ANISO
+DEFAULT_VERSION = 1  # what encode / StreamWriter write unless told
 FIRST_CHUNK = 4096  # the first static chunk is small so a browser draws early; chunks then double
 MAX_CHUNK_RECORDS = 262144
 ISOTROPY_TOL = 1e-3
 FAR_FACTOR = 4.0  # see _block_order
+# v2 (web/docs/wsplat-v2.md): planes per chunk, zstd per plane
+VERSIONS = (1, 2)
+CODECS = ("zstd",)
+ZSTD_LEVEL = 15  # 19 is 4x slower for 0.1 % (measured on a 100k street)
+MAX_RATIO = 64  # a v2 chunk decodes to at most MAX_RATIO x its payload bytes (checked before anything is decoded)
+MAX_POS_BITS_V2 = 21  # the Morton code of px py pz fits 63 bits
 
 
 class WsplatError(ValueError):
@@ -333,35 +343,228 @@ def _block_order(p: np.ndarray) -> np.ndarray:
     return np.concatenate([near_idx[_morton_order(p[near_idx])], far_idx[_morton_order(p[far_idx])]])
 
 
+def quantize_block(blk: dict[str, np.ndarray], layout: Layout) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """One block of sanitized Gaussians -> its box (pos_lo[3], pos_hi[3], lsc_lo, lsc_hi as float32) and the stored
+    integer of every layout field (the same in v1 and v2)."""
+    bits = dict(layout.fields)
+    p = blk["means"].astype(np.float32)
+    plo, phi = p.min(0), p.max(0)
+    ls = np.log(blk["scales"][:, :1] if layout.isotropic else blk["scales"]).astype(np.float32)
+    llo, lhi = np.float32(ls.min()), np.float32(ls.max())
+    box = np.array([*plo, *phi, llo, lhi], dtype=np.float32)
+    vals = {}
+    for i, f in enumerate(("px", "py", "pz")):
+        vals[f] = _quantize(p[:, i].astype(np.float64), float(plo[i]), float(phi[i]), bits[f])
+    if layout.isotropic:
+        vals["s"] = _quantize(ls[:, 0].astype(np.float64), float(llo), float(lhi), bits["s"])
+    else:
+        for i, f in enumerate(("sx", "sy", "sz")):
+            vals[f] = _quantize(ls[:, i].astype(np.float64), float(llo), float(lhi), bits[f])
+        if layout.canonical:
+            for i, f in enumerate(("qx", "qy", "qz")):
+                m = _canon_steps(bits[f])
+                vals[f] = np.clip(np.round((blk["quats"][:, 1 + i] / Q_CANON + 1) / 2 * m), 0, m).astype(np.uint64)
+        else:
+            vals.update(_smallest_three(blk["quats"], bits))
+    vals["o"] = _quantize(blk["opacities"], 0.0, 1.0, bits["o"])
+    for i, f in enumerate("rgb"):
+        vals[f] = _quantize(blk["colors"][:, i], 0.0, 1.0, bits[f])
+    return box, vals
+
+
 def encode_blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int) -> bytes:
     out = bytearray()
-    bits = dict(layout.fields)
     for s in range(0, len(a["means"]), block_size):
-        blk = {k: v[s : s + block_size] for k, v in a.items()}
-        p = blk["means"].astype(np.float32)
-        plo, phi = p.min(0), p.max(0)
-        ls = np.log(blk["scales"][:, :1] if layout.isotropic else blk["scales"]).astype(np.float32)
-        llo, lhi = np.float32(ls.min()), np.float32(ls.max())
-        out += struct.pack("<8f", *plo, *phi, llo, lhi)
-        vals = {}
-        for i, f in enumerate(("px", "py", "pz")):
-            vals[f] = _quantize(p[:, i].astype(np.float64), float(plo[i]), float(phi[i]), bits[f])
-        if layout.isotropic:
-            vals["s"] = _quantize(ls[:, 0].astype(np.float64), float(llo), float(lhi), bits["s"])
-        else:
-            for i, f in enumerate(("sx", "sy", "sz")):
-                vals[f] = _quantize(ls[:, i].astype(np.float64), float(llo), float(lhi), bits[f])
-            if layout.canonical:
-                for i, f in enumerate(("qx", "qy", "qz")):
-                    m = _canon_steps(bits[f])
-                    vals[f] = np.clip(np.round((blk["quats"][:, 1 + i] / Q_CANON + 1) / 2 * m), 0, m).astype(np.uint64)
-            else:
-                vals.update(_smallest_three(blk["quats"], bits))
-        vals["o"] = _quantize(blk["opacities"], 0.0, 1.0, bits["o"])
-        for i, f in enumerate("rgb"):
-            vals[f] = _quantize(blk["colors"][:, i], 0.0, 1.0, bits[f])
+        box, vals = quantize_block({k: v[s : s + block_size] for k, v in a.items()}, layout)
+        out += box.astype("<f4").tobytes()
         out += pack_records(vals, layout)
     return bytes(out)
+
+
+# ---------------------------------------------------------------------------------------------- v2 planes
+def v2_planes(layout: Layout) -> list[tuple[str, int]]:
+    """The byte planes of a v2 chunk after its boxes, in order: (name, byte index). `pos` is the Morton-code delta of
+    px py pz (ceil(3 bits / 8) bytes), then every other layout field in layout order (ceil(bits / 8) bytes each)."""
+    bits = dict(layout.fields)
+    planes = [("pos", k) for k in range((3 * bits["px"] + 7) // 8)]
+    for f, b in layout.fields:
+        if f not in ("px", "py", "pz"):
+            planes += [(f, k) for k in range((b + 7) // 8)]
+    return planes
+
+
+def max_window(size: int) -> int:
+    """The largest zstd window a section of `size` bytes may declare: its size rounded up to a power of two, at
+    least 1 KiB (what zstd writes for a frame whose size it knows; a decoder never allocates more)."""
+    return max(1 << 10, 1 << max(0, size - 1).bit_length())
+
+
+def v2_raw_size(count: int, layout: Layout, block_size: int) -> int:
+    """Decoded bytes of a v2 chunk's sections (boxes + one byte per record per plane)."""
+    return math.ceil(count / block_size) * BLOCK_HEADER + count * len(v2_planes(layout))
+
+
+def morton3(x: np.ndarray, y: np.ndarray, z: np.ndarray, bits: int) -> np.ndarray:
+    """Interleave three `bits`-bit integers (bits <= 21): bit i of x -> bit 3i, of y -> 3i + 1, of z -> 3i + 2."""
+    code = np.zeros(len(x), dtype=np.uint64)
+    for i in range(bits):
+        for k, v in enumerate((x, y, z)):
+            code |= ((v.astype(np.uint64) >> np.uint64(i)) & np.uint64(1)) << np.uint64(3 * i + k)
+    return code
+
+
+def unmorton3(code: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    out = [np.zeros(len(code), dtype=np.uint64) for _ in range(3)]
+    for i in range(bits):
+        for k in range(3):
+            out[k] |= ((code >> np.uint64(3 * i + k)) & np.uint64(1)) << np.uint64(i)
+    return out[0], out[1], out[2]
+
+
+def _section_label(name: str, k: int, layout: Layout) -> str:
+    bits = dict(layout.fields)
+    width = (3 * bits["px"] + 7) // 8 if name == "pos" else (bits[name] + 7) // 8
+    return name if width == 1 else f"{name}[{k}]"
+
+
+def encode_blocks_v2(a: dict[str, np.ndarray], layout: Layout, block_size: int, level: int = ZSTD_LEVEL) -> bytes:
+    """Sanitized Gaussians (block order) -> the sections of a v2 chunk: boxes, then one byte plane per section, each
+    `filter u8, length u32, zstd frame`. Records are sorted by the Morton code of (px, py, pz) inside each block; the
+    encoder keeps the smaller of the plain and the delta-filtered plane."""
+    pb = dict(layout.fields)["px"]
+    n = len(a["means"])
+    boxes, codes, vals = [], [], {f: [] for f, _ in layout.fields}
+    for s in range(0, n, block_size):
+        box, v = quantize_block({k: x[s : s + block_size] for k, x in a.items()}, layout)
+        code = morton3(v["px"], v["py"], v["pz"], pb)
+        order = np.argsort(code, kind="stable")
+        code = code[order]
+        codes.append(np.diff(code, prepend=np.uint64(0)))
+        for f in vals:
+            vals[f].append(v[f][order])
+        boxes.append(box)
+    delta = np.concatenate(codes) if codes else np.zeros(0, dtype=np.uint64)
+    cat = {f: (np.concatenate(x) if x else np.zeros(0, dtype=np.uint64)) for f, x in vals.items()}
+    planes = [(0, np.asarray(boxes, dtype="<f4").tobytes())]
+    for f, k in v2_planes(layout):
+        x = delta if f == "pos" else cat[f]
+        plane = ((x >> np.uint64(8 * k)) & np.uint64(255)).astype(np.uint8)
+        planes.append((None, plane))
+    zc = zstandard.ZstdCompressor(level=level, write_checksum=False, write_content_size=True, write_dict_id=False)
+    out = bytearray()
+    for filt, plane in planes:
+        if filt == 0:  # boxes: never filtered
+            best = (0, zc.compress(plane))
+        else:
+            plain = zc.compress(plane.tobytes())
+            d = np.diff(plane, prepend=np.uint8(0)).astype(np.uint8)  # (x[i] - x[i-1]) mod 256
+            filtered = zc.compress(d.tobytes())
+            best = (1, filtered) if len(filtered) < len(plain) else (0, plain)
+        out += struct.pack("<BI", best[0], len(best[1])) + best[1]
+    if v2_raw_size(n, layout, block_size) > MAX_RATIO * (len(out) + 8):
+        raise ValueError("wsplat v2: chunk compresses beyond MAX_RATIO (degenerate data): write it as v1")
+    return bytes(out)
+
+
+def decode_blocks_v2(
+    payload: memoryview, pos: int, count: int, layout: Layout, block_size: int, base: int, name: str
+) -> dict[str, np.ndarray]:
+    """The sections of a v2 chunk from payload[pos:] -> float64 Gaussians. Every size is checked against the bytes
+    present before anything is decompressed; a section decompresses to exactly its size or is refused."""
+    nblocks = math.ceil(count / block_size)
+    planes = [("boxes", 0)] + v2_planes(layout)
+    raw: dict[tuple[str, int], np.ndarray] = {}
+    where: dict[str, int] = {}  # absolute offset of each field's first section (errors about its values)
+    for f, k in planes:
+        where.setdefault(f, base + pos)
+        label = f"{name}.{'boxes' if f == 'boxes' else _section_label(f, k, layout)}"
+        size = nblocks * BLOCK_HEADER if f == "boxes" else count
+        if pos + 5 > len(payload):
+            raise WsplatError("bad_payload", base + pos, label, "section header past the end of the chunk")
+        filt, clen = struct.unpack_from("<BI", payload, pos)
+        if filt not in (0, 1) or (f == "boxes" and filt != 0):
+            raise WsplatError("bad_payload", base + pos, f"{label}.filter", f"filter {filt} (0: none, 1: delta)")
+        if pos + 5 + clen > len(payload):
+            raise WsplatError(
+                "bad_payload",
+                base + pos + 1,
+                f"{label}.length",
+                f"{clen} bytes, the chunk has {len(payload) - pos - 5}",
+            )
+        frame = bytes(payload[pos + 5 : pos + 5 + clen])
+        try:
+            fp = zstandard.get_frame_parameters(frame)
+        except zstandard.ZstdError as e:
+            raise WsplatError("bad_payload", base + pos + 5, label, f"not a zstd frame: {e}") from None
+        if fp.content_size != size:
+            raise WsplatError(
+                "bad_payload",
+                base + pos + 5,
+                label,
+                f"zstd frame declares {fp.content_size} bytes, the section is {size}",
+            )
+        window = max_window(size)
+        if fp.window_size > window:
+            raise WsplatError("bad_payload", base + pos + 5, label, f"zstd window {fp.window_size} > {window} bytes")
+        dobj = zstandard.ZstdDecompressor(max_window_size=window).decompressobj()
+        try:
+            data = dobj.decompress(frame)
+        except zstandard.ZstdError as e:
+            raise WsplatError("bad_payload", base + pos + 5, label, f"zstd: {e}") from None
+        if len(data) != size or not dobj.eof or dobj.unused_data:
+            raise WsplatError("bad_payload", base + pos + 5, label, "zstd frame is not exactly one whole section")
+        x = np.frombuffer(data, dtype=np.uint8)
+        raw[(f, k)] = np.cumsum(x, dtype=np.uint8) if filt == 1 else x
+        pos += 5 + clen
+    if pos != len(payload):
+        raise WsplatError(
+            "bad_payload", base + pos, f"{name}.length", f"{len(payload) - pos} bytes after the last section"
+        )
+    boxes = raw[("boxes", 0)].view("<f4").reshape(nblocks, 8).astype(np.float64)
+    bad = ~np.isfinite(boxes).all(1) | (boxes[:, 0:3] > boxes[:, 3:6]).any(1) | (boxes[:, 6] > boxes[:, 7])
+    if bad.any():
+        b = int(np.argmax(bad))
+        raise WsplatError("bad_payload", where["boxes"], f"{name}.boxes", f"block {b}: box not finite or lo > hi")
+    bits = dict(layout.fields)
+    v: dict[str, np.ndarray] = {}
+    for f, b in layout.fields:
+        if f in ("px", "py", "pz"):
+            continue
+        x = np.zeros(count, dtype=np.uint64)
+        for k in range((b + 7) // 8):
+            x |= raw[(f, k)].astype(np.uint64) << np.uint64(8 * k)
+        if (x >> np.uint64(b)).any():
+            i = int(np.argmax(x >> np.uint64(b)))
+            raise WsplatError("bad_payload", where[f], f"{name}.{f}", f"record {i}: value {int(x[i])} >= 2^{b}")
+        v[f] = x
+    pb = bits["px"]
+    d = np.zeros(count, dtype=np.uint64)
+    for k in range((3 * pb + 7) // 8):
+        d |= raw[("pos", k)].astype(np.uint64) << np.uint64(8 * k)
+    limit = np.uint64((1 << (3 * pb)) - 1)
+    code = np.empty(count, dtype=np.uint64)
+    for blk in range(nblocks):
+        s, e = blk * block_size, min(count, (blk + 1) * block_size)
+        part = d[s:e]
+        cs = np.cumsum(part, dtype=np.uint64)  # exact while every delta and partial sum is <= limit < 2^63
+        if (part > limit).any() or (cs > limit).any():
+            raise WsplatError(
+                "bad_payload", where["pos"], f"{name}.pos", f"block {blk}: Morton deltas add up past 2^{3 * pb} - 1"
+            )
+        code[s:e] = cs
+    v["px"], v["py"], v["pz"] = unmorton3(code, pb)
+    box = np.repeat(boxes, block_size, axis=0)[:count]
+    return dequantize(v, box, layout)
+
+
+def check_layout_v2(lay: Layout, offset: int, name: str) -> Layout:
+    """v2 stores px py pz as one Morton code: the three need the same bits, at most MAX_POS_BITS_V2."""
+    b = dict(lay.fields)
+    if not b["px"] == b["py"] == b["pz"] or b["px"] > MAX_POS_BITS_V2:
+        raise WsplatError(
+            "bad_layout", offset, f"HEAD.{name}", f"v2: px py pz need the same bits, at most {MAX_POS_BITS_V2}"
+        )
+    return lay
 
 
 def _chunk(tag: bytes, payload: bytes) -> bytes:
@@ -371,19 +574,24 @@ def _chunk(tag: bytes, payload: bytes) -> bytes:
     return head + payload + struct.pack("<I", zlib.crc32(head + payload))
 
 
-def choose_layouts(scene: Scene4D) -> tuple[Layout, Layout]:
-    return layouts_for(scene.static, scene.dynamic)
+def choose_layouts(scene: Scene4D, version: int | None = None) -> tuple[Layout, Layout]:
+    return layouts_for(scene.static, scene.dynamic, version)
 
 
-def layouts_for(static: Gaussians, dynamic: list[Gaussians]) -> tuple[Layout, Layout]:
-    """The default layouts for these Gaussians (isotropic ones do not pay for a rotation)."""
+def layouts_for(static: Gaussians, dynamic: list[Gaussians], version: int | None = None) -> tuple[Layout, Layout]:
+    """The default layouts of a version for these Gaussians (isotropic ones do not pay for a rotation)."""
     dyn = Gaussians.cat(list(dynamic)) if any(len(d) for d in dynamic) else Gaussians.empty()
-    sl = Layout(tuple(map(tuple, STATIC_ISO if is_isotropic(static) else STATIC_ANISO)))
-    dl = Layout(tuple(map(tuple, DYNAMIC_ISO if is_isotropic(dyn) else DYNAMIC_ANISO)))
+    v2 = (version or DEFAULT_VERSION) == 2
+    si, sa, di, da = (V2_STATIC_ISO, V2_STATIC_ANISO, V2_DYNAMIC_ISO, V2_DYNAMIC_ANISO) if v2 else (
+        STATIC_ISO, STATIC_ANISO, DYNAMIC_ISO, DYNAMIC_ANISO)  # fmt: skip
+    sl = Layout(tuple(map(tuple, si if is_isotropic(static) else sa)))
+    dl = Layout(tuple(map(tuple, di if is_isotropic(dyn) else da)))
     return sl, dl
 
 
-def _head(scene: Scene4D, sl: Layout, dl: Layout, block_size: int, num_static, num_dynamic, bounds) -> bytes:
+def _head(
+    scene: Scene4D, sl: Layout, dl: Layout, block_size: int, num_static, num_dynamic, bounds, version: int = 1
+) -> bytes:
     """The HEAD chunk: the scene's frames, rig and poses, its layouts, the totals (None: a streamed file) and its
     extra meta (unknown fields, ignored by readers)."""
     if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
@@ -393,7 +601,7 @@ def _head(scene: Scene4D, sl: Layout, dl: Layout, block_size: int, num_static, n
     meta = scene.meta
     head = {
         "format": "wsplat",
-        "version": VERSION,
+        "version": version,
         "scenario_id": str(meta.get("scenario_id", "")),
         "mode": str(meta.get("mode", "")),
         "model_version": str(meta.get("model_version", "")),
@@ -410,6 +618,8 @@ def _head(scene: Scene4D, sl: Layout, dl: Layout, block_size: int, num_static, n
         "dynamic_layout": dl.to_json(),
         "sh_degree": 0,
     }
+    if version == 2:
+        head["codec"] = "zstd"
     for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields
         if k not in head and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
             head[k] = v
@@ -421,7 +631,13 @@ def _bounds(means: list[np.ndarray]) -> dict:
     return {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()}
 
 
-def _stat_chunks(st: dict[str, np.ndarray], sl: Layout, block_size: int, size: int) -> tuple[list[bytes], int]:
+def _blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int, version: int) -> bytes:
+    return encode_blocks_v2(a, layout, block_size) if version == 2 else encode_blocks(a, layout, block_size)
+
+
+def _stat_chunks(
+    st: dict[str, np.ndarray], sl: Layout, block_size: int, size: int, version: int = 1
+) -> tuple[list[bytes], int]:
     """STAT chunks of importance-ordered sanitized statics: chunk k holds the next `size` * 2^k of them, Morton-ordered
     inside so block boxes stay small. Returns the chunks and the size the next chunk would have."""
     out, n, s = [], len(st["means"]), 0
@@ -429,18 +645,18 @@ def _stat_chunks(st: dict[str, np.ndarray], sl: Layout, block_size: int, size: i
         part = {k: v[s : s + size] for k, v in st.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
-        out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + encode_blocks(part, sl, block_size)))
+        out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + _blocks(part, sl, block_size, version)))
         s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
     return out, size
 
 
-def _dyna_chunks(t: int, d: dict[str, np.ndarray], dl: Layout, block_size: int) -> list[bytes]:
+def _dyna_chunks(t: int, d: dict[str, np.ndarray], dl: Layout, block_size: int, version: int = 1) -> list[bytes]:
     out = []
     for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
         part = {k: v[s : s + MAX_CHUNK_RECORDS] for k, v in d.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
-        out.append(_chunk(b"DYNA", struct.pack("<II", t, len(order)) + encode_blocks(part, dl, block_size)))
+        out.append(_chunk(b"DYNA", struct.pack("<II", t, len(order)) + _blocks(part, dl, block_size, version)))
     return out
 
 
@@ -450,23 +666,31 @@ def encode(
     block_size: int = DEFAULT_BLOCK_SIZE,
     static_layout: list | None = None,
     dynamic_layout: list | None = None,
+    version: int | None = None,
 ) -> bytes:
-    """Scene4D -> .wsplat bytes. Static Gaussians keep their (importance) order at chunk granularity: chunk k holds
-    the next FIRST_CHUNK * 2^k of them, Morton-ordered inside so block boxes stay small."""
-    sl, dl = choose_layouts(scene)
+    """Scene4D -> .wsplat bytes (`version` 1 or 2, default DEFAULT_VERSION). Static Gaussians keep their
+    (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of them, Morton-ordered inside
+    so block boxes stay small."""
+    version = version or DEFAULT_VERSION
+    if version not in VERSIONS:
+        raise ValueError(f"wsplat: version {version} not in {VERSIONS}")
+    sl, dl = layouts_for(scene.static, scene.dynamic, version)
     if static_layout is not None:
         sl = parse_layout(static_layout, 0, "static_layout")
     if dynamic_layout is not None:
         dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
+    if version == 2:
+        sl, dl = check_layout_v2(sl, 0, "static_layout"), check_layout_v2(dl, 0, "dynamic_layout")
     st = _sanitized_numpy(scene.static, sl)
     dyn = [_sanitized_numpy(d, dl) for d in scene.dynamic]
     bounds = _bounds([st["means"]] + [d["means"] for d in dyn])
-    out = bytearray(MAGIC + struct.pack("<I", VERSION))
-    out += _head(scene, sl, dl, block_size, int(len(st["means"])), [int(len(d["means"])) for d in dyn], bounds)
-    for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK)[0]:
+    out = bytearray(MAGIC + struct.pack("<I", version))
+    nd = [int(len(d["means"])) for d in dyn]
+    out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version)
+    for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version)[0]:
         out += c
     for t, d in enumerate(dyn):
-        for c in _dyna_chunks(t, d, dl, block_size):
+        for c in _dyna_chunks(t, d, dl, block_size, version):
             out += c
     out += _chunk(b"END!", b"")
     return bytes(out)
@@ -485,7 +709,19 @@ class StreamWriter:
     The layouts are fixed by the HEAD (`layouts_for` the first window); static Gaussians given to an isotropic layout
     must be isotropic (an anisotropic one is written with its geometric-mean scale)."""
 
-    def __init__(self, skeleton: Scene4D, static_layout: Layout, dynamic_layout: Layout, block_size: int = 0):
+    def __init__(
+        self,
+        skeleton: Scene4D,
+        static_layout: Layout,
+        dynamic_layout: Layout,
+        block_size: int = 0,
+        version: int | None = None,
+    ):
+        self.version = version or DEFAULT_VERSION
+        if self.version not in VERSIONS:
+            raise ValueError(f"wsplat: version {self.version} not in {VERSIONS}")
+        if self.version == 2:
+            check_layout_v2(static_layout, 0, "static_layout"), check_layout_v2(dynamic_layout, 0, "dynamic_layout")
         self.skeleton, self.sl, self.dl = skeleton, static_layout, dynamic_layout
         self.block_size = block_size or DEFAULT_BLOCK_SIZE
         self.num_static, self.num_dynamic = 0, [0] * len(skeleton.frame_times)
@@ -494,16 +730,18 @@ class StreamWriter:
         self.closed = False
 
     @classmethod
-    def for_window(cls, skeleton: Scene4D, static: Gaussians, dynamic: list[Gaussians]) -> StreamWriter:
+    def for_window(
+        cls, skeleton: Scene4D, static: Gaussians, dynamic: list[Gaussians], version: int | None = None
+    ) -> StreamWriter:
         """A writer whose layouts fit the first window's Gaussians (`layouts_for`; no dynamics yet: they are taken
         to look like the static ones)."""
         dyn = [d for d in dynamic if len(d)]
-        return cls(skeleton, *layouts_for(static, dyn or [static]))
+        return cls(skeleton, *layouts_for(static, dyn or [static], version), version=version)
 
     def head(self) -> bytes:
         """The preamble and HEAD."""
-        return MAGIC + struct.pack("<I", VERSION) + _head(self.skeleton, self.sl, self.dl, self.block_size, None,
-                                                          None, None)  # fmt: skip
+        return MAGIC + struct.pack("<I", self.version) + _head(self.skeleton, self.sl, self.dl, self.block_size,
+                                                                None, None, None, self.version)  # fmt: skip
 
     def _numpy(self, g: Gaussians, layout: Layout) -> dict[str, np.ndarray]:
         a = _sanitized_numpy(g, layout)
@@ -516,7 +754,7 @@ class StreamWriter:
         """STAT chunks of static Gaussians in importance order (the first chunk of the file is FIRST_CHUNK records,
         then they double)."""
         st = self._numpy(g, self.sl)
-        chunks, self._next_size = _stat_chunks(st, self.sl, self.block_size, self._next_size)
+        chunks, self._next_size = _stat_chunks(st, self.sl, self.block_size, self._next_size, self.version)
         self.num_static += len(st["means"])
         return chunks
 
@@ -526,7 +764,7 @@ class StreamWriter:
             raise ValueError(f"wsplat: frame {t} out of range")
         d = self._numpy(g, self.dl)
         self.num_dynamic[t] += len(d["means"])
-        return _dyna_chunks(t, d, self.dl, self.block_size)
+        return _dyna_chunks(t, d, self.dl, self.block_size, self.version)
 
     def end(self, meta: dict | None = None) -> bytes:
         """END! with the totals, the bounds and `meta` (extra fields, ignored by readers)."""
@@ -539,7 +777,8 @@ class StreamWriter:
 
 
 def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, block_size: int = DEFAULT_BLOCK_SIZE,
-                    static_split: list[int] | None = None, end_meta: dict | None = None) -> bytes:  # fmt: skip
+                    static_split: list[int] | None = None, end_meta: dict | None = None,
+                    version: int | None = None) -> bytes:  # fmt: skip
     """A streamed file of a whole scene (tests, vectors): its static set cut at `static_split` (indices into the
     importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame)."""
     T = len(scene.frame_times)
@@ -547,8 +786,8 @@ def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, blo
     cuts = [0, *(static_split or []), len(scene.static)]
     if len(cuts) != len(parts) + 1:
         raise ValueError("wsplat: static_split needs one cut fewer than parts")
-    sl, dl = choose_layouts(scene)
-    w = StreamWriter(scene, sl, dl, block_size)
+    sl, dl = choose_layouts(scene, version)
+    w = StreamWriter(scene, sl, dl, block_size, version)
     out = bytearray(w.head())
     for i, frames in enumerate(parts):
         for c in w.static(scene.static.subset(torch.arange(cuts[i], cuts[i + 1]))):
@@ -618,7 +857,7 @@ def parse_end(payload: bytes, offset: int, T: int) -> dict:
     return e
 
 
-def parse_head(payload: bytes, offset: int) -> dict:
+def parse_head(payload: bytes, offset: int, version: int = 1) -> dict:
     def bad(field, msg):
         raise WsplatError("bad_header", offset, f"HEAD.{field}", msg)
 
@@ -632,8 +871,10 @@ def parse_head(payload: bytes, offset: int) -> dict:
         bad("", "not a JSON object")
     if h.get("format") != "wsplat":
         bad("format", "must be 'wsplat'")
-    if not _is_int(h.get("version")) or h["version"] != VERSION:
-        bad("version", f"must be {VERSION}")
+    if not _is_int(h.get("version")) or h["version"] != version:
+        bad("version", f"must be {version} (the file's version)")
+    if version == 2 and h.get("codec") not in CODECS:
+        bad("codec", f"must be one of {list(CODECS)}")
     for k in ("scenario_id", "mode", "model_version", "caption"):
         if not isinstance(h.get(k), str):
             bad(k, "must be a string")
@@ -678,17 +919,70 @@ def parse_head(payload: bytes, offset: int) -> dict:
         if k not in h:
             bad(k, "missing")
         h[k] = parse_layout(h[k], offset, k)
+        if version == 2:
+            check_layout_v2(h[k], offset, k)
     h["streamed"] = streamed  # derived: the decoders' own flag (a HEAD field of that name is overridden)
     return h
+
+
+def dequantize(v: dict[str, np.ndarray], box: np.ndarray, layout: Layout) -> dict[str, np.ndarray]:
+    """Stored integers per field (n,) + the box of each record ((8,) for all, or (n, 8)) -> float64 Gaussians."""
+    bits = dict(layout.fields)
+    n = len(v["o"])
+    box = np.broadcast_to(np.asarray(box, dtype=np.float64), (n, 8))
+    deq = lambda f, lo, hi: lo + (hi - lo) * v[f].astype(np.float64) / ((1 << bits[f]) - 1)  # noqa: E731
+    means = np.stack([deq(f, box[:, i], box[:, 3 + i]) for i, f in enumerate(("px", "py", "pz"))], 1)
+    if layout.isotropic:
+        s = np.exp(deq("s", box[:, 6], box[:, 7]))
+        scales = np.stack([s, s, s], 1)
+        quats = np.tile([1.0, 0, 0, 0], (n, 1))
+    elif layout.canonical:
+        scales = np.exp(np.stack([deq(f, box[:, 6], box[:, 7]) for f in ("sx", "sy", "sz")], 1))
+        xyz = np.stack(
+            [
+                Q_CANON * (2 * np.minimum(v[f], _canon_steps(bits[f])).astype(np.float64) / _canon_steps(bits[f]) - 1)
+                for f in ("qx", "qy", "qz")
+            ],
+            1,
+        )
+        quats = np.concatenate([np.sqrt(np.maximum(0.0, 1 - (xyz**2).sum(1)))[:, None], xyz], 1)
+    else:
+        scales = np.exp(np.stack([deq(f, box[:, 6], box[:, 7]) for f in ("sx", "sy", "sz")], 1))
+        three = np.stack(
+            [(v[f].astype(np.float64) / ((1 << bits[f]) - 1) * 2 - 1) / math.sqrt(2) for f in ("qa", "qb", "qc")], 1
+        )
+        largest = np.sqrt(np.maximum(0.0, 1 - (three**2).sum(1)))
+        qi = v["qi"].astype(np.int64)
+        quats = np.zeros((n, 4))
+        quats[np.arange(n), qi] = largest
+        rest = np.array([[j for j in range(4) if j != i] for i in range(4)])[qi]
+        np.put_along_axis(quats, rest, three, axis=1)
+    return {
+        "means": means,
+        "quats": quats,
+        "scales": scales,
+        "opacities": deq("o", 0.0, 1.0),
+        "colors": np.stack([deq(f, 0.0, 1.0) for f in "rgb"], 1),
+    }
+
+
+def _empty_arrays() -> dict[str, np.ndarray]:
+    return {
+        "means": np.zeros((0, 3)),
+        "quats": np.zeros((0, 4)),
+        "scales": np.zeros((0, 3)),
+        "opacities": np.zeros(0),
+        "colors": np.zeros((0, 3)),
+    }
 
 
 def decode_blocks(
     payload: memoryview, pos: int, count: int, layout: Layout, block_size: int, base: int, name: str
 ) -> dict[str, np.ndarray]:
-    """Decode `count` records from payload[pos:] (length already checked exactly). `base` = absolute offset of
+    """Decode `count` v1 records from payload[pos:] (length already checked exactly). `base` = absolute offset of
     payload[0] for error messages."""
-    rs, bits = layout.record_size, dict(layout.fields)
-    means, scales, quats, opac, cols = [], [], [], [], []
+    rs = layout.record_size
+    parts = []
     left = count
     while left > 0:
         n = min(block_size, left)
@@ -696,55 +990,12 @@ def decode_blocks(
         if not np.all(np.isfinite(box)) or np.any(box[0:3] > box[3:6]) or box[6] > box[7]:
             raise WsplatError("bad_payload", base + pos, f"{name}.block", "box not finite or lo > hi")
         pos += BLOCK_HEADER
-        v = unpack_records(payload[pos : pos + n * rs], n, layout)
+        parts.append(dequantize(unpack_records(payload[pos : pos + n * rs], n, layout), box, layout))
         pos += n * rs
-        deq = lambda f, lo, hi: lo + (hi - lo) * v[f].astype(np.float64) / ((1 << bits[f]) - 1)  # noqa: E731
-        means.append(np.stack([deq(f, box[i], box[3 + i]) for i, f in enumerate(("px", "py", "pz"))], 1))
-        if layout.isotropic:
-            s = np.exp(deq("s", box[6], box[7]))
-            scales.append(np.stack([s, s, s], 1))
-            quats.append(np.tile([1.0, 0, 0, 0], (n, 1)))
-        elif layout.canonical:
-            scales.append(np.exp(np.stack([deq(f, box[6], box[7]) for f in ("sx", "sy", "sz")], 1)))
-            xyz = np.stack(
-                [
-                    Q_CANON
-                    * (2 * np.minimum(v[f], _canon_steps(bits[f])).astype(np.float64) / _canon_steps(bits[f]) - 1)
-                    for f in ("qx", "qy", "qz")
-                ],
-                1,
-            )
-            quats.append(np.concatenate([np.sqrt(np.maximum(0.0, 1 - (xyz**2).sum(1)))[:, None], xyz], 1))
-        else:
-            scales.append(np.exp(np.stack([deq(f, box[6], box[7]) for f in ("sx", "sy", "sz")], 1)))
-            three = np.stack(
-                [(v[f].astype(np.float64) / ((1 << bits[f]) - 1) * 2 - 1) / math.sqrt(2) for f in ("qa", "qb", "qc")], 1
-            )
-            largest = np.sqrt(np.maximum(0.0, 1 - (three**2).sum(1)))
-            qi = v["qi"].astype(np.int64)
-            q = np.zeros((n, 4))
-            q[np.arange(n), qi] = largest
-            rest = np.array([[j for j in range(4) if j != i] for i in range(4)])[qi]
-            np.put_along_axis(q, rest, three, axis=1)
-            quats.append(q)
-        opac.append(deq("o", 0.0, 1.0))
-        cols.append(np.stack([deq(f, 0.0, 1.0) for f in "rgb"], 1))
         left -= n
-    if not means:
-        return {
-            "means": np.zeros((0, 3)),
-            "quats": np.zeros((0, 4)),
-            "scales": np.zeros((0, 3)),
-            "opacities": np.zeros(0),
-            "colors": np.zeros((0, 3)),
-        }
-    return {
-        "means": np.concatenate(means),
-        "quats": np.concatenate(quats),
-        "scales": np.concatenate(scales),
-        "opacities": np.concatenate(opac),
-        "colors": np.concatenate(cols),
-    }
+    if not parts:
+        return _empty_arrays()
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
 def _payload_size(count: int, layout: Layout, block_size: int) -> int:
@@ -765,6 +1016,7 @@ class ProgressiveDecoder:
         self.num_static = 0
         self.num_dynamic: list[int] = []
         self.end: dict | None = None  # a streamed file's END! payload (totals, bounds, extra meta)
+        self.version = 0  # the file's, once its first 12 bytes are in
         self.stage = "magic"  # magic -> head -> stat -> dyna -> done; a streamed file: magic -> head -> stream -> done
         self.bytes_fed = 0
 
@@ -799,8 +1051,9 @@ class ProgressiveDecoder:
             if len(self.buf) < 12:
                 return None
             (ver,) = struct.unpack_from("<I", self.buf, 8)
-            if ver != VERSION:
-                raise WsplatError("bad_version", 8, "version", f"version {ver}, this decoder reads {VERSION}")
+            if ver not in VERSIONS:
+                raise WsplatError("bad_version", 8, "version", f"version {ver}, this decoder reads {VERSIONS}")
+            self.version = ver
             self._consume(12)
             self.stage = "head"
             return ("", None)
@@ -845,7 +1098,7 @@ class ProgressiveDecoder:
 
     def _chunk(self, tag: bytes, payload: memoryview, pbase: int, at: int):
         if tag == b"HEAD":
-            self.header = parse_head(bytes(payload), pbase)
+            self.header = parse_head(bytes(payload), pbase, self.version)
             self.num_dynamic = [0] * len(self.header["frame_times"])
             self.stage = "stream" if self.header["streamed"] else "stat"
             return ("header", self.header)
@@ -891,7 +1144,16 @@ class ProgressiveDecoder:
             raise WsplatError("bad_payload", coff, f"{name}.count", "count must be >= 1")
         # Check the length implied by count against the bytes present before decoding anything.
         need = head_len + _payload_size(count, layout, h["block_size"])
-        if len(payload) != need:
+        if self.version == 2:  # compressed: bounded by MAX_RATIO, the sections then checked one by one
+            raw = v2_raw_size(count, layout, h["block_size"])
+            if raw > MAX_RATIO * len(payload):
+                raise WsplatError(
+                    "bad_payload",
+                    coff,
+                    f"{name}.count",
+                    f"count {count} decodes to {raw} bytes > {MAX_RATIO} x the chunk's {len(payload)}",
+                )
+        elif len(payload) != need:
             raise WsplatError(
                 "bad_payload",
                 coff,
@@ -907,7 +1169,8 @@ class ProgressiveDecoder:
             raise WsplatError(
                 "count_mismatch", coff, "DYNA.count", f"more dynamic Gaussians than HEAD.num_dynamic[{frame}]"
             )
-        a = decode_blocks(payload, head_len, count, layout, h["block_size"], pbase, name)
+        dec = decode_blocks_v2 if self.version == 2 else decode_blocks
+        a = dec(payload, head_len, count, layout, h["block_size"], pbase, name)
         g = Gaussians.from_numpy(**a)
         if tag == b"STAT":
             self.num_static += count
@@ -933,6 +1196,7 @@ class ProgressiveDecoder:
             "num_dynamic",
             "bounds",
             "streamed",
+            "codec",
         )
         meta = {k: v for k, v in h.items() if k not in skip}
         meta["static_layout"] = h["static_layout"].to_json()

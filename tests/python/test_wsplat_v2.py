@@ -1,0 +1,207 @@
+""".wsplat v2 (web/docs/wsplat-v2.md): the same Gaussians as v1 in fewer bytes, progressive, bounded; property
+tests over random scenes, layouts and block sizes, prefixes and mutations."""
+
+import struct
+import sys
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from worldsplat.core.camera import default_rig
+from worldsplat.gaussians import Gaussians, Scene4D, wsplat
+from worldsplat.gaussians.wsplat import ProgressiveDecoder, WsplatError
+
+VECTORS = Path(__file__).resolve().parents[1] / "vectors" / "wsplat"
+sys.path.insert(0, str(VECTORS.parent))
+from make_vectors import _scene, _street, join_chunks, split_chunks  # noqa: E402
+
+V2_HEAD = b"WSPLAT\r\n\x02\x00\x00\x00"
+
+
+def as_rows(g: Gaussians) -> np.ndarray:
+    """Every Gaussian as one row, sorted: v2 reorders records inside a block (Morton), v1 keeps the block order."""
+    a = g.numpy()
+    rows = np.concatenate([a["means"], a["quats"], a["scales"], a["opacities"][:, None], a["colors"]], 1)
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+def street_scene(n: int, seed: int = 0) -> Scene4D:
+    rng = np.random.default_rng(seed)
+    a = _street(rng, n // 2, n - n // 2)
+    m = len(a["means"])
+    q = rng.normal(size=(m, 4)) * 0.15 + [1, 0, 0, 0]
+    a["quats"] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    a["scales"] = a["scales"] * np.exp(rng.normal(0, 0.4, (m, 3)))
+    a["opacities"] = np.clip(rng.beta(2.0, 0.6, m), 0.02, 1)
+    g = Gaussians.from_numpy(**a)
+    return Scene4D(g, [Gaussians.empty()], np.zeros(1), default_rig(64, 36), np.eye(4)[None], {"fps": 10.0})
+
+
+@pytest.mark.parametrize("iso", [True, False])
+def test_v2_decodes_the_same_gaussians_as_v1(iso):
+    scene = _scene(np.random.default_rng(1), 5000, [300, 0, 41], 3, iso=iso)
+    d1, d2 = wsplat.encode(scene, version=1), wsplat.encode(scene, version=2)
+    s1, s2 = wsplat.decode(d1), wsplat.decode(d2)
+    assert s2.meta["version"] == 2 and s1.meta["version"] == 1
+    np.testing.assert_array_equal(as_rows(s1.static), as_rows(s2.static))
+    for a, b in zip(s1.dynamic, s2.dynamic):
+        assert len(a) == len(b)
+        if len(a):
+            np.testing.assert_array_equal(as_rows(a), as_rows(b))
+
+
+def test_v2_is_smaller_than_v1_and_gzip_of_v1():
+    import gzip
+
+    scene = street_scene(20000)
+    d1, d2 = wsplat.encode(scene, version=1), wsplat.encode(scene, version=2)
+    assert len(d2) < 0.8 * len(d1)
+    assert len(d2) < len(gzip.compress(d1, 9))
+
+
+def test_v2_streamed_file_decodes_like_the_v1_streamed_file():
+    scene = _scene(np.random.default_rng(2), 3000, [20, 0, 35], 3, iso=False)
+    kw = {"parts": [[0], [1, 2]], "static_split": [1000], "end_meta": {"x": 1}}
+    v1 = wsplat.decode(wsplat.encode_streamed(scene, version=1, **kw))
+    v2 = wsplat.decode(wsplat.encode_streamed(scene, version=2, **kw))
+    np.testing.assert_array_equal(as_rows(v1.static), as_rows(v2.static))
+    np.testing.assert_array_equal(as_rows(v1.dynamic[2]), as_rows(v2.dynamic[2]))
+    assert v2.meta["x"] == 1 and v2.meta["num_static"] == 3000
+
+
+def test_v2_first_static_chunk_renders_alone():
+    """Progressive as v1: the first static chunk (FIRST_CHUNK records) arrives whole before the rest."""
+    scene = _scene(np.random.default_rng(3), 10000, [0], 1, iso=True)
+    data = wsplat.encode(scene, version=2)
+    ch = split_chunks(data)
+    first_end = 12 + sum(12 + len(p) for _, p in ch[:2])
+    dec = ProgressiveDecoder()
+    events = dec.feed(data[:first_end])
+    assert [e[0] for e in events] == ["header", "static"]
+    assert len(dec.scene().static) == wsplat.FIRST_CHUNK
+    assert first_end < len(data) / 2
+
+
+def test_v1_files_still_read_and_v1_stays_the_encoder_default_until_switched():
+    for name in ("valid_iso", "valid_streamed", "valid_aniso"):
+        s = wsplat.decode((VECTORS / f"{name}.wsplat").read_bytes())
+        assert s.meta["version"] == 1
+    data = wsplat.encode(_scene(np.random.default_rng(4), 10, [0], 1, iso=True))
+    assert struct.unpack_from("<I", data, 8)[0] == wsplat.DEFAULT_VERSION
+
+
+def test_v2_layout_needs_equal_position_bits():
+    scene = _scene(np.random.default_rng(5), 10, [0], 1, iso=True)
+    lay = [["px", 14], ["py", 12], ["pz", 14], ["s", 8], ["o", 6], ["r", 8], ["g", 8], ["b", 8]]
+    with pytest.raises(WsplatError, match="same bits"):
+        wsplat.encode(scene, version=2, static_layout=lay)
+    wsplat.encode(scene, version=1, static_layout=lay)  # v1 takes it
+
+
+def test_v2_huge_count_allocates_nothing():
+    """A STAT claiming 2^30 records in a few hundred bytes is refused before any allocation."""
+    data = (VECTORS / "bad_v2_payload_count_ratio.wsplat").read_bytes()
+    tracemalloc.start()
+    with pytest.raises(WsplatError) as e:
+        wsplat.decode(data)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert e.value.field == "STAT.count"
+    assert peak < 20 * len(data) + (1 << 20), peak
+
+
+def test_v2_window_larger_than_the_section_is_refused():
+    import zstandard
+
+    data = (VECTORS / "valid_v2_iso.wsplat").read_bytes()
+    ch = split_chunks(data)
+    stat = ch[1][1]
+    filt, n = struct.unpack_from("<BI", stat, 4)  # the boxes section
+    raw = zstandard.ZstdDecompressor().decompress(stat[9 : 9 + n])
+    # a raw-block zstd frame by hand (RFC 8878): content size in 4 bytes, no single segment, a 1 MiB window
+    fr = struct.pack("<IBB", 0xFD2FB528, 2 << 6, 10 << 3) + struct.pack("<I", len(raw))
+    fr += (len(raw) << 3 | 1).to_bytes(3, "little") + raw  # last block, raw
+    assert zstandard.ZstdDecompressor().decompress(fr) == raw
+    assert zstandard.get_frame_parameters(fr).window_size > wsplat.max_window(len(raw))
+    bad = join_chunks([ch[0], (b"STAT", stat[:4] + struct.pack("<BI", 0, len(fr)) + fr + stat[9 + n :])] + ch[2:],
+                      V2_HEAD)  # fmt: skip
+    with pytest.raises(WsplatError, match="window"):
+        wsplat.decode(bad)
+
+
+LAYOUT_BITS = st.tuples(st.integers(1, 21), st.integers(1, 12), st.integers(1, 9), st.integers(1, 10))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    n=st.integers(0, 700),
+    bits=LAYOUT_BITS,
+    block=st.sampled_from([1, 3, 64, 256]),
+    iso=st.booleans(),
+    seed=st.integers(0, 2**16),
+)
+def test_property_v2_equals_v1_for_any_layout_and_block_size(n, bits, block, iso, seed):
+    pb, sb, ob, cb = bits
+    scene = _scene(np.random.default_rng(seed), n, [min(n, 17)], 1, iso=iso)
+    if iso:
+        lay = [["px", pb], ["py", pb], ["pz", pb], ["s", sb], ["o", ob], ["r", cb], ["g", cb], ["b", cb]]
+    else:
+        lay = [["px", pb], ["py", pb], ["pz", pb], ["qx", max(2, sb)], ["qy", max(2, sb)], ["qz", max(2, sb)],
+               ["sx", sb], ["sy", sb], ["sz", sb], ["o", ob], ["r", cb], ["g", cb], ["b", cb]]  # fmt: skip
+    if sum(b for _, b in lay) > 128:
+        return  # record size > 16 bytes: no layout (v1's limit, kept by v2)
+    kw = {"block_size": block, "static_layout": lay}
+    s1 = wsplat.decode(wsplat.encode(scene, version=1, **kw))
+    s2 = wsplat.decode(wsplat.encode(scene, version=2, **kw))
+    np.testing.assert_array_equal(as_rows(s1.static), as_rows(s2.static))
+    np.testing.assert_array_equal(as_rows(s1.dynamic[0]), as_rows(s2.dynamic[0]))
+
+
+_V2 = (VECTORS / "valid_v2_iso.wsplat").read_bytes()
+
+
+@settings(max_examples=150, deadline=None)
+@given(cut=st.integers(0, len(_V2)), split=st.integers(0, len(_V2)))
+def test_property_any_prefix_is_a_prefix_of_whole_chunks(cut, split):
+    """Fed in two pieces, any prefix decodes to whole chunks only (never a partial or wrong record)."""
+    whole = wsplat.decode(_V2)
+    dec = ProgressiveDecoder()
+    prefix = _V2[:cut]
+    dec.feed(prefix[:split])
+    dec.feed(prefix[split:])
+    if dec.header is None:
+        return
+    got = dec.scene()
+    assert len(got.static) <= len(whole.static)
+    np.testing.assert_array_equal(got.static.means.numpy(), whole.static.means[: len(got.static)].numpy())
+    if cut < len(_V2):
+        with pytest.raises(WsplatError) as e:
+            dec.finish()
+        assert e.value.kind == "truncated"
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    data=st.lists(st.tuples(st.integers(12, len(_V2) - 1), st.integers(0, 255)), min_size=1, max_size=4),
+    cut=st.integers(13, len(_V2)),
+)
+def test_property_v2_mutations_raise_wsplat_error_only(data, cut):
+    """Random byte changes (the CRC is recomputed, so they reach the sections) and truncations: a WsplatError
+    naming an offset inside the data, or a valid scene; never another exception."""
+    buf = bytearray(_V2)
+    for at, v in data:
+        buf[at] = v
+    chunks = split_chunks(bytes(buf)) if buf[:12] == _V2[:12] else None
+    try:
+        fixed = join_chunks(chunks, V2_HEAD) if chunks and all(len(t) == 4 for t, _ in chunks) else bytes(buf)
+    except struct.error:
+        fixed = bytes(buf)
+    for d in (fixed[:cut], bytes(buf)[:cut]):
+        try:
+            wsplat.decode(d)
+        except WsplatError as e:
+            assert 0 <= e.offset <= len(d)

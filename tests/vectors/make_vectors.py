@@ -694,6 +694,12 @@ def _write_v2(valid, bad) -> None:
         block_size=128,
         version=2,
     )
+    grey = _scene(rng, 2000, [50], 1, iso=True)
+    c = grey.static.colors.detach().clone()
+    grey.static.colors.data[:] = (c[:, 1:2] * 0.9 + 0.1 * c).clamp(0, 1)  # near-grey: r and b planes minus g
+    gdata = valid("valid_v2_grey", grey, version=2)
+    gch = split_chunks(gdata)
+    assert any(f >= 2 for _, f, _ in v2_sections(gch[1][1], 4)), "the grey vector must use the minus-g filters"
     v2 = b"WSPLAT\r\n\x02\x00\x00\x00"
     ch = split_chunks(base)
     assert [t for t, _ in ch] == [b"HEAD", b"STAT", b"DYNA", b"DYNA", b"END!"], [t for t, _ in ch]
@@ -737,7 +743,7 @@ def _write_v2(valid, bad) -> None:
     bad(  # a count far beyond what the bytes can hold: refused before anything is decompressed or allocated
         "bad_v2_payload_count_ratio", with_stat(struct.pack("<I", 1 << 30) + stat[4:]), "bad_payload", p0, "STAT.count"
     )
-    bad("bad_v2_section_filter", with_section(2, filt=7), "bad_payload", p0 + secs[2][0], "STAT.pos[1].filter")
+    bad("bad_v2_section_filter", with_section(2, filt=2), "bad_payload", p0 + secs[2][0], "STAT.pos[1].filter")
     bad("bad_v2_boxes_filter", with_section(0, filt=1), "bad_payload", p0 + secs[0][0], "STAT.boxes.filter")
     bad(
         "bad_v2_section_length",

@@ -445,22 +445,19 @@ def encode_blocks_v2(a: dict[str, np.ndarray], layout: Layout, block_size: int, 
         boxes.append(box)
     delta = np.concatenate(codes) if codes else np.zeros(0, dtype=np.uint64)
     cat = {f: (np.concatenate(x) if x else np.zeros(0, dtype=np.uint64)) for f, x in vals.items()}
-    planes = [(0, np.asarray(boxes, dtype="<f4").tobytes())]
-    for f, k in v2_planes(layout):
-        x = delta if f == "pos" else cat[f]
-        plane = ((x >> np.uint64(8 * k)) & np.uint64(255)).astype(np.uint8)
-        planes.append((None, plane))
+    byte = lambda x, k: ((x >> np.uint64(8 * k)) & np.uint64(255)).astype(np.uint8)  # noqa: E731
     zc = zstandard.ZstdCompressor(level=level, write_checksum=False, write_content_size=True, write_dict_id=False)
     out = bytearray()
-    for filt, plane in planes:
-        if filt == 0:  # boxes: never filtered
-            best = (0, zc.compress(plane))
-        else:
-            plain = zc.compress(plane.tobytes())
-            d = np.diff(plane, prepend=np.uint8(0)).astype(np.uint8)  # (x[i] - x[i-1]) mod 256
-            filtered = zc.compress(d.tobytes())
-            best = (1, filtered) if len(filtered) < len(plain) else (0, plain)
-        out += struct.pack("<BI", best[0], len(best[1])) + best[1]
+    box = zc.compress(np.asarray(boxes, dtype="<f4").tobytes())  # boxes: never filtered
+    out += struct.pack("<BI", 0, len(box)) + box
+    for f, k in v2_planes(layout):
+        plane = byte(delta if f == "pos" else cat[f], k)
+        cands = [(0, plane)]
+        if f in ("r", "b") and k < (dict(layout.fields)["g"] + 7) // 8:  # minus the green plane's same byte
+            cands.append((2, plane - byte(cat["g"], k)))
+        cands += [(c + 1, np.diff(x, prepend=np.uint8(0)).astype(np.uint8)) for c, x in cands]  # then delta
+        filt, best = min(((c, zc.compress(x.tobytes())) for c, x in cands), key=lambda t: len(t[1]))
+        out += struct.pack("<BI", filt, len(best)) + best
     if v2_raw_size(n, layout, block_size) > MAX_RATIO * (len(out) + 8):
         raise ValueError("wsplat v2: chunk compresses beyond MAX_RATIO (degenerate data): write it as v1")
     return bytes(out)
@@ -475,6 +472,7 @@ def decode_blocks_v2(
     planes = [("boxes", 0)] + v2_planes(layout)
     raw: dict[tuple[str, int], np.ndarray] = {}
     where: dict[str, int] = {}  # absolute offset of each field's first section (errors about its values)
+    minus_g: list[tuple[str, int]] = []  # r / b planes stored minus the g plane's same byte
     for f, k in planes:
         where.setdefault(f, base + pos)
         label = f"{name}.{'boxes' if f == 'boxes' else _section_label(f, k, layout)}"
@@ -482,8 +480,14 @@ def decode_blocks_v2(
         if pos + 5 > len(payload):
             raise WsplatError("bad_payload", base + pos, label, "section header past the end of the chunk")
         filt, clen = struct.unpack_from("<BI", payload, pos)
-        if filt not in (0, 1) or (f == "boxes" and filt != 0):
-            raise WsplatError("bad_payload", base + pos, f"{label}.filter", f"filter {filt} (0: none, 1: delta)")
+        allowed = 0 if f == "boxes" else 3 if f in ("r", "b") and k < (dict(layout.fields)["g"] + 7) // 8 else 1
+        if filt > allowed:
+            raise WsplatError(
+                "bad_payload",
+                base + pos,
+                f"{label}.filter",
+                f"filter {filt} (0: none, 1: delta, 2/3: minus g (+ delta))",
+            )
         if pos + 5 + clen > len(payload):
             raise WsplatError(
                 "bad_payload",
@@ -514,12 +518,16 @@ def decode_blocks_v2(
         if len(data) != size or not dobj.eof or dobj.unused_data:
             raise WsplatError("bad_payload", base + pos + 5, label, "zstd frame is not exactly one whole section")
         x = np.frombuffer(data, dtype=np.uint8)
-        raw[(f, k)] = np.cumsum(x, dtype=np.uint8) if filt == 1 else x
+        raw[(f, k)] = np.cumsum(x, dtype=np.uint8) if filt in (1, 3) else x
+        if filt >= 2:
+            minus_g.append((f, k))
         pos += 5 + clen
     if pos != len(payload):
         raise WsplatError(
             "bad_payload", base + pos, f"{name}.length", f"{len(payload) - pos} bytes after the last section"
         )
+    for key in minus_g:
+        raw[key] = raw[key] + raw[("g", key[1])]  # mod 256
     boxes = raw[("boxes", 0)].view("<f4").reshape(nblocks, 8).astype(np.float64)
     bad = ~np.isfinite(boxes).all(1) | (boxes[:, 0:3] > boxes[:, 3:6]).any(1) | (boxes[:, 6] > boxes[:, 7])
     if bad.any():

@@ -10,7 +10,7 @@ import torch
 from worldsplat.pipeline.inference import load_models
 from worldsplat.training import campaign as c
 from worldsplat.world.dataset import write_dataset
-from worldsplat_models.weights import read_metadata
+from worldsplat_models.weights import load_weights, read_metadata
 
 
 @pytest.mark.slow
@@ -22,6 +22,14 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     fig = [json.loads(line) for line in (out / "vae_v2_heldout.jsonl").read_text().splitlines()]
     assert [f["step"] for f in fig] == [1, 2] and all(0 < f["rgb_psnr"] < 60 for f in fig)
     vae = out / "vae_v2.safetensors"
+    # decoder-only fine-tune: the encoder (hence every cached latent) is untouched, the decoder moves
+    ft = tmp_path / "vae_ft"
+    c.train_vae_decoder(data, vae, ft, clips=2, steps=2, ckpt_every=1, test_clips=1)
+    before, after = load_weights(vae, "vae").state_dict(), load_weights(ft / "vae_v2.safetensors", "vae").state_dict()
+    assert all(torch.equal(before[k], after[k]) for k in before if k.startswith("encoder.") or "latent_" in k)
+    assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith("decoder."))
+    fig = [json.loads(line) for line in (ft / "vae_decoder_v2_heldout.jsonl").read_text().splitlines()]
+    assert [f["step"] for f in fig] == [1, 2] and 0 <= fig[-1]["saturation_decoded"] <= 1
     c.build_cache(data, vae, out, "test")
     c.build_cache(data, vae, out, "train", clips=1)
     c.build_cache(data, vae, out, "train", start=1)  # the second part, as a second process would write it

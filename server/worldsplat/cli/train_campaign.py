@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-STAGES = ("vae", "cache", "decoder", "prior", "dit", "snapshot")
+STAGES = ("vae", "vae-decoder", "cache", "decoder", "prior", "dit", "snapshot")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -44,6 +44,9 @@ def run(a: argparse.Namespace) -> int:
     if a.stage == "vae":
         need("data")
         c.train_vae(a.data, a.out, clips=a.clips or 1500, steps=a.steps, threads=a.threads, **kw)
+    elif a.stage == "vae-decoder":
+        need("data", "vae")
+        c.train_vae_decoder(a.data, a.vae, a.out, clips=a.clips or 300, steps=a.steps, threads=a.threads, **kw)
     elif a.stage == "cache":
         if a.merge:
             print(c.merge_cache(a.out, a.split))

@@ -193,8 +193,9 @@ def pixel_guide(models: Models, L: torch.Tensor) -> torch.Tensor:
 
 
 def layout_size(models: Models) -> tuple[int, int] | None:
-    """(W, H) of the layout maps the DiT reads as control (v2), or None when it reads the sketch latent (v1)."""
-    if models.dit is None or not models.dit.cfg.control_hint:
+    """(W, H) of the layout maps the DiT (v2) or the layout prior (v4) reads, or None when the DiT reads the sketch
+    latent (v1)."""
+    if models.prior is None and (models.dit is None or not models.dit.cfg.control_hint):
         return None
     return (models.data.width, models.data.height)
 

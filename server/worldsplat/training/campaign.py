@@ -2,6 +2,7 @@
 Gaussian decoder and the DiT with pixel-space layout control, trained stage by stage on world shards.
 
     vae      crops of all three modalities; held-out RGB / 8x8-pooled RGB / depth AbsRel / mask IoU per checkpoint
+    vae-decoder  decoder-only fine-tune with a chroma term (latents unchanged: caches and later stages stay valid)
     cache    shards -> frozen-VAE latents + layout maps + conditions + caption embeddings (one .pt per split)
     decoder  eq. 5 losses with the VAE's decoding of L as the pixel guide
     prior    the layout prior (v4): MSE regression of L from each camera's layout map; held-out MSE per modality
@@ -31,6 +32,7 @@ from worldsplat.training.loop import (
     pick,
     train_loop,
     unwrap,
+    vae_decoder_step_fn,
     vae_step_fn,
 )
 from worldsplat_models import rflow
@@ -190,6 +192,66 @@ def train_vae(
         progress=False,
         on_checkpoint=on_ckpt,
     )
+
+
+def train_vae_decoder(
+    data: Path,
+    vae_path: Path,
+    out: Path,
+    clips: int,
+    steps: int,
+    lr: float = 2e-4,
+    images: int = 4,
+    chroma_weight: float = 4.0,
+    threads: int = 1,
+    ckpt_every: int = 100,
+    test_clips: int = 4,
+) -> None:
+    """Fine-tune the decoder of the VAE at `vae_path` (encoder, latent statistics frozen; see vae_decoder_step_fn);
+    held-out figures per checkpoint incl. mean saturation (max - min channel) of decoded vs true RGB."""
+    torch.set_num_threads(threads)
+    out.mkdir(parents=True, exist_ok=True)
+    samples = load_images(shard_files(data, "train", clips))
+    test = load_images(shard_files(data, "test", test_clips))
+    vae = load_weights(vae_path, "vae")
+    for p in vae.encoder.parameters():
+        p.requires_grad_(False)
+    tcfg = TrainConfig(steps=steps, lr=lr, warmup=20, ckpt_every=ckpt_every, log_every=20, threads=threads)
+    t0 = time.time()
+
+    @torch.no_grad()
+    def on_ckpt(model, done):
+        m = unwrap(model).eval()
+        fig = vae_heldout(m, test) | saturation(m, test) | {"step": done, "wall_s": round(time.time() - t0, 1)}
+        print(json.dumps(fig), flush=True)
+        with open(out / "vae_decoder_v2_heldout.jsonl", "a") as f:
+            f.write(json.dumps(fig) + "\n")
+        save_weights(m, out / "vae_v2.safetensors", "vae", {"steps": done, "decoder_finetune": True})
+        m.train()
+
+    train_loop(
+        "vae_decoder_v2",
+        vae,
+        vae_decoder_step_fn(samples, DCFG, images_per_step=images, chroma_weight=chroma_weight),
+        tcfg,
+        out,
+        progress=False,
+        on_checkpoint=on_ckpt,
+    )
+
+
+@torch.no_grad()
+def saturation(vae, samples: list[dict], dcfg: DataConfig = DCFG) -> dict:
+    """Mean saturation (max - min over RGB, in [0, 1]) of the true and of the VAE-decoded images: a colourless
+    decoder shows here even where the PSNR over mostly dim scenes hides it."""
+    true, dec = [], []
+    for s in samples:
+        rgb, depth, mask, _ = vae_inputs(collate([s]), dcfg)
+        r = (vae.decode_joint(vae.encode_joint(rgb, depth, mask))[0] + 1) / 2
+        x = (rgb + 1) / 2
+        true.append(float((x.max(1).values - x.min(1).values).mean()))
+        dec.append(float((r.max(1).values - r.min(1).values).mean()))
+    return {"saturation_true": float(np.mean(true)), "saturation_decoded": float(np.mean(dec))}
 
 
 @torch.no_grad()
@@ -439,23 +501,19 @@ def train_dit(
     train_loop("dit_v2", dit, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
-def snapshot(out: Path, dest: Path) -> list[Path]:
+def snapshot(out: Path, dest: Path, kinds=("vae", "decoder", "dit", "prior")) -> list[Path]:
     """fp16 copies of the campaign's latest weights (what a fresh machine continues from), named as the
-    pipeline loads them (<kind>_small.safetensors): `worldsplat ... --weights DEST` serves them."""
+    pipeline loads them (<kind>_small.safetensors), with the run's metadata (steps, clips) kept:
+    `worldsplat ... --weights DEST` serves them."""
     dest.mkdir(parents=True, exist_ok=True)
     written = []
-    for kind in ("vae", "decoder", "dit", "prior"):
+    for kind in kinds:
         src = Path(out) / f"{kind}_v2.safetensors"
         if src.exists():
-            written.append(
-                save_weights(
-                    load_weights(src, kind),
-                    dest / f"{kind}_small.safetensors",
-                    kind,
-                    {"campaign": "v2", "source": src.name},
-                    dtype=torch.float16,
-                )
-            )
+            m = load_weights(src, kind)
+            meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
+            meta.update({"campaign": "v2", "source": src.name})
+            written.append(save_weights(m, dest / f"{kind}_small.safetensors", kind, meta, dtype=torch.float16))
     return written
 
 

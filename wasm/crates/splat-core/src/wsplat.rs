@@ -1,5 +1,6 @@
-//! Progressive .wsplat v1 decoder (web/docs/wsplat-v1.md). Feed bytes as they arrive (`push`); each complete
-//! chunk becomes an `Event`. Never reads past the bytes present, buffers only the incomplete chunk, and
+//! Progressive .wsplat v1 + v2 decoder (web/docs/wsplat-v1.md, web/docs/wsplat-v2.md). Feed bytes as they arrive
+//! (`push`); each complete chunk becomes an `Event`. v2 chunks hold zstd-coded byte planes (ruzstd), each
+//! decompressed into exactly the size its count implies, after the count was bounded by the chunk's bytes. Never reads past the bytes present, buffers only the incomplete chunk, and
 //! allocates decoded records only for chunks whose bytes (and CRC) have arrived. Every error names the byte
 //! offset and the field, with a kind from the spec's list.
 
@@ -9,6 +10,12 @@ use serde_json::Value;
 
 pub const MAGIC: &[u8; 8] = b"WSPLAT\r\n";
 pub const VERSION: u32 = 1;
+/// The versions this decoder reads.
+pub const VERSIONS: [u32; 2] = [1, 2];
+/// A v2 chunk decodes to at most MAX_RATIO x its payload bytes (checked before anything is decompressed).
+pub const MAX_RATIO: u64 = 64;
+/// v2: px py pz share their bits, at most this many (the Morton code fits 63 bits).
+pub const MAX_POS_BITS_V2: u32 = 21;
 pub const MAX_CHUNK: u32 = 64 << 20;
 pub const MAX_HEAD: u32 = 1 << 20;
 pub const MAX_FRAMES: usize = 1024;
@@ -95,6 +102,10 @@ enum Field {
 pub const Q_CANON: f64 = 0.38268343236508984;
 
 impl Field {
+    fn name(self) -> &'static str {
+        ["px", "py", "pz", "qi", "qa", "qb", "qc", "qx", "qy", "qz", "sx", "sy", "sz", "s", "o", "r", "g", "b"][self as usize]
+    }
+
     fn parse(name: &str) -> Option<Field> {
         Some(match name {
             "px" => Field::Px,
@@ -184,6 +195,35 @@ impl Layout {
         Ok(Layout { fields, record_bytes, isotropic, canonical })
     }
 
+    /// v2 stores px py pz as one Morton code: the same bits, at most MAX_POS_BITS_V2.
+    fn check_v2(self, what: &str, offset: u64) -> Result<Layout, WsplatError> {
+        let b = |f: Field| self.fields.iter().find(|x| x.0 == f).map_or(0, |x| x.2);
+        if b(Field::Px) != b(Field::Py) || b(Field::Px) != b(Field::Pz) || b(Field::Px) > MAX_POS_BITS_V2 {
+            return err(ErrorKind::BadLayout, offset, format!("HEAD.{what}: v2: px py pz need the same bits, at most {MAX_POS_BITS_V2}"));
+        }
+        Ok(self)
+    }
+
+    fn pos_bits(&self) -> u32 {
+        self.fields.iter().find(|x| x.0 == Field::Px).map_or(0, |x| x.2)
+    }
+
+    /// v2's byte planes after the boxes: (label, field index or None for `pos`, byte index).
+    fn v2_planes(&self) -> Vec<(String, Option<usize>, u32)> {
+        let width = |bits: u32| bits.div_ceil(8);
+        let label = |name: &str, w: u32, k: u32| if w == 1 { name.to_string() } else { format!("{name}[{k}]") };
+        let wp = width(3 * self.pos_bits());
+        let mut out: Vec<_> = (0..wp).map(|k| (label("pos", wp, k), None, k)).collect();
+        for (i, &(f, _, bits)) in self.fields.iter().enumerate() {
+            if matches!(f, Field::Px | Field::Py | Field::Pz) {
+                continue;
+            }
+            let w = width(bits);
+            out.extend((0..w).map(|k| (label(f.name(), w, k), Some(i), k)));
+        }
+        out
+    }
+
     fn decode(&self, rec: &[u8], pos_lo: [f32; 3], pos_hi: [f32; 3], lsc: [f32; 2]) -> Gaussian {
         let mut word = [0u8; 16];
         word[..rec.len()].copy_from_slice(rec);
@@ -260,10 +300,12 @@ pub struct Header {
     pub block_size: usize,
     pub static_layout: Layout,
     pub dynamic_layout: Layout,
+    /// The file's version (1 or 2).
+    pub version: u32,
 }
 
 impl Header {
-    fn from_json(v: &Value, offset: u64) -> Result<Header, WsplatError> {
+    fn from_json(v: &Value, offset: u64, version: u32) -> Result<Header, WsplatError> {
         let bad = |m: String| WsplatError { kind: ErrorKind::BadHeader, offset, message: format!("HEAD.{m}") };
         if !v.is_object() {
             return Err(bad("payload is not a JSON object".into()));
@@ -275,8 +317,11 @@ impl Header {
         if get("format")?.as_str() != Some("wsplat") {
             return Err(bad("format: must be \"wsplat\"".into()));
         }
-        if get("version")?.as_u64() != Some(VERSION as u64) {
-            return Err(bad(format!("version: must be {VERSION}")));
+        if get("version")?.as_u64() != Some(version as u64) {
+            return Err(bad(format!("version: must be {version} (the file's version)")));
+        }
+        if version == 2 && v.get("codec").and_then(Value::as_str) != Some("zstd") {
+            return Err(bad("codec: must be \"zstd\"".into()));
         }
         let frame_times: Vec<f64> = get("frame_times")?
             .as_array()
@@ -329,6 +374,12 @@ impl Header {
         if get("sh_degree")?.as_u64() != Some(0) {
             return Err(bad("sh_degree: must be 0".into()));
         }
+        let mut static_layout = Layout::from_json(get("static_layout")?, "static_layout", offset)?;
+        let mut dynamic_layout = Layout::from_json(get("dynamic_layout")?, "dynamic_layout", offset)?;
+        if version == 2 {
+            static_layout = static_layout.check_v2("static_layout", offset)?;
+            dynamic_layout = dynamic_layout.check_v2("dynamic_layout", offset)?;
+        }
         Ok(Header {
             scenario_id: string("scenario_id")?,
             mode: string("mode")?,
@@ -344,8 +395,9 @@ impl Header {
             rig,
             ego_to_world,
             block_size: block_size as usize,
-            static_layout: Layout::from_json(get("static_layout")?, "static_layout", offset)?,
-            dynamic_layout: Layout::from_json(get("dynamic_layout")?, "dynamic_layout", offset)?,
+            static_layout,
+            dynamic_layout,
+            version,
         })
     }
 }
@@ -421,6 +473,7 @@ pub struct Decoder {
     static_count: u64,
     dynamic_counts: Vec<u64>,
     failed: Option<WsplatError>,
+    version: u32,
 }
 
 impl Default for Decoder {
@@ -439,7 +492,16 @@ fn f32_at(b: &[u8], at: usize) -> f32 {
 
 impl Decoder {
     pub fn new() -> Decoder {
-        Decoder { pending: Vec::new(), base: 0, stage: Stage::Magic, header: None, static_count: 0, dynamic_counts: Vec::new(), failed: None }
+        Decoder {
+            pending: Vec::new(),
+            base: 0,
+            stage: Stage::Magic,
+            header: None,
+            static_count: 0,
+            dynamic_counts: Vec::new(),
+            failed: None,
+            version: 0,
+        }
     }
 
     pub fn header(&self) -> Option<&Header> {
@@ -519,9 +581,10 @@ impl Decoder {
                     break;
                 }
                 let version = u32_at(avail, 8);
-                if version != VERSION {
-                    return err(ErrorKind::BadVersion, 8, format!("version: {version}, this decoder reads {VERSION}"));
+                if !VERSIONS.contains(&version) {
+                    return err(ErrorKind::BadVersion, 8, format!("version: {version}, this decoder reads {VERSIONS:?}"));
                 }
+                self.version = version;
                 at += 12;
                 self.stage = Stage::Head;
                 continue;
@@ -567,7 +630,7 @@ impl Decoder {
                         offset: payload_off,
                         message: format!("HEAD: invalid JSON: {e}"),
                     })?;
-                    let h = Header::from_json(&v, payload_off)?;
+                    let h = Header::from_json(&v, payload_off, self.version)?;
                     self.dynamic_counts = vec![0; h.frame_times.len()];
                     self.stage = if h.streamed { Stage::Stream } else { Stage::Static };
                     self.header = Some(h.clone());
@@ -575,7 +638,7 @@ impl Decoder {
                 }
                 (b"STAT", Stage::Static | Stage::Stream) => {
                     let h = self.header.as_ref().unwrap();
-                    let (gs, _) = decode_records(payload, payload_off, 0, h.block_size, &h.static_layout)?;
+                    let (gs, _) = decode_records(payload, payload_off, 0, h.block_size, &h.static_layout, h.version)?;
                     self.static_count += gs.len() as u64;
                     if !h.streamed && self.static_count > h.num_static {
                         return err(
@@ -595,7 +658,7 @@ impl Decoder {
                     if frame >= h.frame_times.len() {
                         return err(ErrorKind::BadPayload, payload_off, format!("DYNA frame: {frame} >= {} frames", h.frame_times.len()));
                     }
-                    let (gs, _) = decode_records(payload, payload_off, 4, h.block_size, &h.dynamic_layout)?;
+                    let (gs, _) = decode_records(payload, payload_off, 4, h.block_size, &h.dynamic_layout, h.version)?;
                     self.dynamic_counts[frame] += gs.len() as u64;
                     if !h.streamed && self.dynamic_counts[frame] > h.num_dynamic[frame] {
                         return err(
@@ -674,14 +737,24 @@ impl Decoder {
 }
 
 /// Decode `count` + blocks starting at `start` of a STAT/DYNA payload.
-fn decode_records(payload: &[u8], payload_off: u64, start: usize, block_size: usize, layout: &Layout) -> Result<(Vec<Gaussian>, usize), WsplatError> {
+fn decode_records(
+    payload: &[u8],
+    payload_off: u64,
+    start: usize,
+    block_size: usize,
+    layout: &Layout,
+    version: u32,
+) -> Result<(Vec<Gaussian>, usize), WsplatError> {
     let name = if start == 0 { "STAT" } else { "DYNA" };
     if payload.len() < start + 4 {
-        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name} count: payload too short"));
+        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name}.count: payload too short"));
     }
     let count = u32_at(payload, start) as usize;
     if count == 0 {
-        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name} count: must be >= 1"));
+        return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name}.count: must be >= 1"));
+    }
+    if version == 2 {
+        return decode_records_v2(payload, payload_off, start, count, block_size, layout, name).map(|g| (g, count));
     }
     let blocks = count.div_ceil(block_size);
     let want = (start as u64 + 4) + blocks as u64 * BLOCK_HEADER as u64 + count as u64 * layout.record_bytes as u64;
@@ -689,7 +762,7 @@ fn decode_records(payload: &[u8], payload_off: u64, start: usize, block_size: us
         return err(
             ErrorKind::BadPayload,
             payload_off + start as u64,
-            format!("{name} count: {count} records need a {want}-byte payload, got {}", payload.len()),
+            format!("{name}.count: {count} records need a {want}-byte payload, got {}", payload.len()),
         );
     }
     let mut out = Vec::with_capacity(count); // bounded: the payload holding them is present
@@ -711,6 +784,167 @@ fn decode_records(payload: &[u8], payload_off: u64, start: usize, block_size: us
         }
     }
     Ok((out, count))
+}
+
+/// One v2 section: `filter u8, length u32, zstd frame` at `pos`, decompressed into exactly `size` bytes.
+/// `max_filter`: 0 for the boxes, 3 for r / b planes that have a g byte to subtract, else 1. Returns the plane with
+/// the delta filter undone (filters 2 and 3 still minus g), the filter and the next section's position.
+fn v2_section(payload: &[u8], payload_off: u64, pos: usize, size: usize, label: &str, max_filter: u8) -> Result<(Vec<u8>, u8, usize), WsplatError> {
+    let at = payload_off + pos as u64;
+    let bad = |off: u64, m: String| err::<(Vec<u8>, u8, usize)>(ErrorKind::BadPayload, off, format!("{label}{m}"));
+    if pos + 5 > payload.len() {
+        return bad(at, ": section header past the end of the chunk".into());
+    }
+    let filter = payload[pos];
+    if filter > max_filter {
+        return bad(at, format!(".filter: {filter} (0: none, 1: delta, 2/3: minus g (+ delta); here at most {max_filter})"));
+    }
+    let len = u32_at(payload, pos + 1) as usize;
+    if len > payload.len() - pos - 5 {
+        return bad(at + 1, format!(".length: {len} bytes, the chunk has {}", payload.len() - pos - 5));
+    }
+    let frame_at = at + 5;
+    let mut src: &[u8] = &payload[pos + 5..pos + 5 + len];
+    // zstd never needs a window larger than the content: the section's size up to a power of two, >= 1 KiB.
+    let window = (size.next_power_of_two().max(1 << 10)) as u64;
+    let mut dec = match ruzstd::decoding::StreamingDecoder::new_with_max_window_size(&mut src, window) {
+        Ok(d) => d,
+        Err(e) => return bad(frame_at, format!(": not a zstd frame (or its window > {window} bytes): {e}")),
+    };
+    if dec.decoder.content_size() != size as u64 {
+        return bad(frame_at, format!(": zstd frame declares {} bytes, the section is {size}", dec.decoder.content_size()));
+    }
+    let mut out = Vec::with_capacity(size); // bounded: size <= MAX_RATIO x the chunk's bytes
+    use std::io::Read;
+    if let Err(e) = (&mut dec).take(size as u64 + 1).read_to_end(&mut out) {
+        return bad(frame_at, format!(": zstd: {e}"));
+    }
+    drop(dec);
+    if out.len() != size || !src.is_empty() {
+        return bad(frame_at, ": zstd frame is not exactly one whole section".into());
+    }
+    if filter == 1 || filter == 3 {
+        let mut acc = 0u8;
+        for b in out.iter_mut() {
+            acc = acc.wrapping_add(*b);
+            *b = acc;
+        }
+    }
+    Ok((out, filter, pos + 5 + len))
+}
+
+/// A v2 chunk's sections (web/docs/wsplat-v2.md): boxes, the Morton-delta planes, one plane per field byte.
+fn decode_records_v2(
+    payload: &[u8],
+    payload_off: u64,
+    start: usize,
+    count: usize,
+    block_size: usize,
+    layout: &Layout,
+    name: &str,
+) -> Result<Vec<Gaussian>, WsplatError> {
+    let blocks = count.div_ceil(block_size);
+    let planes = layout.v2_planes();
+    let raw = blocks as u64 * BLOCK_HEADER as u64 + count as u64 * planes.len() as u64;
+    if raw > MAX_RATIO * payload.len() as u64 {
+        return err(
+            ErrorKind::BadPayload,
+            payload_off + start as u64,
+            format!("{name}.count: {count} records decode to {raw} bytes > {MAX_RATIO} x the chunk's {}", payload.len()),
+        );
+    }
+    let mut pos = start + 4;
+    let boxes_at = payload_off + pos as u64;
+    let (boxes, _, next) = v2_section(payload, payload_off, pos, blocks * BLOCK_HEADER, &format!("{name}.boxes"), 0)?;
+    pos = next;
+    let mut data: Vec<Vec<u8>> = Vec::with_capacity(planes.len());
+    let mut field_at: Vec<u64> = Vec::with_capacity(planes.len());
+    let g_bytes = layout.fields.iter().find(|x| x.0 == Field::G).map_or(0, |x| x.2.div_ceil(8));
+    let mut minus_g = Vec::new(); // (plane, byte index) of r / b planes stored minus g
+    for (p, (label, field, k)) in planes.iter().enumerate() {
+        field_at.push(payload_off + pos as u64);
+        let rb = field.is_some_and(|i| matches!(layout.fields[i].0, Field::R | Field::B));
+        let max_filter = if rb && *k < g_bytes { 3 } else { 1 };
+        let (d, filter, next) = v2_section(payload, payload_off, pos, count, &format!("{name}.{label}"), max_filter)?;
+        if filter >= 2 {
+            minus_g.push((p, *k));
+        }
+        data.push(d);
+        pos = next;
+    }
+    for (p, k) in minus_g {
+        let gp = planes.iter().position(|(_, f, kk)| f.is_some_and(|i| layout.fields[i].0 == Field::G) && *kk == k).unwrap();
+        let g = data[gp].clone();
+        for (x, gv) in data[p].iter_mut().zip(g) {
+            *x = x.wrapping_add(gv);
+        }
+    }
+    if pos != payload.len() {
+        return err(ErrorKind::BadPayload, payload_off + pos as u64, format!("{name}.length: {} bytes after the last section", payload.len() - pos));
+    }
+    // checked in this order (as every decoder does): boxes, field values, Morton deltas
+    let boxes_of = |b: usize| {
+        let f = |k: usize| f32_at(&boxes, b * BLOCK_HEADER + 4 * k);
+        ([f(0), f(1), f(2)], [f(3), f(4), f(5)], [f(6), f(7)])
+    };
+    for b in 0..blocks {
+        let (lo, hi, lsc) = boxes_of(b);
+        let ok =
+            (0..3).all(|k| lo[k].is_finite() && hi[k].is_finite() && lo[k] <= hi[k]) && lsc[0].is_finite() && lsc[1].is_finite() && lsc[0] <= lsc[1];
+        if !ok {
+            return err(ErrorKind::BadPayload, boxes_at, format!("{name}.boxes: block {b}: box must be finite with lo <= hi"));
+        }
+    }
+    // the stored integer of every field per record (positions from the Morton deltas, per block)
+    let nf = layout.fields.len();
+    let mut values = vec![0u64; count * nf];
+    let pos_at = field_at[0];
+    for (p, (_, field, k)) in planes.iter().enumerate() {
+        if let Some(i) = field {
+            let bits = layout.fields[*i].2;
+            for (r, &b) in data[p].iter().enumerate() {
+                values[r * nf + i] |= (b as u64) << (8 * k);
+            }
+            if *k + 1 == bits.div_ceil(8) {
+                if let Some(r) = (0..count).find(|&r| values[r * nf + i] >> bits != 0) {
+                    let first = field_at[p - *k as usize];
+                    let f = layout.fields[*i].0.name();
+                    return err(ErrorKind::BadPayload, first, format!("{name}.{f}: record {r}: value {} >= 2^{bits}", values[r * nf + i]));
+                }
+            }
+        }
+    }
+    let pb = layout.pos_bits();
+    let wp = (3 * pb).div_ceil(8) as usize;
+    let limit = (1u64 << (3 * pb)) - 1;
+    let idx = |f: Field| layout.fields.iter().position(|x| x.0 == f).unwrap();
+    let (ix, iy, iz) = (idx(Field::Px), idx(Field::Py), idx(Field::Pz));
+    let mut out = Vec::with_capacity(count);
+    for b in 0..blocks {
+        let (lo, hi, lsc) = boxes_of(b);
+        let mut code = 0u64;
+        for r in b * block_size..count.min((b + 1) * block_size) {
+            let delta = (0..wp).fold(0u64, |acc, k| acc | (data[k][r] as u64) << (8 * k));
+            code = match code.checked_add(delta) {
+                Some(c) if delta <= limit && c <= limit => c,
+                _ => return err(ErrorKind::BadPayload, pos_at, format!("{name}.pos: block {b}: Morton deltas add up past 2^{} - 1", 3 * pb)),
+            };
+            let (mut x, mut y, mut z) = (0u64, 0u64, 0u64);
+            for i in 0..pb {
+                x |= ((code >> (3 * i)) & 1) << i;
+                y |= ((code >> (3 * i + 1)) & 1) << i;
+                z |= ((code >> (3 * i + 2)) & 1) << i;
+            }
+            let v = &mut values[r * nf..(r + 1) * nf];
+            (v[ix], v[iy], v[iz]) = (x, y, z);
+            let mut word = 0u128;
+            for (j, &(_, off, _)) in layout.fields.iter().enumerate() {
+                word |= (v[j] as u128) << off;
+            }
+            out.push(layout.decode(&word.to_le_bytes()[..layout.record_bytes], lo, hi, lsc));
+        }
+    }
+    Ok(out)
 }
 
 /// A minimal encoder (one STAT chunk per `static_chunk` Gaussians, one DYNA chunk per frame) with fixed layouts:

@@ -12,9 +12,13 @@ from worldsplat.pipeline import inference as inf
 
 torch.set_num_threads(2)
 
-VAE_PSNR_FLOOR = 20.0  # dB, VAE RGB reconstruction
+VAE_PSNR_FLOOR = 23.0  # dB, VAE RGB reconstruction
+VAE_SATURATION_RATIO_MIN = 0.42  # decoded / true mean saturation here: 0.46 shipped, 0.36 before the decoder fine-tune
 RECON_PSNR_FLOOR = 17.0  # dB, reconstruct mode rendered at the rig cameras (0 m)
 RECON_DEPTH_ABSREL_MAX = 0.35  # rendered depth vs GT depth
+# generate on this clip, 4 steps: the shipped v4 set 0.078 / 0.76, the v1 set (grey blur) 0.145 / 0.04
+GEN_ROAD_DEPTH_ABSREL_MAX = 0.11  # rendered depth on the road surface (the layout states it)
+GEN_DYNAMIC_IOU_MIN = 0.5  # rendered dynamic mask vs the exact one
 
 pytestmark = pytest.mark.skipif(
     "reconstruct" not in inf.available_modes(), reason="no shipped weights in models/weights"
@@ -34,21 +38,31 @@ def test_shipped_weights_meta_and_size():
     from worldsplat_models.weights import read_metadata, weights_dir
 
     DEFAULT_DIR = weights_dir()
-    total = sum(p.stat().st_size for p in DEFAULT_DIR.rglob("*") if p.suffix in (".safetensors", ".onnx"))
+    # what is committed: the safetensors (the ONNX graphs are derived from them at set-up, `worldsplat export-onnx`)
+    total = sum(p.stat().st_size for p in DEFAULT_DIR.glob("*.safetensors"))
     assert total <= 60 * 2**20
-    for kind in ("vae", "decoder"):
-        md = read_metadata(DEFAULT_DIR / f"{kind}_small.safetensors")
-        assert md["kind"] == kind and md["steps_done"] > 0
+    for kind in ("vae", "decoder", "dit", "prior"):
+        path = DEFAULT_DIR / f"{kind}_small.safetensors"
+        if kind == "prior" and not path.exists():
+            continue  # a v1 set has no layout prior
+        md = read_metadata(path)
+        assert md["kind"] == kind and md.get("steps_done", md.get("steps", 0)) > 0
 
 
 def test_vae_reconstruction_floor(held_out):
     _, clip = held_out
     m = inf.load_models()
     L = inf.encode_clip(m, clip.rgb, clip.depth, clip.dynamic)
-    rgb = (m.vae.decode_joint(L.flatten(0, 1))[0] + 1) / 2
+    with torch.no_grad():
+        rgb = (m.vae.decode_joint(L.flatten(0, 1))[0] + 1) / 2
     T, V = clip.rgb.shape[:2]
     gt = torch.as_tensor(clip.rgb).float().div(255).reshape(T * V, *clip.rgb.shape[2:]).permute(0, 3, 1, 2)
     assert psnr(rgb, gt) >= VAE_PSNR_FLOOR
+
+    def sat(x):
+        return float((x.max(1).values - x.min(1).values).mean())
+
+    assert sat(rgb) >= VAE_SATURATION_RATIO_MIN * sat(gt), (sat(rgb), sat(gt))
 
 
 def test_reconstruct_mode_floor(held_out):
@@ -67,10 +81,27 @@ def test_reconstruct_mode_floor(held_out):
 
 
 @pytest.mark.skipif("generate" not in inf.available_modes(), reason="no shipped DiT weights")
-def test_generate_mode_runs_finite(held_out):
+def test_generate_mode_follows_the_layout(held_out):
+    """The generated scene stands where the scenario says: road-surface depth and the moving agents' mask, rendered
+    at every rig camera of frame 1, against the exact ground truth (pooled over the views)."""
+    from worldsplat.evaluation.models import ROAD_CLASSES
+    from worldsplat.gaussians import rasterize
+
     world, clip = held_out
-    cond = world.conditions()
-    emb = torch.nn.functional.normalize(torch.ones(384), dim=0)  # skip loading MiniLM in the test
-    dec = inf.generate(cond, steps=2, seed=0, rig=clip.rig, caption_embedding=emb)
+    m = inf.load_models()
+    cond = world.conditions(layout_size=inf.layout_size(m))
+    dec = inf.generate(cond, steps=4, seed=0, rig=clip.rig)
     scene = inf.to_scene4d(dec)
     assert len(scene.static) > 1000 and torch.isfinite(scene.static.means).all()
+    road, inter, union = [], 0, 0
+    for v in range(len(clip.rig)):
+        with torch.no_grad():
+            out = rasterize(scene.at_frame(1), scene.camera(1, v), method="pairs")
+        depth = out["depth"] / out["alpha"].clamp_min(1e-3)
+        on_road = torch.from_numpy(np.isin(clip.semantic[1, v], ROAD_CLASSES))
+        road.append(depth_abs_rel(depth, torch.as_tensor(clip.depth[1, v]), valid=on_road))
+        pred = (out["extras"][..., 0] / out["alpha"].clamp_min(1e-3) > 0.5) & (out["alpha"] > 0.5)
+        gt = torch.as_tensor(clip.dynamic[1, v]).bool()
+        inter, union = inter + int((pred & gt).sum()), union + int((pred | gt).sum())
+    assert np.nanmean(road) <= GEN_ROAD_DEPTH_ABSREL_MAX, road
+    assert union > 0 and inter / union >= GEN_DYNAMIC_IOU_MIN, (inter, union)

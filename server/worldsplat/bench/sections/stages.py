@@ -7,7 +7,7 @@ import resource
 
 from worldsplat.bench.fixtures import shipped_generator
 from worldsplat.bench.report import Section
-from worldsplat.pipeline.inference import generate
+from worldsplat.pipeline.inference import generate, layout_size
 from worldsplat.pipeline.refine import refine_available, stage_timings
 
 
@@ -16,7 +16,7 @@ def run(quick: bool) -> Section:
     models, sc, world = shipped_generator("stages")
     d = models.data
     steps = 2 if quick else 8
-    dec = generate(world.conditions(0.0), steps=steps, models=models)
+    dec = generate(world.conditions(0.0, layout_size=layout_size(models)), steps=steps, models=models)
     t = dec.meta["timing_s"]
     ref = {}
     if refine_available() and not quick:  # the refined track takes minutes on 2 cores

@@ -6,14 +6,14 @@ from __future__ import annotations
 from worldsplat.bench.fixtures import shipped_generator
 from worldsplat.bench.report import Pareto, Section
 from worldsplat.evaluation.models import steps_vs_error_for
-from worldsplat.pipeline.inference import condition_tensors
+from worldsplat.pipeline.inference import condition_tensors, layout_size
 
 
 def run(quick: bool) -> Section:
 
     models, sc, world = shipped_generator("steps")
     d = models.data
-    cond_np = world.conditions(0.0)
+    cond_np = world.conditions(0.0, layout_size=layout_size(models))
     cond = condition_tensors(models, cond_np, world.ego_to_world)
     steps_list, ref = ((1, 2, 4), 8) if quick else ((1, 2, 4, 8, 16, 32), 64)
     res = steps_vs_error_for(models, cond, steps_list=steps_list, ref_steps=ref)

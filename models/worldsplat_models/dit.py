@@ -11,7 +11,7 @@ Self-attention and MLP are modulated by adaLN-zero from the flow time s. A Contr
 latents for the enhancement model), and adds its outputs to the main stream through zero-initialised projections,
 so a fresh ControlNet leaves the base model unchanged.
 
-v3 (DiTConfig.control_at_input / refine_channels; the campaign generator since session 4, not yet served):
+v3 (DiTConfig.control_at_input / refine_channels; served since session 5 as the v4 generator, on the layout prior's residual):
 the layout does not need ControlNet's protection of a pretrained base, so its hint tokens are added to the main
 stream's input, and a small conv head at latent resolution (LatentRefiner) draws what a 4x4-latent token cannot
 (markings, box edges) from the hint encoder's latent-resolution features; no ControlNet copies (control_depth 0).

@@ -21,13 +21,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from .configs import LayoutPriorConfig
-
-
-def _groups(c: int) -> int:
-    for g in (8, 4, 2, 1):
-        if c % g == 0:
-            return g
-    return 1
+from .vae import _groups  # the GroupNorm group count the VAE's ResBlocks use
 
 
 class FiLMResBlock(nn.Module):

@@ -14,7 +14,10 @@ torch.set_num_threads(2)
 
 VAE_PSNR_FLOOR = 23.0  # dB, VAE RGB reconstruction
 VAE_SATURATION_RATIO_MIN = 0.42  # decoded / true mean saturation here: 0.46 shipped, 0.36 before the decoder fine-tune
-RECON_PSNR_FLOOR = 17.0  # dB, reconstruct mode rendered at the rig cameras (0 m)
+RECON_PSNR_FLOOR = 21.0  # dB, reconstruct mode rendered at the rig cameras (0 m): 24.14 measured here
+# The served economy of decoded Gaussians (cells of half a decoder-grid pitch) against the oracle's 3-pixel cells on
+# this clip: 24.14 vs 22.30 dB (40,696 vs 24,136 static Gaussians); unmerged 24.21.
+DECODED_CELLS_GAIN_MIN = 1.0  # dB
 RECON_DEPTH_ABSREL_MAX = 0.35  # rendered depth vs GT depth
 # generate on this clip, 4 steps: the shipped v4 set 0.078 / 0.76, the v1 set (grey blur) 0.145 / 0.04
 GEN_ROAD_DEPTH_ABSREL_MAX = 0.11  # rendered depth on the road surface (the layout states it)
@@ -78,6 +81,30 @@ def test_reconstruct_mode_floor(held_out):
         ab.append(depth_abs_rel(out["depth"] / out["alpha"].clamp_min(1e-3), torch.as_tensor(clip.depth[1, v])))
     assert np.mean(ps) >= RECON_PSNR_FLOOR, ps
     assert np.nanmean(ab) <= RECON_DEPTH_ABSREL_MAX, ab
+
+
+def test_decoded_cells_keep_the_decoders_detail(held_out):
+    """Cells of 3 image pixels averaged neighbouring decoded Gaussians (which already sit one per 2x2 pixels) into
+    blobs; the decoded economy merges only repeats of a place and stays within a few tenths of a dB of no merging."""
+    from worldsplat.gaussians import rasterize
+    from worldsplat.gaussians.aggregate import Economy
+
+    _, clip = held_out
+    dec = inf.reconstruct(clip)
+
+    def rig_psnr(scene):
+        ps = []
+        for v in (0, 2, 4):
+            with torch.no_grad():
+                out = rasterize(scene.at_frame(1), scene.camera(1, v))
+            ps.append(psnr(out["rgb"].clamp(0, 1), torch.as_tensor(clip.rgb[1, v]).float() / 255))
+        return float(np.mean(ps))
+
+    served, pixel_cells, unmerged = (inf.to_scene4d(dec, economy=e) for e in (None, Economy(), Economy(enabled=False)))
+    p_served, p_pixel, p_unmerged = rig_psnr(served), rig_psnr(pixel_cells), rig_psnr(unmerged)
+    assert p_served >= p_pixel + DECODED_CELLS_GAIN_MIN, (p_served, p_pixel)
+    assert p_served >= p_unmerged - 0.3, (p_served, p_unmerged)
+    assert len(served.static) < len(unmerged.static)  # still an economy: repeats across frames merge
 
 
 @pytest.mark.skipif("generate" not in inf.available_modes(), reason="no shipped DiT weights")

@@ -23,6 +23,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--prior", type=Path, help="dit: generate the residual of this frozen layout prior (v4)")
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument(
+        "--render-down", type=int, default=2, help="decoder: render the loss views at image/N (1: the full image)"
+    )
     p.add_argument("--ckpt-every", type=int, default=None)
     p.add_argument("--init", type=Path, help="vae|decoder|prior|dit: warm start from a weight file (matching tensors)")
     p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/campaign)")
@@ -55,7 +58,7 @@ def run(a: argparse.Namespace) -> int:
             print(c.build_cache(a.data, a.vae, a.out, a.split, a.clips, a.start))
     elif a.stage == "decoder":
         need("vae")
-        c.train_decoder(a.vae, a.out, a.steps, clips=a.clips, threads=a.threads, **kw)
+        c.train_decoder(a.vae, a.out, a.steps, clips=a.clips, threads=a.threads, render_down=a.render_down, **kw)
     elif a.stage == "prior":
         need("vae")
         c.train_prior(a.vae, a.out, a.steps, batch=a.batch or 16, clips=a.clips, threads=a.threads, **kw)

@@ -338,7 +338,10 @@ def train_decoder(
     threads: int = 1,
     ckpt_every: int = 25,
     init: Path | None = None,
+    render_down: int = 2,
 ) -> None:
+    """`render_down` 1 renders the loss views at the full model image: the 2x2-pixel Gaussians are then asked for
+    the detail the served scene is scored on (at 2 the loss never sees below their own pitch)."""
     torch.set_num_threads(threads)
     vae = load_weights(vae_path, "vae").eval()
     samples = load_cache(out, "train")[:clips]
@@ -347,7 +350,9 @@ def train_decoder(
         s.pop("control", None)  # the decoder never reads the layout maps (the largest field of a record)
     dec = warm_start(GaussianDecoder(decoder_config(vae)), init, "decoder")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=25, ckpt_every=ckpt_every, log_every=10, threads=threads)
-    step = decoder_step_fn(samples, DCFG, render_every=render_every, render_views=2, guide_fn=guide_from(vae))
+    step = decoder_step_fn(
+        samples, DCFG, render_every=render_every, render_views=2, render_down=render_down, guide_fn=guide_from(vae)
+    )
 
     def on_ckpt(model, done):
         save_weights(unwrap(model), out / "decoder_v2.safetensors", "decoder", {"steps": done, "clips": len(samples)})

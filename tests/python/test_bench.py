@@ -30,16 +30,30 @@ def test_trend_checks_catch_regressions():
         _section("steps", {"error_by_steps": {1: 0.5, 2: 0.3, 4: 0.1, 64: 0.0}}),
         _section("budget", {"psnr_by_budget": {10: 20.0, 20: 21.0}}),
         _section("precision", {"error_by_dtype": {"float32": 1e-7, "float16": 1e-3, "bfloat16": 1e-2}}),
+        _section(
+            "resolution",
+            {
+                "80x48": {"ceiling_image_db": 25.0, "ceiling_grid_db": 22.9},
+                "112x64": {"ceiling_image_db": 26.0, "ceiling_grid_db": 23.7},
+            },
+        ),
     ]
     assert check_trends(ok) == []
     bad = [
         _section("steps", {"error_by_steps": {1: 0.1, 2: 0.3, 64: 0.0}}),
         _section("budget", {"psnr_by_budget": {10: 22.0, 20: 21.0}}),
         _section("precision", {"error_by_dtype": {"float32": 1e-2, "float16": 1e-3}}),
+        _section(
+            "resolution",
+            {
+                "80x48": {"ceiling_image_db": 25.0, "ceiling_grid_db": 24.0},
+                "112x64": {"ceiling_image_db": 26.0, "ceiling_grid_db": 23.7},
+            },
+        ),
         Section(key="x", title="x", columns=["a"], rows=[]),
     ]
     problems = check_trends(bad)
-    assert len(problems) == 4, problems
+    assert len(problems) == 5, problems
 
 
 def test_unknown_section_is_named(capsys):

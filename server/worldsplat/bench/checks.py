@@ -38,6 +38,12 @@ def check_trends(sections: list[Section]) -> list[str]:
             ps = [p for _, p in sorted(d["psnr_by_bits"].items())]
             if not _nondecreasing(ps, tol=0.05):
                 problems.append(f"quant: PSNR drops as bits grow: {ps}")
+        if s.key == "resolution" and d:
+            # A larger model image holds more of the ground truth (its ceiling cannot fall) and costs more time.
+            sizes = sorted(d.items(), key=lambda kv: int(kv[0].split("x")[0]))
+            for k in ("ceiling_image_db", "ceiling_grid_db"):
+                if not _nondecreasing([v[k] for _, v in sizes], tol=0.05):
+                    problems.append(f"resolution: {k} falls as the model image grows: {sizes}")
         if s.key == "precision" and "error_by_dtype" in d:
             e = d["error_by_dtype"]
             if not e.get("float32", 0.0) <= min(e.get("float16", math.inf), e.get("bfloat16", math.inf)):

@@ -23,6 +23,7 @@ SECTIONS: dict[str, str] = {
     "onnx": "onnx",  # onnxruntime vs torch eager
     "steps": "steps",  # sampler steps vs error and time
     "stages": "stages",  # the paper's efficiency table for the small config
+    "resolution": "resolution",  # model image size vs error ceiling vs time per window
 }
 
 

@@ -172,6 +172,21 @@ class GaussianDecoder(nn.Module):
         nn.init.normal_(self.head.weight, std=1e-3)
         nn.init.zeros_(self.head.bias)
 
+    @torch.no_grad()
+    def pass_through_up(self, i: int) -> None:
+        """Make up-sampling block i pass its input features through (nearest-upsampled): a decoder grown by a block
+        from a trained one starts as that decoder on the finer grid, where its pixel-guide prior is per pixel."""
+        up = self.ups[i]
+        conv, res = up["conv"], up["res"]
+        c_in = self.cfg.dim if i == 0 else self.cfg.up_channels[i - 1]  # the features come first in the concat
+        if conv.out_channels != c_in:
+            raise ValueError(f"pass_through_up: block {i} maps {c_in} feature channels to {conv.out_channels}")
+        conv.weight.zero_()
+        conv.bias.zero_()
+        conv.weight[torch.arange(c_in), torch.arange(c_in), 1, 1] = 1.0
+        res.conv2.weight.zero_()  # ResBlock(c, c) = x + branch(x): a zero last conv makes it the identity
+        res.conv2.bias.zero_()
+
     def forward(
         self,
         L: torch.Tensor,

@@ -77,6 +77,44 @@ def test_decoder_guide_prior_reproduces_the_guide_at_init():
         dec(torch.randn(B, T, V, C, h, w), intr, c2w, (H, W))
 
 
+def test_a_decoder_grown_by_a_pass_through_block_keeps_what_it_learnt():
+    """Growing the decoder from one Gaussian per 2x2 pixels to one per pixel (`pass_through_up`): the new block hands
+    its input features on unchanged, so the grown decoder's head sees the trained features (nearest-upsampled) and
+    its guide prior is read per pixel; the opacities / scales it learnt carry over up to the head's 3x3 support."""
+    torch.manual_seed(0)
+    B, T, V, C, h, w = 1, 1, 2, 6, 4, 6
+    kw = dict(in_channels=C, dim=16, depth=1, heads=2, max_views=2, max_frames=2, guide_channels=5)
+    coarse = GaussianDecoder(GSDecoderConfig(up_channels=(8, 8), reread_latent=True, **kw))
+    with torch.no_grad():  # a "trained" head: outputs far from the fresh near-zero residuals
+        coarse.head.weight.normal_(0, 0.3)
+    grown = GaussianDecoder(GSDecoderConfig(up_channels=(8, 8, 8), reread_latent=True, **kw))
+    grown.load_state_dict(coarse.state_dict(), strict=False)
+    grown.pass_through_up(2)
+    H, W = 32, 48
+    intr, c2w = _rig(B, T, V, H, W)
+    L = torch.randn(B, T, V, C, h, w)
+    guide = torch.rand(B, T, V, 5, H, W) * 1.6 - 0.8
+    f = torch.randn(B * T * V, 8, 16, 24)
+    up = grown.ups[2]
+    extra = torch.randn(B * T * V, 6 + 5 + C, 16, 24)  # rays, guide, latent: ignored by a pass-through
+    assert torch.equal(up["res"](up["conv"](torch.cat([f, extra], 1))), f)
+    with torch.no_grad():
+        oc = coarse(L, intr, c2w, (H, W), guide=F.avg_pool2d(guide.flatten(0, 2), 2).reshape(B, T, V, 5, 16, 24))
+        og = grown(L, intr, c2w, (H, W), guide=guide)
+    assert og["opacities"].shape == (B, T, V, H, W)
+    near = lambda x: x.repeat_interleave(2, 3).repeat_interleave(2, 4)  # noqa: E731
+    fresh = GaussianDecoder(GSDecoderConfig(up_channels=(8, 8, 8), reread_latent=True, **kw))
+    fresh.load_state_dict(coarse.state_dict(), strict=False)  # the same, with a randomly initialised third block
+    with torch.no_grad():
+        of = fresh(L, intr, c2w, (H, W), guide=guide)
+    inner = (slice(None),) * 3 + (slice(2, -2), slice(2, -2))  # away from the 3x3 head's border effects
+    err_grown = (og["opacities"] - near(oc["opacities"]))[inner].abs().mean()
+    err_fresh = (of["opacities"] - near(oc["opacities"]))[inner].abs().mean()
+    assert err_grown < 0.75 * err_fresh, (float(err_grown), float(err_fresh))
+    with pytest.raises(ValueError, match="feature channels"):
+        GaussianDecoder(GSDecoderConfig(up_channels=(8, 4), **kw)).pass_through_up(1)
+
+
 def test_decoder_patch_tokens_cover_the_latent():
     cfg = GSDecoderConfig(
         in_channels=6, dim=16, depth=1, heads=2, up_channels=(8, 8, 8), max_views=2, max_frames=2, patch=2

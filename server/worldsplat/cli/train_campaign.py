@@ -24,6 +24,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument(
+        "--gaussian-stride", type=int, default=2, choices=(1, 2), help="decoder: one Gaussian per N x N model pixels"
+    )
+    p.add_argument(
         "--render-down", type=int, default=2, help="decoder: render the loss views at image/N (1: the full image)"
     )
     p.add_argument("--ckpt-every", type=int, default=None)
@@ -58,7 +61,16 @@ def run(a: argparse.Namespace) -> int:
             print(c.build_cache(a.data, a.vae, a.out, a.split, a.clips, a.start))
     elif a.stage == "decoder":
         need("vae")
-        c.train_decoder(a.vae, a.out, a.steps, clips=a.clips, threads=a.threads, render_down=a.render_down, **kw)
+        c.train_decoder(
+            a.vae,
+            a.out,
+            a.steps,
+            clips=a.clips,
+            threads=a.threads,
+            render_down=a.render_down,
+            stride=a.gaussian_stride,
+            **kw,
+        )
     elif a.stage == "prior":
         need("vae")
         c.train_prior(a.vae, a.out, a.steps, batch=a.batch or 16, clips=a.clips, threads=a.threads, **kw)

@@ -84,9 +84,14 @@ def prior_config(vae) -> LayoutPriorConfig:
     return LayoutPriorConfig(out_channels=vae.cfg.joint_channels, downsample=vae.cfg.downsample)
 
 
-def decoder_config(vae) -> GSDecoderConfig:
+def decoder_config(vae, stride: int = 2) -> GSDecoderConfig:
+    """The v2 decoder: one Gaussian per `stride` x `stride` model pixels (2: two up-sampling blocks from the 4x
+    latent at patch 2; 1: a third block of 32 channels, one Gaussian per pixel)."""
+    ups = {2: (64, 32), 1: (64, 32, 32)}
+    if stride not in ups:
+        raise ValueError(f"decoder_config: stride must be 1 or 2, got {stride}")
     return GSDecoderConfig(
-        in_channels=vae.cfg.joint_channels, patch=2, up_channels=(64, 32), guide_channels=5, reread_latent=True
+        in_channels=vae.cfg.joint_channels, patch=2, up_channels=ups[stride], guide_channels=5, reread_latent=True
     )
 
 
@@ -339,6 +344,7 @@ def train_decoder(
     ckpt_every: int = 25,
     init: Path | None = None,
     render_down: int = 2,
+    stride: int = 2,
 ) -> None:
     """`render_down` 1 renders the loss views at the full model image: the 2x2-pixel Gaussians are then asked for
     the detail the served scene is scored on (at 2 the loss never sees below their own pitch)."""
@@ -348,7 +354,10 @@ def train_decoder(
     for s in samples:
         s["L"] = s["L"].float()
         s.pop("control", None)  # the decoder never reads the layout maps (the largest field of a record)
-    dec = warm_start(GaussianDecoder(decoder_config(vae)), init, "decoder")
+    dec = warm_start(GaussianDecoder(decoder_config(vae, stride)), init, "decoder")
+    if init is not None:  # grown from a coarser decoder: its extra blocks start as pass-throughs
+        for i in range(len(load_weights(init, "decoder").cfg.up_channels), len(dec.ups)):
+            dec.pass_through_up(i)
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=25, ckpt_every=ckpt_every, log_every=10, threads=threads)
     step = decoder_step_fn(
         samples, DCFG, render_every=render_every, render_views=2, render_down=render_down, guide_fn=guide_from(vae)

@@ -520,11 +520,14 @@ class Playground:
         self.default_mode = "oracle"
         self.warm_scene: str | None = None
 
-    def discover(self, warm: bool) -> None:
-        """Import the pipeline (torch) once, learn the modes, and queue the default scene (background thread)."""
+    def discover(self, warm: bool, preload: bool = False) -> None:
+        """Import the pipeline (torch) once, learn the modes, load the default mode's models (`preload`: before the
+        server says ready, so a first request does not pay for them), and queue the default scene (background)."""
         try:
             self.modes = runners.available_modes(self.pipeline)
             self.default_mode = runners.default_mode(self.pipeline)
+            if preload:
+                runners.preload(self.default_mode, self.pipeline)
             if warm:
                 scenario = load_preset(default_preset_name())
                 self.warm_scene = self.submit_scene(scenario, self.default_mode)["scene_id"]
@@ -592,16 +595,18 @@ def create_app(
     warm: bool = True,
     max_scene_pixels: int = MAX_SCENE_PIXELS,
     pipeline: runners.Pipeline | None = None,
+    preload: bool = False,
 ) -> FastAPI:
     """The app. `pipeline` replaces the scene builder (`runners.Pipeline`: modes, model_version, generate_scene), e.g.
-    with a fast test double; everything else (routes, jobs, cache, streams) is the real server."""
+    with a fast test double; everything else (routes, jobs, cache, streams) is the real server. `preload`: load the
+    default mode's models and caption encoder before /api/health says ready (`worldsplat serve` does)."""
     web = Path(web_dir) if web_dir else default_web_dir()
     pg = Playground(Path(cache_dir), max_cache_bytes, max_queued, max_scene_pixels, pipeline)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         pg.jobs.start()
-        threading.Thread(target=pg.discover, args=(warm,), name="worldsplat-warm", daemon=True).start()
+        threading.Thread(target=pg.discover, args=(warm, preload), name="worldsplat-warm", daemon=True).start()
         yield
         await asyncio.to_thread(pg.jobs.stop)
 

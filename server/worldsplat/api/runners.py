@@ -57,6 +57,10 @@ class Pipeline:
 
         return f"{mode}-{load_models().version}"
 
+    def preload(self, mode: str) -> None:
+        """Load what a `mode` request needs (the models, the caption encoder) now, not on the first request."""
+        self.module().preload(mode)
+
     def generate_scene(self, scenario: Scenario, mode: str, progress, cancelled, sink=None):
         """`sink` (pipeline.scene.SceneSink) takes each window as it is done."""
         return self.module().generate_scene(scenario, mode=mode, progress=progress, cancelled=cancelled, sink=sink)
@@ -112,6 +116,13 @@ def default_mode(pipe: Pipeline = PIPELINE) -> str:
 
 def model_version(mode: str, pipe: Pipeline = PIPELINE) -> str:
     return str(pipe.model_version(mode))
+
+
+def preload(mode: str, pipe: Pipeline = PIPELINE) -> None:
+    """`Pipeline.preload` when the pipeline has one (test doubles need not)."""
+    fn = getattr(pipe, "preload", None)
+    if callable(fn):
+        fn(mode)
 
 
 def refinement_status(pipe: Pipeline = PIPELINE) -> tuple[bool, str]:

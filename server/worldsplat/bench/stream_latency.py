@@ -5,9 +5,11 @@ the time to the first frame the page's viewer drew (headless Chromium, WebGL2: t
     python -m worldsplat.bench.stream_latency [--modes oracle,generate] [--preset NAME] [--browser [--shots DIR]]
                                               [--out FILE.json]
     python -m worldsplat.bench.stream_latency --profile [--modes ...]    # in-process stage times, warm, per window
+    python -m worldsplat.bench.stream_latency --quality [--presets A,B] [--seeds 1,2]   # the finished generate
+                                              # scene, first window of 1 frame vs the models' windows, vs exact GT
 
-Cold: a fresh `worldsplat serve --no-warm` process and an empty cache, so the request pays the pipeline import and the
-model load. Warm: the next request on the same server (another seed, so nothing is cached). Each row also gives the
+Cold: a fresh `worldsplat serve --no-warm` process and an empty cache, its first request (the server loads the
+default mode's models and caption encoder before it says ready, unless `--no-preload`: then the request pays for them). Warm: the next request on the same server (another seed, so nothing is cached). Each row also gives the
 time to the same milestones the way the page fetched a scene before (SSE `done`, then GET .wsplat): the whole file
 arrives only then, so its first static chunk does too. The browser rows run on another fresh server per mode: cold is
 the scene the page generates on load (a share link carries scenario and mode), warm the next one it generates.
@@ -28,10 +30,12 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 
 from worldsplat.core.paths import source_root
 from worldsplat.core.scenario import default_preset_name, load_preset
 from worldsplat.gaussians.wsplat import ProgressiveDecoder
+from worldsplat.world import build_world, simulate
 
 IDENTITY = {"Accept-Encoding": "identity"}  # the file's own bytes, framed as they arrive (no content coding)
 
@@ -42,11 +46,11 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _start(cache: Path) -> tuple[subprocess.Popen, str]:
+def _start(cache: Path, preload: bool = True) -> tuple[subprocess.Popen, str]:
     port = _free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "worldsplat.cli", "serve", "--host", "127.0.0.1", "--port", str(port)]
-        + ["--cache-dir", str(cache), "--no-warm"],
+        + ["--cache-dir", str(cache), "--no-warm"] + ([] if preload else ["--no-preload"]),
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     url = f"http://127.0.0.1:{port}"
@@ -168,6 +172,63 @@ def profile(preset: str, mode: str, seed: int) -> dict:
     }  # fmt: skip
 
 
+# (label, first_window, first_steps): the models' own 4-frame windows (before), and a first window of one frame
+QUALITY_PLANS = (("windows of 4", 0, 8), ("first window 1 frame", 1, 8), ("first window 1 frame, 4 steps", 1, 4))
+
+
+def quality(presets: list[str], seeds: list[int], plans=QUALITY_PLANS) -> list[dict]:
+    """The finished generate scene of each plan against the world's exact ground truth, in one process: every frame
+    and camera rendered (reference rasterizer), RGB PSNR (all pixels and 8x8-pooled), depth AbsRel (GT < 80 m),
+    dynamic-mask IoU vs the GT mask (pooled over views), on frame 0 (the first window) and on all frames; the
+    Gaussian counts and the process CPU seconds of the call."""
+    import torch  # noqa: PLC0415 - heavy
+
+    from worldsplat.core.metrics import depth_abs_rel, psnr  # noqa: PLC0415 - with torch
+    from worldsplat.gaussians.raster import rasterize  # noqa: PLC0415 - heavy (torch)
+    from worldsplat.pipeline.scene import generate_scene  # noqa: PLC0415 - heavy (torch)
+
+    rows = []
+    generate_scene(load_preset(presets[0]).with_updates(seed=0), mode="generate")  # warm: models, caption encoder
+    for preset in presets:
+        for seed in seeds:
+            sc = load_preset(preset).with_updates(seed=seed)
+            clip = simulate(build_world(sc))
+            T, V = clip.rgb.shape[:2]
+            for label, first, steps in plans:
+                c0 = time.process_time()
+                scene = generate_scene(sc, mode="generate", first_window=first, first_steps=steps)
+                cpu = time.process_time() - c0
+                acc = {k: {"psnr": [], "psnr8": [], "absrel": [], "inter": 0, "union": 0} for k in ("f0", "all")}
+                for t in range(T):
+                    g = scene.at_frame(t)
+                    for v in range(V):
+                        with torch.no_grad():
+                            out = rasterize(g, scene.camera(t, v), method="pairs")
+                        gt = torch.as_tensor(clip.rgb[t, v]).float() / 255.0
+                        rgb = out["rgb"].clamp(0, 1)
+                        pool = lambda x: torch.nn.functional.avg_pool2d(x.permute(2, 0, 1)[None], 8)  # noqa: E731
+                        dyn = (out["extras"][..., 0] / out["alpha"].clamp_min(1e-3) > 0.5) & (out["alpha"] > 0.5)
+                        gm = torch.as_tensor(clip.dynamic[t, v])
+                        for k in ("f0", "all") if t == 0 else ("all",):
+                            a = acc[k]
+                            a["psnr"].append(psnr(rgb, gt))
+                            a["psnr8"].append(psnr(pool(rgb), pool(gt)))
+                            rd = out["depth"] / out["alpha"].clamp_min(1e-3)
+                            a["absrel"].append(depth_abs_rel(rd, torch.as_tensor(clip.depth[t, v])))
+                            a["inter"] += int((dyn & gm).sum())
+                            a["union"] += int((dyn | gm).sum())
+                row = {"preset": preset, "seed": seed, "plan": label, "windows": scene.meta.get("windows")}
+                for k, a in acc.items():
+                    row[f"{k}_psnr"] = round(float(np.mean(a["psnr"])), 3)
+                    row[f"{k}_psnr8"] = round(float(np.mean(a["psnr8"])), 3)
+                    row[f"{k}_absrel"] = round(float(np.nanmean(a["absrel"])), 4)
+                    row[f"{k}_dyn_iou"] = round(a["inter"] / a["union"], 4) if a["union"] else None
+                row.update(static=len(scene.static), dynamic=sum(len(d) for d in scene.dynamic), cpu_s=round(cpu, 2))
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    return rows
+
+
 def browser_rows(url: str, preset: str, mode: str, tmp: Path, shots: Path | None) -> list[dict]:
     """Cold and warm rows of the page in headless Chromium (tests/browser/stream-latency.mjs)."""
     sc = tmp / "scenario.json"
@@ -187,9 +248,19 @@ def main(argv=None) -> None:
     ap.add_argument("--browser", action="store_true", help="also the page: POST -> first drawn frame (Chromium)")
     ap.add_argument("--shots", type=Path, help="with --browser: screenshots of a scene growing, into this folder")
     ap.add_argument("--profile", action="store_true", help="only the in-process stage profile of a warm request")
+    ap.add_argument("--no-preload", action="store_true", help="servers started with --no-preload (cold pays the load)")
+    ap.add_argument("--quality", action="store_true", help="only the finished scene's error per window plan")
+    ap.add_argument("--presets", default=None, help="with --quality: presets (default: --preset)")
+    ap.add_argument("--seeds", default="1,2", help="with --quality: scenario seeds")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     rows = []
+    if a.quality:
+        presets = (a.presets or a.preset).split(",")
+        rows = quality(presets, [int(x) for x in a.seeds.split(",")])
+        if a.out:
+            a.out.write_text(json.dumps(rows, indent=1) + "\n")
+        return
     if a.profile:
         for mode in a.modes.split(","):
             rows.append(profile(a.preset, mode, 301))
@@ -199,14 +270,15 @@ def main(argv=None) -> None:
         return
     for mode in a.modes.split(","):
         with tempfile.TemporaryDirectory() as tmp:
-            proc, url = _start(Path(tmp) / "cache")
+            proc, url = _start(Path(tmp) / "cache", preload=not a.no_preload)
             try:
                 modes = httpx.get(f"{url}/api/modes", timeout=120).json()["modes"]
                 if mode not in modes:
                     print(f"{mode}: not available here ({modes})", file=sys.stderr)
                     continue
                 for label, seed in (("cold", 101), ("warm", 102)):
-                    row = {"preset": a.preset, "client": "httpx", "server": label, **measure(url, a.preset, mode, seed)}
+                    row = {"preset": a.preset, "client": "httpx", "server": label, "preload": not a.no_preload}
+                    row.update(measure(url, a.preset, mode, seed))
                     print(json.dumps(row), flush=True)
                     rows.append(row)
             finally:
@@ -214,7 +286,7 @@ def main(argv=None) -> None:
                 proc.wait(30)
         if a.browser:
             with tempfile.TemporaryDirectory() as tmp:
-                proc, url = _start(Path(tmp) / "cache")
+                proc, url = _start(Path(tmp) / "cache", preload=not a.no_preload)
                 try:
                     if a.shots:
                         a.shots.mkdir(parents=True, exist_ok=True)

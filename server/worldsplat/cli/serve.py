@@ -33,6 +33,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="largest scene accepted, in million pixels (frames x cameras x width x height)",
     )
     parser.add_argument("--no-warm", action="store_true", help="do not generate the default scene at start-up")
+    parser.add_argument(
+        "--no-preload",
+        action="store_true",
+        help="do not load the default mode's models and caption encoder before the server says ready",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         max_queued=args.max_queued,
         warm=not args.no_warm,
         max_scene_pixels=int(args.max_scene_mpix * 1e6),
+        preload=not args.no_preload,
     )
     print(f"worldsplat serve: http://{args.host}:{args.port}/ (API docs at /docs, cache {args.cache_dir})", flush=True)
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning", timeout_graceful_shutdown=5)

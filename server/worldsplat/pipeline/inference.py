@@ -164,12 +164,13 @@ def _resize(x: torch.Tensor, hw: tuple[int, int], mode: str) -> torch.Tensor:
     return F.interpolate(x, size=hw, mode="nearest" if mode in ("nearest", "max") else "bilinear", align_corners=False)
 
 
-def _windows(T: int, F_: int) -> list[list[int]]:
-    """Consecutive windows of F_ frame indices covering 0..T-1; the last is padded with its final frame."""
+def _windows(T: int, F_: int, pad: bool = True) -> list[list[int]]:
+    """Consecutive windows of F_ frame indices covering 0..T-1; the last is padded with its final frame (`pad`), or
+    left short (the networks take any T <= their max_frames; a short window then costs its own frames only)."""
     out = []
     for s in range(0, T, F_):
         idx = list(range(s, min(T, s + F_)))
-        out.append(idx + [idx[-1]] * (F_ - len(idx)))
+        out.append(idx + [idx[-1]] * (F_ - len(idx)) if pad else idx)
     return out
 
 
@@ -201,14 +202,14 @@ def layout_size(models: Models) -> tuple[int, int] | None:
 
 
 def decode_gaussians(
-    models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times, meta: dict
+    models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times, meta: dict, pad: bool = True
 ) -> DecodedFrames:
-    """L (T,V,C,h,w) normalised -> DecodedFrames (window by window)."""
+    """L (T,V,C,h,w) normalised -> DecodedFrames (window by window; `pad`: see `_windows`)."""
     d = models.data
     T = L.shape[0]
     intr, c2w = rig_tensors(rig, ego_to_world, (d.height, d.width))
     gs, logits = [[None] * len(rig) for _ in range(T)], [[None] * len(rig) for _ in range(T)]
-    for win in _windows(T, d.frames):
+    for win in _windows(T, d.frames, pad):
         guide = pixel_guide(models, L[win])[None] if _decoder_cfg(models).guide_channels else None
         args = (L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
         out = models.decoder(*args) if guide is None else models.decoder(*args, guide=guide)
@@ -324,14 +325,16 @@ def sample_latents(
     cfg_scale: float | None = None,
     shift: float | None = None,
     progress: Callable[[float], None] | None = None,
+    pad: bool = True,
 ) -> torch.Tensor:
     """Rectified-flow sampling of L (T,V,C,h,w), window by window; the noise depends only on (seed, window).
-    A DiT that generates the layout prior's residual (v4) gives L = mu + residual_scale * sample."""
+    A DiT that generates the layout prior's residual (v4) gives L = mu + residual_scale * sample.
+    `pad` False: a clip shorter than a window (or its last window) is sampled at its own length (`_windows`)."""
     d, dcfg = models.data, models.dit.cfg
     T = cond["control"].shape[0]
     cfg_scale = dcfg.cfg_scale if cfg_scale is None else cfg_scale
     shift = dcfg.sampler_shift if shift is None else shift
-    wins = _windows(T, d.frames)
+    wins = _windows(T, d.frames, pad)
     ds = models.vae.cfg.downsample
     L = torch.zeros(T, d.views, dcfg.out_channels, d.height // ds, d.width // ds)
     for wi, win in enumerate(wins):
@@ -359,8 +362,10 @@ def generate(
     cfg_scale: float | None = None,
     progress: Callable[[float], None] | None = None,
     caption_embedding: torch.Tensor | None = None,
+    pad: bool = True,
 ) -> DecodedFrames:
-    """Generate mode: conditions -> DiT (rectified flow, `steps` Euler steps) -> Gaussian decoder."""
+    """Generate mode: conditions -> DiT (rectified flow, `steps` Euler steps) -> Gaussian decoder. `pad` False: a
+    clip shorter than the models' window is sampled and decoded at its own length (the streamed first window)."""
     models = _require(models, "generate")
     if not isinstance(steps, int) or not 1 <= steps <= 256:
         raise ValueError(f"generate: steps must be an integer in 1..256, got {steps!r}")
@@ -376,7 +381,7 @@ def generate(
     t0 = time.perf_counter()
     cond = condition_tensors(models, conditions, ego, caption_embedding)
     t1 = time.perf_counter()
-    L = sample_latents(models, cond, steps, seed, cfg_scale, progress=progress)
+    L = sample_latents(models, cond, steps, seed, cfg_scale, progress=progress, pad=pad)
     t2 = time.perf_counter()
     ft = np.arange(T, dtype=np.float64) if frame_times is None else frame_times
     dec = decode_gaussians(
@@ -392,6 +397,7 @@ def generate(
             "model_version": models.version,
             "caption": str(conditions["caption"]),
         },
+        pad=pad,
     )
     # stage times for the benchmark's efficiency table (conditions incl. caption encoding, diffusion, decoder)
     dec.meta["timing_s"] = {"conditions": t1 - t0, "diffusion": t2 - t1, "gs_decoder": time.perf_counter() - t2}

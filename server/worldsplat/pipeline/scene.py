@@ -10,7 +10,9 @@ generate    world conditions -> 4D-aware DiT -> latent Gaussian decoder; needs s
 `progress(stage, fraction)` is called as stages advance; `cancelled()` is checked between stages and frames and
 raises worldsplat.core.errors.Cancelled.
 
-Every mode builds the scene window by window (the models' 4-frame windows; the oracle uses the same size): each
+Every mode builds the scene window by window (the models' 4-frame windows; the oracle uses the same size; generate
+starts with a window of FIRST_WINDOW = 1 frame sampled with FIRST_STEPS = 4 steps, so its first static chunk comes
+after one frame's work, then 4-frame windows from frame 1, the last one as short as the clip leaves it): each
 window is generated, decoded and aggregated (`gaussians.aggregate.WindowAggregator`: its static Gaussians and its
 frames' dynamic sets are final once it is done), and handed to `sink` (`SceneSink`: `begin(skeleton)` once, with the
 frames, rig, poses and the meta known before generation, then `window(frames, static, dynamic)` per window), so the
@@ -36,8 +38,14 @@ ALL_MODES = ("oracle", "reconstruct", "generate")
 # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none). 3: aggregated window by window
 # (WindowAggregator; same cells, first window to see a cell makes its Gaussian).
 ORACLE_VERSION = "oracle-3"
-STREAM_VERSION = "w1"  # enters the id of learned-mode scenes: window-by-window aggregation and per-window noise
+# enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
+# window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded)
+STREAM_VERSION = "w2"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
+# generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
+# sampling and decoding instead of a whole window's (issue 15; the bound on the finished scene: playground.md)
+FIRST_WINDOW = 1
+FIRST_STEPS = 4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 33.9 dB on v4 (models.md)
 
 Progress = Callable[[str, float], None]
 CancelCheck = Callable[[], bool]
@@ -101,6 +109,19 @@ class SceneSink(Protocol):
     def window(self, frames: list[int], static: Gaussians, dynamic: dict[int, Gaussians]) -> None: ...
 
 
+def preload(mode: str) -> None:
+    """Load what a request in `mode` needs before it comes (the playground does at start): the weights and, for
+    generate, the caption encoder (about 10 s cold). The oracle needs nothing loaded."""
+    if mode == "oracle":
+        return
+    inf = _models_inference()
+    if inf is None or mode not in set(inf.available_modes()):
+        return
+    inf.load_models()
+    if mode == "generate":
+        inf.encode_captions(["warm-up"])
+
+
 def model_version(mode: str) -> str:
     """The version that, with the scenario and mode, determines a scene (the playground's cache key)."""
     if mode == "oracle":
@@ -114,6 +135,14 @@ def model_version(mode: str) -> str:
 def windows(T: int, size: int) -> list[list[int]]:
     """Consecutive windows of `size` frames covering 0..T-1 (the last may be shorter)."""
     return [list(range(s, min(T, s + size))) for s in range(0, T, size)]
+
+
+def stream_windows(T: int, size: int, first: int = FIRST_WINDOW) -> list[list[int]]:
+    """generate mode's windows: a first window of `first` frames, then consecutive windows of `size` from there (the
+    last may be shorter); `first` 0 (or >= size) gives `windows(T, size)`."""
+    if not 0 < first < size or T <= first:
+        return windows(T, size)
+    return [list(range(first))] + [[first + f for f in w] for w in windows(T - first, size)]
 
 
 def window_seed(seed: int, index: int) -> int:
@@ -144,10 +173,13 @@ def generate_scene(
     seed: int | None = None,
     economy: Economy | None = None,
     sink: SceneSink | None = None,
+    first_window: int = FIRST_WINDOW,
+    first_steps: int | None = None,
 ) -> Scene4D:
     """Build the 4D Gaussian scene of a scenario, window by window (handed to `sink` as they are done). `meta`
     records scenario_id, mode, model_version, caption, fps and the aggregation statistics. `mode` None is
-    `default_mode()`."""
+    `default_mode()`. generate mode: the first window has `first_window` frames (0: the models' own windows) and is
+    sampled with `first_steps` Euler steps (None: min(steps, FIRST_STEPS))."""
     mode = default_mode() if mode is None else mode
     if mode not in ALL_MODES:
         raise ValueError(f"unknown mode {mode!r}; modes are {', '.join(ALL_MODES)}")
@@ -168,7 +200,8 @@ def generate_scene(
         meta["model_version"] = ORACLE_VERSION
         scene, stats = _oracle(world, meta, prog, cancelled, economy, sink)
     else:
-        scene, stats = _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink)
+        plan = (int(first_window), int(min(steps, FIRST_STEPS) if first_steps is None else first_steps))
+        scene, stats = _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink, plan)
     scene.meta["aggregate"] = stats.as_dict()
     prog("done", 1.0)
     return scene
@@ -202,7 +235,7 @@ class _Collect:
         return scene, self.agg.stats
 
 
-def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink):
+def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink, plan=(0, None)):
     inf = _models_inference()
     if inf is None:
         raise FileNotFoundError(f"mode {mode!r} needs the worldsplat_models package, which is not importable")
@@ -216,7 +249,8 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     T, wins = len(world.frame_times), windows(len(world.frame_times), models.data.frames)
     if mode == "generate":
         seed = int(scenario.seed if seed is None else seed)
-        meta.update(steps=int(steps), seed=seed)
+        wins = stream_windows(T, models.data.frames, plan[0])
+        meta.update(steps=int(steps), seed=seed, first_steps=int(plan[1]), windows=[len(w) for w in wins])
         prog("conditions", 0.0)
         cond = world.conditions(layout_size=inf.layout_size(models))
         ego_to_world = np.asarray(cond["ego_traj"], np.float64)  # generated Gaussians live in the first frame's ego
@@ -232,8 +266,9 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
             prog("generate", wi / len(wins))
             dec = inf.generate(
                 frames_of(cond, frames, T),
-                steps=steps,
+                steps=int(plan[1]) if wi == 0 else steps,
                 seed=window_seed(seed, wi),
+                pad=False,
                 models=models,
                 rig=world.rig,
                 frame_times=world.frame_times[frames],

@@ -205,3 +205,53 @@ def test_property_v2_mutations_raise_wsplat_error_only(data, cut):
             wsplat.decode(d)
         except WsplatError as e:
             assert 0 <= e.offset <= len(d)
+
+
+def test_morton3_matches_the_bit_by_bit_definition():
+    rng = np.random.default_rng(8)
+    for bits in (1, 5, 14, 21):
+        x, y, z = (rng.integers(0, 1 << bits, 2000).astype(np.uint64) for _ in range(3))
+        ref = np.zeros(len(x), dtype=np.uint64)
+        for i in range(bits):
+            for k, v in enumerate((x, y, z)):
+                ref |= ((v >> np.uint64(i)) & np.uint64(1)) << np.uint64(3 * i + k)
+        np.testing.assert_array_equal(wsplat.morton3(x, y, z, bits), ref)
+        for a, b in zip(wsplat.unmorton3(ref, bits), (x, y, z)):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("zstd", [(1, None), (3, 1), (15, None), (15, 1), (19, 1)])
+def test_every_level_and_filter_search_decodes_to_the_same_gaussians(zstd):
+    scene = _scene(np.random.default_rng(9), 3000, [200, 0], 2, iso=False)
+    ref = wsplat.decode(wsplat.encode(scene, version=1))
+    got = wsplat.decode(wsplat.encode(scene, version=2, zstd=zstd))
+    np.testing.assert_array_equal(as_rows(ref.static), as_rows(got.static))
+    np.testing.assert_array_equal(as_rows(ref.dynamic[0]), as_rows(got.dynamic[0]))
+
+
+@pytest.mark.parametrize("streamed", [False, True])
+def test_degenerate_chunks_are_stored_in_raw_zstd_blocks_and_still_decode(streamed):
+    """Every Gaussian the same would compress past MAX_RATIO (which a decoder refuses): the encoder stores those
+    sections as raw zstd blocks instead of failing (a streamed file cannot fall back to v1 after its HEAD)."""
+    scene = _scene(np.random.default_rng(10), 9000, [5000, 0], 2, iso=False)
+    for g in (scene.static, scene.dynamic[0]):
+        for t in (g.means, g.scales, g.opacities, g.colors, g.quats):
+            t.data[:] = t.data[:1].clone()
+    enc = wsplat.encode_streamed if streamed else wsplat.encode
+    d1, d2 = enc(scene, version=1), enc(scene, version=2)
+    s1, s2 = wsplat.decode(d1), wsplat.decode(d2)
+    np.testing.assert_array_equal(as_rows(s1.static), as_rows(s2.static))
+    np.testing.assert_array_equal(as_rows(s1.dynamic[0]), as_rows(s2.dynamic[0]))
+    assert len(d2) < len(d1) * 2
+
+
+@pytest.mark.parametrize("size", [0, 1, 1000, (1 << 17), (1 << 17) + 1, 300_000])
+def test_raw_zstd_frame_is_one_valid_frame(size):
+    import zstandard
+
+    data = np.random.default_rng(size).integers(0, 256, size, dtype=np.uint8).tobytes()
+    frame = wsplat.raw_zstd_frame(data)
+    fp = zstandard.get_frame_parameters(frame)
+    assert fp.content_size == size and fp.window_size <= wsplat.max_window(size)
+    dobj = zstandard.ZstdDecompressor(max_window_size=wsplat.max_window(size)).decompressobj()
+    assert dobj.decompress(frame) == data and dobj.eof and not dobj.unused_data

@@ -700,6 +700,12 @@ def _write_v2(valid, bad) -> None:
     gdata = valid("valid_v2_grey", grey, version=2)
     gch = split_chunks(gdata)
     assert any(f >= 2 for _, f, _ in v2_sections(gch[1][1], 4)), "the grey vector must use the minus-g filters"
+    same = _scene(rng, 4096, [0], 1, iso=True)  # every Gaussian the same: zstd would pass MAX_RATIO
+    for t in (same.static.means, same.static.scales, same.static.opacities, same.static.colors, same.static.quats):
+        t.data[:] = t.data[:1].clone()
+    sdata = valid("valid_v2_degenerate", same, version=2)
+    secs_same = v2_sections(split_chunks(sdata)[1][1], 4)
+    assert all(fr[4] & 0x20 and (fr[5 + 4] >> 1) & 3 == 0 for _, _, fr in secs_same), "raw zstd blocks expected"
     v2 = b"WSPLAT\r\n\x02\x00\x00\x00"
     ch = split_chunks(base)
     assert [t for t, _ in ch] == [b"HEAD", b"STAT", b"DYNA", b"DYNA", b"END!"], [t for t, _ in ch]

@@ -108,7 +108,13 @@ FAR_FACTOR = 4.0  # see _block_order
 # v2 (web/docs/wsplat-v2.md): planes per chunk, zstd per plane
 VERSIONS = (1, 2)
 CODECS = ("zstd",)
-ZSTD_LEVEL = 15  # 19 is 4x slower for 0.1 % (measured on a 100k street)
+# Encoder speed (`python -m worldsplat.bench.encode_speed`, ratios of one run in web/docs/wsplat-v2.md): zstd level 1
+# with every filter tried encodes in 1.1-1.2x v1's time for 1.0-2.6 % more bytes than level 15 (whose best, filters
+# chosen at level 1 and the chosen plane compressed at 15, takes 1.6-2.1x v1's time; every filter at 15: 2.3-3.6x;
+# 19 saves another 0.1-0.2 %). The server writes while it generates, on the same cores: level 1. `encode(...,
+# zstd=(level, search))` picks others; every choice decodes to the same integers.
+ZSTD_LEVEL = 1
+SEARCH_LEVEL = 1  # the level that chooses each plane's filter (== ZSTD_LEVEL: every candidate at that level)
 MAX_RATIO = 64  # a v2 chunk decodes to at most MAX_RATIO x its payload bytes (checked before anything is decoded)
 MAX_POS_BITS_V2 = 21  # the Morton code of px py pz fits 63 bits
 
@@ -404,21 +410,42 @@ def v2_raw_size(count: int, layout: Layout, block_size: int) -> int:
     return math.ceil(count / block_size) * BLOCK_HEADER + count * len(v2_planes(layout))
 
 
+_SPREAD = (  # part-1-by-2 bit spreading of a 21-bit integer (shift, mask): bit i -> bit 3i
+    (32, 0x1F00000000FFFF),
+    (16, 0x1F0000FF0000FF),
+    (8, 0x100F00F00F00F00F),
+    (4, 0x10C30C30C30C30C3),
+    (2, 0x1249249249249249),
+)
+
+
+def _spread3(v: np.ndarray) -> np.ndarray:
+    x = v.astype(np.uint64) & np.uint64((1 << 21) - 1)
+    for shift, mask in _SPREAD:
+        x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+    return x
+
+
+def _compact3(code: np.ndarray) -> np.ndarray:
+    """The inverse of _spread3: bits 0, 3, 6, ... of `code` -> bits 0, 1, 2, ..."""
+    shifts = [shift for shift, _ in reversed(_SPREAD)]  # 2, 4, 8, 16, 32
+    masks = [mask for _, mask in reversed(_SPREAD)][1:] + [(1 << 21) - 1]  # the mask after each step
+    x = code & np.uint64(_SPREAD[-1][1])
+    for shift, mask in zip(shifts, masks):
+        x = (x | (x >> np.uint64(shift))) & np.uint64(mask)
+    return x
+
+
 def morton3(x: np.ndarray, y: np.ndarray, z: np.ndarray, bits: int) -> np.ndarray:
     """Interleave three `bits`-bit integers (bits <= 21): bit i of x -> bit 3i, of y -> 3i + 1, of z -> 3i + 2."""
-    code = np.zeros(len(x), dtype=np.uint64)
-    for i in range(bits):
-        for k, v in enumerate((x, y, z)):
-            code |= ((v.astype(np.uint64) >> np.uint64(i)) & np.uint64(1)) << np.uint64(3 * i + k)
-    return code
+    assert bits <= MAX_POS_BITS_V2
+    keep = np.uint64((1 << bits) - 1)
+    return _spread3(x & keep) | (_spread3(y & keep) << np.uint64(1)) | (_spread3(z & keep) << np.uint64(2))
 
 
 def unmorton3(code: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    out = [np.zeros(len(code), dtype=np.uint64) for _ in range(3)]
-    for i in range(bits):
-        for k in range(3):
-            out[k] |= ((code >> np.uint64(3 * i + k)) & np.uint64(1)) << np.uint64(i)
-    return out[0], out[1], out[2]
+    keep = np.uint64((1 << bits) - 1)
+    return tuple(_compact3(code >> np.uint64(k)) & keep for k in range(3))
 
 
 def _section_label(name: str, k: int, layout: Layout) -> str:
@@ -427,10 +454,17 @@ def _section_label(name: str, k: int, layout: Layout) -> str:
     return name if width == 1 else f"{name}[{k}]"
 
 
-def encode_blocks_v2(a: dict[str, np.ndarray], layout: Layout, block_size: int, level: int = ZSTD_LEVEL) -> bytes:
+def encode_blocks_v2(
+    a: dict[str, np.ndarray],
+    layout: Layout,
+    block_size: int,
+    level: int = ZSTD_LEVEL,
+    search: int | None = SEARCH_LEVEL,
+) -> bytes:
     """Sanitized Gaussians (block order) -> the sections of a v2 chunk: boxes, then one byte plane per section, each
     `filter u8, length u32, zstd frame`. Records are sorted by the Morton code of (px, py, pz) inside each block; the
-    encoder keeps the smaller of the plain and the delta-filtered plane."""
+    encoder keeps the smallest of the filtered planes, chosen at zstd level `search` (None: each candidate at
+    `level`), then compressed at `level`. Every choice decodes to the same integers."""
     pb = dict(layout.fields)["px"]
     n = len(a["means"])
     boxes, codes, vals = [], [], {f: [] for f, _ in layout.fields}
@@ -446,8 +480,13 @@ def encode_blocks_v2(a: dict[str, np.ndarray], layout: Layout, block_size: int, 
     delta = np.concatenate(codes) if codes else np.zeros(0, dtype=np.uint64)
     cat = {f: (np.concatenate(x) if x else np.zeros(0, dtype=np.uint64)) for f, x in vals.items()}
     byte = lambda x, k: ((x >> np.uint64(8 * k)) & np.uint64(255)).astype(np.uint8)  # noqa: E731
-    zc = zstandard.ZstdCompressor(level=level, write_checksum=False, write_content_size=True, write_dict_id=False)
-    out = bytearray()
+
+    def coder(lv: int):
+        return zstandard.ZstdCompressor(level=lv, write_checksum=False, write_content_size=True, write_dict_id=False)
+
+    zc = coder(level)
+    zs = coder(search) if search is not None and search != level else None
+    out, stored = bytearray(), []  # stored: each plane unfiltered (the raw fallback below)
     box = zc.compress(np.asarray(boxes, dtype="<f4").tobytes())  # boxes: never filtered
     out += struct.pack("<BI", 0, len(box)) + box
     for f, k in v2_planes(layout):
@@ -456,10 +495,33 @@ def encode_blocks_v2(a: dict[str, np.ndarray], layout: Layout, block_size: int, 
         if f in ("r", "b") and k < (dict(layout.fields)["g"] + 7) // 8:  # minus the green plane's same byte
             cands.append((2, plane - byte(cat["g"], k)))
         cands += [(c + 1, np.diff(x, prepend=np.uint8(0)).astype(np.uint8)) for c, x in cands]  # then delta
-        filt, best = min(((c, zc.compress(x.tobytes())) for c, x in cands), key=lambda t: len(t[1]))
+        if zs is None:
+            filt, best = min(((c, zc.compress(x.tobytes())) for c, x in cands), key=lambda t: len(t[1]))
+        else:
+            filt, x = min(cands, key=lambda t: len(zs.compress(t[1].tobytes())))
+            best = zc.compress(x.tobytes())
         out += struct.pack("<BI", filt, len(best)) + best
-    if v2_raw_size(n, layout, block_size) > MAX_RATIO * (len(out) + 8):
-        raise ValueError("wsplat v2: chunk compresses beyond MAX_RATIO (degenerate data): write it as v1")
+        stored.append(plane)
+    if v2_raw_size(n, layout, block_size) > MAX_RATIO * (len(out) + 4):  # + the STAT count (DYNA: + 8)
+        # degenerate data (e.g. every Gaussian the same) would compress past what a decoder accepts: store every
+        # section as it is, in raw zstd blocks (still one valid frame per section, decoded by any zstd decoder)
+        out = bytearray()
+        for x in [np.asarray(boxes, dtype="<f4").tobytes(), *(p.tobytes() for p in stored)]:
+            frame = raw_zstd_frame(x)
+            out += struct.pack("<BI", 0, len(frame)) + frame
+    return bytes(out)
+
+
+def raw_zstd_frame(data: bytes) -> bytes:
+    """`data` as one zstd frame of raw (uncompressed) blocks, RFC 8878: single segment, 4-byte content size, no
+    checksum; blocks of at most 128 KiB."""
+    out = bytearray(struct.pack("<IBI", 0xFD2FB528, 0xA0, len(data)))  # FCS flag 2 (4 bytes) | single segment
+    step = 1 << 17
+    starts = range(0, len(data), step) if data else [0]
+    for i in starts:
+        block = data[i : i + step]
+        last = i + step >= len(data)
+        out += (len(block) << 3 | int(last)).to_bytes(3, "little") + block  # block type 0: raw
     return bytes(out)
 
 
@@ -639,12 +701,13 @@ def _bounds(means: list[np.ndarray]) -> dict:
     return {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()}
 
 
-def _blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int, version: int) -> bytes:
-    return encode_blocks_v2(a, layout, block_size) if version == 2 else encode_blocks(a, layout, block_size)
+def _blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int, version: int, zstd: tuple = ()) -> bytes:
+    """`zstd`: (level, search level) of a v2 chunk (default: ZSTD_LEVEL, SEARCH_LEVEL)."""
+    return encode_blocks_v2(a, layout, block_size, *zstd) if version == 2 else encode_blocks(a, layout, block_size)
 
 
 def _stat_chunks(
-    st: dict[str, np.ndarray], sl: Layout, block_size: int, size: int, version: int = 1
+    st: dict[str, np.ndarray], sl: Layout, block_size: int, size: int, version: int = 1, zstd: tuple = ()
 ) -> tuple[list[bytes], int]:
     """STAT chunks of importance-ordered sanitized statics: chunk k holds the next `size` * 2^k of them, Morton-ordered
     inside so block boxes stay small. Returns the chunks and the size the next chunk would have."""
@@ -653,18 +716,20 @@ def _stat_chunks(
         part = {k: v[s : s + size] for k, v in st.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
-        out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + _blocks(part, sl, block_size, version)))
+        out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + _blocks(part, sl, block_size, version, zstd)))
         s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
     return out, size
 
 
-def _dyna_chunks(t: int, d: dict[str, np.ndarray], dl: Layout, block_size: int, version: int = 1) -> list[bytes]:
+def _dyna_chunks(
+    t: int, d: dict[str, np.ndarray], dl: Layout, block_size: int, version: int = 1, zstd: tuple = ()
+) -> list[bytes]:
     out = []
     for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
         part = {k: v[s : s + MAX_CHUNK_RECORDS] for k, v in d.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
-        out.append(_chunk(b"DYNA", struct.pack("<II", t, len(order)) + _blocks(part, dl, block_size, version)))
+        out.append(_chunk(b"DYNA", struct.pack("<II", t, len(order)) + _blocks(part, dl, block_size, version, zstd)))
     return out
 
 
@@ -675,10 +740,11 @@ def encode(
     static_layout: list | None = None,
     dynamic_layout: list | None = None,
     version: int | None = None,
+    zstd: tuple = (),
 ) -> bytes:
     """Scene4D -> .wsplat bytes (`version` 1 or 2, default DEFAULT_VERSION). Static Gaussians keep their
     (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of them, Morton-ordered inside
-    so block boxes stay small."""
+    so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL)."""
     version = version or DEFAULT_VERSION
     if version not in VERSIONS:
         raise ValueError(f"wsplat: version {version} not in {VERSIONS}")
@@ -695,10 +761,10 @@ def encode(
     out = bytearray(MAGIC + struct.pack("<I", version))
     nd = [int(len(d["means"])) for d in dyn]
     out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version)
-    for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version)[0]:
+    for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version, zstd)[0]:
         out += c
     for t, d in enumerate(dyn):
-        for c in _dyna_chunks(t, d, dl, block_size, version):
+        for c in _dyna_chunks(t, d, dl, block_size, version, zstd):
             out += c
     out += _chunk(b"END!", b"")
     return bytes(out)

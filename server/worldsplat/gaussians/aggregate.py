@@ -39,11 +39,12 @@ DYNAMIC_THRESHOLD = 0.5  # extras[:, 0] (dynamic probability / mask) above this 
 SKY_COVER = 0.5  # a merged sky Gaussian's std is at least this fraction of its cell
 DYNAMIC_CELL_FACTOR = 1.0  # cell of the per-frame dynamic sets, in pixel footprints (static: Economy.cell_factor)
 DYNAMIC_COVER = 0.0  # > 0: merged dynamic std = this x the patch width (see merged_variance; 0.7 = FOOTPRINT)
-# Static cells of *decoded* Gaussians (reconstruct / generate), in pitches of the decoder's Gaussian grid (2x2 model
-# pixels): they already sit one per grid cell with learned scales, so the economy should merge only repeats of a
-# place seen in several frames. Cells of 3 image-pixel footprints (1.5 pitches at the 64x112 model image) averaged
-# neighbours into blobs: reconstruct 0 m 19.32 dB vs 21.51 at half a pitch (gaussians.md, "decoded cells").
-DECODED_CELL_PITCH = 0.5
+# Static cells of *decoded* Gaussians (reconstruct / generate), in pixels of the models' image (64x112): the decoder
+# puts one Gaussian per grid cell (1 or 2x2 model pixels) with learned scales, so the economy should merge repeats of
+# a place seen in several frames and not its neighbours. Cells of 3 *display*-pixel footprints (the oracle's) were
+# 1.5 grid pitches of the 2x2 decoder at 64x112 and averaged neighbours into blobs: reconstruct 0 m 19.32 dB vs
+# 21.51 at one model pixel; measured best for both strides (gaussians.md, "decoded cells").
+DECODED_CELL_MODEL_PX = 1.0
 
 
 @dataclass
@@ -66,13 +67,13 @@ class Economy:
     dynamic_budget: int | None = None  # cap per frame
 
     @staticmethod
-    def for_decoded(pitch_px: float) -> Economy:
-        """The served economy of the learned modes' Gaussians: static cells of `DECODED_CELL_PITCH` grid pitches,
-        `pitch_px` = image pixels per Gaussian-grid cell (image width / grid width). Lifted pixels (oracle) keep
-        the default cells."""
-        if not (math.isfinite(pitch_px) and pitch_px > 0):
-            raise ValueError(f"Economy.for_decoded: pitch_px must be a finite number > 0, got {pitch_px}")
-        return Economy(cell_factor=DECODED_CELL_PITCH * pitch_px)
+    def for_decoded(model_px: float) -> Economy:
+        """The served economy of the learned modes' Gaussians: static cells of `DECODED_CELL_MODEL_PX` model-image
+        pixels, `model_px` = image pixels per model-image pixel (image width / model width). Lifted pixels (oracle)
+        keep the default cells."""
+        if not (math.isfinite(model_px) and model_px > 0):
+            raise ValueError(f"Economy.for_decoded: model_px must be a finite number > 0, got {model_px}")
+        return Economy(cell_factor=DECODED_CELL_MODEL_PX * model_px)
 
 
 @dataclass

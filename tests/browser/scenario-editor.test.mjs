@@ -198,6 +198,82 @@ test("the four corner-case presets load with their agents", T, async () => {
   }
 });
 
+/** The cut-in check of tests/python/test_corner_cases.py on the world of `scenario` (its exact poses). */
+function checkCutIn(scenario, agentId) {
+  const code = `
+import json, sys
+sys.path.insert(0, "tests/python")
+from test_corner_cases import check_cut_in
+from worldsplat.core.scenario import Scenario
+from worldsplat.world.layout import build_world
+print(json.dumps(check_cut_in(build_world(Scenario.parse(sys.stdin.read())), sys.argv[1])))`;
+  return JSON.parse(execFileSync(PYTHON, ["-c", code, agentId], { cwd: ROOT, input: JSON.stringify(scenario) }).toString());
+}
+
+test("a cut-in built by hand (pointer, keyboard; no JSON) happens in the world, and a share link gives the receiver the same scene",
+  T, async () => {
+    await page.selectOption("#preset", "empty_road");
+    for (const [field, value] of [["road.setting", "highway"], ["road.lanes_per_direction", "2"], ["ego.speed", "15"],
+      ["clip.frames", "12"], ["traffic.parked_vehicles", "0"], ["image.width", "64"], ["image.height", "48"]]) {
+      const el = page.locator(`[data-field="${field}"]`);
+      if ((await el.evaluate((e) => e.tagName)) === "SELECT") await el.selectOption(value);
+      else await el.fill(value);
+    }
+    await page.fill("#ed-caption", "A car overtakes on the left and cuts in just ahead.");
+    await page.dispatchEvent("#ed-caption", "change");
+    await page.evaluate(() => {
+      window.playground.state.base.rig = { cameras: ["CAM_FRONT"] };
+      const r = document.getElementById("ed-time");
+      r.value = "0";
+      r.dispatchEvent(new Event("input", { bubbles: true }));
+    });
+    // a car dropped 4 m behind the ego in the left lane (highway, 3.5 m lanes: its centre at y = 3.5 m), 24 m/s,
+    // made a lane placement, and a lane change into the ego lane at 1 s over 1.75 s
+    await page.selectOption("#ed-class", "car");
+    await page.click("#ed-add");
+    await pointer(-4, 3.5, null);
+    await typeInto("#ed-speed", "24");
+    await page.selectOption("#ed-start", "lane");
+    await page.selectOption("#ed-ev-action", "lane_change");
+    await typeInto("#ed-ev-t", "1");
+    await typeInto("#ed-ev-arg", "0");
+    await typeInto("#ed-ev-dur", "1.75", "Enter");
+    await page.screenshot({ path: join(ARTIFACTS, "scenario-editor-cut-in.png") });
+    const scenario = await page.evaluate(() => window.playground.readForm());
+    assert.equal(scenario.agents.length, 1, JSON.stringify(scenario.agents));
+    const [car] = scenario.agents;
+    assert.equal(car.class, "car");
+    assert.equal(car.start.kind, "lane");
+    assert.deepEqual([car.start.direction, car.start.lane], ["same", 1]);
+    assert.ok(Math.abs(car.start.s + 4) < 0.3 && Math.abs(car.start.lateral) < 0.3, JSON.stringify(car.start));
+    assert.deepEqual(car.motion, { speed: 24, events: [{ t: 1, action: "lane_change", duration: 1.75, lane: 0 }] });
+    assert.equal(scenario.road.setting, "highway");
+    // the event, on the world's exact poses (the same check as the preset's)
+    const ev = checkCutIn(scenario, car.id);
+    assert.ok(ev.gap_m > 2 && ev.enters_s > 1, JSON.stringify(ev));
+    // generated from the page (oracle); a share link to a fresh page: the same form and the same (cached) scene
+    const sceneScenario = await generateOracle(scenario);
+    const noNull = (x) => JSON.parse(JSON.stringify(x, (k, v) => (v === null ? undefined : v)));
+    assert.deepEqual(noNull(sceneScenario.agents), scenario.agents);  // as the server normalized them (nulls added)
+    const url = await page.evaluate(async (s) => {
+      const { shareUrl } = await import("/share.js");
+      return shareUrl(location.href, { scenario: s, mode: "oracle", view: { camera: "CAM_FRONT" } });
+    }, scenario);
+    const other = await context.newPage();
+    await other.goto(url);
+    await other.waitForFunction(() => ((window.playground && window.playground.state.base || {}).agents || []).length > 0,
+      null, { timeout: 180_000 });
+    const got = await other.evaluate(() => window.playground.readForm());
+    assert.deepEqual(got, scenario);
+    const ids = await Promise.all([scenario, got].map(async (s) => (await (await fetch(`${server.url}/api/scenes`, {
+      method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify({ scenario: s, mode: "oracle" }) }))
+      .json())));
+    assert.equal(ids[0].scene_id, ids[1].scene_id);
+    assert.equal(ids[1].status, "ready");  // the receiver's request is the sender's scene, already in the cache
+    await other.close();
+    console.log(`# cut-in built by hand: ${JSON.stringify(ev)}`);
+  });
+
 /** Type into an input as a person does: focus it by a click, select what is there, type, leave it with Tab. */
 async function typeInto(selector, text, leave = "Tab") {
   await page.click(selector, { clickCount: 3 });

@@ -59,9 +59,9 @@ def test_corner_case_roads_are_straight_along_x():
         np.testing.assert_allclose(w.ego_to_world[0, :3, 3], 0.0, atol=1e-9)
 
 
-def test_cut_in_overtakes_then_enters_the_ego_lane_ahead_of_the_ego():
-    w = world_of("cut_in")
-    car, ego = agent(w, "cutter"), ego_rect(w)
+def check_cut_in(w, agent_id: str = "cutter") -> dict:
+    """The cut-in happens in world `w` (also run on a scenario built by hand in the page: scenario-editor test)."""
+    car, ego = agent(w, agent_id), ego_rect(w)
     r = rect(car)
     lane0, lane1 = lane_y(w, 0), lane_y(w, 1)
     ego_front = ego[..., 0].max(-1)
@@ -76,6 +76,16 @@ def test_cut_in_overtakes_then_enters_the_ego_lane_ahead_of_the_ego():
     assert inside(r[-1:], *lane0).all() and r[-1, :, 0].min() > ego_front[-1]  # ends in the ego lane, ahead
     assert enter[k:].all()  # and stays there once in
     assert not rects_overlap(r, ego).any()
+    return {
+        "enters_s": float(w.frame_times[k]),
+        "gap_m": float(gap),
+        "end_gap_m": float(r[-1, :, 0].min() - ego_front[-1]),
+    }
+
+
+def test_cut_in_overtakes_then_enters_the_ego_lane_ahead_of_the_ego():
+    got = check_cut_in(world_of("cut_in"))
+    assert got["enters_s"] == 1.5 and abs(got["gap_m"] - 3.56) < 0.01  # the figures world.md quotes
 
 
 def test_crossing_pedestrian_walks_across_the_whole_ego_lane_in_front_of_the_ego():

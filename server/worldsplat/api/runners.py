@@ -23,8 +23,11 @@ from worldsplat.core.scenario import Scenario
 from .cache import ArtifactCache
 from .jobs import JobContext, JobError
 
-# Mosaic layout (rows of camera names), as the nuScenes viewers show the rig: the front half on top.
 VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
+# The .wsplat version the server writes (scenes, streamed or whole, and converted scene files): v2 (zstd byte planes,
+# web/docs/wsplat-v2.md), which the viewer's wasm decoder reads whole and streamed (tests/browser/wsplat-v2.test.mjs).
+# v1 files (older caches, dropped files) are still read everywhere.
+WSPLAT_VERSION = 2
 
 
 class Pipeline:
@@ -189,7 +192,9 @@ class StreamSink:
 
     def window(self, frames: list[int], static, dynamic: dict) -> None:
         if self.writer is None:
-            self.writer = self.wsplat.StreamWriter.for_window(self.skeleton, static, list(dynamic.values()))
+            self.writer = self.wsplat.StreamWriter.for_window(
+                self.skeleton, static, list(dynamic.values()), version=WSPLAT_VERSION
+            )
             self._put(self.writer.head())
         for piece in self.writer.static(static):
             self._put(piece)
@@ -237,7 +242,7 @@ def run_scene(cache: ArtifactCache, ctx: JobContext, pipe: Pipeline = PIPELINE) 
             scene = pipe.generate_scene(scenario, mode, ctx.progress, ctx.cancelled)
             ctx.check()
             ctx.progress("writing .wsplat", 0.0)
-            data = wsplat.encode(scene)
+            data = wsplat.encode(scene, version=WSPLAT_VERSION)
             live = open_live()
             for piece in wsplat_pieces(data):
                 ctx.check()

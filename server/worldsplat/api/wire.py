@@ -112,7 +112,7 @@ def measure(url: str, data: bytes, coding: str) -> dict:
     seconds = time.perf_counter() - t0
     if bytes(decoded) != data:
         raise RuntimeError(f"{coding}: the decoded body differs from the file")
-    h = dec.header
+    h = dec.end or dec.header  # a streamed file's totals come in its END!
     n = h["num_static"] + sum(h["num_dynamic"])
     return {
         "coding": coding,

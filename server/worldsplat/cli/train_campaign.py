@@ -26,6 +26,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--gaussian-stride", type=int, default=2, choices=(1, 2), help="decoder: one Gaussian per N x N model pixels"
     )
+    p.add_argument("--latent-noise", type=float, default=0.05, help="decoder: std of the noise added to L each step")
     p.add_argument(
         "--render-down", type=int, default=2, help="decoder: render the loss views at image/N (1: the full image)"
     )
@@ -69,6 +70,7 @@ def run(a: argparse.Namespace) -> int:
             threads=a.threads,
             render_down=a.render_down,
             stride=a.gaussian_stride,
+            latent_noise=a.latent_noise,
             **kw,
         )
     elif a.stage == "prior":

@@ -80,6 +80,7 @@ class DecodedFrames:
     ego_to_world: np.ndarray
     latents: torch.Tensor  # (T, V, C, h, w) normalised L
     meta: dict = field(default_factory=dict)
+    model_width: int | None = None  # the models' image width (the decoded economy's unit); None: the rig's
 
     def frame(self, t: int):
         return Gaussians.cat(self.gaussians[t])
@@ -223,7 +224,14 @@ def decode_gaussians(
                 gs[t][v] = Gaussians(f["means"], f["quats"], f["scales"], f["opacities"], f["colors"], p[:, None])
                 logits[t][v] = f["dynamic_logit"]
     return DecodedFrames(
-        gs, logits, np.asarray(frame_times, np.float64), list(rig), np.asarray(ego_to_world, np.float64), L, meta
+        gs,
+        logits,
+        np.asarray(frame_times, np.float64),
+        list(rig),
+        np.asarray(ego_to_world, np.float64),
+        L,
+        meta,
+        model_width=d.width,
     )
 
 
@@ -404,6 +412,18 @@ def generate(
     return dec
 
 
+def gaussian_grid(models: Models) -> tuple[int, int]:
+    """(gh, gw): the decoder's Gaussians per view (one per grid cell) at the model resolution."""
+    cfg, ds = _decoder_cfg(models), models.vae.cfg.downsample
+    return tuple(n // ds // cfg.patch * cfg.upsample for n in (models.data.height, models.data.width))
+
+
+def decoded_economy(model_width: int, image_width: int) -> Economy:
+    """The economy of decoded Gaussians (`Economy.for_decoded`) on an image_width image of scenes decoded at the
+    models' model_width."""
+    return Economy.for_decoded(image_width / model_width)
+
+
 def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tuple[Scene4D, AggregateStats]:
     """Paper eq. 3 on decoded Gaussians, exactly as the playground serves them (`aggregate_4d`: static = every
     frame's Gaussians with p_dynamic <= 0.5, dynamic[t] = frame t's others, then the economy)."""
@@ -413,7 +433,7 @@ def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tup
         dec.frame_times,
         dec.rig,
         dec.ego_to_world,
-        economy=economy,
+        economy=decoded_economy(dec.model_width or W, W) if economy is None else economy,
         meta=dict(dec.meta),
         image_size=(H, W),
     )

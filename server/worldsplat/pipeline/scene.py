@@ -39,8 +39,9 @@ ALL_MODES = ("oracle", "reconstruct", "generate")
 # (WindowAggregator; same cells, first window to see a cell makes its Gaussian).
 ORACLE_VERSION = "oracle-3"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
-# window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded)
-STREAM_VERSION = "w2"
+# window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
+# economy (static cells of one model pixel, `Economy.for_decoded`)
+STREAM_VERSION = "w3"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
 # sampling and decoding instead of a whole window's (issue 15; the bound on the finished scene: playground.md)
@@ -257,7 +258,8 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     else:
         ego_to_world = world.ego_to_world
     H, W = world.rig[0].height, world.rig[0].width
-    agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=economy, image_size=(H, W))
+    eco = inf.decoded_economy(models.data.width, W) if economy is None else economy
+    agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
     out = _Collect(agg, meta, sink)
     timing: dict[str, float] = {}
     for wi, frames in enumerate(wins):

@@ -345,9 +345,12 @@ def train_decoder(
     init: Path | None = None,
     render_down: int = 2,
     stride: int = 2,
+    latent_noise: float = 0.05,
 ) -> None:
     """`render_down` 1 renders the loss views at the full model image: the 2x2-pixel Gaussians are then asked for
-    the detail the served scene is scored on (at 2 the loss never sees below their own pitch)."""
+    the detail the served scene is scored on (at 2 the loss never sees below their own pitch). `latent_noise`: std of
+    the Gaussian noise added to L (and so to the pixel guide decoded from it) each step; generated latents are off
+    the encoder's manifold, and a per-pixel decoder reads their guide's noise as geometry unless trained on it."""
     torch.set_num_threads(threads)
     vae = load_weights(vae_path, "vae").eval()
     samples = load_cache(out, "train")[:clips]
@@ -360,7 +363,13 @@ def train_decoder(
             dec.pass_through_up(i)
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=25, ckpt_every=ckpt_every, log_every=10, threads=threads)
     step = decoder_step_fn(
-        samples, DCFG, render_every=render_every, render_views=2, render_down=render_down, guide_fn=guide_from(vae)
+        samples,
+        DCFG,
+        render_every=render_every,
+        render_views=2,
+        render_down=render_down,
+        latent_noise=latent_noise,
+        guide_fn=guide_from(vae),
     )
 
     def on_ckpt(model, done):

@@ -15,7 +15,9 @@ def configure(p: argparse.ArgumentParser) -> None:
         choices=["oracle", "reconstruct", "generate"],
         help="default: the playground's default (generate when its weights ship, else oracle)",
     )
-    p.add_argument("--steps", type=int, default=8, help="sampler steps (generate mode)")
+    p.add_argument(
+        "--steps", type=int, default=8, help="sampler steps (generate mode; the one-frame first window takes min(N, 4))"
+    )
     p.add_argument("--seed", type=int, default=None, help="sampling seed (generate mode; default: scenario seed)")
     p.add_argument("--out", required=True, help="output .wsplat")
     p.add_argument("--quiet", action="store_true")

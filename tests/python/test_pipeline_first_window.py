@@ -87,3 +87,26 @@ def test_generate_hands_over_a_one_frame_first_window():
     plain = pipeline.generate_scene(sc, mode="generate", steps=2, first_window=0, first_steps=1)
     assert plain.meta["windows"] == [4, 4] and plain.meta["first_steps"] == 1
     assert np.isfinite(plain.static.means.numpy()).all()
+
+
+@pytest.mark.parametrize("preload", [True, False])
+def test_server_preloads_the_default_mode_before_it_says_ready(tmp_path, preload):
+    import time
+
+    from fastapi.testclient import TestClient
+
+    from api_double import FastPipeline
+    from worldsplat.api.app import create_app
+
+    class Recording(FastPipeline):
+        def preload(self, mode):
+            self.loaded.append(mode)
+
+    pipe = Recording()
+    pipe.loaded = []
+    with TestClient(create_app(tmp_path / "cache", warm=False, pipeline=pipe, preload=preload)) as c:
+        end = time.monotonic() + 60
+        while not c.get("/api/health").json()["ready"] and time.monotonic() < end:
+            time.sleep(0.05)
+        assert c.get("/api/health").json()["ready"]
+        assert pipe.loaded == (["generate"] if preload else [])  # before ready: the first request finds them loaded

@@ -382,22 +382,54 @@ function showVideo(name, video) {
 }
 
 // ---- local files (drag and drop) -------------------------------------------------------------------------------------
+// A .wsplat goes to the viewer as it is; the other Gaussian files `worldsplat import` reads go to the server
+// (POST /api/scene-files, the same Python readers), which answers with a .wsplat (its errors name format, field and
+// byte offset) and, for a file without a rig, the free camera that frames it.
+const SCENE_FILE = /\.(wsplat|ply|glb|spz|sog|splat)$/i;
+
+async function convertSceneFile(file, fmt) {
+  const q = new URLSearchParams({ format: fmt, name: file.name });
+  const resp = await fetch(`/api/scene-files?${q}`, {
+    method: "POST", headers: { "content-type": "application/octet-stream" }, body: file,
+  });
+  if (!resp.ok) {
+    let body = null;
+    try { body = await resp.json(); } catch { body = null; }
+    const message = (body && (body.error || (typeof body.detail === "string" && body.detail))) || resp.statusText;
+    throw new Error(`${message} (HTTP ${resp.status})`);
+  }
+  const free = resp.headers.get("x-free-camera");
+  return { bytes: new Uint8Array(await resp.arrayBuffer()), free: free ? parseJson(free) : null };
+}
+
 async function openLocalFile(file) {
   clearError();
-  if (!/\.(wsplat|ply)$/i.test(file.name)) {
-    showError(`open: ${file.name} is not a .wsplat or .ply file`);
+  const m = SCENE_FILE.exec(file.name);
+  if (!m) {
+    showError(`open: ${file.name} is not a .wsplat or .ply, .glb, .spz, .sog, .splat file`);
     return;
   }
   try {
     const v = requireViewer();
-    const bytes = new Uint8Array(await file.arrayBuffer());
+    const fmt = m[1].toLowerCase();
+    let bytes, free = null;
+    if (fmt === "wsplat") {
+      bytes = new Uint8Array(await file.arrayBuffer());
+    } else {
+      $("scene-badge").textContent = `file: ${file.name} (converting)`;
+      ({ bytes, free } = await convertSceneFile(file, fmt));
+    }
     v.load_bytes(bytes);
-    if (/\.ply$/i.test(file.name)) state.camera = "free";  // a bare point cloud: the viewer starts orbiting it
+    if (free) state.camera = "free";  // a bare point cloud: the viewer starts orbiting it
     state.sceneId = null;
     state.streamBytes = bytes.length;
     $("scene-badge").textContent = `file: ${file.name}`;
     $("mode-badge").textContent = "mode: local file";
     onSceneReady(true);
+    if (free) {
+      v.set_camera_state(JSON.stringify({ camera: "free", frame: 0, shift_m: state.shift, free }));
+      render();
+    }
     state.source = file.name;
   } catch (e) {
     showError(`open ${file.name}: ${e.message}`);
@@ -432,14 +464,15 @@ async function importScenarioFiles(files) {
   }
 }
 
-/** Files dropped on the page: a scene (.wsplat / .ply) goes to the viewer, a scenario file to the form. */
+/** Files dropped on the page: a scene (.wsplat .ply .glb .spz .sog .splat) goes to the viewer, a scenario file to the
+ * form. */
 function openDropped(files) {
   const list = [...files];
-  const scene = list.find((f) => /\.(wsplat|ply)$/i.test(f.name));
+  const scene = list.find((f) => SCENE_FILE.test(f.name));
   if (scene) return openLocalFile(scene);
   if (list.some((f) => SCENARIO_FILE.test(f.name))) return importScenarioFiles(list);
-  if (list.length) showError(`open: ${list.map((f) => f.name).join(", ")}: drop a .wsplat / .ply scene, or an .xosc ` +
-    "(with its .xodr), a CommonRoad .xml or a scenario .json");
+  if (list.length) showError(`open: ${list.map((f) => f.name).join(", ")}: drop a scene (.wsplat .ply .glb .spz .sog ` +
+    ".splat), or an .xosc (with its .xodr), a CommonRoad .xml or a scenario .json");
   return null;
 }
 

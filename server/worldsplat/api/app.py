@@ -19,7 +19,7 @@ from typing import Annotated, Literal
 from fastapi import Body, FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.utils import get_openapi
-from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, StreamingResponse
+from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -35,7 +35,8 @@ from . import runners
 from .cache import ArtifactCache, InvalidId, LiveFile, validate_id
 from .encoding import StreamEncoder, negotiate
 from .jobs import ACTIVE, Job, JobManager, QueueFull
-from .scenario_files import MAX_IMPORT_BODY, FileProblems, ImportOut, ImportRequest, import_files
+from .scenario_files import MAX_IMPORT_BODY, NAME_PATTERN, FileProblems, ImportOut, ImportRequest, import_files
+from .scene_files import GATE, MAX_SCENE_FILE, RETRY_AFTER_S, Format, SceneFileProblem, convert
 
 MAX_BODY = 64 * 1024
 # frames x cameras x width x height a scene may have: the scenario allows 1600x900 x 32 x 6 (276M pixels), far more
@@ -111,6 +112,9 @@ class VideoRequest(BaseModel):
 class FieldProblem(BaseModel):
     field: str = Field(description="dotted path of the bad field ('' for the body as a whole)")
     message: str
+    offset: int | None = Field(None, description="a bad file's byte offset of the field (POST /api/scene-files)")
+    format: str | None = Field(None, description="a bad file's format (POST /api/scene-files)")
+    where: str | None = Field(None, description="what `offset` counts in, when not the file (a compressed stream)")
 
 
 class ErrorBody(BaseModel):
@@ -375,14 +379,27 @@ class BundleFiles(StaticFiles):
 
 class BodyLimit:
     """ASGI middleware: request bodies over `max_bytes` (or the path's own limit in `per_path`) get 413 before the
-    app sees them (declared or streamed)."""
+    app sees them (declared or streamed). A path in `gated` takes its semaphore (without waiting) before its body is
+    buffered and holds it until the app has answered; when taken, the request gets 503 + Retry-After at once, so
+    such requests never hold more than one body in memory together."""
 
-    def __init__(self, app, max_bytes: int, per_path: dict[str, int] | None = None):
-        self.app, self.max_bytes, self.per_path = app, max_bytes, per_path or {}
+    def __init__(self, app, max_bytes: int, per_path: dict[str, int] | None = None, gated: dict | None = None):
+        self.app, self.max_bytes, self.per_path, self.gated = app, max_bytes, per_path or {}, gated or {}
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http" or scope["method"] in ("GET", "HEAD", "OPTIONS", "DELETE"):
             return await self.app(scope, receive, send)
+        gate = self.gated.get(scope["path"])
+        if gate is None:
+            return await self._limited(scope, receive, send)
+        if not gate.acquire(blocking=False):
+            return await self._reply(send, 503, "busy with another file; retry", {"retry-after": str(RETRY_AFTER_S)})
+        try:
+            return await self._limited(scope, receive, send)
+        finally:
+            gate.release()
+
+    async def _limited(self, scope, receive, send):
         limit = self.per_path.get(scope["path"], self.max_bytes)
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None:
@@ -390,15 +407,17 @@ class BodyLimit:
                 return await self._reply(send, 400, "invalid Content-Length header")
             if int(declared) > limit:
                 return await self._reply(send, 413, f"request body over {limit} bytes")
-        body, more = b"", True
+        parts, size, more = [], 0, True
         while more:
             msg = await receive()
             if msg["type"] == "http.disconnect":
                 return
-            body += msg.get("body", b"")
+            parts.append(msg.get("body", b""))
+            size += len(parts[-1])
             more = msg.get("more_body", False)
-            if len(body) > limit:
+            if size > limit:
                 return await self._reply(send, 413, f"request body over {limit} bytes")
+        body = b"".join(parts)
         sent = False
 
         async def replay():
@@ -411,13 +430,15 @@ class BodyLimit:
         return await self.app(scope, replay, send)
 
     @staticmethod
-    async def _reply(send, status: int, message: str):
+    async def _reply(send, status: int, message: str, headers: dict | None = None):
         data = json.dumps({"detail": message, "error": message}).encode()
+        extra = [(k.encode(), v.encode()) for k, v in (headers or {}).items()]
         await send(
             {
                 "type": "http.response.start",
                 "status": status,
-                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())],
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())]
+                + extra,
             }
         )
         await send({"type": "http.response.body", "body": data})
@@ -618,7 +639,12 @@ def create_app(
         description="Scenario -> 4D Gaussian scene (.wsplat stream) -> track videos. See web/docs/playground.md.",
     )
     app.state.playground = pg
-    app.add_middleware(BodyLimit, max_bytes=MAX_BODY, per_path={"/api/scenario-files": MAX_IMPORT_BODY})
+    app.add_middleware(
+        BodyLimit,
+        max_bytes=MAX_BODY,
+        per_path={"/api/scenario-files": MAX_IMPORT_BODY, "/api/scene-files": MAX_SCENE_FILE},
+        gated={"/api/scene-files": GATE},
+    )
     app.add_middleware(MethodGuard, routes=app.router.routes)  # outermost: OPTIONS / 405 / unknown /api paths
 
     @app.exception_handler(ApiError)
@@ -714,6 +740,58 @@ def create_app(
         except FileProblems as e:
             problems = [{"field": f, "message": m} for f, m in e.problems]
             return JSONResponse({"detail": problems, "error": str(e), "field": problems[0]["field"]}, status_code=422)
+
+    @app.post(
+        "/api/scene-files",
+        tags=["scenes"],
+        response_model=None,
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "description": f"the file's bytes (at most {MAX_SCENE_FILE >> 20} MiB; a .sog: the bundled zip)",
+                "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}},
+            }
+        },
+        responses={
+            200: ok(
+                description="the scene as a .wsplat (one frame, every Gaussian static, importance order)",
+                content={"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}},
+                headers={
+                    "X-Gaussians": {"description": "Gaussians in the scene", "schema": {"type": "integer"}},
+                    "X-Wsplat-Version": {"description": "the .wsplat version written", "schema": {"type": "integer"}},
+                    "X-Free-Camera": {
+                        "description": "a file without a rig (all but worldsplat's own .glb / .sog): the free camera "
+                        "(Viewer.set_camera_state `free`, JSON) that frames its Gaussians",
+                        "schema": {"type": "string"},
+                    },
+                },
+            ),
+            **errors(400, 422),
+            413: {"model": ErrorBody, "description": f"request body over {MAX_SCENE_FILE >> 20} MiB"},
+            503: {"model": ErrorBody, "description": "busy with another file (`Retry-After`)", "headers": RETRY_AFTER},
+        },
+    )
+    async def import_scene_file(
+        request: Request,
+        fmt: Annotated[
+            Format, Query(alias="format", description="the file's format (its extension): ply, glb, spz, sog, splat")
+        ],
+        name: Annotated[
+            str | None, Query(pattern=NAME_PATTERN, description="the file's name (errors and the caption name it)")
+        ] = None,
+    ) -> Response:
+        """A Gaussian file (the page's drag and drop) read as `worldsplat import` reads it (.ply 3DGS PLY, .glb glTF
+        KHR_gaussian_splatting, .spz, .sog bundle, .splat) and answered as a .wsplat the viewer loads. A bad file is
+        a 422 whose entry names the format, the field and the byte offset."""
+        data = await request.body()
+        try:
+            out, n, view = await asyncio.to_thread(convert, data, fmt, runners.WSPLAT_VERSION, name)
+        except SceneFileProblem as e:
+            return JSONResponse(e.body(), status_code=422)
+        headers = {"X-Gaussians": str(n), "X-Wsplat-Version": str(runners.WSPLAT_VERSION)}
+        if view is not None:
+            headers["X-Free-Camera"] = json.dumps(view, separators=(",", ":"))
+        return Response(out, media_type="application/octet-stream", headers=headers)
 
     # -- scenes ----------------------------------------------------------------------------------------------------
     @app.post(

@@ -61,15 +61,23 @@ def read_gaussians(path: str | Path) -> tuple[Gaussians, dict]:
     path = Path(path)
     ext = kind(path, IMPORTS)
     if ext == ".sog":
-        return sog.read(path)
-    data = path.read_bytes()
+        return sog.read(path)  # a meta.json with its textures beside it, or a bundled .sog
+    return decode_gaussians(path.read_bytes(), ext, str(path))
+
+
+def decode_gaussians(data: bytes, ext: str, name: str = "") -> tuple[Gaussians, dict]:
+    """The same from a whole file's bytes (`ext` one of IMPORTS; a .sog is the bundled zip); raises FormatError."""
     if ext == ".ply":
-        return ply.decode_ply(data, str(path)), {}
+        return ply.decode_ply(data, name or "file.ply"), {}
     if ext == ".glb":
         return gltf.decode(data)
     if ext == ".spz":
         return spz.decode(data), {}
-    return splat_format.decode(data), {}
+    if ext == ".sog":
+        return sog.decode(data)
+    if ext == ".splat":
+        return splat_format.decode(data), {}
+    raise ValueError(f"unknown extension {ext!r}; use one of {', '.join(IMPORTS)}")
 
 
 def frame_extras(scene: Scene4D, t: int) -> dict:

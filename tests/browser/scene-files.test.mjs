@@ -1,0 +1,125 @@
+// Drag and drop of Gaussian files on the playground page (issue 13): one file of each kind `worldsplat import` reads
+// (.ply .glb .spz .sog .splat: converted by POST /api/scene-files, the same Python readers, into a .wsplat v2) and a
+// .wsplat v2 (read by the viewer itself), dropped as a user drops them, in headless Chromium (WebGL2) against the real
+// app with the fast pipeline double (tests/python/api_double.py). Each renders the same street, the converted ones in
+// the free camera that frames them; a truncated .ply shows the server's error naming the format, field and offset.
+// Files: tests/browser/lib/make_scene_files.py. Screenshots: tests/artifacts/scene-files/.
+import { test, before, after } from "node:test";
+import assert from "node:assert/strict";
+import { spawn, execFileSync } from "node:child_process";
+import { mkdtempSync, rmSync, readFileSync, mkdirSync } from "node:fs";
+import { tmpdir } from "node:os";
+import { join } from "node:path";
+import { ROOT, PYTHON, freePort } from "./lib/playground-server.mjs";
+import { launch, openPage, snapshot, ARTIFACTS } from "./lib/playground-browser.mjs";
+
+const T = { timeout: 1_200_000 };
+const OUT = join(ARTIFACTS, "scene-files");
+let proc, url, cacheDir, browser, page, files, errors;
+
+async function waitFor(fn, what, arg, timeoutMs = 180_000) {
+  const end = Date.now() + timeoutMs;
+  for (;;) {
+    const v = await page.evaluate(fn, arg);
+    if (v) return v;
+    if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
+    await new Promise((r) => setTimeout(r, 200));
+  }
+}
+
+async function drop(name) {
+  const b64 = readFileSync(join(OUT, name)).toString("base64");
+  await page.evaluate(([data, n]) => {
+    window.playground.state.source = null;
+    const bytes = Uint8Array.from(atob(data), (c) => c.charCodeAt(0));
+    const dt = new DataTransfer();
+    dt.items.add(new File([bytes], n));
+    const vp = document.getElementById("viewport");
+    vp.dispatchEvent(new DragEvent("dragover", { dataTransfer: dt, bubbles: true, cancelable: true }));
+    vp.dispatchEvent(new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+  }, [b64, name]);
+  await waitFor((n) => window.playground.state.source === n || window.playground.state.lastError, `${name} to load`, name);
+}
+
+before(async () => {
+  mkdirSync(OUT, { recursive: true });
+  files = JSON.parse(execFileSync(PYTHON, [join(ROOT, "tests/browser/lib/make_scene_files.py"), OUT], { cwd: ROOT, encoding: "utf8" }));
+  const port = await freePort();
+  url = `http://127.0.0.1:${port}`;
+  cacheDir = mkdtempSync(join(tmpdir(), "ws-scene-files-"));
+  proc = spawn(PYTHON, [join(ROOT, "tests/python/api_double.py"), "--port", String(port), "--cache-dir", cacheDir],
+    { cwd: ROOT, stdio: "ignore" });
+  for (const end = Date.now() + 120_000; ;) {
+    assert.equal(proc.exitCode, null, "api_double exited early");
+    try {
+      const r = await fetch(`${url}/api/health`);
+      if (r.ok && (await r.json()).ready) break;
+    } catch { /* not listening yet */ }
+    assert.ok(Date.now() < end, "api_double not ready");
+    await new Promise((r) => setTimeout(r, 200));
+  }
+  browser = await launch();
+  ({ page, errors } = await openPage(browser.context, `${url}/?backend=webgl2`));
+  await page.evaluate(() => window.playground.ready);
+}, T);
+
+after(async () => {
+  if (browser) await browser.close();
+  if (proc && proc.exitCode === null) {
+    const exited = new Promise((r) => proc.once("exit", r));
+    proc.kill("SIGTERM");
+    await exited;
+  }
+  if (cacheDir) rmSync(cacheDir, { recursive: true, force: true });
+});
+
+test("one file of each kind dropped on the page renders the street", T, async () => {
+  const lit = {};
+  for (const kind of ["ply", "glb", "spz", "sog", "splat", "wsplat"]) {
+    const name = files[kind];
+    const t0 = Date.now();
+    await drop(name);
+    const loadS = (Date.now() - t0) / 1000;
+    const st = await page.evaluate(() => ({ err: window.playground.state.lastError, camera: window.playground.state.camera,
+      badge: document.getElementById("scene-badge").textContent, stats: JSON.parse(window.playground.state.viewer.stats()) }));
+    assert.equal(st.err, null, `${name}: ${st.err}`);
+    assert.match(st.badge, new RegExp(name.replace(".", "\\.")));
+    assert.equal(st.stats.gaussians, 8000, `${name}: every Gaussian arrived (${st.stats.gaussians})`);
+    if (kind !== "wsplat") assert.equal(st.camera, "free", `${name}: a file without a rig opens in the free camera`);
+    else await page.evaluate(() => window.playground.setCamera("CAM_FRONT"));
+    const snap = await snapshot(page);
+    lit[kind] = snap.litFraction;
+    await page.screenshot({ path: join(OUT, `dropped_${kind}.png`) });
+    console.log(`# dropped ${name}: loaded in ${loadS.toFixed(1)} s, camera ${kind === "wsplat" ? "CAM_FRONT" : st.camera}, ` +
+      `lit fraction ${snap.litFraction.toFixed(3)} (${snap.path})`);
+    assert.ok(snap.litFraction > 0.05, `${name} renders (lit fraction ${snap.litFraction})`);
+  }
+  assert.deepEqual(errors.filter((e) => !/favicon/.test(e)), [], "no page errors");
+});
+
+test("a real scene as .wsplat v2 (WSPLAT_V2_SCENE, e.g. from worldsplat generate) dropped on the page", T, async (t) => {
+  if (!process.env.WSPLAT_V2_SCENE) return t.skip("WSPLAT_V2_SCENE not set");
+  execFileSync(PYTHON, ["-c", "import sys; from worldsplat.gaussians import wsplat; " +
+    "open(sys.argv[2], 'wb').write(wsplat.encode(wsplat.read(sys.argv[1]), version=2))",
+    process.env.WSPLAT_V2_SCENE, join(OUT, "scene_v2.wsplat")], { cwd: ROOT });
+  await drop("scene_v2.wsplat");
+  assert.equal(await page.evaluate(() => window.playground.state.lastError), null);
+  await page.evaluate(() => { const p = window.playground; p.setCamera("CAM_FRONT"); p.setFrame(1); });
+  const snap = await snapshot(page);
+  console.log(`# scene_v2.wsplat: lit fraction ${snap.litFraction.toFixed(3)}, mean ${snap.mean.toFixed(1)}`);
+  assert.ok(snap.litFraction > 0.3, "the scene renders");
+  await page.screenshot({ path: join(OUT, "scene_v2.png") });
+});
+
+test("a truncated .ply shows the server's error naming format, field and offset", T, async () => {
+  await drop(files.bad);
+  const err = await page.evaluate(() => window.playground.state.lastError);
+  console.log(`# ${files.bad}: ${err}`);
+  assert.match(err, /^open truncated\.ply: ply: offset \d+: vertex\[\d+\]/);
+  assert.match(await page.textContent("#error-text"), /HTTP 422/);
+  const r = await fetch(`${url}/api/scene-files?format=ply`, { method: "POST", body: readFileSync(join(OUT, files.bad)) });
+  const body = await r.json();
+  assert.equal(r.status, 422);
+  assert.equal(body.detail[0].format, "ply");
+  assert.ok(Number.isInteger(body.detail[0].offset) && body.detail[0].field.startsWith("vertex["), JSON.stringify(body));
+});

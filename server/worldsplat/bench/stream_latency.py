@@ -7,6 +7,7 @@ the time to the first frame the page's viewer drew (headless Chromium, WebGL2: t
     python -m worldsplat.bench.stream_latency --profile [--modes ...]    # in-process stage times, warm, per window
     python -m worldsplat.bench.stream_latency --quality [--presets A,B] [--seeds 1,2]   # the finished generate
                                               # scene, first window of 1 frame vs the models' windows, vs exact GT
+    python -m worldsplat.bench.stream_latency --plan-times 3     # the whole scene's wall / CPU s per plan, ABBA
 
 Cold: a fresh `worldsplat serve --no-warm` process and an empty cache, its first request (the server loads the
 default mode's models and caption encoder before it says ready, unless `--no-preload`: then the request pays for them). Warm: the next request on the same server (another seed, so nothing is cached). Each row also gives the
@@ -229,6 +230,28 @@ def quality(presets: list[str], seeds: list[int], plans=QUALITY_PLANS) -> list[d
     return rows
 
 
+def plan_times(preset: str, pairs: int = 3) -> list[dict]:
+    """Wall and CPU seconds of the whole generate scene, the models' windows (before) against the served plan (a
+    one-frame first window at FIRST_STEPS), interleaved A B B A ... in one warm process so load drifts hit both."""
+    from worldsplat.pipeline.scene import generate_scene  # noqa: PLC0415 - heavy (torch)
+
+    sc = load_preset(preset)
+    generate_scene(sc.with_updates(seed=0), mode="generate")  # warm
+    plans = {"windows of 4": {"first_window": 0, "first_steps": 8}, "served": {}}
+    order = [
+        k for i in range(pairs) for k in (("windows of 4", "served") if i % 2 == 0 else ("served", "windows of 4"))
+    ]
+    rows = []
+    for i, label in enumerate(order):
+        w0, c0 = time.perf_counter(), time.process_time()
+        scene = generate_scene(sc.with_updates(seed=500 + i // 2), mode="generate", **plans[label])
+        row = {"plan": label, "seed": 500 + i // 2, "windows": scene.meta.get("windows"), "load": os.getloadavg()[0]}
+        row.update(wall_s=round(time.perf_counter() - w0, 2), cpu_s=round(time.process_time() - c0, 2))
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
 def browser_rows(url: str, preset: str, mode: str, tmp: Path, shots: Path | None) -> list[dict]:
     """Cold and warm rows of the page in headless Chromium (tests/browser/stream-latency.mjs)."""
     sc = tmp / "scenario.json"
@@ -249,12 +272,18 @@ def main(argv=None) -> None:
     ap.add_argument("--shots", type=Path, help="with --browser: screenshots of a scene growing, into this folder")
     ap.add_argument("--profile", action="store_true", help="only the in-process stage profile of a warm request")
     ap.add_argument("--no-preload", action="store_true", help="servers started with --no-preload (cold pays the load)")
+    ap.add_argument("--plan-times", type=int, default=0, metavar="PAIRS", help="only the whole scene's time per plan")
     ap.add_argument("--quality", action="store_true", help="only the finished scene's error per window plan")
     ap.add_argument("--presets", default=None, help="with --quality: presets (default: --preset)")
     ap.add_argument("--seeds", default="1,2", help="with --quality: scenario seeds")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     rows = []
+    if a.plan_times:
+        rows = plan_times(a.preset, a.plan_times)
+        if a.out:
+            a.out.write_text(json.dumps(rows, indent=1) + "\n")
+        return
     if a.quality:
         presets = (a.presets or a.preset).split(",")
         rows = quality(presets, [int(x) for x in a.seeds.split(",")])

@@ -16,6 +16,7 @@ import { launch, openPage, snapshot, ARTIFACTS } from "./lib/playground-browser.
 const T = { timeout: 1_200_000 };
 const OUT = join(ARTIFACTS, "scene-files");
 let proc, url, cacheDir, browser, page, files, errors;
+const failed = []; // "STATUS METHOD PATH" of every HTTP answer >= 400 the page got
 
 async function waitFor(fn, what, arg, timeoutMs = 180_000) {
   const end = Date.now() + timeoutMs;
@@ -25,6 +26,12 @@ async function waitFor(fn, what, arg, timeoutMs = 180_000) {
     if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
     await new Promise((r) => setTimeout(r, 200));
   }
+}
+
+/** A screenshot for tests/artifacts (not what the test checks: a loaded SwiftShader may miss playwright's frame). */
+async function shot(file) {
+  await page.screenshot({ path: join(OUT, file), timeout: 120_000 })
+    .catch((e) => console.log(`# screenshot ${file} not taken: ${String(e.message).split("\n")[0]}`));
 }
 
 async function drop(name) {
@@ -59,6 +66,9 @@ before(async () => {
     await new Promise((r) => setTimeout(r, 200));
   }
   browser = await launch();
+  browser.context.on("response", (r) => {
+    if (r.status() >= 400) failed.push(`${r.status()} ${r.request().method()} ${new URL(r.url()).pathname}`);
+  });
   ({ page, errors } = await openPage(browser.context, `${url}/?backend=webgl2`));
   await page.evaluate(() => window.playground.ready);
 }, T);
@@ -89,12 +99,18 @@ test("one file of each kind dropped on the page renders the street", T, async ()
     else await page.evaluate(() => window.playground.setCamera("CAM_FRONT"));
     const snap = await snapshot(page);
     lit[kind] = snap.litFraction;
-    await page.screenshot({ path: join(OUT, `dropped_${kind}.png`) });
+    await shot(`dropped_${kind}.png`);
     console.log(`# dropped ${name}: loaded in ${loadS.toFixed(1)} s, camera ${kind === "wsplat" ? "CAM_FRONT" : st.camera}, ` +
       `lit fraction ${snap.litFraction.toFixed(3)} (${snap.path})`);
     assert.ok(snap.litFraction > 0.05, `${name} renders (lit fraction ${snap.litFraction})`);
   }
-  assert.deepEqual(errors.filter((e) => !/favicon/.test(e)), [], "no page errors");
+  // Chromium logs a failed request as a console error without its URL, so the requests are checked by URL: the
+  // page's own start against the double fails in one known way (its default scene is over the double's size limit:
+  // 422 on POST /api/scenes), and every failed-load console error must be one of the requests seen
+  assert.deepEqual(failed.filter((f) => f !== "422 POST /api/scenes"), [], "no unexpected failed requests");
+  const loadErrors = errors.filter((e) => /^Failed to load resource/.test(e));
+  assert.ok(loadErrors.length <= failed.length, `failed loads not seen as requests: ${loadErrors}`);
+  assert.deepEqual(errors.filter((e) => !/^Failed to load resource/.test(e)), [], "no page errors");
 });
 
 test("a real scene as .wsplat v2 (WSPLAT_V2_SCENE, e.g. from worldsplat generate) dropped on the page", T, async (t) => {
@@ -108,7 +124,7 @@ test("a real scene as .wsplat v2 (WSPLAT_V2_SCENE, e.g. from worldsplat generate
   const snap = await snapshot(page);
   console.log(`# scene_v2.wsplat: lit fraction ${snap.litFraction.toFixed(3)}, mean ${snap.mean.toFixed(1)}`);
   assert.ok(snap.litFraction > 0.3, "the scene renders");
-  await page.screenshot({ path: join(OUT, "scene_v2.png") });
+  await shot("scene_v2.png");
 });
 
 test("a truncated .ply shows the server's error naming format, field and offset", T, async () => {

@@ -171,17 +171,23 @@ test("build a scene with pointer events, generate it, and find each box where it
   assert.equal(errors.filter((e) => !/viewer|pkg|splat_web/.test(e)).length, 0, errors.join("\n"));
 });
 
-test("a share link carries the agents, the path and the caption to a fresh page", T, async () => {
-  const scenario = await page.evaluate(() => window.playground.readForm());
+/** The scenario's share link (oracle, front camera) opened in a fresh page, once at least `minAgents` of its agents
+ * have loaded: that page and the form it shows. */
+async function openShared(scenario, minAgents = 1) {
   const url = await page.evaluate(async (s) => {
     const { shareUrl } = await import("/share.js");
     return shareUrl(location.href, { scenario: s, mode: "oracle", view: { camera: "CAM_FRONT" } });
   }, scenario);
   const other = await context.newPage();
   await other.goto(url);
-  await other.waitForFunction(() => ((window.playground && window.playground.state.base || {}).agents || []).length > 0,
-    null, { timeout: 180_000 });
-  const got = await other.evaluate(() => window.playground.readForm());
+  await other.waitForFunction((n) => ((window.playground && window.playground.state.base || {}).agents || []).length >= n,
+    minAgents, { timeout: 180_000 });
+  return { other, got: await other.evaluate(() => window.playground.readForm()) };
+}
+
+test("a share link carries the agents, the path and the caption to a fresh page", T, async () => {
+  const scenario = await page.evaluate(() => window.playground.readForm());
+  const { other, got } = await openShared(scenario);
   assert.deepEqual(got.agents, scenario.agents);
   assert.equal(got.caption, scenario.caption);
   assert.equal(await other.inputValue("#ed-caption"), scenario.caption);
@@ -255,15 +261,7 @@ test("a cut-in built by hand (pointer, keyboard; no JSON) happens in the world, 
     const sceneScenario = await generateOracle(scenario);
     const noNull = (x) => JSON.parse(JSON.stringify(x, (k, v) => (v === null ? undefined : v)));
     assert.deepEqual(noNull(sceneScenario.agents), scenario.agents);  // as the server normalized them (nulls added)
-    const url = await page.evaluate(async (s) => {
-      const { shareUrl } = await import("/share.js");
-      return shareUrl(location.href, { scenario: s, mode: "oracle", view: { camera: "CAM_FRONT" } });
-    }, scenario);
-    const other = await context.newPage();
-    await other.goto(url);
-    await other.waitForFunction(() => ((window.playground && window.playground.state.base || {}).agents || []).length > 0,
-      null, { timeout: 180_000 });
-    const got = await other.evaluate(() => window.playground.readForm());
+    const { other, got } = await openShared(scenario);
     assert.deepEqual(got, scenario);
     const ids = await Promise.all([scenario, got].map(async (s) => (await (await fetch(`${server.url}/api/scenes`, {
       method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify({ scenario: s, mode: "oracle" }) }))
@@ -374,15 +372,8 @@ test("scripted events and keyframed paths by pointer and keyboard: the JSON, the
     near(last.pedestrian1, 30, -3.5 + 5 * (2 / 2.5), 90, "pedestrian at t = 2 s on its path");
 
     // a share link carries the events and the path
-    const url = await page.evaluate(async (s) => {
-      const { shareUrl } = await import("/share.js");
-      return shareUrl(location.href, { scenario: s, mode: "oracle", view: { camera: "CAM_FRONT" } });
-    }, scenario);
-    const other = await context.newPage();
-    await other.goto(url);
-    await other.waitForFunction(() => ((window.playground && window.playground.state.base || {}).agents || []).length > 1,
-      null, { timeout: 180_000 });
-    assert.deepEqual((await other.evaluate(() => window.playground.readForm())).agents, scenario.agents);
+    const { other, got } = await openShared(scenario, 2);
+    assert.deepEqual(got.agents, scenario.agents);
     await other.close();
   });
 

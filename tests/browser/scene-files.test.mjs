@@ -6,16 +6,15 @@
 // Files: tests/browser/lib/make_scene_files.py. Screenshots: tests/artifacts/scene-files/.
 import { test, before, after } from "node:test";
 import assert from "node:assert/strict";
-import { spawn, execFileSync } from "node:child_process";
-import { mkdtempSync, rmSync, readFileSync, mkdirSync } from "node:fs";
-import { tmpdir } from "node:os";
+import { execFileSync } from "node:child_process";
+import { readFileSync, mkdirSync } from "node:fs";
 import { join } from "node:path";
-import { ROOT, PYTHON, freePort } from "./lib/playground-server.mjs";
+import { ROOT, PYTHON, startServer } from "./lib/playground-server.mjs";
 import { launch, openPage, snapshot, ARTIFACTS } from "./lib/playground-browser.mjs";
 
 const T = { timeout: 1_200_000 };
 const OUT = join(ARTIFACTS, "scene-files");
-let proc, url, cacheDir, browser, page, files, errors;
+let server, browser, page, files, errors;
 const failed = []; // "STATUS METHOD PATH" of every HTTP answer >= 400 the page got
 
 async function waitFor(fn, what, arg, timeoutMs = 180_000) {
@@ -51,36 +50,18 @@ async function drop(name) {
 before(async () => {
   mkdirSync(OUT, { recursive: true });
   files = JSON.parse(execFileSync(PYTHON, [join(ROOT, "tests/browser/lib/make_scene_files.py"), OUT], { cwd: ROOT, encoding: "utf8" }));
-  const port = await freePort();
-  url = `http://127.0.0.1:${port}`;
-  cacheDir = mkdtempSync(join(tmpdir(), "ws-scene-files-"));
-  proc = spawn(PYTHON, [join(ROOT, "tests/python/api_double.py"), "--port", String(port), "--cache-dir", cacheDir],
-    { cwd: ROOT, stdio: "ignore" });
-  for (const end = Date.now() + 120_000; ;) {
-    assert.equal(proc.exitCode, null, "api_double exited early");
-    try {
-      const r = await fetch(`${url}/api/health`);
-      if (r.ok && (await r.json()).ready) break;
-    } catch { /* not listening yet */ }
-    assert.ok(Date.now() < end, "api_double not ready");
-    await new Promise((r) => setTimeout(r, 200));
-  }
+  server = await startServer({ double: true });
   browser = await launch();
   browser.context.on("response", (r) => {
     if (r.status() >= 400) failed.push(`${r.status()} ${r.request().method()} ${new URL(r.url()).pathname}`);
   });
-  ({ page, errors } = await openPage(browser.context, `${url}/?backend=webgl2`));
+  ({ page, errors } = await openPage(browser.context, `${server.url}/?backend=webgl2`));
   await page.evaluate(() => window.playground.ready);
 }, T);
 
 after(async () => {
   if (browser) await browser.close();
-  if (proc && proc.exitCode === null) {
-    const exited = new Promise((r) => proc.once("exit", r));
-    proc.kill("SIGTERM");
-    await exited;
-  }
-  if (cacheDir) rmSync(cacheDir, { recursive: true, force: true });
+  if (server) await server.stop();
 });
 
 test("one file of each kind dropped on the page renders the street", T, async () => {
@@ -133,7 +114,7 @@ test("a truncated .ply shows the server's error naming format, field and offset"
   console.log(`# ${files.bad}: ${err}`);
   assert.match(err, /^open truncated\.ply: ply: offset \d+: vertex\[\d+\]/);
   assert.match(await page.textContent("#error-text"), /HTTP 422/);
-  const r = await fetch(`${url}/api/scene-files?format=ply`, { method: "POST", body: readFileSync(join(OUT, files.bad)) });
+  const r = await fetch(`${server.url}/api/scene-files?format=ply`, { method: "POST", body: readFileSync(join(OUT, files.bad)) });
   const body = await r.json();
   assert.equal(r.status, 422);
   assert.equal(body.detail[0].format, "ply");

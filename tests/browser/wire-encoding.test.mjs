@@ -5,28 +5,11 @@
 // It also checks the live stream (?wait=true) of a scene still being generated. Needs no wasm bundle.
 import { test, before, after } from "node:test";
 import assert from "node:assert/strict";
-import { spawn } from "node:child_process";
-import { mkdtempSync, rmSync } from "node:fs";
-import { tmpdir } from "node:os";
-import { join } from "node:path";
-import { ROOT, PYTHON, freePort } from "./lib/playground-server.mjs";
+import { startServer } from "./lib/playground-server.mjs";
 import { launch } from "./lib/playground-browser.mjs";
 
 const T = { timeout: 300_000 };
-let proc, url, cacheDir, browser, page;
-
-async function waitReady() {
-  const end = Date.now() + 120_000;
-  while (Date.now() < end) {
-    if (proc.exitCode !== null) throw new Error("api_double exited early");
-    try {
-      const r = await fetch(`${url}/api/health`);
-      if (r.ok && (await r.json()).ready) return;
-    } catch { /* not yet listening */ }
-    await new Promise((r) => setTimeout(r, 200));
-  }
-  throw new Error("api_double not ready");
-}
+let server, url, browser, page;
 
 async function postScene(seed) {
   const presets = await (await fetch(`${url}/api/presets`)).json();
@@ -85,12 +68,8 @@ async function sha256Identity(path) {
 }
 
 before(async () => {
-  const port = await freePort();
-  url = `http://127.0.0.1:${port}`;
-  cacheDir = mkdtempSync(join(tmpdir(), "ws-wire-"));
-  proc = spawn(PYTHON, [join(ROOT, "tests/python/api_double.py"), "--port", String(port), "--cache-dir", cacheDir,
-    "--statics", "100000", "--max-scene-mpix", "2", "--chunk-pause", "0.1"], { cwd: ROOT, stdio: "ignore" });
-  await waitReady();
+  server = await startServer({ double: true, args: ["--statics", "100000", "--max-scene-mpix", "2", "--chunk-pause", "0.1"] });
+  url = server.url;
   browser = await launch();
   page = await browser.context.newPage();
   await page.goto(`${url}/api/health`);  // same origin as the API, like the page
@@ -98,12 +77,7 @@ before(async () => {
 
 after(async () => {
   if (browser) await browser.close();
-  if (proc && proc.exitCode === null) {
-    const exited = new Promise((r) => proc.once("exit", r));
-    proc.kill("SIGTERM");
-    await exited;
-  }
-  if (cacheDir) rmSync(cacheDir, { recursive: true, force: true });
+  if (server) await server.stop();
 });
 
 test("the cached .wsplat reaches the page content-coded and decodes to the file", T, async (t) => {

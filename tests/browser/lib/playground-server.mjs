@@ -1,4 +1,5 @@
-// Start `worldsplat serve` on a free loopback port with a temporary cache dir; stop it (and only it) afterwards.
+// Start `worldsplat serve` (or the API double, tests/python/api_double.py) on a free loopback port with a temporary
+// cache dir; stop it (and only it) afterwards.
 import { spawn } from "node:child_process";
 import { mkdtempSync, rmSync, existsSync } from "node:fs";
 import { createServer } from "node:net";
@@ -18,12 +19,15 @@ export function freePort() {
   });
 }
 
-/** Start the server; resolves once /api/health says ready. Options: warm (default false), env, args. */
-export async function startServer({ warm = false, args = [], timeoutMs = 180_000 } = {}) {
+/** Start the server; resolves once /api/health says ready. Options: warm (default false), args, double (the API
+ * double instead of the real server: same routes, synthetic scenes, no models). */
+export async function startServer({ warm = false, args = [], timeoutMs = 180_000, double = false } = {}) {
   const port = await freePort();
   const cacheDir = mkdtempSync(join(tmpdir(), "ws-playground-"));
-  const argv = ["-m", "worldsplat.cli", "serve", "--host", "127.0.0.1", "--port", String(port), "--cache-dir", cacheDir,
-    ...(warm ? [] : ["--no-warm"]), ...args];
+  const common = ["--port", String(port), "--cache-dir", cacheDir];
+  const argv = double
+    ? [join(ROOT, "tests/python/api_double.py"), ...common, ...args]
+    : ["-m", "worldsplat.cli", "serve", "--host", "127.0.0.1", ...common, ...(warm ? [] : ["--no-warm"]), ...args];
   const proc = spawn(PYTHON, argv, { cwd: ROOT, stdio: ["ignore", "pipe", "pipe"],
     env: { ...process.env, OMP_NUM_THREADS: process.env.OMP_NUM_THREADS || "2" } });
   let log = "";

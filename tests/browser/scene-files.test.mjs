@@ -94,20 +94,6 @@ test("one file of each kind dropped on the page renders the street", T, async ()
   assert.deepEqual(errors.filter((e) => !/^Failed to load resource/.test(e)), [], "no page errors");
 });
 
-test("a real scene as .wsplat v2 (WSPLAT_V2_SCENE, e.g. from worldsplat generate) dropped on the page", T, async (t) => {
-  if (!process.env.WSPLAT_V2_SCENE) return t.skip("WSPLAT_V2_SCENE not set");
-  execFileSync(PYTHON, ["-c", "import sys; from worldsplat.gaussians import wsplat; " +
-    "open(sys.argv[2], 'wb').write(wsplat.encode(wsplat.read(sys.argv[1]), version=2))",
-    process.env.WSPLAT_V2_SCENE, join(OUT, "scene_v2.wsplat")], { cwd: ROOT });
-  await drop("scene_v2.wsplat");
-  assert.equal(await page.evaluate(() => window.playground.state.lastError), null);
-  await page.evaluate(() => { const p = window.playground; p.setCamera("CAM_FRONT"); p.setFrame(1); });
-  const snap = await snapshot(page);
-  console.log(`# scene_v2.wsplat: lit fraction ${snap.litFraction.toFixed(3)}, mean ${snap.mean.toFixed(1)}`);
-  assert.ok(snap.litFraction > 0.3, "the scene renders");
-  await shot("scene_v2.png");
-});
-
 test("a truncated .ply shows the server's error naming format, field and offset", T, async () => {
   await drop(files.bad);
   const err = await page.evaluate(() => window.playground.state.lastError);

@@ -10,6 +10,8 @@ Contract
                                                       # conditions: world.conditions() (sketch, boxes, ego_traj,
                                                       #   caption); rig: list[RigCamera] (default: default_rig)
     scene = to_scene4d(dec, meta=None)                # paper eq. 3 exactly as served (gaussians.aggregate_4d)
+Weights: `<role>_small.safetensors` for role in vae | decoder | dit | prior, and optionally decoder_reconstruct (a
+per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`).
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
 
@@ -56,6 +58,9 @@ class Models:
     version: str  # short hash of the weight files (for cache keys)
     weights_dir: Path
     prior: torch.nn.Module | None = None  # the layout prior, for a DiT that generates its residual (v4)
+    # A finer decoder for reconstruct mode only (one Gaussian per model pixel): its latents come from the VAE
+    # encoder, so it may read the pixel guide closely; on generated latents it would read their noise as geometry.
+    decoder_reconstruct: torch.nn.Module | None = None
 
     @property
     def modes(self) -> list[str]:
@@ -65,6 +70,12 @@ class Models:
             if self.dit is not None and (self.prior is not None or not needs_prior(self.dit)):
                 out.append("generate")
         return out
+
+    def decoder_for(self, mode: str) -> torch.nn.Module:
+        """The Gaussian decoder that serves `mode` ("reconstruct" | "generate")."""
+        if mode == "reconstruct" and self.decoder_reconstruct is not None:
+            return self.decoder_reconstruct
+        return self.decoder
 
 
 def needs_prior(dit) -> bool:
@@ -89,9 +100,13 @@ class DecodedFrames:
 _CACHE: dict[str, Models] = {}
 
 
+# role -> the model kind its file holds; `<role>_<SIZE>.safetensors` in the weights folder
+ROLES = {"vae": "vae", "decoder": "decoder", "dit": "dit", "prior": "prior", "decoder_reconstruct": "decoder"}
+
+
 def weight_paths(weights_dir: str | Path | None = None) -> dict[str, Path]:
     d = Path(weights_dir) if weights_dir is not None else default_weights_dir()
-    return {k: d / f"{k}_{SIZE}.safetensors" for k in ("vae", "decoder", "dit", "prior")}
+    return {role: d / f"{role}_{SIZE}.safetensors" for role in ROLES}
 
 
 def available_modes(weights_dir: str | Path | None = None) -> list[str]:
@@ -122,7 +137,7 @@ def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -
     loaded = {}
     for k, p in paths.items():
         if p.exists():
-            loaded[k] = load_weights(p, k)
+            loaded[k] = load_weights(p, ROLES[k])
             h.update(p.read_bytes())
         else:
             loaded[k] = None
@@ -134,6 +149,7 @@ def load_models(weights_dir: str | Path | None = None, backend: str = "torch") -
         h.hexdigest()[:12],
         paths["vae"].parent,
         loaded["prior"],
+        loaded["decoder_reconstruct"],
     )
     if backend == "onnx":
         ensure_exported(m)  # derived from the weights, exported here when set-up has not done it
@@ -181,10 +197,6 @@ def _check_rig(rig, V: int) -> None:
         raise ValueError(f"the models were trained on the default {V}-camera rig {CAMERA_NAMES}; got {names}")
 
 
-def _decoder_cfg(models: Models):
-    return models.decoder.cfg
-
-
 def pixel_guide(models: Models, L: torch.Tensor) -> torch.Tensor:
     """The v2 decoder's pixel guide: the VAE's own decoding of L (T,V,C,h,w) -> (T,V,5,H,W) = rgb [-1,1],
     normalised depth, mask probability."""
@@ -203,17 +215,26 @@ def layout_size(models: Models) -> tuple[int, int] | None:
 
 
 def decode_gaussians(
-    models: Models, L: torch.Tensor, rig, ego_to_world: np.ndarray, frame_times, meta: dict, pad: bool = True
+    models: Models,
+    L: torch.Tensor,
+    rig,
+    ego_to_world: np.ndarray,
+    frame_times,
+    meta: dict,
+    pad: bool = True,
+    decoder: torch.nn.Module | None = None,
 ) -> DecodedFrames:
-    """L (T,V,C,h,w) normalised -> DecodedFrames (window by window; `pad`: see `_windows`)."""
+    """L (T,V,C,h,w) normalised -> DecodedFrames (window by window; `pad`: see `_windows`). `decoder`: which
+    Gaussian decoder (default: the one for meta["mode"], `Models.decoder_for`)."""
     d = models.data
+    decoder = decoder or models.decoder_for(meta.get("mode", "generate"))
     T = L.shape[0]
     intr, c2w = rig_tensors(rig, ego_to_world, (d.height, d.width))
     gs, logits = [[None] * len(rig) for _ in range(T)], [[None] * len(rig) for _ in range(T)]
     for win in _windows(T, d.frames, pad):
-        guide = pixel_guide(models, L[win])[None] if _decoder_cfg(models).guide_channels else None
+        guide = pixel_guide(models, L[win])[None] if decoder.cfg.guide_channels else None
         args = (L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
-        out = models.decoder(*args) if guide is None else models.decoder(*args, guide=guide)
+        out = decoder(*args) if guide is None else decoder(*args, guide=guide)
         for i, t in enumerate(win):
             for v in range(len(rig)):
                 f = {
@@ -412,9 +433,9 @@ def generate(
     return dec
 
 
-def gaussian_grid(models: Models) -> tuple[int, int]:
-    """(gh, gw): the decoder's Gaussians per view (one per grid cell) at the model resolution."""
-    cfg, ds = _decoder_cfg(models), models.vae.cfg.downsample
+def gaussian_grid(models: Models, mode: str = "generate") -> tuple[int, int]:
+    """(gh, gw): the Gaussians per view (one per grid cell) of `mode`'s decoder at the model resolution."""
+    cfg, ds = models.decoder_for(mode).cfg, models.vae.cfg.downsample
     return tuple(n // ds // cfg.patch * cfg.upsample for n in (models.data.height, models.data.width))
 
 

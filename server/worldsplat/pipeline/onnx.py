@@ -7,6 +7,7 @@ Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V vie
     gs_decoder    L (1,T,V,C,h,w), intrinsics (1,T,V,4), cam_to_world (1,T,V,4,4) -> means, quats, scales,
                   opacities, colors, depth, dynamic_logit
     layout_prior  control (1,T,V,7,H,W), caption (1,384) -> mu (1,T,V,C,h,w)   (v4 models only)
+    gs_decoder_reconstruct   as gs_decoder, for reconstruct mode's own decoder where one is shipped
 Parity tolerance (documented in web/docs/models.md): max |ORT - torch| <= 1e-3 (absolute) on every output at
 float32, checked by tests/python/test_models_onnx.py; `speed_ratio` times both side by side.
 
@@ -28,7 +29,9 @@ from worldsplat.core.camera import default_rig
 from worldsplat.pipeline.conditions import rig_tensors
 
 PARITY_ATOL = 1e-3
-GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder", "layout_prior")
+GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder", "layout_prior", "gs_decoder_reconstruct")
+# the Gaussian decoder graphs and the Models field each one exports
+DECODER_GRAPHS = {"gs_decoder": "decoder", "gs_decoder_reconstruct": "decoder_reconstruct"}
 
 
 class _Enc(torch.nn.Module):
@@ -120,18 +123,19 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
             else torch.randn(1, T, V, c.control_channels, h, w, generator=g),
             "drop": torch.tensor([False]),
         }
-    if kind == "gs_decoder":
+    if kind in DECODER_GRAPHS:
+        dec = getattr(models, DECODER_GRAPHS[kind])
         rig = default_rig(W, H)[:V]
         ego = np.stack([np.eye(4)] * T)
         ego[:, 0, 3] = np.arange(T) * 2.0
         intr, c2w = rig_tensors(rig, ego, (H, W))
         out = {
-            "L": torch.randn(1, T, V, models.decoder.cfg.in_channels, h, w, generator=g),
+            "L": torch.randn(1, T, V, dec.cfg.in_channels, h, w, generator=g),
             "intrinsics": intr[None],
             "cam_to_world": c2w[None],
         }
-        if models.decoder.cfg.guide_channels:
-            out["guide"] = torch.rand(1, T, V, models.decoder.cfg.guide_channels, H, W, generator=g) * 2 - 1
+        if dec.cfg.guide_channels:
+            out["guide"] = torch.rand(1, T, V, dec.cfg.guide_channels, H, W, generator=g) * 2 - 1
         return out
     if kind == "layout_prior":
         return {
@@ -149,6 +153,7 @@ def wrapper(models, kind: str) -> torch.nn.Module:
         "dit_step": lambda: _DiTStep(models.dit),
         "gs_decoder": lambda: _GSDec(models.decoder, (d.height, d.width)),
         "layout_prior": lambda: _Prior(models.prior),
+        "gs_decoder_reconstruct": lambda: _GSDec(models.decoder_reconstruct, (d.height, d.width)),
     }[kind]().eval()
 
 
@@ -159,6 +164,7 @@ def output_names(kind: str) -> list[str]:
         "dit_step": ["velocity"],
         "gs_decoder": list(OUT_KEYS),
         "layout_prior": ["mu"],
+        "gs_decoder_reconstruct": list(OUT_KEYS),
     }[kind]
 
 
@@ -172,6 +178,7 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
         "dit_step": models.dit,
         "gs_decoder": models.decoder,
         "layout_prior": getattr(models, "prior", None),
+        "gs_decoder_reconstruct": getattr(models, "decoder_reconstruct", None),
     }
     paths = {}
     for kind in kinds:
@@ -323,8 +330,9 @@ def use_onnx(models, onnx_dir: str | Path, threads: int = 2):
         models.vae.decode = lambda z: torch.from_numpy(run_ort(dec, {"latent": z.float()})[0])
     if models.dit is not None:
         models.dit = OrtDiT(models.dit, session(onnx_dir / "dit_step.onnx", threads))
-    if models.decoder is not None:
-        models.decoder = OrtGSDecoder(models.decoder, session(onnx_dir / "gs_decoder.onnx", threads))
+    for kind, role in DECODER_GRAPHS.items():
+        if getattr(models, role, None) is not None:
+            setattr(models, role, OrtGSDecoder(getattr(models, role), session(onnx_dir / f"{kind}.onnx", threads)))
     if getattr(models, "prior", None) is not None:
         models.prior = OrtPrior(models.prior, session(onnx_dir / "layout_prior.onnx", threads))
     return models

@@ -1,0 +1,94 @@
+"""Reconstruct mode's own Gaussian decoder (`decoder_reconstruct_<size>`): one Gaussian per model pixel where the
+generate decoder has one per 2x2; picked by mode, loaded from the weights folder when shipped, exported to ONNX."""
+
+import copy
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from test_models_inference import tiny_clip
+from worldsplat.pipeline import inference as inf
+from worldsplat.pipeline import onnx as ox
+from worldsplat_models.configs import get_config
+from worldsplat_models.weights import build, save_weights
+
+torch.set_num_threads(1)
+CFG = get_config("tiny")
+
+
+@pytest.fixture(scope="module")
+def models():
+    """Tiny v2-style models (4x VAE, pixel guide); the generate decoder on a 2x2 grid, the reconstruct one per pixel."""
+    torch.manual_seed(0)
+    vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)
+    C = vae_cfg.joint_channels
+    dit_cfg = dataclasses.replace(CFG.dit, in_channels=C, out_channels=C, patch=2, control_channels=7, control_hint=8)
+    dec = dict(in_channels=C, patch=2, guide_channels=5, reread_latent=True)
+    m = inf.Models(
+        build("vae", vae_cfg).eval(),
+        build("decoder", dataclasses.replace(CFG.decoder, up_channels=(8, 8), **dec)).eval(),
+        build("dit", dit_cfg).eval(),
+        CFG.data,
+        "test-recon",
+        Path("."),
+        decoder_reconstruct=build("decoder", dataclasses.replace(CFG.decoder, up_channels=(8, 8, 8), **dec)).eval(),
+    )
+    with torch.no_grad():
+        for p in list(m.decoder.head.parameters()) + list(m.decoder_reconstruct.head.parameters()):
+            p.add_(0.05 * torch.randn_like(p))
+    return m
+
+
+def _per_view(dec) -> int:
+    return dec.gaussians[0][0].means.shape[0]
+
+
+def test_each_mode_decodes_with_its_decoder(models):
+    d = CFG.data
+    clip, s = tiny_clip(T=2)
+    assert models.decoder_for("reconstruct") is models.decoder_reconstruct
+    assert models.decoder_for("generate") is models.decoder
+    assert _per_view(inf.reconstruct(clip, models)) == d.height * d.width
+    assert inf.gaussian_grid(models, "reconstruct") == (d.height, d.width)
+    assert inf.gaussian_grid(models) == (d.height // 2, d.width // 2)
+    boxes = [[{"corners": s["box_corners"][t, 0], "cls": 12, "moving": True}] for t in range(2)]
+    cond = {
+        "sketch": s["sketch"][:2],
+        "boxes": boxes,
+        "ego_traj": clip.ego_to_world,
+        "caption": "x",
+        "layout": np.zeros((2, d.views, d.height, d.width, 7), np.float32),
+    }
+    emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
+    gen = inf.generate(cond, steps=1, models=models, rig=clip.rig, caption_embedding=emb)
+    assert _per_view(gen) == d.height * d.width // 4
+    # without its own decoder, reconstruct falls back to the generate one
+    plain = dataclasses.replace(models, decoder_reconstruct=None)
+    assert _per_view(inf.reconstruct(clip, plain)) == d.height * d.width // 4
+
+
+def test_the_weights_folder_ships_it_and_the_version_follows(models, tmp_path):
+    for role in ("vae", "decoder", "dit"):
+        save_weights(getattr(models, role), tmp_path / f"{role}_small.safetensors", role)
+    without = inf.load_models(tmp_path)
+    assert without.decoder_reconstruct is None and without.modes == ["reconstruct", "generate"]
+    save_weights(models.decoder_reconstruct, tmp_path / "decoder_reconstruct_small.safetensors", "decoder")
+    shipped = inf.load_models(tmp_path)
+    assert shipped.decoder_reconstruct is not None
+    assert shipped.decoder_reconstruct.cfg == models.decoder_reconstruct.cfg
+    assert shipped.version != without.version, "cached scenes must not outlive a new reconstruct decoder"
+
+
+def test_onnx_serves_the_reconstruct_decoder(models, tmp_path):
+    graphs = ox.export(models, tmp_path)
+    assert "gs_decoder_reconstruct" in graphs
+    assert ox.parity(models, tmp_path, "gs_decoder_reconstruct") < ox.PARITY_ATOL
+    ort = ox.use_onnx(copy.deepcopy(models), tmp_path, threads=1)
+    assert isinstance(ort.decoder_reconstruct, ox.OrtGSDecoder)
+    clip, _ = tiny_clip(T=2)
+    a, b = inf.reconstruct(clip, models), inf.reconstruct(clip, ort)
+    assert _per_view(b) == CFG.data.height * CFG.data.width
+    assert torch.allclose(a.frame(1).means, b.frame(1).means, atol=1e-2)

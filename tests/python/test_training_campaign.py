@@ -67,5 +67,15 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     c.snapshot(out4, dest)  # the v4 DiT over the v2 one: served with the prior beside it
     m4 = load_models(dest)
     assert m4.modes == ["reconstruct", "generate"] and m4.prior is not None and m4.dit.cfg.target == "prior_residual"
+    # reconstruct mode's own per-pixel decoder: grown from the 2x2 one in its own folder, snapshot under its role
+    out1 = tmp_path / "runs1"
+    out1.mkdir()
+    (out1 / "cache_train_2.pt").symlink_to(out / "cache_train_2.pt")
+    c.train_decoder(vae, out1, steps=1, ckpt_every=1, stride=1, render_down=1, init=out / "decoder_v2.safetensors")
+    assert [p.name for p in c.snapshot(out1, dest, roles={"decoder": "decoder_reconstruct"})] == [
+        "decoder_reconstruct_small.safetensors"
+    ]
+    m1 = load_models(dest)
+    assert len(m1.decoder_reconstruct.ups) == len(m1.decoder.ups) + 1  # one more 2x up-sampling: per pixel
     (dest / "prior_small.safetensors").unlink()
     assert load_models(dest).modes == ["reconstruct"]  # a v4 DiT without its prior cannot generate

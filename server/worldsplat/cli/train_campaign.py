@@ -33,6 +33,11 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ckpt-every", type=int, default=None)
     p.add_argument("--init", type=Path, help="vae|decoder|prior|dit: warm start from a weight file (matching tensors)")
     p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/campaign)")
+    p.add_argument(
+        "--reconstruct-decoder",
+        action="store_true",
+        help="snapshot: write the run's decoder as decoder_reconstruct_small (reconstruct mode's own, per pixel)",
+    )
 
 
 def run(a: argparse.Namespace) -> int:
@@ -83,6 +88,7 @@ def run(a: argparse.Namespace) -> int:
         )
     else:
         need("dest")
-        for p in c.snapshot(a.out, a.dest):
+        roles = {"decoder": "decoder_reconstruct"} if a.reconstruct_decoder else None
+        for p in c.snapshot(a.out, a.dest, roles=roles):
             print(p)
     return 0

@@ -524,9 +524,12 @@ def train_dit(
     train_loop("dit_v2", dit, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
-def snapshot(out: Path, dest: Path, kinds=("vae", "decoder", "dit", "prior")) -> list[Path]:
+def snapshot(
+    out: Path, dest: Path, kinds=("vae", "decoder", "dit", "prior"), roles: dict[str, str] | None = None
+) -> list[Path]:
     """fp16 copies of the campaign's latest weights (what a fresh machine continues from), named as the
-    pipeline loads them (<kind>_small.safetensors), with the run's metadata (steps, clips) kept:
+    pipeline loads them (<role>_small.safetensors; the role is the kind unless `roles` maps it, e.g. a per-pixel
+    decoder run {"decoder": "decoder_reconstruct"}), with the run's metadata (steps, clips) kept:
     `worldsplat ... --weights DEST` serves them."""
     dest.mkdir(parents=True, exist_ok=True)
     written = []
@@ -536,7 +539,8 @@ def snapshot(out: Path, dest: Path, kinds=("vae", "decoder", "dit", "prior")) ->
             m = load_weights(src, kind)
             meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
             meta.update({"campaign": "v2", "source": src.name})
-            written.append(save_weights(m, dest / f"{kind}_small.safetensors", kind, meta, dtype=torch.float16))
+            role = (roles or {}).get(kind, kind)
+            written.append(save_weights(m, dest / f"{role}_small.safetensors", kind, meta, dtype=torch.float16))
     return written
 
 

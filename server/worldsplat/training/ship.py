@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from worldsplat.pipeline.inference import load_models
+from worldsplat.pipeline.inference import ROLES, load_models
 from worldsplat.pipeline.onnx import ensure_exported
 from worldsplat_models.weights import load_weights, save_weights, weights_dir
 
@@ -15,7 +15,7 @@ from worldsplat_models.weights import load_weights, save_weights, weights_dir
 def ship(
     run_dir: str | Path,
     out_dir: str | Path | None = None,
-    kinds=("vae", "decoder", "dit", "prior"),
+    kinds=tuple(ROLES),
     size: str = "small",
     onnx: bool = True,
 ) -> list[Path]:
@@ -24,13 +24,13 @@ def ship(
     not committed: set-up exports them again on a fresh clone)."""
     run_dir, out_dir = Path(run_dir), Path(out_dir or weights_dir())
     written = []
-    for kind in kinds:
-        src = run_dir / f"{kind}_{size}.safetensors"
+    for role in kinds:  # file roles (inference.ROLES): each names the model kind its file holds
+        src = run_dir / f"{role}_{size}.safetensors"
         if not src.exists():
             continue
-        m = load_weights(src, kind)
+        m = load_weights(src, ROLES[role])
         meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
-        written.append(save_weights(m, out_dir / src.name, kind, meta, dtype=torch.float16))
+        written.append(save_weights(m, out_dir / src.name, ROLES[role], meta, dtype=torch.float16))
     if onnx:
         written += list(ensure_exported(load_models(out_dir)).values())
     return written

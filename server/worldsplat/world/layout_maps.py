@@ -32,6 +32,7 @@ from worldsplat.world.road import bev_layers
 
 LAYOUT_CHANNELS = ("drivable", "markings", "sidewalk", "vehicle", "vulnerable", "heading", "depth")
 LAYOUT_RANGE = 90.0  # metres: the road plane beyond this is left out (as the sketch's lines are)
+LAYOUT_NEAR, LAYOUT_FAR = 0.5, 80.0  # metres: the depth channel's normalisation range
 
 
 def agent_boxes(world, t: int) -> Prims:
@@ -66,7 +67,12 @@ def normalize_log_depth(z: np.ndarray, near: float, far: float) -> np.ndarray:
     return np.clip(2.0 * (np.log(d) - math.log(near)) / (math.log(far) - math.log(near)) - 1.0, -1.0, 1.0)
 
 
-def layout_map(world, t: int, cam, near: float = 0.5, far: float = 80.0) -> np.ndarray:
+def layout_depth_m(x, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR):
+    """The depth channel back in metres (numpy or torch; `normalize_log_depth` inverted, far where nothing was hit)."""
+    return near * (far / near) ** ((x + 1.0) / 2.0)
+
+
+def layout_map(world, t: int, cam, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR) -> np.ndarray:
     """(H, W, 7) float32 layout map of frame t seen by `cam` (any pose, shifted tracks included)."""
     boxes = agent_boxes(world, t)
     hits, o, d = trace(cam, boxes, far=LAYOUT_RANGE)
@@ -106,7 +112,7 @@ def resized(cam, size: tuple[int, int] | None):
 
 
 def layout_maps(
-    world, shift_m: float = 0.0, cameras=None, near: float = 0.5, far: float = 80.0, size=None
+    world, shift_m: float = 0.0, cameras=None, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR, size=None
 ) -> np.ndarray:
     """(T, V, H, W, 7) layout maps of every frame and rig camera, at the rig's resolution or at size = (W, H)
     (the models' own, so the cast costs what the model reads)."""

@@ -1,0 +1,102 @@
+"""snap_to_layout: generated road Gaussians go onto the ground plane the layout maps state, along their own rays;
+what the layout does not call ground (boxes, off-plane structure, dynamic Gaussians) keeps its place."""
+
+import numpy as np
+import pytest
+import torch
+
+from worldsplat.core.camera import default_rig
+from worldsplat.gaussians import Gaussians
+from worldsplat.pipeline.inference import DecodedFrames, snap_to_layout
+from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_depth_m, normalize_log_depth
+
+H, W = 16, 28
+CH = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
+
+
+def _plane_depth(cam, f: int) -> np.ndarray:
+    """Camera-z depth of the plane z = 0 at the centres of an f x f pixel grid (inf where the ray misses it)."""
+    c2w = np.linalg.inv(cam.world_to_camera)
+    u = (np.arange(W // f) + 0.5) * f
+    v = (np.arange(H // f) + 0.5) * f
+    x, y = np.meshgrid((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy)
+    d = np.stack([x, y, np.ones_like(x)], -1) @ c2w[:3, :3].T  # unit camera-z rays in the world
+    t = -c2w[2, 3] / d[..., 2]
+    return np.where(t > 0, t, np.inf), c2w[:3, 3], d
+
+
+def _case(f: int, error: np.ndarray):
+    """One camera looking along the road; Gaussians at the plane's depth times (1 + error) on an f-pixel grid."""
+    cam_rig = default_rig(W, H)[:1]
+    ego = np.eye(4)[None]
+    cam = cam_rig[0].at(ego[0])
+    z_fine, _, _ = _plane_depth(cam, 1)
+    z, o, d = _plane_depth(cam, f)
+    control = np.zeros((1, 1, len(LAYOUT_CHANNELS), H, W), np.float32)
+    control[0, 0, CH["drivable"]] = np.isfinite(z_fine)
+    control[0, 0, CH["depth"]] = normalize_log_depth(np.where(z_fine < 80, z_fine, np.inf), 0.5, 80.0)
+    zz = np.where(np.isfinite(z), z, 50.0) * (1 + error)
+    means = torch.tensor((o + zz[..., None] * d).reshape(-1, 3), dtype=torch.float32)
+    n = means.shape[0]
+    g = Gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.1),
+        torch.ones(n),
+        torch.rand(n, 3),
+        torch.zeros(n, 1),
+    )
+    dec = DecodedFrames([[g]], [[torch.zeros(n)]], np.zeros(1), cam_rig, ego, torch.zeros(1))
+    return dec, torch.from_numpy(control), z, o, d
+
+
+@pytest.mark.parametrize("f", [1, 2])
+def test_ground_gaussians_land_on_the_plane_along_their_rays(f):
+    gen = np.random.default_rng(0)
+    err = gen.uniform(-0.2, 0.2, (H // f, W // f))
+    dec, control, z, o, d = _case(f, err)
+    before = dec.gaussians[0][0].means.clone()
+    frac = snap_to_layout(dec, control)
+    g = dec.gaussians[0][0]
+    # ground cells well inside the layout's range: on the plane (z = 0) and still on their ray (the camera sees
+    # them where it did)
+    zc = torch.as_tensor(z.reshape(-1))
+    cell = zc < 40
+    assert cell.sum() > 10 and frac >= cell.float().mean().item()
+    assert g.means[cell, 2].abs().max() < 1e-3 * zc[cell].max()
+    o_t = torch.as_tensor(o, dtype=torch.float32)
+    a, b = before[cell] - o_t, g.means[cell] - o_t
+    cos = (a * b).sum(-1) / (a.norm(dim=-1) * b.norm(dim=-1))
+    assert cos.min() > 1 - 1e-5
+    # scales follow the depth ratio (a pixel-sized splat stays pixel sized)
+    ratio = b.norm(dim=-1) / a.norm(dim=-1)
+    assert torch.allclose(g.scales[cell, 0], 0.1 * ratio, rtol=1e-4)
+    # sky cells (the layout's depth says "nothing in range") are untouched
+    assert torch.equal(g.means[~torch.isfinite(zc)], before[~torch.isfinite(zc)])
+
+
+def test_what_the_layout_does_not_call_ground_keeps_its_place():
+    f = 2
+    err = np.zeros((H // f, W // f))
+    err[:, : W // f // 2] = -0.6  # left half: something 2.5x nearer than the road (a wall the layout lacks)
+    dec, control, z, _, _ = _case(f, err + 0.05)
+    control[0, 0, CH["vehicle"], H // 2 :, W // 2 : W // 2 + 4] = 1.0  # a box on the road
+    dec.gaussians[0][0].extras[::3, 0] = 0.9  # dynamic ones
+    before = dec.gaussians[0][0].means.clone()
+    snap_to_layout(dec, control)
+    g = dec.gaussians[0][0]
+    moved = (g.means - before).norm(dim=-1) > 1e-6
+    grid = moved.reshape(H // f, W // f)
+    assert not grid[:, : W // f // 2].any(), "beyond the tolerance: not the road, not moved"
+    assert not grid[H // 2 // f :, W // 2 // f : (W // 2 + 4) // f].any(), "box cells are not ground"
+    assert not moved[::3].any(), "dynamic Gaussians are not the road"
+    assert grid[:, W // f // 2 :].any()
+
+
+def test_layout_depth_round_trip_and_a_grid_that_does_not_fit():
+    z = np.array([0.5, 1.0, 7.3, 79.0])
+    assert np.allclose(layout_depth_m(normalize_log_depth(z, 0.5, 80.0)), z, rtol=1e-6)
+    assert torch.allclose(layout_depth_m(torch.tensor([-1.0, 1.0])), torch.tensor([0.5, 80.0]))
+    dec, control, *_ = _case(2, np.zeros((H // 2, W // 2)))
+    with pytest.raises(ValueError, match="not a grid"):
+        snap_to_layout(dec, control[..., :-2])

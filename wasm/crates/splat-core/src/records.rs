@@ -2,7 +2,8 @@
 //! re-sort uploads only the draw order (4 bytes per Gaussian) instead of every record again. Texel `i` (row
 //! `i / RECORD_TEX_WIDTH`, column `i % RECORD_TEX_WIDTH`) of `a` (`Rgba32Uint`) holds the mean's f32 bits and the
 //! packed colour + opacity, of `b` (`Rg32Uint`) the two shape words: 16 + 8 = 24 bytes, as the storage buffer of
-//! the compute path. `shaders/splat_instanced.wgsl` fetches them with `textureLoad`.
+//! the compute path. `shaders/splat_instanced.wgsl` fetches them with `textureLoad`. A third texture (`R32Uint`)
+//! holds the draw order (texel k: the record drawn k-th), read by vertex index: 4 bytes per Gaussian.
 
 use crate::gaussians::PackedSplat;
 
@@ -13,8 +14,10 @@ pub const RECORD_TEX_WIDTH: u32 = 2048;
 pub struct RecordTextures {
     a: wgpu::Texture,
     b: wgpu::Texture,
+    order: wgpu::Texture,
     pub view_a: wgpu::TextureView,
     pub view_b: wgpu::TextureView,
+    pub view_order: wgpu::TextureView,
     /// Records the textures can hold (whole rows).
     pub capacity: u32,
     staging_a: Vec<[u32; 4]>,
@@ -40,20 +43,48 @@ impl RecordTextures {
         };
         let a = make("records a (mean, rgba)", wgpu::TextureFormat::Rgba32Uint);
         let b = make("records b (shape)", wgpu::TextureFormat::Rg32Uint);
+        let order = make("draw order", wgpu::TextureFormat::R32Uint);
         RecordTextures {
             view_a: a.create_view(&Default::default()),
             view_b: b.create_view(&Default::default()),
+            view_order: order.create_view(&Default::default()),
             a,
             b,
+            order,
             capacity: rows * RECORD_TEX_WIDTH,
             staging_a: Vec::new(),
             staging_b: Vec::new(),
         }
     }
 
-    /// GPU bytes of both textures.
+    /// GPU bytes of the three textures (24 B of record + 4 B of order per Gaussian).
     pub fn bytes(&self) -> u64 {
-        self.capacity as u64 * (16 + 8)
+        self.capacity as u64 * (16 + 8 + 4)
+    }
+
+    /// Upload a draw order (record indices, nearest first) into the order texture: whole rows in one copy, then
+    /// the partial last row. Returns the number of Gaussians it draws (what fits the capacity).
+    pub fn write_order(&self, queue: &wgpu::Queue, order: &[u32]) -> u32 {
+        let order = &order[..order.len().min(self.capacity as usize)];
+        let w = RECORD_TEX_WIDTH as usize;
+        let (rows, rest) = (order.len() / w, order.len() % w);
+        for (first_row, texels, width, height) in [(0, &order[..rows * w], w, rows), (rows, &order[rows * w..], rest, 1)] {
+            if texels.is_empty() {
+                continue;
+            }
+            queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &self.order,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d { x: 0, y: first_row as u32, z: 0 },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                bytemuck::cast_slice(texels),
+                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some((width * 4) as u32), rows_per_image: Some(height as u32) },
+                wgpu::Extent3d { width: width as u32, height: height as u32, depth_or_array_layers: 1 },
+            );
+        }
+        order.len() as u32
     }
 
     /// Upload `records` as records `first..first + records.len()` (what does not fit the capacity is left out):

@@ -45,7 +45,7 @@ pub struct RenderStats {
     pub sort_reused: bool,
     /// External sort: results dropped so far because a newer request or new data superseded them.
     pub sorts_dropped: u64,
-    /// Instanced path: draw-order indices uploaded by this render (0 when the instance buffer was reused).
+    /// Instanced path: draw-order indices uploaded by this render (0 when the order texture was reused).
     pub records_uploaded: u64,
 }
 
@@ -90,11 +90,14 @@ pub struct Renderer {
     /// Instanced path: sort in `render` or take orders from outside (a Web Worker).
     cpu_sort_source: CpuSortSource,
     external: ExternalSort,
-    /// External sort, single view: (order key, data version) of the order in the instance buffer.
+    /// External sort, single view: (order key, data version) of the order in the order texture.
     uploaded_order: Option<(SortKey, u64)>,
     /// Instanced path: slice the CPU sort to this many ms per `render` once a previous order exists
     /// (None: sort to completion, as tests and readbacks need).
     pub cpu_sort_budget_ms: Option<f64>,
+    /// External sort: when nothing can draw (a new scene's first frame), sort that frame here instead of leaving
+    /// it blank until the sorter answers (the browser viewer sets it; the protocol tests keep it off).
+    pub first_order_in_thread: bool,
     accum: Option<(wgpu::Texture, wgpu::TextureView, [u32; 2])>,
     pub clock: fn() -> f64,
     /// Profiling: called after each stage is submitted to wait for the GPU (native: a blocking poll), so the
@@ -111,12 +114,9 @@ fn std_clock() -> f64 {
     0.0
 }
 
-/// Upload a draw order into the instance buffer; returns the number of instances.
-fn write_order(queue: &wgpu::Queue, buf: &wgpu::Buffer, order: &[u32]) -> u32 {
-    if !order.is_empty() {
-        queue.write_buffer(buf, 0, bytemuck::cast_slice(order));
-    }
-    order.len() as u32
+/// Instanced path: upload a draw order into the order texture; returns the number of Gaussians it draws.
+fn write_order(queue: &wgpu::Queue, records: &Option<RecordTextures>, order: &[u32]) -> u32 {
+    records.as_ref().expect("instanced path").write_order(queue, order)
 }
 
 impl Renderer {
@@ -158,7 +158,7 @@ impl Renderer {
         };
         let entries: Vec<wgpu::BindGroupLayoutEntry> = match gpu.path {
             DrawPath::Storage => vec![uniform_entry, storage_entry(1), storage_entry(2)],
-            DrawPath::Instanced => vec![uniform_entry, record_entry(1), record_entry(2)],
+            DrawPath::Instanced => vec![uniform_entry, record_entry(1), record_entry(2), record_entry(3)],
         };
         let splat_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("splat bgl"), entries: &entries });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -166,11 +166,11 @@ impl Renderer {
             bind_group_layouts: &[Some(&splat_bgl)],
             immediate_size: 0,
         });
-        let instance_attrs = wgpu::vertex_attr_array![0 => Uint32];
-        let instance_layout = wgpu::VertexBufferLayout { array_stride: 4, step_mode: wgpu::VertexStepMode::Instance, attributes: &instance_attrs };
-        let buffers: Vec<Option<wgpu::VertexBufferLayout>> = match gpu.path {
-            DrawPath::Storage => vec![],
-            DrawPath::Instanced => vec![Some(instance_layout)],
+        // Storage: an instanced strip (4 vertices per Gaussian); instanced path: a triangle list of 6 vertices per
+        // Gaussian in one draw (splat_instanced.wgsl says why).
+        let topology = match gpu.path {
+            DrawPath::Storage => wgpu::PrimitiveTopology::TriangleStrip,
+            DrawPath::Instanced => wgpu::PrimitiveTopology::TriangleList,
         };
         let front_to_back = wgpu::BlendComponent {
             src_factor: wgpu::BlendFactor::OneMinusDstAlpha,
@@ -180,8 +180,8 @@ impl Renderer {
         let splat_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("splat pipeline"),
             layout: Some(&layout),
-            vertex: wgpu::VertexState { module: &module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &buffers },
-            primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleStrip, ..Default::default() },
+            vertex: wgpu::VertexState { module: &module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &[] },
+            primitive: wgpu::PrimitiveState { topology, ..Default::default() },
             depth_stencil: None,
             multisample: Default::default(),
             fragment: Some(wgpu::FragmentState {
@@ -257,6 +257,7 @@ impl Renderer {
             external: ExternalSort::default(),
             uploaded_order: None,
             cpu_sort_budget_ms: None,
+            first_order_in_thread: false,
             accum: None,
             clock: std_clock,
             stage_sync: None,
@@ -271,13 +272,14 @@ impl Renderer {
     }
 
     fn make_splat_buffer(device: &wgpu::Device, path: DrawPath, capacity: u32) -> wgpu::Buffer {
-        let (usage, bytes) = match path {
-            DrawPath::Storage => (wgpu::BufferUsages::STORAGE, PACKED_SPLAT_BYTES as u64),
+        // The instanced path keeps records and order in textures (records.rs): its buffer is a 4-byte stub.
+        let (usage, size) = match path {
+            DrawPath::Storage => (wgpu::BufferUsages::STORAGE, capacity.max(1) as u64 * PACKED_SPLAT_BYTES as u64),
             DrawPath::Instanced => (wgpu::BufferUsages::VERTEX, 4),
         };
         device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(if path == DrawPath::Storage { "splats" } else { "draw order" }),
-            size: capacity.max(1) as u64 * bytes,
+            label: Some(if path == DrawPath::Storage { "splats" } else { "unused" }),
+            size,
             usage: usage | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         })
@@ -446,7 +448,7 @@ impl Renderer {
             }
             DrawPath::Instanced => {
                 // The textures take the change when an order for it draws (`flush_records`): until then they
-                // keep the records the order in the instance buffer names.
+                // keep the records the order in the order texture names.
                 self.cpu_records.truncate(self.num_static as usize);
                 self.cpu_records.extend_from_slice(&statics[self.num_static as usize..]);
                 self.cpu_records.extend_from_slice(dynamic);
@@ -502,9 +504,14 @@ impl Renderer {
         });
         let entry = |binding, resource| wgpu::BindGroupEntry { binding, resource };
         let entries = match (&self.gpu_sort, &self.records) {
-            (Some(sort), _) => [entry(0, view), entry(1, self.splat_buf.as_entire_binding()), entry(2, sort.order().as_entire_binding())],
+            (Some(sort), _) => vec![entry(0, view), entry(1, self.splat_buf.as_entire_binding()), entry(2, sort.order().as_entire_binding())],
             (None, Some(t)) => {
-                [entry(0, view), entry(1, wgpu::BindingResource::TextureView(&t.view_a)), entry(2, wgpu::BindingResource::TextureView(&t.view_b))]
+                vec![
+                    entry(0, view),
+                    entry(1, wgpu::BindingResource::TextureView(&t.view_a)),
+                    entry(2, wgpu::BindingResource::TextureView(&t.view_b)),
+                    entry(3, wgpu::BindingResource::TextureView(&t.view_order)),
+                ]
             }
             (None, None) => unreachable!("a renderer has a GPU sort or record textures"),
         };
@@ -567,7 +574,7 @@ impl Renderer {
 
     /// Render `views` into `target` (of `size` and `format`; sRGB formats are not corrected, use a unorm one).
     /// Each view is sorted for its own camera. One submission per frame for a single view (the mosaic submits
-    /// once per view: each view's order goes through the one instance buffer).
+    /// once per view: each view's order goes through the one order texture).
     pub fn render(
         &mut self,
         views: &[ViewRect],
@@ -662,6 +669,23 @@ impl Renderer {
             self.flush_records();
             stats.gather_ms += (self.clock)() - t;
         }
+        if self.first_order_in_thread
+            && self.cpu_sort_source == CpuSortSource::External
+            && self.external.orders.is_empty()
+            && self.uploaded_visible == 0
+            && self.count > 0
+        {
+            // Nothing to draw at all (the first scene's first frame): waiting for the worker would leave the canvas
+            // blank for a round trip, so this one sort runs here (100k: a few ms); the worker takes every later
+            // view. The order is the same either way (one implementation, `CpuSorter`).
+            let t0 = (self.clock)();
+            for v in views {
+                let key = SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2);
+                let order = self.cpu_sorter.sort(&self.cpu_records, key.row2()).to_vec();
+                self.external.orders.push((key, order));
+            }
+            stats.cpu_sort_ms += (self.clock)() - t0;
+        }
         let mut last = None;
         for (i, v) in views.iter().enumerate() {
             let t0 = (self.clock)();
@@ -671,7 +695,7 @@ impl Renderer {
             } else if views.len() > 1 {
                 let order = self.cpu_sorter.sort(&self.cpu_records, key.row2());
                 let tg = (self.clock)();
-                self.uploaded_visible = write_order(&self.queue, &self.splat_buf, order);
+                self.uploaded_visible = write_order(&self.queue, &self.records, order);
                 stats.records_uploaded += self.uploaded_visible as u64;
                 stats.gather_ms += (self.clock)() - tg;
                 self.last_sort = None;
@@ -690,7 +714,7 @@ impl Renderer {
                 let job = self.cpu_job.as_mut().unwrap();
                 if job.step(&self.cpu_records, budget, self.clock) {
                     let tg = (self.clock)();
-                    self.uploaded_visible = write_order(&self.queue, &self.splat_buf, job.order());
+                    self.uploaded_visible = write_order(&self.queue, &self.records, job.order());
                     stats.records_uploaded += self.uploaded_visible as u64;
                     stats.gather_ms += (self.clock)() - tg;
                     self.last_sort = Some(key);
@@ -709,8 +733,7 @@ impl Renderer {
                 pass.set_pipeline(&self.splat_pipeline);
                 pass.set_bind_group(0, bind, &[(i as u64 * UNIFORM_STRIDE) as u32]);
                 if visible > 0 && !self.skip_splats {
-                    pass.set_vertex_buffer(0, self.splat_buf.slice(..visible as u64 * 4));
-                    pass.draw(0..4, 0..visible);
+                    pass.draw(0..6 * visible, 0..1);
                 }
             }
             // The next view writes its order into the same buffer: submit this one first.
@@ -729,7 +752,7 @@ impl Renderer {
     }
 
     /// External sort, view `slot` wanting `key`: upload the order in hand for this slot. Until the exact order
-    /// arrives the last one draws: for a single view the instance buffer as uploaded over the records it was
+    /// arrives the last one draws: for a single view the order texture as uploaded over the records it was
     /// sorted for (after a frame change: the previous frame, whole and in order; the record textures take the new
     /// frame with the first order made for it), for the mosaic the slot's last order over the current records.
     fn draw_external_order(&mut self, slot: usize, key: SortKey, views: usize, stats: &mut RenderStats) {
@@ -744,7 +767,7 @@ impl Renderer {
         let exact = have == key;
         stats.sort_pending |= !exact;
         if views == 1 && self.uploaded_order == Some((have, self.data_version)) {
-            stats.sort_reused = exact; // the instance buffer already holds this order: nothing to upload
+            stats.sort_reused = exact; // the order texture already holds this order: nothing to upload
             return;
         }
         if views == 1 && have.data_version < self.index_epoch {
@@ -761,7 +784,7 @@ impl Renderer {
             self.order_scratch.extend(order.iter().copied().filter(|&i| i < count));
             &self.order_scratch
         };
-        self.uploaded_visible = write_order(&self.queue, &self.splat_buf, order);
+        self.uploaded_visible = write_order(&self.queue, &self.records, order);
         self.uploaded_order = (views == 1).then_some((have, self.data_version));
         stats.records_uploaded += self.uploaded_visible as u64;
         stats.gather_ms += (self.clock)() - tg;

@@ -366,7 +366,7 @@ fn bench_paths(a: &Args) -> Result<(), String> {
         "draw paths side by side on {} ({:?}); {}x{}; {frames} timed frames each after one warm-up",
         storage.info.name, storage.info.backend, size[0], size[1]
     );
-    println!("storage = records in a storage buffer, GPU radix sort, indirect draw of order[i]; instanced = CPU sort, sorted records as instance attributes");
+    println!("storage = records in a storage buffer, GPU radix sort, indirect draw of order[i]; instanced = CPU sort, records and draw order in textures, one 6-vertex-per-Gaussian draw");
     println!(
         "{:<6} {:>9} {:>14} {:>16} {:>8} {:>13} {:>15} {:>8} {:>14} {:>15} {:>11}",
         "paths",

@@ -369,6 +369,8 @@ impl Viewer {
         renderer.clock = now_ms;
         // WebGL2: keep each frame's share of a re-sort under ~8 ms; the previous order draws meanwhile.
         renderer.cpu_sort_budget_ms = Some(8.0);
+        // A new scene's first frame draws at once (sorted here) instead of blank until the worker answers.
+        renderer.first_order_in_thread = true;
         let _ = canvas.style().set_property("touch-action", "none");
         let inner = Rc::new(RefCell::new(Inner {
             canvas: canvas.clone(),

@@ -1,15 +1,25 @@
 // Draw path without storage buffers (WebGL2): the records stay resident in two integer textures (records.rs:
 // texel i = record i, RECORD_TEX_WIDTH texels per row); per re-sort the CPU uploads only the draw order, one u32
-// record index per instance.
+// record index per Gaussian, into a third texture.
 const RECORD_TEX_WIDTH: u32 = 2048u;
 
 @group(0) @binding(1) var records_a: texture_2d<u32>; // mean x, y, z (f32 bits), rgba
 @group(0) @binding(2) var records_b: texture_2d<u32>; // shape0, shape1
+@group(0) @binding(3) var draw_order: texture_2d<u32>; // texel k: the record drawn k-th
 
+fn texel_of(i: u32) -> vec2<i32> {
+    return vec2<i32>(i32(i % RECORD_TEX_WIDTH), i32(i / RECORD_TEX_WIDTH));
+}
+
+// One non-instanced triangle list, six vertices per Gaussian: corners 0 1 2 and 2 1 3, the two triangles the
+// strip of the storage path makes, so the same pixels blend in the same order. Not instanced because software
+// rasterizers (SwiftShader, llvmpipe) run an instanced draw as one draw call per instance, whose setup costs
+// more than the quad's few pixels (web/docs/viewer.md "Where the frame goes").
 @vertex
-fn vs_main(@builtin(vertex_index) vi: u32, @location(0) index: u32) -> VsOut {
-    let texel = vec2<i32>(i32(index % RECORD_TEX_WIDTH), i32(index / RECORD_TEX_WIDTH));
-    let a = textureLoad(records_a, texel, 0);
-    let b = textureLoad(records_b, texel, 0);
-    return splat_vertex(bitcast<vec3<f32>>(a.xyz), b.x, b.y, a.w, vi);
+fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
+    let index = textureLoad(draw_order, texel_of(vi / 6u), 0).x;
+    let corner = (0x312210u >> (4u * (vi % 6u))) & 3u;
+    let a = textureLoad(records_a, texel_of(index), 0);
+    let b = textureLoad(records_b, texel_of(index), 0);
+    return splat_vertex(bitcast<vec3<f32>>(a.xyz), b.x, b.y, a.w, corner);
 }

@@ -1,5 +1,6 @@
 """Reconstruct mode's own Gaussian decoder (`decoder_reconstruct_<size>`): one Gaussian per model pixel where the
-generate decoder has one per 2x2; picked by mode, loaded from the weights folder when shipped, exported to ONNX."""
+generate decoder has one per 2x2; picked by mode, loaded from the weights folder when shipped, exported to ONNX.
+Also the scale floor every decoded Gaussian gets (`inference.scale_floor`)."""
 
 import copy
 import dataclasses
@@ -92,3 +93,20 @@ def test_onnx_serves_the_reconstruct_decoder(models, tmp_path):
     a, b = inf.reconstruct(clip, models), inf.reconstruct(clip, ort)
     assert _per_view(b) == CFG.data.height * CFG.data.width
     assert torch.allclose(a.frame(1).means, b.frame(1).means, atol=1e-2)
+
+
+def test_decoded_scales_are_floored_at_the_model_sampling_rate(models):
+    """Every decoded Gaussian is at least the served 0.3 model pixels wide at its depth (so a display larger than the
+    model image shows no gaps between them; models.md "v6" item 3), and the floor adds in quadrature."""
+    clip, _ = tiny_clip(T=2)
+    dec = inf.reconstruct(clip, models)
+    d = CFG.data
+    for v in range(d.views):
+        g = dec.gaussians[1][v]
+        cam = dec.rig[v].at(dec.ego_to_world[1])
+        c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=torch.float32)
+        depth = (g.means - c2w[:3, 3]) @ c2w[:3, 2]
+        pixel_m = depth / (cam.fx * d.width / cam.width)  # one model pixel at that depth (offsets move means <= 0.5 m)
+        assert (g.scales.min(dim=1).values >= 0.95 * 0.3 * pixel_m).all()
+    s = torch.tensor([[0.0, 0.3, 4.0]])
+    assert torch.allclose(inf.scale_floor(s, torch.tensor([10.0]), 10.0), torch.sqrt(s**2 + 0.3**2))

@@ -194,6 +194,7 @@ def eval_generate(
     frames: tuple[int, ...] | None = None,
     latents: str = "sample",
     snap: bool = True,
+    snap_log_tol: float | None = None,
 ) -> dict:
     """Layout fidelity of generated scenes, decoded as generate mode serves them (`decode_generated`; `snap` False
     leaves out its snap of road Gaussians onto the layout's plane). latents="encode" swaps the DiT sample for the
@@ -220,7 +221,8 @@ def eval_generate(
             L = models.prior.clip(cond["control"][None].float(), cond["caption"][None])[0]
         else:
             L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
-        scene = to_scene4d(decode_generated(models, L, cond, rig, ego, np.arange(T) / 4.0, {}, snap=snap))
+        tol = {} if snap_log_tol is None else {"snap_log_tol": snap_log_tol}
+        scene = to_scene4d(decode_generated(models, L, cond, rig, ego, np.arange(T) / 4.0, {}, snap=snap, **tol))
         moving = np.asarray(z["box_moving"], bool)
         for t in frames or range(T):
             g = scene.at_frame(t)
@@ -406,6 +408,9 @@ def main(argv=None) -> int:
         "(generate without the snap onto the layout's ground plane), steps",
     )
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument(
+        "--snap-log-tol", type=float, default=None, help="generate: the ground snap's tolerance (default: served)"
+    )
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
     p.add_argument("--figure", type=Path, default=None, help="also write the qualitative PNG of test clip 0")
     p.add_argument(
@@ -433,7 +438,7 @@ def main(argv=None) -> int:
         out["reconstruct"] = prev
         print("reconstruct", out["reconstruct"], flush=True)
     if "generate" in parts and "generate" in models.modes:
-        out["generate"] = eval_generate(models, ds, a.clips, frames=frames)
+        out["generate"] = eval_generate(models, ds, a.clips, frames=frames, snap_log_tol=a.snap_log_tol)
         print("generate", out["generate"], flush=True)
     if "nosnap" in parts and "generate" in models.modes:
         out["generate_no_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap=False)

@@ -445,13 +445,22 @@ def sample_latents(
 
 
 def decode_generated(
-    models: Models, L: torch.Tensor, cond: dict, rig, ego_to_world, frame_times, meta: dict, pad=True, snap=True
+    models: Models,
+    L: torch.Tensor,
+    cond: dict,
+    rig,
+    ego_to_world,
+    frame_times,
+    meta: dict,
+    pad=True,
+    snap=True,
+    snap_log_tol: float = LAYOUT_SNAP_LOG_TOL,
 ) -> DecodedFrames:
     """Generated latents -> DecodedFrames as generate mode serves them (the evaluation scores exactly this):
     decode, then, where the models read layout maps, `snap_to_layout` (skipped with snap=False)."""
     dec = decode_gaussians(models, L, rig, ego_to_world, frame_times, meta, pad=pad)
     if snap and layout_size(models) is not None:
-        dec.meta["layout_snap_fraction"] = snap_to_layout(dec, cond["control"][: L.shape[0]])
+        dec.meta["layout_snap_fraction"] = snap_to_layout(dec, cond["control"][: L.shape[0]], snap_log_tol)
     return dec
 
 

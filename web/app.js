@@ -198,7 +198,7 @@ async function streamScene(url) {
   }
   const total = Number(resp.headers.get("x-content-length")) || 0;
   const reader = resp.body.getReader();
-  let got = 0;
+  let got = 0, shownStatic = 0;
   state.loaded = false;
   v.begin_stream();
   for (;;) {
@@ -212,6 +212,10 @@ async function streamScene(url) {
       (p && p.static_loaded != null ? ` · ${p.static_loaded} static` : "");
     if (!state.loaded && v.num_frames() > 0) onSceneReady(false);
     state.dirty = true;
+    if (p && p.static_loaded > shownStatic) {  // a new part of the scene (a window of a live stream): show it
+      shownStatic = p.static_loaded;
+      drawSoon();
+    }
   }
   v.end_stream();
   mark("whole");
@@ -298,6 +302,22 @@ function render() {
   state.viewer.render();
   state.dirty = false;
   if (state.timing && state.timing.firstStatic != null) mark("firstDraw");
+}
+
+/** Draw a pending view soon, whatever requestAnimationFrame does: on an idle page headless Chromium runs it only now
+ * and then (seconds apart), so a window streamed in while the next is generated would wait there unseen. At most one
+ * such draw per DRAW_SOON_MS; the render loop's own draws clear `dirty`, so nothing is drawn twice. */
+const DRAW_SOON_MS = 250;
+let drawSoonTimer = null, drawSoonLast = -Infinity;
+function drawSoon() {
+  if (drawSoonTimer !== null) return;
+  const wait = Math.max(0, drawSoonLast + DRAW_SOON_MS - performance.now());
+  drawSoonTimer = setTimeout(() => {
+    drawSoonTimer = null;
+    drawSoonLast = performance.now();
+    if (!state.loaded || !state.dirty) return;
+    try { render(); } catch (e) { showError(`render: ${e.message}`); state.loaded = false; }
+  }, wait);
 }
 
 /** Time of a milestone of the last generate, in ms since its POST (first time only). */

@@ -182,6 +182,56 @@ def test_world_renders_exactly_the_explicit_agents_with_ids():
     assert not w.agents[0].moving and w.agents[1].moving
 
 
+def test_every_output_follows_the_explicit_agents():
+    """Ground truth (dynamic mask, semantics), BEV, sketches and layout maps of a street with only explicit agents:
+    each shows them where the world puts them, and the same street without them shows nothing there."""
+    from worldsplat.world.classes import CAR, PEDESTRIAN
+    from worldsplat.world.conditions import BEV_CHANNELS, SKETCH_CHANNELS, bev_grid, boxes_at
+    from worldsplat.world.layout_maps import LAYOUT_CHANNELS
+    from worldsplat.world.simulate import simulate
+
+    agents = [
+        {**car("lead", s=20.0), "motion": {"speed": 8.0}},  # 20 m ahead of the ego, at the ego's speed
+        {"id": "ped", "class": "pedestrian", "start": {"kind": "pose", "x": 25.0, "y": -7.0, "yaw_deg": 90.0}}
+        | {"motion": {"speed": 1.0}},
+    ]
+    empty = {"moving_vehicles": 0, "parked_vehicles": 0, "pedestrians": 0, "cyclists": 0}
+    base = {"image": {"width": 96, "height": 64}, "traffic": empty, "rig": {"cameras": ["CAM_FRONT"]}}
+    worlds = {k: _world({**base, "agents": a}) for k, a in (("with", agents), ("without", []))}
+    T = worlds["with"].num_frames
+    out = {}
+    for k, w in worlds.items():
+        clip = simulate(w, frames=[0, T - 1])
+        cond = w.conditions(layout_size=(48, 32))
+        out[k] = (clip, cond)
+    clip, cond = out["with"]
+    none_clip, none_cond = out["without"]
+    w = worlds["with"]
+    assert [a.agent_id for a in w.agents] == ["lead", "ped"]
+    xe, ye = bev_grid()
+    for i, t in enumerate((0, T - 1)):
+        boxes = {b["agent_id"]: np.asarray(b["corners"])[:4, :2].mean(0) for b in boxes_at(w, t)}
+        ego = w.ego_to_world[t]
+        for aid, ch in (("lead", "vehicle"), ("ped", "vulnerable")):
+            rel = np.linalg.solve(ego, [*boxes[aid], 0.0, 1.0])[:2]  # the box centre in the ego frame
+            cells = cond["bev"][t, BEV_CHANNELS.index(ch)] > 0.5
+            assert cells.any() and not none_cond["bev"][t, BEV_CHANNELS.index(ch)].any(), (aid, t)
+            got = np.array([xe[cells].mean(), ye[cells].mean()])
+            np.testing.assert_allclose(got, rel, atol=0.5, err_msg=f"BEV {ch} footprint of {aid} at frame {t}")
+        # the front camera: both agents moving, so both in the dynamic mask, the car straight ahead
+        dyn = clip.dynamic[i, 0]
+        assert dyn.sum() > 20 and not none_clip.dynamic[i, 0].any(), t
+        cols = np.nonzero(dyn & (clip.semantic[i, 0] == CAR))[1]
+        assert len(cols) > 10 and abs(cols.mean() - 48) < 6, (t, cols.mean() if len(cols) else None)
+        assert (dyn & (clip.semantic[i, 0] == PEDESTRIAN)).sum() > 2, t
+        for ch, name in ((1, "vehicle_boxes"), (2, "vulnerable_boxes")):
+            assert SKETCH_CHANNELS[ch] == name
+            assert cond["sketch"][t, 0, ..., ch].sum() > 10 and not none_cond["sketch"][t, 0, ..., ch].any(), name
+        for name in ("vehicle", "vulnerable"):
+            c = LAYOUT_CHANNELS.index(name)
+            assert cond["layout"][t, 0, ..., c].sum() > 0 and not none_cond["layout"][t, 0, ..., c].any(), name
+
+
 def test_procedural_traffic_fills_around_explicit_agents():
     from worldsplat.world.agents import _corners2d, rects_overlap
 

@@ -12,6 +12,13 @@ Conditions C' = {R', S', B', T', caption} (§3.5). Mixed conditioning: training 
 decoder Gaussians seen from shifted tracks) mixed with clean ones (the true view's own render) with probability
 `clean_prob`; `render_drop` zeroes the render condition alone so the same model also runs on reprojected
 conditions only (ablation version A).
+
+Source of the flow (`EnhancerConfig.source`): "noise" (the paper's: the sampler starts from seeded Gaussian noise,
+the render enters only as a condition) or "render" (v2, a latent bridge as in InDI / I2SB): the flow runs from the
+render's own latent, lightly noised (`source_noise`), to the true view's latent, so where the render is already
+right the velocity is near zero and the output keeps it, and the model's work goes into holes, ghosts and blur.
+With few Euler steps the bridge is close to the MMSE restoration, which is what PSNR rewards; it needs the render
+(no version A) and has no SDEdit start.
 """
 
 from __future__ import annotations
@@ -34,6 +41,8 @@ from .configs import SIZES, DataConfig, DiTConfig, VAEConfig, from_dict
 from .dit import DiT4D
 from .vae import MultiModalVAE
 
+SOURCES = ("noise", "render")
+
 
 @dataclass
 class EnhancerConfig:
@@ -48,8 +57,16 @@ class EnhancerConfig:
     clean_prob: float = 0.3  # share of clean pairs in a mixed batch
     render_drop: float = 0.1  # probability of zeroing the render condition (keeps S', B', T', caption)
     num_classes: int = 17
+    source: str = "noise"  # where the flow starts: "noise" (paper) or "render" (v2 latent bridge; module doc)
+    source_noise: float = 0.0  # std of the noise added to the render latent at the bridge's source
 
     def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"EnhancerConfig.source must be one of {SOURCES}, got {self.source!r}")
+        if self.source == "render" and self.render_drop:
+            raise ValueError("EnhancerConfig: a render-bridge enhancer always has the render (render_drop must be 0)")
+        if not self.source_noise >= 0:
+            raise ValueError(f"EnhancerConfig.source_noise must be >= 0, got {self.source_noise}")
         c = self.latent_channels
         if (self.dit.in_channels, self.dit.out_channels, self.dit.control_channels) != (c, c, 2 * c + 1):
             raise ValueError(
@@ -72,9 +89,18 @@ def enhancer_config(size: str = "small") -> EnhancerConfig:
             latent_channels=2,
         )
     if size == "small":
-        # the generator's block design at 3/4 width and 2/3 depth: 0.75 s per training step (one 6-view x 4-frame
-        # clip) on one contended CPU core instead of 1.2 s, so twice the steps fit in the time we have
-        return EnhancerConfig(dit=dit(4, dim=96, depth=4, heads=4, control_depth=2, cond_drop=0.1))
+        # v2: the shipped v2 VAE's 8-channel latents at 1/4 resolution (16x28), a bridge from the render's latent
+        # (module doc). The generator's block design at 3/4 width and 2/3 depth, patch 2 (112 tokens per image):
+        # 0.7 s per training step on one contended core (patch 4: 0.16 s, but a token then draws 4x4 latents).
+        return EnhancerConfig(
+            dit=dit(
+                8, patch=2, dim=96, depth=4, heads=4, control_depth=2, cond_drop=0.1, sampler_steps=4, sampler_shift=1.0
+            ),
+            latent_channels=8,
+            render_drop=0.0,
+            source="render",
+            source_noise=0.1,
+        )
     if size == "paper":
         return EnhancerConfig(
             data=DataConfig(height=424, width=800, views=6, frames=17, max_boxes=64),
@@ -162,9 +188,29 @@ class Enhancer(nn.Module):
     def forward(self, z: torch.Tensor, s: torch.Tensor, cond: dict) -> torch.Tensor:
         return self.dit(z, s, cond)
 
-    def loss(self, target: torch.Tensor, cond: dict, generator: torch.Generator | None = None) -> torch.Tensor:
-        """Rectified-flow loss with the DiT's timestep shift; cond["drop"] (CFG dropout) is set by the caller."""
-        return rflow.training_loss(self, target, cond, shift=self.cfg.dit.sampler_shift, generator=generator)
+    def source(self, render_lat: torch.Tensor | None, shape, generator: torch.Generator | None) -> torch.Tensor:
+        """The flow's s = 0 end: seeded noise, or (bridge) the render latent plus `source_noise` of it."""
+        noise = torch.randn(tuple(shape), generator=generator)
+        if self.cfg.source == "noise":
+            return noise
+        if render_lat is None or tuple(render_lat.shape) != tuple(shape):
+            raise ValueError(f"a render-bridge enhancer needs the render latent of shape {tuple(shape)}")
+        return render_lat.float() + self.cfg.source_noise * noise
+
+    def loss(
+        self,
+        target: torch.Tensor,
+        cond: dict,
+        generator: torch.Generator | None = None,
+        render_lat: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Rectified-flow loss with the DiT's timestep shift; cond["drop"] (CFG dropout) is set by the caller.
+        `render_lat` (B,T,V,c,h,w) is the bridge's source (needed when cfg.source == "render")."""
+        eps = self.source(render_lat, target.shape, generator)
+        s = rflow.sample_near_source_s(target.shape[0], generator) if self.cfg.source == "render" else None
+        return rflow.training_loss(
+            self, target, cond, shift=self.cfg.dit.sampler_shift, generator=generator, eps=eps, s=s
+        )
 
     @torch.no_grad()
     def sample(
@@ -181,12 +227,18 @@ class Enhancer(nn.Module):
 
         `start` > 0 (with `init`, e.g. the render latent) begins at flow time s0 = start from
         z(s0) = (1 - s0) eps + s0 init instead of pure noise (SDEdit-style): the model then only finishes the
-        trajectory. Implemented by re-timing, s' = s0 + (1 - s0) s, so rflow.sample is reused as is."""
+        trajectory. Implemented by re-timing, s' = s0 + (1 - s0) s, so rflow.sample is reused as is.
+        A render-bridge enhancer (cfg.source == "render") starts from `init`, the render latent, instead."""
         if not 0.0 <= start < 1.0:
             raise ValueError(f"start must be in [0, 1), got {start}")
         gen = torch.Generator().manual_seed(seed)
-        noise = torch.randn(shape, generator=gen)
         steps = steps or self.cfg.dit.sampler_steps
+        if self.cfg.source == "render":
+            if start:
+                raise ValueError("a render-bridge enhancer already starts from the render (no SDEdit start)")
+            z0 = self.source(init, shape, gen)
+            return rflow.sample(self, z0, cond, steps=steps, shift=self.cfg.dit.sampler_shift, callback=callback)
+        noise = torch.randn(shape, generator=gen)
         if start == 0.0:
             return rflow.sample(self, noise, cond, steps=steps, shift=self.cfg.dit.sampler_shift, callback=callback)
         if init is None or tuple(init.shape) != tuple(shape):
@@ -298,6 +350,8 @@ def enhance(
     if blend not in BLENDS:
         raise ValueError(f"blend must be one of {BLENDS}, got {blend!r}")
     cfg = model.cfg
+    if cfg.source == "render" and not use_render:
+        raise ValueError("a render-bridge enhancer refines a render: use_render=False (version A) needs a noise one")
     T, V, H, W = render.shape[:4]
     if V != cfg.data.views:
         raise ValueError(f"enhancer: trained on {cfg.data.views} views, got {V}")
@@ -342,7 +396,7 @@ def enhance(
             steps,
             seed + t0,
             cb,
-            init=lat(r_lat) if start > 0 else None,
+            init=lat(r_lat) if start > 0 or cfg.source == "render" else None,
             start=start,
         )
         c2 = time.perf_counter()

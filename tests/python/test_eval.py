@@ -83,6 +83,31 @@ def test_versions_on_a_novel_view_sample(tiny_models_and_sample):
     assert (s["alpha_3d"] < 0.5).mean() >= (s["alpha_4d"] < 0.5).mean()
 
 
+def test_a_render_bridge_enhancer_runs_every_version_it_can(tiny_models_and_sample):
+    """The v2 enhancer (source "render") has no render-free A and no SDEdit E@0.5: they are left out, by name."""
+    from worldsplat.evaluation.nvs import versions_of
+    from worldsplat_models.enhancer import Enhancer, EnhancerConfig, enhancer_config
+
+    models, s = tiny_models_and_sample
+    cfg = enhancer_config("tiny")
+    bridge = Enhancer(
+        EnhancerConfig(
+            data=cfg.data, dit=cfg.dit, latent_channels=cfg.latent_channels, render_drop=0.0, source="render"
+        )
+    ).eval()
+    models = {**models, "mixed": (bridge, models["mixed"][1])}
+    assert versions_of(models) == tuple(v for v in VERSIONS if v not in ("A", "E@0.5"))
+    frames = run_versions(models, s, torch.zeros(384), steps=1)
+    assert set(frames) == set(versions_of(models))
+    # a fresh bridge predicts zero velocity: E is the render through the VAE, not a sample from noise
+    vae = models["mixed"][1]
+    from worldsplat_models.enhancer import decode_latents, encode_images
+
+    T, V, H, W, _ = s["render_4d"].shape
+    through_vae = decode_latents(vae, encode_images(vae, s["render_4d"].reshape(-1, H, W, 3))).reshape(T, V, H, W, 3)
+    assert np.array_equal(frames["E"], through_vae)
+
+
 def test_decoder_versions_use_the_decoder_render(tiny_models_and_sample):
     models, s = tiny_models_and_sample
     s = dict(s)

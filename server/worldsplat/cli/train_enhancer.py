@@ -59,6 +59,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="oracle renders only as degraded inputs (the pairs of the session-1 model)",
     )
+    parser.add_argument(
+        "--decoder-every",
+        type=int,
+        default=2,
+        help="a `_dec` pair for every N-th seed (2: the session-2 pairs; 1: every seed)",
+    )
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--grow", action="store_true", help="add pairs that appear in the cache while training")
 
@@ -91,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
                 "pass --decoder-weights or --no-decoder-pairs"
             )
     if not args.skip_pairs:
-        make_pairs(args.cache, args.pairs, models=models)
+        make_pairs(args.cache, args.pairs, models=models, decoder_every=args.decoder_every)
     val_paths = make_val_pairs(args.cache)
     vae_path = resolve_vae(args)
     vae = load_vae(vae_path)

@@ -75,23 +75,37 @@ def load_enhancers(weights_dir: Path):
     return out
 
 
+# A render-bridge enhancer (EnhancerConfig.source == "render", the v2 model) starts from the render, so it has no
+# render-free version A and no SDEdit start E@0.5.
+NOISE_SOURCE_ONLY = ("A", "E@0.5")
+
+
+def versions_of(models: dict) -> tuple[str, ...]:
+    """The versions the loaded enhancers can run (all of VERSIONS for noise-source models)."""
+    bridge = models["mixed"][0].cfg.source == "render"
+    return tuple(v for v in VERSIONS if not (bridge and v in NOISE_SOURCE_ONLY))
+
+
 def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int = 0) -> dict:
     """All versions' frames (T,V,H,W,3) uint8 for one novel-view sample with render_4d and render_3d."""
     mixed, degraded = models["mixed"], models["degraded"]
+    runnable = versions_of(models)
     kw = dict(
         sketch=sample["sketch"], boxes=sample, traj=sample["traj"], caption_emb=caption_emb, steps=steps, seed=seed
     )
     r4, a4 = sample["render_4d"], sample["alpha_4d"].astype(np.float32)
     r3, a3 = sample["render_3d"], sample["alpha_3d"].astype(np.float32)
     out = {
-        "A": enhance(*mixed, r4, a4, use_render=False, **kw),
         "B": enhance(*degraded, r3, a3, **kw),
         "C": enhance(*degraded, r4, a4, **kw),
         "D": r4,
         "E": enhance(*mixed, r4, a4, **kw),
-        "E@0.5": enhance(*mixed, r4, a4, start=0.5, **kw),
         "oracle": r4,
     }
+    if "A" in runnable:
+        out["A"] = enhance(*mixed, r4, a4, use_render=False, **kw)
+    if "E@0.5" in runnable:
+        out["E@0.5"] = enhance(*mixed, r4, a4, start=0.5, **kw)
     a = np.clip(a4, 0, 1)[..., None]
     out["E+holes"] = np.round(a * r4 + (1 - a) * out["E"]).astype(np.uint8)
     if "render_dec" in sample:
@@ -153,7 +167,7 @@ def evaluate(
     models = load_enhancers(weights_dir)
     generators = load_models(weights_dir)
     decoder_models = generators if "reconstruct" in generators.modes else None
-    versions = VERSIONS + (DECODER_VERSIONS if decoder_models is not None else ())
+    versions = versions_of(models) + (DECODER_VERSIONS if decoder_models is not None else ())
     seeds = split_seeds(split, count)
     per = {v: {s: [] for s in shifts} for v in versions}
     depth = {s: [] for s in shifts}
@@ -183,7 +197,7 @@ def evaluate(
                 examples[s] = {
                     "target": sample["target"],
                     "alpha": sample["alpha_4d"],
-                    **({k: frames[k] for k in ("D", "E", "E+holes", "A")}),
+                    **({k: frames[k] for k in ("D", "E", "E+holes", "A") if k in frames}),
                 }
             if bar is not None:
                 bar.update(1)

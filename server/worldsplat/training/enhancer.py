@@ -61,9 +61,10 @@ def has_clean_pair(seed: int) -> bool:
     return (seed // 2) % 2 == 0
 
 
-def has_decoder_pair(seed: int) -> bool:
-    """Every other seed also gets a degraded pair rendered from the learned decoder's reconstruction."""
-    return seed % 2 == 1
+def has_decoder_pair(seed: int, every: int = 2) -> bool:
+    """Every `every`-th seed also gets a degraded pair rendered from the learned decoder's reconstruction (2: the
+    session-2 pairs; 1: every seed, the v2 enhancer's, which refines what the playground serves)."""
+    return seed % every == every - 1
 
 
 def decoder_scene(clip, models):
@@ -81,10 +82,11 @@ def make_pairs(
     frames: int = 4,
     progress: bool = True,
     models=None,
+    decoder_every: int = 2,
 ) -> list[Path]:
     """Write the training pairs of train seeds [start, start+count) (every `stride`-th from `offset`, so several
     processes can share the work); existing files are kept (resume). `models` (inference.Models with a decoder)
-    adds the `_dec` pairs; without it only oracle and clean pairs are made."""
+    adds the `_dec` pairs of every `decoder_every`-th seed; without it only oracle and clean pairs are made."""
     seeds = split_seeds("train", count, start)[offset::stride]
     it = seeds
     if progress:
@@ -95,7 +97,9 @@ def make_pairs(
         p_deg = sample_path(cache, "train", seed, shift)
         p_clean = sample_path(cache, "train", seed, 0.0, "_clean") if has_clean_pair(seed) else None
         p_dec = (
-            sample_path(cache, "train", seed, shift, "_dec") if models is not None and has_decoder_pair(seed) else None
+            sample_path(cache, "train", seed, shift, "_dec")
+            if models is not None and has_decoder_pair(seed, decoder_every)
+            else None
         )
         if not all(p.exists() for p in (p_deg, p_clean, p_dec) if p is not None):
             world = build_world(sample_scenario(seed, size[0], size[1], frames))
@@ -166,12 +170,13 @@ def encode_pair(vae, sample: dict, render_key: str, max_boxes: int, caption_emb:
 COND_KEYS = ("box_corners", "box_cls", "box_moving", "box_mask", "traj", "caption")
 
 
-def batch_of(items: list[dict], use_render: torch.Tensor | bool = True) -> tuple[torch.Tensor, dict]:
-    """Encoded pairs -> (target (B,T,V,c,h,w), cond for Enhancer) with the ControlNet input assembled."""
+def batch_of(items: list[dict], use_render: torch.Tensor | bool = True) -> tuple[torch.Tensor, dict, torch.Tensor]:
+    """Encoded pairs -> (target (B,T,V,c,h,w), cond for Enhancer with the ControlNet input assembled, render
+    latent (B,T,V,c,h,w): the bridge's source)."""
     st = lambda k: torch.stack([it[k] for it in items])  # noqa: E731
     cond = {k: st(k) for k in COND_KEYS}
     cond["control"] = Enhancer.control(st("render"), st("sketch"), st("cover"), use_render)
-    return st("target"), cond
+    return st("target"), cond, st("render")
 
 
 def train(
@@ -209,9 +214,10 @@ def train(
         pool = clean if use_clean else degraded
         item = pool[int(torch.randint(len(pool), (1,), generator=gen))]
         use_render = torch.rand(1, generator=gen) >= cfg.render_drop
-        x, cond = batch_of([item], use_render)
+        x, cond, render_lat = batch_of([item], use_render)
         cond["drop"] = torch.rand(1, generator=gen) < cfg.dit.cond_drop
-        return model.loss(x, cond, generator=gen), {"clean": bool(use_clean), "render": bool(use_render)}
+        loss = model.loss(x, cond, generator=gen, render_lat=render_lat)
+        return loss, {"clean": bool(use_clean), "render": bool(use_render)}
 
     tcfg = TrainConfig(
         steps=steps,

@@ -2,7 +2,8 @@
 // rotate it, drop a pedestrian and draw its path, add, re-class and delete a cyclist, write the caption; generate (oracle) and
 // check that the world's box of each agent is where it was dropped (the scene's own scenario, boxes from the world);
 // a share link carries agents, path and caption to a fresh page; the four corner-case presets load with their
-// agents. Scripted events (lane change, stop, set speed) and keyframed paths typed and clicked in, the JSON, the
+// agents; each of the four corner cases built by hand (no JSON) passes its check of tests/python/test_corner_cases.py
+// on the world's exact poses, and its share link gives the receiver the same (cached) scene. Scripted events (lane change, stop, set speed) and keyframed paths typed and clicked in, the JSON, the
 // world's boxes after generating and a share link checked; .xosc (+ .xodr) / CommonRoad .xml / scenario .json files
 // written by scenariogeneration / commonroad-io dropped on the page (a real DragEvent) load as the scenario, bad
 // ones are refused naming the element. Layout: with classic scrollbars (not Playwright's hidden ones) the scenario panel never scrolls sideways
@@ -270,6 +271,94 @@ test("a cut-in built by hand (pointer, keyboard; no JSON) happens in the world, 
     assert.equal(ids[1].status, "ready");  // the receiver's request is the sender's scene, already in the cache
     await other.close();
     console.log(`# cut-in built by hand: ${JSON.stringify(ev)}`);
+  });
+
+/** A corner-case check of tests/python/test_corner_cases.py (check_crossing, check_stopped, check_overtaker) on the
+ * world of `scenario` (its exact poses), for the agents `ids`. */
+function checkCorner(fn, scenario, ids) {
+  const code = `
+import json, sys
+sys.path.insert(0, "tests/python")
+import test_corner_cases as cc
+from worldsplat.core.scenario import Scenario
+from worldsplat.world.layout import build_world
+print(json.dumps(getattr(cc, sys.argv[1])(build_world(Scenario.parse(sys.stdin.read())), *sys.argv[2:])))`;
+  return JSON.parse(execFileSync(PYTHON, ["-c", code, fn, ...ids], { cwd: ROOT, input: JSON.stringify(scenario) }).toString());
+}
+
+/** The form set as a person does it (selects picked, numbers typed), the preview at t = 0, one small camera. */
+async function setForm(fields) {
+  await page.selectOption("#preset", "empty_road");
+  for (const [field, value] of [...fields, ["image.width", "64"], ["image.height", "48"]]) {
+    const el = page.locator(`[data-field="${field}"]`);
+    if ((await el.evaluate((e) => e.tagName)) === "SELECT") await el.selectOption(value);
+    else await el.fill(value);
+  }
+  await page.evaluate(() => {
+    window.playground.state.base.rig = { cameras: ["CAM_FRONT"] };
+    const r = document.getElementById("ed-time");
+    r.value = "0";
+    r.dispatchEvent(new Event("input", { bubbles: true }));
+  });
+}
+
+async function addAgent(cls, x, y, { turns = 0, speed = null } = {}) {
+  await page.selectOption("#ed-class", cls);
+  await page.click("#ed-add");
+  await pointer(x, y, null);
+  for (let i = 0; i < turns; i++) await page.click("#ed-rot-l");  // 15 degrees left each
+  if (speed !== null) await typeInto("#ed-speed", String(speed));
+  const agents = await page.evaluate(() => window.playground.readForm().agents);
+  return agents.at(-1).id;
+}
+
+test("the other three corner cases built by hand (pointer, keyboard; no JSON) happen in the world, and share links give the receiver the same scenes",
+  T, async () => {
+    const built = {};
+    // crossing pedestrian: a person on the right sidewalk of a one-lane urban street, turned to face across, 2 m/s
+    await setForm([["road.setting", "urban"], ["road.lanes_per_direction", "1"], ["ego.speed", "5"], ["clip.frames", "16"]]);
+    const walker = await addAgent("pedestrian", 26, -5, { turns: 6, speed: 2 });
+    built.crossing = { fn: "check_crossing", ids: [walker], scenario: await page.evaluate(() => window.playground.readForm()) };
+    // stopped vehicle: a truck standing in the ego lane 34 m ahead, 0.3 m left of its centre, as a lane placement;
+    // the ego changes lane left (the form's manoeuvre)
+    await setForm([["road.setting", "suburban"], ["road.lanes_per_direction", "2"], ["ego.speed", "9"],
+      ["ego.manoeuvre", "lane_change_left"], ["clip.frames", "12"]]);
+    const truck = await addAgent("truck", 34, 0.3);
+    await page.selectOption("#ed-start", "lane");
+    built.stopped = { fn: "check_stopped", ids: [truck], scenario: await page.evaluate(() => window.playground.readForm()) };
+    // oncoming overtaker: a slow truck in the oncoming lane (turned round, 6 m/s, a lane placement), and behind it a car
+    // at 17 m/s whose path swings through the ego lane past the truck and back
+    await setForm([["road.setting", "suburban"], ["road.lanes_per_direction", "1"], ["ego.speed", "5"], ["clip.frames", "12"]]);
+    const slow = await addAgent("truck", 62, 3.5, { turns: 12, speed: 6 });
+    await page.selectOption("#ed-start", "lane");
+    const car = await addAgent("car", 78, 3.5, { turns: 12, speed: 17 });
+    await page.click("#ed-path");
+    for (const [x, y] of [[71.6, 3.4], [63, 1], [53, 0.3], [40, 1.2], [32, 3.5]]) await pointer(x, y, null);
+    await page.click("#ed-path");
+    await page.screenshot({ path: join(ARTIFACTS, "scenario-editor-overtaker.png") });
+    built.overtaker = { fn: "check_overtaker", ids: [car, slow], scenario: await page.evaluate(() => window.playground.readForm()) };
+
+    const [p] = built.crossing.scenario.agents;
+    assert.deepEqual([p.class, p.start.kind, p.start.yaw_deg, p.motion.speed], ["pedestrian", "pose", 90, 2]);
+    const [t] = built.stopped.scenario.agents;
+    assert.deepEqual([t.class, t.start.kind, t.start.direction, t.start.lane, t.motion.speed], ["truck", "lane", "same", 0, 0]);
+    assert.equal(built.stopped.scenario.ego.manoeuvre, "lane_change_left");
+    const [st, c] = built.overtaker.scenario.agents;
+    assert.deepEqual([st.start.kind, st.start.direction, st.motion.speed], ["lane", "opposite", 6]);
+    assert.equal(c.motion.keyframes.length, 6);
+    for (const [name, b] of Object.entries(built)) {
+      const ev = checkCorner(b.fn, b.scenario, b.ids);  // the event, on the world's exact poses (as the preset's)
+      console.log(`# ${name} built by hand: ${JSON.stringify(ev)}`);
+      await generateOracle(b.scenario);
+      const { other, got } = await openShared(b.scenario, b.scenario.agents.length);
+      assert.deepEqual(got, JSON.parse(JSON.stringify(b.scenario)), name);  // as JSON (the link's), where -0 is 0
+      const ids = await Promise.all([b.scenario, got].map(async (s) => (await (await fetch(`${server.url}/api/scenes`, {
+        method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify({ scenario: s, mode: "oracle" }) }))
+        .json())));
+      assert.equal(ids[0].scene_id, ids[1].scene_id, name);
+      assert.equal(ids[1].status, "ready", name);  // the receiver's request is the sender's scene, already in the cache
+      await other.close();
+    }
   });
 
 /** Type into an input as a person does: focus it by a click, select what is there, type, leave it with Tab. */

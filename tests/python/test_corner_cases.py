@@ -89,8 +89,12 @@ def test_cut_in_overtakes_then_enters_the_ego_lane_ahead_of_the_ego():
 
 
 def test_crossing_pedestrian_walks_across_the_whole_ego_lane_in_front_of_the_ego():
-    w = world_of("crossing_pedestrian")
-    ped, ego = agent(w, "crosser"), ego_rect(w)
+    check_crossing(world_of("crossing_pedestrian"))
+
+
+def check_crossing(w, agent_id: str = "crosser") -> dict:
+    """The pedestrian crosses in world `w` (also run on a scenario built by hand in the page: scenario-editor test)."""
+    ped, ego = agent(w, agent_id), ego_rect(w)
     r = rect(ped)
     lo, hi = lane_y(w, 0)
     road = w.road
@@ -104,11 +108,18 @@ def test_crossing_pedestrian_walks_across_the_whole_ego_lane_in_front_of_the_ego
     ahead = r[in_lane, :, 0].min(-1) - ego[in_lane, :, 0].max(-1)
     assert ahead.min() > 3.0, f"only {ahead.min():.2f} m in front of the ego"
     assert not rects_overlap(r, ego).any()
+    t = w.frame_times[in_lane]
+    return {"in_lane_from_s": float(t[0]), "in_lane_to_s": float(t[-1]), "min_ahead_m": float(ahead.min())}
 
 
 def test_stopped_vehicle_blocks_the_ego_lane_and_the_ego_changes_lane_before_it():
-    w = world_of("stopped_vehicle")
-    truck, ego = agent(w, "stopped_truck"), ego_rect(w)
+    check_stopped(world_of("stopped_vehicle"))
+
+
+def check_stopped(w, agent_id: str = "stopped_truck") -> dict:
+    """The vehicle stands in the ego lane and the ego passes it in world `w` (also run on a scenario built by hand in
+    the page: scenario-editor test)."""
+    truck, ego = agent(w, agent_id), ego_rect(w)
     r = rect(truck)
     lane0, lane1 = lane_y(w, 0), lane_y(w, 1)
     assert not truck.moving and np.ptp(truck.poses, axis=0).max() == 0.0
@@ -122,11 +133,20 @@ def test_stopped_vehicle_blocks_the_ego_lane_and_the_ego_changes_lane_before_it(
     assert near.any()
     assert (ego[near, :, 1].min(-1) > r[0, :, 1].max() + 0.5).all()
     assert not rects_overlap(r, ego).any()
+    return {
+        "rear_ahead_m": float(r[0, :, 0].min() - ego[0, :, 0].max()),
+        "side_clear_m": float((ego[near, :, 1].min(-1) - r[0, :, 1].max()).min()),
+    }
 
 
 def test_oncoming_overtaker_passes_the_truck_through_the_ego_lane_and_cuts_back():
-    w = world_of("oncoming_overtaker")
-    car, truck, ego = agent(w, "overtaker"), agent(w, "slow_truck"), ego_rect(w)
+    check_overtaker(world_of("oncoming_overtaker"))
+
+
+def check_overtaker(w, car_id: str = "overtaker", truck_id: str = "slow_truck") -> dict:
+    """The oncoming car overtakes the truck through the ego lane in world `w` (also run on a scenario built by hand in
+    the page: scenario-editor test)."""
+    car, truck, ego = agent(w, car_id), agent(w, truck_id), ego_rect(w)
     rc, rt = rect(car), rect(truck)
     ego_lane, oncoming = lane_y(w, 0), lane_y(w, 0, -1)
     assert inside(rt, *oncoming).all() and np.all(np.diff(truck.poses[:, 0]) < 0)  # the truck drives towards -x
@@ -142,6 +162,8 @@ def test_oncoming_overtaker_passes_the_truck_through_the_ego_lane_and_cuts_back(
     assert beside.any() and in_ego_lane[beside].all()
     assert inside(rc[-1:], *oncoming).all() and rc[-1, :, 0].max() < rt[-1, :, 0].min()
     assert not rects_overlap(rc, ego).any() and not rects_overlap(rc, rt).any()
+    t = w.frame_times[in_ego_lane]
+    return {"in_ego_lane_from_s": float(t[0]), "in_ego_lane_to_s": float(t[-1]), "min_ahead_m": float(ahead.min())}
 
 
 @pytest.mark.parametrize("name", CORNER_CASES)

@@ -7,7 +7,7 @@
 // world's boxes after generating and a share link checked; .xosc (+ .xodr) / CommonRoad .xml / scenario .json files
 // written by scenariogeneration / commonroad-io dropped on the page (a real DragEvent) load as the scenario, bad
 // ones are refused naming the element. Layout: with classic scrollbars (not Playwright's hidden ones) the scenario panel never scrolls sideways
-// and the Mode select stays inside it at 1280x720, 1920x1080 and 390x844. Screenshots go to tests/artifacts/.
+// and the Mode select stays inside it at 1280x720, 1400x900, 1920x1080 and 390x844. Screenshots go to tests/artifacts/.
 import { test, before, after } from "node:test";
 import assert from "node:assert/strict";
 import { execFileSync } from "node:child_process";
@@ -585,11 +585,11 @@ test("OpenSCENARIO, CommonRoad and scenario JSON files dropped on the page load 
   }
 });
 
-test("the scenario panel holds at 1280x720, 1920x1080 and 390x844 with classic scrollbars", T, async () => {
+test("the scenario panel holds at 1280x720, 1400x900, 1920x1080 and 390x844 with classic scrollbars", T, async () => {
   // the longest panel: an agent with scripted events selected, so the editor's event rows show too
   await page.selectOption("#preset", "cut_in");
   await page.evaluate(() => window.scenarioEditor.select(0));
-  for (const [w, h] of [[1280, 720], [1920, 1080], [390, 844]]) {
+  for (const [w, h] of [[1280, 720], [1400, 900], [1920, 1080], [390, 844]]) {  // 1400x900: the issue's report
     await page.setViewportSize({ width: w, height: h });
     await page.waitForTimeout(200);
     const m = await page.evaluate(() => {

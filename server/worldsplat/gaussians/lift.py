@@ -7,14 +7,20 @@ pixels at its depth (`scale = FOOTPRINT * z / f`), so neighbouring splats overla
 - a sky pixel (depth +inf, or beyond `max_depth`) sits on a far shell, SKY_DISTANCE metres along its ray, and is
   flagged in extras[:, SKY_CHANNEL]: the sky is a static backdrop rendered by the same rasterizer (at 300 m a
   +-4 m track shift moves it by ~1 % of the focal length in pixels, which is what "at infinity" looks like).
+
+`lift_surfels` is the same lifting with each surface splat flattened onto its surface (anisotropic, like a 3DGS
+capture's Gaussians): the world scene the .wsplat v2 / SOG size comparison is measured on (`worldsplat.bench.sog`).
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from worldsplat.core.camera import Camera
+from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.types import Gaussians
+from worldsplat_models.gs_decoder import matrix_to_quaternion
 
 FOOTPRINT = 0.7  # px: splat std relative to the pixel pitch (tuned on the presets, see gaussians.md)
 OPACITY = 0.98
@@ -22,6 +28,10 @@ MAX_DEPTH = 200.0  # m: farther pixels join the sky shell
 SKY_DISTANCE = 300.0  # m along the ray: the sky shell
 DYNAMIC_CHANNEL = 0  # extras[:, 0]: 1.0 for moving-agent pixels
 SKY_CHANNEL = 1  # extras[:, 1]: 1.0 for sky-shell pixels (the economy keeps them beyond its range cut)
+# lift_surfels (anisotropic lifting, the bench's world PLY): the std across the surface relative to the isotropic
+# splat's, and the longest pixel step (in isotropic pixel pitches) a splat is stretched along
+SURFEL_THICKNESS = 0.2
+SURFEL_MAX_STEP = 8.0
 
 
 def lift(
@@ -68,3 +78,58 @@ def lift(
         col[keep],
         extras=extras,
     )
+
+
+def lift_surfels(
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    dynamic: np.ndarray | None,
+    camera: Camera,
+    *,
+    thickness: float = SURFEL_THICKNESS,
+    max_depth: float = MAX_DEPTH,
+) -> Gaussians:
+    """`lift`, with each surface pixel's Gaussian flattened onto the surface it lies on (anisotropic, as a 3DGS
+    capture's are): covariance `FOOTPRINT^2 (du du^T + dv dv^T) + (thickness * iso)^2 n n^T`, where du / dv are the
+    world steps to the next pixel along the row / column (the one-sided difference of the smaller step, so a depth
+    edge does not stretch a splat across it) and n their normal; seen from its own camera it covers the same pixels
+    as `lift`'s isotropic splat. Pixels whose steps exceed SURFEL_MAX_STEP x the isotropic pitch (grazing surfaces,
+    silhouettes) and the sky keep `lift`'s isotropic Gaussian. Same Gaussians, order and extras as `lift`."""
+    g = lift(rgb, depth, dynamic, camera, max_depth=max_depth)
+    depth = np.asarray(depth, dtype=np.float64)
+    surface = np.isfinite(depth) & (depth > 0) & (depth < max_depth)
+    is_sky = np.isposinf(depth) | (np.isfinite(depth) & (depth >= max_depth))
+    keep = surface | is_sky
+    origin, dirs = camera.pixel_rays()
+    p = origin + np.where(surface, depth, np.nan)[..., None] * dirs
+    pitch = depth / np.sqrt(camera.fx * camera.fy)  # the isotropic lift's pixel pitch at the pixel's depth
+
+    def step(axis: int) -> tuple[np.ndarray, np.ndarray]:
+        d = np.diff(p, axis=axis)
+        pad = [(0, 0)] * 3
+        pad[axis] = (1, 0)
+        back = np.pad(d, pad, constant_values=np.nan)
+        pad[axis] = (0, 1)
+        fwd = np.pad(d, pad, constant_values=np.nan)
+        nb, nf = (np.nan_to_num(np.linalg.norm(x, axis=-1), nan=np.inf) for x in (back, fwd))
+        return np.where((nb <= nf)[..., None], back, fwd), np.minimum(nb, nf)
+
+    du, lu = step(1)
+    dv, lv = step(0)
+    with np.errstate(invalid="ignore"):
+        normal = np.cross(du, dv)
+        nn = np.linalg.norm(normal, axis=-1)
+        ok = surface & (lu < SURFEL_MAX_STEP * pitch) & (lv < SURFEL_MAX_STEP * pitch) & (nn > 0)
+    ok_k = ok[keep]
+    if not ok_k.any():
+        return g
+    du, dv, n = du[ok], dv[ok], normal[ok] / nn[ok][:, None]
+    t = thickness * FOOTPRINT * pitch[ok]
+    cov = FOOTPRINT**2 * (du[:, :, None] * du[:, None, :] + dv[:, :, None] * dv[:, None, :])
+    cov += (t * t)[:, None, None] * n[:, :, None] * n[:, None, :]
+    ev, vec = np.linalg.eigh(cov)
+    vec = vec * np.where(np.linalg.det(vec) < 0, -1.0, 1.0)[:, None, None]  # a rotation (det +1)
+    quats, scales = g.quats.clone(), g.scales.clone()
+    quats[torch.as_tensor(ok_k)] = matrix_to_quaternion(torch.as_tensor(vec)).to(quats.dtype)
+    scales[torch.as_tensor(ok_k)] = torch.as_tensor(np.sqrt(np.maximum(ev, 0.0)), dtype=scales.dtype)
+    return Gaussians(g.means, quats, scales.clamp_min(C.SCALE_MIN), g.opacities, g.colors, g.extras)

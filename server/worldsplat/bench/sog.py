@@ -1,0 +1,217 @@
+""".wsplat v2 static Gaussians against SOG on the same scenes (issue 13's target: <= 0.8x SOG's bytes on the wire
+after HTTP compression, at <= 0.1 dB loss against float32 measured against exact ground truth). web/docs/wsplat-v2.md,
+"Against SOG".
+
+    python -m worldsplat.bench.sog [--sizes 100000,1000000] [--generated SCENE.wsplat|generate|none] [--json OUT.json]
+
+Scenes:
+- "world PLY n": an anisotropic 3DGS PLY of a world street: the urban_straight preset, one frame, its six rig
+  cameras at the image size that lifts n pixels (100k: 172x97, 1M: 545x306), every pixel lifted with
+  `gaussians.lift.lift_surfels` (a splat flattened onto the surface it lies on, the sky on its shell), written as a
+  3DGS PLY; splat-transform reads that PLY, the .wsplat files are written from the same Gaussians.
+- "generated urban_straight": the static Gaussians of the generated default-preset scene (`--generated`: a .wsplat
+  to read, `generate` to run `generate_scene(mode="generate")` with the shipped weights, `none` to skip), exported
+  to a 3DGS PLY the same way; its frame-0 dynamics are drawn in float32 in every render. The preset at its own
+  image size and clip, as `worldsplat generate urban_straight` (and the playground) makes it.
+Per scene: bytes of v1 and of v2 (the encoder's default zstd level, and level 15 with the filters chosen at 1) as a
+file of the static Gaussians alone, raw and on the wire (the smaller of gzip -9 and brotli 11 of the whole file:
+what HTTP compression can make of it), SOG (PlayCanvas splat-transform, dev-only npm; package-config) raw and on the
+wire, v2 / SOG; encode CPU time of each v2 as a ratio to v1's; PSNR against the world's exact ground truth at three
+rig cameras of frame 0 for float32, v2 and SOG, and the change of v2 and SOG against float32 (mean and worst camera).
+v2 at level 15 decodes to the same integers as at the default level, so its loss is the default's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import math
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import brotli
+import numpy as np
+import torch
+
+from worldsplat.bench.interop import splat_transform_cli
+from worldsplat.core.camera import Camera
+from worldsplat.core.metrics import psnr
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians import wsplat
+from worldsplat.gaussians.formats import read_gaussians, write_gaussians
+from worldsplat.gaussians.lift import lift_surfels
+from worldsplat.gaussians.raster import render_view
+from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.pipeline.scene import generate_scene
+from worldsplat.world import build_world, simulate
+
+SIZES = (100_000, 1_000_000)
+CAMS = ("CAM_FRONT", "CAM_FRONT_LEFT", "CAM_BACK_RIGHT")
+TARGET_RATIO = 0.8
+TARGET_DB = 0.1
+ARCHIVE = (15, 1)  # zstd level, filter search level of the "level 15" row
+
+
+@dataclass
+class Case:
+    label: str
+    scene: Scene4D  # static = the measured Gaussians; dynamic[0] drawn in float32 in every render
+    cameras: list[Camera]
+    truth: list[np.ndarray]  # exact ground truth at the cameras
+
+
+def image_size(n: int, views: int = 6) -> tuple[int, int]:
+    """The 16:9 image size at which `views` cameras hold at least n pixels."""
+    h = max(1, round(math.sqrt(n / views * 9 / 16)))
+    return math.ceil(n / views / h), h
+
+
+def world_case(n: int, preset: str = "urban_straight", cams=CAMS) -> Case:
+    w, h = image_size(n)
+    sc = load_preset(preset).with_updates(image={"width": w, "height": h}, clip={"frames": 1})
+    clip = simulate(build_world(sc))
+    views = range(len(clip.rig))
+    g = Gaussians.cat(
+        [lift_surfels(clip.rgb[0, v], clip.depth[0, v], clip.dynamic[0, v], clip.camera(0, v)) for v in views]
+    )
+    g = Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors)  # a PLY carries no extras
+    scene = Scene4D(g, [Gaussians.empty()], clip.frame_times, clip.rig, clip.ego_to_world, {"fps": float(clip.fps)})
+    idx = [clip.camera_names.index(c) for c in cams]
+    return Case(f"world PLY {n // 1000}k ({w}x{h} x 6)", scene, [clip.camera(0, v) for v in idx],
+                [clip.rgb[0, v] for v in idx])  # fmt: skip
+
+
+def generated_case(source: str, cams=CAMS) -> Case:
+    """The preset as `worldsplat generate urban_straight` runs it (its own image size and clip): the scene the
+    playground serves by default."""
+    sc = load_preset("urban_straight")
+    scene = generate_scene(sc, mode="generate") if source == "generate" else wsplat.read(source)
+    gt = simulate(build_world(sc), frames=[0])
+    names = [c.name for c in scene.rig]
+    dyn0 = scene.dynamic[0] if scene.dynamic else Gaussians.empty()
+    skel = Scene4D(scene.static, [dyn0], scene.frame_times[:1], scene.rig, scene.ego_to_world[:1], dict(scene.meta))
+    return Case("generated urban_straight", skel, [scene.camera(0, c) for c in cams],
+                [gt.rgb[0, gt.camera_names.index(c)] for c in cams if c in names])  # fmt: skip
+
+
+def wire(data: bytes) -> int:
+    """Bytes on the wire with HTTP compression: the smaller of gzip -9 and brotli 11 of the whole file."""
+    return min(len(gzip.compress(data, 9)), len(brotli.compress(data, quality=11)))
+
+
+def _cpu(fn):
+    t0 = time.process_time()
+    out = fn()
+    return out, time.process_time() - t0
+
+
+def _psnrs(case: Case, static: Gaussians) -> list[float]:
+    g = Gaussians.cat([static, case.scene.dynamic[0]]) if len(case.scene.dynamic[0]) else static
+    return [float(psnr(render_view(g, cam).rgb, gt)) for cam, gt in zip(case.cameras, case.truth)]
+
+
+def measure(case: Case, work: Path, log=print) -> dict:
+    g = case.scene.static
+    n = len(g)
+    alone = Scene4D(g, [Gaussians.empty()], case.scene.frame_times[:1], case.scene.rig, case.scene.ego_to_world[:1],
+                    {"fps": case.scene.fps})  # fmt: skip
+    v1, t1 = _cpu(lambda: wsplat.encode(alone, version=1))
+    v2, t2 = _cpu(lambda: wsplat.encode(alone, version=2))
+    v2a, t2a = _cpu(lambda: wsplat.encode(alone, version=2, zstd=ARCHIVE))
+    ply, sog = work / "scene.ply", work / "scene.sog"
+    write_gaussians(g, ply)
+    cmd, why = splat_transform_cli()
+    if cmd is None:
+        raise RuntimeError(f"splat-transform is not installed: {why}")
+    t0 = time.perf_counter()
+    p = subprocess.run([*cmd, "-q", "-w", str(ply), str(sog)], capture_output=True, text=True, timeout=3000)
+    if p.returncode != 0 or not sog.exists():
+        raise RuntimeError(f"splat-transform {ply} -> {sog} failed ({p.returncode}): {p.stderr[-2000:]}")
+    sog_s = time.perf_counter() - t0
+    sog_bytes = sog.read_bytes()
+    log(f"sog: {case.label}: {n} Gaussians encoded (v1 {t1:.1f} s, v2 {t2:.1f} s, v2 at 15 {t2a:.1f} s CPU; "
+        f"splat-transform {sog_s:.1f} s); rendering {len(case.cameras)} cameras x 3")  # fmt: skip
+    f32 = _psnrs(case, g)
+    q2 = _psnrs(case, wsplat.decode(v2).static)
+    qs = _psnrs(case, read_gaussians(sog)[0])
+    d2 = [a - b for a, b in zip(q2, f32)]
+    ds = [a - b for a, b in zip(qs, f32)]
+    layout, _ = wsplat.layouts_for(g, [], version=2)
+    row = {
+        "scene": case.label,
+        "gaussians": n,
+        "v2_layout": [list(f) for f in layout.fields],
+        "v1_raw": len(v1),
+        "v1_wire": wire(v1),
+        "v2_raw": len(v2),
+        "v2_wire": wire(v2),
+        "v2_l15_raw": len(v2a),
+        "v2_l15_wire": wire(v2a),
+        "sog_raw": len(sog_bytes),
+        "sog_wire": wire(sog_bytes),
+        "v2_time_vs_v1": t2 / max(t1, 1e-9),
+        "v2_l15_time_vs_v1": t2a / max(t1, 1e-9),
+        "psnr_f32": f32,
+        "psnr_v2": q2,
+        "psnr_sog": qs,
+        "v2_change_db": float(np.mean(d2)),
+        "v2_change_worst_db": float(min(d2)),
+        "sog_change_db": float(np.mean(ds)),
+    }
+    sog_w = min(row["sog_raw"], row["sog_wire"])
+    row["ratio"] = min(row["v2_raw"], row["v2_wire"]) / sog_w
+    row["ratio_l15"] = min(row["v2_l15_raw"], row["v2_l15_wire"]) / sog_w
+    row["holds"] = row["ratio"] <= TARGET_RATIO and -row["v2_change_worst_db"] <= TARGET_DB
+    return row
+
+
+def table(rows: list[dict]) -> str:
+    lines = [
+        "| scene | Gaussians | v1 raw / wire (B/G) | v2 raw / wire (B/G) | v2 level 15 raw / wire (B/G) | SOG raw / wire "
+        "(B/G) | v2 / SOG (level 15) | float32 vs GT (dB) | v2 change vs float32: mean / worst camera (dB) | SOG "
+        "change (dB) | v2 encode time / v1 (level 15) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        n = r["gaussians"]
+        lines.append(
+            f"| {r['scene']} | {n:,} | {r['v1_raw'] / n:.2f} / {r['v1_wire'] / n:.2f} | "
+            f"{r['v2_raw']:,} ({r['v2_raw'] / n:.2f}) / {r['v2_wire']:,} ({r['v2_wire'] / n:.2f}) | "
+            f"{r['v2_l15_raw'] / n:.2f} / {r['v2_l15_wire'] / n:.2f} | "
+            f"{r['sog_raw']:,} ({r['sog_raw'] / n:.2f}) / {r['sog_wire'] / n:.2f} | "
+            f"**{r['ratio']:.3f}** ({r['ratio_l15']:.3f}) | {np.mean(r['psnr_f32']):.2f} | "
+            f"{r['v2_change_db']:+.3f} / {r['v2_change_worst_db']:+.3f} | {r['sog_change_db']:+.3f} | "
+            f"{r['v2_time_vs_v1']:.2f} ({r['v2_l15_time_vs_v1']:.2f}) |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m worldsplat.bench.sog", description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="world PLY sizes (comma-separated; '' none)")
+    ap.add_argument("--generated", default="generate", help="SCENE.wsplat, 'generate' or 'none'")
+    ap.add_argument("--json", type=Path, help="also write the rows here")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    cases = [lambda n=n: world_case(n) for n in [int(x) for x in args.sizes.split(",") if x]]
+    if args.generated != "none":
+        cases.append(lambda: generated_case(args.generated))
+    rows = []
+    for make in cases:
+        with tempfile.TemporaryDirectory(prefix="ws-sog-") as tmp:
+            row = measure(make(), Path(tmp), log=lambda m: print(m, flush=True))
+        rows.append(row)
+        print(f"sog: {row['scene']}: v2 / SOG {row['ratio']:.3f}, change {row['v2_change_db']:+.3f} dB "
+              f"(worst {row['v2_change_worst_db']:+.3f}); target {'holds' if row['holds'] else 'not met'}", flush=True)  # fmt: skip
+    print(table(rows))
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    return 0 if all(r["holds"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

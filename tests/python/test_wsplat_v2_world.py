@@ -1,0 +1,52 @@
+""".wsplat v2 on a world scene with exact ground truth (web/docs/wsplat-v2.md, "Against SOG"; the full measurement is
+`python -m worldsplat.bench.sog`): the anisotropic lifting it is measured on."""
+
+import numpy as np
+import pytest
+import torch
+
+from worldsplat.core.metrics import psnr
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians.lift import SURFEL_THICKNESS, lift, lift_surfels
+from worldsplat.gaussians.project import quat_to_rotmat
+from worldsplat.gaussians.raster import render_view
+from worldsplat.world import build_world, simulate
+
+
+@pytest.fixture(scope="module")
+def clip():
+    sc = load_preset("urban_straight").with_updates(image={"width": 96, "height": 54}, clip={"frames": 1})
+    return simulate(build_world(sc))
+
+
+def test_lift_surfels_flattens_surface_splats_onto_the_surface(clip):
+    v = clip.camera_names.index("CAM_FRONT")
+    cam = clip.camera(0, v)
+    iso = lift(clip.rgb[0, v], clip.depth[0, v], clip.dynamic[0, v], cam)
+    g = lift_surfels(clip.rgb[0, v], clip.depth[0, v], clip.dynamic[0, v], cam)
+    assert len(g) == len(iso)
+    torch.testing.assert_close(g.means, iso.means)
+    torch.testing.assert_close(g.colors, iso.colors)
+    torch.testing.assert_close(g.extras, iso.extras)
+    s = g.scales.double()
+    flat = (s.min(1).values < 0.5 * s.max(1).values).numpy()
+    sky = iso.extras[:, 1].numpy() > 0
+    assert flat.mean() > 0.8 and not flat[sky].any()  # the sky keeps its isotropic splat
+    # the road (z = 0 plane, world z up): its splats' thin axis is the plane's normal
+    road = (
+        flat
+        & (np.abs(g.means[:, 2].numpy()) < 0.02)
+        & (np.linalg.norm(g.means[:, :2].numpy() - cam.camera_to_world[:2, 3], axis=1) < 15)
+    )
+    assert road.sum() > 100
+    r = quat_to_rotmat(g.quats.double()[torch.as_tensor(road)])
+    thin = s[torch.as_tensor(road)].argmin(1)
+    axis = r[torch.arange(len(thin)), :, thin]
+    assert (axis[:, 2].abs() > 0.99).float().mean() > 0.95
+    # across the surface: SURFEL_THICKNESS x the isotropic splat; along it at least the isotropic splat
+    thin_ratio = (s.min(1).values / iso.scales[:, 0].double())[torch.as_tensor(road)]
+    assert float(thin_ratio.median()) == pytest.approx(SURFEL_THICKNESS, rel=0.05)
+    assert float((s.max(1).values / iso.scales[:, 0].double())[torch.as_tensor(road)].min()) > 0.99
+    # seen from its own camera a surfel covers what the isotropic splat covers: the same image, within a few dB
+    gt = clip.rgb[0, v]
+    assert psnr(render_view(g, cam).rgb, gt) > psnr(render_view(iso, cam).rgb, gt) - 1.0

@@ -338,3 +338,77 @@ def test_corner_cases_build_with_one_frame(name):
 
     w = build_world(load_preset(name).with_updates(clip={"frames": 1}, image={"width": 32, "height": 32}))
     assert all(a.poses.shape == (1, 3) for a in w.agents) and any(a.agent_id for a in w.agents)
+
+
+# -- road.junction_s: where the intersection's cross road is (issue 18 item 4) ----------------------------------------
+def test_junction_s_is_left_out_of_the_canonical_json_when_unset():
+    from worldsplat.core.scenario import list_presets, scenario_id
+
+    # Unset, the road's canonical JSON is what it was before the field existed (so every scene id stays).
+    road = json.loads(Scenario().normalized_json())["road"]
+    assert road == {
+        "curvature": 0.0,
+        "kind": "straight",
+        "lane_width": 3.5,
+        "lanes_per_direction": 2,
+        "setting": "urban",
+    }
+    for p in list_presets():
+        s = load_preset(p["name"])
+        assert "junction_s" not in s.normalized_json()
+        assert Scenario.parse(json.loads(s.normalized_json())) == s
+    s = Scenario.parse({"road": {"kind": "intersection"}})
+    assert scenario_id(s) == scenario_id(Scenario.parse({"road": {"kind": "intersection", "junction_s": None}}))
+    set_ = Scenario.parse({"road": {"kind": "intersection", "junction_s": 31.5}})
+    assert json.loads(set_.normalized_json())["road"]["junction_s"] == 31.5
+    assert Scenario.parse(set_.normalized_json()) == set_ and scenario_id(set_) != scenario_id(s)
+
+
+@pytest.mark.parametrize(
+    "road, ego, message",
+    [
+        ({"kind": "straight", "junction_s": 30.0}, {}, "road.junction_s: only for kind intersection"),
+        ({"kind": "curve", "curvature": 0.01, "junction_s": 30.0}, {}, "road.junction_s: only for kind intersection"),
+        (
+            {"kind": "intersection", "junction_s": 140.5},
+            {},
+            "road.junction_s: Input should be less than or equal to 140",
+        ),
+        ({"kind": "intersection", "junction_s": -101.0}, {}, "road.junction_s: Input should be greater than or equal"),
+        (
+            {"kind": "intersection", "junction_s": 10.0},
+            {"manoeuvre": "turn_left"},
+            "road.junction_s: 10 m is too close",
+        ),
+    ],
+)
+def test_junction_s_errors_name_the_field(road, ego, message):
+    with pytest.raises(ScenarioError) as e:
+        Scenario.parse({"road": road, "ego": ego})
+    assert any(m.startswith(message) for m in e.value.errors), e.value.errors
+
+
+def test_junction_s_puts_the_cross_road_exactly_and_keeps_the_rest_of_the_world():
+    from worldsplat.world.layout import build_world
+    from worldsplat.world.road import bev_layers
+
+    base = Scenario.parse({**SMALL, "seed": 5, "road": {"kind": "intersection"}})
+    seeded = build_world(base)
+    same = build_world(base.with_updates(road={"junction_s": seeded.road.cross_s}))
+    # The seeded draw still happens: set to the seeded value, the world is the same one, object for object.
+    assert same.road == seeded.road
+    assert np.array_equal(same.static.center, seeded.static.center)
+    assert [a.poses.tolist() for a in same.agents] == [a.poses.tolist() for a in seeded.agents]
+    for js in (-60.0, 0.0, 37.25, 140.0):
+        w = build_world(base.with_updates(road={"junction_s": js}))
+        assert w.road.cross_s == js
+        # The cross road's drivable surface, read off the world's own BEV layers beside the main road.
+        x = np.arange(js - 30.0, js + 30.0, 0.05)
+        y = np.full_like(x, w.road.y0 + w.road.road_half + 3.0)
+        drivable = bev_layers(w.road, x, y)["drivable"]
+        assert abs(x[drivable].mean() - js) < 0.05
+    turn = base.with_updates(road={"junction_s": 24.0}, ego={"manoeuvre": "turn_right"}, clip={"frames": 32})
+    w = build_world(turn)
+    assert w.road.cross_s == 24.0
+    # The turning ego ends on the cross road, heading along it (-y for a right turn), in its lanes.
+    assert abs(w.ego_to_world[-1][0, 3] - 24.0) < w.road.lanes_edge and w.ego_to_world[-1][1, 0] < -0.99

@@ -22,7 +22,15 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from worldsplat.core.camera import CAMERA_NAMES
 from worldsplat.core.paths import docs_dir
@@ -57,6 +65,16 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
 
 
+# Cross-section widths (m) beside the lanes, per setting: shoulder, kerb, sidewalk (world.road.RoadGeometry has them
+# too); a junction's cross road spans `Road.cross_half_width` either side of its centreline.
+ROAD_SHOULDER = {"urban": 2.3, "suburban": 1.6, "highway": 2.5}
+ROAD_SIDEWALK = {"urban": 3.5, "suburban": 1.8, "highway": 0.0}
+CURB_WIDTH = 0.2
+HIGHWAY_MEDIAN = 2.6
+JUNCTION_S = (-100.0, 140.0)  # where road.junction_s may put the cross road (m along the main road): inside the world
+TURN_ENTRY_MIN = 3.0  # m from the ego's start to where a turn leaves the main road (world.road.make_road)
+
+
 class Road(_Strict):
     kind: RoadKind = Field(
         "straight",
@@ -72,6 +90,39 @@ class Road(_Strict):
     curvature: float = Field(
         0.0, ge=-0.015, le=0.015, description="1/radius in 1/m, left positive; used when kind is curve"
     )
+    junction_s: float | None = Field(
+        None,
+        ge=JUNCTION_S[0],
+        le=JUNCTION_S[1],
+        description="kind intersection only: metres along the main road from the ego's start (rear axle) to the "
+        "cross road's centreline; default (omitted): drawn from the seed",
+    )
+
+    @property
+    def cross_half_width(self) -> float:
+        """Metres from a cross road's centreline to the outer edge of its sidewalk (as `make_road` measures it)."""
+        median = HIGHWAY_MEDIAN if self.setting == "highway" else 0.0
+        return (
+            median / 2
+            + self.lanes_per_direction * self.lane_width
+            + ROAD_SHOULDER[self.setting]
+            + CURB_WIDTH
+            + ROAD_SIDEWALK[self.setting]
+        )
+
+    @model_validator(mode="after")
+    def _junction(self) -> Road:
+        if self.junction_s is not None and self.kind != "intersection":
+            raise ValueError(f"junction_s: only for kind intersection, the road type with a junction (got {self.kind})")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _omit_unset_junction(self, handler):
+        # Unset, junction_s is left out of the canonical JSON, so scenarios without it keep their scene ids.
+        data = handler(self)
+        if isinstance(data, dict) and data.get("junction_s") is None:
+            data.pop("junction_s", None)
+        return data
 
 
 class Traffic(_Strict):
@@ -378,11 +429,21 @@ class Scenario(_Strict):
             raise ValueError("ego.manoeuvre: lane_change_right needs a lane right of start_lane 0")
         if m in ("turn_left", "turn_right") and self.road.kind != "intersection":
             raise ValueError(f"ego.manoeuvre: {m} needs road.kind intersection (got {self.road.kind})")
+        js = self.road.junction_s
+        if m in ("turn_left", "turn_right") and js is not None and self.ego.path is None:
+            need = self.road.cross_half_width + TURN_ENTRY_MIN
+            if js < need - 1e-9:
+                raise ValueError(
+                    f"road.junction_s: {js:g} m is too close for ego.manoeuvre {m}: the turn needs the cross road "
+                    f"at least {need:.2f} m ahead ({TURN_ENTRY_MIN:g} m to its sidewalk, {need - TURN_ENTRY_MIN:.2f} m "
+                    "from there to its centre)"
+                )
         return self
 
     # -- canonical form -------------------------------------------------------------------------------------------
     def normalized_json(self) -> str:
-        """Canonical JSON: every field present, keys sorted, no whitespace (what the server hashes)."""
+        """Canonical JSON: every field present (but `road.junction_s` only when set), keys sorted, no whitespace
+        (what the server hashes)."""
         return json.dumps(self.to_json_dict(), sort_keys=True, separators=(",", ":"), allow_nan=False)
 
     def to_json_dict(self) -> dict:

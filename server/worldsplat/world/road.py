@@ -3,7 +3,8 @@
 The main road is a constant-curvature arc (curvature 0 = straight) through the ego's start, heading +x. Road
 coordinates are `s` (metres along the centreline) and `d` (metres left of it). Lanes of the ego's direction lie
 at d < 0 (right-hand traffic). An intersection adds a straight cross road perpendicular to the main road at
-s = `cross_s`, with its own coordinates (s2 along +y, d2 left of +y, i.e. d2 = cross_s - x).
+s = `cross_s` (the scenario's `road.junction_s`, else drawn from the seed), with its own coordinates (s2 along +y,
+d2 left of +y, i.e. d2 = cross_s - x).
 
 `ground(x, y)` classifies ground points (road, lane marking, crosswalk, curb, sidewalk, terrain) for the
 renderer and the BEV raster, so both read the same layout.
@@ -16,12 +17,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from worldsplat.core.scenario import CURB_WIDTH, HIGHWAY_MEDIAN, ROAD_SHOULDER, ROAD_SIDEWALK
 from worldsplat.world.classes import CROSSWALK, CURB, LANE_MARKING, ROAD, SIDEWALK, TERRAIN
 
 # Marking kinds returned by `markings` (0 = none).
 MARK_NONE, MARK_WHITE, MARK_YELLOW, MARK_CROSSWALK = 0, 1, 2, 3
 DASH_PERIOD, DASH_LENGTH = 9.0, 3.0
-CURB_WIDTH = 0.2
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,7 @@ class RoadGeometry:
 
     @property
     def shoulder(self) -> float:
-        return {"urban": 2.3, "suburban": 1.6, "highway": 2.5}[self.setting]
+        return ROAD_SHOULDER[self.setting]
 
     @property
     def road_half(self) -> float:
@@ -57,7 +58,7 @@ class RoadGeometry:
 
     @property
     def sidewalk_width(self) -> float:
-        return {"urban": 3.5, "suburban": 1.8, "highway": 0.0}[self.setting]
+        return ROAD_SIDEWALK[self.setting]
 
     @property
     def walk_out(self) -> float:
@@ -246,23 +247,19 @@ class RoadGeometry:
 def make_road(scenario, rng: np.random.Generator, s_max: float, turn_entry: float | None) -> RoadGeometry:
     """Road geometry for a scenario; `turn_entry` is where a turning ego should reach the junction."""
     r = scenario.road
-    median = 2.6 if r.setting == "highway" else 0.0
+    median = HIGHWAY_MEDIAN if r.setting == "highway" else 0.0
     lanes, w = r.lanes_per_direction, r.lane_width
     lane_d = -(median / 2 + (lanes - scenario.ego.start_lane - 0.5) * w)
     k = r.curvature if r.kind == "curve" else 0.0
     cross_s = None
     if r.kind == "intersection":
-        walk_out = (
-            median / 2
-            + lanes * w
-            + {"urban": 2.3, "suburban": 1.6, "highway": 2.5}[r.setting]
-            + CURB_WIDTH
-            + {"urban": 3.5, "suburban": 1.8, "highway": 0.0}[r.setting]
-        )
+        walk_out = r.cross_half_width
         if turn_entry is not None:
             cross_s = turn_entry + walk_out
         else:
-            cross_s = float(rng.uniform(22.0, 45.0)) + walk_out
+            cross_s = float(rng.uniform(22.0, 45.0)) + walk_out  # drawn even when junction_s is set: same stream
+        if r.junction_s is not None:
+            cross_s = float(r.junction_s)  # the scenario's own junction (e.g. an imported OpenDRIVE junction)
     crosswalks: tuple[float, ...] = ()
     if r.setting == "urban" and r.kind != "intersection":
         crosswalks = (float(rng.uniform(25.0, 50.0)),)

@@ -1,5 +1,6 @@
-""".wsplat v2 on a world scene with exact ground truth (web/docs/wsplat-v2.md, "Against SOG"; the full measurement is
-`python -m worldsplat.bench.sog`): the anisotropic lifting it is measured on."""
+""".wsplat v2's static anisotropic layout on a world scene with exact ground truth (web/docs/wsplat-v2.md, "Against
+SOG"; the full measurement is `python -m worldsplat.bench.sog`): the anisotropic lifting it is measured on, and the
+layout's bytes and loss against the first v2 layout on a small version of that scene."""
 
 import numpy as np
 import pytest
@@ -7,6 +8,7 @@ import torch
 
 from worldsplat.core.metrics import psnr
 from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians import Gaussians, Scene4D, wsplat
 from worldsplat.gaussians.lift import SURFEL_THICKNESS, lift, lift_surfels
 from worldsplat.gaussians.project import quat_to_rotmat
 from worldsplat.gaussians.raster import render_view
@@ -50,3 +52,19 @@ def test_lift_surfels_flattens_surface_splats_onto_the_surface(clip):
     # seen from its own camera a surfel covers what the isotropic splat covers: the same image, within a few dB
     gt = clip.rgb[0, v]
     assert psnr(render_view(g, cam).rgb, gt) > psnr(render_view(iso, cam).rgb, gt) - 1.0
+
+
+def test_v2_static_aniso_default_is_smaller_than_the_first_layout_and_loses_little(clip):
+    g = Gaussians.cat(
+        [lift_surfels(clip.rgb[0, v], clip.depth[0, v], None, clip.camera(0, v)) for v in range(len(clip.rig))]
+    )
+    scene = Scene4D(g, [Gaussians.empty()], clip.frame_times, clip.rig, clip.ego_to_world, {"fps": 10.0})
+    now = wsplat.encode(scene, version=2)
+    first = wsplat.encode(scene, version=2, static_layout=wsplat.V2_STATIC_ANISO_R1)
+    assert wsplat.decode(now).meta["static_layout"] == wsplat.V2_STATIC_ANISO
+    assert len(now) < 0.85 * len(first)
+    for name in ("CAM_FRONT", "CAM_BACK_RIGHT"):
+        v = clip.camera_names.index(name)
+        cam, gt = clip.camera(0, v), clip.rgb[0, v]
+        f32 = psnr(render_view(g, cam).rgb, gt)
+        assert psnr(render_view(wsplat.decode(now).static, cam).rgb, gt) > f32 - 0.1

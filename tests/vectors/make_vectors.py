@@ -660,7 +660,10 @@ def _write_v2(valid, bad) -> None:
 
     rng = np.random.default_rng(11)
     base = valid("valid_v2_iso", _scene(rng, 300, [20, 0, 35], 3, iso=True), block_size=128, version=2)
-    valid("valid_v2_aniso", _scene(rng, 700, [40, 41], 2, iso=False), version=2)
+    # the first v2 default static layout (smallest-three rotations), named: the default is canonical since (below)
+    valid(
+        "valid_v2_aniso", _scene(rng, 700, [40, 41], 2, iso=False), version=2, static_layout=wsplat.V2_STATIC_ANISO_R1
+    )
     valid("valid_v2_multi_chunk", _scene(rng, 5000, [3], 1, iso=True), version=2)
     valid("valid_v2_empty", _scene(rng, 0, [0, 0], 2, iso=True), version=2)
     valid(
@@ -704,6 +707,11 @@ def _write_v2(valid, bad) -> None:
     for t in (same.static.means, same.static.scales, same.static.opacities, same.static.colors, same.static.quats):
         t.data[:] = t.data[:1].clone()
     sdata = valid("valid_v2_degenerate", same, version=2)
+    # the default static anisotropic layout of v2 now (canonical rotation, 9-bit positions, 4-bit log-scales, 7-bit
+    # colour: wsplat.V2_STATIC_ANISO), own generator so the vectors above keep their bytes
+    cdata = valid("valid_v2_aniso_canonical", _scene(np.random.default_rng(13), 1500, [30, 0], 2, iso=False), version=2)
+    chead = json.loads(split_chunks(cdata)[0][1])
+    assert chead["static_layout"] == wsplat.V2_STATIC_ANISO, chead["static_layout"]
     secs_same = v2_sections(split_chunks(sdata)[1][1], 4)
     assert all(fr[4] & 0x20 and (fr[5 + 4] >> 1) & 3 == 0 for _, _, fr in secs_same), "raw zstd blocks expected"
     v2 = b"WSPLAT\r\n\x02\x00\x00\x00"

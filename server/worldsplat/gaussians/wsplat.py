@@ -98,8 +98,29 @@ DYNAMIC_ANISO = [
     ["b", 4],
 ]
 DEFAULT_BLOCK_SIZE = 256
-# v2 default layouts: the v1 ones (v2 stores the same integers, entropy-coded; px py pz already share their bits)
-V2_STATIC_ISO, V2_STATIC_ANISO, V2_DYNAMIC_ISO, V2_DYNAMIC_ANISO = STATIC_ISO, STATIC_ANISO, DYNAMIC_ISO, DYNAMIC_ANISO
+# v2 default layouts: v1's, but for static anisotropic Gaussians (`python -m worldsplat.bench.sog`, wsplat-v2.md
+# "Against SOG"). There a byte plane costs its entropy, not its bits: 9-bit positions (the Morton deltas are 2.4 of
+# 5.3 B/G at 10 bits; -0.2 B/G at 9), the canonical rotation at 5 bits (continuous along a surface, so its planes
+# compress 3x better than smallest-three's, whose index and sign flip between neighbours: -1.1 B/G), 4-bit
+# log-scales (-0.2 B/G), and 7-bit colour, which the loss against exact ground truth needs (5-bit colour cost
+# -0.29 dB at one camera of the world PLY): 3.99 B/G there at <= 0.05 dB, was 5.28 at -0.29.
+V2_STATIC_ANISO_R1 = STATIC_ANISO  # the first v2 files' static anisotropic layout (still read: a file names its own)
+V2_STATIC_ANISO = [
+    ["px", 9],
+    ["py", 9],
+    ["pz", 9],
+    ["qx", 5],
+    ["qy", 5],
+    ["qz", 5],
+    ["sx", 4],
+    ["sy", 4],
+    ["sz", 4],
+    ["o", 5],
+    ["r", 7],
+    ["g", 7],
+    ["b", 7],
+]
+V2_STATIC_ISO, V2_DYNAMIC_ISO, V2_DYNAMIC_ANISO = STATIC_ISO, DYNAMIC_ISO, DYNAMIC_ANISO
 DEFAULT_VERSION = 1  # what encode / StreamWriter write unless told
 FIRST_CHUNK = 4096  # the first static chunk is small so a browser draws early; chunks then double
 MAX_CHUNK_RECORDS = 262144
@@ -288,9 +309,9 @@ def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def canonical_rotation(q: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit quaternions (N,4) wxyz + scales (N,3) -> the same covariances as q * g (g the cube rotation that brings
     q closest to the identity, made w >= 0) with the scales permuted to match: |x|, |y|, |z| <= sin(pi/8)."""
-    cand = _quat_mul(q[:, None, :], CUBE_ROTATIONS[None, :, :])  # (N,24,4)
-    k = np.argmax(np.abs(cand[:, :, 0]), axis=1)
-    out = cand[np.arange(len(q)), k]
+    # w of q * g is q . (gw, -gx, -gy, -gz): one (N,4) @ (4,24) product picks g, then one product per Gaussian
+    k = np.argmax(np.abs(q @ (CUBE_ROTATIONS * [1.0, -1.0, -1.0, -1.0]).T), axis=1)
+    out = _quat_mul(q, CUBE_ROTATIONS[k])
     out *= np.where(out[:, :1] < 0, -1.0, 1.0)
     # R(q g) = R(q) R(g); S'^2 = R(g)^T S^2 R(g): axis j of the new frame is old axis argmax_i |R(g)[i, j]|.
     rg = quat_to_rotmat(torch.as_tensor(CUBE_ROTATIONS)).numpy()  # (24,3,3)
@@ -852,15 +873,21 @@ class StreamWriter:
 
 def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, block_size: int = DEFAULT_BLOCK_SIZE,
                     static_split: list[int] | None = None, end_meta: dict | None = None,
-                    version: int | None = None) -> bytes:  # fmt: skip
+                    version: int | None = None, static_layout: list | None = None,
+                    dynamic_layout: list | None = None) -> bytes:  # fmt: skip
     """A streamed file of a whole scene (tests, vectors): its static set cut at `static_split` (indices into the
-    importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame)."""
+    importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame).
+    Layouts: the version's defaults unless given (as `encode`)."""
     T = len(scene.frame_times)
     parts = parts or [list(range(T))]
     cuts = [0, *(static_split or []), len(scene.static)]
     if len(cuts) != len(parts) + 1:
         raise ValueError("wsplat: static_split needs one cut fewer than parts")
     sl, dl = choose_layouts(scene, version)
+    if static_layout is not None:
+        sl = parse_layout(static_layout, 0, "static_layout")
+    if dynamic_layout is not None:
+        dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
     w = StreamWriter(scene, sl, dl, block_size, version)
     out = bytearray(w.head())
     for i, frames in enumerate(parts):

@@ -1,8 +1,11 @@
 """ASAM OpenSCENARIO 1.x in and out, through `scenariogeneration` (its parser and its writer).
 
 The referenced OpenDRIVE road is read for its plan view and lane layout only (one road: a line or a constant-
-curvature arc, one lane section, equal constant lane widths, the same number of driving lanes each way), because
-no maintained Python OpenDRIVE reader is among the dependencies; anything else in it is refused by name.
+curvature arc, one lane section, equal constant lane widths, the same number of driving lanes each way; or one
+four-way junction: four such straight arms at right angles whose centrelines meet, as scenariogeneration's
+`CommonJunctionCreator` writes one, which becomes `road.kind` intersection with `road.junction_s` at its centre),
+because no maintained Python OpenDRIVE reader is among the dependencies; anything else in it is refused by name.
+Export writes an intersection back the same way (`_opendrive`).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from scenariogeneration import xodr, xosc
 
-from worldsplat.core.scenario import CLASS_MAX_ACCEL, Scenario
+from worldsplat.core.scenario import CLASS_MAX_ACCEL, JUNCTION_S, Scenario
 from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG, ego_rear_poses, ego_travel, spec_poses
 from worldsplat.world.road import make_road
 from worldsplat.world.scenario_io import Frame, Imported, ImportRefused, fit_clip, wrap
@@ -67,43 +70,29 @@ class OdrRoad:
         return math.copysign((k - 0.5) * self.lane_width, lane_id)
 
 
-def read_opendrive(path: Path) -> OdrRoad:
-    where = f"OpenDRIVE {path.name}"
-    try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as e:
-        raise ImportRefused([f"RoadNetwork/LogicFile: cannot read {path}: {e}"]) from None
-    errors = []
-    if root.findall("junction"):
-        errors.append(
-            f"{where}/junction: not supported (junction roads; the world builds one road, or its own "
-            "four-way intersection)"
-        )
-    roads = root.findall("road")
-    if len(roads) != 1:
-        errors.append(f"{where}/road: {len(roads)} roads; one road is supported")
-        raise ImportRefused(errors)
-    road = roads[0]
+def _plan_road(where: str, road, errors: list[str], arm_of: str | None = None) -> OdrRoad | None:
+    """One road's plan view and lanes (one line or arc, one lane section, equal constant widths, the same number of
+    driving lanes each way); problems are appended to `errors` naming the element. `arm_of`: the road is an arm of
+    that junction, so it must be a line."""
     rid = road.get("id")
     geoms = road.findall("planView/geometry")
     if len(geoms) != 1:
         errors.append(f"{where}/road[{rid}]/planView: {len(geoms)} geometries; one line or arc is supported")
-        raise ImportRefused(errors)
+        return None
     g = geoms[0]
     kinds = [c.tag for c in g]
     curvature = 0.0
-    if kinds == ["arc"]:
+    if kinds == ["arc"] and arm_of is None:
         curvature = float(g[0].get("curvature"))
     elif kinds != ["line"]:
-        errors.append(
-            f"{where}/road[{rid}]/planView/geometry/{kinds[0] if kinds else '?'}: not supported (line and arc only)"
-        )
+        allowed = f"an arm of {arm_of} is a line" if arm_of is not None else "line and arc only"
+        errors.append(f"{where}/road[{rid}]/planView/geometry/{kinds[0] if kinds else '?'}: not supported ({allowed})")
     if road.findall("lanes/laneOffset"):
         errors.append(f"{where}/road[{rid}]/lanes/laneOffset: not supported")
     sections = road.findall("lanes/laneSection")
     if len(sections) != 1:
         errors.append(f"{where}/road[{rid}]/lanes/laneSection: {len(sections)} sections; one is supported")
-        raise ImportRefused(errors)
+        return None
     counts, widths = {}, set()
     for side in ("left", "right"):
         lanes = [ln for ln in sections[0].findall(f"{side}/lane") if ln.get("type") == "driving"]
@@ -116,15 +105,18 @@ def read_opendrive(path: Path) -> OdrRoad:
                         "varying widths are not supported"
                     )
                 widths.add(round(float(w.get("a")), 4))
+    ok = True
     if counts["left"] != counts["right"] or counts["right"] == 0:
         errors.append(
             f"{where}/road[{rid}]/lanes: {counts['right']} right and {counts['left']} left driving lanes; "
             "the world builds the same number (1-4) each way"
         )
+        ok = False
     if len(widths) != 1:
         errors.append(f"{where}/road[{rid}]/lanes: lane widths {sorted(widths)}; one width is supported")
-    if errors:
-        raise ImportRefused(errors)
+        ok = False
+    if not ok:
+        return None
     return OdrRoad(
         float(g.get("x")),
         float(g.get("y")),
@@ -134,6 +126,148 @@ def read_opendrive(path: Path) -> OdrRoad:
         counts["right"],
         widths.pop(),
     )
+
+
+@dataclass
+class OdrArm:
+    road: OdrRoad
+    out: float  # heading (rad) from the junction's centre out along the arm
+    end_s: float  # s of the arm's end at the junction (0 or its length)
+
+
+@dataclass
+class OdrJunction:
+    """A four-way junction the world builds: 4 straight arms at right angles whose centrelines meet at (cx, cy)."""
+
+    id: str
+    where: str  # "OpenDRIVE NAME.xodr/junction[ID]"
+    cx: float
+    cy: float
+    arms: dict[str, OdrArm]  # road id -> arm
+    connecting: list[str]  # ids of its connecting roads (not read: the world builds the junction's surface)
+    lanes: int
+    lane_width: float
+
+
+ARM_ANGLE_TOL = math.radians(0.05)  # arms at right angles within this (scenariogeneration writes them exactly)
+ARM_CENTRE_TOL = 0.05  # m: each arm's centreline passes this close to the junction's centre
+
+
+def read_opendrive(path: Path) -> OdrRoad | OdrJunction:
+    """The file's one road, or its one four-way junction with its four arms; anything else is refused by name."""
+    where = f"OpenDRIVE {path.name}"
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as e:
+        raise ImportRefused([f"RoadNetwork/LogicFile: cannot read {path}: {e}"]) from None
+    errors: list[str] = []
+    roads = root.findall("road")
+    junctions = root.findall("junction")
+    if junctions:
+        return _read_junction(where, roads, junctions)
+    if len(roads) != 1:
+        errors.append(f"{where}/road: {len(roads)} roads; one road (or one four-way junction) is supported")
+        raise ImportRefused(errors)
+    road = _plan_road(where, roads[0], errors)
+    if errors or road is None:
+        raise ImportRefused(errors)
+    return road
+
+
+def _read_junction(where: str, roads, junctions) -> OdrJunction:
+    if len(junctions) != 1:
+        ids = [j.get("id") for j in junctions]
+        raise ImportRefused([f"{where}/junction: {len(junctions)} junctions {ids}; one four-way junction is supported"])
+    j = junctions[0]
+    jid = j.get("id")
+    jw = f"{where}/junction[{jid}]"
+    if j.get("type", "default") != "default":
+        raise ImportRefused([f"{jw}[type={j.get('type')}]: not supported (a default junction with connecting roads)"])
+    errors: list[str] = []
+    arms_xml, connecting = [], []
+    for r in roads:
+        rj = r.get("junction", "-1")
+        if rj == jid:
+            connecting.append(r.get("id"))
+        elif rj == "-1":
+            arms_xml.append(r)
+        else:
+            errors.append(f"{where}/road[{r.get('id')}]: in junction {rj}, which the file does not hold")
+    if len(arms_xml) != 4:
+        names = ", ".join(f"road[{r.get('id')}]" for r in arms_xml)
+        errors.append(
+            f"{jw}: {len(arms_xml)} incoming roads ({names}); the world builds a four-way junction (4 straight arms "
+            "at right angles)"
+        )
+        raise ImportRefused(errors)
+    arms: dict[str, OdrArm] = {}
+    for r in arms_xml:
+        rid = r.get("id")
+        road = _plan_road(where, r, errors, arm_of=f"junction[{jid}]")
+        link = None
+        for end in ("predecessor", "successor"):
+            e = r.find(f"link/{end}")
+            if e is not None and e.get("elementType") == "junction" and e.get("elementId") == jid:
+                link = end
+        if link is None:
+            errors.append(f"{where}/road[{rid}]/link: not linked to junction[{jid}] (every road is one of its arms)")
+        if road is None or link is None:
+            continue
+        end_s = road.length if link == "successor" else 0.0
+        out = road.hdg + (math.pi if link == "successor" else 0.0)
+        arms[rid] = OdrArm(road, wrap(out), end_s)
+    if errors:
+        raise ImportRefused(errors)
+    ids = list(arms)
+    first = arms[ids[0]]
+    sections = {(a.road.lanes, a.road.lane_width) for a in arms.values()}
+    if len(sections) != 1:
+        for rid, a in arms.items():
+            if (a.road.lanes, a.road.lane_width) != (first.road.lanes, first.road.lane_width):
+                errors.append(
+                    f"{where}/road[{rid}]/lanes: {a.road.lanes} lanes of {a.road.lane_width:g} m each way, road"
+                    f"[{ids[0]}] {first.road.lanes} of {first.road.lane_width:g} m; the world's cross road has the "
+                    "main road's lanes"
+                )
+    quarter = {}
+    for rid, a in arms.items():
+        rel = wrap(a.out - first.out)
+        k = round(rel / (math.pi / 2)) % 4
+        if abs(wrap(rel - k * math.pi / 2)) > ARM_ANGLE_TOL:
+            errors.append(
+                f"{jw}/road[{rid}]: its arm leaves the junction {math.degrees(rel) % 360:.2f} deg from road[{ids[0]}]'s; "
+                "the world builds 4 arms at right angles (0, 90, 180, 270 deg)"
+            )
+        elif k in quarter:
+            errors.append(
+                f"{jw}/road[{rid}]: its arm leaves the junction along road[{quarter[k]}]'s; the world builds 4 arms "
+                "at right angles (0, 90, 180, 270 deg)"
+            )
+        else:
+            quarter[k] = rid
+    if errors:
+        raise ImportRefused(errors)
+    # The centre: where the centreline of the first arm meets that of the arm at 90 degrees.
+    a, b = first, arms[quarter[1]]
+    pa, pb = a.road.ref(a.end_s)[:2], b.road.ref(b.end_s)[:2]
+    da, db = (math.cos(a.out), math.sin(a.out)), (math.cos(b.out), math.sin(b.out))
+    det = -da[0] * db[1] + da[1] * db[0]  # pa + u da = pb + v db
+    u = (-(pb[0] - pa[0]) * db[1] + (pb[1] - pa[1]) * db[0]) / det
+    cx, cy = pa[0] + u * da[0], pa[1] + u * da[1]
+    for rid, arm in arms.items():
+        ex, ey, _ = arm.road.ref(arm.end_s)
+        c, s = math.cos(arm.out), math.sin(arm.out)
+        along, beside = c * (ex - cx) + s * (ey - cy), -s * (ex - cx) + c * (ey - cy)
+        if abs(beside) > ARM_CENTRE_TOL:
+            errors.append(
+                f"{jw}/road[{rid}]: its centreline passes {abs(beside):.2f} m beside the junction's centre; the "
+                "world's arms meet on their centrelines"
+            )
+        elif along < -ARM_CENTRE_TOL:
+            errors.append(f"{jw}/road[{rid}]: its end lies {-along:.2f} m past the junction's centre")
+    if errors:
+        raise ImportRefused(errors)
+    return OdrJunction(jid, jw, cx, cy, arms, connecting, first.road.lanes, first.road.lane_width)
 
 
 # -- OpenSCENARIO import ------------------------------------------------------------------------------------------
@@ -165,7 +299,10 @@ class _Reader:
         if ego_name not in names:
             raise ImportRefused([f"Entities: no ego entity (name it Ego or pass --ego NAME; found {names})"])
         self.ego_name = ego_name
-        self.road: OdrRoad | None = None
+        self.road: OdrRoad | None = None  # the world's main road in the file's frame (with a junction: see _main)
+        self.junction: OdrJunction | None = None
+        self.arm_flip: dict[str, bool] = {}  # a junction's main-road arms: True where it runs against the main road
+        net = None
         rf = getattr(self.doc.roadnetwork, "road_file", None)
         if rf and road_dir is not None:
             # uploaded files (POST /api/scenario-files): the road is one of them, by name; nothing else is read
@@ -174,11 +311,45 @@ class _Reader:
                 raise ImportRefused(
                     [f"RoadNetwork/LogicFile[{rf}]: not among the files given (give the .xosc with its OpenDRIVE file)"]
                 )
-            self.road = read_opendrive(Path(road_dir) / name)
+            net = read_opendrive(Path(road_dir) / name)
         elif rf:
-            self.road = read_opendrive((path.parent / rf) if not Path(rf).is_absolute() else Path(rf))
+            net = read_opendrive((path.parent / rf) if not Path(rf).is_absolute() else Path(rf))
         else:
             self.warnings.append("RoadNetwork: no OpenDRIVE file; the world builds its default road")
+        if isinstance(net, OdrJunction):
+            self.junction = net
+            self.warnings.append(
+                f"{net.where}: its {len(net.connecting)} connecting roads are not read; the world builds the "
+                "junction's surface where the arms cross (and the arms as long as its world)"
+            )
+        else:
+            self.road = net
+
+    def _main(self, pos, where: str) -> None:
+        """With a junction: the arm pair the ego starts on becomes the main road (reference line through the
+        junction's centre, heading the ego's way); the other pair is the cross road."""
+        jn = self.junction
+        n = _name(pos)
+        if n == "LanePosition":
+            rid = str(pos.road_id)
+            if rid not in jn.arms:
+                raise ImportRefused(
+                    [f"{where}/LanePosition[roadId={rid}]: the ego must start on an arm of {jn.where.split('/')[-1]}"]
+                )
+            arm = jn.arms[rid].road
+            lane_id = int(pos.lane_id)
+            h = arm.hdg + (math.pi if lane_id > 0 else 0.0)
+        elif n == "WorldPosition":
+            h = float(pos.h or 0.0)
+        else:
+            raise ImportRefused([f"{where}/{n}: not supported (WorldPosition and LanePosition only)"])
+        out = min((a.out for a in jn.arms.values()), key=lambda o: abs(wrap(o - h)))
+        if abs(wrap(out - h)) > math.radians(1):
+            raise ImportRefused([f"{where}: the ego must start heading along one of {jn.where}'s roads"])
+        self.road = OdrRoad(jn.cx, jn.cy, out, math.inf, 0.0, jn.lanes, jn.lane_width)
+        for rid, a in jn.arms.items():
+            if abs(math.sin(a.out - out)) < 0.5:  # along the main road
+                self.arm_flip[rid] = math.cos(a.road.hdg - out) < 0
 
     # positions -> file world (x, y, h)
     def position(self, pos, where: str) -> tuple[float, float, float, tuple | None]:
@@ -186,6 +357,8 @@ class _Reader:
         n = _name(pos)
         if n == "WorldPosition":
             return float(pos.x), float(pos.y), float(pos.h or 0.0), None
+        if n == "LanePosition" and self.junction is not None:
+            return self._junction_lane_position(pos, where)
         if n == "LanePosition":
             if self.road is None:
                 raise ImportRefused([f"{where}/LanePosition: needs the OpenDRIVE road"])
@@ -203,6 +376,37 @@ class _Reader:
                     h = h + float(o.h)
             return x, y, h, (s, lane_id, off)
         raise ImportRefused([f"{where}/{n}: not supported (WorldPosition and LanePosition only)"])
+
+    def _junction_lane_position(self, pos, where: str) -> tuple[float, float, float, tuple | None]:
+        """A LanePosition on an arm of the junction: world x, y, heading; on a main-road arm also (s, lane_id,
+        offset) on the main road (an arm running against it has its lane ids and offsets mirrored); on a cross-road
+        arm None (the agent starts at a free pose)."""
+        jn, rid = self.junction, str(pos.road_id)
+        w = f"{where}/LanePosition[roadId={rid}]"
+        if rid not in jn.arms:
+            kind = "a connecting road of" if rid in jn.connecting else "not a road of"
+            raise ImportRefused([f"{w}: {kind} {jn.where} (a LanePosition on one of its 4 arms, or a WorldPosition)"])
+        arm = jn.arms[rid].road
+        lane_id, s, off = int(pos.lane_id), float(pos.s), float(pos.offset or 0.0)
+        if abs(lane_id) > arm.lanes or lane_id == 0:
+            raise ImportRefused([f"{w}: lane {lane_id} is not a driving lane of the road"])
+        x, y, h = arm.point(s, arm.lane_t(lane_id) + off)
+        if lane_id > 0:
+            h += math.pi
+        o = pos.orient
+        if o is not None and o.h is not None:
+            h = float(o.h) if o.ref is not None and _enum(o.ref) == "absolute" else h + float(o.h)
+        if rid not in self.arm_flip:
+            return x, y, h, None
+        rx, ry, _ = arm.ref(s)
+        s_main, _ = self.road.project(rx, ry)
+        if self.arm_flip[rid]:
+            lane_id, off = -lane_id, -off
+        return x, y, h, (s_main, lane_id, off)
+
+    def _flip(self, pos) -> bool:
+        """Whether a position's lane ids are mirrored onto the main road's (a junction arm against it)."""
+        return _name(pos) == "LanePosition" and self.arm_flip.get(str(getattr(pos, "road_id", "")), False)
 
     def entity(self, obj, where: str) -> tuple[str, tuple[float, float, float], tuple[float, float]]:
         e = obj.entityobject
@@ -389,6 +593,8 @@ class _Reader:
         tele, speed, traj = self._classify(init, obj.name)
         if tele is None:
             raise ImportRefused([f"{where}/TeleportAction: the ego needs a start position"])
+        if self.junction is not None:
+            self._main(tele.position, f"{where}/TeleportAction")
         x, y, h, lane = self.position(tele.position, f"{where}/TeleportAction")
         road = self.road
         road_doc = {
@@ -427,6 +633,17 @@ class _Reader:
                 curvature=round(road.curvature, 6),
             )
             self.ego_s = s
+            if self.junction is not None:  # the main road's s is 0 at the junction's centre
+                js = round(-s, 6)
+                lo, hi = JUNCTION_S
+                if not lo <= js <= hi:
+                    raise ImportRefused(
+                        [
+                            f"{self.junction.where}: its centre is {js:.2f} m along the road from the ego's start; "
+                            f"the world builds the junction {lo:g}..{hi:g} m from it"
+                        ]
+                    )
+                road_doc.update(kind="intersection", junction_s=js)
         else:
             self.ego_s = 0.0
         frame = Frame(x, y, h)
@@ -465,6 +682,7 @@ class _Reader:
         cls, size, (cx, cy) = self.entity(obj, f"Entities/ScenarioObject[{obj.name}]")
         tele, speed, traj = self._classify(init, obj.name)
         verts = self._trajectory(traj, where, 0.0) if traj is not None else []
+        flip = tele is not None and self._flip(tele.position)  # lane ids of a junction arm against the main road
         ev_out, t_last = [], 0.0
         v_now = float(speed.speed) if speed is not None else 0.0
         for t, a, w in sorted(events, key=lambda e: e[0]):
@@ -503,7 +721,7 @@ class _Reader:
             elif n == "AbsoluteLaneChangeAction":
                 dyn = a.transition_dynamics
                 dur = float(dyn.value) if _enum(dyn.dimension) == "time" else float(dyn.value) / max(0.5, v_now)
-                lane_id = int(a.lane)
+                lane_id = -int(a.lane) if flip else int(a.lane)
                 if self.road is None or lane_id == 0 or abs(lane_id) > self.road.lanes:
                     self.errors.append(f"{w}/AbsoluteLaneChangeAction: lane {lane_id} is not a driving lane")
                     continue
@@ -560,7 +778,11 @@ class _Reader:
             }
         else:
             if any(e["action"] == "lane_change" for e in ev_out):
-                self.errors.append(f"{where}/TeleportAction/WorldPosition: a lane change needs a LanePosition start")
+                on = "on the junction's cross road" if _name(tele.position) == "LanePosition" else "WorldPosition"
+                self.errors.append(
+                    f"{where}/TeleportAction/{_name(tele.position)}: a lane change needs a LanePosition start on the "
+                    f"main road (this one: {on})"
+                )
             fx, fy = x + cx * math.cos(h) - cy * math.sin(h), y + cx * math.sin(h) + cy * math.cos(h)
             px, py = frame.point(fx, fy)
             doc["start"] = {
@@ -613,16 +835,8 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
     travel = ego_travel(sc, times)
     turn_entry = max(3.0, 0.25 * travel) if sc.ego.manoeuvre in ("turn_left", "turn_right") else None
     road = make_road(sc, rng, travel, turn_entry)
-    if road.cross_s is not None:
-        warnings.append("road.kind intersection: only the main road is written to OpenDRIVE")
     s0, length = -150.0, travel + 400.0
-    x0, y0, h0 = (float(v[0]) for v in road.xy(np.array([s0]), np.array([0.0])))
-    geom = xodr.Arc(road.curvature, length=length) if road.curvature != 0.0 else xodr.Line(length)
-    odr_road = xodr.create_road([geom], id=0, left_lanes=road.lanes, right_lanes=road.lanes, lane_width=road.lane_width)
-    odr_road.planview.set_start_point(x0, y0, h0)
-    odr = xodr.OpenDrive(xodr_path.stem)
-    odr.add_road(odr_road)
-    odr.adjust_roads_and_lanes()
+    odr, lane_position = _opendrive(road, s0, length, xodr_path.stem)
     odr.write_xml(str(xodr_path))
 
     def bbox(l, w, h, cx):
@@ -673,7 +887,8 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
     lane_id = lambda lane, direction: -(road.lanes - lane) if direction > 0 else (road.lanes - lane)  # noqa: E731
     ego_kept = sc.ego.path is None and sc.ego.manoeuvre == "keep_lane"
     if ego_kept:
-        init.add_init_action("Ego", xosc.TeleportAction(xosc.LanePosition(-s0, 0, lane_id(sc.ego.start_lane, 1), 0)))
+        pos = lane_position(0.0, 0.0, lane_id(sc.ego.start_lane, 1)) or xosc.WorldPosition(0, 0, 0, 0)
+        init.add_init_action("Ego", xosc.TeleportAction(pos))
         init.add_init_action("Ego", xosc.AbsoluteSpeedAction(float(sc.ego.speed), step))
     else:
         ego = ego_rear_poses(road, sc, times, travel)
@@ -695,14 +910,16 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
             obj = xosc.Vehicle(name, cat, bbox(l, w, h, 0.0), fa, ra, 69, 10, 10)
         ent.add_scenario_object(name, obj)
         st, m = a.start, a.motion
+        lane_pos = None
         if st is not None and st.kind == "lane":
             direction = 1 if st.direction == "same" else -1
-            init.add_init_action(
-                name,
-                xosc.TeleportAction(
-                    xosc.LanePosition(st.s - s0, direction * st.lateral, lane_id(st.lane, direction), 0)
-                ),
-            )
+            lane_pos = lane_position(st.s, direction * st.lateral, lane_id(st.lane, direction))
+            if lane_pos is None:
+                warnings.append(
+                    f"agents[{i}] ({name}): starts inside the junction, written as a WorldPosition and trajectory"
+                )
+        if lane_pos is not None:
+            init.add_init_action(name, xosc.TeleportAction(lane_pos))
             init.add_init_action(name, xosc.AbsoluteSpeedAction(float(m.speed), step))
             for j, e in enumerate(m.events):
                 if e.action == "lane_change":
@@ -774,3 +991,52 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
     )
     doc.write_xml(str(xosc_path))
     return warnings
+
+
+JUNCTION_ID, CROSS_ARM = 100, 120.0  # the exported junction's id; its cross road's arms reach 120 m from the centre
+
+
+def _opendrive(road, s0: float, length: float, name: str):
+    """The world's road as OpenDRIVE (reference line = the main road's centreline from s = s0) and a function
+    (s, offset, lane id) -> LanePosition on it, or None where no road holds that s (inside a junction).
+
+    An intersection is written as scenariogeneration's `CommonJunctionCreator` writes a four-way junction: four
+    straight arms ending at the crossing road's kerb (main road: roads 1 and 2, along +x; cross road: roads 3 and 4,
+    along +y) and connecting roads between every pair."""
+    lanes = {"left_lanes": road.lanes, "right_lanes": road.lanes, "lane_width": road.lane_width}
+    x0, y0, h0 = (float(v[0]) for v in road.xy(np.array([s0]), np.array([0.0])))
+    odr = xodr.OpenDrive(name)
+    if road.cross_s is None:
+        geom = xodr.Arc(road.curvature, length=length) if road.curvature != 0.0 else xodr.Line(length)
+        odr_road = xodr.create_road([geom], id=0, **lanes)
+        odr_road.planview.set_start_point(x0, y0, h0)
+        odr.add_road(odr_road)
+        odr.adjust_roads_and_lanes()
+        return odr, lambda s, off, lane: xosc.LanePosition(s - s0, off, lane, 0)
+    c, r = float(road.cross_s), float(road.curb_out)
+    west = xodr.create_road([xodr.Line(c - r - s0)], id=1, **lanes)
+    east = xodr.create_road([xodr.Line(s0 + length - c - r)], id=2, **lanes)
+    south = xodr.create_road([xodr.Line(CROSS_ARM - r)], id=3, **lanes)
+    north = xodr.create_road([xodr.Line(CROSS_ARM - r)], id=4, **lanes)
+    jc = xodr.CommonJunctionCreator(id=JUNCTION_ID, name="junction", startnum=JUNCTION_ID)
+    # (x, y, heading into the junction) around its centre; main-road arms along +x, cross-road arms along +y
+    jc.add_incoming_road_cartesian_geometry(west, -r, 0, 0, "successor")
+    jc.add_incoming_road_cartesian_geometry(east, r, 0, math.pi, "predecessor")
+    jc.add_incoming_road_cartesian_geometry(south, 0, -r, math.pi / 2, "successor")
+    jc.add_incoming_road_cartesian_geometry(north, 0, r, -math.pi / 2, "predecessor")
+    for a, b in ((1, 2), (1, 3), (1, 4), (2, 3), (2, 4), (3, 4)):
+        jc.add_connection(a, b)
+    west.planview.set_start_point(x0, y0, h0)
+    for arm in (west, east, south, north):
+        odr.add_road(arm)
+    odr.add_junction_creator(jc)
+    odr.adjust_roads_and_lanes()
+
+    def lane_position(s: float, off: float, lane: int):
+        if s <= c - r:
+            return xosc.LanePosition(s - s0, off, lane, 1)
+        if s >= c + r:
+            return xosc.LanePosition(s - c - r, off, lane, 2)
+        return None
+
+    return odr, lane_position

@@ -696,6 +696,38 @@ def test_openscenario_junction_the_world_cannot_build_is_refused_by_name(tmp_pat
     assert all(m.startswith("OpenDRIVE junction.xodr/junction[100]") for m in e.value.errors), e.value.errors
 
 
+@pytest.mark.parametrize(
+    "variant, message",
+    [
+        ("arc", r"road\[2\]/planView/geometry/arc: not supported \(an arm of junction\[100\] is a line\)"),
+        ("lanes", r"road\[3\]/lanes: 1 lanes of 3.5 m each way, road\[1\] 2 of 3.5 m"),
+    ],
+)
+def test_openscenario_junction_with_a_curved_or_narrower_arm_is_refused_by_name(tmp_path, variant, message):
+    from worldsplat.world.scenario_io import ImportRefused, import_scenario
+
+    path, _ = write_junction_xosc(tmp_path)
+    roads = []
+    for i in range(4):  # the same junction, with road 2 an arc or road 3 one lane each way
+        geom = xodr.Arc(0.01, length=J_ARM) if (variant, i) == ("arc", 1) else xodr.Line(J_ARM)
+        lanes = 1 if (variant, i) == ("lanes", 2) else 2
+        roads.append(xodr.create_road(geom, id=i + 1, left_lanes=lanes, right_lanes=lanes, lane_width=LANE_W))
+    jc = xodr.CommonJunctionCreator(id=100, name="crossing", startnum=100)
+    for r, a in zip(roads, (0.0, math.pi / 2, math.pi, 3 * math.pi / 2)):
+        jc.add_incoming_road_circular_geometry(r, J_RADIUS, a, "successor")
+    for i in range(4):
+        for j in range(i + 1, 4):
+            jc.add_connection(i + 1, j + 1)
+    odr = xodr.OpenDrive("junction")
+    for r in roads:
+        odr.add_road(r)
+    odr.add_junction_creator(jc)
+    odr.adjust_roads_and_lanes()
+    odr.write_xml(str(tmp_path / "junction.xodr"))
+    with pytest.raises(ImportRefused, match=message):
+        import_scenario(path)
+
+
 def test_openscenario_lane_position_on_a_connecting_road_is_refused_by_name(tmp_path):
     from worldsplat.world.scenario_io import ImportRefused, import_scenario
 

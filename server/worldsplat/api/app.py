@@ -29,7 +29,7 @@ from worldsplat.core.camera import CAMERA_NAMES
 from worldsplat.core.limits import MAX_SHIFT_M
 from worldsplat.core.paths import web_dir as default_web_dir
 from worldsplat.core.scenario import Scenario, ScenarioError, default_preset_name, list_presets, load_preset
-from worldsplat.world.agents import check_scenario
+from worldsplat.world.agents import check_scenario, scenario_road
 
 from . import runners
 from .cache import ArtifactCache, InvalidId, LiveFile, validate_id
@@ -73,6 +73,13 @@ class SceneRequest(BaseModel):
         description="oracle | reconstruct | generate; a mode whose weights this server lacks is 409 (GET "
         "/api/modes lists those it has); default: the best mode whose weights exist",
     )
+
+
+class RoadRequest(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"scenario": {"road": {"kind": "intersection"}, "seed": 7}}]}
+    )
+    scenario: Scenario = Field(description="the scenario (see GET /api/schema); its agents play no part in the road")
 
 
 class VideoRequest(BaseModel):
@@ -152,6 +159,33 @@ class SceneState(BaseModel):
     bytes: int | None = Field(None, description="size of the whole .wsplat (ready)")
     wsplat: str | None = Field(None, description="the stream: /api/scenes/{id}/wsplat")
     job: JobOut | None = None
+
+
+class RoadLayout(BaseModel):
+    """The world's road for a scenario (worldsplat.world.road.RoadGeometry, as the world builds it): what the page's
+    bird's-eye editor draws. World frame: the ego's rear axle starts at the origin facing +x, y left; the main road's
+    centreline is at y = y0 (straight) or an arc of `curvature` through (0, y0); a cross road is straight along y."""
+
+    kind: Literal["straight", "curve", "intersection"]
+    setting: Literal["urban", "suburban", "highway"]
+    lanes_per_direction: int
+    lane_width: float = Field(description="m")
+    median: float = Field(description="m between the two directions' inner lane edges (highway: 2.6, else 0)")
+    curvature: float = Field(description="1/m, left positive (0 unless kind is curve)")
+    y0: float = Field(description="world y of the main road's centreline at x = 0 (m)")
+    lanes_edge: float = Field(description="m from a centreline to the outer lane edge")
+    road_half: float = Field(description="m from a centreline to the edge of the drivable surface (lanes + shoulder)")
+    curb_out: float = Field(description="m from a centreline to the kerb's outer edge")
+    walk_out: float = Field(description="m from a centreline to the sidewalk's outer edge")
+    junction_s: float | None = Field(
+        description="kind intersection: m along the main road (world x) from the ego's start to the cross road's "
+        "centreline, where the world puts it; null: no cross road"
+    )
+    junction_from: Literal["scenario", "manoeuvre", "seed"] | None = Field(
+        description="where junction_s comes from: the scenario's road.junction_s, a turning ego (3 m + 25 % of its "
+        "travel to the cross road's sidewalk) or the seed's draw; null: no cross road"
+    )
+    crosswalks_s: list[float] = Field(description="mid-block crosswalks on the main road (m along it)")
 
 
 class VideoState(BaseModel):
@@ -721,6 +755,41 @@ def create_app(
     @app.get("/api/schema", tags=["scenario"])
     def schema() -> dict:
         return Scenario.model_json_schema()
+
+    @app.post(
+        "/api/road",
+        tags=["scenario"],
+        responses={
+            200: ok(description="the world's road for the scenario (the cross road where the world puts it)"),
+            **errors(400, 413, 422),
+        },
+    )
+    def scenario_road_layout(req: Annotated[RoadRequest, Body()]) -> RoadLayout:
+        """The road the world builds for a scenario, without building the world: lanes, widths and, for an
+        intersection, the cross road's distance along the main road (`road.junction_s` when set, else the world's
+        seeded draw, which only the server knows). A scenario its cross-field rules refuse is a 422 naming the field."""
+        sc = req.scenario
+        road = scenario_road(sc)[0]
+        source = None
+        if road.cross_s is not None:
+            turning = sc.ego.manoeuvre in ("turn_left", "turn_right")
+            source = "scenario" if sc.road.junction_s is not None else "manoeuvre" if turning else "seed"
+        return RoadLayout(
+            kind=road.kind,
+            setting=road.setting,
+            lanes_per_direction=road.lanes,
+            lane_width=road.lane_width,
+            median=road.median,
+            curvature=road.curvature,
+            y0=road.y0,
+            lanes_edge=road.lanes_edge,
+            road_half=road.road_half,
+            curb_out=road.curb_out,
+            walk_out=road.walk_out,
+            junction_s=road.cross_s,
+            junction_from=source,
+            crosswalks_s=list(road.crosswalks_s),
+        )
 
     @app.post(
         "/api/scenario-files",

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from worldsplat.core.scenario import ScenarioError
+from worldsplat.core.scenario import TURN_ENTRY_MIN, ScenarioError
 from worldsplat.world.classes import BUS, CAR, CYCLIST, PEDESTRIAN, TRUCK
 from worldsplat.world.prims import M_BUS, M_CABIN, M_CAR_BODY, M_PERSON, M_PLAIN, PrimBuilder, Prims
 from worldsplat.world.road import RoadGeometry, make_road
@@ -714,16 +714,24 @@ def explicit_agents(
     return agents
 
 
+def scenario_road(scenario) -> tuple[RoadGeometry, np.random.Generator, np.ndarray, float]:
+    """The world's road for a scenario, as `layout.build_world` makes it (the one place it is made): the road, the
+    seed's generator after the road's draws (the world goes on drawing from it), the frame times and the ego's travel.
+    A turning ego reaches the cross road 3 m + 25 % of its travel ahead unless `road.junction_s` puts it elsewhere."""
+    rng = np.random.Generator(np.random.PCG64(scenario.seed))
+    times = np.arange(scenario.clip.frames, dtype=np.float64) / scenario.clip.fps
+    travel = ego_travel(scenario, times)
+    turning = scenario.ego.manoeuvre in ("turn_left", "turn_right")
+    turn_entry = max(TURN_ENTRY_MIN, 0.25 * travel) if turning else None
+    return make_road(scenario, rng, travel, turn_entry), rng, times, travel
+
+
 def check_scenario(scenario) -> list[str]:
     """The checks that need the world's road (overlaps, off-world positions): [] or "field: message" strings."""
 
     if not scenario.agents:
         return []
-    rng = np.random.Generator(np.random.PCG64(scenario.seed))
-    times = np.arange(scenario.clip.frames, dtype=np.float64) / scenario.clip.fps
-    travel = ego_travel(scenario, times)
-    turn_entry = max(3.0, 0.25 * travel) if scenario.ego.manoeuvre in ("turn_left", "turn_right") else None
-    road = make_road(scenario, rng, travel, turn_entry)
+    road, _, times, travel = scenario_road(scenario)
     try:
         explicit_agents(road, scenario, times, ego_rear_poses(road, scenario, times, travel), travel)
     except ScenarioError as e:

@@ -13,7 +13,7 @@ import numpy as np
 
 from worldsplat.core.camera import RigCamera, default_rig, shifted_ego, translation, yaw_pose  # noqa: F401 (re-export)
 from worldsplat.core.scenario import Scenario
-from worldsplat.world.agents import Agent, agent_parts, build_agents, ego_rear_poses, ego_travel, place_parts
+from worldsplat.world.agents import Agent, agent_parts, build_agents, ego_rear_poses, place_parts, scenario_road
 from worldsplat.world.caption import compose_caption
 from worldsplat.world.classes import BARRIER, BUILDING, POLE, SIGN, VEGETATION
 from worldsplat.world.conditions import world_conditions
@@ -29,7 +29,7 @@ from worldsplat.world.prims import (
     PrimBuilder,
     Prims,
 )
-from worldsplat.world.road import RoadGeometry, make_road
+from worldsplat.world.road import RoadGeometry
 
 FACADES = (
     (0.78, 0.72, 0.62),
@@ -276,14 +276,7 @@ def build_static(road: RoadGeometry, rng: np.random.Generator, s_lo: float, s_hi
 # -- the world --------------------------------------------------------------------------------------------------
 def build_world(scenario: Scenario) -> World:
     """Deterministic by `scenario.seed`: the same scenario always gives the same world."""
-    rng = np.random.Generator(np.random.PCG64(scenario.seed))
-    T = scenario.clip.frames
-    times = np.arange(T, dtype=np.float64) / scenario.clip.fps
-    travel = ego_travel(scenario, times)
-    turn_entry = None
-    if scenario.ego.manoeuvre in ("turn_left", "turn_right"):
-        turn_entry = max(3.0, 0.25 * travel)
-    road = make_road(scenario, rng, travel, turn_entry)
+    road, rng, times, travel = scenario_road(scenario)
     ego = ego_rear_poses(road, scenario, times, travel)  # the explicit ego path, or the manoeuvre
     ego_to_world = np.stack([yaw_pose(float(x), float(y), 0.0, float(a)) for x, y, a in ego])
     ego_to_world[0] = np.eye(4)

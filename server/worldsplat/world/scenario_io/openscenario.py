@@ -19,8 +19,7 @@ import numpy as np
 from scenariogeneration import xodr, xosc
 
 from worldsplat.core.scenario import CLASS_MAX_ACCEL, JUNCTION_S, Scenario
-from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG, ego_rear_poses, ego_travel, spec_poses
-from worldsplat.world.road import make_road
+from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG, ego_rear_poses, scenario_road, spec_poses
 from worldsplat.world.scenario_io import Frame, Imported, ImportRefused, fit_clip, wrap
 
 VEHICLE_CLASS = {"car": "car", "van": "car", "truck": "truck", "bus": "bus", "bicycle": "cyclist"}
@@ -830,11 +829,7 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
     sc = scenario
     if sc.road.setting == "highway":
         raise ImportRefused(["road.setting: highway (its median) cannot be exported to OpenDRIVE yet"])
-    rng = np.random.Generator(np.random.PCG64(sc.seed))
-    times = np.arange(sc.clip.frames, dtype=np.float64) / sc.clip.fps
-    travel = ego_travel(sc, times)
-    turn_entry = max(3.0, 0.25 * travel) if sc.ego.manoeuvre in ("turn_left", "turn_right") else None
-    road = make_road(sc, rng, travel, turn_entry)
+    road, _, times, travel = scenario_road(sc)
     s0, length = -150.0, travel + 400.0
     odr, lane_position = _opendrive(road, s0, length, xodr_path.stem)
     odr.write_xml(str(xodr_path))

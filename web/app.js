@@ -77,7 +77,27 @@ function fillForm(scenario) {
     const v = getPath(scenario, el.dataset.field);
     el.value = v == null ? "" : String(v);
   }
+  syncJunction();
   if (state.editor) state.editor.refresh();  // the bird's-eye editor (web/editor.js) edits state.base's agents
+}
+
+/** road.junction_s exists only for kind intersection (the scenario refuses it elsewhere): the form offers it only
+ * there, and leaving intersection drops it (e.g. after importing a junction file). */
+const JUNCTION = () => document.querySelector('[data-field="road.junction_s"]');
+function syncJunction() {
+  const kind = document.querySelector('[data-field="road.kind"]').value;
+  $("junction-field").hidden = kind !== "intersection";
+  if (kind !== "intersection") {
+    JUNCTION().value = "";
+    if (state.base && state.base.road) delete state.base.road.junction_s;
+  }
+}
+
+/** The editor's report of the world's road (POST /api/road): the junction input's placeholder says where the world
+ * puts the cross road while the field is empty. */
+function showRoad(layout) {
+  const from = { seed: "seeded", manoeuvre: "turn" }[layout && layout.junction_from];
+  JUNCTION().placeholder = from ? `${from}: ${layout.junction_s.toFixed(1)}` : "seeded";
 }
 
 /** The scenario the form describes: the base scenario with every form field applied (numbers stay numbers). */
@@ -88,7 +108,14 @@ function readForm() {
     const value = el.type === "number" ? (raw === "" ? null : Number(raw)) : raw;
     setPath(s, el.dataset.field, Number.isNaN(value) ? raw : value);
   }
+  if (s.road && (s.road.kind !== "intersection" || s.road.junction_s == null)) delete s.road.junction_s;  // unset
   return s;
+}
+
+/** Set one form field (the editor's drag of the cross road sets road.junction_s). */
+function setField(path, value) {
+  const el = document.querySelector(`[data-field="${CSS.escape(path)}"]`);
+  if (el) el.value = value == null ? "" : String(value);
 }
 
 async function loadPresets() {
@@ -513,7 +540,8 @@ function share() {
 // ---- wiring ----------------------------------------------------------------------------------------------------------
 function wire() {
   state.editor = initEditor({ host: $("scenario-editor"), getBase: () => state.base, getForm: readForm, selectPreset,
-    presetNames: () => state.presets.map((p) => p.name) });
+    presetNames: () => state.presets.map((p) => p.name), setField, onRoad: showRoad });
+  document.querySelector('[data-field="road.kind"]').addEventListener("input", syncJunction);
   $("error-close").onclick = clearError;
   $("preset").onchange = (e) => selectPreset(e.target.value);
   $("scenario-form").onsubmit = (e) => {

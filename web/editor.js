@@ -3,7 +3,8 @@
 // the ego, its keyframes listed to re-time or remove; per agent a start (free pose or lane) and scripted events (lane
 // change, stop, set speed at time t) to add and remove; the caption; a time scrubber previewing the motion; the four
 // corner-case presets. It edits the scenario the form edits (`getBase()`: agents, ego.path, caption), so generate and
-// the share link carry all of it.
+// the share link carry all of it. An intersection's cross road is drawn where the world puts it (road.junction_s, or
+// the server's POST /api/road answer when that is unset) and can be dragged along the road (sets road.junction_s).
 // World frame (web/docs/world.md): the ego's rear axle starts at the origin facing +x, y left.
 
 const CLASSES = ["car", "bus", "truck", "pedestrian", "cyclist"];
@@ -19,9 +20,17 @@ const EGO = { length: 4.6, width: 1.9, rear: 1.0 };
 const VIEW = { x0: -20, x1: 80 };   // metres shown along x; y follows the canvas aspect
 
 // ---- road geometry (mirrors worldsplat.world.road) -----------------------------------------------------------------
+// cross-section beside the lanes per setting (worldsplat.core.scenario ROAD_SHOULDER / ROAD_SIDEWALK / CURB_WIDTH)
+const SHOULDER = { urban: 2.3, suburban: 1.6, highway: 2.5 };
+const SIDEWALK = { urban: 3.5, suburban: 1.8, highway: 0 };
+const CURB = 0.2;
+export const JUNCTION_S = [-100, 140];   // road.junction_s's bounds (worldsplat.core.scenario JUNCTION_S)
+const TURN_ENTRY_MIN = 3;                // a turning ego needs the cross road this far + its half width ahead
+
 export function roadOf(s) {
   const r = s.road || {}, lanes = r.lanes_per_direction ?? 2, w = r.lane_width ?? 3.5;
-  const median = r.setting === "highway" ? 2.6 : 0;
+  const setting = SHOULDER[r.setting] === undefined ? "urban" : r.setting;
+  const median = setting === "highway" ? 2.6 : 0;
   const k = r.kind === "curve" ? (r.curvature ?? 0) : 0;
   const laneD = (lane, dir) => -dir * (median / 2 + (lanes - lane - 0.5) * w);
   const y0 = -laneD((s.ego || {}).start_lane ?? 0, 1);
@@ -35,7 +44,23 @@ export function roadOf(s) {
     const rr = 1 / k, sg = Math.sign(rr), dx = x, dy = y - (y0 + rr);
     return [rr * Math.atan2(sg * dx, -sg * dy), rr - sg * Math.hypot(dx, dy)];
   };
-  return { lanes, w, median, k, y0, laneD, xy, sd, edge: median / 2 + lanes * w };
+  const edge = median / 2 + lanes * w, roadHalf = edge + SHOULDER[setting];
+  const curbOut = roadHalf + (setting === "highway" ? 0 : CURB), walkOut = curbOut + SIDEWALK[setting];
+  return { lanes, w, median, k, y0, laneD, xy, sd, edge, roadHalf, curbOut, walkOut };
+}
+
+/** Where road.junction_s may put the cross road for this scenario: the schema's bounds, and for a turning ego (no
+ * explicit path) at least 3 m + the cross road's half width ahead (the scenario's own rule). */
+export function junctionBounds(s) {
+  const m = (s.ego || {}).manoeuvre, turning = (m === "turn_left" || m === "turn_right") && !(s.ego || {}).path;
+  return [turning ? Math.ceil((roadOf(s).walkOut + TURN_ENTRY_MIN) * 10) / 10 : JUNCTION_S[0], JUNCTION_S[1]];
+}
+
+/** What POST /api/road's answer depends on (the road, the seed, the ego's start, manoeuvre, speed and path, the
+ * clip): the key of the editor's copy of it. */
+function roadKey(s) {
+  const e = s.ego || {};
+  return JSON.stringify([s.seed, s.road, e.start_lane, e.manoeuvre, e.speed, e.path || null, s.clip]);
 }
 
 function smoothstep(u) { u = Math.min(1, Math.max(0, u)); return u * u * (3 - 2 * u); }
@@ -93,7 +118,8 @@ export function egoPose(s, t) {
 }
 
 // ---- the editor ----------------------------------------------------------------------------------------------------
-export function initEditor({ host, getBase, getForm, selectPreset, presetNames }) {
+export function initEditor({ host, getBase, getForm, selectPreset, presetNames, setField = () => {},
+  onRoad = () => {} }) {
   host.innerHTML = `
     <fieldset class="editor"><legend>Agents &amp; paths</legend>
       <div class="ed-tools">
@@ -105,6 +131,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
         <button type="button" id="ed-del" class="btn small" title="delete the selected agent (Delete)">✕</button>
       </div>
       <canvas id="ed-canvas" width="560" height="240" tabindex="0" aria-label="bird's-eye scenario editor"></canvas>
+      <p id="ed-junction" class="small muted ed-junction" aria-live="polite" hidden></p>
       <div class="ed-row">
         <label>Speed m/s <input type="number" id="ed-speed" min="0" max="40" step="0.5"></label>
         <label>Class <select id="ed-reclass" aria-label="class of the selected agent">${CLASSES.map((c) => `<option>${c}</option>`).join("")}</select></label>
@@ -139,7 +166,8 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
   const $ = (id) => host.querySelector(`#${id}`);
   const canvas = $("ed-canvas"), ctx = canvas.getContext("2d");
   // pathSpeed: the speed a path's waypoints are timed with (the agent's speed when its first waypoint was set)
-  const ui = { mode: "select", selected: null, drag: null, time: 0, pathSpeed: new WeakMap() };
+  // road: the server's road for the scenario (POST /api/road) once asked, {key, layout | null, error}
+  const ui = { mode: "select", selected: null, drag: null, time: 0, pathSpeed: new WeakMap(), road: null };
 
   const scenario = () => {
     const base = getBase();
@@ -151,6 +179,48 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
   // the scenario as the form describes it (road, ego, clip) with the editor's parts
   const view = () => ({ ...getForm(), agents: scenario().agents, ego: { ...getForm().ego, path: scenario().ego.path } });
   const duration = () => { const c = getForm().clip || {}; return Math.max(0, ((c.frames || 1) - 1) / (c.fps || 4)); };
+
+  // ---- the world's road: the page knows the main road and a set road.junction_s; a seeded (or turning ego's) cross
+  // road only the server knows, so the editor asks POST /api/road whenever what it depends on changes ------------
+  let roadTimer = null, roadAsked = null, roadSeq = 0;
+  function askRoad(v) {
+    const key = roadKey(v);
+    if (roadAsked === key || (ui.road && ui.road.key === key)) return;
+    roadAsked = key;
+    clearTimeout(roadTimer);
+    const seq = ++roadSeq;
+    roadTimer = setTimeout(async () => {
+      let layout = null, error = null;
+      try {
+        const resp = await fetch("/api/road", { method: "POST", headers: { "content-type": "application/json" },
+          body: JSON.stringify({ scenario: { ...v, agents: [] } }) });  // agents play no part in the road
+        const body = await resp.json();
+        if (resp.ok) layout = body; else error = body.error || resp.statusText;
+      } catch (e) {
+        error = String(e.message || e);
+      }
+      if (seq !== roadSeq) return;  // a newer question is on its way
+      ui.road = { key, layout, error };
+      roadAsked = null;
+      onRoad(layout);
+      draw();
+    }, 120);
+  }
+
+  /** The editor's model of the road it draws: the main road (roadOf) and, for an intersection, the cross road's
+   * centreline `junction_s` (world x) with where it comes from ("scenario": road.junction_s; "seed" / "manoeuvre":
+   * the server's answer for the scenario; null while that answer is pending or was refused). */
+  function geometry(v = view()) {
+    const road = roadOf(v), r = v.road || {}, out = { ...road, kind: r.kind, junction_s: null, junction_from: null };
+    delete out.xy; delete out.sd; delete out.laneD;
+    if (r.kind !== "intersection") return out;
+    if (typeof r.junction_s === "number" && Number.isFinite(r.junction_s)) {
+      return { ...out, junction_s: r.junction_s, junction_from: "scenario" };
+    }
+    askRoad(v);
+    const known = ui.road && ui.road.key === roadKey(v) && ui.road.layout;
+    return known ? { ...out, junction_s: known.junction_s, junction_from: known.junction_from } : out;
+  }
 
   function scale() {
     const r = canvas.getBoundingClientRect();
@@ -188,31 +258,62 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
     const s = scenario();
     if (!s) return;
     fit();
-    const dpr = window.devicePixelRatio || 1, v = view(), road = roadOf(v);
+    const dpr = window.devicePixelRatio || 1, v = view(), road = roadOf(v), geo = geometry(v);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     const { r } = scale();
     ctx.fillStyle = "#1d2330";
     ctx.fillRect(0, 0, r.width, r.height);
-    // road surface and lane lines along s
+    // sidewalks, then road surfaces, then lane lines: the main road along s and an intersection's cross road, a
+    // straight road along y through x = junction_s (worldsplat.world.road: the same cross-section)
+    const cs = geo.junction_s, S0 = VIEW.x0 - 10, S1 = VIEW.x1 + 10;
+    const yTop = toWorld(0, -10)[1], yBottom = toWorld(0, r.height + 10)[1];
     const strip = (d0, d1, style) => {
       ctx.fillStyle = style;
       ctx.beginPath();
-      for (let sv = VIEW.x0 - 10; sv <= VIEW.x1 + 10; sv += 2) { const [x, y] = road.xy(sv, d0); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
-      for (let sv = VIEW.x1 + 10; sv >= VIEW.x0 - 10; sv -= 2) { const [x, y] = road.xy(sv, d1); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
+      for (let sv = S0; sv <= S1; sv += 2) { const [x, y] = road.xy(sv, d0); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
+      for (let sv = S1; sv >= S0; sv -= 2) { const [x, y] = road.xy(sv, d1); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
       ctx.fill();
     };
-    strip(-road.edge - 2, road.edge + 2, "#3a4150");
-    ctx.strokeStyle = "#c8ccd4";
-    ctx.setLineDash([6, 8]);
-    for (let i = -road.lanes; i <= road.lanes; i++) {
-      const d = i === 0 ? 0 : Math.sign(i) * (road.median / 2 + Math.abs(i) * road.w);
-      ctx.setLineDash(i === 0 || Math.abs(i) === road.lanes ? [] : [6, 8]);
-      ctx.strokeStyle = i === 0 ? "#e2c044" : "#c8ccd4";
-      ctx.beginPath();
-      for (let sv = VIEW.x0 - 10; sv <= VIEW.x1 + 10; sv += 2) { const [x, y] = road.xy(sv, d); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
-      ctx.stroke();
+    const crossStrip = (half, style) => {
+      const [u0, v0] = toPixel(cs - half, yTop), [u1, v1] = toPixel(cs + half, yBottom);
+      ctx.fillStyle = style;
+      ctx.fillRect(u0, v0, u1 - u0, v1 - v0);
+    };
+    strip(-road.walkOut, road.walkOut, "#2b313d");
+    if (cs !== null) crossStrip(road.walkOut, "#2b313d");
+    strip(-road.roadHalf, road.roadHalf, "#3a4150");
+    if (cs !== null) crossStrip(road.roadHalf, "#3a4150");
+    const laneLines = (line) => {
+      for (let i = -road.lanes; i <= road.lanes; i++) {
+        const d = i === 0 ? 0 : Math.sign(i) * (road.median / 2 + Math.abs(i) * road.w);
+        ctx.setLineDash(i === 0 || Math.abs(i) === road.lanes ? [] : [6, 8]);
+        ctx.strokeStyle = i === 0 ? "#e2c044" : "#c8ccd4";
+        line(d);
+      }
+    };
+    // main road: its lines stop at the cross road's surface
+    const spans = cs === null ? [[S0, S1]] : [[S0, cs - road.roadHalf], [cs + road.roadHalf, S1]];
+    laneLines((d) => {
+      for (const [a, b] of spans) {
+        ctx.beginPath();
+        for (let sv = a; sv < b + 2; sv += 2) { const [x, y] = road.xy(Math.min(sv, b), d); const p = toPixel(x, y); ctx.lineTo(p[0], p[1]); }
+        ctx.stroke();
+      }
+    });
+    if (cs !== null) {
+      // the cross road's lines (d2 left of +y: x = junction_s - d2), stopping at the main road's surface
+      laneLines((d2) => {
+        for (const [a, b] of [[yTop, road.y0 + road.roadHalf], [road.y0 - road.roadHalf, yBottom]]) {
+          const p = toPixel(cs - d2, a), q = toPixel(cs - d2, b);
+          ctx.beginPath(); ctx.moveTo(p[0], p[1]); ctx.lineTo(q[0], q[1]); ctx.stroke();
+        }
+      });
     }
     ctx.setLineDash([]);
+    const from = { scenario: "set", seed: "the seed's", manoeuvre: "the turn's" }[geo.junction_from];
+    $("ed-junction").hidden = v.road?.kind !== "intersection";
+    $("ed-junction").textContent = cs === null ? (ui.road && ui.road.error ? `cross road: ${ui.road.error}` : "cross road: …")
+      : `cross road at ${cs.toFixed(1)} m (${from}); drag it along the road to move it`;
     const t = ui.time;
     // paths
     const pathLine = (pts, colour) => {
@@ -492,6 +593,12 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
     if (ui.mode === "path" && ui.selected !== null) { addWaypoint(ui.selected, x, y); renderScript(); draw(); return; }
     const i = hit(x, y);
     select(i);
+    const geo = geometry();
+    if (i === null && geo.junction_s !== null && Math.abs(x - geo.junction_s) <= geo.roadHalf) {
+      ui.drag = { junction: true, dx: geo.junction_s - x };  // the cross road: drag it along the main road
+      canvas.setPointerCapture(e.pointerId);
+      return;
+    }
     if (typeof i === "number") {
       const [ax, ay] = agentPose(view(), s.agents[i], 0);
       ui.drag = { i, dx: ax - x, dy: ay - y, rotate: e.shiftKey, u0: u, yaw0: s.agents[i].start?.yaw_deg || 0 };
@@ -499,7 +606,13 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
     }
   });
   canvas.addEventListener("pointermove", (e) => {
-    if (!ui.drag) return;
+    if (!ui.drag) {  // hover: the cross road can be dragged
+      const [x, y] = toWorld(...local(e)), geo = geometry();
+      const over = geo.junction_s !== null && Math.abs(x - geo.junction_s) <= geo.roadHalf && hit(x, y) === null;
+      canvas.style.cursor = over && ui.mode === "select" ? "ew-resize" : "";
+      return;
+    }
+    if (ui.drag.junction) { moveJunction(toWorld(...local(e))[0] + ui.drag.dx); return; }
     const [u, v] = local(e), [x, y] = toWorld(u, v), a = scenario().agents[ui.drag.i];
     if (ui.drag.rotate) {
       if (a.start && a.start.kind === "pose") a.start.yaw_deg = round(ui.drag.yaw0 + (u - ui.drag.u0));
@@ -530,6 +643,13 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
       draw();
     }
   });
+  /** The cross road to x = junction_s (0.1 m steps, within junctionBounds): sets the form's road.junction_s. */
+  function moveJunction(x) {
+    const [lo, hi] = junctionBounds(view()), js = Math.min(hi, Math.max(lo, Math.round(x * 10) / 10));
+    setField("road.junction_s", js);
+    $("ed-sel").textContent = `junction at ${js.toFixed(1)} m`;
+    draw();
+  }
   function del() {
     const s = scenario();
     if (typeof ui.selected === "number") s.agents.splice(ui.selected, 1);
@@ -600,7 +720,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames }
   }
   const form = host.closest("form");
   if (form) form.addEventListener("input", (e) => { if (!host.contains(e.target)) draw(); });
-  const api = { draw, refresh, toWorld, toPixel, select, ui };
+  const api = { draw, refresh, toWorld, toPixel, select, ui, geometry: () => geometry(), moveJunction };
   window.scenarioEditor = api;   // console and test hook
   return api;
 }

@@ -187,7 +187,7 @@ def test_enhancer_training_runs_on_the_shared_loop_and_resumes(tmp_path):
     assert torch.load(tmp_path / "enh.ckpt.pt", weights_only=False)["step"] == 6
 
 
-def bridge(source_noise: float = 0.0) -> Enhancer:
+def bridge(source_noise: float = 0.0, sample_noise: float = 0.0) -> Enhancer:
     torch.manual_seed(0)
     cfg = enhancer_config("tiny")
     cfg = EnhancerConfig(
@@ -197,19 +197,21 @@ def bridge(source_noise: float = 0.0) -> Enhancer:
         render_drop=0.0,
         source="render",
         source_noise=source_noise,
+        sample_noise=sample_noise,
     )
     return Enhancer(cfg)
 
 
 def test_render_bridge_starts_from_the_render_latent():
-    """v2 (source="render"): the flow's s = 0 end is the render latent (+ source_noise of seeded noise), so a
-    fresh model (zero velocity) hands the render back unchanged."""
+    """v2 (source="render"): the flow's s = 0 end is the render latent (+ sample_noise of seeded noise when
+    sampling; source_noise is for training only), so a fresh model (zero velocity) hands the render back unchanged."""
     cfg = bridge().cfg
     shape = (1, cfg.data.frames, cfg.data.views, cfg.latent_channels, 4, 6)
     render = torch.randn(shape)
     cond = fake_cond(cfg)
     assert torch.equal(bridge().sample(cond, shape, steps=3, seed=5, init=render), render)
-    noisy = bridge(0.5).sample(cond, shape, steps=3, seed=5, init=render)
+    assert torch.equal(bridge(source_noise=0.5).sample(cond, shape, steps=3, seed=5, init=render), render)
+    noisy = bridge(sample_noise=0.5).sample(cond, shape, steps=3, seed=5, init=render)
     noise = torch.randn(shape, generator=torch.Generator().manual_seed(5))
     assert torch.allclose(noisy, render + 0.5 * noise, atol=1e-6)
     with pytest.raises(ValueError, match="render latent"):

@@ -26,7 +26,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-json", default=None, help="render at this camera (web/docs/conventions.md)")
     p.add_argument("--out", required=True, help="DIR, FILE.png, FILE.mp4 or FILE.webm")
     p.add_argument("--refine", action="store_true", help="refine the render with the enhanced diffusion model")
-    p.add_argument("--steps", type=int, default=8, help="--refine: rectified-flow sampler steps")
+    p.add_argument(
+        "--steps", type=int, default=None, help="--refine: rectified-flow sampler steps (default: the model's own)"
+    )
     p.add_argument(
         "--scenario",
         default=None,

@@ -67,6 +67,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--grow", action="store_true", help="add pairs that appear in the cache while training")
+    parser.add_argument("--note", default=None, help="how this run came about (resumes, changes), kept in the card")
 
 
 def resolve_vae(args) -> Path:
@@ -170,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
         "wall_s_this_run": round(wall),
         "threads": args.threads,
         "grow": bool(args.grow),
+        "note": args.note,
         "heldout_val": {
             "seeds": sorted({s["seed"] for s in val}),
             "shifts": sorted({s["shift_m"] for s in val}),

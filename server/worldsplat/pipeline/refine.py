@@ -3,7 +3,7 @@ conditions (S', B', T') for the shifted rig from the world, VAE-encode the rende
 Model (worldsplat_models.enhancer), VAE-decode.
 
     from worldsplat.pipeline.refine import refine_available, refine_track
-    frames = refine_track(scene, shift_m=4.0, cameras=["CAM_FRONT"], steps=8, progress=cb, cancelled=fn)
+    frames = refine_track(scene, shift_m=4.0, cameras=["CAM_FRONT"], progress=cb, cancelled=fn)
 
 The scenario that produced the scene is needed for the conditions: it is read from `scene.meta["scenario"]` (a dict
 or JSON string; the pipeline stores it there, and it travels in the .wsplat header) or passed as `scenario=`.
@@ -78,7 +78,7 @@ def refine_track(
     scene,
     shift_m: float,
     cameras: list[str] | None = None,
-    steps: int = 8,
+    steps: int | None = None,
     progress=None,
     cancelled=None,
     scenario=None,
@@ -94,7 +94,7 @@ def refine_track(
     render where it covers the pixel and fills its holes with the model's output; "none" returns the model's output
     everywhere (the paper's form). `render` (a TrackRender of the full rig) skips the render stage."""
     shift_m = check_shift(shift_m)
-    if not isinstance(steps, int) or not 1 <= steps <= 64:
+    if steps is not None and (not isinstance(steps, int) or not 1 <= steps <= 64):
         raise ValueError(f"steps must be an integer in 1..64, got {steps!r}")
     names = [c.name for c in scene.rig]
     cameras = names if cameras is None else list(cameras)
@@ -107,6 +107,8 @@ def refine_track(
     world = build_world(scenario_of(scene, scenario))
     _check_rig(scene, world)
     model, vae = load_refiner(None if weights is None else str(weights))
+    steps = steps or model.cfg.dit.sampler_steps  # the model's own (1 for the v2 bridge, 8 for the session-2 model)
+    tm["steps"] = steps
 
     H, W = scene.rig[0].height, scene.rig[0].width
     h, w = model.cfg.data.height, model.cfg.data.width
@@ -169,7 +171,7 @@ def stage_timings(
     scene=None,
     shift_m: float = 4.0,
     scenario=None,
-    steps: int = 8,
+    steps: int | None = None,
     cameras: list[str] | None = None,
     blend: str = DEFAULT_BLEND,
     weights: Path | None = None,
@@ -196,5 +198,4 @@ def stage_timings(
     cf = frames.shape[0] * len(scene.rig)
     tm["camera_frames"] = cf
     tm["per_camera_frame"] = (tm["total"] - tm["video"]) / cf
-    tm["steps"] = steps
     return tm

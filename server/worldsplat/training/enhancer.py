@@ -347,9 +347,9 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
         "(`worldsplat train-enhancer`); use: `server/worldsplat/pipeline/refine.py`; "
         "evaluation: `web/docs/refinement.md`.",
         "",
-        "Since issue 16 the training pairs are rendered from the served oracle scene (eq. 3 via `aggregate_4d`, with the "
-        "economy) instead of the plain union these weights were trained on; re-running the command below trains on "
-        "those pairs, so its figures will differ from the ones recorded here until the model is retrained.",
+        "The training pairs are rendered from the served scenes (eq. 3 via `aggregate_4d`, with the economy; the "
+        "decoder's with the decoded cells and the scale floor). The ablation model (`_nomix`) is still the session-2 "
+        "one, trained on the plain union with the session-1 VAE.",
         "",
     ]
     for name in ("enhancer_small.safetensors", "enhancer_small_nomix.safetensors"):
@@ -373,7 +373,12 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
             f"({cfg['dit']['control_channels']} ch); images {cfg['data']['width']}x{cfg['data']['height']}, "
             f"{cfg['data']['views']} views x {cfg['data']['frames']} frames; clean_prob {cfg['clean_prob']}, "
             f"render_drop {cfg['render_drop']}, cond_drop {cfg['dit']['cond_drop']}; sampler: rectified flow, "
-            f"{cfg['dit']['sampler_steps']} Euler steps, shift {cfg['dit']['sampler_shift']}",
+            f"{cfg['dit']['sampler_steps']} Euler steps, shift {cfg['dit']['sampler_shift']}, from "
+            + (
+                f"the render's own latent + {cfg['source_noise']} noise (latent bridge, v2)"
+                if cfg.get("source") == "render"
+                else "seeded noise"
+            ),
             f"- data: {prov.get('train_clips')} train-split clips (seeds {prov.get('train_seeds')}): "
             f"{prov.get('degraded_pairs')} degraded pairs at +-1..4 m"
             f"{', ' + str(prov.get('clean_pairs')) + ' clean pairs at 0 m' if prov.get('mixed') else ' (the clean pairs are not used without mixing)'}"
@@ -402,6 +407,7 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
                 else f"- reproduce (the exact command of this file; makes the pairs first, then trains on all of "
                 f"them with the shipped VAE and decoder): `{_current_command(prov.get('command'))}`"
             ),
+            *([f"- history: {prov['note']}"] if prov.get("note") else []),
             "",
         ]
     path = path or Path(weights_dir) / "MODEL_CARD_enhancer.md"

@@ -29,12 +29,47 @@ def test_shipped_enhancer_fills_holes_at_4m(monkeypatch):
     from worldsplat.pipeline.render import render_scene_track
 
     raw = render_scene_track(scene, 4.0)
-    out = refine_track(scene, 4.0, steps=4, blend="holes", render=raw)
+    out = refine_track(scene, 4.0, blend="holes", render=raw)  # the model's own sampler steps
     truth = simulate(world, 4.0).rgb
     holes = raw.alpha < 0.5
     assert holes.mean() > 0.05
     H, W = truth.shape[2:4]
     m_raw = image_metrics(raw.rgb.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes.reshape(-1, H, W))
     m_ref = image_metrics(out.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes.reshape(-1, H, W))
-    assert m_ref["psnr_holes"] > m_raw["psnr_holes"] + 3.0, (m_raw, m_ref)
-    assert m_ref["psnr"] > m_raw["psnr"]
+    # floor: the v2 bridge gains +2.35 dB here (+0.60 dB over all pixels); the session-2 model gained > 3 dB in
+    # these holes but lost elsewhere. On the held-out test split the v2 model fills holes better at every shift
+    # (E+holes hole PSNR 16.67 / 18.06 / 18.91 vs 15.95 / 17.64 / 18.54 dB at 0 / 2 / 4 m, refinement.md session 8)
+    assert m_ref["psnr_holes"] > m_raw["psnr_holes"] + 2.0, (m_raw, m_ref)
+    assert m_ref["psnr"] > m_raw["psnr"] + 0.3, (m_raw, m_ref)
+
+
+def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
+    """The v2 bridge refines what reconstruct serves: on the default preset (not a training scenario) the learned
+    decoder's 4D scene seen from +4 m, refined as the playground serves it (blend "holes"), scores above the raw
+    render over all pixels and inside its holes, against the world's exact view. Measured with the shipped v2
+    weights: +0.3 dB all pixels, +2.7 dB in the holes; the session-2 model (noise source, session-1 VAE) is skipped."""
+    import worldsplat_models.conditions as cond
+    from worldsplat.core.scenario import default_scenario
+    from worldsplat.evaluation.nvs import image_metrics
+    from worldsplat.pipeline.inference import load_models, reconstruct, to_scene4d
+    from worldsplat.pipeline.refine import load_refiner, refine_track
+    from worldsplat.pipeline.render import render_scene_track
+    from worldsplat.world import build_world, simulate
+
+    model, _ = load_refiner(str(WEIGHTS))
+    if model.cfg.source != "render":
+        pytest.skip("the shipped enhancer is not the v2 bridge")
+    monkeypatch.setattr(cond, "encode_captions", lambda caps: torch.zeros(len(caps), 384))
+    sc = default_scenario().with_updates(image={"width": 112, "height": 64}, clip={"frames": 4})
+    world = build_world(sc)
+    scene = to_scene4d(reconstruct(simulate(world, 0.0), load_models()), {"scenario": sc.model_dump(mode="json")})
+    raw = render_scene_track(scene, 4.0)
+    out = refine_track(scene, 4.0, blend="holes", render=raw)
+    truth = simulate(world, 4.0).rgb
+    H, W = truth.shape[2:4]
+    holes = (raw.alpha < 0.5).reshape(-1, H, W)
+    assert holes.mean() > 0.03
+    m_raw = image_metrics(raw.rgb.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes)
+    m_ref = image_metrics(out.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes)
+    assert m_ref["psnr"] > m_raw["psnr"] + 0.15, (m_raw, m_ref)
+    assert m_ref["psnr_holes"] > m_raw["psnr_holes"] + 1.5, (m_raw, m_ref)

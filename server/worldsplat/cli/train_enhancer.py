@@ -22,6 +22,7 @@ from worldsplat.training.enhancer import (
     make_val_pairs,
     train,
     train_fallback_vae,
+    write_model_card,
 )
 from worldsplat.training.pairs import load_sample
 from worldsplat_models import conditions as caption_encoder
@@ -184,5 +185,6 @@ def run(args: argparse.Namespace) -> int:
     path = save_enhancer(model, vae, args.out / f"{name}.safetensors", {"provenance": prov})
     (args.work / f"{name}.metrics.json").write_text(json.dumps(prov, indent=1) + "\n")
     print(json.dumps(prov["heldout_val"], indent=1))
-    print(f"wrote {path} ({len(hist)} steps this run)")
+    card = write_model_card(args.out)
+    print(f"wrote {path} ({len(hist)} steps this run) and {card}")
     return 0

@@ -373,9 +373,10 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
             f"({cfg['dit']['control_channels']} ch); images {cfg['data']['width']}x{cfg['data']['height']}, "
             f"{cfg['data']['views']} views x {cfg['data']['frames']} frames; clean_prob {cfg['clean_prob']}, "
             f"render_drop {cfg['render_drop']}, cond_drop {cfg['dit']['cond_drop']}; sampler: rectified flow, "
-            f"{cfg['dit']['sampler_steps']} Euler steps, shift {cfg['dit']['sampler_shift']}, from "
+            f"{cfg['dit']['sampler_steps']} Euler step(s), shift {cfg['dit']['sampler_shift']}, from "
             + (
-                f"the render's own latent + {cfg['source_noise']} noise (latent bridge, v2)"
+                f"the render's own latent (latent bridge, v2; trained from it + {cfg['source_noise']} noise, "
+                f"sampled from it + {cfg.get('sample_noise', 0.0)})"
                 if cfg.get("source") == "render"
                 else "seeded noise"
             ),

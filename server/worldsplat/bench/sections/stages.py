@@ -20,7 +20,7 @@ def run(quick: bool) -> Section:
     t = dec.meta["timing_s"]
     ref = {}
     if refine_available() and not quick:  # the refined track takes minutes on 2 cores
-        ref = stage_timings(scenario=sc, shift_m=2.0, steps=steps)
+        ref = stage_timings(scenario=sc, shift_m=2.0)  # the enhancer's own sampler steps (1 for the v2 bridge)
     missing = "not run (--quick)" if quick else "enhancer not shipped"
     diff2 = ref.get("denoise", missing)
     vae_dec = ref.get("decode", missing)
@@ -39,7 +39,8 @@ def run(quick: bool) -> Section:
         ]
     ]
     notes = [
-        f"Conditions (incl. caption encoding) took {t['conditions']:.2f} s. The enhancer stage table: "
+        f"Conditions (incl. caption encoding) took {t['conditions']:.2f} s. The enhancer stage table "
+        f"({ref.get('steps', '-') if ref else '-'} sampler step(s)): "
         + (", ".join(f"{k} {v:.2f}" for k, v in ref.items() if isinstance(v, float)) if ref else missing)
     ]
     return Section(

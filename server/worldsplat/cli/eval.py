@@ -25,7 +25,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--split", default="test", choices=("val", "test"), help="held-out split (default test)")
     p.add_argument("--shifts", default="0,1,2,4", help="lateral shifts in metres, comma-separated")
     p.add_argument("--count", type=int, default=6, help="clips of the split (default 6)")
-    p.add_argument("--steps", type=int, default=8, help="enhancer sampler steps (default 8)")
+    p.add_argument("--steps", type=int, default=None, help="enhancer sampler steps (default: each model's own)")
     p.add_argument("--weights", type=Path, default=None, help="directory with enhancer_small[_nomix].safetensors")
     p.add_argument("--cache", type=Path, default=None, help="sample cache (default runs/enhancer_pairs)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
@@ -34,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     f.add_argument("scenario", nargs="?", default="default", help="preset name or scenario JSON (default preset)")
     f.add_argument("--shift-m", type=float, default=4.0)
     f.add_argument("--cameras", default="CAM_FRONT,CAM_BACK,CAM_FRONT_RIGHT")
-    f.add_argument("--steps", type=int, default=8)
+    f.add_argument("--steps", type=int, default=None, help="enhancer sampler steps (default: the model's own)")
     f.add_argument("--threads", type=int, default=1)
     f.add_argument("--weights", type=Path, default=None, help="enhancer weights file (default the shipped one)")
     f.add_argument("--out", type=Path, required=True, help="PNG path")
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.count < 1:
         raise ValueError("--count must be at least 1")
-    if not 1 <= args.steps <= 64:
+    if args.steps is not None and not 1 <= args.steps <= 64:
         raise ValueError("--steps must be in 1..64")
     torch.set_num_threads(args.threads)
     result = evaluate(args.split, parse_shifts(args.shifts), args.count, args.steps, args.weights, args.cache, args.out)

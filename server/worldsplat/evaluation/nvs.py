@@ -154,7 +154,7 @@ def evaluate(
     split: str = "test",
     shifts=(0.0, 1.0, 2.0, 4.0),
     count: int = 6,
-    steps: int = 8,
+    steps: int | None = None,
     weights_dir: Path | None = None,
     cache: Path | None = None,
     out: Path | None = None,
@@ -323,7 +323,7 @@ def side_by_side(
     shift_m: float = 4.0,
     cameras: tuple[str, ...] = ("CAM_FRONT", "CAM_BACK", "CAM_FRONT_RIGHT"),
     frame: int | None = None,
-    steps: int = 8,
+    steps: int | None = None,
     weights: Path | None = None,
     scale: int = 2,
 ) -> tuple[np.ndarray, dict]:

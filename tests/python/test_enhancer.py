@@ -248,3 +248,19 @@ def test_render_bridge_learns_the_correction_not_the_image():
         out = model.eval().sample(cond, shape, steps=1, seed=0, init=r)
         errors[name] = float((out - (r + 1.0)).abs().mean())
     assert errors["bridge"] < 0.35 < errors["noise"], errors
+
+
+def test_a_growing_pair_pool_takes_whole_clips_only(tmp_path):
+    """train-enhancer --grow loads a seed only once every file make_pairs writes for it exists: in session 8 a seed
+    loaded before its `_dec` pair was written trained without it (124 decoder pairs for 169 clips)."""
+    from worldsplat.training.enhancer import clip_pair_paths, complete_seeds
+
+    whole, partial = 1, 5
+    for seed in (whole, partial):
+        paths = clip_pair_paths(tmp_path, seed, with_decoder=True, decoder_every=1)
+        assert paths[-1].name.endswith("_dec.npz")
+        for p in paths if seed == whole else paths[:-1]:  # the partial clip's `_dec` pair is still being rendered
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_bytes(b"")
+    assert complete_seeds(tmp_path, [whole, partial], with_decoder=True, decoder_every=1) == [whole]
+    assert complete_seeds(tmp_path, [whole, partial], with_decoder=False) == [whole, partial]

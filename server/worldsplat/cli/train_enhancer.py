@@ -13,6 +13,7 @@ import torch
 from worldsplat.core.paths import runs_dir
 from worldsplat.pipeline.inference import load_models
 from worldsplat.training.enhancer import (
+    complete_seeds,
     default_cache,
     default_vae_path,
     encode_pair,
@@ -111,11 +112,13 @@ def run(args: argparse.Namespace) -> int:
     seen: set[str] = set()
 
     def load_new(limit=None, progress=True):
-        """Encode the cached pairs not loaded yet (whole clips: a clean pair is never taken without its clip)."""
+        """Encode the cached pairs not loaded yet, whole clips only (every file `make_pairs` writes for the seed)."""
         files = sorted((args.cache / "train").glob("seed*.npz"))
         if args.no_decoder_pairs:
             files = [f for f in files if not f.name.endswith("_dec.npz")]
-        seeds = sorted({f.name[4:12] for f in files} - seen)
+        found = sorted({int(f.name[4:12]) for f in files})
+        whole = complete_seeds(args.cache, found, not args.no_decoder_pairs, args.decoder_every)
+        seeds = sorted({f"{s:08d}" for s in whole} - seen)
         if limit is not None:
             seeds = seeds[: max(0, limit - len(seen))]
         files = [f for f in files if f.name[4:12] in seeds]
@@ -136,7 +139,10 @@ def run(args: argparse.Namespace) -> int:
 
     degraded, clean = load_new(args.use_pairs)
     if not degraded:
-        raise FileNotFoundError(f"no training pairs under {args.cache / 'train'}")
+        raise FileNotFoundError(
+            f"no whole training clip under {args.cache / 'train'} (a clip counts when every file make_pairs writes "
+            f"for it is there, `_dec` pairs per --decoder-every {args.decoder_every} included)"
+        )
     n_dec = sum(bool(d.get("from_decoder")) for d in degraded)
     print(
         f"{len(degraded)} degraded ({n_dec} from the decoder) and {len(clean)} clean pairs from {len(seen)} clips; "

@@ -72,6 +72,24 @@ def decoder_scene(clip, models):
     return to_scene4d(reconstruct(clip, models))
 
 
+def clip_pair_paths(cache: Path, seed: int, with_decoder: bool, decoder_every: int = 2) -> list[Path]:
+    """The files `make_pairs` writes for one train seed: its degraded oracle pair, its clean pair (every other pair
+    of seeds) and its `_dec` pair (every `decoder_every`-th seed, with a decoder)."""
+    shift = train_shift(seed)
+    paths = [sample_path(cache, "train", seed, shift)]
+    if has_clean_pair(seed):
+        paths.append(sample_path(cache, "train", seed, 0.0, "_clean"))
+    if with_decoder and has_decoder_pair(seed, decoder_every):
+        paths.append(sample_path(cache, "train", seed, shift, "_dec"))
+    return paths
+
+
+def complete_seeds(cache: Path, seeds, with_decoder: bool, decoder_every: int = 2) -> list[int]:
+    """The seeds whose pairs are all on disk: a pool that grows while `make_pairs` runs elsewhere takes a clip only
+    once it is whole (taken earlier, a clip whose `_dec` pair came later trained without it)."""
+    return [s for s in seeds if all(p.exists() for p in clip_pair_paths(cache, s, with_decoder, decoder_every))]
+
+
 def make_pairs(
     cache: Path,
     count: int,

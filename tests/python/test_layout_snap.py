@@ -1,5 +1,6 @@
 """snap_to_layout: generated road Gaussians go onto the ground plane the layout maps state, along their own rays;
-what the layout does not call ground (boxes, off-plane structure, dynamic Gaussians) keeps its place."""
+what the layout does not call ground (boxes, off-plane structure, dynamic Gaussians) keeps its place.
+snap_agents_to_layout: box cells onto their box, moving with a moving agent."""
 
 import numpy as np
 import pytest
@@ -7,7 +8,7 @@ import torch
 
 from worldsplat.core.camera import default_rig
 from worldsplat.gaussians import Gaussians
-from worldsplat.pipeline.inference import DecodedFrames, snap_to_layout
+from worldsplat.pipeline.inference import DecodedFrames, _inside_boxes, snap_agents_to_layout, snap_to_layout
 from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_depth_m, normalize_log_depth
 
 H, W = 16, 28
@@ -100,3 +101,90 @@ def test_layout_depth_round_trip_and_a_grid_that_does_not_fit():
     dec, control, *_ = _case(2, np.zeros((H // 2, W // 2)))
     with pytest.raises(ValueError, match="not a grid"):
         snap_to_layout(dec, control[..., :-2])
+
+
+# -- agents onto their boxes (snap_agents_to_layout) ----------------------------------------------------------------
+BOX_LO, BOX_HI = np.array([10.0, -1.0, 0.0]), np.array([14.5, 1.0, 1.6])  # a car 10 m ahead (world = ego frame)
+
+
+def _box_corners(lo, hi) -> np.ndarray:
+    """`Agent.box_corners` order: bottom face counter-clockwise from rear-right, then the top face."""
+    bottom = [[lo[0], lo[1], lo[2]], [hi[0], lo[1], lo[2]], [hi[0], hi[1], lo[2]], [lo[0], hi[1], lo[2]]]
+    return np.array(bottom + [[x, y, hi[2]] for x, y, _ in bottom])
+
+
+def _box_case(f: int, moving: bool):
+    """The front camera; the layout states one box (vehicle channel and its ray-cast depth, computed here by the slab
+    method); every generated Gaussian sits at 60 m on its pixel ray (a generator that drew the background where the
+    car is), static."""
+    cam_rig = default_rig(W, H)[:1]
+    ego = np.eye(4)[None]
+    cam = cam_rig[0].at(ego[0])
+    c2w = np.linalg.inv(cam.world_to_camera)
+
+    def rays(step):
+        u, v = (np.arange(W // step) + 0.5) * step, (np.arange(H // step) + 0.5) * step
+        x, y = np.meshgrid((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy)
+        return np.stack([x, y, np.ones_like(x)], -1) @ c2w[:3, :3].T  # unit camera-z rays in the world
+
+    o = c2w[:3, 3]
+    d = rays(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (BOX_LO - o) / d, (BOX_HI - o) / d
+    near, far = np.minimum(t0, t1).max(-1), np.maximum(t0, t1).min(-1)
+    hit = (near < far) & (near > 0)
+    control = np.zeros((1, 1, len(LAYOUT_CHANNELS), H, W), np.float32)
+    control[0, 0, CH["vehicle"]] = hit
+    control[0, 0, CH["depth"]] = normalize_log_depth(np.where(hit, near, np.inf), 0.5, 80.0)
+    means = torch.tensor((o + 60.0 * rays(f)).reshape(-1, 3), dtype=torch.float32)
+    n = means.shape[0]
+    g = Gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.1),
+        torch.ones(n),
+        torch.rand(n, 3),
+        torch.zeros(n, 1),
+    )
+    dec = DecodedFrames([[g]], [[torch.zeros(n)]], np.zeros(1), cam_rig, ego, torch.zeros(1))
+    boxes = {
+        "box_corners": torch.tensor(
+            np.stack([_box_corners(BOX_LO, BOX_HI), np.zeros((8, 3))])[None], dtype=torch.float32
+        ),
+        "box_moving": torch.tensor([[moving, False]]),
+        "box_mask": torch.tensor([[True, False]]),  # the second slot is padding
+    }
+    return dec, torch.from_numpy(control), boxes, o, hit
+
+
+@pytest.mark.parametrize("f", [1, 2])
+@pytest.mark.parametrize("moving", [True, False])
+def test_agent_cells_land_on_their_box_and_move_with_it(f, moving):
+    dec, control, boxes, o, hit = _box_case(f, moving)
+    before = dec.gaussians[0][0].means.clone()
+    dec.gaussians[0][0].extras[-1, 0] = 0.9  # a dynamic Gaussian far from every box (top-right sky): kept
+    stats = snap_agents_to_layout(dec, control, boxes)
+    g = dec.gaussians[0][0]
+    cover = torch.nn.functional.avg_pool2d(torch.tensor(hit, dtype=torch.float32)[None, None], f)[0, 0].reshape(-1)
+    cell = cover > 0.5
+    assert cell.sum() >= 2 and stats["agent_snap_fraction"] == pytest.approx(float(cell.float().mean()))
+    # on the box (its surface, within the cell's footprint) and still on their rays
+    m = g.means[cell].double().numpy()
+    assert ((m > BOX_LO - 0.3) & (m < BOX_HI + 0.3)).all(), "box cells' Gaussians are on the box"
+    o_t = torch.as_tensor(o, dtype=torch.float32)
+    a, b = before[cell] - o_t, g.means[cell] - o_t
+    assert ((a * b).sum(-1) / (a.norm(dim=-1) * b.norm(dim=-1))).min() > 1 - 1e-5
+    # moving agent: its Gaussians are dynamic; a standing one's stay static; elsewhere nothing moved, p kept
+    p = g.extras[:, 0]
+    assert bool((p[cell] == 1.0).all()) is moving and bool((p[cell] == 0.0).all()) is not moving
+    assert torch.equal(g.means[~cell], before[~cell]) and p[-1] == pytest.approx(0.9)
+    assert (p[~cell][:-1] == 0).all()
+    assert stats["agent_dynamic_fraction"] == pytest.approx(float(cell.float().mean()) if moving else 0.0)
+
+
+def test_inside_boxes_grows_each_box_by_the_margin():
+    corners = torch.tensor(_box_corners(BOX_LO, BOX_HI))[None].double()
+    pts = torch.tensor([[12.0, 0.0, 0.8], [14.7, 0.0, 0.8], [15.0, 0.0, 0.8], [12.0, 1.2, 1.7], [9.5, 0.0, 0.8]])
+    got = _inside_boxes(pts.double(), corners, 0.3)
+    assert got.tolist() == [True, True, False, True, False]
+    assert not _inside_boxes(pts.double(), corners[:0], 0.3).any()

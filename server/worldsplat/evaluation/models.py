@@ -41,7 +41,7 @@ from worldsplat.pipeline.inference import (
 from worldsplat.pipeline.scene import oracle_scene
 from worldsplat.training.data import ShardDataset
 from worldsplat.world import Clip
-from worldsplat.world.classes import CROSSWALK, LANE_MARKING, ROAD
+from worldsplat.world.classes import BUS, CAR, CROSSWALK, CYCLIST, LANE_MARKING, PEDESTRIAN, ROAD, TRUCK
 from worldsplat_models.vae import denormalize_depth
 
 SHIFTS = (0.0, -1.0, 1.0, -2.0, 2.0, -4.0, 4.0)
@@ -195,19 +195,23 @@ def eval_generate(
     latents: str = "sample",
     snap: bool = True,
     snap_log_tol: float | None = None,
+    snap_agents: bool = True,
 ) -> dict:
     """Layout fidelity of generated scenes, decoded as generate mode serves them (`decode_generated`; `snap` False
-    leaves out its snap of road Gaussians onto the layout's plane). latents="encode" swaps the DiT sample for the
-    VAE encoding of the ground-truth clip: the same metrics then measure the ceiling of the VAE + Gaussian-decoder path, i.e. what a
-    perfect diffusion model could reach with these weights. latents="prior" takes the layout prior's mean alone
-    (a v4 DiT's residual set to zero): what the DiT adds on top of it. RGB PSNR against the ground truth, on all
-    pixels and 8x8-pooled (colour layout: a generated scene need not copy the textures, but road, facade and
-    vehicle colours should be where the ground truth has them)."""
+        leaves out its snaps onto the layout: road Gaussians onto its plane, agents' onto their boxes; `snap_agents` False
+    the second alone). Agent pixels (the ground truth's vehicle, pedestrian and cyclist classes) are scored on their
+    own too, the defect an all-pixel mean hides: depth AbsRel, alpha (solid: near 1), RGB PSNR. latents="encode" swaps the DiT sample for the
+        VAE encoding of the ground-truth clip: the same metrics then measure the ceiling of the VAE + Gaussian-decoder path, i.e. what a
+        perfect diffusion model could reach with these weights. latents="prior" takes the layout prior's mean alone
+        (a v4 DiT's residual set to zero): what the DiT adds on top of it. RGB PSNR against the ground truth, on all
+        pixels and 8x8-pooled (colour layout: a generated scene need not copy the textures, but road, facade and
+        vehicle colours should be where the ground truth has them)."""
     if latents not in ("sample", "encode", "prior"):
         raise ValueError(f"eval_generate: latents must be 'sample', 'encode' or 'prior', got {latents!r}")
     if latents == "prior" and getattr(models, "prior", None) is None:
         raise ValueError("eval_generate: latents='prior' needs models with a layout prior (prior_small.safetensors)")
     iou_box, iou_gt, absrel, absrel_road, ceiling, ps, ps8 = [], [], [], [], [], [], []
+    absrel_agent, alpha_agent, se_agent, n_agent = [], [], 0.0, 0
     for i in range(min(n, len(ds))):
         s = ds[i]
         z = ds.load(i)
@@ -222,7 +226,10 @@ def eval_generate(
         else:
             L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
         tol = {} if snap_log_tol is None else {"snap_log_tol": snap_log_tol}
-        scene = to_scene4d(decode_generated(models, L, cond, rig, ego, np.arange(T) / 4.0, {}, snap=snap, **tol))
+        dec = decode_generated(
+            models, L, cond, rig, ego, np.arange(T) / 4.0, {}, snap=snap, snap_agents=snap_agents, **tol
+        )
+        scene = to_scene4d(dec)
         moving = np.asarray(z["box_moving"], bool)
         for t in frames or range(T):
             g = scene.at_frame(t)
@@ -246,6 +253,12 @@ def eval_generate(
                 if "semantic" in z:  # road surface (road, markings, crosswalks): the layout the DiT is given
                     road = torch.from_numpy(np.isin(z["semantic"][t, v], ROAD_CLASSES))
                     absrel_road.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=road))
+                    agent = torch.from_numpy(np.isin(z["semantic"][t, v], AGENT_CLASSES))
+                    if agent.any():
+                        absrel_agent.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=agent))
+                        alpha_agent.append(out["alpha"][agent].float())
+                        se_agent += float(((out["rgb"].clamp(0, 1) - gt_rgb)[agent] ** 2).sum())
+                        n_agent += 3 * int(agent.sum())
     return {
         "clips": min(n, len(ds)),
         "steps": steps if latents == "sample" else None,
@@ -257,10 +270,15 @@ def eval_generate(
         "gt_mask_iou_vs_projected_boxes": _pooled(ceiling),
         "rgb_psnr": float(np.mean(ps)),
         "rgb_psnr_pool8": float(np.mean(ps8)),
+        # pooled over every agent pixel of the scored frames (a per-view mean would weigh a 3-pixel car like a bus)
+        "agent_depth_absrel": float(np.nanmean(absrel_agent)) if absrel_agent else float("nan"),
+        "agent_alpha": float(torch.cat(alpha_agent).mean()) if alpha_agent else float("nan"),
+        "agent_rgb_psnr": float(10 * np.log10(n_agent / se_agent)) if n_agent and se_agent > 0 else float("nan"),
     }
 
 
 ROAD_CLASSES = (ROAD, LANE_MARKING, CROSSWALK)
+AGENT_CLASSES = (CAR, BUS, TRUCK, PEDESTRIAN, CYCLIST)
 
 
 def _inter_union(a: torch.Tensor, b: torch.Tensor) -> tuple[int, int]:
@@ -405,7 +423,7 @@ def main(argv=None) -> int:
         default="vae,reconstruct,generate,steps",
         help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
         "(generate's layout metrics on VAE-encoded ground truth), prior (on the layout prior's mean alone), nosnap "
-        "(generate without the snap onto the layout's ground plane), steps",
+        "(generate without the snaps onto the layout), noagentsnap (generate with the road snap, without the agents'), steps",
     )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
@@ -443,6 +461,9 @@ def main(argv=None) -> int:
     if "nosnap" in parts and "generate" in models.modes:
         out["generate_no_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap=False)
         print("generate_no_snap", out["generate_no_snap"], flush=True)
+    if "noagentsnap" in parts and "generate" in models.modes:
+        out["generate_no_agent_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap_agents=False)
+        print("generate_no_agent_snap", out["generate_no_agent_snap"], flush=True)
     if "ceiling" in parts:
         out["generate_ceiling"] = eval_generate(models, ds, a.clips, frames=frames, latents="encode")
         print("generate_ceiling", out["generate_ceiling"], flush=True)

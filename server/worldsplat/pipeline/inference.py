@@ -320,6 +320,73 @@ def snap_to_layout(dec: DecodedFrames, control: torch.Tensor, log_tol: float = L
     return moved / max(total, 1)
 
 
+# A generated Gaussian within this distance of a moving agent's box (metres) moves with that agent: the layout's box
+# surface, onto which the box cells' Gaussians are put, is exact; the margin takes the cell's footprint.
+AGENT_BOX_MARGIN_M = 0.3
+
+
+def _inside_boxes(points: torch.Tensor, corners: torch.Tensor, margin: float) -> torch.Tensor:
+    """(N,3) points, (K,8,3) box corners (`Agent.box_corners` order: bottom face counter-clockwise from rear-right,
+    then the top face) in the same frame -> (N,) True where a point lies inside any box grown by `margin` metres."""
+    if corners.shape[0] == 0:
+        return torch.zeros(points.shape[0], dtype=torch.bool)
+    o = corners[:, 0]  # (K,3) rear-right bottom
+    axes = torch.stack([corners[:, 1] - o, corners[:, 3] - o, corners[:, 4] - o], 1)  # (K,3,3) length, width, height
+    size = axes.norm(dim=-1).clamp_min(1e-6)  # (K,3)
+    local = torch.einsum("nkc,kac->nka", points[:, None] - o[None], axes / size[..., None])  # (N,K,3) metres
+    inside = (local > -margin) & (local < size[None] + margin)
+    return inside.all(-1).any(-1)
+
+
+@torch.no_grad()
+def snap_agents_to_layout(dec: DecodedFrames, control: torch.Tensor, cond: dict, margin: float = AGENT_BOX_MARGIN_M):
+    """Generated Gaussians where the layout maps state an agent onto that agent's box, and the agents' motion from
+    the scenario. The layout's box channels and their depth are exact (a box per agent, `world/layout_maps.py`);
+    the generator's latents at 1/4 resolution lose far and small agents (0-51 dynamic Gaussians per frame on imported
+    files, web/docs/world.md), so the scene did not hold them where the scenario put them. Two steps, in place:
+    1. every Gaussian whose grid cell is mostly box (vehicle or vulnerable channel > 0.5 on average) moves along its
+       camera ray onto the box surface (the harmonic mean of the cell's box-pixel depths; mean and scales by the ratio,
+       so the image from its own camera barely changes);
+    2. a Gaussian inside a moving agent's box at its frame (`cond` box_corners, box_moving: the conditions' boxes in
+       each frame's ego frame) becomes dynamic, one inside a standing agent's box static; elsewhere the decoder's
+       dynamic probability is kept.
+    Returns {"agent_snap_fraction", "agent_dynamic_fraction"} over all Gaussians."""
+    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
+    T, V, _, H, W = control.shape
+    moved = dynamic = total = 0
+    for t in range(T):
+        known = cond["box_mask"][t].bool()
+        corners = cond["box_corners"][t].double()
+        mov, stand = corners[known & cond["box_moving"][t].bool()], corners[known & ~cond["box_moving"][t].bool()]
+        w2e = torch.as_tensor(np.linalg.inv(dec.ego_to_world[t]), dtype=torch.float64)
+        for v in range(V):
+            g = dec.gaussians[t][v]
+            n = len(g)
+            f = round((H * W / n) ** 0.5)  # the decoder's grid pitch in model pixels (1 or 2)
+            if f < 1 or (H // f) * (W // f) != n:
+                raise ValueError(f"snap_agents_to_layout: {n} Gaussians per view is not a grid of the {H}x{W} layout")
+            c = control[t, v].float()
+            box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1)[None, None]
+            cover = F.avg_pool2d(box, f)[0, 0]
+            inv_z = F.avg_pool2d(box / layout_depth_m(c[ch["depth"]])[None, None], f)[0, 0]
+            z_box = cover / inv_z.clamp_min(1e-9)  # harmonic mean over the cell's box pixels
+            cam = dec.rig[v].at(dec.ego_to_world[t])
+            c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=g.means.dtype)
+            o, z_axis = c2w[:3, 3], c2w[:3, 2]
+            z = (g.means - o) @ z_axis
+            ok = (cover.reshape(-1) > 0.5) & (z > 1e-3)
+            r = (z_box.reshape(-1) / z.clamp_min(1e-3))[:, None]
+            g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
+            g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
+            ego = g.means.double() @ w2e[:3, :3].T + w2e[:3, 3]
+            in_moving, in_standing = _inside_boxes(ego, mov, margin), _inside_boxes(ego, stand, margin)
+            p = g.extras[:, 0] if g.extras is not None else torch.zeros(n)
+            p = torch.where(in_moving, torch.ones_like(p), torch.where(in_standing, torch.zeros_like(p), p))
+            g.extras = p[:, None] if g.extras is None else torch.cat([p[:, None], g.extras[:, 1:]], 1)
+            moved, dynamic, total = moved + int(ok.sum()), dynamic + int(in_moving.sum()), total + n
+    return {"agent_snap_fraction": moved / max(total, 1), "agent_dynamic_fraction": dynamic / max(total, 1)}
+
+
 # --- modes -----------------------------------------------------------------------------------------------------------
 
 
@@ -455,12 +522,19 @@ def decode_generated(
     pad=True,
     snap=True,
     snap_log_tol: float = LAYOUT_SNAP_LOG_TOL,
+    snap_agents: bool = True,
 ) -> DecodedFrames:
     """Generated latents -> DecodedFrames as generate mode serves them (the evaluation scores exactly this):
-    decode, then, where the models read layout maps, `snap_to_layout` (skipped with snap=False)."""
+    decode, then, where the models read layout maps, `snap_to_layout` (the road onto its plane) and
+    `snap_agents_to_layout` (the agents onto their boxes, moving with them); snap=False skips both, snap_agents=False
+    the second."""
     dec = decode_gaussians(models, L, rig, ego_to_world, frame_times, meta, pad=pad)
     if snap and layout_size(models) is not None:
-        dec.meta["layout_snap_fraction"] = snap_to_layout(dec, cond["control"][: L.shape[0]], snap_log_tol)
+        control = cond["control"][: L.shape[0]]
+        dec.meta["layout_snap_fraction"] = snap_to_layout(dec, control, snap_log_tol)
+        if snap_agents:
+            boxes = {k: cond[k][: L.shape[0]] for k in ("box_corners", "box_moving", "box_mask")}
+            dec.meta.update(snap_agents_to_layout(dec, control, boxes))
     return dec
 
 

@@ -12,72 +12,25 @@ road (`check_scenario`), every problem an `ImportRefused` message naming the ele
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
 
 from worldsplat.core.scenario import Scenario, ScenarioError
 from worldsplat.world.agents import check_scenario
+from worldsplat.world.scenario_io.common import Frame, Imported, ImportRefused, fit_clip, subsample, wrap
 
-
-class ImportRefused(ValueError):
-    """A file that cannot be represented; `errors` holds one "Element/Path: why" string per problem, `warnings` what
-    the import had noted before it was refused."""
-
-    def __init__(self, errors: list[str], warnings: list[str] | None = None):
-        self.errors = errors
-        self.warnings = list(warnings or [])
-        super().__init__("cannot import: " + "; ".join(errors))
-
-
-@dataclass
-class Imported:
-    scenario: dict  # a v2 scenario document (validate with Scenario.parse)
-    warnings: list[str] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class Frame:
-    """The file's world frame -> ours: translate the ego's start to the origin and turn its heading to +x."""
-
-    x: float
-    y: float
-    h: float
-
-    def point(self, x: float, y: float) -> tuple[float, float]:
-        c, s = math.cos(self.h), math.sin(self.h)
-        dx, dy = x - self.x, y - self.y
-        return c * dx + s * dy, -s * dx + c * dy
-
-    def yaw(self, h: float) -> float:
-        return wrap(h - self.h)
-
-
-def wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
-
-def fit_clip(duration: float, fps: float = 4.0, frames: int | None = None) -> dict:
-    """The clip for a scenario that lasts `duration` seconds: at most 32 frames."""
-    if frames is None:
-        frames = int(max(1, min(32, math.floor(duration * fps + 1e-6) + 1)))
-    return {"frames": int(frames), "fps": float(fps)}
-
-
-def subsample(times: np.ndarray, max_n: int = 64) -> np.ndarray:
-    """Indices of at most max_n of `times`, first and last kept."""
-    n = len(times)
-    if n <= max_n:
-        return np.arange(n)
-    step = int(math.ceil((n - 1) / (max_n - 1)))
-    idx = list(range(0, n, step))
-    if idx[-1] != n - 1:
-        idx[-1] = n - 1 if len(idx) == max_n else idx[-1]
-        if idx[-1] != n - 1:
-            idx.append(n - 1)
-    return np.array(idx)
+__all__ = [
+    "Frame",
+    "Imported",
+    "ImportRefused",
+    "Loaded",
+    "SCENARIO_SUFFIXES",
+    "fit_clip",
+    "import_scenario",
+    "load_scenario_file",
+    "subsample",
+    "wrap",
+]
 
 
 def import_scenario(path: str | Path, **options) -> Imported:

@@ -16,7 +16,7 @@ from commonroad.common.reader.file_reader_xml import XMLFileReader
 from shapely.geometry import Point
 
 from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG
-from worldsplat.world.scenario_io import Frame, Imported, ImportRefused, fit_clip, subsample
+from worldsplat.world.scenario_io.common import Frame, Imported, ImportRefused, fit_clip, subsample
 
 CLASS = {
     "car": "car",

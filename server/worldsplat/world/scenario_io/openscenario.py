@@ -20,7 +20,7 @@ from scenariogeneration import xodr, xosc
 
 from worldsplat.core.scenario import CLASS_MAX_ACCEL, JUNCTION_S, Scenario
 from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG, ego_rear_poses, scenario_road, spec_poses
-from worldsplat.world.scenario_io import Frame, Imported, ImportRefused, fit_clip, wrap
+from worldsplat.world.scenario_io.common import Frame, Imported, ImportRefused, fit_clip, wrap
 
 VEHICLE_CLASS = {"car": "car", "van": "car", "truck": "truck", "bus": "bus", "bicycle": "cyclist"}
 PEDESTRIAN_CLASS = {"pedestrian": "pedestrian"}

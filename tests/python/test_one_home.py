@@ -98,6 +98,28 @@ def test_one_psnr_for_uint8_float_and_masks():
     assert metrics.psnr(a, b, mask) == float("inf")
 
 
+def test_pooled_metrics_and_depth_bounds_are_the_one_home():
+    import torch
+
+    # a pooled PSNR is psnr_from_mse of the pooled squared errors (evaluation's agent PSNR)
+    a, b = np.zeros((3, 2, 2, 3)), np.full((3, 2, 2, 3), 0.1)
+    assert metrics.psnr_from_mse(0.01) == pytest.approx(metrics.psnr(a, b)) == pytest.approx(20.0)
+    # pooled IoU = total intersection / total union (a per-pair mean would weigh an empty pair like a full one)
+    p = torch.tensor([[1, 1, 0, 0]], dtype=torch.bool)
+    g = torch.tensor([[1, 0, 0, 0]], dtype=torch.bool)
+    e = torch.zeros_like(p)
+    counts = [metrics.iou_counts(p, g), metrics.iou_counts(e, e)]
+    assert counts == [(1, 2), (0, 0)]
+    assert metrics.pooled_iou(counts) == 0.5 == metrics.mask_iou(p, g)
+    assert metrics.pooled_iou([(0, 0)]) == 1.0 == metrics.mask_iou(e, e)
+    assert np.isnan(metrics.pooled_iou([(0, 0)], empty=float("nan")))
+    # AbsRel's bounds: GT in (min_depth, max_depth) only
+    gt = torch.tensor([0.3, 2.0, 10.0, 90.0])
+    pred = torch.tensor([0.0, 3.0, 10.0, 0.0])
+    assert metrics.depth_abs_rel(pred, gt) == pytest.approx((1.0 + 0.5 + 0.0) / 3)
+    assert metrics.depth_abs_rel(pred, gt, min_depth=0.5) == pytest.approx(0.25)
+
+
 def test_the_weights_folder_is_spelled_once(monkeypatch, tmp_path):
     from worldsplat_models.weights import weights_dir
 

@@ -28,7 +28,11 @@ def psnr(a, b, mask=None, peak: float = 1.0) -> float:
     d = (_unit(a) - _unit(b)) ** 2
     if mask is not None:
         d = d[np.asarray(mask.cpu() if isinstance(mask, torch.Tensor) else mask, bool)]
-    mse = float(d.mean()) if d.size else 0.0
+    return psnr_from_mse(float(d.mean()) if d.size else 0.0, peak)
+
+
+def psnr_from_mse(mse: float, peak: float = 1.0) -> float:
+    """PSNR in dB of a mean squared error (in units of `peak`); a pooled PSNR is this of the pooled squared errors."""
     return float("inf") if mse == 0 else 10.0 * math.log10(peak * peak / mse)
 
 
@@ -67,15 +71,15 @@ def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return ssim_map(a4, b4, size=min(11, (min(H, W) // 2) * 2 - 1)).mean()
 
 
-def depth_abs_rel(pred, gt, valid=None, max_depth: float = 80.0) -> float:
-    """mean |pred - gt| / gt over pixels with finite gt below max_depth (sky and the far range excluded); torch or
-    numpy depths in metres."""
+def depth_abs_rel(pred, gt, valid=None, max_depth: float = 80.0, min_depth: float = 0.0) -> float:
+    """mean |pred - gt| / gt over pixels with finite gt in (min_depth, max_depth) (sky and the far range excluded);
+    torch or numpy depths in metres."""
     pred, gt = (
         torch.as_tensor(np.asarray(pred) if not isinstance(pred, torch.Tensor) else pred),
         torch.as_tensor(np.asarray(gt) if not isinstance(gt, torch.Tensor) else gt),
     )
     gt = gt.float()
-    ok = torch.isfinite(gt) & (gt > 0) & (gt < max_depth) & torch.isfinite(pred)
+    ok = torch.isfinite(gt) & (gt > max(min_depth, 0.0)) & (gt < max_depth) & torch.isfinite(pred)
     if valid is not None:
         ok &= valid.bool()
     if not bool(ok.any()):
@@ -83,11 +87,22 @@ def depth_abs_rel(pred, gt, valid=None, max_depth: float = 80.0) -> float:
     return float(((pred.float() - gt).abs() / gt)[ok].mean())
 
 
+def iou_counts(pred: torch.Tensor, gt: torch.Tensor) -> tuple[int, int]:
+    """(intersection, union) pixel counts of two boolean masks (for an IoU pooled over many, `pooled_iou`)."""
+    p, g = pred.bool(), gt.bool()
+    return int((p & g).sum()), int((p | g).sum())
+
+
 def mask_iou(pred: torch.Tensor, gt: torch.Tensor) -> float:
     """IoU of two boolean masks; 1.0 when both are empty."""
-    p, g = pred.bool(), gt.bool()
-    union = int((p | g).sum())
-    return 1.0 if union == 0 else int((p & g).sum()) / union
+    return pooled_iou([iou_counts(pred, gt)])
+
+
+def pooled_iou(counts: list[tuple[int, int]], empty: float = 1.0) -> float:
+    """IoU pooled over many mask pairs: total intersection / total union of their `iou_counts`; `empty` when every
+    union is empty (1.0: two empty masks agree; evaluation reports nan: nothing was scored)."""
+    union = sum(u for _, u in counts)
+    return empty if union == 0 else sum(i for i, _ in counts) / union
 
 
 def image_metrics(pred, gt, holes=None) -> dict:

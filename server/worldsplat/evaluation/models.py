@@ -25,7 +25,7 @@ import torch
 from PIL import Image
 
 from worldsplat.core.camera import default_rig
-from worldsplat.core.metrics import depth_abs_rel, mask_iou, psnr, ssim
+from worldsplat.core.metrics import depth_abs_rel, iou_counts, mask_iou, pooled_iou, psnr, psnr_from_mse, ssim
 from worldsplat.gaussians.raster import rasterize, render_view
 from worldsplat.pipeline.inference import (
     Models,
@@ -241,9 +241,9 @@ def eval_generate(
                 box_mask = projected_box_mask(np.asarray(z["box_corners"][t][moving], np.float64), cam)
                 bm, gm = torch.from_numpy(box_mask), torch.as_tensor(s["dynamic"][t, v])
                 # pooled over all views (a per-view mean would count empty-vs-empty views as 1.0)
-                iou_box.append(_inter_union(pred_dyn, bm))
-                iou_gt.append(_inter_union(pred_dyn, gm))
-                ceiling.append(_inter_union(gm, bm))  # reference: exact silhouettes vs the boxier hulls
+                iou_box.append(iou_counts(pred_dyn, bm))
+                iou_gt.append(iou_counts(pred_dyn, gm))
+                ceiling.append(iou_counts(gm, bm))  # reference: exact silhouettes vs the boxier hulls
                 gt_rgb = torch.as_tensor(s["rgb"][t, v]).float() / 255.0
                 ps.append(psnr(out["rgb"].clamp(0, 1), gt_rgb))
                 pool = lambda x: torch.nn.functional.avg_pool2d(x.permute(2, 0, 1)[None], 8)  # noqa: E731
@@ -263,32 +263,22 @@ def eval_generate(
         "clips": min(n, len(ds)),
         "steps": steps if latents == "sample" else None,
         "latents": latents,
-        "dynamic_iou_vs_projected_boxes": _pooled(iou_box),
-        "dynamic_iou_vs_gt_mask": _pooled(iou_gt),
+        "dynamic_iou_vs_projected_boxes": pooled_iou(iou_box, empty=float("nan")),
+        "dynamic_iou_vs_gt_mask": pooled_iou(iou_gt, empty=float("nan")),
         "depth_absrel": float(np.nanmean(absrel)),
         "depth_absrel_road": float(np.nanmean(absrel_road)) if absrel_road else float("nan"),
-        "gt_mask_iou_vs_projected_boxes": _pooled(ceiling),
+        "gt_mask_iou_vs_projected_boxes": pooled_iou(ceiling, empty=float("nan")),
         "rgb_psnr": float(np.mean(ps)),
         "rgb_psnr_pool8": float(np.mean(ps8)),
         # pooled over every agent pixel of the scored frames (a per-view mean would weigh a 3-pixel car like a bus)
         "agent_depth_absrel": float(np.nanmean(absrel_agent)) if absrel_agent else float("nan"),
         "agent_alpha": float(torch.cat(alpha_agent).mean()) if alpha_agent else float("nan"),
-        "agent_rgb_psnr": float(10 * np.log10(n_agent / se_agent)) if n_agent and se_agent > 0 else float("nan"),
+        "agent_rgb_psnr": psnr_from_mse(se_agent / n_agent) if n_agent else float("nan"),
     }
 
 
 ROAD_CLASSES = (ROAD, LANE_MARKING, CROSSWALK)
 AGENT_CLASSES = (CAR, BUS, TRUCK, PEDESTRIAN, CYCLIST)
-
-
-def _inter_union(a: torch.Tensor, b: torch.Tensor) -> tuple[int, int]:
-    a, b = a.bool(), b.bool()
-    return int((a & b).sum()), int((a | b).sum())
-
-
-def _pooled(pairs: list[tuple[int, int]]) -> float:
-    u = sum(p[1] for p in pairs)
-    return float("nan") if u == 0 else sum(p[0] for p in pairs) / u
 
 
 @torch.no_grad()

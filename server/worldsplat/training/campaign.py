@@ -24,6 +24,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from worldsplat.core.metrics import depth_abs_rel, iou_counts, pooled_iou, psnr
 from worldsplat.training.data import collate, sample_from_shard, vae_inputs
 from worldsplat.training.loop import (
     COND_KEYS,
@@ -131,28 +132,25 @@ def vae_heldout(vae, samples: list[dict], dcfg: DataConfig = DCFG) -> dict:
     was = vae.training
     vae.eval()
     dev = next(vae.parameters()).device  # the CPU, or an accelerator (training.accelerator)
-    ps, pp, rel, inter, union = [], [], [], 0.0, 0.0
+    ps, pp, rel, iou = [], [], [], []
     for s in samples:
         rgb, depth, mask, _ = vae_inputs(collate([s]), dcfg)
         rgb, depth, mask = rgb.to(dev), depth.to(dev), mask.to(dev)
         r, d, m = vae.decode_joint(vae.encode_joint(rgb, depth, mask))
         a, b = (r + 1) / 2, (rgb + 1) / 2
-        ps += (-10 * torch.log10(((a - b) ** 2).mean(dim=(1, 2, 3)).clamp_min(1e-10))).tolist()
+        ps += [psnr(a[i], b[i]) for i in range(len(a))]
         ap, bp = F.avg_pool2d(a, 8), F.avg_pool2d(b, 8)
-        pp += (-10 * torch.log10(((ap - bp) ** 2).mean(dim=(1, 2, 3)).clamp_min(1e-10))).tolist()
+        pp += [psnr(ap[i], bp[i]) for i in range(len(ap))]
         gt = torch.from_numpy(s["depth"]).reshape(-1, 1, *s["depth"].shape[-2:]).to(dev)
         pr = denormalize_depth(d, dcfg.depth_near, dcfg.depth_far)
-        ok = torch.isfinite(gt) & (gt < 80) & (gt > 0.5)
-        rel.append(((pr[ok] - gt[ok]).abs() / gt[ok]).mean().item())
-        mb, gb = m > 0.5, mask > 0.5
-        inter += float((mb & gb).sum())
-        union += float((mb | gb).sum())
+        rel.append(depth_abs_rel(pr, gt, max_depth=80.0, min_depth=0.5))
+        iou.append(iou_counts(m > 0.5, mask > 0.5))
     vae.train(was)
     return {
         "rgb_psnr": float(np.mean(ps)),
         "rgb_psnr_pool8": float(np.mean(pp)),
         "depth_absrel": float(np.mean(rel)),
-        "mask_iou": inter / max(union, 1.0),
+        "mask_iou": pooled_iou(iou),
     }
 
 

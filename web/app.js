@@ -3,11 +3,11 @@
 // scenario files to the form), stats.
 // No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
 import { SHIFT_MAX_M } from "./limits.js";
-import { decodeShare, shareUrl } from "./share.js";
+import { decodeShare, RIG_CAMERAS, shareUrl } from "./share.js";
 import { initEditor } from "./editor.js";
 
 const $ = (id) => document.getElementById(id);
-const CAMERAS = ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT"];
+const CAMERAS = RIG_CAMERAS;
 
 const state = {
   presets: [], modes: null, base: null,             // base: the scenario the form edits (a preset or a shared one)

@@ -5,8 +5,10 @@
 import { SHIFT_MAX_M } from "./limits.js";
 
 export const SHARE_VERSION = 1;
-const CAMERA_VIEWS = ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT",
-  "CAM_FRONT_LEFT", "mosaic", "free", "bev"];
+/** The rig's camera names, the one JS list (the rig itself: core/camera.py, splat-core camera.rs). */
+export const RIG_CAMERAS = ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT",
+  "CAM_FRONT_LEFT"];
+const CAMERA_VIEWS = [...RIG_CAMERAS, "mosaic", "free", "bev"];
 
 function toBase64Url(bytes) {
   let bin = "";

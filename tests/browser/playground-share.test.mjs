@@ -53,3 +53,13 @@ test("the shift limit has one JS definition: share links, app.js and the slider 
     assert.doesNotMatch(web(f).replace(/\/\/.*$/gm, ""), /-8\b|\b8\)|\[-8, 8\]/, `${f} spells no literal shift bound`);
   }
 });
+
+test("the rig's camera names have one JS list (share.js RIG_CAMERAS), the shared rig vector's", async () => {
+  const { RIG_CAMERAS } = await import("../../web/share.js");
+  const { readFileSync } = await import("node:fs");
+  const rig = JSON.parse(readFileSync(new URL("../vectors/rig/rig_shift.json", import.meta.url), "utf8"));
+  assert.deepEqual(RIG_CAMERAS, rig.rig.map((c) => c.name), "JS and Python name the same rig, in its order");
+  for (const name of RIG_CAMERAS) assert.equal(decodeShare(encodeShare({ scenario, view: { camera: name } })).view.camera, name);
+  const app = readFileSync(new URL("../../web/app.js", import.meta.url), "utf8").replace(/\/\/.*$/gm, "");
+  assert.doesNotMatch(app, /"CAM_FRONT_RIGHT"/, "app.js takes the names from share.js");
+});

@@ -41,6 +41,7 @@ from worldsplat.core.io import atomic_write_bytes, write_json_atomic
 from worldsplat.core.limits import MAX_SHIFT_M
 from worldsplat.core.scenario import Scenario, scenario_id
 from worldsplat.gaussians import wsplat
+from worldsplat.gaussians.aggregate import quat_from_matrix
 from worldsplat.pipeline.refine import scenario_of
 from worldsplat.pipeline.render import render_track
 from worldsplat.world import build_world, simulate
@@ -102,22 +103,7 @@ def token(*parts) -> str:
 
 def quaternion(r: np.ndarray) -> list[float]:
     """Rotation matrix (3,3) -> unit quaternion [w, x, y, z] (w >= 0), the devkit's order."""
-    m = np.asarray(r, np.float64)
-    tr = np.trace(m)
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-300))
-        q = [0.0] * 4
-        q[0] = (m[k, j] - m[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + k] = (m[k, i] + m[i, k]) / s
-    q = np.asarray(q)
-    q = q / np.linalg.norm(q)
+    q = quat_from_matrix(r)
     return (q if q[0] >= 0 else -q).tolist()
 
 

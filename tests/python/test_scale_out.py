@@ -174,6 +174,14 @@ def test_bad_input_is_refused_clearly(local, tmp_path, capsys):
     assert "holds no worldsplat batch" in capsys.readouterr().err
     assert cli_main(["dataset", *DATASET, "--out", str(local / "data"), "--frames", "3"]) == 2
     assert "holds a dataset of another run: frames 2 (this run: 3)" in capsys.readouterr().err
+    # The Ray writer checks its arguments as the local one does, before anything is written (no Ray needed).
+    from worldsplat.scale.dataset import write_dataset_ray
+    from worldsplat.world.dataset import write_dataset
+
+    for write in (write_dataset, write_dataset_ray):
+        with pytest.raises(ValueError, match=r"explicit_agents must be a probability in \[0, 1\], got 1.5"):
+            write(tmp_path / "p", "val", 1, explicit_agents=1.5, progress=False)
+    assert not (tmp_path / "p").exists()
 
 
 def test_nuscenes_export_loads_in_the_devkit_with_every_box_on_its_agent(local, tmp_path, capsys):

@@ -176,7 +176,11 @@ RUN_PARAM_BEFORE = {"explicit_agents": 0.0}
 
 def check_same_run(out: Path, split: str, indices: range, shifts: tuple[float, ...] = (), **scenario_kw) -> None:
     """Refuse to resume into a split folder written by another run (other image size, frames, fps, preset mix or
-    shifts): its manifest, and the first complete shard in `indices`, must be what this run would write."""
+    shifts): its manifest, and the first complete shard in `indices`, must be what this run would write. Both
+    writers (local and Ray) call it before anything is written, so it also checks their shared arguments."""
+    p = scenario_kw.get("explicit_agents", EXPLICIT_AGENTS)
+    if not 0.0 <= p <= 1.0:
+        raise ValueError(f"explicit_agents must be a probability in [0, 1], got {p}")
     folder = Path(out) / split
     mpath = folder / "manifest.json"
     kw = {
@@ -251,8 +255,6 @@ def write_dataset(
     """Write clips start..start+count-1 of a split; existing complete shards are skipped (resumable)."""
 
     out = Path(out)
-    if not 0.0 <= explicit_agents <= 1.0:
-        raise ValueError(f"explicit_agents must be a probability in [0, 1], got {explicit_agents}")
     kw = dict(
         width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix, explicit_agents=explicit_agents
     )

@@ -184,7 +184,7 @@ def quality(presets: list[str], seeds: list[int], plans=QUALITY_PLANS) -> list[d
     Gaussian counts and the process CPU seconds of the call."""
     import torch  # noqa: PLC0415 - heavy
 
-    from worldsplat.core.metrics import depth_abs_rel, psnr  # noqa: PLC0415 - with torch
+    from worldsplat.core.metrics import depth_abs_rel, iou_counts, pooled_iou, psnr  # noqa: PLC0415 - with torch
     from worldsplat.gaussians.raster import rasterize  # noqa: PLC0415 - heavy (torch)
     from worldsplat.pipeline.scene import generate_scene  # noqa: PLC0415 - heavy (torch)
 
@@ -199,7 +199,7 @@ def quality(presets: list[str], seeds: list[int], plans=QUALITY_PLANS) -> list[d
                 c0 = time.process_time()
                 scene = generate_scene(sc, mode="generate", first_window=first, first_steps=steps)
                 cpu = time.process_time() - c0
-                acc = {k: {"psnr": [], "psnr8": [], "absrel": [], "inter": 0, "union": 0} for k in ("f0", "all")}
+                acc = {k: {"psnr": [], "psnr8": [], "absrel": [], "iou": []} for k in ("f0", "all")}
                 for t in range(T):
                     g = scene.at_frame(t)
                     for v in range(V):
@@ -216,14 +216,14 @@ def quality(presets: list[str], seeds: list[int], plans=QUALITY_PLANS) -> list[d
                             a["psnr8"].append(psnr(pool(rgb), pool(gt)))
                             rd = out["depth"] / out["alpha"].clamp_min(1e-3)
                             a["absrel"].append(depth_abs_rel(rd, torch.as_tensor(clip.depth[t, v])))
-                            a["inter"] += int((dyn & gm).sum())
-                            a["union"] += int((dyn | gm).sum())
+                            a["iou"].append(iou_counts(dyn, gm))
                 row = {"preset": preset, "seed": seed, "plan": label, "windows": scene.meta.get("windows")}
                 for k, a in acc.items():
                     row[f"{k}_psnr"] = round(float(np.mean(a["psnr"])), 3)
                     row[f"{k}_psnr8"] = round(float(np.mean(a["psnr8"])), 3)
                     row[f"{k}_absrel"] = round(float(np.nanmean(a["absrel"])), 4)
-                    row[f"{k}_dyn_iou"] = round(a["inter"] / a["union"], 4) if a["union"] else None
+                    seen = any(union for _, union in a["iou"])  # None: no dynamic pixel in either
+                    row[f"{k}_dyn_iou"] = round(pooled_iou(a["iou"]), 4) if seen else None
                 row.update(static=len(scene.static), dynamic=sum(len(d) for d in scene.dynamic), cpu_s=round(cpu, 2))
                 rows.append(row)
                 print(json.dumps(row), flush=True)

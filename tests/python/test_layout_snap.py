@@ -163,6 +163,7 @@ def test_agent_cells_land_on_their_box_and_move_with_it(f, moving):
     dec, control, boxes, o, hit = _box_case(f, moving)
     before = dec.gaussians[0][0].means.clone()
     dec.gaussians[0][0].extras[-1, 0] = 0.9  # a dynamic Gaussian far from every box (top-right sky): kept
+    dec.gaussians[0][0].opacities[:] = 0.2  # faint, as a generator that barely drew the agent
     stats = snap_agents_to_layout(dec, control, boxes)
     g = dec.gaussians[0][0]
     cover = torch.nn.functional.avg_pool2d(torch.tensor(hit, dtype=torch.float32)[None, None], f)[0, 0].reshape(-1)
@@ -178,6 +179,7 @@ def test_agent_cells_land_on_their_box_and_move_with_it(f, moving):
     p = g.extras[:, 0]
     assert bool((p[cell] == 1.0).all()) is moving and bool((p[cell] == 0.0).all()) is not moving
     assert torch.equal(g.means[~cell], before[~cell]) and p[-1] == pytest.approx(0.9)
+    assert (g.opacities[cell] >= 0.95).all() and (g.opacities[~cell] == 0.2).all(), "solid where the layout says so"
     assert (p[~cell][:-1] == 0).all()
     assert stats["agent_dynamic_fraction"] == pytest.approx(float(cell.float().mean()) if moving else 0.0)
 

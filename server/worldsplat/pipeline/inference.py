@@ -323,6 +323,7 @@ def snap_to_layout(dec: DecodedFrames, control: torch.Tensor, log_tol: float = L
 # A generated Gaussian within this distance of a moving agent's box (metres) moves with that agent: the layout's box
 # surface, onto which the box cells' Gaussians are put, is exact; the margin takes the cell's footprint.
 AGENT_BOX_MARGIN_M = 0.3
+AGENT_MIN_OPACITY = 0.95  # box cells' Gaussians at least this opaque (`solid`)
 
 
 def _inside_boxes(points: torch.Tensor, corners: torch.Tensor, margin: float) -> torch.Tensor:
@@ -339,7 +340,9 @@ def _inside_boxes(points: torch.Tensor, corners: torch.Tensor, margin: float) ->
 
 
 @torch.no_grad()
-def snap_agents_to_layout(dec: DecodedFrames, control: torch.Tensor, cond: dict, margin: float = AGENT_BOX_MARGIN_M):
+def snap_agents_to_layout(
+    dec: DecodedFrames, control: torch.Tensor, cond: dict, margin: float = AGENT_BOX_MARGIN_M, solid: bool = True
+):
     """Generated Gaussians where the layout maps state an agent onto that agent's box, and the agents' motion from
     the scenario. The layout's box channels and their depth are exact (a box per agent, `world/layout_maps.py`);
     the generator's latents at 1/4 resolution lose far and small agents (0-51 dynamic Gaussians per frame on imported
@@ -378,6 +381,8 @@ def snap_agents_to_layout(dec: DecodedFrames, control: torch.Tensor, cond: dict,
             r = (z_box.reshape(-1) / z.clamp_min(1e-3))[:, None]
             g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
             g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
+            if solid:  # an agent is solid where the layout states it (issue 12 item 1), whatever colour it got
+                g.opacities = torch.where(ok, g.opacities.clamp_min(AGENT_MIN_OPACITY), g.opacities)
             ego = g.means.double() @ w2e[:3, :3].T + w2e[:3, 3]
             in_moving, in_standing = _inside_boxes(ego, mov, margin), _inside_boxes(ego, stand, margin)
             p = g.extras[:, 0] if g.extras is not None else torch.zeros(n)

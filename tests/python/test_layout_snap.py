@@ -26,6 +26,20 @@ def _plane_depth(cam, f: int) -> np.ndarray:
     return np.where(t > 0, t, np.inf), c2w[:3, 3], d
 
 
+def _decoded(means: torch.Tensor, cam_rig, ego) -> DecodedFrames:
+    """One frame, one view: static, opaque Gaussians of 0.1 m at `means`."""
+    n = means.shape[0]
+    g = Gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.1),
+        torch.ones(n),
+        torch.rand(n, 3),
+        torch.zeros(n, 1),
+    )
+    return DecodedFrames([[g]], [[torch.zeros(n)]], np.zeros(1), cam_rig, ego, torch.zeros(1))
+
+
 def _case(f: int, error: np.ndarray):
     """One camera looking along the road; Gaussians at the plane's depth times (1 + error) on an f-pixel grid."""
     cam_rig = default_rig(W, H)[:1]
@@ -37,17 +51,7 @@ def _case(f: int, error: np.ndarray):
     control[0, 0, CH["drivable"]] = np.isfinite(z_fine)
     control[0, 0, CH["depth"]] = normalize_log_depth(np.where(z_fine < 80, z_fine, np.inf), 0.5, 80.0)
     zz = np.where(np.isfinite(z), z, 50.0) * (1 + error)
-    means = torch.tensor((o + zz[..., None] * d).reshape(-1, 3), dtype=torch.float32)
-    n = means.shape[0]
-    g = Gaussians(
-        means,
-        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-        torch.full((n, 3), 0.1),
-        torch.ones(n),
-        torch.rand(n, 3),
-        torch.zeros(n, 1),
-    )
-    dec = DecodedFrames([[g]], [[torch.zeros(n)]], np.zeros(1), cam_rig, ego, torch.zeros(1))
+    dec = _decoded(torch.tensor((o + zz[..., None] * d).reshape(-1, 3), dtype=torch.float32), cam_rig, ego)
     return dec, torch.from_numpy(control), z, o, d
 
 
@@ -136,17 +140,7 @@ def _box_case(f: int, moving: bool):
     control = np.zeros((1, 1, len(LAYOUT_CHANNELS), H, W), np.float32)
     control[0, 0, CH["vehicle"]] = hit
     control[0, 0, CH["depth"]] = normalize_log_depth(np.where(hit, near, np.inf), 0.5, 80.0)
-    means = torch.tensor((o + 60.0 * rays(f)).reshape(-1, 3), dtype=torch.float32)
-    n = means.shape[0]
-    g = Gaussians(
-        means,
-        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-        torch.full((n, 3), 0.1),
-        torch.ones(n),
-        torch.rand(n, 3),
-        torch.zeros(n, 1),
-    )
-    dec = DecodedFrames([[g]], [[torch.zeros(n)]], np.zeros(1), cam_rig, ego, torch.zeros(1))
+    dec = _decoded(torch.tensor((o + 60.0 * rays(f)).reshape(-1, 3), dtype=torch.float32), cam_rig, ego)
     boxes = {
         "box_corners": torch.tensor(
             np.stack([_box_corners(BOX_LO, BOX_HI), np.zeros((8, 3))])[None], dtype=torch.float32

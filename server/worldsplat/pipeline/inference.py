@@ -274,6 +274,22 @@ def decode_gaussians(
     )
 
 
+def _grid_pitch(who: str, n: int, H: int, W: int) -> int:
+    """The decoder's grid pitch in model pixels (1 or 2) of n Gaussians per view on an H x W layout."""
+    f = round((H * W / n) ** 0.5)
+    if f < 1 or (H // f) * (W // f) != n:
+        raise ValueError(f"{who}: {n} Gaussians per view is not a grid of the {H}x{W} layout")
+    return f
+
+
+def _camera_ray_depth(dec: DecodedFrames, t: int, v: int, means: torch.Tensor):
+    """(origin, camera-z depth of each mean) of view v at frame t: a mean moves along its ray as o + (m - o) r."""
+    cam = dec.rig[v].at(dec.ego_to_world[t])
+    c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=means.dtype)
+    o = c2w[:3, 3]
+    return o, (means - o) @ c2w[:3, 2]
+
+
 # Generated ground Gaussians within this log-depth ratio (x/ 1.8) of the plane the layout states are put onto it
 # (snap_to_layout). Swept on test clips 0-2 (web/docs/models.md "v6"): 0.15 / 0.3 / 0.6 / 1.0 -> road AbsRel
 # 0.122 / 0.078 / 0.028 / 0.022, all-pixel 0.258 / 0.242 / 0.229 / 0.229; beyond 0.6 nothing more is gained and
@@ -296,19 +312,14 @@ def snap_to_layout(dec: DecodedFrames, control: torch.Tensor, log_tol: float = L
         for v in range(V):
             g = dec.gaussians[t][v]
             n = len(g)
-            f = round((H * W / n) ** 0.5)  # the decoder's grid pitch in model pixels (1 or 2)
-            if f < 1 or (H // f) * (W // f) != n:
-                raise ValueError(f"snap_to_layout: {n} Gaussians per view is not a grid of the {H}x{W} layout")
+            f = _grid_pitch("snap_to_layout", n, H, W)
             c = control[t, v].float()
             ground = ((c[ch["drivable"]] + c[ch["sidewalk"]]) > 0.5) & (c[ch["vehicle"]] + c[ch["vulnerable"]] < 0.5)
             ground &= c[ch["depth"]] < 0.999  # the plane is in range
             cell_ground = -F.max_pool2d(-ground[None, None].float(), f)[0, 0] > 0.5
             # a plane's inverse depth is linear in the image: its cell mean is the value at the cell's centre ray
             z_plane = 1.0 / F.avg_pool2d(1.0 / layout_depth_m(c[ch["depth"]])[None, None], f)[0, 0]
-            cam = dec.rig[v].at(dec.ego_to_world[t])
-            c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=g.means.dtype)
-            o, z_axis = c2w[:3, 3], c2w[:3, 2]
-            z = (g.means - o) @ z_axis
+            o, z = _camera_ray_depth(dec, t, v, g.means)
             ratio = z_plane.reshape(-1) / z.clamp_min(1e-3)
             ok = cell_ground.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 0)
             if g.extras is not None:
@@ -365,18 +376,13 @@ def snap_agents_to_layout(
         for v in range(V):
             g = dec.gaussians[t][v]
             n = len(g)
-            f = round((H * W / n) ** 0.5)  # the decoder's grid pitch in model pixels (1 or 2)
-            if f < 1 or (H // f) * (W // f) != n:
-                raise ValueError(f"snap_agents_to_layout: {n} Gaussians per view is not a grid of the {H}x{W} layout")
+            f = _grid_pitch("snap_agents_to_layout", n, H, W)
             c = control[t, v].float()
             box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1)[None, None]
             cover = F.avg_pool2d(box, f)[0, 0]
             inv_z = F.avg_pool2d(box / layout_depth_m(c[ch["depth"]])[None, None], f)[0, 0]
             z_box = cover / inv_z.clamp_min(1e-9)  # harmonic mean over the cell's box pixels
-            cam = dec.rig[v].at(dec.ego_to_world[t])
-            c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=g.means.dtype)
-            o, z_axis = c2w[:3, 3], c2w[:3, 2]
-            z = (g.means - o) @ z_axis
+            o, z = _camera_ray_depth(dec, t, v, g.means)
             ok = (cover.reshape(-1) > 0.5) & (z > 1e-3)
             r = (z_box.reshape(-1) / z.clamp_min(1e-3))[:, None]
             g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)

@@ -82,6 +82,45 @@ def test_atomic_writes_leave_no_temporaries(tmp_path):
     assert (tmp_path / "a" / "b.bin").stat().st_mode & 0o777 == 0o644
 
 
+def test_a_writer_by_path_is_atomic_too(tmp_path):
+    """`atomic_path` (torch.save, the ONNX export, ffmpeg): the writer gets a temporary name with the suffix it asked
+    for; the file appears whole, 0644, or not at all, and a failed write keeps the previous file."""
+    target = tmp_path / "m" / "ckpt.pt"
+    with io.atomic_path(target, suffix=".onnx") as tmp:
+        assert tmp.parent == target.parent and tmp.name.endswith(".onnx") and not target.exists()
+        tmp.write_bytes(b"first")
+    assert target.read_bytes() == b"first" and target.stat().st_mode & 0o777 == 0o644
+    with pytest.raises(RuntimeError, match="writer died"), io.atomic_path(target) as tmp:
+        tmp.write_bytes(b"half")
+        raise RuntimeError("writer died")
+    assert target.read_bytes() == b"first" and [p.name for p in target.parent.iterdir()] == ["ckpt.pt"]
+
+
+def test_files_written_by_path_go_through_the_one_atomic_writer(tmp_path, monkeypatch):
+    """The checkpoint, the ONNX export and the video writer take their temporary file from `core.io.atomic_path`
+    (each used to rename its own)."""
+    import torch
+
+    from worldsplat.core import video
+    from worldsplat.training import loop
+
+    used = []
+    real = io.atomic_path
+
+    def spy(path, *a, **kw):
+        used.append(Path(path).name)
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(io, "atomic_path", spy)
+    monkeypatch.setattr(loop, "atomic_path", spy)
+    monkeypatch.setattr(video, "atomic_path", spy)
+    model = torch.nn.Linear(2, 2)
+    loop.save_checkpoint(tmp_path / "c.pt", model, torch.optim.SGD(model.parameters(), lr=0.1), 3)
+    assert torch.load(tmp_path / "c.pt", weights_only=False)["step"] == 3
+    video.write_video(np.zeros((2, 16, 16, 3), np.uint8), tmp_path / "v.mp4", fps=2)
+    assert used == ["c.pt", "v.mp4"] and sorted(p.name for p in tmp_path.iterdir()) == ["c.pt", "v.mp4"]
+
+
 def test_one_psnr_for_uint8_float_and_masks():
     import torch
 

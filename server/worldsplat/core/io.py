@@ -3,11 +3,13 @@ a torn file, an interrupted writer leaves none behind."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
 import tempfile
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -21,23 +23,33 @@ def fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: str | Path, data: bytes, tmp_dir: Path | None = None) -> None:
-    """Write `data` to `path` atomically (mode 0644: artifacts are served and shared)."""
+@contextlib.contextmanager
+def atomic_path(path: str | Path, tmp_dir: Path | None = None, suffix: str = ".tmp") -> Iterator[Path]:
+    """A temporary file name for a writer that takes a path (torch.save, an ONNX export, ffmpeg), in the destination
+    folder (or `tmp_dir`) and ending in `suffix` (a writer that picks its format by the extension needs it). When
+    the block ends the file is fsynced, made mode 0644 (artifacts are served and shared) and renamed to `path`, then
+    the folder fsynced; on an exception it is removed, so `path` is either whole or untouched."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=tmp_dir or path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, name = tempfile.mkstemp(dir=tmp_dir or path.parent, prefix=f".{path.name}.", suffix=suffix)
+    os.close(fd)
+    tmp = Path(name)
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
+        yield tmp
+        with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.chmod(tmp, 0o644)  # mkstemp makes 0600
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        tmp.unlink(missing_ok=True)
         raise
     fsync_dir(path.parent)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes, tmp_dir: Path | None = None) -> None:
+    """Write `data` to `path` atomically (`atomic_path`)."""
+    with atomic_path(path, tmp_dir) as tmp, open(tmp, "wb") as f:
+        f.write(data)
 
 
 def write_json_atomic(

@@ -3,15 +3,14 @@ through imageio-ffmpeg's bundled ffmpeg binary (no system ffmpeg needed)."""
 
 from __future__ import annotations
 
-import os
 import re
 import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from worldsplat.core.camera import default_rig
+from worldsplat.core.io import atomic_path
 
 CODECS = {
     ".mp4": ["-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-pix_fmt", "yuv420p", "-movflags", "+faststart"],
@@ -79,39 +78,31 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 10.0) -> Path
         raise ValueError(f"write_video: fps must be > 0, got {fps}")
     frames = np.ascontiguousarray(even_pad(frames))
     T, H, W, _ = frames.shape
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=ext)
-    os.close(fd)
-    cmd = [
-        ffmpeg_exe(),
-        "-y",
-        "-loglevel",
-        "error",
-        "-f",
-        "rawvideo",
-        "-pix_fmt",
-        "rgb24",
-        "-s",
-        f"{W}x{H}",
-        "-r",
-        f"{fps:g}",
-        "-i",
-        "-",
-        "-an",
-        *CODECS[ext],
-        "-threads",
-        "1",
-        tmp,
-    ]
-    try:
+    with atomic_path(path, suffix=ext) as tmp:  # ffmpeg picks the container by the extension
+        cmd = [
+            ffmpeg_exe(),
+            "-y",
+            "-loglevel",
+            "error",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+            "-s",
+            f"{W}x{H}",
+            "-r",
+            f"{fps:g}",
+            "-i",
+            "-",
+            "-an",
+            *CODECS[ext],
+            "-threads",
+            "1",
+            str(tmp),
+        ]
         proc = subprocess.run(cmd, input=frames.tobytes(), capture_output=True, timeout=600)
         if proc.returncode != 0:
             raise RuntimeError(f"ffmpeg failed ({proc.returncode}): {proc.stderr.decode(errors='replace')[-500:]}")
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; videos are served and shared
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 

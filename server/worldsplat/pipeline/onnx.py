@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from worldsplat.core.camera import default_rig
+from worldsplat.core.io import atomic_path, atomic_write_bytes
 from worldsplat.pipeline.conditions import rig_tensors
 
 PARITY_ATOL = 1e-3
@@ -186,8 +187,7 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
             continue
         inputs = example_inputs(models, kind)
         path = out_dir / f"{kind}.onnx"
-        tmp = path.with_suffix(".tmp.onnx")
-        with torch.no_grad(), warnings.catch_warnings():
+        with atomic_path(path, suffix=".onnx") as tmp, torch.no_grad(), warnings.catch_warnings():
             # the shape checks in the models' forward are constants at the fixed export shapes, as intended
             warnings.simplefilter("ignore", torch.jit.TracerWarning)
             dyn = {
@@ -204,7 +204,6 @@ def export(models, out_dir: str | Path, kinds=GRAPHS) -> dict[str, Path]:
                 dynamo=False,
                 dynamic_axes=dyn,
             )
-        tmp.replace(path)
         paths[kind] = path
     return paths
 
@@ -218,9 +217,7 @@ def ensure_exported(models, onnx_dir: str | Path | None = None) -> dict[str, Pat
         return {k: onnx_dir / f"{k}.onnx" for k in GRAPHS if (onnx_dir / f"{k}.onnx").exists()}
     stamp.unlink(missing_ok=True)
     paths = export(models, onnx_dir)
-    tmp = stamp.with_suffix(".tmp")
-    tmp.write_text(models.version + "\n")
-    tmp.replace(stamp)
+    atomic_write_bytes(stamp, (models.version + "\n").encode())
     return paths
 
 

@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from worldsplat.core.camera import Camera, rigid_inverse
+from worldsplat.core.io import atomic_path
 from worldsplat.core.metrics import ssim
 from worldsplat.gaussians import Gaussians, rasterize
 from worldsplat.training.data import collate, vae_inputs
@@ -83,9 +84,10 @@ def unwrap(model: torch.nn.Module) -> torch.nn.Module:
 
 
 def save_checkpoint(path: Path, model, opt, step: int, extra: dict | None = None) -> None:
-    tmp = path.with_suffix(".tmp")
-    torch.save({"model": unwrap(model).state_dict(), "opt": opt.state_dict(), "step": step, "extra": extra or {}}, tmp)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:  # a killed run leaves the previous checkpoint, never a torn one
+        torch.save(
+            {"model": unwrap(model).state_dict(), "opt": opt.state_dict(), "step": step, "extra": extra or {}}, tmp
+        )
 
 
 def train_loop(

@@ -264,3 +264,20 @@ def test_window_by_window_keeps_the_cells_of_one_union_and_never_changes_a_sent_
         assert torch.equal(scene.dynamic[t].means, whole.dynamic[t].means)
     with pytest.raises(ValueError, match="added twice"):
         agg.add([3], per_view[3:])
+    # aggregate_windows (the oracle scene's and the economy command's way) is exactly those windows added in turn
+    from worldsplat.gaussians.aggregate import aggregate_windows, windows
+
+    assert windows(T, 2) == [[0, 1], [2, 3]] and windows(5, 2) == [[0, 1], [2, 3], [4]]
+    via, vst = aggregate_windows(per_view, np.arange(T) * 0.1, rig, ego, windows(T, 2), image_size=(18, 32))
+    assert torch.equal(via.static.means, scene.static.means) and vst.as_dict() == agg.stats.as_dict()
+    assert all(torch.equal(via.dynamic[t].means, scene.dynamic[t].means) for t in range(T))
+
+
+def test_economy_command_window_settings_are_checked():
+    from worldsplat.gaussians.economy import parse_windows
+
+    got = parse_windows("all,4,4:2")
+    assert [(n, f) for _, n, f in got] == [(None, float("inf")), (4, float("inf")), (4, 2.0)]
+    for bad in ("all:2", "0", "4:1", ""):
+        with pytest.raises(ValueError, match="--windows"):
+            parse_windows(bad)

@@ -35,6 +35,24 @@ def test_oracle_scene_metadata_and_rerender(tiny_scene):
     assert err < 20  # mean abs error on non-sky pixels, 8-bit levels, at the lifted views themselves
 
 
+def test_oracle_scene_of_a_clip_is_the_served_oracle_scene():
+    """What evaluation, training pairs and the bench score (`oracle_scene` of a simulated clip) is the scene the
+    playground serves (`generate_scene(mode="oracle")`, streamed window by window), Gaussian for Gaussian: two
+    windows, the last one short."""
+    import torch
+
+    from worldsplat.pipeline.scene import ORACLE_WINDOW, oracle_scene
+    from worldsplat.world import build_world, simulate
+
+    sc = load_preset("urban_straight").with_updates(clip={"frames": ORACLE_WINDOW + 1}, image=TINY["image"])
+    served = generate_scene(sc, mode="oracle")
+    scored = oracle_scene(simulate(build_world(sc)))
+    assert len(served.static) == len(scored.static) > 0
+    assert torch.equal(served.static.means, scored.static.means) and torch.equal(served.static.colors, scored.static.colors)
+    assert [len(d) for d in served.dynamic] == [len(d) for d in scored.dynamic]
+    assert all(torch.equal(a.means, b.means) for a, b in zip(served.dynamic, scored.dynamic, strict=True))
+
+
 def test_modes_and_errors():
     assert "oracle" in list(MODES)
     with pytest.raises(ValueError, match="unknown mode"):

@@ -26,6 +26,7 @@ from PIL import Image
 
 from worldsplat.core.camera import default_rig
 from worldsplat.core.metrics import depth_abs_rel, iou_counts, mask_iou, pooled_iou, psnr, psnr_from_mse, ssim
+from worldsplat.gaussians.aggregate import Economy
 from worldsplat.gaussians.raster import rasterize, render_view
 from worldsplat.pipeline.inference import (
     Models,
@@ -139,6 +140,48 @@ def eval_reconstruct(
                 res[sh][f"{name}_psnr"].append(float(np.mean(pv)))
                 res[sh][f"{name}_ssim"].append(float(np.mean(sv)))
     return {str(sh): {k: (float(np.mean(v)) if v else None) for k, v in r.items()} for sh, r in res.items()}
+
+
+@torch.no_grad()
+def eval_cells(
+    models: Models,
+    ds: ShardDataset,
+    n: int,
+    factors: tuple[float, ...] = (0.0, 1.0, 1.5, 2.0, 3.0),
+    frames: tuple[int, ...] | None = None,
+    shifts: tuple[float, ...] = (0.0, 2.0),
+) -> list[dict]:
+    """The static economy's cell (image-pixel footprints; 0 = no economy) on reconstructed scenes (the served
+    `to_scene4d`) and on the oracle's (`oracle_scene`, at 0 m): mean PSNR per shift over n test clips and the
+    static Gaussians a clip keeps (its union over all its frames), per cell."""
+    rows = {f: {"cell": f, "static": [], "oracle_static": [], "oracle_psnr_0": []} for f in factors}
+    for i in range(min(n, len(ds))):
+        base = ds[i]
+        by_shift = {0.0: base} | {float(s["shift_m"]): s for s in ds.shifted(i)}
+        missing = [sh for sh in shifts if sh not in by_shift]
+        if missing:
+            raise ValueError(f"cells: clip {i} has no ground truth at shift(s) {missing} (dataset --shifts)")
+        rig = rig_of(base)
+        clip = clip_view(base, rig)
+        dec = reconstruct(clip, models)
+        T, V = base["rgb"].shape[:2]
+        for f in factors:
+            eco = Economy(enabled=False) if f == 0 else Economy(cell_factor=f)
+            for name, sc, shs in (
+                ("", to_scene4d(dec, economy=eco), shifts),
+                ("oracle_", oracle_scene(clip, economy=eco), (0.0,)),
+            ):
+                rows[f][f"{name}static"].append(len(sc.static))
+                for sh in shs:
+                    pv = [
+                        psnr(
+                            _img(render_view(sc.at_frame(t), sc.camera(t, v, sh)).rgb), _img(by_shift[sh]["rgb"][t, v])
+                        )
+                        for t in frames or range(T)
+                        for v in range(V)
+                    ]
+                    rows[f].setdefault(f"{name}psnr_{sh:g}", []).append(float(np.mean(pv)))
+    return [{k: (v if k == "cell" else float(np.mean(v))) for k, v in r.items()} for r in rows.values()]
 
 
 def projected_box_mask(corners_world: np.ndarray, cam) -> np.ndarray:
@@ -413,7 +456,11 @@ def main(argv=None) -> int:
         default="vae,reconstruct,generate,steps",
         help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
         "(generate's layout metrics on VAE-encoded ground truth), prior (on the layout prior's mean alone), nosnap "
-        "(generate without the snaps onto the layout), noagentsnap (generate with the road snap, without the agents'), steps",
+        "(generate without the snaps onto the layout), noagentsnap (generate with the road snap, without the agents'), steps, "
+        "cells (the static economy's cell on reconstructed and oracle scenes, see --cells)",
+    )
+    p.add_argument(
+        "--cells", default="0,1,1.5,2,3", help="cells part: static cells in image-pixel footprints (0: no economy)"
     )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
@@ -469,6 +516,10 @@ def main(argv=None) -> int:
                 for r in a.sampler_shifts.split(",")
             }
             print("steps by shift", out["steps_vs_error_by_shift"], flush=True)
+    if "cells" in parts:
+        cells = tuple(float(x) for x in a.cells.split(","))
+        out["cells"] = eval_cells(models, ds, a.clips, factors=cells, frames=frames)
+        print("cells", out["cells"], flush=True)
     if a.figure is not None:
         figure(models, ds, 0, a.figure)
     out["eval_wall_s"] = round(time.time() - t0, 1)

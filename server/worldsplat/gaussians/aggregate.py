@@ -456,6 +456,42 @@ class WindowAggregator:
         )  # fmt: skip
 
 
+def windows(T: int, size: int) -> list[list[int]]:
+    """Consecutive windows of `size` frames covering 0..T-1 (the last may be shorter)."""
+    return [list(range(s, min(T, s + size))) for s in range(0, T, size)]
+
+
+def aggregate_windows(
+    per_view: list[list[Gaussians]],
+    frame_times,
+    rig: list[RigCamera],
+    ego_to_world: np.ndarray,
+    frame_windows: list[list[int]],
+    *,
+    in_ego_frame: bool = False,
+    economy: Economy | None = None,
+    meta: dict | None = None,
+    image_size: tuple[int, int] | None = None,
+    finer: float = WINDOW_FINER,
+) -> tuple[Scene4D, AggregateStats]:
+    """Paper eq. 3 window by window, as the playground builds a scene (`WindowAggregator.add` of each window of
+    `frame_windows` in order); `per_view[t][v]` as in `aggregate_4d`, which is one window of every frame."""
+    T = len(per_view)
+    if T != len(ego_to_world) or T != len(frame_times):
+        raise ValueError(
+            f"aggregate: {T} frames of Gaussians, {len(ego_to_world)} ego poses, {len(frame_times)} frame times"
+        )
+    agg = WindowAggregator(
+        frame_times, rig, ego_to_world, in_ego_frame=in_ego_frame, economy=economy, image_size=image_size, finer=finer
+    )
+    statics, dynamics = [], {}
+    for frames in frame_windows:
+        static, dyn = agg.add(frames, [per_view[t] for t in frames])
+        statics.append(static)
+        dynamics.update(dyn)
+    return agg.scene(statics, dynamics, meta), agg.stats
+
+
 def aggregate_4d(
     per_view: list[list[Gaussians]],
     frame_times,
@@ -470,14 +506,16 @@ def aggregate_4d(
     """Paper eq. 3. `per_view[t][v]`: Gaussians of frame t, view v, with extras[:, 0] = dynamic probability
     (> 0.5 = dynamic); in world coordinates, or in the ego frame of frame t when `in_ego_frame`.
     Returns the Scene4D (static in importance order) and the statistics of the economy. (One window of every
-    frame of `WindowAggregator`.)"""
+    frame of `aggregate_windows`.)"""
     T = len(per_view)
-    if T != len(ego_to_world) or T != len(frame_times):
-        raise ValueError(
-            f"aggregate: {T} frames of Gaussians, {len(ego_to_world)} ego poses, {len(frame_times)} frame times"
-        )
-    agg = WindowAggregator(
-        frame_times, rig, ego_to_world, in_ego_frame=in_ego_frame, economy=economy, image_size=image_size
+    return aggregate_windows(
+        per_view,
+        frame_times,
+        rig,
+        ego_to_world,
+        [list(range(T))],
+        in_ego_frame=in_ego_frame,
+        economy=economy,
+        meta=meta,
+        image_size=image_size,
     )
-    static, dynamics = agg.add(list(range(T)), per_view)
-    return agg.scene([static], dynamics, meta), agg.stats

@@ -2,8 +2,10 @@
 the world's exact ground truth at lateral shifts (paper eq. 3 + "model only what the scene needs").
 
     python -m worldsplat.gaussians.economy --preset urban_straight [--shifts 0,1,-1,2,-2,4,-4] [--frames 0,4,7]
+    python -m worldsplat.gaussians.economy --windows all,4,4:2,4:1.5 --frames 0,3,4,7 --shifts 0,2
 
-Prints a markdown table (the one in web/docs/gaussians.md). Renders use the reference rasterizer; PSNR is over all
+Prints a markdown table (the ones in web/docs/gaussians.md; `--windows`: one union over all frames vs window by
+window, `SIZE:FINER` = windows of SIZE frames re-emitting a cell seen FINER times finer). Renders use the reference rasterizer; PSNR is over all
 pixels of the 8-bit renders (sky included: the oracle lifts the sky onto a far shell of static Gaussians) and over
 non-sky pixels.
 """
@@ -21,7 +23,7 @@ import numpy as np
 from worldsplat.core.metrics import psnr
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians import wsplat
-from worldsplat.gaussians.aggregate import Economy, aggregate_4d
+from worldsplat.gaussians.aggregate import WINDOW_FINER, Economy, aggregate_4d, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.raster import render_view
 from worldsplat.gaussians.types import Scene4D
@@ -116,6 +118,72 @@ def measure(preset: str, shifts: list[float], frames: list[int] | None, economy:
     }
 
 
+def parse_windows(spec: str) -> list[tuple[str, int | None, float]]:
+    """`all,4,4:2` -> [(label, window size or None for one union over all frames, finer)]."""
+    out = []
+    for part in filter(None, spec.split(",")):
+        size, _, finer = part.partition(":")
+        if size == "all":
+            if finer:
+                raise ValueError(f"--windows: {part!r}: one union over all frames has no re-emission")
+            out.append(("one union over all frames", None, WINDOW_FINER))
+            continue
+        n, f = int(size), float(finer) if finer else WINDOW_FINER
+        if n < 1 or not f > 1:
+            raise ValueError(f"--windows: {part!r}: the size must be >= 1 frame and FINER > 1")
+        label = f"windows of {n} frames" + (
+            f", re-emit when {f:g}x finer" if finer else ", first window makes the cell"
+        )
+        out.append((label, n, f))
+    if not out:
+        raise ValueError("--windows: no setting given")
+    return out
+
+
+def measure_windows(
+    preset: str, shifts: list[float], frames: list[int] | None, economy: Economy, settings, log=print
+) -> dict:
+    """Static Gaussians and PSNR (all pixels, every view of `frames`, vs the world's exact ground truth) of the
+    oracle scene aggregated in one union over all frames vs window by window (`aggregate_windows`, the playground's
+    way; `settings` from `parse_windows`)."""
+    world = build_world(load_preset(preset))
+    clip = simulate(world)
+    T, V, H, W = clip.depth.shape
+    per_view = lift_clip(clip)
+    frames = frames if frames is not None else list(range(T))
+    gts = {s: clip if s == 0 else simulate(world, shift_m=s, frames=frames) for s in shifts}
+    rows = []
+    for label, size, finer in settings:
+        wins = windows(T, size or T)
+        scene, st = aggregate_windows(
+            per_view, clip.frame_times, clip.rig, clip.ego_to_world, wins, economy=economy, image_size=(H, W),
+            finer=finer,
+        )  # fmt: skip
+        row = {"setting": label, "windows": wins, "static": st.static_kept, "dynamic": st.dynamic_kept, "psnr": {}}
+        for s, gt in gts.items():
+            vals = []
+            for i, t in enumerate(frames):
+                imgs = render_frame_views(scene, t, s, list(range(V)))
+                vals += [psnr(imgs[v], gt.rgb[t if s == 0 else i, v]) for v in range(V)]
+            row["psnr"][s] = float(np.mean(vals))
+        log(f"{label}: static {row['static']}, " + ", ".join(f"{s:+g} m {p:.3f} dB" for s, p in row["psnr"].items()))
+        rows.append(row)
+    return {"preset": preset, "frames": frames, "shifts": shifts, "rows": rows}
+
+
+def windows_table(result: dict) -> str:
+    shifts = result["shifts"]
+    lines = [
+        "| aggregation | static Gaussians | " + " | ".join(f"PSNR shift {s:g} m (dB)" for s in shifts) + " |",
+        "|---|---|" + "---|" * len(shifts),
+    ]
+    for r in result["rows"]:
+        lines.append(
+            f"| {r['setting']} | {r['static']:,} | " + " | ".join(f"{r['psnr'][s]:.3f}" for s in shifts) + " |"
+        )
+    return "\n".join(lines)
+
+
 def wsplat_sizes(data: bytes, scene: Scene4D) -> dict:
     """Bytes per Gaussian of the STAT and DYNA payloads (block headers included, chunk framing excluded)."""
     pos, stat, dyna = 12, 0, 0
@@ -174,6 +242,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dynamic-cell-factor", type=float, default=Economy.dynamic_cell_factor)
     p.add_argument("--dynamic-cover", type=float, default=Economy.dynamic_cover)
     p.add_argument("--opacity-merge", default=Economy.opacity_merge, choices=["mean", "union"])
+    p.add_argument(
+        "--windows",
+        default=None,
+        help="compare aggregations instead: comma-separated `all` (one union over all frames), SIZE (windows of SIZE "
+        "frames, the first to see a cell makes it) or SIZE:FINER (re-emit a cell seen FINER times finer)",
+    )
     p.add_argument("--json", default=None, help="also write the result as JSON here")
     a = p.parse_args(argv)
     eco = Economy(
@@ -184,8 +258,14 @@ def main(argv: list[str] | None = None) -> int:
         dynamic_cover=a.dynamic_cover,
     )
     frames = None if a.frames is None else [int(x) for x in a.frames.split(",")]
-    res = measure(a.preset, [float(x) for x in a.shifts.split(",")], frames, eco, log=lambda m: print(m, flush=True))
-    print(table(res))
+    shifts = [float(x) for x in a.shifts.split(",")]
+    log = lambda m: print(m, flush=True)  # noqa: E731
+    if a.windows is not None:
+        res = measure_windows(a.preset, shifts, frames, eco, parse_windows(a.windows), log=log)
+        print(windows_table(res))
+    else:
+        res = measure(a.preset, shifts, frames, eco, log=log)
+        print(table(res))
     if a.json:
         with open(a.json, "w") as f:
             json.dump(res, f, indent=1)

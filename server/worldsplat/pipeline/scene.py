@@ -29,7 +29,7 @@ import numpy as np
 
 from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
-from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator
+from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.world import build_world, simulate
@@ -134,11 +134,6 @@ def model_version(mode: str) -> str:
     if inf is None:
         raise FileNotFoundError(f"mode {mode!r} needs the worldsplat_models package, which is not importable")
     return f"{mode}-{inf.load_models().version}-{STREAM_VERSION}"
-
-
-def windows(T: int, size: int) -> list[list[int]]:
-    """Consecutive windows of `size` frames covering 0..T-1 (the last may be shorter)."""
-    return [list(range(s, min(T, s + size))) for s in range(0, T, size)]
 
 
 def stream_windows(T: int, size: int, first: int = FIRST_WINDOW) -> list[list[int]]:
@@ -325,12 +320,16 @@ def _lift_clip(clip, prog: Callable[[float], None], cancelled: CancelCheck | Non
 def _aggregate_clip(clip, economy: Economy | None) -> tuple[Scene4D, AggregateStats]:
     """The oracle's aggregation of a simulated clip, window by window exactly as `generate_scene` serves it."""
     T, V, H, W = clip.depth.shape
-    agg = WindowAggregator(clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
-    out = _Collect(agg, {}, None)
     per_view = _lift_clip(clip, lambda f: None, None)
-    for frames in windows(T, ORACLE_WINDOW):
-        out.window(frames, [per_view[t] for t in frames])
-    return out.scene()
+    return aggregate_windows(
+        per_view,
+        clip.frame_times,
+        clip.rig,
+        clip.ego_to_world,
+        windows(T, ORACLE_WINDOW),
+        economy=economy,
+        image_size=(H, W),
+    )
 
 
 def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None) -> Scene4D:

@@ -5,6 +5,10 @@ Model (worldsplat_models.enhancer), VAE-decode.
     from worldsplat.pipeline.refine import refine_available, refine_track
     frames = refine_track(scene, shift_m=4.0, cameras=["CAM_FRONT"], progress=cb, cancelled=fn)
 
+    python -m worldsplat.pipeline.refine [--preset NAME] [--shift-m 4] [--cameras CAM_FRONT,...] [--steps N]
+
+prints the stage table of one refined video (`stage_timings`; web/docs/refinement.md, "Speed").
+
 The scenario that produced the scene is needed for the conditions: it is read from `scene.meta["scenario"]` (a dict
 or JSON string; the pipeline stores it there, and it travels in the .wsplat header) or passed as `scenario=`.
 See web/docs/refinement.md.
@@ -12,6 +16,7 @@ See web/docs/refinement.md.
 
 from __future__ import annotations
 
+import argparse
 import json
 import tempfile
 import time
@@ -22,7 +27,7 @@ import numpy as np
 
 from worldsplat.core.errors import Cancelled
 from worldsplat.core.limits import check_shift
-from worldsplat.core.scenario import Scenario, default_scenario
+from worldsplat.core.scenario import Scenario, default_scenario, load_preset
 from worldsplat.core.video import write_video
 from worldsplat.pipeline.conditions import conditions_for_track
 from worldsplat.pipeline.render import render_scene_track
@@ -199,3 +204,36 @@ def stage_timings(
     tm["camera_frames"] = cf
     tm["per_camera_frame"] = (tm["total"] - tm["video"]) / cf
     return tm
+
+
+STAGES = ("render", "conditions", "encode", "denoise", "decode", "video")
+
+
+def stage_table(tm: dict) -> str:
+    """`stage_timings`' result as the markdown table of web/docs/refinement.md (seconds and share of the total)."""
+    lines = ["| stage | seconds | share |", "|---|---|---|"]
+    lines += [f"| {k} | {tm[k]:.2f} | {100 * tm[k] / tm['total']:.1f} % |" for k in STAGES if k in tm]
+    lines.append(
+        f"| **total** | **{tm['total']:.2f}** | {tm['per_camera_frame']:.2f} s per camera-frame ({tm['camera_frames']}) |"
+    )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description="seconds per stage of one refined video of a preset's oracle scene")
+    p.add_argument("--preset", default=None, help="a shipped preset (default: the playground's default scenario)")
+    p.add_argument("--shift-m", type=float, default=4.0)
+    p.add_argument("--cameras", default=None, help="comma-separated camera names (default: all)")
+    p.add_argument("--steps", type=int, default=None, help="sampler steps (default: the enhancer's own)")
+    a = p.parse_args(argv)
+    sc = load_preset(a.preset) if a.preset else None
+    tm = stage_timings(
+        scenario=sc, shift_m=a.shift_m, steps=a.steps, cameras=a.cameras.split(",") if a.cameras else None
+    )
+    print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in tm.items()}))
+    print(stage_table(tm))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -42,10 +43,15 @@ def street_scene(n: int, seed: int = 0) -> Scene4D:
 
 
 def v2_layouts(scene: Scene4D) -> dict:
-    """v2's default layouts of a scene, to write the v1 file of the same layouts (v2's static anisotropic default is
-    not v1's: wsplat.V2_STATIC_ANISO)."""
+    """v2's default layouts of a scene and its static position boxes, to write the v1 file of the same layouts and
+    boxes (v2's static anisotropic default is not v1's: wsplat.V2_STATIC_ANISO; its static blocks' position step
+    follows the Gaussians' size: wsplat.V2_POS_PRECISION)."""
     sl, dl = wsplat.layouts_for(scene.static, scene.dynamic, version=2)
-    return {"static_layout": [list(f) for f in sl.fields], "dynamic_layout": [list(f) for f in dl.fields]}
+    return {
+        "static_layout": [list(f) for f in sl.fields],
+        "dynamic_layout": [list(f) for f in dl.fields],
+        "pos_precision": wsplat.V2_POS_PRECISION,
+    }
 
 
 @pytest.mark.parametrize("iso", [True, False])
@@ -101,6 +107,51 @@ def test_v1_files_still_read_and_v1_stays_the_encoder_default_until_switched():
     assert struct.unpack_from("<I", data, 8)[0] == wsplat.DEFAULT_VERSION
 
 
+def surfel_plane(n: int, size: float, seed: int = 0) -> Scene4D:
+    """n flat splats of one size on a tilted plane, on a jittered grid 0.3 m apart (n a square)."""
+    rng = np.random.default_rng(seed)
+    k = int(round(n**0.5))
+    uv = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2) * 0.3 + rng.uniform(-0.05, 0.05, (n, 2))
+    means = np.stack([uv[:, 0], uv[:, 1], 0.3 * uv[:, 0] + 0.1 * uv[:, 1]], 1)
+    g = Gaussians.from_numpy(
+        means=means,
+        quats=np.tile([1.0, 0, 0, 0], (n, 1)),
+        scales=np.tile([size, size, 0.2 * size], (n, 1)),
+        opacities=np.full(n, 0.9),
+        colors=rng.uniform(0, 1, (n, 3)),
+    )
+    return Scene4D(g, [Gaussians.empty()], np.zeros(1), default_rig(64, 36), np.eye(4)[None], {"fps": 10.0})
+
+
+def position_errors(scene: Scene4D, data: bytes) -> np.ndarray:
+    """|decoded - source| per axis of every static Gaussian (matched to its nearest source point: v2 reorders)."""
+    src = torch.as_tensor(scene.static.means.numpy(), dtype=torch.float64)
+    got = torch.as_tensor(wsplat.decode(data).static.means.numpy(), dtype=torch.float64)
+    near = torch.cdist(got, src).argmin(1)
+    assert len(set(near.tolist())) == len(src)  # one to one
+    return (got - src[near]).abs().numpy()
+
+
+def test_v2_static_position_step_follows_the_gaussians_size():
+    """Encoder only (wsplat-v2.md, "Against SOG"): a static block's box spans 2^bits - 1 steps of V2_POS_PRECISION x
+    its Gaussians' size on each axis (finer only where the bits cover the points' extent more finely), so a position
+    is off by at most half that step, and larger Gaussians cost fewer position bytes."""
+    n, bits = 4096, dict(wsplat.V2_STATIC_ANISO)["px"]
+    sizes, err = {}, {}
+    for size in (0.01, 0.08):
+        scene = surfel_plane(n, size)
+        data = wsplat.encode(scene, version=2)
+        step = wsplat.V2_POS_PRECISION * size
+        e = position_errors(scene, data)
+        assert e.max() <= 0.5 * step * (1 + 1e-3) + 1e-5, (size, e.max(), step)
+        assert e.max() > 0.4 * step  # the step is that coarse, not the points' extent / (2^bits - 1)
+        sizes[size], err[size] = len(data), e.max()
+        own = wsplat.encode(scene, version=2, pos_precision=None)  # every bit on the points' own box
+        assert position_errors(scene, own).mean() < 0.5 * e.mean() and len(own) > len(data)
+    assert sizes[0.08] < sizes[0.01] - n * 0.5  # 8x the size: 3 bits less per axis on a surface, >= 4 bits each
+    assert bits == 13
+
+
 def test_v2_layout_needs_equal_position_bits():
     scene = _scene(np.random.default_rng(5), 10, [0], 1, iso=True)
     lay = [["px", 14], ["py", 12], ["pz", 14], ["s", 8], ["o", 6], ["r", 8], ["g", 8], ["b", 8]]
@@ -150,8 +201,9 @@ LAYOUT_BITS = st.tuples(st.integers(1, 21), st.integers(1, 12), st.integers(1, 9
     block=st.sampled_from([1, 3, 64, 256]),
     iso=st.booleans(),
     seed=st.integers(0, 2**16),
+    prec=st.sampled_from([None, 0.05, wsplat.V2_POS_PRECISION, 4.0]),
 )
-def test_property_v2_equals_v1_for_any_layout_and_block_size(n, bits, block, iso, seed):
+def test_property_v2_equals_v1_for_any_layout_and_block_size(n, bits, block, iso, seed, prec):
     pb, sb, ob, cb = bits
     scene = _scene(np.random.default_rng(seed), n, [min(n, 17)], 1, iso=iso)
     if iso:
@@ -161,7 +213,7 @@ def test_property_v2_equals_v1_for_any_layout_and_block_size(n, bits, block, iso
                ["sx", sb], ["sy", sb], ["sz", sb], ["o", ob], ["r", cb], ["g", cb], ["b", cb]]  # fmt: skip
     if sum(b for _, b in lay) > 128:
         return  # record size > 16 bytes: no layout (v1's limit, kept by v2)
-    kw = {"block_size": block, "static_layout": lay}
+    kw = {"block_size": block, "static_layout": lay, "pos_precision": prec}
     s1 = wsplat.decode(wsplat.encode(scene, version=1, **kw))
     s2 = wsplat.decode(wsplat.encode(scene, version=2, **kw))
     np.testing.assert_array_equal(as_rows(s1.static), as_rows(s2.static))

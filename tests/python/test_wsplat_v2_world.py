@@ -60,9 +60,11 @@ def test_v2_static_aniso_default_is_smaller_than_the_first_layout_and_loses_litt
     )
     scene = Scene4D(g, [Gaussians.empty()], clip.frame_times, clip.rig, clip.ego_to_world, {"fps": 10.0})
     now = wsplat.encode(scene, version=2)
-    first = wsplat.encode(scene, version=2, static_layout=wsplat.V2_STATIC_ANISO_R1)
+    # the first and the second layout as they were written: every position bit on the points' own box
+    first = wsplat.encode(scene, version=2, static_layout=wsplat.V2_STATIC_ANISO_R1, pos_precision=None)
+    second = wsplat.encode(scene, version=2, static_layout=wsplat.V2_STATIC_ANISO_R2, pos_precision=None)
     assert wsplat.decode(now).meta["static_layout"] == wsplat.V2_STATIC_ANISO
-    assert len(now) < 0.85 * len(first)
+    assert len(now) < 0.85 * len(first) and len(now) < 0.92 * len(second)  # here 0.67 and 0.87
     for name in ("CAM_FRONT", "CAM_BACK_RIGHT"):
         v = clip.camera_names.index(name)
         cam, gt = clip.camera(0, v), clip.rgb[0, v]

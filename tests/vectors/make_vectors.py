@@ -650,13 +650,19 @@ def v2_sections(payload: bytes, start: int) -> list[tuple[int, int, bytes]]:
     return out
 
 
-def _write_v2(valid, bad) -> None:
+def _write_v2(valid_any_box, bad) -> None:
     """v2 vectors (web/docs/wsplat-v2.md): valid files, and every malformed field v2 adds."""
     import struct
 
     import zstandard
 
     from worldsplat.gaussians import wsplat
+
+    def valid(name, scene, **kw):
+        """The points' own position boxes (as these vectors were first written, so they keep their bytes), unless
+        `pos_precision` says otherwise."""
+        kw.setdefault("pos_precision", None)
+        return valid_any_box(name, scene, **kw)
 
     rng = np.random.default_rng(11)
     base = valid("valid_v2_iso", _scene(rng, 300, [20, 0, 35], 3, iso=True), block_size=128, version=2)
@@ -707,11 +713,26 @@ def _write_v2(valid, bad) -> None:
     for t in (same.static.means, same.static.scales, same.static.opacities, same.static.colors, same.static.quats):
         t.data[:] = t.data[:1].clone()
     sdata = valid("valid_v2_degenerate", same, version=2)
-    # the default static anisotropic layout of v2 now (canonical rotation, 9-bit positions, 4-bit log-scales, 7-bit
-    # colour: wsplat.V2_STATIC_ANISO), own generator so the vectors above keep their bytes
-    cdata = valid("valid_v2_aniso_canonical", _scene(np.random.default_rng(13), 1500, [30, 0], 2, iso=False), version=2)
+    # the second static anisotropic layout of v2 (canonical rotation, 9-bit positions, 4-bit log-scales, 7-bit
+    # colour: wsplat.V2_STATIC_ANISO_R2), own generator so the vectors above keep their bytes
+    cdata = valid(
+        "valid_v2_aniso_canonical",
+        _scene(np.random.default_rng(13), 1500, [30, 0], 2, iso=False),
+        version=2,
+        static_layout=wsplat.V2_STATIC_ANISO_R2,
+    )
     chead = json.loads(split_chunks(cdata)[0][1])
-    assert chead["static_layout"] == wsplat.V2_STATIC_ANISO, chead["static_layout"]
+    assert chead["static_layout"] == wsplat.V2_STATIC_ANISO_R2, chead["static_layout"]
+    # the default now: wsplat.V2_STATIC_ANISO (13-bit positions, 5-bit log-scales, 8-bit colour) with static
+    # position boxes sized by the Gaussians (wsplat.position_box: boxes larger than their points), own generator
+    zscene = _scene(np.random.default_rng(17), 1500, [30, 0], 2, iso=False)
+    zdata = valid("valid_v2_aniso_sized", zscene, version=2, pos_precision=wsplat.V2_POS_PRECISION)
+    assert json.loads(split_chunks(zdata)[0][1])["static_layout"] == wsplat.V2_STATIC_ANISO
+    zboxes = np.frombuffer(
+        zstandard.ZstdDecompressor().decompress(v2_sections(split_chunks(zdata)[1][1], 4)[0][2]), "<f4"
+    ).reshape(-1, 8)
+    zmeans = zscene.static.means.numpy()
+    assert (zboxes[:, 3:6] - zboxes[:, :3]).max() > 2 * (zmeans.max(0) - zmeans.min(0)).max(), "sized boxes expected"
     secs_same = v2_sections(split_chunks(sdata)[1][1], 4)
     assert all(fr[4] & 0x20 and (fr[5 + 4] >> 1) & 3 == 0 for _, _, fr in secs_same), "raw zstd blocks expected"
     v2 = b"WSPLAT\r\n\x02\x00\x00\x00"

@@ -99,13 +99,15 @@ DYNAMIC_ANISO = [
 ]
 DEFAULT_BLOCK_SIZE = 256
 # v2 default layouts: v1's, but for static anisotropic Gaussians (`python -m worldsplat.bench.sog`, wsplat-v2.md
-# "Against SOG"). There a byte plane costs its entropy, not its bits: 9-bit positions (the Morton deltas are 2.4 of
-# 5.3 B/G at 10 bits; -0.2 B/G at 9), the canonical rotation at 5 bits (continuous along a surface, so its planes
-# compress 3x better than smallest-three's, whose index and sign flip between neighbours: -1.1 B/G), 4-bit
-# log-scales (-0.2 B/G), and 7-bit colour, which the loss against exact ground truth needs (5-bit colour cost
-# -0.29 dB at one camera of the world PLY): 3.99 B/G there at <= 0.05 dB, was 5.28 at -0.29.
+# "Against SOG"). There a byte plane costs its entropy, not its bits. The canonical rotation at 5 bits (continuous
+# along a surface, so its planes compress 3x better than smallest-three's, whose index and sign flip between
+# neighbours: -1.1 B/G). Positions: 13 bits, but the encoder sizes each static block's box so that the step is
+# V2_POS_PRECISION x the block's Gaussians' size (`position_box`), so the Morton deltas cost what the Gaussians need,
+# not what the bits allow (1M world PLY: 1.99 -> 0.95 B/G of positions). 5-bit log-scales and 8-bit colour: what the
+# loss against exact ground truth needs once the positions are that cheap (4-bit scales and 7-bit colour lost
+# 0.08 / 0.14 dB at a camera of the 1M world PLY).
 V2_STATIC_ANISO_R1 = STATIC_ANISO  # the first v2 files' static anisotropic layout (still read: a file names its own)
-V2_STATIC_ANISO = [
+V2_STATIC_ANISO_R2 = [  # the second (9-bit positions in the points' own box, 4-bit log-scales, 7-bit colour)
     ["px", 9],
     ["py", 9],
     ["pz", 9],
@@ -120,6 +122,27 @@ V2_STATIC_ANISO = [
     ["g", 7],
     ["b", 7],
 ]
+V2_STATIC_ANISO = [
+    ["px", 13],
+    ["py", 13],
+    ["pz", 13],
+    ["qx", 5],
+    ["qy", 5],
+    ["qz", 5],
+    ["sx", 5],
+    ["sy", 5],
+    ["sz", 5],
+    ["o", 5],
+    ["r", 8],
+    ["g", 8],
+    ["b", 8],
+]
+# The position step of a v2 static block (encoder only: the box is the block's to choose, every decoder reads it):
+# at most V2_POS_PRECISION x the block's Gaussian size (the POS_SIZE_PERCENTILE-th percentile of their middle
+# scale), finer only where the layout's bits cover the block's extent more finely. Chosen by bench.sog's world PLY
+# at 100k and 1M (0.5 / 0.6 / 0.7 / 1.0: 1M 2.07 / 2.13 / 2.02 / 1.82 B/G; 1.0 lost 0.17 dB at 100k).
+V2_POS_PRECISION = 0.6
+POS_SIZE_PERCENTILE = 25
 V2_STATIC_ISO, V2_DYNAMIC_ISO, V2_DYNAMIC_ANISO = STATIC_ISO, DYNAMIC_ISO, DYNAMIC_ANISO
 DEFAULT_VERSION = 1  # what encode / StreamWriter write unless told
 FIRST_CHUNK = 4096  # the first static chunk is small so a browser draws early; chunks then double
@@ -370,12 +393,32 @@ def _block_order(p: np.ndarray) -> np.ndarray:
     return np.concatenate([near_idx[_morton_order(p[near_idx])], far_idx[_morton_order(p[far_idx])]])
 
 
-def quantize_block(blk: dict[str, np.ndarray], layout: Layout) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def position_box(p: np.ndarray, scales: np.ndarray, bits: tuple[int, int, int], precision: float):
+    """The position box of a block whose step is at most `precision` x its Gaussians' size (the
+    POS_SIZE_PERCENTILE-th percentile of their middle scale) and the same on the three axes: from the points'
+    minimum, (2^bits - 1) steps on each axis, the step never finer than the points' extent needs (their largest
+    extent / (2^bits - 1)). A decoder reads it as any box (lo + (hi - lo) * q / (2^bits - 1)); the Morton deltas then
+    cost what the Gaussians' size asks, not what the layout's bits allow. p: float32 (n, 3), scales (n, 3)."""
+    lo = p.min(0)
+    m = np.array([(1 << b) - 1 for b in bits], dtype=np.float64)
+    size = float(np.percentile(np.sort(scales, 1)[:, 1], POS_SIZE_PERCENTILE))
+    step = max(precision * size, float(((p.max(0) - lo).astype(np.float64) / m).max()))
+    hi = np.maximum((lo.astype(np.float64) + step * m).astype(np.float32), p.max(0))  # float32 rounding: hold all
+    return lo, hi
+
+
+def quantize_block(
+    blk: dict[str, np.ndarray], layout: Layout, pos_precision: float | None = None
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """One block of sanitized Gaussians -> its box (pos_lo[3], pos_hi[3], lsc_lo, lsc_hi as float32) and the stored
-    integer of every layout field (the same in v1 and v2)."""
+    integer of every layout field (the same in v1 and v2). `pos_precision`: the position box of `position_box`
+    (None: the points' own box, every bit spent on their extent)."""
     bits = dict(layout.fields)
     p = blk["means"].astype(np.float32)
-    plo, phi = p.min(0), p.max(0)
+    if pos_precision is None:
+        plo, phi = p.min(0), p.max(0)
+    else:
+        plo, phi = position_box(p, blk["scales"], (bits["px"], bits["py"], bits["pz"]), pos_precision)
     ls = np.log(blk["scales"][:, :1] if layout.isotropic else blk["scales"]).astype(np.float32)
     llo, lhi = np.float32(ls.min()), np.float32(ls.max())
     box = np.array([*plo, *phi, llo, lhi], dtype=np.float32)
@@ -399,10 +442,12 @@ def quantize_block(blk: dict[str, np.ndarray], layout: Layout) -> tuple[np.ndarr
     return box, vals
 
 
-def encode_blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int) -> bytes:
+def encode_blocks(
+    a: dict[str, np.ndarray], layout: Layout, block_size: int, pos_precision: float | None = None
+) -> bytes:
     out = bytearray()
     for s in range(0, len(a["means"]), block_size):
-        box, vals = quantize_block({k: v[s : s + block_size] for k, v in a.items()}, layout)
+        box, vals = quantize_block({k: v[s : s + block_size] for k, v in a.items()}, layout, pos_precision)
         out += box.astype("<f4").tobytes()
         out += pack_records(vals, layout)
     return bytes(out)
@@ -481,16 +526,18 @@ def encode_blocks_v2(
     block_size: int,
     level: int = ZSTD_LEVEL,
     search: int | None = SEARCH_LEVEL,
+    pos_precision: float | None = None,
 ) -> bytes:
     """Sanitized Gaussians (block order) -> the sections of a v2 chunk: boxes, then one byte plane per section, each
     `filter u8, length u32, zstd frame`. Records are sorted by the Morton code of (px, py, pz) inside each block; the
     encoder keeps the smallest of the filtered planes, chosen at zstd level `search` (None: each candidate at
-    `level`), then compressed at `level`. Every choice decodes to the same integers."""
+    `level`), then compressed at `level`. Every choice decodes to the same integers. `pos_precision`: as
+    `quantize_block`."""
     pb = dict(layout.fields)["px"]
     n = len(a["means"])
     boxes, codes, vals = [], [], {f: [] for f, _ in layout.fields}
     for s in range(0, n, block_size):
-        box, v = quantize_block({k: x[s : s + block_size] for k, x in a.items()}, layout)
+        box, v = quantize_block({k: x[s : s + block_size] for k, x in a.items()}, layout, pos_precision)
         code = morton3(v["px"], v["py"], v["pz"], pb)
         order = np.argsort(code, kind="stable")
         code = code[order]
@@ -722,22 +769,44 @@ def _bounds(means: list[np.ndarray]) -> dict:
     return {"min": allm.min(0).tolist(), "max": allm.max(0).tolist()}
 
 
-def _blocks(a: dict[str, np.ndarray], layout: Layout, block_size: int, version: int, zstd: tuple = ()) -> bytes:
+def _blocks(
+    a: dict[str, np.ndarray], layout: Layout, block_size: int, version: int, zstd: tuple = (), pos_precision=None
+) -> bytes:
     """`zstd`: (level, search level) of a v2 chunk (default: ZSTD_LEVEL, SEARCH_LEVEL)."""
-    return encode_blocks_v2(a, layout, block_size, *zstd) if version == 2 else encode_blocks(a, layout, block_size)
+    if version == 2:
+        level, search = (tuple(zstd) + (ZSTD_LEVEL, SEARCH_LEVEL)[len(zstd) :])[:2]
+        return encode_blocks_v2(a, layout, block_size, level, search, pos_precision)
+    return encode_blocks(a, layout, block_size, pos_precision)
+
+
+POS_PRECISION_OF_VERSION = "version"  # the default of `encode`'s pos_precision: V2_POS_PRECISION in v2, None in v1
+
+
+def _pos_precision(value, version: int) -> float | None:
+    if value == POS_PRECISION_OF_VERSION:
+        return V2_POS_PRECISION if version == 2 else None
+    return None if value is None else float(value)
 
 
 def _stat_chunks(
-    st: dict[str, np.ndarray], sl: Layout, block_size: int, size: int, version: int = 1, zstd: tuple = ()
+    st: dict[str, np.ndarray],
+    sl: Layout,
+    block_size: int,
+    size: int,
+    version: int = 1,
+    zstd: tuple = (),
+    pos_precision: float | None = None,
 ) -> tuple[list[bytes], int]:
     """STAT chunks of importance-ordered sanitized statics: chunk k holds the next `size` * 2^k of them, Morton-ordered
-    inside so block boxes stay small. Returns the chunks and the size the next chunk would have."""
+    inside so block boxes stay small. Returns the chunks and the size the next chunk would have. `pos_precision`:
+    the static blocks' position boxes (`quantize_block`)."""
     out, n, s = [], len(st["means"]), 0
     while s < n:
         part = {k: v[s : s + size] for k, v in st.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
-        out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + _blocks(part, sl, block_size, version, zstd)))
+        body = _blocks(part, sl, block_size, version, zstd, pos_precision)
+        out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + body))
         s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
     return out, size
 
@@ -762,10 +831,13 @@ def encode(
     dynamic_layout: list | None = None,
     version: int | None = None,
     zstd: tuple = (),
+    pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
 ) -> bytes:
     """Scene4D -> .wsplat bytes (`version` 1 or 2, default DEFAULT_VERSION). Static Gaussians keep their
     (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of them, Morton-ordered inside
-    so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL)."""
+    so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL).
+    `pos_precision`: the static blocks' position step against their Gaussians' size (`position_box`; None: the
+    points' own box), by default V2_POS_PRECISION in v2 and None in v1."""
     version = version or DEFAULT_VERSION
     if version not in VERSIONS:
         raise ValueError(f"wsplat: version {version} not in {VERSIONS}")
@@ -782,7 +854,8 @@ def encode(
     out = bytearray(MAGIC + struct.pack("<I", version))
     nd = [int(len(d["means"])) for d in dyn]
     out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version)
-    for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version, zstd)[0]:
+    pp = _pos_precision(pos_precision, version)
+    for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version, zstd, pp)[0]:
         out += c
     for t, d in enumerate(dyn):
         for c in _dyna_chunks(t, d, dl, block_size, version, zstd):
@@ -811,8 +884,10 @@ class StreamWriter:
         dynamic_layout: Layout,
         block_size: int = 0,
         version: int | None = None,
+        pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
     ):
         self.version = version or DEFAULT_VERSION
+        self.pos_precision = _pos_precision(pos_precision, self.version)
         if self.version not in VERSIONS:
             raise ValueError(f"wsplat: version {self.version} not in {VERSIONS}")
         if self.version == 2:
@@ -849,7 +924,9 @@ class StreamWriter:
         """STAT chunks of static Gaussians in importance order (the first chunk of the file is FIRST_CHUNK records,
         then they double)."""
         st = self._numpy(g, self.sl)
-        chunks, self._next_size = _stat_chunks(st, self.sl, self.block_size, self._next_size, self.version)
+        chunks, self._next_size = _stat_chunks(
+            st, self.sl, self.block_size, self._next_size, self.version, pos_precision=self.pos_precision
+        )
         self.num_static += len(st["means"])
         return chunks
 
@@ -874,7 +951,8 @@ class StreamWriter:
 def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, block_size: int = DEFAULT_BLOCK_SIZE,
                     static_split: list[int] | None = None, end_meta: dict | None = None,
                     version: int | None = None, static_layout: list | None = None,
-                    dynamic_layout: list | None = None) -> bytes:  # fmt: skip
+                    dynamic_layout: list | None = None,
+                    pos_precision: float | None | str = POS_PRECISION_OF_VERSION) -> bytes:  # fmt: skip
     """A streamed file of a whole scene (tests, vectors): its static set cut at `static_split` (indices into the
     importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame).
     Layouts: the version's defaults unless given (as `encode`)."""
@@ -888,7 +966,7 @@ def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, blo
         sl = parse_layout(static_layout, 0, "static_layout")
     if dynamic_layout is not None:
         dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
-    w = StreamWriter(scene, sl, dl, block_size, version)
+    w = StreamWriter(scene, sl, dl, block_size, version, pos_precision)
     out = bytearray(w.head())
     for i, frames in enumerate(parts):
         for c in w.static(scene.static.subset(torch.arange(cuts[i], cuts[i + 1]))):

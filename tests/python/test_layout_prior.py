@@ -67,3 +67,24 @@ def test_learns_layout_and_caption():
     with torch.no_grad():
         err = F.mse_loss(m(lay, cap, view), tgt).item()
     assert err < 0.2 * tgt.var().item(), (err, tgt.var().item())
+
+
+def test_warm_start_widens_the_layout_input_and_keeps_what_the_file_computed(tmp_path):
+    """A v9 prior (11 layout channels: the map layer appended) warm-started from a 7-channel file computes exactly
+    what the file's model did until it learns to read the new channels (training.campaign.warm_start)."""
+    import dataclasses
+
+    from worldsplat.training.campaign import warm_start
+    from worldsplat_models.weights import save_weights
+
+    old = LayoutPrior(CFG).eval()
+    torch.nn.init.normal_(old.head.weight, std=0.1)  # a fresh head is zero: make the output depend on the input
+    save_weights(old, tmp_path / "p.safetensors", "prior", {})
+    new = warm_start(LayoutPrior(dataclasses.replace(CFG, in_channels=11)), tmp_path / "p.safetensors", "prior").eval()
+    x, cap, view = torch.rand(2, 11, 32, 48), torch.randn(2, 384), torch.tensor([0, 1])
+    with torch.no_grad():
+        ref = old(x[:, :7], cap, view)
+        assert torch.allclose(new(x, cap, view), ref, atol=1e-5)
+        assert ref.abs().max() > 1e-3
+        # the new channels' weights start at zero, and only those: the copy is not a fresh network
+        assert new.stem.weight[:, 7:].abs().max() == 0 and torch.equal(new.stem.weight[:, :7], old.stem.weight)

@@ -8,7 +8,14 @@ import torch
 
 from worldsplat.core.camera import default_rig
 from worldsplat.gaussians import Gaussians
-from worldsplat.pipeline.inference import DecodedFrames, _inside_boxes, snap_agents_to_layout, snap_to_layout
+from worldsplat.pipeline.inference import (
+    DecodedFrames,
+    _camera_ray_depth,
+    _inside_boxes,
+    snap_agents_to_layout,
+    snap_to_layout,
+    snap_to_map,
+)
 from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_depth_m, normalize_log_depth
 
 H, W = 16, 28
@@ -184,3 +191,59 @@ def test_inside_boxes_grows_each_box_by_the_margin():
     got = _inside_boxes(pts.double(), corners, 0.3)
     assert got.tolist() == [True, True, False, True, False]
     assert not _inside_boxes(pts.double(), corners[:0], 0.3).any()
+
+
+def _wall_case(f: int, error: np.ndarray, z_wall: float = 20.0):
+    """One camera; the map layer states a building at camera depth z_wall over the image's left half (and an agent
+    box over one cell of it); Gaussians on every cell's centre ray at z_wall * (1 + error)."""
+    cam_rig = default_rig(W, H)[:1]
+    ego = np.eye(4)[None]
+    cam = cam_rig[0].at(ego[0])
+    _, o, d = _plane_depth(cam, f)
+    control = np.zeros((1, 1, len(LAYOUT_CHANNELS), H, W), np.float32)
+    control[0, 0, CH["depth"]] = 1.0
+    control[0, 0, CH["map_depth"]] = 1.0
+    control[0, 0, CH["building"], :, : W // 2] = 1.0
+    control[0, 0, CH["map_depth"], :, : W // 2] = normalize_log_depth(np.full((H, W // 2), z_wall), 0.5, 80.0)
+    control[0, 0, CH["vehicle"], :4, :4] = 1.0
+    zz = z_wall * (1 + error)
+    dec = _decoded(torch.tensor((o + zz[..., None] * d).reshape(-1, 3), dtype=torch.float32), cam_rig, ego)
+    dec.gaussians[0][0].opacities[:] = 0.3
+    return dec, torch.from_numpy(control), o
+
+
+@pytest.mark.parametrize("f", [1, 2])
+def test_map_cells_land_on_the_facade_and_turn_solid(f):
+    gen = np.random.default_rng(1)
+    err = gen.uniform(-0.4, 0.6, (H // f, W // f))
+    err[-1, 0] = 4.0  # far behind the facade (x 5): beyond the tolerance, keeps its place
+    dec, control, o = _wall_case(f, err)
+    g = dec.gaussians[0][0]
+    g.extras[(H // f - 2) * (W // f) + 1, 0] = 0.9  # a dynamic one: the map is static, it keeps its place
+    before = g.means.clone()
+    frac = snap_to_map(dec, control)
+    rows, cols = np.meshgrid(np.arange(H // f), np.arange(W // f), indexing="ij")
+    building = torch.from_numpy((cols * f < W // 2).reshape(-1))
+    agent = torch.from_numpy(((rows * f < 4) & (cols * f < 4)).reshape(-1))
+    keep = torch.zeros_like(building)
+    keep[(H // f - 1) * (W // f)] = True
+    keep[(H // f - 2) * (W // f) + 1] = True
+    moved = building & ~agent & ~keep
+    _, z = _camera_ray_depth(dec, 0, 0, g.means)
+    assert torch.allclose(z[moved], torch.full_like(z[moved], 20.0), rtol=1e-4)
+    assert torch.equal(g.means[~moved], before[~moved])
+    assert frac == pytest.approx(moved.float().mean().item())
+    assert (g.opacities[moved] >= 0.95).all() and (g.opacities[~moved] == 0.3).all()
+    # along their own rays (the camera that made them sees them where it did)
+    a, b = (
+        before[moved] - torch.as_tensor(o, dtype=torch.float32),
+        g.means[moved] - torch.as_tensor(o, dtype=torch.float32),
+    )
+    assert ((a * b).sum(-1) / (a.norm(dim=-1) * b.norm(dim=-1))).min() > 1 - 1e-5
+
+
+def test_maps_without_the_map_layer_leave_the_scene_alone():
+    dec, control, _ = _wall_case(1, np.full((H, W), 0.3))
+    before = dec.gaussians[0][0].means.clone()
+    assert snap_to_map(dec, control[:, :, :7]) == 0.0
+    assert torch.equal(dec.gaussians[0][0].means, before)

@@ -38,7 +38,7 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     assert c.merge_cache(out, "train").name == "cache_train_2.pt"
     cache = c.load_cache(out, "train")
     assert len(cache) == 2
-    assert cache[0]["L"].shape[-2:] == (16, 28) and cache[0]["control"].shape[2:] == (7, 64, 112)
+    assert cache[0]["L"].shape[-2:] == (16, 28) and cache[0]["control"].shape[2:] == (11, 64, 112)
     c.train_decoder(vae, out, steps=2, ckpt_every=1, render_every=2)
     c.train_dit(vae, out, steps=2, batch=2, ckpt_every=1)
     # resume: a longer target continues from the checkpoint (step 3 only), it does not start over
@@ -56,6 +56,9 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     c.train_dit(vae, out4, steps=2, batch=2, ckpt_every=1, prior_path=out / "prior_v2.safetensors")
     cfg4 = read_metadata(out4 / "dit_v2.safetensors")["config"]
     assert cfg4["target"] == "prior_residual" and cfg4["residual_scale"] > 0
+    # both read the map layer by default (v9: all 11 layout channels); 7 keeps the v4-v8 input
+    assert cfg4["control_channels"] == 11
+    assert read_metadata(out / "prior_v2.safetensors")["config"]["in_channels"] == 11
     dest = tmp_path / "snapshot"
     paths = c.snapshot(out, dest)
     names = {"vae_small.safetensors", "decoder_small.safetensors", "dit_small.safetensors", "prior_small.safetensors"}

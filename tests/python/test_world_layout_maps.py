@@ -6,8 +6,20 @@ import pytest
 
 from worldsplat.core.scenario import load_preset
 from worldsplat.world import build_world, simulate
-from worldsplat.world.classes import BUS, CAR, CROSSWALK, LANE_MARKING, ROAD, TRUCK
-from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_maps
+from worldsplat.world.classes import (
+    BARRIER,
+    BUILDING,
+    BUS,
+    CAR,
+    CROSSWALK,
+    LANE_MARKING,
+    POLE,
+    ROAD,
+    SIGN,
+    TRUCK,
+    VEGETATION,
+)
+from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_maps, take_layout
 
 SMALL = {"width": 112, "height": 64}
 
@@ -69,3 +81,42 @@ def test_heading_channel_points_forward():
     assert box.sum() >= 20, "the highway preset has a vehicle ahead at frame 0 (the test needs one)"
     # same-direction traffic ahead is seen from behind: the visible face is the rear
     assert np.median(lm[0, 0, ..., 5][box]) < 0.2
+
+
+def _metres(x: np.ndarray) -> np.ndarray:
+    near, far = 0.5, 80.0
+    return np.exp(np.log(near) + (x + 1) / 2 * (np.log(far) - np.log(near)))
+
+
+def test_map_layer_states_buildings_trees_and_poles_where_the_world_shows_them(urban):
+    """The map layer (v9): building / vegetation / furniture channels on the world's own pixels of those classes
+    (they are the same volumes, without texture), and map_depth exact on facades."""
+    world, clip, lm, _ = urban
+    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
+    near = clip.depth < 80
+    for name, classes, floor in (
+        ("building", [BUILDING], 0.9),
+        ("vegetation", [VEGETATION], 0.8),
+        ("furniture", [POLE, SIGN, BARRIER], 0.5),
+    ):
+        gt = np.isin(clip.semantic, classes) & near
+        lay = (lm[..., ch[name]] > 0.5) & near
+        assert gt.sum() > 30, f"the preset should show {name} pixels"
+        assert _iou(lay, gt) > floor, (name, _iou(lay, gt))
+    facade = (clip.semantic == BUILDING) & (lm[..., ch["building"]] > 0.5) & near
+    rel = np.abs(_metres(lm[..., ch["map_depth"]])[facade] - clip.depth[facade]) / clip.depth[facade]
+    assert np.median(rel) < 1e-3 and np.percentile(rel, 90) < 0.02
+    # the first 7 channels are the road and the agents alone: a tree or pole in front does not hide the road there
+    structure = lm[..., ch["building"]] + lm[..., ch["vegetation"]] + lm[..., ch["furniture"]] > 0.5
+    hidden = structure & (lm[..., ch["drivable"]] + lm[..., ch["sidewalk"]] > 0.5) & (lm[..., ch["depth"]] < 0.999)
+    assert hidden.any(), "some road or sidewalk lies behind a tree or pole in this preset"
+    assert (lm[..., ch["map_depth"]][hidden] < lm[..., ch["depth"]][hidden]).all()
+    assert (lm[..., ch["map_depth"]] <= lm[..., ch["depth"]] + 1e-6).all()  # the map only adds nearer surfaces
+
+
+def test_take_layout_reads_the_first_channels_and_refuses_fewer():
+    x = np.arange(2 * 11 * 2 * 2, dtype=np.float32).reshape(2, 11, 2, 2)
+    assert take_layout(x, 11) is x
+    assert np.array_equal(take_layout(x, 7), x[:, :7])
+    with pytest.raises(ValueError, match="layout maps have 7 channels, the model reads 11"):
+        take_layout(x[:, :7], 11)

@@ -31,6 +31,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         "--render-down", type=int, default=2, help="decoder: render the loss views at image/N (1: the full image)"
     )
     p.add_argument("--ckpt-every", type=int, default=None)
+    p.add_argument(
+        "--layout-channels",
+        type=int,
+        default=None,
+        help="prior|dit: read the first N layout channels (7: road and agents, v4-v8; default all 11: with the map layer)",
+    )
     p.add_argument("--init", type=Path, help="vae|decoder|prior|dit: warm start from a weight file (matching tensors)")
     p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/campaign)")
     p.add_argument(
@@ -53,6 +59,8 @@ def run(a: argparse.Namespace) -> int:
         kw["init"] = a.init
     if a.lr is not None:
         kw["lr"] = a.lr
+    if a.layout_channels is not None and a.stage in ("prior", "dit"):
+        kw["layout_channels"] = a.layout_channels
     if a.stage == "vae":
         need("data")
         c.train_vae(a.data, a.out, clips=a.clips or 1500, steps=a.steps, threads=a.threads, **kw)

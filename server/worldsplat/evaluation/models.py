@@ -35,6 +35,7 @@ from worldsplat.pipeline.inference import (
     encode_clip,
     generate,
     load_models,
+    prior_mean,
     reconstruct,
     sample_latents,
     to_scene4d,
@@ -42,7 +43,21 @@ from worldsplat.pipeline.inference import (
 from worldsplat.pipeline.scene import oracle_scene
 from worldsplat.training.data import ShardDataset
 from worldsplat.world import Clip
-from worldsplat.world.classes import BUS, CAR, CROSSWALK, CYCLIST, LANE_MARKING, PEDESTRIAN, ROAD, TRUCK
+from worldsplat.world.classes import (
+    BARRIER,
+    BUILDING,
+    BUS,
+    CAR,
+    CROSSWALK,
+    CYCLIST,
+    LANE_MARKING,
+    PEDESTRIAN,
+    POLE,
+    ROAD,
+    SIGN,
+    TRUCK,
+    VEGETATION,
+)
 from worldsplat_models.vae import denormalize_depth
 
 SHIFTS = (0.0, -1.0, 1.0, -2.0, 2.0, -4.0, 4.0)
@@ -239,6 +254,7 @@ def eval_generate(
     snap: bool = True,
     snap_log_tol: float | None = None,
     snap_agents: bool = True,
+    snap_map: bool = True,
 ) -> dict:
     """Layout fidelity of generated scenes, decoded as generate mode serves them (`decode_generated`; `snap` False
         leaves out its snaps onto the layout: road Gaussians onto its plane, agents' onto their boxes; `snap_agents` False
@@ -255,6 +271,7 @@ def eval_generate(
         raise ValueError("eval_generate: latents='prior' needs models with a layout prior (prior_small.safetensors)")
     iou_box, iou_gt, absrel, absrel_road, ceiling, ps, ps8 = [], [], [], [], [], [], []
     absrel_agent, alpha_agent, se_agent, n_agent = [], [], 0.0, 0
+    absrel_structure, se_structure, n_structure = [], 0.0, 0
     for i in range(min(n, len(ds))):
         s = ds[i]
         z = ds.load(i)
@@ -265,12 +282,22 @@ def eval_generate(
         if latents == "sample":
             L = sample_latents(models, cond, steps=steps, seed=seed)
         elif latents == "prior":
-            L = models.prior.clip(cond["control"][None].float(), cond["caption"][None])[0]
+            L = prior_mean(models, cond["control"][None], cond["caption"][None])[0]
         else:
             L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
         tol = {} if snap_log_tol is None else {"snap_log_tol": snap_log_tol}
         dec = decode_generated(
-            models, L, cond, rig, ego, np.arange(T) / 4.0, {}, snap=snap, snap_agents=snap_agents, **tol
+            models,
+            L,
+            cond,
+            rig,
+            ego,
+            np.arange(T) / 4.0,
+            {},
+            snap=snap,
+            snap_agents=snap_agents,
+            snap_map=snap_map,
+            **tol,
         )
         scene = to_scene4d(dec)
         moving = np.asarray(z["box_moving"], bool)
@@ -297,6 +324,11 @@ def eval_generate(
                     road = torch.from_numpy(np.isin(z["semantic"][t, v], ROAD_CLASSES))
                     absrel_road.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=road))
                     agent = torch.from_numpy(np.isin(z["semantic"][t, v], AGENT_CLASSES))
+                    structure = torch.from_numpy(np.isin(z["semantic"][t, v], STRUCTURE_CLASSES))
+                    if structure.any():  # facades, trees, poles: what the map layer states (v9)
+                        absrel_structure.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=structure))
+                        se_structure += float(((out["rgb"].clamp(0, 1) - gt_rgb)[structure] ** 2).sum())
+                        n_structure += 3 * int(structure.sum())
                     if agent.any():
                         absrel_agent.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=agent))
                         alpha_agent.append(out["alpha"][agent].float())
@@ -317,11 +349,14 @@ def eval_generate(
         "agent_depth_absrel": float(np.nanmean(absrel_agent)) if absrel_agent else float("nan"),
         "agent_alpha": float(torch.cat(alpha_agent).mean()) if alpha_agent else float("nan"),
         "agent_rgb_psnr": psnr_from_mse(se_agent / n_agent) if n_agent else float("nan"),
+        "structure_depth_absrel": float(np.nanmean(absrel_structure)) if absrel_structure else float("nan"),
+        "structure_rgb_psnr": psnr_from_mse(se_structure / n_structure) if n_structure else float("nan"),
     }
 
 
 ROAD_CLASSES = (ROAD, LANE_MARKING, CROSSWALK)
 AGENT_CLASSES = (CAR, BUS, TRUCK, PEDESTRIAN, CYCLIST)
+STRUCTURE_CLASSES = (BUILDING, VEGETATION, POLE, SIGN, BARRIER)
 
 
 @torch.no_grad()
@@ -456,7 +491,8 @@ def main(argv=None) -> int:
         default="vae,reconstruct,generate,steps",
         help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
         "(generate's layout metrics on VAE-encoded ground truth), prior (on the layout prior's mean alone), nosnap "
-        "(generate without the snaps onto the layout), noagentsnap (generate with the road snap, without the agents'), steps, "
+        "(generate without the snaps onto the layout), noagentsnap (generate with the road snap, without the agents'), nomapsnap (without the map "
+        "layer's snap), steps, "
         "cells (the static economy's cell on reconstructed and oracle scenes, see --cells)",
     )
     p.add_argument(
@@ -501,6 +537,9 @@ def main(argv=None) -> int:
     if "noagentsnap" in parts and "generate" in models.modes:
         out["generate_no_agent_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap_agents=False)
         print("generate_no_agent_snap", out["generate_no_agent_snap"], flush=True)
+    if "nomapsnap" in parts and "generate" in models.modes:
+        out["generate_no_map_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap_map=False)
+        print("generate_no_map_snap", out["generate_no_map_snap"], flush=True)
     if "ceiling" in parts:
         out["generate_ceiling"] = eval_generate(models, ds, a.clips, frames=frames, latents="encode")
         print("generate_ceiling", out["generate_ceiling"], flush=True)

@@ -38,7 +38,7 @@ from worldsplat.gaussians import Gaussians, Scene4D
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_4d
 from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
 from worldsplat.pipeline.onnx import ensure_exported, use_onnx
-from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_depth_m
+from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_depth_m, take_layout
 from worldsplat_models import rflow
 from worldsplat_models.conditions import encode_captions
 from worldsplat_models.configs import DataConfig, get_config
@@ -337,6 +337,59 @@ AGENT_BOX_MARGIN_M = 0.3
 AGENT_MIN_OPACITY = 0.95  # box cells' Gaussians at least this opaque (`solid`)
 
 
+def _cell_surface(mask: torch.Tensor, depth_m: torch.Tensor, f: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(H,W) mask in [0,1] and depth in metres -> per f x f grid cell: the mask's cover and the harmonic mean depth of
+    its pixels (exact for a plane seen through the cell, as inverse depth is linear in the image)."""
+    cover = F.avg_pool2d(mask[None, None], f)[0, 0]
+    inv_z = F.avg_pool2d((mask / depth_m)[None, None], f)[0, 0]
+    return cover, cover / inv_z.clamp_min(1e-9)
+
+
+# Generated Gaussians in cells the map layer covers move onto its surface when within this log-depth ratio of it
+# (x/ 3: a facade the generator put at half or twice its distance still lands on it; a wall behind a tree, which the
+# generator drew as a tree, farther off, keeps its place). Measured in web/docs/models.md "v9".
+MAP_SNAP_LOG_TOL = 1.1
+MAP_MIN_OPACITY = 0.95  # building cells' Gaussians at least this opaque (a facade is not see-through)
+
+
+@torch.no_grad()
+def snap_to_map(dec: DecodedFrames, control: torch.Tensor, log_tol: float = MAP_SNAP_LOG_TOL) -> float:
+    """Generated Gaussians where the layout's map layer (buildings, trees, poles; `world/layout_maps.py`) is the
+    nearest surface onto that surface: a grid cell mostly covered (> 0.5) by the map layer and no agent box, with
+    the Gaussian static (p_dynamic <= 0.5) and within exp(+-log_tol) of the surface's depth, moves along its camera
+    ray (mean and scales by the depth ratio) to the harmonic mean of the cell's map depth; building cells become
+    solid (opacity >= MAP_MIN_OPACITY). Maps without the map layer (7 channels) leave the scene unchanged. In place;
+    returns the fraction of Gaussians moved."""
+    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
+    T, V, C, H, W = control.shape
+    if C < len(LAYOUT_CHANNELS):
+        return 0.0
+    moved = total = 0
+    for t in range(T):
+        for v in range(V):
+            g = dec.gaussians[t][v]
+            n = len(g)
+            f = _grid_pitch("snap_to_map", n, H, W)
+            c = control[t, v].float()
+            depth = layout_depth_m(c[ch["map_depth"]])
+            structure = (c[ch["building"]] + c[ch["vegetation"]] + c[ch["furniture"]]).clamp(0, 1)
+            cover, z_map = _cell_surface(structure, depth, f)
+            building, _ = _cell_surface(c[ch["building"]], depth, f)
+            agent = F.max_pool2d((c[ch["vehicle"]] + c[ch["vulnerable"]])[None, None], f)[0, 0] > 0.5
+            o, z = _camera_ray_depth(dec, t, v, g.means)
+            ratio = z_map.reshape(-1) / z.clamp_min(1e-3)
+            ok = (cover.reshape(-1) > 0.5) & ~agent.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 1e-3)
+            if g.extras is not None:
+                ok &= g.extras[:, 0] <= 0.5
+            r = ratio[:, None]
+            g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
+            g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
+            solid = ok & (building.reshape(-1) > 0.5)
+            g.opacities = torch.where(solid, g.opacities.clamp_min(MAP_MIN_OPACITY), g.opacities)
+            moved, total = moved + int(ok.sum()), total + n
+    return moved / max(total, 1)
+
+
 def _inside_boxes(points: torch.Tensor, corners: torch.Tensor, margin: float) -> torch.Tensor:
     """(N,3) points, (K,8,3) box corners (`Agent.box_corners` order: bottom face counter-clockwise from rear-right,
     then the top face) in the same frame -> (N,) True where a point lies inside any box grown by `margin` metres."""
@@ -378,10 +431,8 @@ def snap_agents_to_layout(
             n = len(g)
             f = _grid_pitch("snap_agents_to_layout", n, H, W)
             c = control[t, v].float()
-            box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1)[None, None]
-            cover = F.avg_pool2d(box, f)[0, 0]
-            inv_z = F.avg_pool2d(box / layout_depth_m(c[ch["depth"]])[None, None], f)[0, 0]
-            z_box = cover / inv_z.clamp_min(1e-9)  # harmonic mean over the cell's box pixels
+            box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1)
+            cover, z_box = _cell_surface(box, layout_depth_m(c[ch["depth"]]), f)
             o, z = _camera_ray_depth(dec, t, v, g.means)
             ok = (cover.reshape(-1) > 0.5) & (z > 1e-3)
             r = (z_box.reshape(-1) / z.clamp_min(1e-3))[:, None]
@@ -487,6 +538,11 @@ def window_cond(cond: dict, win: list[int]) -> dict:
     return out
 
 
+def prior_mean(models: Models, control: torch.Tensor, caption: torch.Tensor) -> torch.Tensor:
+    """The layout prior's mu (B,T,V,C,h,w) from layout maps (B,T,V,Cl,H,W) with at least the prior's channels."""
+    return models.prior.clip(take_layout(control, models.prior.cfg.in_channels).float(), caption)
+
+
 @torch.no_grad()
 def sample_latents(
     models: Models,
@@ -510,6 +566,9 @@ def sample_latents(
     L = torch.zeros(T, d.views, dcfg.out_channels, d.height // ds, d.width // ds)
     for wi, win in enumerate(wins):
         c = window_cond(cond, win)
+        layout = c["control"]
+        if dcfg.control_hint:  # a DiT reads the first layout channels it was trained on (take_layout)
+            c["control"] = take_layout(layout, dcfg.control_channels)
         g = torch.Generator().manual_seed(int(seed) * 1000 + wi)
         noise = torch.randn(1, len(win), d.views, dcfg.in_channels, *L.shape[-2:], generator=g)
         cb = None if progress is None else (lambda k, n, wi=wi: progress((wi + k / n) / len(wins)))
@@ -517,7 +576,7 @@ def sample_latents(
             models.dit, noise, c, steps=steps, shift=shift, cfg_scale=cfg_scale, uncond=dropped(c), callback=cb
         )
         if needs_prior(models.dit):
-            z = models.prior.clip(c["control"].float(), c["caption"]) + dcfg.residual_scale * z
+            z = prior_mean(models, layout, c["caption"]) + dcfg.residual_scale * z
         L[win] = z[0]
     return L
 
@@ -534,15 +593,18 @@ def decode_generated(
     snap=True,
     snap_log_tol: float = LAYOUT_SNAP_LOG_TOL,
     snap_agents: bool = True,
+    snap_map: bool = True,
 ) -> DecodedFrames:
     """Generated latents -> DecodedFrames as generate mode serves them (the evaluation scores exactly this):
     decode, then, where the models read layout maps, `snap_to_layout` (the road onto its plane) and
-    `snap_agents_to_layout` (the agents onto their boxes, moving with them); snap=False skips both, snap_agents=False
-    the second."""
+    `snap_to_map` (facades, trees and poles onto the map layer's surfaces) and `snap_agents_to_layout` (the agents onto
+    their boxes, moving with them); snap=False skips all three, snap_map=False / snap_agents=False one of them."""
     dec = decode_gaussians(models, L, rig, ego_to_world, frame_times, meta, pad=pad)
     if snap and layout_size(models) is not None:
         control = cond["control"][: L.shape[0]]
         dec.meta["layout_snap_fraction"] = snap_to_layout(dec, control, snap_log_tol)
+        if snap_map:
+            dec.meta["map_snap_fraction"] = snap_to_map(dec, control)
         if snap_agents:
             boxes = {k: cond[k][: L.shape[0]] for k in ("box_corners", "box_moving", "box_mask")}
             dec.meta.update(snap_agents_to_layout(dec, control, boxes))

@@ -43,8 +43,8 @@ ORACLE_VERSION = "oracle-3"
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's
 # plane (`inference.snap_to_layout`); w5 decoded scales floored at 0.3 model pixels (`inference.scale_floor`); w6
 # generate's agents onto their layout boxes, moving with them (`inference.snap_agents_to_layout`); w7 those box cells
-# solid (opacity floor)
-STREAM_VERSION = "w7"
+# solid (opacity floor); w8 facades, trees and poles onto the layout's map layer (`inference.snap_to_map`)
+STREAM_VERSION = "w8"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
 # sampling and decoding instead of a whole window's (issue 15; the bound on the finished scene: playground.md)

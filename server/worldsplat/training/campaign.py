@@ -36,6 +36,7 @@ from worldsplat.training.loop import (
     vae_decoder_step_fn,
     vae_step_fn,
 )
+from worldsplat.world.layout_maps import LAYOUT_CHANNELS, take_layout
 from worldsplat_models import rflow
 from worldsplat_models.conditions import encode_captions
 from worldsplat_models.configs import (
@@ -60,7 +61,9 @@ def vae_config(channels=(32, 96), latent: int = 8, blocks: int = 1) -> VAEConfig
     return VAEConfig(channels=tuple(channels), latent_channels=latent, blocks=blocks)
 
 
-def dit_config(vae, target: str = "latent", residual_scale: float = 1.0) -> DiTConfig:
+def dit_config(
+    vae, target: str = "latent", residual_scale: float = 1.0, layout_channels: int = len(LAYOUT_CHANNELS)
+) -> DiTConfig:
     """v3: layout tokens at the main stream's input and a latent-resolution conv head (no ControlNet copies: the
     v2 DiT, with them, had not learned to follow the layout after 600 steps). v4: the same network generating the
     layout prior's residual (target "prior_residual")."""
@@ -70,7 +73,7 @@ def dit_config(vae, target: str = "latent", residual_scale: float = 1.0) -> DiTC
         in_channels=C,
         out_channels=C,
         patch=4,
-        control_channels=7,
+        control_channels=layout_channels,
         control_hint=hint,
         control_depth=0,
         control_at_input=True,
@@ -81,8 +84,11 @@ def dit_config(vae, target: str = "latent", residual_scale: float = 1.0) -> DiTC
     )
 
 
-def prior_config(vae) -> LayoutPriorConfig:
-    return LayoutPriorConfig(out_channels=vae.cfg.joint_channels, downsample=vae.cfg.downsample)
+def prior_config(vae, layout_channels: int = len(LAYOUT_CHANNELS)) -> LayoutPriorConfig:
+    """layout_channels: 7 (road and agents, v4-v8) or 11 (with the map layer, v9): the first ones of LAYOUT_CHANNELS."""
+    return LayoutPriorConfig(
+        in_channels=layout_channels, out_channels=vae.cfg.joint_channels, downsample=vae.cfg.downsample
+    )
 
 
 def decoder_config(vae, stride: int = 2) -> GSDecoderConfig:
@@ -105,8 +111,21 @@ def warm_start(model: torch.nn.Module, init: Path | None, kind: str) -> torch.nn
     src = load_weights(init, kind).state_dict()
     own = model.state_dict()
     same = {k: v for k, v in src.items() if k in own and own[k].shape == v.shape}
-    model.load_state_dict(same, strict=False)
-    print(json.dumps({"warm_start": str(init), "copied": len(same), "of": len(own)}), flush=True)
+    # a layer that reads more input channels than the file's (the layout's appended map layer) keeps the file's
+    # weights for the channels they share and starts the new ones at zero, so it first computes what it did
+    wider = {}
+    for k, v in src.items():
+        o = own.get(k)
+        if o is not None and k not in same and o.dim() == v.dim() >= 2 and o.shape[0] == v.shape[0]:
+            if o.shape[1] > v.shape[1] and o.shape[2:] == v.shape[2:]:
+                w = torch.zeros_like(o)
+                w[:, : v.shape[1]] = v.to(o.dtype)
+                wider[k] = w
+    model.load_state_dict({**same, **wider}, strict=False)
+    print(
+        json.dumps({"warm_start": str(init), "copied": len(same), "widened": sorted(wider), "of": len(own)}),
+        flush=True,
+    )
     return model
 
 
@@ -376,13 +395,13 @@ def train_decoder(
     train_loop("decoder_v2", dec, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
-def prior_batch(samples: list[dict], gen: torch.Generator, k: int) -> tuple[torch.Tensor, ...]:
-    """k random camera images of random clips: layout (k,7,H,W), caption (k,384), view (k,), L (k,C,h,w)."""
+def prior_batch(samples: list[dict], gen: torch.Generator, k: int, channels: int) -> tuple[torch.Tensor, ...]:
+    """k random camera images of random clips: layout (k,channels,H,W), caption (k,384), view (k,), L (k,C,h,w)."""
     lay, cap, view, lat = [], [], [], []
     for s in pick(samples, gen, k):
         T, V = s["L"].shape[:2]
         t, v = int(torch.randint(0, T, (1,), generator=gen)), int(torch.randint(0, V, (1,), generator=gen))
-        lay.append(s["control"][t, v].float())
+        lay.append(take_layout(s["control"][t, v], channels).float())
         cap.append(s["caption_emb"])
         view.append(v)
         lat.append(s["L"][t, v].float())
@@ -398,7 +417,7 @@ def modality_mse(mu: torch.Tensor, L: torch.Tensor, groups: int = 3) -> list[flo
 @torch.no_grad()
 def prior_of(prior, s: dict) -> torch.Tensor:
     """The prior's mu (T, V, C, h, w) for one cache record."""
-    return prior.clip(s["control"][None].float(), s["caption_emb"][None])[0]
+    return prior.clip(take_layout(s["control"][None], prior.cfg.in_channels).float(), s["caption_emb"][None])[0]
 
 
 def train_prior(
@@ -411,6 +430,7 @@ def train_prior(
     threads: int = 1,
     ckpt_every: int = 200,
     init: Path | None = None,
+    layout_channels: int = len(LAYOUT_CHANNELS),
 ) -> None:
     """MSE of mu = LayoutPrior(layout, caption, camera) against the frozen VAE's normalised L, `batch` images per
     step; held-out MSE per modality (and that of predicting the mean latent, the grey-blur baseline) per checkpoint."""
@@ -421,12 +441,12 @@ def train_prior(
     for s in samples + test:
         for k in ("rgb", "depth", "dynamic"):
             s.pop(k, None)
-    prior = warm_start(LayoutPrior(prior_config(vae)), init, "prior")
+    prior = warm_start(LayoutPrior(prior_config(vae, layout_channels)), init, "prior")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=20, threads=threads)
     mean_L = torch.stack([s["L"].float().mean(dim=(0, 1, 3, 4)) for s in samples]).mean(0)[:, None, None]
 
     def step(model, step_i, gen):
-        lay, cap, view, L = prior_batch(samples, gen, batch)
+        lay, cap, view, L = prior_batch(samples, gen, batch, layout_channels)
         return F.mse_loss(model(lay, cap, view), L), {}
 
     @torch.no_grad()
@@ -448,12 +468,13 @@ def train_prior(
     train_loop("prior_v2", prior, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
-def dit_batch(samples: list[dict]) -> tuple[torch.Tensor, dict]:
-    """The flow's data x (the residual R when the records carry one, else L) and the DiT's conditions."""
+def dit_batch(samples: list[dict], channels: int) -> tuple[torch.Tensor, dict]:
+    """The flow's data x (the residual R when the records carry one, else L) and the DiT's conditions (the first
+    `channels` layout channels)."""
     x = torch.stack([(s["R"] if "R" in s else s["L"]).float() for s in samples])
     cond = {k: torch.from_numpy(np.stack([np.asarray(s[k]) for s in samples])) for k in COND_KEYS}
     cond["caption"] = torch.stack([s["caption_emb"] for s in samples])
-    cond["control"] = torch.stack([s["control"].float() for s in samples])
+    cond["control"] = torch.stack([take_layout(s["control"], channels).float() for s in samples])
     return x, cond
 
 
@@ -480,6 +501,7 @@ def train_dit(
     ckpt_every: int = 100,
     init: Path | None = None,
     prior_path: Path | None = None,
+    layout_channels: int = len(LAYOUT_CHANNELS),
 ) -> None:
     """Rectified flow on L, or with `prior_path` on the frozen layout prior's residual (L - mu) / scale (v4)."""
     torch.set_num_threads(threads)
@@ -494,15 +516,15 @@ def train_dit(
         scale = attach_residuals(prior, samples)
         attach_residuals(prior, test, scale)
         print(json.dumps({"prior": str(prior_path), "residual_scale": scale}), flush=True)
-        cfg = dit_config(vae, "prior_residual", scale)
+        cfg = dit_config(vae, "prior_residual", scale, layout_channels)
     else:
-        cfg = dit_config(vae)
+        cfg = dit_config(vae, layout_channels=layout_channels)
     dit = warm_start(DiT4D(cfg), init, "dit")
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=100, ckpt_every=ckpt_every, log_every=10, threads=threads)
 
     def step(model, step_i, gen):
         m = unwrap(model)
-        x, cond = dit_batch(pick(samples, gen, batch))
+        x, cond = dit_batch(pick(samples, gen, batch), layout_channels)
         cond["drop"] = torch.rand(x.shape[0], generator=gen) < m.cfg.cond_drop
         return rflow.training_loss(model, x, cond, shift=m.cfg.sampler_shift, generator=gen), {}
 
@@ -512,7 +534,8 @@ def train_dit(
         save_weights(m, out / "dit_v2.safetensors", "dit", {"steps": done, "clips": len(samples)})
         gen = torch.Generator().manual_seed(0)  # the same noise and times at every checkpoint
         losses = [
-            float(rflow.training_loss(m, *dit_batch([s]), shift=m.cfg.sampler_shift, generator=gen)) for s in test
+            float(rflow.training_loss(m, *dit_batch([s], layout_channels), shift=m.cfg.sampler_shift, generator=gen))
+            for s in test
         ]
         rec = {"step": done, "heldout_flow_loss": float(np.mean(losses))}
         with open(out / "dit_v2_heldout.jsonl", "a") as f:

@@ -65,15 +65,21 @@ def bev_image(bev: np.ndarray, channels: tuple[str, ...], scale: int = 2) -> np.
     return np.kron(img, np.ones((scale, scale, 1), np.uint8))
 
 
-LAYOUT_GROUND = (70, 62, 50)  # road-plane pixels that are neither drivable nor sidewalk
+LAYOUT_GROUND = (70, 62, 50)
+MAP_COLOURS = {
+    "building": (150, 120, 100),
+    "vegetation": (90, 160, 60),
+    "furniture": (200, 200, 40),
+}  # road-plane pixels that are neither drivable nor sidewalk
 
 
 def layout_image(layout: np.ndarray) -> np.ndarray:
     """(H,W,7) per-camera layout map (world.layout_maps) -> RGB preview in the BEV colours: drivable grey, sidewalk
     pink, markings white, vehicle boxes blue and pedestrian/cyclist boxes red, each box shaded dark at its rear to
     bright at its front (the heading channel); everything dimmed with the layout depth (near bright, far half), and
-    black where the ray meets nothing the conditions state (sky, beyond range)."""
-    ch = {name: layout[..., i] for i, name in enumerate(LAYOUT_CHANNELS)}
+    black where the ray meets nothing the conditions state (sky, beyond range). Maps with the map layer (11 channels)
+    also show buildings, trees and poles / signs / barriers in their semantic colours, dimmed by `map_depth`."""
+    ch = {name: layout[..., i] for i, name in enumerate(LAYOUT_CHANNELS[: layout.shape[-1]])}
     img = np.zeros(layout.shape[:2] + (3,), np.float32)
     img[ch["depth"] < 1.0] = LAYOUT_GROUND
     for name, key in (("drivable", "drivable"), ("sidewalk", "sidewalk"), ("markings", "lane_divider")):
@@ -81,7 +87,12 @@ def layout_image(layout: np.ndarray) -> np.ndarray:
     for name in ("vehicle", "vulnerable"):
         on = ch[name] > 0.5
         img[on] = np.asarray(BEV_COLOURS[name], np.float32) * (0.35 + 0.65 * ch["heading"][on, None])
-    img *= (1.0 - 0.25 * (np.clip(ch["depth"], -1.0, 1.0) + 1.0))[..., None]
+    depth = ch["depth"]
+    if "map_depth" in ch:
+        for name, colour in MAP_COLOURS.items():
+            img[ch[name] > 0.5] = colour
+        depth = ch["map_depth"]
+    img *= (1.0 - 0.25 * (np.clip(depth, -1.0, 1.0) + 1.0))[..., None]
     return np.round(np.clip(img, 0, 255)).astype(np.uint8)
 
 

@@ -1,8 +1,8 @@
 """Per-camera layout maps: what the conditions alone say each pixel should show (issue 12, layout control).
 
 Rendered by ray casting a *layout world* that holds only what a scenario states: the road plane with its drivable
-area, painted markings and sidewalks, and one solid box per agent (its 3D box, not its detailed parts). Buildings,
-trees, textures and lighting are absent: they are the model's to generate. Channels (`LAYOUT_CHANNELS`), float32:
+area, painted markings and sidewalks, and one solid box per agent (its 3D box, not its detailed parts). Textures,
+colours and lighting are absent: they are the model's to generate. Channels (`LAYOUT_CHANNELS`), float32:
 
     drivable    1 on road surface (lanes + shoulder), incl. junction areas
     markings    1 on painted lane lines and crosswalk stripes (exact, as the world paints them)
@@ -13,6 +13,18 @@ trees, textures and lighting are absent: they are the model's to generate. Chann
                 (so the direction of travel is visible in a single image); 0 elsewhere
     depth       layout depth (camera z of the road plane or box hit), log-normalised to [-1, 1] over
                 [near, far] as the models normalise depth; +1 where the ray meets neither (sky, far)
+
+Then the *map layer* (v9, appended so that a model trained on the first 7 channels reads them unchanged): the
+scenario's static structure as a city map states it (building footprints with their heights, trees, poles / signs /
+barriers), each as its solid volume without texture or colour, as CityDreamer's building-instance and height maps
+condition a city generator. The street's buildings and trees are a deterministic function of the scenario (its road
+kind and seed), so a generator that is not told where they stand can only draw an average facade at an average
+distance (web/docs/models.md "v9": all-pixel depth AbsRel stuck at 0.22 while the road was 0.03).
+
+    building    1 where a building volume is nearer than the road / agent surface above
+    vegetation  1 where a tree (trunk or crown) is
+    furniture   1 where a pole, sign, traffic light or barrier is
+    map_depth   like `depth`, with the map layer's surfaces in front (what the whole scene's geometry is)
 
 The maps are exact for any rig camera and shifted track, like the world's ground truth, and cost one ray cast
 with a handful of boxes per camera.
@@ -25,12 +37,37 @@ import math
 import numpy as np
 
 from worldsplat.core.camera import Camera
-from worldsplat.world.classes import CROSSWALK, CYCLIST, LANE_MARKING, PEDESTRIAN, VEHICLE_CLASSES
+from worldsplat.world.classes import (
+    BARRIER,
+    BUILDING,
+    CROSSWALK,
+    CYCLIST,
+    LANE_MARKING,
+    PEDESTRIAN,
+    POLE,
+    SIGN,
+    VEGETATION,
+    VEHICLE_CLASSES,
+)
 from worldsplat.world.prims import BOX, Prims
 from worldsplat.world.render import PID_GROUND, trace
 from worldsplat.world.road import bev_layers
 
-LAYOUT_CHANNELS = ("drivable", "markings", "sidewalk", "vehicle", "vulnerable", "heading", "depth")
+LAYOUT_CHANNELS = (
+    "drivable",
+    "markings",
+    "sidewalk",
+    "vehicle",
+    "vulnerable",
+    "heading",
+    "depth",
+    "building",
+    "vegetation",
+    "furniture",
+    "map_depth",
+)
+ROAD_AGENT_CHANNELS = 7  # the first 7: the road and the agents alone (what the v4-v8 models read)
+MAP_CLASSES = {"building": (BUILDING,), "vegetation": (VEGETATION,), "furniture": (POLE, SIGN, BARRIER)}
 LAYOUT_RANGE = 90.0  # metres: the road plane beyond this is left out (as the sketch's lines are)
 LAYOUT_NEAR, LAYOUT_FAR = 0.5, 80.0  # metres: the depth channel's normalisation range
 
@@ -62,6 +99,21 @@ def agent_boxes(world, t: int) -> Prims:
     )
 
 
+def map_layer(world) -> Prims:
+    """The static structure a city map states: buildings, trees, poles / signs / barriers (not road paint)."""
+    keep = np.isin(world.static.cls, [c for cs in MAP_CLASSES.values() for c in cs])
+    return world.static.take(np.flatnonzero(keep))
+
+
+def take_layout(control, channels: int):
+    """The first `channels` layout channels of (..., C, H, W) maps: what a model trained on that many reads (the
+    channel list only grows at its end). Refuses maps with fewer channels than the model needs."""
+    have = control.shape[-3]
+    if have < channels:
+        raise ValueError(f"layout maps have {have} channels, the model reads {channels} ({LAYOUT_CHANNELS[:channels]})")
+    return control if have == channels else control[..., :channels, :, :]
+
+
 def normalize_log_depth(z: np.ndarray, near: float, far: float) -> np.ndarray:
     d = np.clip(np.nan_to_num(z, nan=far, posinf=far), near, far)
     return np.clip(2.0 * (np.log(d) - math.log(near)) / (math.log(far) - math.log(near)) - 1.0, -1.0, 1.0)
@@ -72,8 +124,11 @@ def layout_depth_m(x, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR):
     return near * (far / near) ** ((x + 1.0) / 2.0)
 
 
-def layout_map(world, t: int, cam, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR) -> np.ndarray:
-    """(H, W, 7) float32 layout map of frame t seen by `cam` (any pose, shifted tracks included)."""
+def layout_map(
+    world, t: int, cam, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR, structure: Prims | None = None
+) -> np.ndarray:
+    """(H, W, 11) float32 layout map of frame t seen by `cam` (any pose, shifted tracks included); `structure`:
+    the world's `map_layer` (computed once per world by `layout_maps`)."""
     boxes = agent_boxes(world, t)
     hits, o, d = trace(cam, boxes, far=LAYOUT_RANGE)
     h, w = hits.t.shape
@@ -99,6 +154,17 @@ def layout_map(world, t: int, cam, near: float = LAYOUT_NEAR, far: float = LAYOU
         along = c * rel[:, 0] + s * rel[:, 1]
         out[on_box, 5] = np.clip(0.5 + along / (2 * boxes.half[k, 0]), 0.0, 1.0)
     out[..., 6] = normalize_log_depth(np.where(finite, hits.t, np.inf), near, far)
+    structure = map_layer(world) if structure is None else structure
+    depth = np.where(finite, hits.t, np.inf)
+    if len(structure):
+        shits, _, _ = trace(cam, structure, far=LAYOUT_RANGE)
+        front = (shits.pid >= 0) & np.isfinite(shits.t) & (shits.t < depth)
+        if front.any():
+            scls = structure.cls[shits.pid[front]]
+            for i, name in enumerate(MAP_CLASSES, start=ROAD_AGENT_CHANNELS):
+                out[front, i] = np.isin(scls, MAP_CLASSES[name])
+            depth = np.where(front, shits.t, depth)
+    out[..., 10] = normalize_log_depth(depth, near, far)
     return out
 
 
@@ -114,13 +180,17 @@ def resized(cam, size: tuple[int, int] | None):
 def layout_maps(
     world, shift_m: float = 0.0, cameras=None, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR, size=None
 ) -> np.ndarray:
-    """(T, V, H, W, 7) layout maps of every frame and rig camera, at the rig's resolution or at size = (W, H)
+    """(T, V, H, W, 11) layout maps of every frame and rig camera, at the rig's resolution or at size = (W, H)
     (the models' own, so the cast costs what the model reads)."""
     rig = world.rig if cameras is None else [world.rig_camera(n) for n in cameras]
+    structure = map_layer(world)
     return np.stack(
         [
             np.stack(
-                [layout_map(world, t, resized(rc.at(world.ego_to_world[t], shift_m), size), near, far) for rc in rig]
+                [
+                    layout_map(world, t, resized(rc.at(world.ego_to_world[t], shift_m), size), near, far, structure)
+                    for rc in rig
+                ]
             )
             for t in range(world.num_frames)
         ]

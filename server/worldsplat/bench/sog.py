@@ -2,7 +2,8 @@
 after HTTP compression, at <= 0.1 dB loss against float32 measured against exact ground truth). web/docs/wsplat-v2.md,
 "Against SOG".
 
-    python -m worldsplat.bench.sog [--sizes 100000,1000000] [--generated SCENE.wsplat|generate|none] [--json OUT.json]
+    python -m worldsplat.bench.sog [--sizes 100000,1000000] [--generated SCENE.wsplat|generate|none]
+                                   [--dynamic oracle,generated|none] [--json OUT.json]
 
 Scenes:
 - "world PLY n": an anisotropic 3DGS PLY of a world street: the urban_straight preset, one frame, its six rig
@@ -19,6 +20,9 @@ what HTTP compression can make of it), SOG (PlayCanvas splat-transform, dev-only
 wire, v2 / SOG; encode CPU time of each v2 as a ratio to v1's; PSNR against the world's exact ground truth at three
 rig cameras of frame 0 for float32, v2 and SOG, and the change of v2 and SOG against float32 (mean and worst camera).
 v2 at level 15 decodes to the same integers as at the default level, so its loss is the default's.
+Dynamic records (`--dynamic`; issue 13: <= 4 bytes per Gaussian per frame on the wire): the DYNA chunks of v1 and v2
+(the default layouts) per dynamic Gaussian per frame, raw and on the wire, of the world oracle scene (urban_straight,
+200x112, 4 frames: the bench's quant fixture) and of the whole generated scene (every frame's dynamics).
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ import brotli
 import numpy as np
 import torch
 
+from worldsplat.bench.fixtures import oracle_fixture
 from worldsplat.bench.interop import splat_transform_cli
 from worldsplat.core.camera import Camera
 from worldsplat.core.metrics import psnr
@@ -53,6 +58,7 @@ SIZES = (100_000, 1_000_000)
 CAMS = ("CAM_FRONT", "CAM_FRONT_LEFT", "CAM_BACK_RIGHT")
 TARGET_RATIO = 0.8
 TARGET_DB = 0.1
+DYNAMIC_TARGET = 4.0  # bytes per dynamic Gaussian per frame, on the wire
 ARCHIVE = (15, 1)  # zstd level, filter search level of the "level 15" row
 
 
@@ -85,11 +91,16 @@ def world_case(n: int, preset: str = "urban_straight", cams=CAMS) -> Case:
                 [clip.rgb[0, v] for v in idx])  # fmt: skip
 
 
-def generated_case(source: str, cams=CAMS) -> Case:
+def generated_scene(source: str) -> Scene4D:
     """The preset as `worldsplat generate urban_straight` runs it (its own image size and clip): the scene the
-    playground serves by default."""
+    playground serves by default (`source`: 'generate', or a .wsplat of it)."""
     sc = load_preset("urban_straight")
-    scene = generate_scene(sc, mode="generate") if source == "generate" else wsplat.read(source)
+    return generate_scene(sc, mode="generate") if source == "generate" else wsplat.read(source)
+
+
+def generated_case(scene: Scene4D, cams=CAMS) -> Case:
+    """The static Gaussians of the generated scene against the world's ground truth at frame 0."""
+    sc = load_preset("urban_straight")
     gt = simulate(build_world(sc), frames=[0])
     names = [c.name for c in scene.rig]
     dyn0 = scene.dynamic[0] if scene.dynamic else Gaussians.empty()
@@ -169,6 +180,45 @@ def measure(case: Case, work: Path, log=print) -> dict:
     return row
 
 
+def dyna_bytes(data: bytes) -> bytes:
+    """The DYNA chunks of a .wsplat, concatenated (what the dynamic part of the stream costs)."""
+    out, pos = bytearray(), 12
+    while pos < len(data):
+        n = int.from_bytes(data[pos + 4 : pos + 8], "little")
+        if data[pos : pos + 4] == b"DYNA":
+            out += data[pos : pos + 12 + n]
+        pos += 12 + n
+    return bytes(out)
+
+
+def dynamic_row(label: str, scene: Scene4D) -> dict:
+    """Bytes of the dynamic records per dynamic Gaussian per frame, v1 and v2 (default layouts), raw and wire."""
+    nd = sum(len(d) for d in scene.dynamic)
+    row = {"scene": label, "dynamic": nd, "frames": len(scene.dynamic)}
+    for v in (1, 2):
+        data = wsplat.encode(scene, version=v)
+        part = dyna_bytes(data)
+        row[f"v{v}_layout"] = wsplat.decode(data).meta["dynamic_layout"]
+        row[f"v{v}_raw"], row[f"v{v}_wire"] = len(part), wire(part) if part else 0
+    row["v2_per_g"] = min(row["v2_raw"], row["v2_wire"]) / max(nd, 1)
+    row["holds"] = nd > 0 and row["v2_per_g"] <= DYNAMIC_TARGET
+    return row
+
+
+def dynamic_table(rows: list[dict]) -> str:
+    lines = [
+        "| scene | dynamic Gaussians (over frames) | v1 raw / wire (B per G per frame) | v2 raw / wire | <= 4 on the wire |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        n = max(r["dynamic"], 1)
+        lines.append(
+            f"| {r['scene']} | {r['dynamic']:,} ({r['frames']}) | {r['v1_raw'] / n:.2f} / {r['v1_wire'] / n:.2f} | "
+            f"{r['v2_raw'] / n:.2f} / {r['v2_wire'] / n:.2f} | {'holds' if r['holds'] else 'not met'} |"
+        )
+    return "\n".join(lines)
+
+
 def table(rows: list[dict]) -> str:
     lines = [
         "| scene | Gaussians | v1 raw / wire (B/G) | v2 raw / wire (B/G) | v2 level 15 raw / wire (B/G) | SOG raw / wire "
@@ -194,12 +244,20 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m worldsplat.bench.sog", description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="world PLY sizes (comma-separated; '' none)")
     ap.add_argument("--generated", default="generate", help="SCENE.wsplat, 'generate' or 'none'")
+    ap.add_argument("--dynamic", default="oracle,generated", help="dynamic-record scenes: oracle, generated or none")
     ap.add_argument("--json", type=Path, help="also write the rows here")
     args = ap.parse_args(argv)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     cases = [lambda n=n: world_case(n) for n in [int(x) for x in args.sizes.split(",") if x]]
+    gen: list[Scene4D] = []  # the generated scene, made once for the static case and the dynamic row
+
+    def generated() -> Scene4D:
+        if not gen:
+            gen.append(generated_scene(args.generated))
+        return gen[0]
+
     if args.generated != "none":
-        cases.append(lambda: generated_case(args.generated))
+        cases.append(lambda: generated_case(generated()))
     rows = []
     for make in cases:
         with tempfile.TemporaryDirectory(prefix="ws-sog-") as tmp:
@@ -207,10 +265,19 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         print(f"sog: {row['scene']}: v2 / SOG {row['ratio']:.3f}, change {row['v2_change_db']:+.3f} dB "
               f"(worst {row['v2_change_worst_db']:+.3f}); target {'holds' if row['holds'] else 'not met'}", flush=True)  # fmt: skip
-    print(table(rows))
+    if rows:
+        print(table(rows))
+    dyn = []
+    which = {x for x in args.dynamic.split(",") if x and x != "none"}
+    if "oracle" in which:
+        dyn.append(dynamic_row("world oracle urban_straight (200x112, 4 frames)", oracle_fixture(frames=4).scene))
+    if "generated" in which and args.generated != "none":
+        dyn.append(dynamic_row("generated urban_straight", generated()))
+    if dyn:
+        print(dynamic_table(dyn))
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=1) + "\n")
-    return 0 if all(r["holds"] for r in rows) else 1
+        args.json.write_text(json.dumps({"static": rows, "dynamic": dyn}, indent=1) + "\n")
+    return 0 if all(r["holds"] for r in rows + dyn) else 1
 
 
 if __name__ == "__main__":

@@ -48,7 +48,8 @@ def test_oracle_scene_of_a_clip_is_the_served_oracle_scene():
     served = generate_scene(sc, mode="oracle")
     scored = oracle_scene(simulate(build_world(sc)))
     assert len(served.static) == len(scored.static) > 0
-    assert torch.equal(served.static.means, scored.static.means) and torch.equal(served.static.colors, scored.static.colors)
+    assert torch.equal(served.static.means, scored.static.means)
+    assert torch.equal(served.static.colors, scored.static.colors)
     assert [len(d) for d in served.dynamic] == [len(d) for d in scored.dynamic]
     assert all(torch.equal(a.means, b.means) for a, b in zip(served.dynamic, scored.dynamic, strict=True))
 

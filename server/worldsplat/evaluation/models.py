@@ -27,7 +27,7 @@ from PIL import Image
 from worldsplat.core.camera import default_rig
 from worldsplat.core.metrics import depth_abs_rel, iou_counts, mask_iou, pooled_iou, psnr, psnr_from_mse, ssim
 from worldsplat.gaussians.aggregate import Economy
-from worldsplat.gaussians.raster import rasterize, render_view
+from worldsplat.gaussians.raster import rasterize
 from worldsplat.pipeline.inference import (
     Models,
     condition_tensors,
@@ -40,6 +40,7 @@ from worldsplat.pipeline.inference import (
     sample_latents,
     to_scene4d,
 )
+from worldsplat.pipeline.render import render_scene_track
 from worldsplat.pipeline.scene import oracle_scene
 from worldsplat.training.data import ShardDataset
 from worldsplat.world import Clip
@@ -85,7 +86,7 @@ def rig_of(sample: dict):
 
 
 def raster_view(g, cam) -> dict:
-    """Float render with the extra (dynamic) channel, for the mask and depth metrics (images: `render_view`)."""
+    """Float render with the extra (dynamic) channel, for the mask and depth metrics (images: `pipeline.render.render_scene_track`)."""
     with torch.no_grad():
         return rasterize(g, cam, method="pairs")
 
@@ -145,11 +146,11 @@ def eval_reconstruct(
             gt = by_shift[sh]
             for name, sc in scenes.items():
                 pv, sv = [], []
-                for t in frames or range(T):
-                    g = sc.at_frame(t)
+                fs = list(frames or range(T))
+                track = render_scene_track(sc, sh, frames=fs).rgb
+                for i, t in enumerate(fs):
                     for v in range(V):
-                        img = _img(render_view(g, sc.camera(t, v, sh)).rgb)
-                        tgt = _img(gt["rgb"][t, v])
+                        img, tgt = _img(track[i, v]), _img(gt["rgb"][t, v])
                         pv.append(psnr(img, tgt))
                         sv.append(float(ssim(img, tgt)))
                 res[sh][f"{name}_psnr"].append(float(np.mean(pv)))
@@ -188,11 +189,11 @@ def eval_cells(
             ):
                 rows[f][f"{name}static"].append(len(sc.static))
                 for sh in shs:
+                    fs = list(frames or range(T))
+                    track = render_scene_track(sc, sh, frames=fs).rgb
                     pv = [
-                        psnr(
-                            _img(render_view(sc.at_frame(t), sc.camera(t, v, sh)).rgb), _img(by_shift[sh]["rgb"][t, v])
-                        )
-                        for t in frames or range(T)
+                        psnr(_img(track[i, v]), _img(by_shift[sh]["rgb"][t, v]))
+                        for i, t in enumerate(fs)
                         for v in range(V)
                     ]
                     rows[f].setdefault(f"{name}psnr_{sh:g}", []).append(float(np.mean(pv)))
@@ -461,18 +462,18 @@ def figure(
     rgb = vae_decode_rgb(models, encode_clip(models, s["rgb"], s["depth"], s["dynamic"]), t)
     rows.append([rgb[v] for v in views])
     scene = to_scene4d(reconstruct(clip_view(s, rig), models))
-    rows.append([render_view(scene.at_frame(t), scene.camera(t, v)).rgb for v in views])
+    rows.append(list(render_scene_track(scene, 0.0, views=list(views), frames=[t]).rgb[0]))
     shifted = {float(x["shift_m"]): x for x in ds.shifted(index)}
     if shift_m in shifted:
         rows.append([shifted[shift_m]["rgb"][t, v] for v in views])
-        rows.append([render_view(scene.at_frame(t), scene.camera(t, v, shift_m)).rgb for v in views])
+        rows.append(list(render_scene_track(scene, shift_m, views=list(views), frames=[t]).rgb[0]))
     if "generate" in models.modes:
         cond = shard_condition_dict(s, ds.load(index))
         gscene = to_scene4d(
             generate(cond, steps=steps, seed=seed, models=models, rig=rig, frame_times=np.arange(T) / 4.0)
         )
         rows.append([(s["sketch"][t, v] * 255).astype(np.uint8) for v in views])
-        rows.append([render_view(gscene.at_frame(t), gscene.camera(t, v)).rgb for v in views])
+        rows.append(list(render_scene_track(gscene, 0.0, views=list(views), frames=[t]).rgb[0]))
     grid = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(grid).resize((grid.shape[1] * 2, grid.shape[0] * 2), Image.NEAREST).save(out_png)

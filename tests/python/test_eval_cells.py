@@ -1,0 +1,40 @@
+"""`python -m worldsplat.evaluation.models --parts cells` (the command behind gaussians.md's decoded-cells table):
+at the served cell it scores exactly the scene the reconstruct evaluation scores (the served `to_scene4d`), coarser
+cells keep fewer Gaussians, and a missing shifted ground truth is an error that names it."""
+
+import pytest
+
+from worldsplat.pipeline import inference as inf
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif("reconstruct" not in inf.available_modes(), reason="no shipped weights in models/weights"),
+]
+
+
+@pytest.fixture(scope="module")
+def one_clip(tmp_path_factory):
+    from worldsplat.training.data import ShardDataset
+    from worldsplat.world.dataset import write_dataset
+
+    root = tmp_path_factory.mktemp("data")
+    write_dataset(root, "test", 1, shifts=(2.0,), progress=False)
+    models = inf.load_models()
+    return models, ShardDataset(root, "test", models.data.max_boxes)
+
+
+def test_cells_at_the_served_cell_score_the_served_scene(one_clip):
+    from worldsplat.evaluation.models import eval_cells, eval_reconstruct
+
+    models, ds = one_clip
+    rows = eval_cells(models, ds, 1, factors=(0.0, 1.0, 3.0), frames=(1,))
+    served = eval_reconstruct(models, ds, 1, frames=(1,), shifts=(0.0, 2.0), oracle=True)
+    by_cell = {r["cell"]: r for r in rows}
+    # one model pixel at the models' own image size is the served decoded economy (`decoded_economy`)
+    assert by_cell[1.0]["psnr_0"] == pytest.approx(served["0.0"]["model_psnr"], abs=1e-9)
+    assert by_cell[1.0]["psnr_2"] == pytest.approx(served["2.0"]["model_psnr"], abs=1e-9)
+    assert by_cell[3.0]["oracle_psnr_0"] == pytest.approx(served["0.0"]["oracle_psnr"], abs=1e-9)  # oracle's cells: 3
+    assert by_cell[0.0]["static"] > by_cell[1.0]["static"] > by_cell[3.0]["static"] > 0
+    assert by_cell[0.0]["oracle_static"] > by_cell[1.0]["oracle_static"] > by_cell[3.0]["oracle_static"] > 0
+    with pytest.raises(ValueError, match=r"no ground truth at shift\(s\) \[4.0\]"):
+        eval_cells(models, ds, 1, factors=(1.0,), frames=(1,), shifts=(0.0, 4.0))

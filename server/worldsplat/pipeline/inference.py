@@ -353,12 +353,18 @@ MAP_MIN_OPACITY = 0.95  # building cells' Gaussians at least this opaque (a faca
 
 
 @torch.no_grad()
-def snap_to_map(dec: DecodedFrames, control: torch.Tensor, log_tol: float = MAP_SNAP_LOG_TOL) -> float:
+def snap_to_map(
+    dec: DecodedFrames,
+    control: torch.Tensor,
+    log_tol: float = MAP_SNAP_LOG_TOL,
+    solid: bool = True,
+    classes: tuple[str, ...] = ("building", "vegetation", "furniture"),
+) -> float:
     """Generated Gaussians where the layout's map layer (buildings, trees, poles; `world/layout_maps.py`) is the
     nearest surface onto that surface: a grid cell mostly covered (> 0.5) by the map layer and no agent box, with
     the Gaussian static (p_dynamic <= 0.5) and within exp(+-log_tol) of the surface's depth, moves along its camera
-    ray (mean and scales by the depth ratio) to the harmonic mean of the cell's map depth; building cells become
-    solid (opacity >= MAP_MIN_OPACITY). Maps without the map layer (7 channels) leave the scene unchanged. In place;
+    ray (mean and scales by the depth ratio) to the harmonic mean of the cell's map depth; with `solid` building cells
+    become opaque (opacity >= MAP_MIN_OPACITY). `classes`: the map channels snapped. Maps without the map layer (7 channels) leave the scene unchanged. In place;
     returns the fraction of Gaussians moved."""
     ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
     T, V, C, H, W = control.shape
@@ -372,7 +378,7 @@ def snap_to_map(dec: DecodedFrames, control: torch.Tensor, log_tol: float = MAP_
             f = _grid_pitch("snap_to_map", n, H, W)
             c = control[t, v].float()
             depth = layout_depth_m(c[ch["map_depth"]])
-            structure = (c[ch["building"]] + c[ch["vegetation"]] + c[ch["furniture"]]).clamp(0, 1)
+            structure = sum(c[ch[k]] for k in classes).clamp(0, 1)
             cover, z_map = _cell_surface(structure, depth, f)
             building, _ = _cell_surface(c[ch["building"]], depth, f)
             agent = F.max_pool2d((c[ch["vehicle"]] + c[ch["vulnerable"]])[None, None], f)[0, 0] > 0.5
@@ -384,10 +390,24 @@ def snap_to_map(dec: DecodedFrames, control: torch.Tensor, log_tol: float = MAP_
             r = ratio[:, None]
             g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
             g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
-            solid = ok & (building.reshape(-1) > 0.5)
-            g.opacities = torch.where(solid, g.opacities.clamp_min(MAP_MIN_OPACITY), g.opacities)
+            if solid:
+                firm = ok & (building.reshape(-1) > 0.5)
+                g.opacities = torch.where(firm, g.opacities.clamp_min(MAP_MIN_OPACITY), g.opacities)
             moved, total = moved + int(ok.sum()), total + n
     return moved / max(total, 1)
+
+
+# A cell at least this much box that covers more than any neighbour holds an agent smaller than a cell (a pedestrian
+# at 40 m is ~1.5 model pixels wide: straddling two cells, neither is half box, and the agent got no Gaussian).
+AGENT_MIN_PEAK_COVER = 0.2
+
+
+def _agent_cells(cover: torch.Tensor) -> torch.Tensor:
+    """(h,w) box cover per cell -> cells whose Gaussians go onto the box: mostly box (> 0.5), or a local peak of
+    cover >= AGENT_MIN_PEAK_COVER (a sub-cell agent's best cell; a large agent's edge cells are not peaks, so its
+    silhouette does not grow)."""
+    peak = F.max_pool2d(cover[None, None], 3, stride=1, padding=1)[0, 0]
+    return (cover > 0.5) | ((cover >= AGENT_MIN_PEAK_COVER) & (cover >= peak))
 
 
 def _inside_boxes(points: torch.Tensor, corners: torch.Tensor, margin: float) -> torch.Tensor:
@@ -411,8 +431,8 @@ def snap_agents_to_layout(
     the scenario. The layout's box channels and their depth are exact (a box per agent, `world/layout_maps.py`);
     the generator's latents at 1/4 resolution lose far and small agents (0-51 dynamic Gaussians per frame on imported
     files, web/docs/world.md), so the scene did not hold them where the scenario put them. Two steps, in place:
-    1. every Gaussian whose grid cell is mostly box (vehicle or vulnerable channel > 0.5 on average) moves along its
-       camera ray onto the box surface (the harmonic mean of the cell's box-pixel depths; mean and scales by the ratio,
+    1. every Gaussian whose grid cell is mostly box (vehicle or vulnerable channel > 0.5 on average), or is the peak
+       cell of an agent smaller than a cell (`_agent_cells`), moves along its camera ray onto the box surface (the harmonic mean of the cell's box-pixel depths; mean and scales by the ratio,
        so the image from its own camera barely changes);
     2. a Gaussian inside a moving agent's box at its frame (`cond` box_corners, box_moving: the conditions' boxes in
        each frame's ego frame) becomes dynamic, one inside a standing agent's box static; elsewhere the decoder's
@@ -434,7 +454,7 @@ def snap_agents_to_layout(
             box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1)
             cover, z_box = _cell_surface(box, layout_depth_m(c[ch["depth"]]), f)
             o, z = _camera_ray_depth(dec, t, v, g.means)
-            ok = (cover.reshape(-1) > 0.5) & (z > 1e-3)
+            ok = _agent_cells(cover).reshape(-1) & (z > 1e-3)
             r = (z_box.reshape(-1) / z.clamp_min(1e-3))[:, None]
             g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
             g.scales = torch.where(ok[:, None], g.scales * r, g.scales)

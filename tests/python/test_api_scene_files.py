@@ -58,11 +58,11 @@ def test_each_format_comes_back_as_the_wsplat_the_cli_writes(client, tmp_path, e
     assert len(ref.static) == len(got.static) and ref.meta["version"] == 1
     # v2 decodes to the Gaussians of the CLI's (v1) file written with v2's layouts (v2's static anisotropic default
     # layout is not v1's: wsplat.V2_STATIC_ANISO, and its static position boxes follow the Gaussians' size:
-    # wsplat.V2_POS_PRECISION)
+    # wsplat.pos_precision_for)
     scene = scene_from_file(src)
     scene = dataclasses.replace(scene, static=importance_order(scene.static))
     sl, dl = wsplat.layouts_for(scene.static, scene.dynamic, version=2)
-    kw = {"static_layout": sl.to_json(), "dynamic_layout": dl.to_json(), "pos_precision": wsplat.V2_POS_PRECISION}
+    kw = {"static_layout": sl.to_json(), "dynamic_layout": dl.to_json(), "pos_precision": wsplat.pos_precision_for(sl)}
     same = wsplat.decode(wsplat.encode(scene, version=1, **kw))
     np.testing.assert_array_equal(rows(got.static), rows(same.static))
 

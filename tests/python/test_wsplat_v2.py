@@ -45,12 +45,12 @@ def street_scene(n: int, seed: int = 0) -> Scene4D:
 def v2_layouts(scene: Scene4D) -> dict:
     """v2's default layouts of a scene and its static position boxes, to write the v1 file of the same layouts and
     boxes (v2's static anisotropic default is not v1's: wsplat.V2_STATIC_ANISO; its static blocks' position step
-    follows the Gaussians' size: wsplat.V2_POS_PRECISION)."""
+    follows the Gaussians' size: wsplat.pos_precision_for)."""
     sl, dl = wsplat.layouts_for(scene.static, scene.dynamic, version=2)
     return {
         "static_layout": [list(f) for f in sl.fields],
         "dynamic_layout": [list(f) for f in dl.fields],
-        "pos_precision": wsplat.V2_POS_PRECISION,
+        "pos_precision": wsplat.pos_precision_for(sl),
     }
 
 

@@ -140,8 +140,10 @@ V2_STATIC_ANISO = [
 # The position step of a v2 static block (encoder only: the box is the block's to choose, every decoder reads it):
 # at most V2_POS_PRECISION x the block's Gaussian size (the POS_SIZE_PERCENTILE-th percentile of their middle
 # scale), finer only where the layout's bits cover the block's extent more finely. Chosen by bench.sog's world PLY
-# at 100k and 1M (0.5 / 0.6 / 0.7 / 1.0: 1M 2.07 / 2.13 / 2.02 / 1.82 B/G; 1.0 lost 0.17 dB at 100k).
+# at 100k and 1M (wsplat-v2.md, "Position boxes"). Isotropic Gaussians need a finer step: the world oracle scene
+# (iso, 200x112) lost 0.16 dB at one camera at 0.6, 0.02 at 0.3 (for 4.68 B/G instead of 6.68 in its own boxes).
 V2_POS_PRECISION = 0.6
+V2_POS_PRECISION_ISO = 0.3
 POS_SIZE_PERCENTILE = 25
 V2_STATIC_ISO, V2_DYNAMIC_ISO, V2_DYNAMIC_ANISO = STATIC_ISO, DYNAMIC_ISO, DYNAMIC_ANISO
 DEFAULT_VERSION = 1  # what encode / StreamWriter write unless told
@@ -779,12 +781,17 @@ def _blocks(
     return encode_blocks(a, layout, block_size, pos_precision)
 
 
-POS_PRECISION_OF_VERSION = "version"  # the default of `encode`'s pos_precision: V2_POS_PRECISION in v2, None in v1
+POS_PRECISION_OF_VERSION = "version"  # the default of `encode`'s pos_precision: v2's (pos_precision_for), v1 None
 
 
-def _pos_precision(value, version: int) -> float | None:
+def pos_precision_for(layout: Layout) -> float:
+    """v2's static position precision for a static layout (`position_box`)."""
+    return V2_POS_PRECISION_ISO if layout.isotropic else V2_POS_PRECISION
+
+
+def _pos_precision(value, version: int, layout: Layout) -> float | None:
     if value == POS_PRECISION_OF_VERSION:
-        return V2_POS_PRECISION if version == 2 else None
+        return pos_precision_for(layout) if version == 2 else None
     return None if value is None else float(value)
 
 
@@ -837,7 +844,7 @@ def encode(
     (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of them, Morton-ordered inside
     so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL).
     `pos_precision`: the static blocks' position step against their Gaussians' size (`position_box`; None: the
-    points' own box), by default V2_POS_PRECISION in v2 and None in v1."""
+    points' own box), by default `pos_precision_for` the static layout in v2 and None in v1."""
     version = version or DEFAULT_VERSION
     if version not in VERSIONS:
         raise ValueError(f"wsplat: version {version} not in {VERSIONS}")
@@ -854,7 +861,7 @@ def encode(
     out = bytearray(MAGIC + struct.pack("<I", version))
     nd = [int(len(d["means"])) for d in dyn]
     out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version)
-    pp = _pos_precision(pos_precision, version)
+    pp = _pos_precision(pos_precision, version, sl)
     for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version, zstd, pp)[0]:
         out += c
     for t, d in enumerate(dyn):
@@ -887,7 +894,7 @@ class StreamWriter:
         pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
     ):
         self.version = version or DEFAULT_VERSION
-        self.pos_precision = _pos_precision(pos_precision, self.version)
+        self.pos_precision = _pos_precision(pos_precision, self.version, static_layout)
         if self.version not in VERSIONS:
             raise ValueError(f"wsplat: version {self.version} not in {VERSIONS}")
         if self.version == 2:

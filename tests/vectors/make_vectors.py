@@ -830,6 +830,13 @@ def _write_v2(valid_any_box, bad) -> None:
     struct.pack_into("<f", boxes, 0, float("nan"))
     bad("bad_v2_box_nan", with_section(0, frame=frame(bytes(boxes))), "bad_payload", p0 + secs[0][0], "STAT.boxes")
     bad("truncated_v2_in_stat", base[: stat_at + 100], "truncated", stat_at, "file")
+    # totals that disagree with the chunks (as v1's count_mismatch vectors), and a huge declared total
+    d = with_head(num_static=head["num_static"] + 1)
+    bad("count_mismatch_v2_static", d, "count_mismatch", chunk_offset(split_chunks(d), 4), "HEAD.num_static")
+    d = with_head(num_dynamic=[20, 0, 30])  # the frame-2 DYNA chunk (index 3) holds 35
+    bad("count_mismatch_v2_dynamic_excess", d, "count_mismatch", chunk_offset(split_chunks(d), 3) + 8 + 4, "DYNA.count")
+    d = with_head(num_static=2**40)  # nothing is allocated for it: the chunks hold 300
+    bad("count_mismatch_v2_huge_total", d, "count_mismatch", chunk_offset(split_chunks(d), 4), "HEAD.num_static")
 
 
 # ---------------------------------------------------------------------------------------------- rig + shift

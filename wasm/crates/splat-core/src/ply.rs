@@ -1,6 +1,9 @@
 //! Reader for the standard 3DGS PLY vertex layout (binary little-endian): x y z, f_dc_0..2 (SH degree 0),
 //! opacity as a logit, scale_0..2 as log, rot_0..3 (w x y z). Colour = 0.5 + SH_C0 * f_dc. Other properties
-//! (normals, f_rest_*) are skipped. Errors name the line or the property.
+//! (normals, f_rest_*) are skipped. Errors name the field and its byte offset, as the server's reader
+//! (`ply: offset N: FIELD: message`): the header line, `element vertex`, the vertex cut short (`vertex[i]`) or the
+//! first non-finite property value (`y[3]`); the vertex count is checked against the bytes present before anything is
+//! read, so a huge declared count allocates nothing.
 
 use crate::gaussians::Gaussian;
 
@@ -58,38 +61,49 @@ pub fn is_ply(bytes: &[u8]) -> bool {
     bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n")
 }
 
+/// `ply: offset N: FIELD: message`, the form of the server's reader (FormatError).
+fn err(offset: usize, field: &str, msg: impl std::fmt::Display) -> String {
+    format!("ply: offset {offset}: {field}: {msg}")
+}
+
 pub fn read_ply(bytes: &[u8]) -> Result<Vec<Gaussian>, String> {
     if !is_ply(bytes) {
-        return Err("ply: missing 'ply' magic line".into());
+        return Err(err(0, "header", "missing 'ply' magic line"));
     }
-    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("ply: no end_header line")? + 11;
-    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "ply: header is not ASCII")?;
-    let mut count: Option<usize> = None;
+    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or_else(|| err(0, "header", "no end_header line"))? + 11;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|e| err(e.valid_up_to(), "header", "not ASCII"))?;
+    let mut count: Option<(usize, usize)> = None; // (count, offset of its line)
     let mut props: Vec<(String, Ty)> = Vec::new();
     let mut in_vertex = false;
-    for (n, line) in header.lines().enumerate().skip(1) {
-        let w: Vec<&str> = line.split_whitespace().collect();
+    let mut at = 0;
+    for (n, raw) in header.split('\n').enumerate() {
+        let line_at = at;
+        at += raw.len() + 1;
+        if n == 0 {
+            continue;
+        }
+        let w: Vec<&str> = raw.split_whitespace().collect();
         match w.as_slice() {
             ["format", f, _] if *f != "binary_little_endian" => {
-                return Err(format!("ply line {}: format {f} unsupported (binary_little_endian only)", n + 1));
+                return Err(err(line_at, "format", format!("{f} unsupported (binary_little_endian only)")));
             }
             ["element", name, c] => {
                 in_vertex = *name == "vertex";
                 if in_vertex {
-                    count = Some(c.parse().map_err(|_| format!("ply line {}: bad vertex count {c:?}", n + 1))?);
+                    count = Some((c.parse().map_err(|_| err(line_at, "element vertex", format!("bad vertex count {c:?}")))?, line_at));
                 } else if count.is_none() {
-                    return Err(format!("ply line {}: element {name} before vertex is unsupported", n + 1));
+                    return Err(err(line_at, "element", format!("element {name} before vertex is unsupported")));
                 }
             }
-            ["property", "list", ..] if in_vertex => return Err(format!("ply line {}: list properties unsupported", n + 1)),
+            ["property", "list", ..] if in_vertex => return Err(err(line_at, "property", "list properties unsupported")),
             ["property", ty, name] if in_vertex => {
-                let t = Ty::parse(ty).ok_or_else(|| format!("ply line {}: unknown type {ty}", n + 1))?;
+                let t = Ty::parse(ty).ok_or_else(|| err(line_at, "property", format!("unknown type {ty}")))?;
                 props.push((name.to_string(), t));
             }
             _ => {}
         }
     }
-    let count = count.ok_or("ply: no vertex element")?;
+    let (count, count_at) = count.ok_or_else(|| err(0, "element vertex", "no vertex element"))?;
     let stride: usize = props.iter().map(|p| p.1.size()).sum();
     let need = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"];
     let mut at = Vec::new();
@@ -102,12 +116,20 @@ pub fn read_ply(bytes: &[u8]) -> Result<Vec<Gaussian>, String> {
             }
             off += t.size();
         }
-        at.push(found.ok_or_else(|| format!("ply: missing vertex property {name}"))?);
+        at.push(found.ok_or_else(|| err(0, "property", format!("missing vertex property {name}")))?);
     }
     let body = &bytes[end..];
-    let want = count.checked_mul(stride).ok_or("ply: vertex count overflows")?;
+    let want = count.checked_mul(stride).ok_or_else(|| err(count_at, "element vertex", format!("{count} vertices overflow")))?;
     if body.len() < want {
-        return Err(format!("ply: {count} vertices need {want} bytes, file has {}", body.len()));
+        let whole = body.len() / stride.max(1);
+        return Err(err(end + whole * stride, &format!("vertex[{whole}]"), format!("{count} vertices need {want} bytes, file has {}", body.len())));
+    }
+    for (k, name) in need.iter().enumerate() {
+        let (off, ty) = at[k];
+        if let Some(i) = (0..count).find(|i| !ty.read(&body[i * stride + off..]).is_finite()) {
+            let v = ty.read(&body[i * stride + off..]);
+            return Err(err(end + i * stride + off, &format!("{name}[{i}]"), format!("not finite ({v})")));
+        }
     }
     let sigmoid = |x: f32| 1.0 / (1.0 + (-x).exp());
     Ok(body[..want]
@@ -173,7 +195,26 @@ mod tests {
         }
         assert!((back[0].opacity - 0.7).abs() < 1e-5 && (back[0].color[2] - 0.9).abs() < 1e-5);
         let bytes = write_ply(&[g]);
-        assert!(read_ply(&bytes[..bytes.len() - 1]).unwrap_err().contains("need"));
+        let cut = read_ply(&bytes[..bytes.len() - 1]).unwrap_err();
+        let body_at = bytes.len() - 56;
+        assert!(cut.contains("need") && cut.starts_with(&format!("ply: offset {body_at}: vertex[0]:")), "{cut}");
+        // a vertex count far beyond the bytes: refused at the body, nothing allocated for it
+        let two = write_ply(&[g, g]);
+        let head = String::from_utf8_lossy(&two[..two.len() - 112]).replace("element vertex 2", "element vertex 4000000000000");
+        let huge = [head.as_bytes(), &two[two.len() - 112..]].concat();
+        let huge_at = huge.len(); // after the two whole vertices there
+        let e = read_ply(&huge).unwrap_err();
+        assert!(e.starts_with(&format!("ply: offset {huge_at}: vertex[2]:")), "{e}");
+        // a non-finite value names the property, the vertex and its byte offset (y of vertex 1)
+        let mut nan = two.clone();
+        let y1 = two.len() - 56 + 4;
+        nan[y1..y1 + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        let e = read_ply(&nan).unwrap_err();
+        assert!(e.starts_with(&format!("ply: offset {y1}: y[1]: not finite")), "{e}");
+        let mut inf = two.clone();
+        let s0 = two.len() - 112 + 4 * 7; // scale_0 of vertex 0 (x y z, 3 f_dc, opacity before it)
+        inf[s0..s0 + 4].copy_from_slice(&f32::INFINITY.to_le_bytes());
+        assert!(read_ply(&inf).unwrap_err().contains("scale_0[0]: not finite"));
         let ascii = String::from_utf8_lossy(&bytes).replace("binary_little_endian", "ascii").into_bytes();
         assert!(read_ply(&ascii).unwrap_err().contains("ascii"));
         let no_op = String::from_utf8_lossy(&bytes[..bytes.len() - 56]).replace("property float opacity\n", "").into_bytes();

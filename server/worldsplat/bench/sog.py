@@ -125,7 +125,9 @@ def _psnrs(case: Case, static: Gaussians) -> list[float]:
     return [float(psnr(render_view(g, cam).rgb, gt)) for cam, gt in zip(case.cameras, case.truth)]
 
 
-def measure(case: Case, work: Path, log=print) -> dict:
+def measure(case: Case, work: Path, log=print, sweep: tuple = ()) -> dict:
+    """One scene's row; `sweep`: v2 also at these position precisions (wsplat.V2_POS_PRECISION; None: the points'
+    own boxes), bytes and change against float32 of each in row['sweep']."""
     g = case.scene.static
     n = len(g)
     alone = Scene4D(g, [Gaussians.empty()], case.scene.frame_times[:1], case.scene.rig, case.scene.ego_to_world[:1],
@@ -177,7 +179,49 @@ def measure(case: Case, work: Path, log=print) -> dict:
     row["ratio"] = min(row["v2_raw"], row["v2_wire"]) / sog_w
     row["ratio_l15"] = min(row["v2_l15_raw"], row["v2_l15_wire"]) / sog_w
     row["holds"] = row["ratio"] <= TARGET_RATIO and -row["v2_change_worst_db"] <= TARGET_DB
+    row["sweep"] = []
+    for prec in sweep:
+        data = wsplat.encode(alone, version=2, pos_precision=prec)
+        d = [a - b for a, b in zip(_psnrs(case, wsplat.decode(data).static), f32)]
+        size = min(len(data), wire(data))
+        row["sweep"].append({"pos_precision": prec, "v2_bytes": size, "ratio": size / sog_w,
+                             "position_bytes": position_bytes(data),
+                             "change_db": float(np.mean(d)), "change_worst_db": float(min(d))})  # fmt: skip
     return row
+
+
+def sweep_table(rows: list[dict]) -> str:
+    lines = [
+        "| scene | position precision | v2 wire (B/G) | of it positions (B/G) | v2 / SOG | change vs float32: mean / "
+        "worst camera (dB) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        for s in r["sweep"]:
+            p = "own box" if s["pos_precision"] is None else f"{s['pos_precision']:g}"
+            n = r["gaussians"]
+            lines.append(f"| {r['scene']} | {p} | {s['v2_bytes'] / n:.2f} | {s['position_bytes'] / n:.2f} | {s['ratio']:.3f} | "
+                         f"{s['change_db']:+.3f} / {s['change_worst_db']:+.3f} |")  # fmt: skip
+    return "\n".join(lines)
+
+
+def position_bytes(data: bytes) -> int:
+    """Bytes of the Morton-delta sections (`pos[k]`, each with its 5-byte section header) of a v2 file's STAT chunks."""
+    out, pos, width = 0, 12, 0
+    while pos < len(data):
+        n = int.from_bytes(data[pos + 4 : pos + 8], "little")
+        payload = data[pos + 8 : pos + 8 + n]
+        if data[pos : pos + 4] == b"HEAD":
+            bits = dict(map(tuple, json.loads(payload)["static_layout"]))["px"]
+            width = (3 * bits + 7) // 8
+        elif data[pos : pos + 4] == b"STAT":
+            at = 4
+            for k in range(1 + width):  # the boxes, then pos[0..width-1]
+                size = 5 + int.from_bytes(payload[at + 1 : at + 5], "little")
+                out += size if k else 0
+                at += size
+        pos += 12 + n
+    return out
 
 
 def dyna_bytes(data: bytes) -> bytes:
@@ -245,10 +289,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="world PLY sizes (comma-separated; '' none)")
     ap.add_argument("--generated", default="generate", help="SCENE.wsplat, 'generate' or 'none'")
     ap.add_argument("--dynamic", default="oracle,generated", help="dynamic-record scenes: oracle, generated or none")
+    ap.add_argument("--sweep", default="", help="also v2 at these position precisions (comma-separated; 'none': the "
+                    "points' own boxes), e.g. none,0.5,0.7,1")  # fmt: skip
     ap.add_argument("--json", type=Path, help="also write the rows here")
     args = ap.parse_args(argv)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     cases = [lambda n=n: world_case(n) for n in [int(x) for x in args.sizes.split(",") if x]]
+    sweep = tuple(None if x == "none" else float(x) for x in args.sweep.split(",") if x)
     gen: list[Scene4D] = []  # the generated scene, made once for the static case and the dynamic row
 
     def generated() -> Scene4D:
@@ -261,12 +308,14 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for make in cases:
         with tempfile.TemporaryDirectory(prefix="ws-sog-") as tmp:
-            row = measure(make(), Path(tmp), log=lambda m: print(m, flush=True))
+            row = measure(make(), Path(tmp), log=lambda m: print(m, flush=True), sweep=sweep)
         rows.append(row)
         print(f"sog: {row['scene']}: v2 / SOG {row['ratio']:.3f}, change {row['v2_change_db']:+.3f} dB "
               f"(worst {row['v2_change_worst_db']:+.3f}); target {'holds' if row['holds'] else 'not met'}", flush=True)  # fmt: skip
     if rows:
         print(table(rows))
+    if sweep:
+        print(sweep_table(rows))
     dyn = []
     which = {x for x in args.dynamic.split(",") if x and x != "none"}
     if "oracle" in which:

@@ -50,8 +50,12 @@ def write_pair(out: Path, name: str, scene: Scene4D) -> dict:
     split = [len(scene.static) // 2] if len(parts) == 2 else []
     info = {"gaussians": len(scene.static) + sum(len(d) for d in scene.dynamic), "frames": T, "files": {}}
     sl, dl = wsplat.layouts_for(scene.static, scene.dynamic, version=2)
-    same = {"static_layout": [list(f) for f in sl.fields], "dynamic_layout": [list(f) for f in dl.fields]}
-    for v in (1, 2):  # v1 with v2's layouts: the same integers (v2's static anisotropic default is not v1's)
+    same = {
+        "static_layout": [list(f) for f in sl.fields],
+        "dynamic_layout": [list(f) for f in dl.fields],
+        "pos_precision": wsplat.pos_precision_for(sl),  # v2's static position boxes, sized by the Gaussians
+    }
+    for v in (1, 2):  # v1 with v2's layouts and boxes: the same integers (v2's static defaults are not v1's)
         for kind, data in (
             ("", wsplat.encode(scene, version=v, **same)),
             ("_streamed", wsplat.encode_streamed(scene, parts, static_split=split, version=v, **same)),

@@ -14,8 +14,8 @@ One PNG per case (presets and random scenarios of a held-out split), columns the
                       decoder -> served scene, rendered
 
 Every rendered row is the scene the product serves: decoded frames aggregated by `to_scene4d` (paper eq. 3 +
-economy, `gaussians.aggregate.aggregate_4d`) and drawn by `gaussians.raster.render_view` at the rig camera. Preset
-cases are built as the server builds a generate scene (`pipeline.scene.generate_scene`: `world.conditions` with the
+economy, `gaussians.aggregate.aggregate_4d`) and drawn by the one track renderer (`pipeline.render.
+render_scene_track`) at the rig camera. Preset cases are built as the server builds a generate scene (`pipeline.scene.generate_scene`: `world.conditions` with the
 layout maps at the models' size, the scenario's seed), with the world itself at the models' resolution; random cases
 are dataset clips (`world.dataset.clip_arrays` of a split seed, or the shards of `--data`), the same clip either way.
 Row labels carry the PSNR against the ground truth row; `overview.png` tiles every case and `gallery.json` lists them.
@@ -34,8 +34,8 @@ from worldsplat.core.io import write_json_atomic
 from worldsplat.core.metrics import psnr
 from worldsplat.core.scenario import resolve_scenario
 from worldsplat.evaluation.models import clip_view, rig_of, shard_condition_dict, vae_decode_rgb
-from worldsplat.gaussians.raster import render_view
 from worldsplat.pipeline.inference import Models, encode_clip, generate, layout_size, reconstruct, to_scene4d
+from worldsplat.pipeline.render import render_scene_track
 from worldsplat.training.data import ShardDataset, sample_from_shard
 from worldsplat.world import Clip, build_world, simulate
 from worldsplat.world.dataset import clip_arrays, clip_scenario
@@ -122,7 +122,7 @@ def case_rows(
     vae = vae_decode_rgb(models, encode_clip(models, clip.rgb, clip.depth, clip.dynamic), t)
     rows.append(scored("VAE decode", [vae[v] for v in vi]))
     scene = to_scene4d(reconstruct(clip, models))
-    rows.append(scored("reconstruct", [render_view(scene.at_frame(t), scene.camera(t, v)).rgb for v in vi]))
+    rows.append(scored("reconstruct", list(render_scene_track(scene, 0.0, views=vi, frames=[t]).rgb[0])))
     if "generate" not in models.modes:
         return rows
     cond = case.conditions
@@ -143,7 +143,7 @@ def case_rows(
     rows.append(
         scored(
             f"generate\n({steps} step{'s' * (steps != 1)})",
-            [render_view(g.at_frame(t), g.camera(t, v)).rgb for v in vi],
+            list(render_scene_track(g, 0.0, views=vi, frames=[t]).rgb[0]),
         )
     )
     return rows

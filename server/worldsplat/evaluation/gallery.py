@@ -16,8 +16,9 @@ One PNG per case (presets and random scenarios of a held-out split), columns the
 Every rendered row is the scene the product serves: decoded frames aggregated by `to_scene4d` (paper eq. 3 +
 economy, `gaussians.aggregate.aggregate_4d`) and drawn by the one track renderer (`pipeline.render.
 render_scene_track`) at the rig camera. Preset cases are built as the server builds a generate scene
-(`pipeline.scene.generate_scene`: `world.conditions` with the layout maps at the models' size, the scenario's seed), with the world itself at the models' resolution; random cases
-are dataset clips (`world.dataset.clip_arrays` of a split seed, or the shards of `--data`), the same clip either way.
+(`pipeline.scene.generate_scene`: `world.conditions` with the layout maps at the models' size, the scenario's seed),
+with the world itself at the models' resolution; random cases are dataset clips (`world.dataset.clip_arrays` of a
+split seed, or the shards of `--data`), the same clip either way.
 Row labels carry the PSNR against the ground truth row; `overview.png` tiles every case and `gallery.json` lists them.
 """
 

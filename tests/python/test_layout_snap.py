@@ -10,6 +10,7 @@ from worldsplat.core.camera import default_rig
 from worldsplat.gaussians import Gaussians
 from worldsplat.pipeline.inference import (
     DecodedFrames,
+    _agent_cells,
     _camera_ray_depth,
     _inside_boxes,
     snap_agents_to_layout,
@@ -262,3 +263,32 @@ def test_an_agent_smaller_than_a_cell_still_gets_its_cell():
     m = g.means[snapped].double().numpy()
     assert ((m > lo - 0.3) & (m < hi + 0.3)).all()
     assert cover[snapped].min() == cover.max() or cover[snapped].min() >= 0.2
+
+
+def test_a_sub_cell_agents_gaussian_goes_onto_its_box_pixels_ray():
+    """Its cell's Gaussian may sit anywhere in the cell (the decoder's offset); it goes onto the ray through the box
+    pixels' centre, at the box's depth, so it lands on the agent and not half a metre beside it."""
+    lo, hi = np.array([10.0, -0.6, 0.0]), np.array([10.5, -0.2, 1.8])
+    dec, control, boxes, o, hit = _box_case(2, True, lo, hi)
+    g = dec.gaussians[0][0]
+    cover = torch.nn.functional.avg_pool2d(torch.tensor(hit, dtype=torch.float32)[None, None], 2)[0, 0].reshape(-1)
+    k = int(cover.argmax())
+    g.means[k] += torch.tensor([0.0, 8.0, 0.0])  # far off the agent's ray (as a generator's offset at 40 m)
+    snap_agents_to_layout(dec, control, boxes)
+    m = g.means[k].double().numpy()
+    assert ((m > lo - 0.3) & (m < hi + 0.3)).all(), m
+    assert g.extras[k, 0] == 1.0
+
+
+def test_a_sub_cell_pedestrian_beside_a_car_is_still_a_peak():
+    """Peaks are found per class: a pedestrian cell next to a car's full cells (the CommonRoad file's pedestrian at
+    42 m stands beside a truck in the image) is held, and the car's edge cells still are not peaks."""
+    cover_v = torch.zeros(6, 6)
+    cover_v[1:4, 1:4] = 1.0
+    cover_v[4, 1:4] = 0.25  # the car's edge cells (below it)
+    cover_p = torch.zeros(6, 6)
+    cover_p[2, 4] = 0.25  # a pedestrian under a quarter of one cell, right beside the car
+    cells = _agent_cells((cover_v + cover_p).clamp(0, 1), cover_v, cover_p)
+    assert cells[2, 4] and cells[1:4, 1:4].all()
+    assert not cells[4, 1:4].any()
+    assert not _agent_cells((cover_v + cover_p).clamp(0, 1))[2, 4], "one peak test over both classes misses it"

@@ -402,12 +402,32 @@ def snap_to_map(
 AGENT_MIN_PEAK_COVER = 0.2
 
 
-def _agent_cells(cover: torch.Tensor) -> torch.Tensor:
-    """(h,w) box cover per cell -> cells whose Gaussians go onto the box: mostly box (> 0.5), or a local peak of
-    cover >= AGENT_MIN_PEAK_COVER (a sub-cell agent's best cell; a large agent's edge cells are not peaks, so its
-    silhouette does not grow)."""
-    peak = F.max_pool2d(cover[None, None], 3, stride=1, padding=1)[0, 0]
-    return (cover > 0.5) | ((cover >= AGENT_MIN_PEAK_COVER) & (cover >= peak))
+def _agent_cells(cover: torch.Tensor, *class_covers: torch.Tensor) -> torch.Tensor:
+    """(h,w) box cover per cell -> cells whose Gaussians go onto the box: mostly box (> 0.5), or, in any of
+    `class_covers` (the vehicle and the vulnerable channels' own cover, so a pedestrian beside a car is still a peak),
+    a local peak of cover >= AGENT_MIN_PEAK_COVER (a sub-cell agent's best cell; a large agent's edge cells are not
+    peaks, so its silhouette does not grow)."""
+    out = cover > 0.5
+    for c in class_covers or (cover,):
+        peak = F.max_pool2d(c[None, None], 3, stride=1, padding=1)[0, 0]
+        out |= (c >= AGENT_MIN_PEAK_COVER) & (c >= peak)
+    return out
+
+
+def _box_centre_points(dec: DecodedFrames, t: int, v: int, box, cover, z_box, f: int) -> torch.Tensor:
+    """(cells, 3) world points at camera depth z_box on the ray through the centroid of each f x f cell's box pixels
+    (box (H,W) at the model resolution; the rig camera's intrinsics scaled to it)."""
+    H, W = box.shape
+    cam = dec.rig[v].at(dec.ego_to_world[t])
+    sx, sy = W / cam.width, H / cam.height
+    u = (torch.arange(W, dtype=torch.float32) + 0.5)[None].expand(H, W)
+    w = (torch.arange(H, dtype=torch.float32) + 0.5)[:, None].expand(H, W)
+    pool = lambda x: F.avg_pool2d(x[None, None], f)[0, 0]  # noqa: E731
+    cu = pool(box * u) / cover.clamp_min(1e-9)
+    cv = pool(box * w) / cover.clamp_min(1e-9)
+    ray = torch.stack([(cu - cam.cx * sx) / (cam.fx * sx), (cv - cam.cy * sy) / (cam.fy * sy), torch.ones_like(cu)], -1)
+    c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=torch.float32)
+    return c2w[:3, 3] + (ray.reshape(-1, 3) * z_box.reshape(-1, 1)) @ c2w[:3, :3].T
 
 
 def _inside_boxes(points: torch.Tensor, corners: torch.Tensor, margin: float) -> torch.Tensor:
@@ -454,10 +474,17 @@ def snap_agents_to_layout(
             box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1)
             cover, z_box = _cell_surface(box, layout_depth_m(c[ch["depth"]]), f)
             o, z = _camera_ray_depth(dec, t, v, g.means)
-            ok = _agent_cells(cover).reshape(-1) & (z > 1e-3)
+            by_class = [F.avg_pool2d(c[ch[k]][None, None], f)[0, 0] for k in ("vehicle", "vulnerable")]
+            ok = _agent_cells(cover, *by_class).reshape(-1) & (z > 1e-3)
             r = (z_box.reshape(-1) / z.clamp_min(1e-3))[:, None]
             g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
             g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
+            # a sub-cell agent's cell: onto the ray through its box pixels' centre (at 40 m the decoder's offset
+            # within the cell alone puts the Gaussian half a metre beside a pedestrian)
+            small = ok & (cover.reshape(-1) <= 0.5)
+            if small.any():
+                target = _box_centre_points(dec, t, v, box, cover, z_box, f)
+                g.means = torch.where(small[:, None], target.to(g.means.dtype), g.means)
             if solid:  # an agent is solid where the layout states it (issue 12 item 1), whatever colour it got
                 g.opacities = torch.where(ok, g.opacities.clamp_min(AGENT_MIN_OPACITY), g.opacities)
             ego = g.means.double() @ w2e[:3, :3].T + w2e[:3, 3]

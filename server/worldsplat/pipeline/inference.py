@@ -9,7 +9,7 @@ Contract
     dec = generate(conditions, steps=8, seed=0, models=None, rig=None, frame_times=None, progress=None)
                                                       # conditions: world.conditions() (sketch, boxes, ego_traj,
                                                       #   caption); rig: list[RigCamera] (default: default_rig)
-    scene = to_scene4d(dec, meta=None)                # paper eq. 3 exactly as served (gaussians.aggregate_4d)
+    scene = to_scene4d(dec, meta=None)                # paper eq. 3 as served, window by window (aggregate_windows)
 Weights: `<role>_small.safetensors` for role in vae | decoder | dit | prior, and optionally decoder_reconstruct (a
 per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`).
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
@@ -35,7 +35,7 @@ import torch.nn.functional as F
 
 from worldsplat.core.camera import CAMERA_NAMES, default_rig
 from worldsplat.gaussians import Gaussians, Scene4D
-from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_4d
+from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_windows
 from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
 from worldsplat.pipeline.onnx import ensure_exported, use_onnx
 from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_depth_m, take_layout
@@ -93,6 +93,7 @@ class DecodedFrames:
     latents: torch.Tensor  # (T, V, C, h, w) normalised L
     meta: dict = field(default_factory=dict)
     model_width: int | None = None  # the models' image width (the decoded economy's unit); None: the rig's
+    windows: list[list[int]] | None = None  # the frame windows decoded together (None: one window of every frame)
 
     def frame(self, t: int):
         return Gaussians.cat(self.gaussians[t])
@@ -271,6 +272,7 @@ def decode_gaussians(
         L,
         meta,
         model_width=d.width,
+        windows=[sorted(set(w)) for w in _windows(T, d.frames, pad)],
     )
 
 
@@ -719,14 +721,16 @@ def decoded_economy(model_width: int, image_width: int) -> Economy:
 
 
 def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tuple[Scene4D, AggregateStats]:
-    """Paper eq. 3 on decoded Gaussians, exactly as the playground serves them (`aggregate_4d`: static = every
-    frame's Gaussians with p_dynamic <= 0.5, dynamic[t] = frame t's others, then the economy)."""
+    """Paper eq. 3 on decoded Gaussians, window by window as the playground serves them (`aggregate_windows` over the
+    windows they were decoded in: static = each window's Gaussians with p_dynamic <= 0.5, dynamic[t] = frame t's
+    others, then the economy)."""
     H, W = dec.rig[0].height, dec.rig[0].width
-    return aggregate_4d(
+    return aggregate_windows(
         dec.gaussians,
         dec.frame_times,
         dec.rig,
         dec.ego_to_world,
+        dec.windows or [list(range(len(dec.gaussians)))],
         economy=decoded_economy(dec.model_width or W, W) if economy is None else economy,
         meta=dict(dec.meta),
         image_size=(H, W),

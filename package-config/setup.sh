@@ -54,10 +54,15 @@ setup_rust() {
 }
 
 setup_browser() {
-  # playwright-core (browser tests) and the dev-only @playcanvas/splat-transform (format interop tests,
-  # tests/python/test_interop_splat_transform.py), both pinned in package.json / package-lock.json
-  if ! [[ -d "$HERE/node_modules/playwright-core" && -d "$HERE/node_modules/@playcanvas/splat-transform" ]]; then
-    log "browser: npm install playwright-core @playcanvas/splat-transform"
+  # playwright-core (browser tests), the dev-only @playcanvas/splat-transform (format interop tests,
+  # tests/python/test_interop_splat_transform.py) and the dev-only peer viewers of the `peers` bench section
+  # (gsplat, @sparkjsdev/spark + three, @mkkellogg/gaussian-splats-3d), all pinned in package.json / package-lock.json
+  local pkg missing=0
+  for pkg in playwright-core @playcanvas/splat-transform gsplat @sparkjsdev/spark three @mkkellogg/gaussian-splats-3d; do
+    [[ -f "$HERE/node_modules/$pkg/package.json" ]] || missing=1
+  done
+  if ((missing)); then
+    log "browser: npm install (playwright-core, splat-transform, peer viewers)"
     (cd "$HERE" && npm install --no-audit --no-fund --silent)
   fi
 }

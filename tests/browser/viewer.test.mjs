@@ -42,7 +42,8 @@ for (const path of ["webgpu", "webgl2"]) {
     let browser, page, errors, info;
     before(async () => {
       browser = await launch(path);
-      ({ page, errors, info } = await openHarness(browser.context, server.url, path));
+      // WebGPU: the GPU radix sort asked for by name ("auto" sorts on the CPU on this software adapter, below)
+      ({ page, errors, info } = await openHarness(browser.context, server.url, path, undefined, path === "webgpu" ? { sort: "gpu" } : {}));
       console.log(`# viewer path requested ${path}: ${info.unavailable ? "UNAVAILABLE in this Chromium" : `ran ${info.backend} on ${info.adapter}`}`);
     });
     after(async () => { await browser?.close(); });
@@ -51,6 +52,28 @@ for (const path of ["webgpu", "webgl2"]) {
       if (info.unavailable) return t.skip("Chromium offers no WebGPU adapter here");
       assert.equal(info.backend, path);
       assert.match(info.adapter, path === "webgpu" ? /BrowserWebGpu, Storage path/ : /Gl, Instanced path/);
+    });
+
+    it("WebGPU on a software adapter sorts on the CPU unless asked for the GPU sort; WebGL2 has no GPU sort", async (t) => {
+      if (info.unavailable) return t.skip("no WebGPU");
+      if (path === "webgl2") {
+        const bad = await openHarness(browser.context, server.url, path, undefined, { sort: "gpu" });
+        await bad.page.close();
+        return assert.match(bad.info.createError || "", /sort "gpu" needs compute shaders/);
+      }
+      const auto = await openHarness(browser.context, server.url, path);
+      try {
+        assert.match(auto.info.adapter, /BrowserWebGpu, Instanced path, Cpu device/, "SwiftShader: the CPU sort's path");
+        for (const v of VECTORS.slice(0, 2)) {
+          const r = await auto.page.evaluate((n) => window.harness.renderVector(n), v);
+          assert.equal(r.stats.sort_thread, "worker", r.stats.sort_note);
+          const vsNative = await expectClose(t, auto.page, "webgpu-cpu-sort", v, r.pixels, `/artifacts/browser/native/${v}.png`);
+          console.log(`# webgpu, CPU sort in the worker, ${v}: ${vsNative.toFixed(1)} dB vs native`);
+          assert.ok(vsNative >= PSNR_MIN, `${v}: ${vsNative} dB vs native`);
+        }
+      } finally {
+        await auto.page.close();
+      }
     });
 
     it("renders the shared raster vectors like the native renderer and the torch reference (>= 40 dB)", async (t) => {

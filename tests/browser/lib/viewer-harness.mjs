@@ -23,20 +23,25 @@ const MOUNTS = {
 const TYPES = { ".js": "text/javascript", ".mjs": "text/javascript", ".wasm": "application/wasm", ".html": "text/html",
   ".json": "application/json", ".png": "image/png" };
 
-/** Serve the mounts on 127.0.0.1 (a secure context). `/slow/<mount path>?chunk=N&delay=MS` dribbles a file out. */
-export async function startServer() {
+/** Serve the mounts on 127.0.0.1 (a secure context). `/slow/<mount path>?chunk=N&delay=MS` dribbles a file out.
+ * `extraMounts` adds URL prefix -> directory pairs; `isolate` sends COOP/COEP (cross-origin isolated pages: shared
+ * memory for workers, as a peer viewer's deployment would). */
+export async function startServer({ extraMounts = {}, isolate = false } = {}) {
+  const mounts = { ...MOUNTS, ...extraMounts };
+  const isolation = isolate ? { "cross-origin-opener-policy": "same-origin", "cross-origin-embedder-policy": "require-corp" } : {};
   const server = createServer((req, res) => {
     const url = new URL(req.url, "http://x");
     let path = decodeURIComponent(url.pathname);
     const slow = path.startsWith("/slow/");
     if (slow) path = path.slice(5);
-    const mount = Object.keys(MOUNTS).find((m) => path.startsWith(m));
-    const file = mount && normalize(join(MOUNTS[mount], path.slice(mount.length)));
-    if (!file || !file.startsWith(MOUNTS[mount]) || !existsSync(file) || !statSync(file).isFile()) {
+    const mount = Object.keys(mounts).find((m) => path.startsWith(m));
+    const file = mount && normalize(join(mounts[mount], path.slice(mount.length)));
+    if (!file || !file.startsWith(mounts[mount]) || !existsSync(file) || !statSync(file).isFile()) {
       res.writeHead(404).end("not found");
       return;
     }
-    res.writeHead(200, { "content-type": TYPES[extname(file)] || "application/octet-stream", "cache-control": "no-store" });
+    res.writeHead(200, { "content-type": TYPES[extname(file)] || "application/octet-stream", "cache-control": "no-store",
+      ...isolation });
     if (!slow) {
       createReadStream(file).pipe(res);
       return;

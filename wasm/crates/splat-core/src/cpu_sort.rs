@@ -18,11 +18,13 @@ pub fn camera_z(row2: &[f32; 4], mean: &[f32; 3]) -> f32 {
 }
 
 /// Append the depth key (z bits: positive floats order like their bits) and index of every mean in front of the
-/// near plane; indices count from `first`.
-fn push_keys(means: impl Iterator<Item = [f32; 3]>, first: usize, row2: &[f32; 4], keys: &mut Vec<u32>, order: &mut Vec<u32>) {
+/// near plane, except indices in `skip` (`skip[0]..skip[1]`: the frame budget's left-out records); indices count
+/// from `first`.
+fn push_keys(means: impl Iterator<Item = [f32; 3]>, first: usize, row2: &[f32; 4], skip: [u32; 2], keys: &mut Vec<u32>, order: &mut Vec<u32>) {
+    let skip = skip[0] as usize..skip[1] as usize;
     for (i, m) in means.enumerate() {
         let z = camera_z(row2, &m);
-        if z > NEAR {
+        if z > NEAR && !skip.contains(&(first + i)) {
             keys.push(z.to_bits());
             order.push((first + i) as u32);
         }
@@ -64,14 +66,19 @@ const PASSES: u32 = 4;
 impl CpuSorter {
     /// Indices of the Gaussians in front of the near plane, nearest first.
     pub fn sort(&mut self, records: &[PackedSplat], row2: [f32; 4]) -> &[u32] {
-        self.sort_means(records.iter().map(|r| r.mean), row2)
+        self.sort_means(records.iter().map(|r| r.mean), row2, [0, 0])
     }
 
-    /// The same sort over bare means (the Web Worker holds only positions).
-    pub fn sort_means(&mut self, means: impl Iterator<Item = [f32; 3]>, row2: [f32; 4]) -> &[u32] {
+    /// The sort `key` asks for (its depth row, leaving out its skipped range).
+    pub fn sort_for(&mut self, records: &[PackedSplat], key: &SortKey) -> &[u32] {
+        self.sort_means(records.iter().map(|r| r.mean), key.row2(), key.skip)
+    }
+
+    /// The same sort over bare means (the Web Worker holds only positions), leaving out the indices in `skip`.
+    pub fn sort_means(&mut self, means: impl Iterator<Item = [f32; 3]>, row2: [f32; 4], skip: [u32; 2]) -> &[u32] {
         self.keys.clear();
         self.order.clear();
-        push_keys(means, 0, &row2, &mut self.keys, &mut self.order);
+        push_keys(means, 0, &row2, skip, &mut self.keys, &mut self.order);
         for p in 0..PASSES {
             radix_pass(8 * p, &mut self.keys, &mut self.order, &mut self.tmp_keys, &mut self.tmp_order);
         }
@@ -119,19 +126,29 @@ pub struct CpuSortJob {
     cursor: usize,
 }
 
-/// What a sort was made for: the data version and the camera's depth row (bit patterns).
+/// What a sort was made for: the data version, the camera's depth row (bit patterns) and the record indices left
+/// out (`skip[0]..skip[1]`, empty unless the frame budget cuts the scene to a prefix while the camera moves).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SortKey {
     pub data_version: u64,
     pub row2: [u32; 4],
+    pub skip: [u32; 2],
 }
 
 impl SortKey {
     pub fn new(data_version: u64, row2: [f32; 4]) -> SortKey {
-        SortKey { data_version, row2: row2.map(f32::to_bits) }
+        SortKey { data_version, row2: row2.map(f32::to_bits), skip: [0, 0] }
+    }
+    /// The same sort leaving out records `skip[0]..skip[1]` (an empty range leaves none out).
+    pub fn skipping(self, skip: [u32; 2]) -> SortKey {
+        SortKey { skip: if skip[0] < skip[1] { skip } else { [0, 0] }, ..self }
     }
     pub fn row2(&self) -> [f32; 4] {
         self.row2.map(f32::from_bits)
+    }
+    /// The sort leaves some Gaussians out (a budget prefix).
+    pub fn is_prefix(&self) -> bool {
+        self.skip[0] < self.skip[1]
     }
 }
 
@@ -176,7 +193,8 @@ impl CpuSortJob {
             match self.phase {
                 Phase::Keys => {
                     let end = (self.cursor + SLICE).min(records.len());
-                    push_keys(records[self.cursor..end].iter().map(|r| r.mean), self.cursor, &row2, &mut self.keys, &mut self.order);
+                    let means = records[self.cursor..end].iter().map(|r| r.mean);
+                    push_keys(means, self.cursor, &row2, self.key.skip, &mut self.keys, &mut self.order);
                     self.cursor = end;
                     if end == records.len() {
                         self.phase = Phase::Pass(0);

@@ -1,10 +1,12 @@
 //! The GPU radix sort driver (`shaders/radix_sort.wgsl`): 8 passes of 4-bit digits, each a histogram per
 //! 1024-element block, one exclusive scan, a stable scatter. Output: the draw order (nearest first) and the
-//! indirect draw arguments (instance count = Gaussians in front of the near plane).
+//! indexed indirect draw (instances of `QUAD_BATCH` quads covering the Gaussians in front of the near plane).
 
 pub use crate::shaders::{sort_shader_source, SHADER_RADIX_SORT};
 use crate::view::{ViewUniform, UNIFORM_STRIDE};
 
+/// Word of `draw_args()` holding the visible count (after the five words of the indexed indirect draw).
+pub const VISIBLE_WORD: usize = 5;
 /// Threads per workgroup of every sort kernel (`WG` in the WGSL).
 pub const WG: u32 = 256;
 const PASSES: u32 = 8;
@@ -30,6 +32,7 @@ pub struct GpuSort {
     bgl: wgpu::BindGroupLayout,
     reset: wgpu::ComputePipeline,
     init: wgpu::ComputePipeline,
+    finish: wgpu::ComputePipeline,
     histogram: wgpu::ComputePipeline,
     scan: wgpu::ComputePipeline,
     scatter: wgpu::ComputePipeline,
@@ -102,7 +105,7 @@ impl GpuSort {
         pass_buf.unmap();
         let draw_args = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("draw args"),
-            size: 16,
+            size: 4 * 8,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
@@ -114,6 +117,7 @@ impl GpuSort {
             pass_buf,
             reset: pipeline("reset_args"),
             init: pipeline("init_order"),
+            finish: pipeline("finish_args"),
             histogram: pipeline("histogram"),
             scan: pipeline("scan"),
             scatter: pipeline("scatter"),
@@ -151,6 +155,8 @@ impl GpuSort {
     pub fn order(&self) -> &wgpu::Buffer {
         &self.order_a
     }
+    /// The indexed indirect draw (`draw_indexed_indirect` at offset 0: ceil(visible / QUAD_BATCH) instances), then
+    /// at word `VISIBLE_WORD` the number of Gaussians the sort left visible.
     pub fn draw_args(&self) -> &wgpu::Buffer {
         &self.draw_args
     }
@@ -199,6 +205,8 @@ impl GpuSort {
         pass.dispatch_workgroups(1, 1, 1);
         pass.set_pipeline(&self.init);
         pass.dispatch_workgroups(groups.min(65535), groups.div_ceil(65535), 1);
+        pass.set_pipeline(&self.finish);
+        pass.dispatch_workgroups(1, 1, 1);
         for p in 0..PASSES {
             let bind = if p % 2 == 0 { &b.ab } else { &b.ba };
             pass.set_bind_group(0, bind, &[view_offset, (p as u64 * UNIFORM_STRIDE) as u32]);

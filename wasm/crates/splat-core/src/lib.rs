@@ -4,8 +4,9 @@
 //! (`renderer`) with its device setup (`device`), shader registry (`shaders`), per-view uniform (`view`), the
 //! WebGL2 path's resident records (`records`), GPU
 //! radix sort (`gpu_sort`), CPU sort for WebGL2 (`cpu_sort`), worker-sort protocol (`external_sort`) and
-//! readback (`readback`). Imports go one way: renderer -> the others; none of them imports the renderer.
+//! readback (`readback`), the splat draw's quad batches (`quads`) and the frame budget (`budget`). Imports go one way: renderer -> the others; none of them imports the renderer.
 
+pub mod budget;
 pub mod camera;
 pub mod constants;
 pub mod cpu_sort;
@@ -16,6 +17,7 @@ pub mod gpu_sort;
 #[cfg(not(target_arch = "wasm32"))]
 pub mod headless;
 pub mod ply;
+pub mod quads;
 pub mod readback;
 pub mod records;
 pub mod renderer;

@@ -5,13 +5,18 @@
 //! - `DrawPath::Instanced` (WebGL2: no compute, no storage buffers): records stay resident in two textures
 //!   (`records`), a CPU sort (here or in a Web Worker) gives the draw order, uploaded as a u32 index per instance.
 //!
+//! Both draw `QUAD_BATCH` Gaussians per instance through one index buffer (`quads`).
+//!
 //! Beside it: `device` (adapter -> device, draw path), `shaders` (the WGSL registry), `view` (the per-view
-//! uniform), `external_sort` (the worker-sort protocol), `readback` (offscreen target + buffer map).
+//! uniform), `external_sort` (the worker-sort protocol), `readback` (offscreen target + buffer map), `quads` (the
+//! index buffer), `budget` (the frame budget's prefix while the camera moves).
 
+use crate::budget::FrameBudget;
 use crate::cpu_sort::{CpuSortJob, CpuSorter, SortKey};
 use crate::external_sort::ExternalSort;
 use crate::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
 use crate::gpu_sort::{GpuSort, SortBindings};
+use crate::quads::{quad_index_buffer, INDICES_PER_INSTANCE};
 use crate::records::RecordTextures;
 
 pub use crate::device::Gpu;
@@ -21,7 +26,7 @@ pub use crate::shaders::{
     splat_shader_source, SHADER_BLIT, SHADER_CONSTANTS, SHADER_SPLAT, SHADER_SPLAT_INSTANCED, SHADER_SPLAT_STORAGE, SHADER_VIEW,
 };
 use crate::view::UNIFORM_STRIDE;
-pub use crate::view::{DrawPath, ViewRect, ViewUniform, MAX_VIEWS};
+pub use crate::view::{DrawPath, ViewRect, ViewUniform, MAX_VIEWS, QUAD_BATCH};
 
 /// Timing and size figures of the last `render` call. Stage times are CPU milliseconds of issuing each stage;
 /// with `Renderer::stage_sync` set (native profiling) each stage is waited for, so they are the stage's own time.
@@ -47,6 +52,10 @@ pub struct RenderStats {
     pub sorts_dropped: u64,
     /// Instanced path: draw-order indices uploaded by this render (0 when the order texture was reused).
     pub records_uploaded: u64,
+    /// The order drawn leaves Gaussians out (the frame budget's prefix while the camera moves).
+    pub prefix: bool,
+    /// Instanced path: Gaussians drawn (the last view's order; the storage path counts on the GPU: 0 here).
+    pub drawn: u32,
 }
 
 pub struct Renderer {
@@ -58,6 +67,8 @@ pub struct Renderer {
     blit_layout: wgpu::PipelineLayout,
     blit_pipelines: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
     splat_pipeline: wgpu::RenderPipeline,
+    /// `QUAD_BATCH` quads of indices, every splat draw's index buffer.
+    quad_index: wgpu::Buffer,
     splat_bgl: wgpu::BindGroupLayout,
     blit_bgl: wgpu::BindGroupLayout,
     view_buf: wgpu::Buffer,
@@ -92,6 +103,10 @@ pub struct Renderer {
     external: ExternalSort,
     /// External sort, single view: (order key, data version) of the order in the order texture.
     uploaded_order: Option<(SortKey, u64)>,
+    /// Instanced path: the order in the order texture leaves Gaussians out (a budget prefix).
+    uploaded_prefix: bool,
+    /// Frame budget: while the camera moves only the importance-ordered prefix of the statics is sorted and drawn.
+    pub budget: FrameBudget,
     /// Instanced path: slice the CPU sort to this many ms per `render` once a previous order exists
     /// (None: sort to completion, as tests and readbacks need).
     pub cpu_sort_budget_ms: Option<f64>,
@@ -166,12 +181,8 @@ impl Renderer {
             bind_group_layouts: &[Some(&splat_bgl)],
             immediate_size: 0,
         });
-        // Storage: an instanced strip (4 vertices per Gaussian); instanced path: a triangle list of 6 vertices per
-        // Gaussian in one draw (splat_instanced.wgsl says why).
-        let topology = match gpu.path {
-            DrawPath::Storage => wgpu::PrimitiveTopology::TriangleStrip,
-            DrawPath::Instanced => wgpu::PrimitiveTopology::TriangleList,
-        };
+        // Both paths: indexed triangle lists, QUAD_BATCH quads per instance (quads.rs says why).
+        let topology = wgpu::PrimitiveTopology::TriangleList;
         let front_to_back = wgpu::BlendComponent {
             src_factor: wgpu::BlendFactor::OneMinusDstAlpha,
             dst_factor: wgpu::BlendFactor::One,
@@ -232,6 +243,7 @@ impl Renderer {
             blit_layout,
             blit_pipelines: Vec::new(),
             splat_pipeline,
+            quad_index: quad_index_buffer(&gpu.device),
             splat_bgl,
             blit_bgl,
             view_buf,
@@ -256,6 +268,8 @@ impl Renderer {
             cpu_sort_source: CpuSortSource::InThread,
             external: ExternalSort::default(),
             uploaded_order: None,
+            uploaded_prefix: false,
+            budget: FrameBudget::default(),
             cpu_sort_budget_ms: None,
             first_order_in_thread: false,
             accum: None,
@@ -330,11 +344,12 @@ impl Renderer {
         self.gpu_sort.as_ref()
     }
 
-    /// The uniform of a view, with the sort's block count.
-    fn view_uniform(&self, v: &ViewRect) -> ViewUniform {
+    /// The uniform of a view, with the sort's block count and the records the frame budget leaves out.
+    fn view_uniform(&self, v: &ViewRect, skip: [u32; 2]) -> ViewUniform {
         let mut u = ViewUniform::new(&v.camera, v.origin, self.count);
         u.num_blocks = self.gpu_sort.as_ref().map_or(0, |s| self.count.div_ceil(s.block));
         u.flags = self.square_quads as u32;
+        u.skip = skip;
         u
     }
 
@@ -350,6 +365,7 @@ impl Renderer {
         self.uploaded_visible = 0;
         self.uploaded_order = None;
         self.external.orders.clear();
+        self.budget.forget_views();
     }
 
     /// Bumped whenever the resident Gaussians change (external sorters need the positions of this version).
@@ -594,8 +610,13 @@ impl Renderer {
             }
         }
         self.ensure_accum(size);
+        // The frame budget: while the views move, the keys leave the statics past the prefix out.
+        let mut keys = self.sort_keys(views);
+        let rows: Vec<[u32; 4]> = keys.iter().map(|k| k.row2).collect();
+        let skip = self.budget.skip(&rows, self.num_static);
+        keys.iter_mut().for_each(|k| *k = k.skipping(skip));
         for (i, v) in views.iter().enumerate() {
-            let u = self.view_uniform(v);
+            let u = self.view_uniform(v, skip);
             self.queue.write_buffer(&self.view_buf, i as u64 * UNIFORM_STRIDE, bytemuck::bytes_of(&u));
         }
         let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), ..Default::default() };
@@ -603,8 +624,8 @@ impl Renderer {
         let blit_bind = self.blit_bind();
         let bind = self.splat_bind();
         let encoder = match self.path {
-            DrawPath::Storage => self.encode_storage(views, &bind, &mut stats),
-            DrawPath::Instanced => self.encode_instanced(views, &bind, &mut stats),
+            DrawPath::Storage => self.encode_storage(views, &keys, &bind, &mut stats),
+            DrawPath::Instanced => self.encode_instanced(views, &keys, &bind, &mut stats),
         };
         let mut encoder = encoder.unwrap_or_else(|| {
             // No view: the target is still cleared.
@@ -622,12 +643,18 @@ impl Renderer {
 
     /// Storage path: per view the GPU sort (unless a single held view reuses it) and the indirect draw, in one
     /// encoder (returned unsubmitted, for the blit).
-    fn encode_storage(&mut self, views: &[ViewRect], bind: &wgpu::BindGroup, stats: &mut RenderStats) -> Option<wgpu::CommandEncoder> {
+    fn encode_storage(
+        &mut self,
+        views: &[ViewRect],
+        keys: &[SortKey],
+        bind: &wgpu::BindGroup,
+        stats: &mut RenderStats,
+    ) -> Option<wgpu::CommandEncoder> {
         let sort_bind = self.sort_bind();
         let accum = self.accum.as_ref().unwrap().1.clone();
-        let single_key =
-            (views.len() == 1).then(|| SortKey::new(self.data_version, ViewUniform::new(&views[0].camera, views[0].origin, self.count).row2));
+        let single_key = (views.len() == 1).then(|| keys[0]);
         stats.sort_reused = single_key.is_some() && single_key == self.last_sort;
+        stats.prefix = keys.first().is_some_and(|k| k.is_prefix());
         let sort = self.gpu_sort.as_ref().unwrap();
         let mut encoder = self.device.create_command_encoder(&Default::default());
         for (i, v) in views.iter().enumerate() {
@@ -647,8 +674,9 @@ impl Renderer {
                 pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
                 pass.set_pipeline(&self.splat_pipeline);
                 pass.set_bind_group(0, bind, &[offset]);
+                pass.set_index_buffer(self.quad_index.slice(..), wgpu::IndexFormat::Uint16);
                 if self.count > 0 && !self.skip_splats {
-                    pass.draw_indirect(sort.draw_args(), 0);
+                    pass.draw_indexed_indirect(sort.draw_args(), 0);
                 }
             }
             if self.stage_sync.is_some() {
@@ -662,7 +690,13 @@ impl Renderer {
 
     /// Instanced path: per view choose the order (sort here, or the worker's), upload it (indices only; the
     /// records are resident), draw. The last view's encoder is returned unsubmitted, for the blit.
-    fn encode_instanced(&mut self, views: &[ViewRect], bind: &wgpu::BindGroup, stats: &mut RenderStats) -> Option<wgpu::CommandEncoder> {
+    fn encode_instanced(
+        &mut self,
+        views: &[ViewRect],
+        keys: &[SortKey],
+        bind: &wgpu::BindGroup,
+        stats: &mut RenderStats,
+    ) -> Option<wgpu::CommandEncoder> {
         let accum = self.accum.as_ref().unwrap().1.clone();
         if self.cpu_sort_source == CpuSortSource::InThread {
             let t = (self.clock)();
@@ -679,23 +713,23 @@ impl Renderer {
             // blank for a round trip, so this one sort runs here (100k: a few ms); the worker takes every later
             // view. The order is the same either way (one implementation, `CpuSorter`).
             let t0 = (self.clock)();
-            for v in views {
-                let key = SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2);
-                let order = self.cpu_sorter.sort(&self.cpu_records, key.row2()).to_vec();
-                self.external.orders.push((key, order));
+            for key in keys {
+                let order = self.cpu_sorter.sort_for(&self.cpu_records, key).to_vec();
+                self.external.orders.push((*key, order));
             }
             stats.cpu_sort_ms += (self.clock)() - t0;
         }
         let mut last = None;
         for (i, v) in views.iter().enumerate() {
             let t0 = (self.clock)();
-            let key = SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2);
+            let key = keys[i];
             if self.cpu_sort_source == CpuSortSource::External {
                 self.draw_external_order(i, key, views.len(), stats);
             } else if views.len() > 1 {
-                let order = self.cpu_sorter.sort(&self.cpu_records, key.row2());
+                let order = self.cpu_sorter.sort_for(&self.cpu_records, &key);
                 let tg = (self.clock)();
                 self.uploaded_visible = write_order(&self.queue, &self.records, order);
+                self.uploaded_prefix = key.is_prefix();
                 stats.records_uploaded += self.uploaded_visible as u64;
                 stats.gather_ms += (self.clock)() - tg;
                 self.last_sort = None;
@@ -715,6 +749,7 @@ impl Renderer {
                 if job.step(&self.cpu_records, budget, self.clock) {
                     let tg = (self.clock)();
                     self.uploaded_visible = write_order(&self.queue, &self.records, job.order());
+                    self.uploaded_prefix = key.is_prefix();
                     stats.records_uploaded += self.uploaded_visible as u64;
                     stats.gather_ms += (self.clock)() - tg;
                     self.last_sort = Some(key);
@@ -725,6 +760,11 @@ impl Renderer {
             stats.cpu_sort_ms += (self.clock)() - t0;
             let t = (self.clock)();
             let visible = self.uploaded_visible;
+            stats.drawn = visible;
+            stats.prefix = self.uploaded_prefix;
+            // The shader culls the last instance's quads past the order's end.
+            let drawn_at = i as u64 * UNIFORM_STRIDE + std::mem::offset_of!(ViewUniform, drawn) as u64;
+            self.queue.write_buffer(&self.view_buf, drawn_at, bytemuck::bytes_of(&visible));
             let mut encoder = self.device.create_command_encoder(&Default::default());
             {
                 let mut pass = self.splat_pass(&mut encoder, &accum, i == 0);
@@ -732,8 +772,9 @@ impl Renderer {
                 pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
                 pass.set_pipeline(&self.splat_pipeline);
                 pass.set_bind_group(0, bind, &[(i as u64 * UNIFORM_STRIDE) as u32]);
+                pass.set_index_buffer(self.quad_index.slice(..), wgpu::IndexFormat::Uint16);
                 if visible > 0 && !self.skip_splats {
-                    pass.draw(0..6 * visible, 0..1);
+                    pass.draw_indexed(0..INDICES_PER_INSTANCE, 0, 0..visible.div_ceil(QUAD_BATCH));
                 }
             }
             // The next view writes its order into the same buffer: submit this one first.
@@ -745,7 +786,7 @@ impl Renderer {
             last = Some(encoder);
         }
         if stats.sort_pending && self.cpu_sort_source == CpuSortSource::External {
-            self.external.wanted = Some(self.sort_keys(views));
+            self.external.wanted = Some(keys.to_vec());
         }
         stats.sorts_dropped = self.external.dropped;
         last
@@ -785,6 +826,7 @@ impl Renderer {
             &self.order_scratch
         };
         self.uploaded_visible = write_order(&self.queue, &self.records, order);
+        self.uploaded_prefix = have.is_prefix();
         self.uploaded_order = (views == 1).then_some((have, self.data_version));
         stats.records_uploaded += self.uploaded_visible as u64;
         stats.gather_ms += (self.clock)() - tg;
@@ -793,7 +835,7 @@ impl Renderer {
     /// Only the depth sort for one view (benchmarks): the GPU sort is submitted (poll to wait), the CPU sort
     /// runs here. Returns the CPU milliseconds spent (0 for the GPU path).
     pub fn sort_only(&mut self, view: &ViewRect) -> f64 {
-        let u = self.view_uniform(view);
+        let u = self.view_uniform(view, [0, 0]);
         self.last_sort = None;
         match self.path {
             DrawPath::Storage => {

@@ -29,8 +29,18 @@ pub struct ViewUniform {
     pub num_blocks: u32,
     /// Bit 0: draw the spec's full square quads (`Renderer::square_quads`).
     pub flags: u32,
-    pub pad: u32,
+    /// Instanced path: Gaussians in the uploaded draw order (the last instance's spare quads are culled).
+    pub drawn: u32,
+    /// Record indices `skip[0]..skip[1]` are left out of the sort and the draw (the frame budget).
+    pub skip: [u32; 2],
+    pub pad: [u32; 2],
 }
+
+/// Gaussians per instance of the splat draw (`QUAD_BATCH` in `shaders/view.wgsl`): each instance is an indexed
+/// list of `QUAD_BATCH` quads (`quads::QuadIndices`). A few hundred instances instead of one per Gaussian (software
+/// rasterizers set up every instance as a draw of its own), 4 vertices per Gaussian (the index buffer shares
+/// the corners of its two triangles) instead of the 6 of a plain triangle list.
+pub const QUAD_BATCH: u32 = 128;
 
 impl ViewUniform {
     pub fn new(cam: &Camera, origin: [u32; 2], count: u32) -> ViewUniform {
@@ -46,7 +56,9 @@ impl ViewUniform {
             count,
             num_blocks: 0, // set by the renderer for its sort's block size
             flags: 0,
-            pad: 0,
+            drawn: 0,
+            skip: [0, 0],
+            pad: [0, 0],
         }
     }
 }

@@ -102,7 +102,7 @@ fn external_sort(r: &Renderer, req: &splat_core::renderer::SortRequest) -> Vec<V
     let pos = r.positions();
     let means: Vec<[f32; 3]> = pos.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let mut sorter = CpuSorter::default();
-    req.keys.iter().map(|k| sorter.sort_means(means.iter().copied(), k.row2()).to_vec()).collect()
+    req.keys.iter().map(|k| sorter.sort_means(means.iter().copied(), k.row2(), k.skip).to_vec()).collect()
 }
 
 #[test]
@@ -214,11 +214,13 @@ fn gpu_radix_sort_equals_the_cpu_sort_across_many_blocks() {
     let view = ViewRect { camera: cam.clone(), origin: [0, 0] };
     r.sort_only(&view);
     let sort = r.gpu_sort().unwrap();
-    let args = headless::read_u32s(&r, sort.draw_args(), 4).unwrap();
+    let args = headless::read_u32s(&r, sort.draw_args(), 8).unwrap();
     let row2 = splat_core::renderer::ViewUniform::new(&cam, [0, 0], 0).row2;
     let want = CpuSorter::default().sort(&splats, row2).to_vec();
     assert!(splats.len() as u32 > 8 * sort.block, "spans {} blocks", splats.len() as u32 / sort.block);
-    assert_eq!(args[1] as usize, want.len(), "visible count in the indirect draw");
+    assert_eq!(args[splat_core::gpu_sort::VISIBLE_WORD] as usize, want.len(), "visible count");
+    assert_eq!(args[1], (want.len() as u32).div_ceil(splat_core::renderer::QUAD_BATCH), "instances of the indirect draw");
+    assert_eq!(args[0], 6 * splat_core::renderer::QUAD_BATCH, "indices per instance");
     let got = headless::read_u32s(&r, sort.order(), want.len()).unwrap();
     assert_eq!(got, want, "GPU order (nearest first, ties by index) equals the CPU sort");
 }
@@ -282,4 +284,61 @@ fn external_sort_after_a_frame_change_draws_the_previous_frame_until_its_order()
     assert!(r.accept_sort_result(req.seq, ans).unwrap());
     let (got_b, s) = headless::render_rgba(&mut r, &view, size).unwrap();
     assert!(!s.sort_pending && got_b == want_b, "frame b with its order == the in-thread render");
+}
+
+#[test]
+fn frame_budget_draws_the_static_prefix_while_moving_and_the_whole_scene_when_held() {
+    // Statics then a dynamic set; a budget of 60 statics: a moved view draws exactly the scene "first 60 statics +
+    // the dynamic set", a held view the whole scene, on both draw paths and with the worker protocol.
+    let (cam, splats) = vector("street_shift_0m");
+    let (statics, dynamic) = splats.split_at(splats.len() - 30);
+    let size = [cam.width, cam.height];
+    let a = [ViewRect { camera: cam.clone(), origin: [0, 0] }];
+    let b = [ViewRect { camera: yawed(&cam, 0.2), origin: [0, 0] }];
+    for path in [DrawPath::Storage, DrawPath::Instanced] {
+        let gpu = headless::gpu(Some(path)).unwrap();
+        let exact = |s: &[splat_core::gaussians::PackedSplat]| {
+            let mut r = Renderer::new(&gpu);
+            r.update(s, dynamic);
+            headless::render_rgba(&mut r, &b, size).unwrap().0
+        };
+        let (want_prefix, want_whole) = (exact(&statics[..60]), exact(statics));
+        assert_ne!(want_prefix, want_whole);
+        for external in [false, true] {
+            if external && path == DrawPath::Storage {
+                continue;
+            }
+            let mut r = Renderer::new(&gpu);
+            if external {
+                r.set_cpu_sort_source(CpuSortSource::External);
+                r.first_order_in_thread = true;
+            }
+            r.budget.moving_splats = Some(60);
+            r.update(statics, dynamic);
+            // The worker answers between renders: the order asked for at one render draws at the next.
+            let mut render = |views: &[ViewRect]| {
+                let out = headless::render_rgba(&mut r, views, size).unwrap();
+                if let Some(req) = r.take_sort_request() {
+                    let answer = external_sort(&r, &req);
+                    assert!(r.accept_sort_result(req.seq, answer).unwrap());
+                }
+                out
+            };
+            let (_, s) = render(&a);
+            assert!(!s.prefix, "{path:?}: the first frame draws the whole scene");
+            let (mut img, mut s) = render(&b);
+            if external {
+                // moved: a's order drew; the prefix order of b arrived meanwhile and draws now (the view held, so
+                // the whole scene's order is asked for)
+                assert!(s.sort_pending);
+                (img, s) = render(&b);
+                assert!(s.sort_pending, "held: the whole scene's order is on its way");
+            }
+            assert!(s.prefix, "{path:?} external {external}: moved, the prefix");
+            assert_eq!(img, want_prefix, "{path:?} external {external}: the prefix is the first 60 statics + dynamics");
+            let (img, s) = render(&b);
+            assert!(!s.prefix && !s.sort_pending, "{path:?} external {external}: held");
+            assert_eq!(img, want_whole, "{path:?} external {external}: held, the whole scene");
+        }
+    }
 }

@@ -60,6 +60,9 @@ struct Stats {
     /// Worker: ms from sending a request to its order being applied.
     sort_latency_ms: f64,
     sorts_dropped: u64,
+    /// The frame drew a budget prefix (the camera moved); `drawn`: Gaussians drawn (WebGL2 path).
+    prefix: bool,
+    drawn: u32,
 }
 
 struct Inner {
@@ -235,6 +238,8 @@ impl Inner {
         self.stats.blit_ms = stats.blit_ms;
         self.stats.sort_pending = stats.sort_pending;
         self.stats.sorts_dropped = stats.sorts_dropped;
+        self.stats.prefix = stats.prefix;
+        self.stats.drawn = stats.drawn;
         Ok(())
     }
 
@@ -336,16 +341,19 @@ async fn make_gpu(
 
 #[wasm_bindgen]
 impl Viewer {
-    /// `Viewer.create(canvas, {backend: "auto" | "webgpu" | "webgl2", sort: "auto" | "worker" | "main"})`.
-    /// `sort` is the WebGL2 path's CPU depth sort: a Web Worker by default ("auto" falls back to the main thread
-    /// where workers are unavailable; "worker" throws instead; "main" never uses one).
+    /// `Viewer.create(canvas, {backend: "auto" | "webgpu" | "webgl2", sort: "auto" | "gpu" | "worker" | "main"})`.
+    /// `sort`: "gpu" is the GPU radix sort (compute: WebGPU; an error elsewhere); "worker" / "main" the CPU sort
+    /// in a Web Worker / on the main thread, the records in textures ("worker" throws without workers). "auto"
+    /// sorts on the GPU where the adapter is a GPU, and on the CPU (a worker, else the main thread) where it is
+    /// not (WebGL2, or a software WebGPU adapter such as SwiftShader: there the radix sort is 45-65x slower than
+    /// the CPU sort, web/docs/viewer.md).
     pub async fn create(canvas: HtmlCanvasElement, options: JsValue) -> Result<Viewer, JsError> {
         console_error_panic_hook::set_once();
         let option = |k: &str| js_sys::Reflect::get(&options, &k.into()).ok().and_then(|v| v.as_string());
         let backend = option("backend").unwrap_or_else(|| "auto".into());
         let sort = option("sort").unwrap_or_else(|| "auto".into());
-        if !matches!(sort.as_str(), "auto" | "worker" | "main") {
-            return Err(js_err(format!("Viewer.create: sort {sort:?} is not one of auto, worker, main")));
+        if !matches!(sort.as_str(), "auto" | "gpu" | "worker" | "main") {
+            return Err(js_err(format!("Viewer.create: sort {sort:?} is not one of auto, gpu, worker, main")));
         }
         // The accumulation target: "f16" (default, Rgba16Float where blendable) or "unorm8" (8-bit blending, as a
         // canvas does: faster on software rasterizers, less exact; web/docs/viewer.md measures both).
@@ -355,6 +363,14 @@ impl Viewer {
         }
         let (instance, surface, adapter, backend) = make_gpu(&canvas, &backend).await.map_err(js_err)?;
         let mut gpu = Gpu::new(&adapter).await.map_err(js_err)?;
+        match (gpu.path, sort.as_str()) {
+            (DrawPath::Instanced, "gpu") => {
+                return Err(js_err(format!("Viewer.create: sort \"gpu\" needs compute shaders, which {backend} lacks here")));
+            }
+            (DrawPath::Storage, "worker" | "main") => gpu = gpu.with_path(DrawPath::Instanced),
+            (DrawPath::Storage, "auto") if gpu.info.device_type == wgpu::DeviceType::Cpu => gpu = gpu.with_path(DrawPath::Instanced),
+            _ => {}
+        }
         if accumulate == "unorm8" {
             gpu.accum_format = wgpu::TextureFormat::Rgba8Unorm;
         }
@@ -607,6 +623,7 @@ impl Viewer {
             "accumulate": format!("{:?}", i.renderer.accum_format()),
             "sort_latency_ms": i.stats.sort_latency_ms, "sorts_dropped": i.stats.sorts_dropped,
             "sort_worker_ready": i.sort_worker.as_ref().is_some_and(|w| w.ready),
+            "prefix": i.stats.prefix, "drawn": i.stats.drawn, "moving_splats": i.renderer.budget.moving_splats,
         })
         .to_string()
     }
@@ -627,6 +644,23 @@ impl Viewer {
                 _ => i.renderer.square_quads = on,
             }
         }
+        Ok(())
+    }
+
+    /// Frame budget for large scenes: `{moving_splats: N}` draws at most the first N static Gaussians (a .wsplat
+    /// stores them in importance order) while the camera moves, and the whole scene once it holds (the page
+    /// renders again while `stats().prefix` or `needs_redraw()`); `{moving_splats: null}` (or 0) turns it off.
+    /// `read_pixels` always shows the whole scene.
+    pub fn set_frame_budget(&self, options: JsValue) -> Result<(), JsError> {
+        let v = js_sys::Reflect::get(&options, &"moving_splats".into()).map_err(|_| js_err("set_frame_budget: expected an object"))?;
+        let n = if v.is_null() || v.is_undefined() {
+            None
+        } else {
+            let n = v.as_f64().filter(|n| n.fract() == 0.0 && (0.0..=4e9).contains(n));
+            let n = n.ok_or_else(|| js_err(format!("set_frame_budget: moving_splats must be a whole number >= 0, got {v:?}")))?;
+            (n > 0.0).then_some(n as u32)
+        };
+        self.inner.borrow_mut().renderer.budget.moving_splats = n;
         Ok(())
     }
 
@@ -663,10 +697,12 @@ impl Viewer {
             let scope_oom = i.renderer.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
             let scope_int = i.renderer.device.push_error_scope(wgpu::ErrorFilter::Internal);
             let target = Offscreen::new(&i.renderer.device, size);
-            // A readback shows the exact order: finish any sliced sort first.
+            // A readback shows the exact order of the whole scene: finish any sliced sort first, no budget prefix.
             let budget = i.renderer.cpu_sort_budget_ms.take();
+            let moving_splats = i.renderer.budget.moving_splats.take();
             let rendered = i.render_to(&target.view, wgpu::TextureFormat::Rgba8Unorm);
             i.renderer.cpu_sort_budget_ms = budget;
+            i.renderer.budget.moving_splats = moving_splats;
             rendered?;
             let rb = target.start_readback(&i.renderer.device, &i.renderer.queue);
             (i.renderer.device.clone(), rb, (scope_int, scope_oom, scope))

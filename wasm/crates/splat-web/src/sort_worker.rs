@@ -3,7 +3,8 @@
 //! sorting with `DepthSorter` = `splat_core::cpu_sort::CpuSorter`, the one CPU sort implementation.
 //!
 //! Protocol (main -> worker): `init {module}`, `positions {version, positions: Float32Array}` once per data
-//! change (transferred), `sort {seq, version, rows: Float32Array(4 per view)}` when the view changes.
+//! change (transferred), `sort {seq, version, rows: Float32Array(4 per view), skips: Uint32Array(2 per view)}` when
+//! the view changes (`skips`: the record range the frame budget leaves out, empty `[0, 0]` for the whole scene).
 //! Worker -> main: `ready`, `sorted {seq, version, orders: [Uint32Array per view], ms}` (transferred),
 //! `error {message}`. The renderer keeps one request in flight and drops answers that a newer request or new
 //! data superseded (`Renderer::accept_sort_result`).
@@ -37,7 +38,9 @@ self.onmessage = async (e) => {
       if (m.version !== version) throw new Error("sort of data version " + m.version + " but the worker holds " + version);
       const t0 = performance.now();
       const orders = [];
-      for (let v = 0; 4 * v < m.rows.length; v++) orders.push(sorter.sort(m.rows.subarray(4 * v, 4 * v + 4)));
+      for (let v = 0; 4 * v < m.rows.length; v++) {
+        orders.push(sorter.sort(m.rows.subarray(4 * v, 4 * v + 4), m.skips[2 * v], m.skips[2 * v + 1]));
+      }
       self.postMessage({ type: "sorted", seq: m.seq, version: m.version, orders, ms: performance.now() - t0 },
                        orders.map((o) => o.buffer));
     }
@@ -60,8 +63,8 @@ export function spawn_sort_worker(module, onMessage) {
 export function post_positions(worker, version, positions) {
   worker.postMessage({ type: "positions", version, positions }, [positions.buffer]);
 }
-export function post_sort(worker, seq, version, rows) {
-  worker.postMessage({ type: "sort", seq, version, rows }, [rows.buffer]);
+export function post_sort(worker, seq, version, rows, skips) {
+  worker.postMessage({ type: "sort", seq, version, rows, skips }, [rows.buffer, skips.buffer]);
 }
 export function terminate_worker(worker) {
   worker.terminate();
@@ -71,7 +74,7 @@ extern "C" {
     #[wasm_bindgen(catch)]
     fn spawn_sort_worker(module: &JsValue, on_message: &js_sys::Function) -> Result<JsValue, JsValue>;
     fn post_positions(worker: &JsValue, version: f64, positions: js_sys::Float32Array);
-    fn post_sort(worker: &JsValue, seq: f64, version: f64, rows: js_sys::Float32Array);
+    fn post_sort(worker: &JsValue, seq: f64, version: f64, rows: js_sys::Float32Array, skips: js_sys::Uint32Array);
     fn terminate_worker(worker: &JsValue);
 }
 
@@ -99,10 +102,11 @@ impl DepthSorter {
         Ok(())
     }
 
-    /// Visible indices nearest first for the camera's depth row (world_to_camera row 2).
-    pub fn sort(&mut self, row2: &[f32]) -> Result<Vec<u32>, JsError> {
+    /// Visible indices nearest first for the camera's depth row (world_to_camera row 2), leaving out the indices
+    /// `skip_from..skip_to` (the frame budget; equal bounds leave none out).
+    pub fn sort(&mut self, row2: &[f32], skip_from: u32, skip_to: u32) -> Result<Vec<u32>, JsError> {
         let row: [f32; 4] = row2.try_into().map_err(|_| JsError::new(&format!("sort: a depth row has 4 floats, got {}", row2.len())))?;
-        Ok(self.sorter.sort_means(self.means.iter().copied(), row).to_vec())
+        Ok(self.sorter.sort_means(self.means.iter().copied(), row, [skip_from, skip_to]).to_vec())
     }
 }
 
@@ -157,7 +161,8 @@ impl SortWorker {
             self.positions_version = Some(version);
         }
         let rows: Vec<f32> = req.keys.iter().flat_map(|k| k.row2()).collect();
-        post_sort(&self.worker, req.seq as f64, version as f64, js_sys::Float32Array::from(&rows[..]));
+        let skips: Vec<u32> = req.keys.iter().flat_map(|k| k.skip).collect();
+        post_sort(&self.worker, req.seq as f64, version as f64, js_sys::Float32Array::from(&rows[..]), js_sys::Uint32Array::from(&skips[..]));
         self.requested_at = now;
     }
 }

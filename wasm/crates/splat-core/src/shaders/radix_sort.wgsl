@@ -17,12 +17,15 @@ struct Pass { shift: u32, p0: u32, p1: u32, p2: u32 }
 @group(0) @binding(2) var<storage, read_write> src: array<u32>;
 @group(0) @binding(3) var<storage, read_write> dst: array<u32>;
 @group(0) @binding(4) var<storage, read_write> hist: array<u32>;
-// Indirect draw args: vertex_count, instance_count (= visible Gaussians), first_vertex, first_instance.
-@group(0) @binding(5) var<storage, read_write> draw_args: array<atomic<u32>, 4>;
+// Indexed indirect draw args: index_count (one instance of QUAD_BATCH quads), instance_count (= ceil(visible /
+// QUAD_BATCH)), first_index, base_vertex, first_instance; then the visible count itself.
+@group(0) @binding(5) var<storage, read_write> draw_args: array<atomic<u32>, 8>;
 @group(0) @binding(6) var<uniform> pass_info: Pass;
 
-// Visible depths are positive floats, whose bit patterns order like the values; culled ones sort last.
+// Visible depths are positive floats, whose bit patterns order like the values; culled ones (behind the near plane,
+// or left out by the frame budget) sort last.
 fn depth_key(index: u32) -> u32 {
+    if skipped(view, index) { return 0xffffffffu; }
     let s = splats[index];
     let z = camera_z(view, vec3<f32>(s.mx, s.my, s.mz));
     if z > NEAR { return bitcast<u32>(z); }
@@ -31,19 +34,23 @@ fn depth_key(index: u32) -> u32 {
 
 @compute @workgroup_size(1)
 fn reset_args() {
-    atomicStore(&draw_args[0], 4u);
-    atomicStore(&draw_args[1], 0u);
-    atomicStore(&draw_args[2], 0u);
-    atomicStore(&draw_args[3], 0u);
+    atomicStore(&draw_args[0], 6u * QUAD_BATCH);
+    for (var i = 1u; i < 8u; i++) { atomicStore(&draw_args[i], 0u); }
 }
 
-// src[i] = i and count the visible Gaussians into the indirect draw.
+// src[i] = i and count the visible Gaussians.
 @compute @workgroup_size(256)
 fn init_order(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x + gid.y * 65535u * WG;
     if i >= view.count { return; }
     src[i] = i;
-    if depth_key(i) != 0xffffffffu { atomicAdd(&draw_args[1], 1u); }
+    if depth_key(i) != 0xffffffffu { atomicAdd(&draw_args[5], 1u); }
+}
+
+// The indirect draw's instances: ceil(visible / QUAD_BATCH).
+@compute @workgroup_size(1)
+fn finish_args() {
+    atomicStore(&draw_args[1], (atomicLoad(&draw_args[5]) + QUAD_BATCH - 1u) / QUAD_BATCH);
 }
 
 var<workgroup> digit_counts: array<atomic<u32>, 16>;

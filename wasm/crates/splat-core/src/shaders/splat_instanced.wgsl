@@ -11,15 +11,15 @@ fn texel_of(i: u32) -> vec2<i32> {
     return vec2<i32>(i32(i % RECORD_TEX_WIDTH), i32(i / RECORD_TEX_WIDTH));
 }
 
-// One non-instanced triangle list, six vertices per Gaussian: corners 0 1 2 and 2 1 3, the two triangles the
-// strip of the storage path makes, so the same pixels blend in the same order. Not instanced because software
-// rasterizers (SwiftShader, llvmpipe) run an instanced draw as one draw call per instance, whose setup costs
-// more than the quad's few pixels (web/docs/viewer.md "Where the frame goes").
+// Instance ii draws the Gaussians ii * QUAD_BATCH + j (j < QUAD_BATCH) of the draw order; vertex 4 j + corner is
+// corner `corner` of Gaussian j (the index buffer makes the triangles 0 1 2 and 2 1 3 of each quad, as the strip
+// of the spec's square).
 @vertex
-fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
-    let index = textureLoad(draw_order, texel_of(vi / 6u), 0).x;
-    let corner = (0x312210u >> (4u * (vi % 6u))) & 3u;
+fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
+    let slot = ii * QUAD_BATCH + vi / 4u;
+    if slot >= view.drawn { return culled(); }
+    let index = textureLoad(draw_order, texel_of(slot), 0).x;
     let a = textureLoad(records_a, texel_of(index), 0);
     let b = textureLoad(records_b, texel_of(index), 0);
-    return splat_vertex(bitcast<vec3<f32>>(a.xyz), b.x, b.y, a.w, corner);
+    return splat_vertex(bitcast<vec3<f32>>(a.xyz), b.x, b.y, a.w, vi % 4u);
 }

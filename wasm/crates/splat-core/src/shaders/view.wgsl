@@ -10,11 +10,24 @@ struct View {
     size: vec2<f32>,
     origin: vec2<f32>,
     // number of Gaussians, sort blocks, flags (bit 0: the spec's full square quads instead of the tight
-    // rectangles; a profiling knob, the image is the same), unused
+    // rectangles; a profiling knob, the image is the same), Gaussians in the draw order (instanced path)
     count: u32,
     num_blocks: u32,
     flags: u32,
-    pad1: u32,
+    drawn: u32,
+    // Record indices [skip.x, skip.y) are left out of this view's sort and draw (the frame budget: the static
+    // records past the importance-ordered prefix while the camera moves); empty when x >= y.
+    skip: vec2<u32>,
+    pad: vec2<u32>,
+}
+
+// Quads per instance of the splat draw: one indexed instance draws QUAD_BATCH Gaussians (vertices 4 j .. 4 j + 3
+// are Gaussian j's corners), so a draw of n Gaussians is ceil(n / QUAD_BATCH) instances (mirrors
+// `view::QUAD_BATCH`; the GPU sort writes its indirect draw in these units).
+const QUAD_BATCH: u32 = 128u;
+
+fn skipped(v: View, index: u32) -> bool {
+    return index >= v.skip.x && index < v.skip.y;
 }
 
 // One Gaussian as resident on the GPU: 24 bytes (mirrors `gaussians::PackedSplat`).

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from worldsplat.core.io import atomic_path
 from worldsplat.core.metrics import depth_abs_rel, iou_counts, pooled_iou, psnr
 from worldsplat.training.data import collate, sample_from_shard, vae_inputs
 from worldsplat.training.loop import (
@@ -304,9 +305,8 @@ def build_cache(data: Path, vae_path: Path, out: Path, split: str, clips: int | 
 
 
 def _save_cache(recs: list[dict], path: Path) -> Path:
-    tmp = path.with_suffix(".tmp")
-    torch.save(recs, tmp)
-    tmp.replace(path)  # a half-written cache is never taken for whole
+    with atomic_path(path, suffix=".pt.tmp") as tmp:  # a half-written cache is never taken for whole
+        torch.save(recs, tmp)
     return path
 
 

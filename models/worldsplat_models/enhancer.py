@@ -34,12 +34,12 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 from safetensors import safe_open
-from safetensors.torch import save_file
 
 from . import rflow
 from .configs import SIZES, DataConfig, DiTConfig, VAEConfig, from_dict
 from .dit import DiT4D
 from .vae import MultiModalVAE
+from .weights import write_safetensors
 
 SOURCES = ("noise", "render")
 
@@ -274,11 +274,7 @@ def save_enhancer(model: Enhancer, vae, path, meta: dict | None = None):
         "vae_config": json.dumps(dataclasses.asdict(vae.cfg)),
     }
     md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
-    tmp = path.with_suffix(".tmp")
-    save_file(state, str(tmp), metadata=md)
-    tmp.chmod(0o644)
-    tmp.replace(path)
-    return path
+    return write_safetensors(state, path, md)
 
 
 def load_enhancer(path) -> tuple[Enhancer, nn.Module]:

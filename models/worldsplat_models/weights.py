@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import tempfile
 from pathlib import Path
 
 import torch
@@ -53,9 +54,26 @@ def save_weights(
     state = {k: v.detach().to(dtype).contiguous().clone() for k, v in model.state_dict().items()}
     md = {"kind": kind, "config": json.dumps(dataclasses.asdict(model.cfg))}
     md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
-    tmp = path.with_suffix(".tmp")
-    save_file(state, str(tmp), metadata=md)
-    tmp.replace(path)
+    return write_safetensors(state, path, md)
+
+
+def write_safetensors(state: dict, path: str | Path, metadata: dict) -> Path:
+    """Write a safetensors file whole or not at all: a unique temp name beside it, fsync, mode 0644, rename (the
+    package's one atomic write; `worldsplat.core.io.atomic_path` is the server's, which this package cannot import)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        save_file(state, str(tmp), metadata=metadata)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        tmp.chmod(0o644)
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 

@@ -76,6 +76,29 @@ for (const path of ["webgpu", "webgl2"]) {
       }
     });
 
+    it("accumulates in 8 bits by default on a software adapter, Rgba16Float when asked; a bad value is named", async (t) => {
+      if (info.unavailable) return t.skip("no WebGPU");
+      const v = VECTORS[0];
+      const shot = async (opts) => {
+        const h = await openHarness(browser.context, server.url, path, undefined, opts);
+        try {
+          if (h.info.createError) return { error: h.info.createError };
+          assert.match(h.info.adapter, /Cpu device/, "SwiftShader reports a CPU device");
+          return await h.page.evaluate((n) => window.harness.renderVector(n), v);
+        } finally {
+          await h.page.close();
+        }
+      };
+      const auto = await shot({}), f16 = await shot({ accumulate: "f16" });
+      assert.equal(auto.stats.accumulate, "Rgba8Unorm", "auto on a software adapter");
+      assert.equal(f16.stats.accumulate, "Rgba16Float");
+      const dbAuto = await expectClose(t, page, `${path}-accum-auto`, v, auto.pixels, `/vectors/raster/${v}.expected.png`);
+      const dbF16 = await expectClose(t, page, `${path}-accum-f16`, v, f16.pixels, `/vectors/raster/${v}.expected.png`);
+      console.log(`# ${path} ${v} vs torch: 8-bit ${dbAuto.toFixed(1)} dB, Rgba16Float ${dbF16.toFixed(1)} dB`);
+      assert.ok(dbAuto >= PSNR_MIN && dbF16 > dbAuto, `8-bit ${dbAuto} dB, f16 ${dbF16} dB`);
+      assert.match((await shot({ accumulate: "f32" })).error || "", /accumulate "f32" is not one of auto, f16, unorm8/);
+    });
+
     it("renders the shared raster vectors like the native renderer and the torch reference (>= 40 dB)", async (t) => {
       if (info.unavailable) return t.skip("no WebGPU");
       for (const v of VECTORS) {

@@ -10,7 +10,7 @@
 //   DIR holds scene_<n>.ply (every viewer) and scene_<n>.wsplat (ours-budget). Viewers: ours (WebGL2, sort in
 //   the worker), ours-webgpu (WebGPU, `sort: "auto"`: on SwiftShader the CPU sort in the worker; its own launch
 //   flags), ours-webgpu-gpusort (WebGPU, the GPU radix sort: `sort: "gpu"`), ours-u8 (WebGL2 blending in 8 bits:
-//   `accumulate: "unorm8"`), ours-budget (WebGL2, the .wsplat, at most --budget Gaussians while the camera
+//   `accumulate: "unorm8"`, what `auto` picks on SwiftShader), ours-f16 (WebGL2, Rgba16Float: `accumulate: "f16"`), ours-budget (WebGL2, the .wsplat, at most --budget Gaussians while the camera
 //   moves), gsplat, spark, gs3d. VIEWER_PKG=DIR serves another build of web/pkg (before/after runs).
 import { mkdirSync, writeFileSync } from "node:fs";
 import { join, resolve } from "node:path";
@@ -32,6 +32,7 @@ const VIEWERS = {
   "ours-webgpu": { page: "ours.html", launch: "webgpu", query: { backend: "webgpu" } },
   "ours-webgpu-gpusort": { page: "ours.html", launch: "webgpu", query: { backend: "webgpu", sort: "gpu" } },
   "ours-u8": { page: "ours.html", launch: "webgl2", query: { backend: "webgl2", accumulate: "unorm8" } },
+  "ours-f16": { page: "ours.html", launch: "webgl2", query: { backend: "webgl2", accumulate: "f16" } },
   "ours-budget": { page: "ours.html", launch: "webgl2", query: { backend: "webgl2", budget }, ext: "wsplat" },
   gsplat: { page: "gsplat.html", launch: "webgl2", pkg: "gsplat" },
   spark: { page: "spark.html", launch: "webgl2", pkg: "@sparkjsdev/spark" },

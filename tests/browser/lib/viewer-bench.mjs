@@ -28,7 +28,8 @@ for (const path of paths) {
   const backend = path.startsWith("webgl2") ? "webgl2" : path;
   const b = await launch(backend);
   try {
-    const opts = path === "webgl2-main" ? { sort: "main" } : path === "webgl2-u8" ? { accumulate: "unorm8" } : {};
+    // Rgba16Float named (the default "auto" blends in 8 bits on this software adapter), so the rows keep their meaning
+    const opts = path === "webgl2-main" ? { sort: "main", accumulate: "f16" } : path === "webgl2-u8" ? { accumulate: "unorm8" } : { accumulate: "f16" };
     const { page, info } = await openHarness(b.context, server.url, backend, [width, height], opts);
     if (info.unavailable) { console.log(`${path}: unavailable`); continue; }
     for (const n of counts) {

@@ -20,7 +20,7 @@ draws at most the budget's importance-ordered prefix while the camera moves and 
 holds: a separate row, not an equal-image comparison (its PSNR column is the prefix render against the whole).
 
 Knobs (environment; the defaults are the full run): WORLDSPLAT_PEERS_SIZES (e.g. 100000,500000),
-WORLDSPLAT_PEERS_VIEWERS (ours,ours-webgpu,ours-webgpu-gpusort,ours-u8,ours-budget,gsplat,spark,gs3d), WORLDSPLAT_PEERS_FRAMES (timed frames
+WORLDSPLAT_PEERS_VIEWERS (ours,ours-f16,ours-u8,ours-webgpu,ours-webgpu-gpusort,ours-budget,gsplat,spark,gs3d), WORLDSPLAT_PEERS_FRAMES (timed frames
 per page), WORLDSPLAT_PEERS_BUDGET (Gaussians drawn while moving; default 100000)."""
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ ROOT = source_root()  # drives the checkout's web/pkg, tests/browser and package
 WORK = ROOT / "tests/artifacts/bench/peers"
 PEERS = {"gsplat": "gsplat.js", "spark": "Spark", "gs3d": "GaussianSplats3D"}
 OURS = {
-    "ours": "this viewer (WebGL2)",
+    "ours": "this viewer (WebGL2, defaults)",
+    "ours-f16": "this viewer (WebGL2, Rgba16Float accumulation)",
     "ours-webgpu": "this viewer (WebGPU, CPU sort in a worker)",
     "ours-webgpu-gpusort": "this viewer (WebGPU, GPU radix sort)",
     "ours-u8": "this viewer (WebGL2, 8-bit blending)",
@@ -260,7 +261,7 @@ def table(rows: list[dict]) -> list[list]:
 def run(quick: bool) -> Section:
     env = os.environ.get
     sizes = [int(s) for s in env("WORLDSPLAT_PEERS_SIZES", "20000" if quick else "100000,500000,1000000").split(",")]
-    full = "ours,ours-webgpu,ours-webgpu-gpusort,ours-u8,ours-budget,gsplat,spark,gs3d"
+    full = "ours,ours-f16,ours-webgpu,ours-webgpu-gpusort,ours-budget,gsplat,spark,gs3d"
     viewers = env("WORLDSPLAT_PEERS_VIEWERS", "ours,gsplat" if quick else full).split(",")
     frames = int(env("WORLDSPLAT_PEERS_FRAMES", "2" if quick else "5"))
     budget = int(env("WORLDSPLAT_PEERS_BUDGET", "100000"))

@@ -580,6 +580,25 @@ impl Renderer {
             .forget_lifetime()
     }
 
+    /// The splat pass of view `slot` (`v`), state set for its draw: viewport and scissor on its rectangle, the
+    /// splat pipeline, its uniform offset, the quad index buffer (both draw paths).
+    fn view_pass(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        accum: &wgpu::TextureView,
+        slot: usize,
+        v: &ViewRect,
+        bind: &wgpu::BindGroup,
+    ) -> wgpu::RenderPass<'static> {
+        let mut pass = self.splat_pass(encoder, accum, slot == 0);
+        pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
+        pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
+        pass.set_pipeline(&self.splat_pipeline);
+        pass.set_bind_group(0, bind, &[(slot as u64 * UNIFORM_STRIDE) as u32]);
+        pass.set_index_buffer(self.quad_index.slice(..), wgpu::IndexFormat::Uint16);
+        pass
+    }
+
     /// Milliseconds since `t0`, after waiting for the GPU when profiling (`stage_sync`).
     fn stage_end(&self, t0: f64) -> f64 {
         if let Some(sync) = self.stage_sync {
@@ -669,12 +688,7 @@ impl Renderer {
             }
             let t = (self.clock)();
             {
-                let mut pass = self.splat_pass(&mut encoder, &accum, i == 0);
-                pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
-                pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
-                pass.set_pipeline(&self.splat_pipeline);
-                pass.set_bind_group(0, bind, &[offset]);
-                pass.set_index_buffer(self.quad_index.slice(..), wgpu::IndexFormat::Uint16);
+                let mut pass = self.view_pass(&mut encoder, &accum, i, v, bind);
                 if self.count > 0 && !self.skip_splats {
                     pass.draw_indexed_indirect(sort.draw_args(), 0);
                 }
@@ -767,12 +781,7 @@ impl Renderer {
             self.queue.write_buffer(&self.view_buf, drawn_at, bytemuck::bytes_of(&visible));
             let mut encoder = self.device.create_command_encoder(&Default::default());
             {
-                let mut pass = self.splat_pass(&mut encoder, &accum, i == 0);
-                pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
-                pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
-                pass.set_pipeline(&self.splat_pipeline);
-                pass.set_bind_group(0, bind, &[(i as u64 * UNIFORM_STRIDE) as u32]);
-                pass.set_index_buffer(self.quad_index.slice(..), wgpu::IndexFormat::Uint16);
+                let mut pass = self.view_pass(&mut encoder, &accum, i, v, bind);
                 if visible > 0 && !self.skip_splats {
                     pass.draw_indexed(0..INDICES_PER_INSTANCE, 0, 0..visible.div_ceil(QUAD_BATCH));
                 }

@@ -62,7 +62,8 @@ def test_each_format_comes_back_as_the_wsplat_the_cli_writes(client, tmp_path, e
     scene = scene_from_file(src)
     scene = dataclasses.replace(scene, static=importance_order(scene.static))
     sl, dl = wsplat.layouts_for(scene.static, scene.dynamic, version=2)
-    kw = {"static_layout": sl.to_json(), "dynamic_layout": dl.to_json(), "pos_precision": wsplat.pos_precision_for(sl)}
+    kw = {"static_layout": sl.to_json(), "dynamic_layout": dl.to_json(), "pos_precision": wsplat.pos_precision_for(sl),
+          "dynamic_pos_precision": wsplat.dynamic_pos_precision_for(dl)}  # fmt: skip
     same = wsplat.decode(wsplat.encode(scene, version=1, **kw))
     np.testing.assert_array_equal(rows(got.static), rows(same.static))
 

@@ -43,14 +43,15 @@ def street_scene(n: int, seed: int = 0) -> Scene4D:
 
 
 def v2_layouts(scene: Scene4D) -> dict:
-    """v2's default layouts of a scene and its static position boxes, to write the v1 file of the same layouts and
-    boxes (v2's static anisotropic default is not v1's: wsplat.V2_STATIC_ANISO; its static blocks' position step
-    follows the Gaussians' size: wsplat.pos_precision_for)."""
+    """v2's default layouts of a scene and its position boxes, to write the v1 file of the same layouts and boxes
+    (v2's anisotropic defaults are not v1's: wsplat.V2_STATIC_ANISO, V2_DYNAMIC_ANISO; its blocks' position step
+    follows the Gaussians' size: wsplat.pos_precision_for, dynamic_pos_precision_for)."""
     sl, dl = wsplat.layouts_for(scene.static, scene.dynamic, version=2)
     return {
         "static_layout": [list(f) for f in sl.fields],
         "dynamic_layout": [list(f) for f in dl.fields],
         "pos_precision": wsplat.pos_precision_for(sl),
+        "dynamic_pos_precision": wsplat.dynamic_pos_precision_for(dl),
     }
 
 
@@ -152,6 +153,38 @@ def test_v2_static_position_step_follows_the_gaussians_size():
     assert bits == 13
 
 
+def test_v2_dynamic_positions_follow_the_gaussians_size_not_the_agents_spread():
+    """Encoder only (wsplat-v2.md, "Dynamic records"): a frame's anisotropic dynamics (agents tens of metres apart)
+    get 13-bit positions in boxes sized by their Gaussians (V2_DYN_POS_PRECISION), not 7 bits over the whole spread
+    (V2_DYNAMIC_ANISO_R1: a step of spread / 127), for no more bytes."""
+    rng = np.random.default_rng(3)
+    size, n = 0.1, 300
+    centres = np.array([[0.0, 0, 0], [30, 4, 0], [60, -3, 0], [90, 10, 0]])
+    means = centres[rng.integers(0, len(centres), n)] + rng.uniform([-2, -1, 0], [2, 1, 1.5], (n, 3))
+    dyn = Gaussians.from_numpy(
+        means=means,
+        quats=rng.normal(size=(n, 4)),
+        scales=np.exp(rng.normal(np.log(size), 0.2, (n, 3))),
+        opacities=rng.uniform(0.5, 1, n),
+        colors=rng.uniform(0, 1, (n, 3)),
+    )
+    static = surfel_plane(64, 0.05).static
+    scene = Scene4D(static, [dyn], np.zeros(1), default_rig(64, 36), np.eye(4)[None], {"fps": 10.0})
+    data = wsplat.encode(scene, version=2)
+    assert wsplat.decode(data).meta["dynamic_layout"] == wsplat.V2_DYNAMIC_ANISO
+    old = wsplat.encode(scene, version=2, dynamic_layout=wsplat.V2_DYNAMIC_ANISO_R1, dynamic_pos_precision=None)
+
+    def errors(d):
+        src = torch.as_tensor(means, dtype=torch.float64)
+        got = torch.as_tensor(wsplat.decode(d).dynamic[0].means.numpy(), dtype=torch.float64)
+        return (got - src[torch.cdist(got, src).argmin(1)]).abs().max().item()
+
+    # the step: V2_DYN_POS_PRECISION x the 25th percentile of the middle scale (about 0.09 here)
+    assert errors(data) <= 0.5 * wsplat.V2_DYN_POS_PRECISION * size, errors(data)
+    assert errors(old) > 0.2  # 92 m / 127 steps
+    assert len(data) <= len(old) + 0.25 * n
+
+
 def test_v2_layout_needs_equal_position_bits():
     scene = _scene(np.random.default_rng(5), 10, [0], 1, iso=True)
     lay = [["px", 14], ["py", 12], ["pz", 14], ["s", 8], ["o", 6], ["r", 8], ["g", 8], ["b", 8]]
@@ -214,6 +247,7 @@ def test_property_v2_equals_v1_for_any_layout_and_block_size(n, bits, block, iso
     if sum(b for _, b in lay) > 128:
         return  # record size > 16 bytes: no layout (v1's limit, kept by v2)
     kw = {"block_size": block, "static_layout": lay, "pos_precision": prec}
+    kw |= {"dynamic_layout": lay, "dynamic_pos_precision": prec}  # the dynamic blocks the same way
     s1 = wsplat.decode(wsplat.encode(scene, version=1, **kw))
     s2 = wsplat.decode(wsplat.encode(scene, version=2, **kw))
     np.testing.assert_array_equal(as_rows(s1.static), as_rows(s2.static))

@@ -659,9 +659,15 @@ def _write_v2(valid_any_box, bad) -> None:
     from worldsplat.gaussians import wsplat
 
     def valid(name, scene, **kw):
-        """The points' own position boxes (as these vectors were first written, so they keep their bytes), unless
-        `pos_precision` says otherwise."""
+        """The points' own position boxes, static and dynamic, and anisotropic dynamics in the first v2 dynamic
+        layout (as these vectors were first written, so they keep their bytes), unless `pos_precision` /
+        `dynamic_pos_precision` / `dynamic_layout` say otherwise."""
         kw.setdefault("pos_precision", None)
+        kw.setdefault("dynamic_pos_precision", None)
+        if any(len(d) for d in scene.dynamic) and not wsplat.is_isotropic(
+            wsplat.Gaussians.cat([d for d in scene.dynamic if len(d)])
+        ):
+            kw.setdefault("dynamic_layout", wsplat.V2_DYNAMIC_ANISO_R1)
         return valid_any_box(name, scene, **kw)
 
     rng = np.random.default_rng(11)
@@ -733,6 +739,17 @@ def _write_v2(valid_any_box, bad) -> None:
     ).reshape(-1, 8)
     zmeans = zscene.static.means.numpy()
     assert (zboxes[:, 3:6] - zboxes[:, :3]).max() > 2 * (zmeans.max(0) - zmeans.min(0)).max(), "sized boxes expected"
+    # the v2 dynamic anisotropic default now: wsplat.V2_DYNAMIC_ANISO (13-bit positions, 2-bit canonical rotation,
+    # 2-bit opacity, 4/5/4-bit colour) with dynamic position boxes sized by the Gaussians (V2_DYN_POS_PRECISION),
+    # every default of the encoder (static boxes sized too), own generator
+    yscene = _scene(np.random.default_rng(19), 600, [40, 0, 300], 3, iso=False)
+    ydata = valid_any_box("valid_v2_aniso_dynamic", yscene, version=2)
+    yhead = json.loads(split_chunks(ydata)[0][1])
+    assert yhead["dynamic_layout"] == wsplat.V2_DYNAMIC_ANISO, yhead["dynamic_layout"]
+    ydyna = [p for t, p in split_chunks(ydata) if t == b"DYNA"][-1]
+    yboxes = np.frombuffer(zstandard.ZstdDecompressor().decompress(v2_sections(ydyna, 8)[0][2]), "<f4").reshape(-1, 8)
+    ymeans = yscene.dynamic[2].means.numpy()
+    assert (yboxes[:, 3:6] - yboxes[:, :3]).max() > 2 * (ymeans.max(0) - ymeans.min(0)).max(), "sized boxes expected"
     secs_same = v2_sections(split_chunks(sdata)[1][1], 4)
     assert all(fr[4] & 0x20 and (fr[5 + 4] >> 1) & 3 == 0 for _, _, fr in secs_same), "raw zstd blocks expected"
     v2 = b"WSPLAT\r\n\x02\x00\x00\x00"

@@ -54,6 +54,7 @@ def write_pair(out: Path, name: str, scene: Scene4D) -> dict:
         "static_layout": [list(f) for f in sl.fields],
         "dynamic_layout": [list(f) for f in dl.fields],
         "pos_precision": wsplat.pos_precision_for(sl),  # v2's static position boxes, sized by the Gaussians
+        "dynamic_pos_precision": wsplat.dynamic_pos_precision_for(dl),  # and its dynamic ones (anisotropic)
     }
     for v in (1, 2):  # v1 with v2's layouts and boxes: the same integers (v2's static defaults are not v1's)
         for kind, data in (

@@ -664,10 +664,9 @@ def _write_v2(valid_any_box, bad) -> None:
         `dynamic_pos_precision` / `dynamic_layout` say otherwise."""
         kw.setdefault("pos_precision", None)
         kw.setdefault("dynamic_pos_precision", None)
-        if any(len(d) for d in scene.dynamic) and not wsplat.is_isotropic(
-            wsplat.Gaussians.cat([d for d in scene.dynamic if len(d)])
-        ):
-            kw.setdefault("dynamic_layout", wsplat.V2_DYNAMIC_ANISO_R1)
+        dyn = [d for d in scene.dynamic if len(d)]
+        iso = not dyn or wsplat.is_isotropic(wsplat.Gaussians.cat(dyn))
+        kw.setdefault("dynamic_layout", wsplat.V2_DYNAMIC_ISO_R1 if iso else wsplat.V2_DYNAMIC_ANISO_R1)
         return valid_any_box(name, scene, **kw)
 
     rng = np.random.default_rng(11)
@@ -739,9 +738,13 @@ def _write_v2(valid_any_box, bad) -> None:
     ).reshape(-1, 8)
     zmeans = zscene.static.means.numpy()
     assert (zboxes[:, 3:6] - zboxes[:, :3]).max() > 2 * (zmeans.max(0) - zmeans.min(0)).max(), "sized boxes expected"
-    # the v2 dynamic anisotropic default now: wsplat.V2_DYNAMIC_ANISO (13-bit positions, 2-bit canonical rotation,
-    # 2-bit opacity, 4/5/4-bit colour) with dynamic position boxes sized by the Gaussians (V2_DYN_POS_PRECISION),
-    # every default of the encoder (static boxes sized too), own generator
+    # the v2 dynamic defaults now: wsplat.V2_DYNAMIC_ANISO (13-bit positions, 2-bit canonical rotation, 2-bit
+    # opacity, 5-bit colour) and V2_DYNAMIC_ISO (13-bit positions, 6-bit scale, opacity and colour) with dynamic
+    # position boxes sized by the Gaussians (dynamic_pos_precision_for), every default of the encoder (static boxes
+    # sized too), own generators
+    iscene = _scene(np.random.default_rng(23), 600, [40, 0, 300], 3, iso=True)
+    idata = valid_any_box("valid_v2_iso_dynamic", iscene, version=2)
+    assert json.loads(split_chunks(idata)[0][1])["dynamic_layout"] == wsplat.V2_DYNAMIC_ISO
     yscene = _scene(np.random.default_rng(19), 600, [40, 0, 300], 3, iso=False)
     ydata = valid_any_box("valid_v2_aniso_dynamic", yscene, version=2)
     yhead = json.loads(split_chunks(ydata)[0][1])

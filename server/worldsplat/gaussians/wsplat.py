@@ -145,12 +145,16 @@ V2_STATIC_ANISO = [
 V2_POS_PRECISION = 0.6
 V2_POS_PRECISION_ISO = 0.3
 POS_SIZE_PERCENTILE = 25
-# v2 dynamic anisotropic default (wsplat-v2.md, "Dynamic records"): v1's DYNAMIC_ANISO spent 7 bits of position on
-# a block box as wide as the frame's agents (~90 m on the generated default scene: a 0.7 m step for 0.1 m Gaussians;
-# -2.1 dB on the dynamic pixels of a camera against float32). Now 13-bit positions in boxes sized by the Gaussians
-# (`position_box` at V2_DYN_POS_PRECISION, as the statics), paid for by a 2-bit canonical rotation (3 levels per
-# axis: no measurable loss), 2-bit opacity and 4/5/4-bit colour: -0.07 dB at the worst camera, no more bytes.
-V2_DYNAMIC_ANISO_R1 = DYNAMIC_ANISO  # the first v2 files' dynamic anisotropic layout (still read: a file names its own)
+# v2 dynamic defaults (wsplat-v2.md, "Dynamic records"; `python -m worldsplat.bench.sog --dynamic ...` measures
+# them against float32 on the ground truth's dynamic pixels). v1's DYNAMIC_ANISO spent 7 bits of position on a block
+# box as wide as the frame's agents (~90 m on the generated default scene: a 0.7 m step for 0.1 m Gaussians; -2.1 dB
+# on the dynamic pixels of a camera). Now 13-bit positions in boxes sized by the Gaussians (`position_box` at
+# V2_DYN_POS_PRECISION, as the statics), paid for by a 2-bit canonical rotation (3 levels per axis: no measurable
+# loss) and 2-bit opacity: -0.07 dB at the worst camera for no more bytes. Isotropic dynamics (the oracle's): 13-bit
+# positions in sized boxes (V2_DYN_POS_PRECISION_ISO) and 6-bit opacity and colour instead of DYNAMIC_ISO's 10 bits
+# in the points' own box: 2.6 instead of 3.3 B/G, -0.07 instead of -0.15 dB at the worst camera.
+V2_DYNAMIC_ANISO_R1 = DYNAMIC_ANISO  # the first v2 files' dynamic layouts (still read: a file names its own)
+V2_DYNAMIC_ISO_R1 = DYNAMIC_ISO
 V2_DYNAMIC_ANISO = [
     ["px", 13],
     ["py", 13],
@@ -162,12 +166,15 @@ V2_DYNAMIC_ANISO = [
     ["sy", 3],
     ["sz", 3],
     ["o", 2],
-    ["r", 4],
+    ["r", 5],
     ["g", 5],
-    ["b", 4],
+    ["b", 5],
 ]
-V2_DYN_POS_PRECISION = 1.0  # the position step of a v2 anisotropic dynamic block against its Gaussians' size
-V2_STATIC_ISO, V2_DYNAMIC_ISO = STATIC_ISO, DYNAMIC_ISO
+V2_DYNAMIC_ISO = [["px", 13], ["py", 13], ["pz", 13], ["s", 6], ["o", 6], ["r", 6], ["g", 6], ["b", 6]]
+# the position step of a v2 dynamic block against its Gaussians' size (`position_box`), anisotropic / isotropic
+V2_DYN_POS_PRECISION = 1.0
+V2_DYN_POS_PRECISION_ISO = 0.3
+V2_STATIC_ISO = STATIC_ISO
 DEFAULT_VERSION = 1  # what encode / StreamWriter write unless told
 FIRST_CHUNK = 4096  # the first static chunk is small so a browser draws early; chunks then double
 MAX_CHUNK_RECORDS = 262144
@@ -811,10 +818,9 @@ def pos_precision_for(layout: Layout) -> float:
     return V2_POS_PRECISION_ISO if layout.isotropic else V2_POS_PRECISION
 
 
-def dynamic_pos_precision_for(layout: Layout) -> float | None:
-    """v2's dynamic position precision for a dynamic layout: anisotropic dynamics get boxes sized by their Gaussians
-    (V2_DYN_POS_PRECISION), isotropic ones keep their own boxes (DYNAMIC_ISO's 10 bits, measured on the oracle)."""
-    return None if layout.isotropic else V2_DYN_POS_PRECISION
+def dynamic_pos_precision_for(layout: Layout) -> float:
+    """v2's dynamic position precision for a dynamic layout (`position_box`)."""
+    return V2_DYN_POS_PRECISION_ISO if layout.isotropic else V2_DYN_POS_PRECISION
 
 
 def _pos_precision(value, version: int, layout: Layout, dynamic: bool = False) -> float | None:

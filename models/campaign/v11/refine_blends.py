@@ -1,4 +1,5 @@
-"""Refinement blends on held-out NVS samples: D-dec, E-dec (full), E-dec+holes (served), E-dec+delta (new)."""
+"""Refinement blends on NVS samples: D-dec, E-dec at velocity scales gamma (full output and the served holes blend),
+and the delta blend at gamma 1. Usage: refine_blends.py SHIFTS COUNT GAMMAS SPLIT (e.g. 0,2,4 2 1.0 test)."""
 import sys, numpy as np, torch
 from pathlib import Path
 from worldsplat.evaluation.nvs import load_enhancers, prepare_samples, load_sample, image_metrics, split_seeds
@@ -40,6 +41,7 @@ for seed in split_seeds(split, count):
             "D-dec": rd,
             "E-dec": ref,
             "E-dec+holes": np.round(a * rd + (1 - a) * ref).astype(np.uint8),
+            "E-dec+delta": np.clip(np.round(a * (rd + delta) + (1 - a) * ref), 0, 255).astype(np.uint8),
         }
         for g, x in refs.items():
             outs[f"E-dec g{g}"] = x

@@ -57,6 +57,14 @@ def test_shared_wsplat_vector(name):
             ("color", "colors"),
         ):
             assert np.allclose(g[field][0], exp["first_dynamic"][key], atol=tol[key], rtol=0), key
+    if "last_dynamic" in exp:  # last record of the last DYNA chunk, and every dynamic mean (range-coded files)
+        events = [e for e in ProgressiveDecoder().feed(data) if e[0] == "dynamic"]
+        g = events[-1][1][1].numpy()
+        for key, field in (("mean", "means"), ("quat", "quats"), ("scale", "scales"), ("opacity", "opacities"),
+                           ("color", "colors")):  # fmt: skip
+            assert np.allclose(g[field][-1], exp["last_dynamic"][key], atol=tol[key], rtol=0), key
+        total = sum(e[1][1].numpy()["means"].astype(np.float64).sum(0) for e in events)
+        assert np.allclose(total, exp["dynamic_mean_sum"], atol=tol["dynamic_mean_sum"], rtol=0)
 
 
 def test_vectors_cover_every_error_kind():

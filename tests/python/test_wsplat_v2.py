@@ -1,6 +1,7 @@
 """.wsplat v2 (web/docs/wsplat-v2.md): the same Gaussians as v1 in fewer bytes, progressive, bounded; property
 tests over random scenes, layouts and block sizes, prefixes and mutations."""
 
+import json
 import struct
 import sys
 import tracemalloc
@@ -249,9 +250,11 @@ def test_property_v2_equals_v1_for_any_layout_and_block_size(n, bits, block, iso
     kw = {"block_size": block, "static_layout": lay, "pos_precision": prec}
     kw |= {"dynamic_layout": lay, "dynamic_pos_precision": prec}  # the dynamic blocks the same way
     s1 = wsplat.decode(wsplat.encode(scene, version=1, **kw))
-    s2 = wsplat.decode(wsplat.encode(scene, version=2, **kw))
+    s2 = wsplat.decode(wsplat.encode(scene, version=2, **kw))  # dynamics range-coded (the v2 default)
     np.testing.assert_array_equal(as_rows(s1.static), as_rows(s2.static))
     np.testing.assert_array_equal(as_rows(s1.dynamic[0]), as_rows(s2.dynamic[0]))
+    s3 = wsplat.decode(wsplat.encode(scene, version=2, dynamic_codec="zstd", **kw))
+    np.testing.assert_array_equal(s2.dynamic[0].numpy()["means"], s3.dynamic[0].numpy()["means"])  # same order too
 
 
 _V2 = (VECTORS / "valid_v2_iso.wsplat").read_bytes()
@@ -348,3 +351,117 @@ def test_raw_zstd_frame_is_one_valid_frame(size):
     assert fp.content_size == size and fp.window_size <= wsplat.max_window(size)
     dobj = zstandard.ZstdDecompressor(max_window_size=wsplat.max_window(size)).decompressobj()
     assert dobj.decompress(frame) == data and dobj.eof and not dobj.unused_data
+
+
+# ---------------------------------------------------------------------------------------------- range-coded DYNA
+def dyna_chunks(data: bytes) -> list[bytes]:
+    return [p for t, p in split_chunks(data) if t == b"DYNA"]
+
+
+def same_gaussians(a: Gaussians, b: Gaussians) -> None:
+    x, y = a.numpy(), b.numpy()
+    for k in x:
+        np.testing.assert_array_equal(x[k], y[k], err_msg=k)
+
+
+@pytest.mark.parametrize("iso", [True, False])
+def test_range_coded_dynamics_decode_to_the_zstd_files_gaussians_in_fewer_bytes(iso):
+    """The codec is lossless over the same integers: the same Gaussians in the same order, whole and streamed."""
+    scene = _scene(np.random.default_rng(21), 2000, [400, 0, 41, 260], 4, iso=iso)
+    kw = {"parts": [[0, 1], [2, 3]], "static_split": [900]}
+    for enc, extra in ((wsplat.encode, {}), (wsplat.encode_streamed, kw)):
+        dz, dr = enc(scene, version=2, dynamic_codec="zstd", **extra), enc(scene, version=2, **extra)
+        assert b'"dynamic_codec":"range"' in split_chunks(dr)[0][1] and b"dynamic_codec" not in split_chunks(dz)[0][1]
+        sz, sr = wsplat.decode(dz), wsplat.decode(dr)
+        same_gaussians(sz.static, sr.static)
+        for a, b in zip(sz.dynamic, sr.dynamic):
+            same_gaussians(a, b)
+        assert sum(map(len, dyna_chunks(dr))) < sum(map(len, dyna_chunks(dz)))
+        assert [c for t, c in split_chunks(dz) if t == b"STAT"] == [c for t, c in split_chunks(dr) if t == b"STAT"]
+
+
+def test_stream_writer_carries_the_models_across_windows():
+    """A streamed file's DYNA chunks are the whole file's (frames in the same order, models carried from window to
+    window), so the state the server's StreamWriter keeps is the state a decoder rebuilds."""
+    scene = _scene(np.random.default_rng(22), 1500, [300, 80, 0, 120], 4, iso=False)
+    whole = wsplat.encode(scene, version=2)
+    streamed = wsplat.encode_streamed(scene, [[0], [1, 2], [3]], static_split=[500, 1000], version=2)
+    assert dyna_chunks(whole) == dyna_chunks(streamed)
+    w = wsplat.StreamWriter.for_window(scene, scene.static, scene.dynamic, version=2)
+    assert w.dynamic_codec == "range"  # what runners.StreamSink writes
+
+
+def test_degenerate_dynamics_pad_the_stream_and_decode():
+    """Identical dynamic Gaussians code to almost nothing: the encoder adds zero words so the chunk stays within
+    MAX_RATIO (which a decoder enforces before decoding), and they decode as any stream."""
+    scene = _scene(np.random.default_rng(23), 10, [6000], 1, iso=False)
+    g = scene.dynamic[0]
+    for t in (g.means, g.scales, g.opacities, g.colors, g.quats):
+        t.data[:] = t.data[:1].clone()
+    data = wsplat.encode(scene, version=2)
+    (dyna,) = dyna_chunks(data)
+    dl = wsplat.layouts_for(scene.static, scene.dynamic, 2)[1]
+    assert wsplat.v2_raw_size(6000, dl, 256) <= wsplat.MAX_RATIO * len(dyna)
+    assert dyna[-8:] == bytes(8)  # padding
+    same_gaussians(wsplat.decode(wsplat.encode(scene, version=2, dynamic_codec="zstd")).dynamic[0],
+                   wsplat.decode(data).dynamic[0])  # fmt: skip
+
+
+def test_format_fields_never_travel_as_meta():
+    """A decoded range-coded scene written again: its HEAD says the codec of the new file, not the old one's."""
+    scene = wsplat.decode(wsplat.encode(_scene(np.random.default_rng(24), 50, [30], 1, iso=True), version=2))
+    assert "dynamic_codec" not in scene.meta and "codec" not in scene.meta
+    for v, codec in ((1, None), (2, "zstd")):
+        head = json.loads(split_chunks(wsplat.encode(scene, version=v, dynamic_codec=codec))[0][1])
+        assert "dynamic_codec" not in head
+    with pytest.raises(ValueError, match="version 2"):
+        wsplat.encode(scene, version=1, dynamic_codec="range")
+
+
+def test_unknown_dynamic_codec_is_a_bad_header():
+    data = (VECTORS / "valid_v2_iso.wsplat").read_bytes()
+    ch = split_chunks(data)
+    head = json.loads(ch[0][1]) | {"dynamic_codec": "lzma"}
+    with pytest.raises(WsplatError) as e:
+        wsplat.decode(join_chunks([(b"HEAD", json.dumps(head).encode())] + ch[1:], V2_HEAD))
+    assert (e.value.kind, e.value.offset, e.value.field) == ("bad_header", 20, "HEAD.dynamic_codec")
+
+
+_R = (VECTORS / "valid_v2_range_streamed.wsplat").read_bytes()
+
+
+@settings(max_examples=60, deadline=None)
+@given(cut=st.integers(0, len(_R)), split=st.integers(0, len(_R)))
+def test_property_any_prefix_of_a_range_coded_file_is_a_prefix_of_whole_chunks(cut, split):
+    whole = wsplat.decode(_R)
+    dec = ProgressiveDecoder()
+    dec.feed(_R[:cut][:split])
+    dec.feed(_R[:cut][split:])
+    if dec.header is None:
+        return
+    got = dec.scene()
+    for a, b in zip(got.dynamic, whole.dynamic):
+        np.testing.assert_array_equal(a.means.numpy(), b.means[: len(a)].numpy())
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    data=st.lists(st.tuples(st.integers(12, len(_R) - 1), st.integers(0, 255)), min_size=1, max_size=4),
+    cut=st.integers(13, len(_R)),
+)
+def test_property_range_coded_mutations_raise_wsplat_error_only(data, cut):
+    """Byte changes inside a range-coded file (CRC recomputed, so they reach the boxes, lengths and streams) and
+    truncations: a WsplatError naming an offset inside the data, or a valid scene; never another exception."""
+    buf = bytearray(_R)
+    for at, v in data:
+        buf[at] = v
+    try:
+        chunks = split_chunks(bytes(buf))
+        fixed = join_chunks(chunks, V2_HEAD) if all(len(t) == 4 for t, _ in chunks) else bytes(buf)
+    except struct.error:
+        fixed = bytes(buf)
+    for d in (fixed[:cut], bytes(buf)[:cut]):
+        try:
+            wsplat.decode(d)
+        except WsplatError as e:
+            assert 0 <= e.offset <= len(d)

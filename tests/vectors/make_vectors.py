@@ -343,33 +343,24 @@ def write_wsplat(out_dir: Path) -> list[str]:
     rng = np.random.default_rng(7)
     names = []
 
-    def valid(name, scene, encoder=None, **kw):
+    def record(a, i):
+        return {
+            "mean": a["means"][i].tolist(),
+            "quat": a["quats"][i].tolist(),
+            "scale": a["scales"][i].tolist(),
+            "opacity": float(a["opacities"][i]),
+            "color": a["colors"][i].tolist(),
+        }
+
+    def valid(name, scene, encoder=None, every_dynamic=False, **kw):
+        """`every_dynamic`: the expectation also holds the last record of the last DYNA chunk and the sum of every
+        dynamic mean (range-coded files, whose chunks decode with the models of the chunks before them)."""
         data = (encoder or wsplat.encode)(scene, **kw)
         back = wsplat.decode(data)
         g = back.static.numpy()
-        first = (
-            {
-                "mean": g["means"][0].tolist(),
-                "quat": g["quats"][0].tolist(),
-                "scale": g["scales"][0].tolist(),
-                "opacity": float(g["opacities"][0]),
-                "color": g["colors"][0].tolist(),
-            }
-            if len(back.static)
-            else None
-        )
+        first = record(g, 0) if len(back.static) else None
         dyn = next((d.numpy() for d in back.dynamic if len(d)), None)  # first record of the first DYNA chunk
-        first_dyn = (
-            {
-                "mean": dyn["means"][0].tolist(),
-                "quat": dyn["quats"][0].tolist(),
-                "scale": dyn["scales"][0].tolist(),
-                "opacity": float(dyn["opacities"][0]),
-                "color": dyn["colors"][0].tolist(),
-            }
-            if dyn is not None
-            else None
-        )
+        first_dyn = record(dyn, 0) if dyn is not None else None
         exp = {
             "ok": True,
             "num_static": len(back.static),
@@ -387,6 +378,11 @@ def write_wsplat(out_dir: Path) -> list[str]:
                 "static_mean_sum": 1e-2,
             },
         }
+        if every_dynamic:
+            ev = [e for e in wsplat.ProgressiveDecoder().feed(data) if e[0] == "dynamic"]
+            exp["last_dynamic"] = record(ev[-1][1][1].numpy(), -1)
+            exp["dynamic_mean_sum"] = sum(e[1][1].numpy()["means"].astype(np.float64).sum(0) for e in ev).tolist()
+            exp["tolerance"]["dynamic_mean_sum"] = 1e-2
         (out_dir / f"{name}.wsplat").write_bytes(data)
         (out_dir / f"{name}.json").write_text(json.dumps(exp, indent=1) + "\n")
         names.append(name)
@@ -635,6 +631,7 @@ def write_wsplat(out_dir: Path) -> list[str]:
         "HEAD.num_dynamic",
     )
     _write_v2(valid, bad)
+    _write_v2_range(valid, bad)
     return names
 
 
@@ -667,6 +664,7 @@ def _write_v2(valid_any_box, bad) -> None:
         dyn = [d for d in scene.dynamic if len(d)]
         iso = not dyn or wsplat.is_isotropic(wsplat.Gaussians.cat(dyn))
         kw.setdefault("dynamic_layout", wsplat.V2_DYNAMIC_ISO_R1 if iso else wsplat.V2_DYNAMIC_ANISO_R1)
+        kw.setdefault("dynamic_codec", "zstd")  # these vectors predate the range coder (below) and keep their bytes
         return valid_any_box(name, scene, **kw)
 
     rng = np.random.default_rng(11)
@@ -743,10 +741,10 @@ def _write_v2(valid_any_box, bad) -> None:
     # position boxes sized by the Gaussians (dynamic_pos_precision_for), every default of the encoder (static boxes
     # sized too), own generators
     iscene = _scene(np.random.default_rng(23), 600, [40, 0, 300], 3, iso=True)
-    idata = valid_any_box("valid_v2_iso_dynamic", iscene, version=2)
+    idata = valid_any_box("valid_v2_iso_dynamic", iscene, version=2, dynamic_codec="zstd")
     assert json.loads(split_chunks(idata)[0][1])["dynamic_layout"] == wsplat.V2_DYNAMIC_ISO
     yscene = _scene(np.random.default_rng(19), 600, [40, 0, 300], 3, iso=False)
-    ydata = valid_any_box("valid_v2_aniso_dynamic", yscene, version=2)
+    ydata = valid_any_box("valid_v2_aniso_dynamic", yscene, version=2, dynamic_codec="zstd")
     yhead = json.loads(split_chunks(ydata)[0][1])
     assert yhead["dynamic_layout"] == wsplat.V2_DYNAMIC_ANISO, yhead["dynamic_layout"]
     ydyna = [p for t, p in split_chunks(ydata) if t == b"DYNA"][-1]
@@ -857,6 +855,133 @@ def _write_v2(valid_any_box, bad) -> None:
     bad("count_mismatch_v2_dynamic_excess", d, "count_mismatch", chunk_offset(split_chunks(d), 3) + 8 + 4, "DYNA.count")
     d = with_head(num_static=2**40)  # nothing is allocated for it: the chunks hold 300
     bad("count_mismatch_v2_huge_total", d, "count_mismatch", chunk_offset(split_chunks(d), 4), "HEAD.num_static")
+
+
+def range_dyna(payload: bytes, block_size: int) -> dict:
+    """The parts of a range-coded DYNA payload: offsets in the payload and the words (web/docs/wsplat-v2.md)."""
+    import struct
+
+    frame, count = struct.unpack_from("<II", payload)
+    words_at = 8 + 32 * -(-count // block_size)
+    (n,) = struct.unpack_from("<I", payload, words_at)
+    words = np.frombuffer(payload[words_at + 4 : words_at + 4 + 4 * n], "<u4").copy()
+    return {
+        "frame": frame,
+        "count": count,
+        "boxes_at": 8,
+        "words_at": words_at,
+        "stream_at": words_at + 4,
+        "words": words,
+    }
+
+
+def _write_v2_range(valid, bad) -> None:
+    """Vectors of range-coded dynamic records (HEAD dynamic_codec "range"): valid files (whole and streamed,
+    isotropic and anisotropic dynamics, a custom layout with raw bits, a padded degenerate chunk) and every
+    malformed field the codec adds. The malformed ones change the first DYNA chunk of valid_v2_range_iso."""
+    import struct
+
+    from worldsplat.gaussians import context_coder, wsplat
+
+    v2 = b"WSPLAT\r\n\x02\x00\x00\x00"
+    kw = {"version": 2, "dynamic_codec": "range", "every_dynamic": True}
+    base = valid("valid_v2_range_iso", _scene(np.random.default_rng(31), 400, [40, 0, 300], 3, iso=True), **kw)
+    valid("valid_v2_range_aniso", _scene(np.random.default_rng(32), 400, [60, 280, 0, 45], 4, iso=False), **kw)
+    for name, iso in (("valid_v2_range_streamed", False), ("valid_v2_range_streamed_iso", True)):
+        data = valid(name, _scene(np.random.default_rng(33 + iso), 3000, [50, 0, 300, 20], 4, iso=iso),
+                     encoder=wsplat.encode_streamed, parts=[[0, 1], [2, 3]], static_split=[1500], **kw)  # fmt: skip
+        assert json.loads(split_chunks(data)[0][1])["num_static"] is None
+    custom = [["px", 21], ["py", 21], ["pz", 21], ["s", 9], ["o", 1], ["r", 8], ["g", 7], ["b", 24]]
+    cdata = valid("valid_v2_range_custom", _scene(np.random.default_rng(35), 30, [70, 33], 2, iso=True),
+                  block_size=7, dynamic_layout=custom, **kw)  # fmt: skip
+    assert json.loads(split_chunks(cdata)[0][1])["dynamic_layout"] == custom
+    same = _scene(np.random.default_rng(36), 30, [5000], 1, iso=False)
+    g = same.dynamic[0]
+    for t in (g.means, g.scales, g.opacities, g.colors, g.quats):
+        t.data[:] = t.data[:1].clone()
+    sdata = valid("valid_v2_range_degenerate", same, **kw)
+    (spay,) = [p for t, p in split_chunks(sdata) if t == b"DYNA"]
+    assert spay[-8:] == bytes(8), "the degenerate chunk's stream must end in padding"
+
+    ch = split_chunks(base)
+    assert [t for t, _ in ch] == [b"HEAD", b"STAT", b"DYNA", b"DYNA", b"END!"], [t for t, _ in ch]
+    head = json.loads(ch[0][1])
+    assert head["dynamic_codec"] == "range" and head["block_size"] == wsplat.DEFAULT_BLOCK_SIZE
+    dyna = ch[2][1]
+    p0 = chunk_offset(ch, 2) + 8  # the first DYNA payload's first byte (its frame)
+    r = range_dyna(dyna, head["block_size"])
+    stream_end = r["stream_at"] + 4 * len(r["words"])
+    assert stream_end == len(dyna)
+
+    def with_head(**changes):
+        return join_chunks([(b"HEAD", json.dumps(head | changes).encode())] + ch[1:], v2)
+
+    def with_dyna(payload):
+        return join_chunks(ch[:2] + [(b"DYNA", payload)] + ch[3:], v2)
+
+    def with_words(words, declared=None):
+        n = len(words) if declared is None else declared
+        return with_dyna(dyna[: r["words_at"]] + struct.pack("<I", n) + np.asarray(words, "<u4").tobytes())
+
+    def decodes_to(data, field):
+        try:
+            wsplat.decode(data)
+        except wsplat.WsplatError as e:
+            return e.field == field and e
+        return False
+
+    bad("bad_v2_header_dynamic_codec", with_head(dynamic_codec="lzma"), "bad_header", 20, "HEAD.dynamic_codec")
+    bad("bad_v2_range_count_zero", with_dyna(dyna[:4] + struct.pack("<I", 0) + dyna[8:]), "bad_payload", p0 + 4,
+        "DYNA.count")  # fmt: skip
+    bad(  # a count the bytes cannot hold: refused before anything is decoded or allocated
+        "bad_v2_range_count_ratio",
+        with_dyna(dyna[:4] + struct.pack("<I", 1 << 30) + dyna[8:]),
+        "bad_payload",
+        p0 + 4,
+        "DYNA.count",
+    )
+    bad("bad_v2_range_boxes_past_end", with_dyna(dyna[:24]), "bad_payload", p0 + 8, "DYNA.boxes")
+    bad("bad_v2_range_words_past_end", with_dyna(dyna[: r["words_at"] + 2]), "bad_payload", p0 + r["words_at"],
+        "DYNA.words")  # fmt: skip
+    bad(  # the stream declares one word more than the chunk holds
+        "bad_v2_range_words_length",
+        with_words(r["words"], declared=len(r["words"]) + 1),
+        "bad_payload",
+        p0 + r["words_at"],
+        "DYNA.words",
+    )
+    bad("bad_v2_range_after_stream", with_dyna(dyna + b"\x00"), "bad_payload", p0 + stream_end, "DYNA.length")
+    boxes = bytearray(dyna)
+    struct.pack_into("<f", boxes, 8 + 4, float("nan"))
+    bad("bad_v2_range_box_nan", with_dyna(bytes(boxes)), "bad_payload", p0 + 8, "DYNA.boxes")
+    # a word after the last symbol that is not 0 (zero words there are an encoder's padding)
+    bad("bad_v2_range_stream_word_after", with_words(np.r_[r["words"], 0, 7]), "bad_payload",
+        p0 + stream_end + 4, "DYNA.stream")  # fmt: skip
+    # a stream cut short: the symbols need more words than it holds (one word past the end reads as 0)
+    cut = next(k for k in range(1, len(r["words"])) if decodes_to(with_words(r["words"][:-k]), "DYNA.stream")
+               and "need" in str(decodes_to(with_words(r["words"][:-k]), "DYNA.stream")))  # fmt: skip
+    bad("bad_v2_range_stream_truncated", with_words(r["words"][:-cut]), "bad_payload",
+        p0 + r["stream_at"] + 4 * (len(r["words"]) - cut), "DYNA.stream")  # fmt: skip
+    # a symbol out of range: the decoder's point leaves the coded interval (a changed word, found by search)
+    rng = np.random.default_rng(37)
+    for _ in range(10000):
+        w = r["words"].copy()
+        w[int(rng.integers(0, len(w)))] = int(rng.integers(0, 2**32))
+        e = decodes_to(with_words(w), "DYNA.stream")  # in this chunk (a wrong chunk that decodes fails later)
+        if e and "out of range" in str(e) and e.offset == p0 + r["stream_at"]:
+            break
+    else:
+        raise AssertionError("no out-of-range symbol found")
+    bad("bad_v2_range_stream_symbol", with_words(w), "bad_payload", p0 + r["stream_at"], "DYNA.stream")
+    # Morton deltas that add up past 2^39 - 1: a valid stream (coded by the spec's model) of the wrong deltas
+    back = wsplat.decode(base)
+    dl = wsplat.parse_layout(head["dynamic_layout"], 0, "dynamic_layout")
+    a = wsplat._sanitized_numpy(back.dynamic[0], dl)
+    _, delta, cat = wsplat.v2_records(a, dl, head["block_size"], wsplat.dynamic_pos_precision_for(dl))
+    delta = np.full(len(delta), 1 << 38, dtype=np.uint64)
+    words = context_coder.encode_chunk(context_coder.Models(dl.fields), delta, cat)
+    bad("bad_v2_range_morton_overflow", with_words(words), "bad_payload", p0 + r["stream_at"], "DYNA.pos")
+    bad("truncated_v2_range_in_dyna", base[: p0 + len(dyna) // 2], "truncated", p0 - 8, "file")
 
 
 # ---------------------------------------------------------------------------------------------- rig + shift

@@ -24,6 +24,7 @@ import zstandard
 from worldsplat.core.camera import RigCamera
 from worldsplat.core.io import atomic_write_bytes
 from worldsplat.gaussians import constants as C
+from worldsplat.gaussians import context_coder
 from worldsplat.gaussians.project import quat_to_rotmat
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
@@ -183,6 +184,13 @@ FAR_FACTOR = 4.0  # see _block_order
 # v2 (web/docs/wsplat-v2.md): planes per chunk, zstd per plane
 VERSIONS = (1, 2)
 CODECS = ("zstd",)
+# v2's DYNA chunks: zstd byte planes as the STAT chunks (HEAD `dynamic_codec` absent or "zstd"), or one stream of the
+# adaptive context-modelling range coder (`context_coder`; "range": models carried from chunk to chunk). What v2
+# encoders write unless told: "range" (generated default scene 5.53 -> 3.73 B/G/frame on the wire, the world oracle
+# 2.54 -> 2.44; wsplat-v2.md, "Range-coded dynamic records"). Static chunks stay zstd.
+DYNAMIC_CODECS = ("zstd", "range")
+V2_DYNAMIC_CODEC = "range"
+FORMAT_FIELDS = ("codec", "dynamic_codec")  # HEAD fields a scene's meta never writes (they say how chunks decode)
 # Encoder speed (`python -m worldsplat.bench.encode_speed`, ratios of one run in web/docs/wsplat-v2.md): zstd level 1
 # with every filter tried encodes in 1.1-1.2x v1's time for 1.0-2.6 % more bytes than level 15 (whose best, filters
 # chosen at level 1 and the chosen plane compressed at 15, takes 1.6-2.1x v1's time; every filter at 15: 2.3-3.6x;
@@ -551,6 +559,49 @@ def _section_label(name: str, k: int, layout: Layout) -> str:
     return name if width == 1 else f"{name}[{k}]"
 
 
+def v2_records(
+    a: dict[str, np.ndarray], layout: Layout, block_size: int, pos_precision: float | None = None
+) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Sanitized Gaussians (block order) -> what a v2 chunk stores: the blocks' boxes ((B, 8) float32), and the
+    records sorted by the Morton code of (px, py, pz) inside each block: their Morton deltas (the first of each block
+    from 0) and the stored integer of every layout field (uint64). `pos_precision`: as `quantize_block`."""
+    pb = dict(layout.fields)["px"]
+    boxes, codes, vals = [], [], {f: [] for f, _ in layout.fields}
+    for s in range(0, len(a["means"]), block_size):
+        box, v = quantize_block({k: x[s : s + block_size] for k, x in a.items()}, layout, pos_precision)
+        code = morton3(v["px"], v["py"], v["pz"], pb)
+        order = np.argsort(code, kind="stable")
+        code = code[order]
+        codes.append(np.diff(code, prepend=np.uint64(0)))
+        for f in vals:
+            vals[f].append(v[f][order])
+        boxes.append(box)
+    delta = np.concatenate(codes) if codes else np.zeros(0, dtype=np.uint64)
+    cat = {f: (np.concatenate(x) if x else np.zeros(0, dtype=np.uint64)) for f, x in vals.items()}
+    return np.asarray(boxes, dtype=np.float32).reshape(-1, 8), delta, cat
+
+
+def encode_dyna_range(
+    a: dict[str, np.ndarray],
+    layout: Layout,
+    block_size: int,
+    models: context_coder.Models,
+    pos_precision: float | None = None,
+) -> bytes:
+    """Sanitized Gaussians (block order) -> a range-coded DYNA chunk's payload after its frame and count: the boxes
+    (B x 32 bytes, as v1's block headers), the stream's length in words (u32), its words (u32). `models` carry over
+    from the file's previous DYNA chunks (and are updated). Records as `v2_records`. A chunk whose records would
+    decode to more than MAX_RATIO x its payload (degenerate data: every Gaussian the same) gets zero words after its
+    stream (a decoder checks that the words after the last symbol are 0)."""
+    boxes, delta, cat = v2_records(a, layout, block_size, pos_precision)
+    words = context_coder.encode_chunk(models, delta, cat)
+    raw = v2_raw_size(len(delta), layout, block_size)
+    size = 8 + boxes.nbytes + 4 + 4 * len(words)  # + the DYNA frame and count
+    pad = max(0, -(-(raw - MAX_RATIO * size) // (4 * MAX_RATIO)))
+    words = np.concatenate([words, np.zeros(pad, dtype=np.uint32)])
+    return boxes.astype("<f4").tobytes() + struct.pack("<I", len(words)) + words.astype("<u4").tobytes()
+
+
 def encode_blocks_v2(
     a: dict[str, np.ndarray],
     layout: Layout,
@@ -564,20 +615,8 @@ def encode_blocks_v2(
     encoder keeps the smallest of the filtered planes, chosen at zstd level `search` (None: each candidate at
     `level`), then compressed at `level`. Every choice decodes to the same integers. `pos_precision`: as
     `quantize_block`."""
-    pb = dict(layout.fields)["px"]
     n = len(a["means"])
-    boxes, codes, vals = [], [], {f: [] for f, _ in layout.fields}
-    for s in range(0, n, block_size):
-        box, v = quantize_block({k: x[s : s + block_size] for k, x in a.items()}, layout, pos_precision)
-        code = morton3(v["px"], v["py"], v["pz"], pb)
-        order = np.argsort(code, kind="stable")
-        code = code[order]
-        codes.append(np.diff(code, prepend=np.uint64(0)))
-        for f in vals:
-            vals[f].append(v[f][order])
-        boxes.append(box)
-    delta = np.concatenate(codes) if codes else np.zeros(0, dtype=np.uint64)
-    cat = {f: (np.concatenate(x) if x else np.zeros(0, dtype=np.uint64)) for f, x in vals.items()}
+    boxes, delta, cat = v2_records(a, layout, block_size, pos_precision)
     byte = lambda x, k: ((x >> np.uint64(8 * k)) & np.uint64(255)).astype(np.uint8)  # noqa: E731
 
     def coder(lv: int):
@@ -586,7 +625,7 @@ def encode_blocks_v2(
     zc = coder(level)
     zs = coder(search) if search is not None and search != level else None
     out, stored = bytearray(), []  # stored: each plane unfiltered (the raw fallback below)
-    box = zc.compress(np.asarray(boxes, dtype="<f4").tobytes())  # boxes: never filtered
+    box = zc.compress(boxes.astype("<f4").tobytes())  # boxes: never filtered
     out += struct.pack("<BI", 0, len(box)) + box
     for f, k in v2_planes(layout):
         plane = byte(delta if f == "pos" else cat[f], k)
@@ -605,7 +644,7 @@ def encode_blocks_v2(
         # degenerate data (e.g. every Gaussian the same) would compress past what a decoder accepts: store every
         # section as it is, in raw zstd blocks (still one valid frame per section, decoded by any zstd decoder)
         out = bytearray()
-        for x in [np.asarray(boxes, dtype="<f4").tobytes(), *(p.tobytes() for p in stored)]:
+        for x in [boxes.astype("<f4").tobytes(), *(p.tobytes() for p in stored)]:
             frame = raw_zstd_frame(x)
             out += struct.pack("<BI", 0, len(frame)) + frame
     return bytes(out)
@@ -690,10 +729,7 @@ def decode_blocks_v2(
     for key in minus_g:
         raw[key] = raw[key] + raw[("g", key[1])]  # mod 256
     boxes = raw[("boxes", 0)].view("<f4").reshape(nblocks, 8).astype(np.float64)
-    bad = ~np.isfinite(boxes).all(1) | (boxes[:, 0:3] > boxes[:, 3:6]).any(1) | (boxes[:, 6] > boxes[:, 7])
-    if bad.any():
-        b = int(np.argmax(bad))
-        raise WsplatError("bad_payload", where["boxes"], f"{name}.boxes", f"block {b}: box not finite or lo > hi")
+    _check_boxes(boxes, where["boxes"], name)
     bits = dict(layout.fields)
     v: dict[str, np.ndarray] = {}
     for f, b in layout.fields:
@@ -710,20 +746,75 @@ def decode_blocks_v2(
     d = np.zeros(count, dtype=np.uint64)
     for k in range((3 * pb + 7) // 8):
         d |= raw[("pos", k)].astype(np.uint64) << np.uint64(8 * k)
+    v["px"], v["py"], v["pz"] = _morton_positions(d, block_size, pb, where["pos"], name)
+    box = np.repeat(boxes, block_size, axis=0)[:count]
+    return dequantize(v, box, layout)
+
+
+def _morton_positions(d: np.ndarray, block_size: int, pb: int, at: int, name: str):
+    """Morton deltas (block by block, each block's first from 0) -> px, py, pz; `at`: the offset errors name."""
+    count = len(d)
     limit = np.uint64((1 << (3 * pb)) - 1)
     code = np.empty(count, dtype=np.uint64)
-    for blk in range(nblocks):
+    for blk in range(math.ceil(count / block_size)):
         s, e = blk * block_size, min(count, (blk + 1) * block_size)
         part = d[s:e]
         cs = np.cumsum(part, dtype=np.uint64)  # exact while every delta and partial sum is <= limit < 2^63
         if (part > limit).any() or (cs > limit).any():
             raise WsplatError(
-                "bad_payload", where["pos"], f"{name}.pos", f"block {blk}: Morton deltas add up past 2^{3 * pb} - 1"
+                "bad_payload", at, f"{name}.pos", f"block {blk}: Morton deltas add up past 2^{3 * pb} - 1"
             )
         code[s:e] = cs
-    v["px"], v["py"], v["pz"] = unmorton3(code, pb)
-    box = np.repeat(boxes, block_size, axis=0)[:count]
-    return dequantize(v, box, layout)
+    return unmorton3(code, pb)
+
+
+def _check_boxes(boxes: np.ndarray, at: int, name: str) -> None:
+    bad = ~np.isfinite(boxes).all(1) | (boxes[:, 0:3] > boxes[:, 3:6]).any(1) | (boxes[:, 6] > boxes[:, 7])
+    if bad.any():
+        b = int(np.argmax(bad))
+        raise WsplatError("bad_payload", at, f"{name}.boxes", f"block {b}: box not finite or lo > hi")
+
+
+def decode_dyna_range(
+    payload: memoryview, pos: int, count: int, layout: Layout, block_size: int, base: int, models: context_coder.Models
+) -> dict[str, np.ndarray]:
+    """A range-coded DYNA chunk from payload[pos:] (its boxes, the stream's length in words, the words) -> float64
+    Gaussians, decoded with the file's `models` (carried from its earlier DYNA chunks, updated here). Sizes are
+    checked against the bytes present before anything is decoded (the count was bounded by the caller)."""
+    nblocks = math.ceil(count / block_size)
+    boxes_at = pos
+    if pos + nblocks * BLOCK_HEADER > len(payload):
+        raise WsplatError(
+            "bad_payload",
+            base + pos,
+            "DYNA.boxes",
+            f"{nblocks} boxes ({nblocks * BLOCK_HEADER} bytes) past the end of the chunk",
+        )
+    pos += nblocks * BLOCK_HEADER
+    if pos + 4 > len(payload):
+        raise WsplatError("bad_payload", base + pos, "DYNA.words", "the stream's length past the end of the chunk")
+    (nwords,) = struct.unpack_from("<I", payload, pos)
+    left = len(payload) - pos - 4
+    if 4 * nwords > left:
+        raise WsplatError(
+            "bad_payload", base + pos, "DYNA.words", f"{nwords} words, the chunk has {left} bytes after it"
+        )
+    stream_at = pos + 4
+    if 4 * nwords < left:
+        end = stream_at + 4 * nwords
+        raise WsplatError("bad_payload", base + end, "DYNA.length", f"{left - 4 * nwords} bytes after the stream")
+    boxes = np.frombuffer(payload[boxes_at:pos], dtype="<f4").reshape(nblocks, 8).astype(np.float64)
+    _check_boxes(boxes, base + boxes_at, "DYNA")
+    words = np.frombuffer(payload[stream_at:], dtype="<u4")
+    try:
+        delta, v = context_coder.decode_chunk(models, words, count)
+    except context_coder.StreamError as e:
+        at = {"symbol": stream_at, "truncated": len(payload), "padding": stream_at + 4 * e.word}[e.what]
+        raise WsplatError("bad_payload", base + at, "DYNA.stream", str(e)) from None
+    v["px"], v["py"], v["pz"] = _morton_positions(
+        delta, block_size, dict(layout.fields)["px"], base + stream_at, "DYNA"
+    )
+    return dequantize(v, np.repeat(boxes, block_size, axis=0)[:count], layout)
 
 
 def check_layout_v2(lay: Layout, offset: int, name: str) -> Layout:
@@ -759,10 +850,18 @@ def layouts_for(static: Gaussians, dynamic: list[Gaussians], version: int | None
 
 
 def _head(
-    scene: Scene4D, sl: Layout, dl: Layout, block_size: int, num_static, num_dynamic, bounds, version: int = 1
+    scene: Scene4D,
+    sl: Layout,
+    dl: Layout,
+    block_size: int,
+    num_static,
+    num_dynamic,
+    bounds,
+    version: int = 1,
+    dynamic_codec: str = "zstd",
 ) -> bytes:
-    """The HEAD chunk: the scene's frames, rig and poses, its layouts, the totals (None: a streamed file) and its
-    extra meta (unknown fields, ignored by readers)."""
+    """The HEAD chunk: the scene's frames, rig and poses, its layouts, the totals (None: a streamed file), v2's
+    codecs and its extra meta (unknown fields, ignored by readers)."""
     if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
         raise ValueError(f"wsplat: 1..{MAX_FRAMES} frames required, got {len(scene.frame_times)}")
     if not 1 <= block_size <= 65536:
@@ -789,8 +888,15 @@ def _head(
     }
     if version == 2:
         head["codec"] = "zstd"
-    for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields
-        if k not in head and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
+        if dynamic_codec != "zstd":
+            head["dynamic_codec"] = dynamic_codec
+    for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields (never a format field)
+        if (
+            k not in head
+            and k not in FORMAT_FIELDS
+            and isinstance(v, (str, int, float, bool, list, dict))
+            and v is not None
+        ):
             head[k] = v
     return _chunk(b"HEAD", json.dumps(head, separators=(",", ":")).encode())
 
@@ -821,6 +927,18 @@ def pos_precision_for(layout: Layout) -> float:
 def dynamic_pos_precision_for(layout: Layout) -> float:
     """v2's dynamic position precision for a dynamic layout (`position_box`)."""
     return V2_DYN_POS_PRECISION_ISO if layout.isotropic else V2_DYN_POS_PRECISION
+
+
+def _dynamic_codec(value: str | None, version: int) -> str:
+    """An encoder's dynamic codec: v2's default V2_DYNAMIC_CODEC; v1 has none ("zstd" stands for its records)."""
+    if version != 2:
+        if value not in (None, "zstd"):
+            raise ValueError(f"wsplat: dynamic_codec {value!r} needs version 2")
+        return "zstd"
+    value = value or V2_DYNAMIC_CODEC
+    if value not in DYNAMIC_CODECS:
+        raise ValueError(f"wsplat: dynamic_codec {value!r} not in {DYNAMIC_CODECS}")
+    return value
 
 
 def _pos_precision(value, version: int, layout: Layout, dynamic: bool = False) -> float | None:
@@ -862,14 +980,19 @@ def _dyna_chunks(
     version: int = 1,
     zstd: tuple = (),
     pos_precision: float | None = None,
+    models: context_coder.Models | None = None,
 ) -> list[bytes]:
-    """DYNA chunks of frame t; `pos_precision`: the dynamic blocks' position boxes (`quantize_block`)."""
+    """DYNA chunks of frame t; `pos_precision`: the dynamic blocks' position boxes (`quantize_block`); `models`: the
+    file's range-coder models (v2 with dynamic_codec "range"; carried from its earlier DYNA chunks, updated)."""
     out = []
     for s in range(0, len(d["means"]), MAX_CHUNK_RECORDS):
         part = {k: v[s : s + MAX_CHUNK_RECORDS] for k, v in d.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
-        body = _blocks(part, dl, block_size, version, zstd, pos_precision)
+        if models is not None:
+            body = encode_dyna_range(part, dl, block_size, models, pos_precision)
+        else:
+            body = _blocks(part, dl, block_size, version, zstd, pos_precision)
         out.append(_chunk(b"DYNA", struct.pack("<II", t, len(order)) + body))
     return out
 
@@ -884,16 +1007,19 @@ def encode(
     zstd: tuple = (),
     pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
     dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
+    dynamic_codec: str | None = None,
 ) -> bytes:
     """Scene4D -> .wsplat bytes (`version` 1 or 2, default DEFAULT_VERSION). Static Gaussians keep their
     (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of them, Morton-ordered inside
     so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL).
     `pos_precision`: the static blocks' position step against their Gaussians' size (`position_box`; None: the
     points' own box), by default `pos_precision_for` the static layout in v2 and None in v1; `dynamic_pos_precision`
-    the same for the dynamic blocks (default: `dynamic_pos_precision_for` the dynamic layout in v2, None in v1)."""
+    the same for the dynamic blocks (default: `dynamic_pos_precision_for` the dynamic layout in v2, None in v1).
+    `dynamic_codec`: v2's DYNA chunks, "zstd" or "range" (default V2_DYNAMIC_CODEC; v1 has only its records)."""
     version = version or DEFAULT_VERSION
     if version not in VERSIONS:
         raise ValueError(f"wsplat: version {version} not in {VERSIONS}")
+    dynamic_codec = _dynamic_codec(dynamic_codec, version)
     sl, dl = layouts_for(scene.static, scene.dynamic, version)
     if static_layout is not None:
         sl = parse_layout(static_layout, 0, "static_layout")
@@ -906,13 +1032,14 @@ def encode(
     bounds = _bounds([st["means"]] + [d["means"] for d in dyn])
     out = bytearray(MAGIC + struct.pack("<I", version))
     nd = [int(len(d["means"])) for d in dyn]
-    out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version)
+    out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version, dynamic_codec)
     pp = _pos_precision(pos_precision, version, sl)
     for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version, zstd, pp)[0]:
         out += c
     dp = _pos_precision(dynamic_pos_precision, version, dl, dynamic=True)
+    models = context_coder.Models(dl.fields) if dynamic_codec == "range" else None
     for t, d in enumerate(dyn):
-        for c in _dyna_chunks(t, d, dl, block_size, version, zstd, dp):
+        for c in _dyna_chunks(t, d, dl, block_size, version, zstd, dp, models):
             out += c
     out += _chunk(b"END!", b"")
     return bytes(out)
@@ -929,7 +1056,9 @@ class StreamWriter:
         pieces = [w.head(), *w.static(g), *w.dynamic(t, g), ..., w.end(extra_meta)]
 
     The layouts are fixed by the HEAD (`layouts_for` the first window); static Gaussians given to an isotropic layout
-    must be isotropic (an anisotropic one is written with its geometric-mean scale)."""
+    must be isotropic (an anisotropic one is written with its geometric-mean scale). A v2 writer range-codes the
+    DYNA chunks by default (`dynamic_codec`): its models carry from chunk to chunk, so the pieces must reach the file
+    in the order they were returned (as they do)."""
 
     def __init__(
         self,
@@ -940,6 +1069,7 @@ class StreamWriter:
         version: int | None = None,
         pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
         dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
+        dynamic_codec: str | None = None,
     ):
         self.version = version or DEFAULT_VERSION
         self.pos_precision = _pos_precision(pos_precision, self.version, static_layout)
@@ -949,6 +1079,8 @@ class StreamWriter:
         if self.version == 2:
             check_layout_v2(static_layout, 0, "static_layout"), check_layout_v2(dynamic_layout, 0, "dynamic_layout")
         self.skeleton, self.sl, self.dl = skeleton, static_layout, dynamic_layout
+        self.dynamic_codec = _dynamic_codec(dynamic_codec, self.version)
+        self.models = context_coder.Models(dynamic_layout.fields) if self.dynamic_codec == "range" else None
         self.block_size = block_size or DEFAULT_BLOCK_SIZE
         self.num_static, self.num_dynamic = 0, [0] * len(skeleton.frame_times)
         self._means: list[np.ndarray] = []
@@ -957,17 +1089,23 @@ class StreamWriter:
 
     @classmethod
     def for_window(
-        cls, skeleton: Scene4D, static: Gaussians, dynamic: list[Gaussians], version: int | None = None
+        cls,
+        skeleton: Scene4D,
+        static: Gaussians,
+        dynamic: list[Gaussians],
+        version: int | None = None,
+        dynamic_codec: str | None = None,
     ) -> StreamWriter:
         """A writer whose layouts fit the first window's Gaussians (`layouts_for`; no dynamics yet: they are taken
         to look like the static ones)."""
         dyn = [d for d in dynamic if len(d)]
-        return cls(skeleton, *layouts_for(static, dyn or [static], version), version=version)
+        sl, dl = layouts_for(static, dyn or [static], version)
+        return cls(skeleton, sl, dl, version=version, dynamic_codec=dynamic_codec)
 
     def head(self) -> bytes:
         """The preamble and HEAD."""
         return MAGIC + struct.pack("<I", self.version) + _head(self.skeleton, self.sl, self.dl, self.block_size,
-                                                                None, None, None, self.version)  # fmt: skip
+                                                                None, None, None, self.version, self.dynamic_codec)  # fmt: skip
 
     def _numpy(self, g: Gaussians, layout: Layout) -> dict[str, np.ndarray]:
         a = _sanitized_numpy(g, layout)
@@ -992,7 +1130,8 @@ class StreamWriter:
             raise ValueError(f"wsplat: frame {t} out of range")
         d = self._numpy(g, self.dl)
         self.num_dynamic[t] += len(d["means"])
-        return _dyna_chunks(t, d, self.dl, self.block_size, self.version, pos_precision=self.dynamic_pos_precision)
+        return _dyna_chunks(t, d, self.dl, self.block_size, self.version, pos_precision=self.dynamic_pos_precision,
+                            models=self.models)  # fmt: skip
 
     def end(self, meta: dict | None = None) -> bytes:
         """END! with the totals, the bounds and `meta` (extra fields, ignored by readers)."""
@@ -1009,7 +1148,8 @@ def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, blo
                     version: int | None = None, static_layout: list | None = None,
                     dynamic_layout: list | None = None,
                     pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
-                    dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION) -> bytes:  # fmt: skip
+                    dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
+                    dynamic_codec: str | None = None) -> bytes:  # fmt: skip
     """A streamed file of a whole scene (tests, vectors): its static set cut at `static_split` (indices into the
     importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame).
     Layouts: the version's defaults unless given (as `encode`)."""
@@ -1023,7 +1163,7 @@ def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, blo
         sl = parse_layout(static_layout, 0, "static_layout")
     if dynamic_layout is not None:
         dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
-    w = StreamWriter(scene, sl, dl, block_size, version, pos_precision, dynamic_pos_precision)
+    w = StreamWriter(scene, sl, dl, block_size, version, pos_precision, dynamic_pos_precision, dynamic_codec)
     out = bytearray(w.head())
     for i, frames in enumerate(parts):
         for c in w.static(scene.static.subset(torch.arange(cuts[i], cuts[i + 1]))):
@@ -1111,6 +1251,8 @@ def parse_head(payload: bytes, offset: int, version: int = 1) -> dict:
         bad("version", f"must be {version} (the file's version)")
     if version == 2 and h.get("codec") not in CODECS:
         bad("codec", f"must be one of {list(CODECS)}")
+    if version == 2 and h.setdefault("dynamic_codec", "zstd") not in DYNAMIC_CODECS:
+        bad("dynamic_codec", f"must be one of {list(DYNAMIC_CODECS)} (absent: zstd)")
     for k in ("scenario_id", "mode", "model_version", "caption"):
         if not isinstance(h.get(k), str):
             bad(k, "must be a string")
@@ -1253,6 +1395,7 @@ class ProgressiveDecoder:
         self.num_dynamic: list[int] = []
         self.end: dict | None = None  # a streamed file's END! payload (totals, bounds, extra meta)
         self.version = 0  # the file's, once its first 12 bytes are in
+        self.models: context_coder.Models | None = None  # a range-coded file's models, carried from DYNA to DYNA
         self.stage = "magic"  # magic -> head -> stat -> dyna -> done; a streamed file: magic -> head -> stream -> done
         self.bytes_fed = 0
 
@@ -1337,6 +1480,8 @@ class ProgressiveDecoder:
             self.header = parse_head(bytes(payload), pbase, self.version)
             self.num_dynamic = [0] * len(self.header["frame_times"])
             self.stage = "stream" if self.header["streamed"] else "stat"
+            if self.version == 2 and self.header["dynamic_codec"] == "range":
+                self.models = context_coder.Models(self.header["dynamic_layout"].fields)
             return ("header", self.header)
         h = self.header
         streamed = h["streamed"]
@@ -1405,8 +1550,11 @@ class ProgressiveDecoder:
             raise WsplatError(
                 "count_mismatch", coff, "DYNA.count", f"more dynamic Gaussians than HEAD.num_dynamic[{frame}]"
             )
-        dec = decode_blocks_v2 if self.version == 2 else decode_blocks
-        a = dec(payload, head_len, count, layout, h["block_size"], pbase, name)
+        if tag == b"DYNA" and self.models is not None:
+            a = decode_dyna_range(payload, head_len, count, layout, h["block_size"], pbase, self.models)
+        else:
+            dec = decode_blocks_v2 if self.version == 2 else decode_blocks
+            a = dec(payload, head_len, count, layout, h["block_size"], pbase, name)
         g = Gaussians.from_numpy(**a)
         if tag == b"STAT":
             self.num_static += count
@@ -1432,7 +1580,7 @@ class ProgressiveDecoder:
             "num_dynamic",
             "bounds",
             "streamed",
-            "codec",
+            *FORMAT_FIELDS,
         )
         meta = {k: v for k, v in h.items() if k not in skip}
         meta["static_layout"] = h["static_layout"].to_json()

@@ -1,12 +1,13 @@
-"""The .wsplat files the v2 browser test (tests/browser/wsplat-v2.test.mjs) compares: each scene written as v1 and
-as v2, whole and streamed (window by window, totals in END!, as the playground's StreamSink writes them).
+"""The .wsplat files the v2 browser test (tests/browser/wsplat-v2.test.mjs) compares: each scene written as v1, as v2
+with zstd-coded dynamics and as v2 with range-coded dynamics (HEAD dynamic_codec "range", what the server writes),
+whole and streamed (window by window, totals in END!, as the playground's StreamSink writes them).
 
     .venv/bin/python tests/browser/lib/wsplat_pairs.py OUT_DIR [SCENE.wsplat]
 
 Scenes: "fixture", a 4-frame anisotropic street (bench `street_ply`, 20k static) with a block of 1,500 dynamic
 Gaussians moving along the street; and, when SCENE.wsplat is given (e.g. `worldsplat generate urban_straight`),
-that scene as "scene". Writes NAME_v1.wsplat, NAME_v2.wsplat, NAME_v1_streamed.wsplat, NAME_v2_streamed.wsplat and
-pairs.json (names, bytes, Gaussians, frames)."""
+that scene as "scene". Writes NAME_v1.wsplat, NAME_v2.wsplat, NAME_v2_range.wsplat and the same with _streamed, and
+pairs.json (names, bytes, dynamic bytes, Gaussians, frames)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import numpy as np
 import torch
 
 from worldsplat.bench.sections.quant import street_ply
+from worldsplat.bench.sog import dyna_bytes
 from worldsplat.core.camera import default_rig
 from worldsplat.gaussians import wsplat
 from worldsplat.gaussians.types import Gaussians, Scene4D
@@ -56,16 +58,19 @@ def write_pair(out: Path, name: str, scene: Scene4D) -> dict:
         "pos_precision": wsplat.pos_precision_for(sl),  # v2's static position boxes, sized by the Gaussians
         "dynamic_pos_precision": wsplat.dynamic_pos_precision_for(dl),  # and its dynamic ones (anisotropic)
     }
-    for v in (1, 2):  # v1 with v2's layouts and boxes: the same integers (v2's static defaults are not v1's)
+    # v1 with v2's layouts and boxes: the same integers (v2's static defaults are not v1's); v2's dynamics as zstd
+    # planes and range-coded: the same integers in the same order
+    for key, kw in (("v1", {"version": 1}), ("v2", {"version": 2, "dynamic_codec": "zstd"}),
+                    ("v2_range", {"version": 2, "dynamic_codec": "range"})):  # fmt: skip
         for kind, data in (
-            ("", wsplat.encode(scene, version=v, **same)),
-            ("_streamed", wsplat.encode_streamed(scene, parts, static_split=split, version=v, **same)),
+            ("", wsplat.encode(scene, **kw, **same)),
+            ("_streamed", wsplat.encode_streamed(scene, parts, static_split=split, **kw, **same)),
         ):
-            fname = f"{name}_v{v}{kind}.wsplat"
+            fname = f"{name}_{key}{kind}.wsplat"
             (out / fname).write_bytes(data)
             back = wsplat.decode(data)
             assert len(back.static) == len(wsplat._sanitized_numpy(scene.static)["means"]), fname
-            info["files"][f"v{v}{kind}"] = {"file": fname, "bytes": len(data)}
+            info["files"][f"{key}{kind}"] = {"file": fname, "bytes": len(data), "dyna_bytes": len(dyna_bytes(data))}
     return info
 
 

@@ -1,12 +1,17 @@
 //! Any bytes, fed whole and in two pieces split at the first byte's value: the decoder must never panic, errors
 //! must point inside the data, and progressive decoding must agree with whole-buffer decoding. v2 too: the input is
 //! decoded as it is (v1, v2 or garbage), and again as the STAT payload of a valid v2 file (CRC made right), so the
-//! fuzzer reaches the sections (filters, lengths, zstd frames, values, Morton deltas) without forging a CRC.
+//! fuzzer reaches the sections (filters, lengths, zstd frames, values, Morton deltas) without forging a CRC. Range-coded
+//! dynamic records (HEAD dynamic_codec "range") too: the input as the first DYNA payload of a valid range-coded file
+//! (boxes, word count, stream), and as the words of that chunk's stream (its frame, count, boxes and word count kept
+//! consistent), so the fuzzer reaches the range decoder, its models and the stream's end checks; the models carry on
+//! into the file's later DYNA chunks.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use splat_core::scene::{read_wsplat, StreamingScene};
 
 const V2: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_iso.wsplat");
+const RANGE: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_range_aniso.wsplat");
 
 fn check(data: &[u8]) {
     let whole = read_wsplat(data);
@@ -38,7 +43,44 @@ fn as_v2_stat(payload: &[u8]) -> Vec<u8> {
     out
 }
 
+/// `file` with the payload of its first chunk tagged `tag` replaced (length and CRC made consistent).
+fn replace_first(file: &[u8], tag: &[u8; 4], payload: &[u8]) -> Vec<u8> {
+    let mut at = 12;
+    loop {
+        let len = u32::from_le_bytes(file[at + 4..at + 8].try_into().unwrap()) as usize;
+        if &file[at..at + 4] == tag {
+            let mut out = file[..at].to_vec();
+            out.extend_from_slice(tag);
+            out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+            out.extend_from_slice(payload);
+            let crc = crc32fast::hash(&out[at..]);
+            out.extend_from_slice(&crc.to_le_bytes());
+            out.extend_from_slice(&file[at + 12 + len..]);
+            return out;
+        }
+        at += 12 + len;
+    }
+}
+
+/// `words` (the input cut to whole words) as the stream of the range-coded file's first DYNA chunk.
+fn as_range_stream(data: &[u8]) -> Vec<u8> {
+    let mut at = 12;
+    while &RANGE[at..at + 4] != b"DYNA" {
+        at += 12 + u32::from_le_bytes(RANGE[at + 4..at + 8].try_into().unwrap()) as usize;
+    }
+    let p = &RANGE[at + 8..];
+    let count = u32::from_le_bytes(p[4..8].try_into().unwrap()) as usize;
+    let words_at = 8 + 32 * count.div_ceil(256);
+    let mut payload = p[..words_at].to_vec();
+    let n = data.len() / 4;
+    payload.extend_from_slice(&(n as u32).to_le_bytes());
+    payload.extend_from_slice(&data[..4 * n]);
+    replace_first(RANGE, b"DYNA", &payload)
+}
+
 fuzz_target!(|data: &[u8]| {
     check(data);
     check(&as_v2_stat(data));
+    check(&replace_first(RANGE, b"DYNA", data));
+    check(&as_range_stream(data));
 });

@@ -1,5 +1,6 @@
 //! splat-core: the viewer's platform-independent half. Math constants (`constants`), cameras (`camera`),
-//! Gaussians and their 24-byte GPU record (`gaussians`), the .wsplat v1 progressive decoder (`wsplat`), the 3DGS
+//! Gaussians and their 24-byte GPU record (`gaussians`), the .wsplat v1 + v2 progressive decoder (`wsplat`) with the
+//! range coder of v2's dynamic records (`dyna_range`), the 3DGS
 //! PLY reader (`ply`), scenes (`scene`), the view state behind the Viewer API (`view_state`), the wgpu renderer
 //! (`renderer`) with its device setup (`device`), shader registry (`shaders`), per-view uniform (`view`), the
 //! WebGL2 path's resident records (`records`), GPU
@@ -11,6 +12,7 @@ pub mod camera;
 pub mod constants;
 pub mod cpu_sort;
 pub mod device;
+pub mod dyna_range;
 pub mod external_sort;
 pub mod gaussians;
 pub mod gpu_sort;

@@ -1,10 +1,14 @@
 //! Progressive .wsplat v1 + v2 decoder (web/docs/wsplat-v1.md, web/docs/wsplat-v2.md). Feed bytes as they arrive
 //! (`push`); each complete chunk becomes an `Event`. v2 chunks hold zstd-coded byte planes (ruzstd), each
-//! decompressed into exactly the size its count implies, after the count was bounded by the chunk's bytes. Never reads past the bytes present, buffers only the incomplete chunk, and
+//! decompressed into exactly the size its count implies, after the count was bounded by the chunk's bytes; a v2 file
+//! whose HEAD says `dynamic_codec: "range"` holds its DYNA records in one range-coded stream per chunk
+//! (`dyna_range`), decoded with models carried from the file's earlier DYNA chunks (so chunks decode in file order,
+//! as `push` does). Never reads past the bytes present, buffers only the incomplete chunk, and
 //! allocates decoded records only for chunks whose bytes (and CRC) have arrived. Every error names the byte
 //! offset and the field, with a kind from the spec's list.
 
 use crate::camera::{mat4_from_json, Mat4, RigCamera};
+use crate::dyna_range::{self, StreamError};
 use crate::gaussians::Gaussian;
 use serde_json::Value;
 
@@ -204,6 +208,11 @@ impl Layout {
         Ok(self)
     }
 
+    /// (name, bits) of every field, in layout order.
+    pub fn field_bits(&self) -> Vec<(&'static str, u32)> {
+        self.fields.iter().map(|&(f, _, b)| (f.name(), b)).collect()
+    }
+
     fn pos_bits(&self) -> u32 {
         self.fields.iter().find(|x| x.0 == Field::Px).map_or(0, |x| x.2)
     }
@@ -278,6 +287,14 @@ impl Layout {
     }
 }
 
+/// How a v2 file's DYNA chunks are coded (HEAD `dynamic_codec`; absent: zstd, as its STAT chunks).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DynamicCodec {
+    Zstd,
+    /// One range-coded stream per chunk, models carried from chunk to chunk (`dyna_range`).
+    Range,
+}
+
 /// The HEAD chunk.
 #[derive(Clone, Debug)]
 pub struct Header {
@@ -302,6 +319,8 @@ pub struct Header {
     pub dynamic_layout: Layout,
     /// The file's version (1 or 2).
     pub version: u32,
+    /// v2: the codec of the DYNA chunks (v1: Zstd, which stands for its bit-packed records).
+    pub dynamic_codec: DynamicCodec,
 }
 
 impl Header {
@@ -323,6 +342,12 @@ impl Header {
         if version == 2 && v.get("codec").and_then(Value::as_str) != Some("zstd") {
             return Err(bad("codec: must be \"zstd\"".into()));
         }
+        let dynamic_codec = match (version, v.get("dynamic_codec")) {
+            (1, _) | (_, None) => DynamicCodec::Zstd,
+            (_, Some(c)) if c.as_str() == Some("zstd") => DynamicCodec::Zstd,
+            (_, Some(c)) if c.as_str() == Some("range") => DynamicCodec::Range,
+            _ => return Err(bad("dynamic_codec: must be \"zstd\" or \"range\" (absent: zstd)".into())),
+        };
         let frame_times: Vec<f64> = get("frame_times")?
             .as_array()
             .ok_or_else(|| bad("frame_times: expected a list".into()))?
@@ -398,6 +423,7 @@ impl Header {
             static_layout,
             dynamic_layout,
             version,
+            dynamic_codec,
         })
     }
 }
@@ -474,6 +500,8 @@ pub struct Decoder {
     dynamic_counts: Vec<u64>,
     failed: Option<WsplatError>,
     version: u32,
+    /// A range-coded file's models, carried from one DYNA chunk to the next (created with its HEAD).
+    models: Option<dyna_range::Models>,
 }
 
 impl Default for Decoder {
@@ -501,6 +529,7 @@ impl Decoder {
             dynamic_counts: Vec::new(),
             failed: None,
             version: 0,
+            models: None,
         }
     }
 
@@ -632,13 +661,16 @@ impl Decoder {
                     })?;
                     let h = Header::from_json(&v, payload_off, self.version)?;
                     self.dynamic_counts = vec![0; h.frame_times.len()];
+                    if h.dynamic_codec == DynamicCodec::Range {
+                        self.models = Some(dyna_range::Models::new(&h.dynamic_layout.field_bits()));
+                    }
                     self.stage = if h.streamed { Stage::Stream } else { Stage::Static };
                     self.header = Some(h.clone());
                     events.push(Event::Header(Box::new(h)));
                 }
                 (b"STAT", Stage::Static | Stage::Stream) => {
                     let h = self.header.as_ref().unwrap();
-                    let (gs, _) = decode_records(payload, payload_off, 0, h.block_size, &h.static_layout, h.version)?;
+                    let (gs, _) = decode_records(payload, payload_off, 0, h.block_size, &h.static_layout, h.version, None)?;
                     self.static_count += gs.len() as u64;
                     if !h.streamed && self.static_count > h.num_static {
                         return err(
@@ -658,7 +690,7 @@ impl Decoder {
                     if frame >= h.frame_times.len() {
                         return err(ErrorKind::BadPayload, payload_off, format!("DYNA frame: {frame} >= {} frames", h.frame_times.len()));
                     }
-                    let (gs, _) = decode_records(payload, payload_off, 4, h.block_size, &h.dynamic_layout, h.version)?;
+                    let (gs, _) = decode_records(payload, payload_off, 4, h.block_size, &h.dynamic_layout, h.version, self.models.as_mut())?;
                     self.dynamic_counts[frame] += gs.len() as u64;
                     if !h.streamed && self.dynamic_counts[frame] > h.num_dynamic[frame] {
                         return err(
@@ -736,7 +768,7 @@ impl Decoder {
     }
 }
 
-/// Decode `count` + blocks starting at `start` of a STAT/DYNA payload.
+/// Decode `count` + blocks starting at `start` of a STAT/DYNA payload (`models`: a range-coded file's DYNA chunk).
 fn decode_records(
     payload: &[u8],
     payload_off: u64,
@@ -744,6 +776,7 @@ fn decode_records(
     block_size: usize,
     layout: &Layout,
     version: u32,
+    models: Option<&mut dyna_range::Models>,
 ) -> Result<(Vec<Gaussian>, usize), WsplatError> {
     let name = if start == 0 { "STAT" } else { "DYNA" };
     if payload.len() < start + 4 {
@@ -754,6 +787,10 @@ fn decode_records(
         return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name}.count: must be >= 1"));
     }
     if version == 2 {
+        check_ratio(payload, payload_off, start, count, block_size, layout, name)?;
+        if let Some(models) = models {
+            return decode_dyna_range(payload, payload_off, start, count, block_size, layout, models).map(|g| (g, count));
+        }
         return decode_records_v2(payload, payload_off, start, count, block_size, layout, name).map(|g| (g, count));
     }
     let blocks = count.div_ceil(block_size);
@@ -833,6 +870,145 @@ fn v2_section(payload: &[u8], payload_off: u64, pos: usize, size: usize, label: 
     Ok((out, filter, pos + 5 + len))
 }
 
+/// v2: a chunk decodes to at most MAX_RATIO x its bytes (its boxes and v2's byte planes), checked before anything.
+fn check_ratio(
+    payload: &[u8],
+    payload_off: u64,
+    start: usize,
+    count: usize,
+    block_size: usize,
+    layout: &Layout,
+    name: &str,
+) -> Result<(), WsplatError> {
+    let raw = count.div_ceil(block_size) as u64 * BLOCK_HEADER as u64 + count as u64 * layout.v2_planes().len() as u64;
+    if raw > MAX_RATIO * payload.len() as u64 {
+        return err(
+            ErrorKind::BadPayload,
+            payload_off + start as u64,
+            format!("{name}.count: {count} records decode to {raw} bytes > {MAX_RATIO} x the chunk's {}", payload.len()),
+        );
+    }
+    Ok(())
+}
+
+fn box_at(boxes: &[u8], b: usize) -> ([f32; 3], [f32; 3], [f32; 2]) {
+    let f = |k: usize| f32_at(boxes, b * BLOCK_HEADER + 4 * k);
+    ([f(0), f(1), f(2)], [f(3), f(4), f(5)], [f(6), f(7)])
+}
+
+/// Every box finite with lo <= hi, else an error at `at` naming the block.
+fn check_boxes(boxes: &[u8], blocks: usize, at: u64, name: &str) -> Result<(), WsplatError> {
+    for b in 0..blocks {
+        let (lo, hi, lsc) = box_at(boxes, b);
+        let ok =
+            (0..3).all(|k| lo[k].is_finite() && hi[k].is_finite() && lo[k] <= hi[k]) && lsc[0].is_finite() && lsc[1].is_finite() && lsc[0] <= lsc[1];
+        if !ok {
+            return err(ErrorKind::BadPayload, at, format!("{name}.boxes: block {b}: box must be finite with lo <= hi"));
+        }
+    }
+    Ok(())
+}
+
+/// The records of a v2 chunk from their Morton deltas (`deltas(r)`, each block's first from 0) and the stored integer
+/// of every other field (`values`, count x fields, px py pz filled here): block by block, the Morton sums checked
+/// against 2^(3 bits) - 1 (an error at `pos_at`, `{name}.pos`).
+#[allow(clippy::too_many_arguments)]
+fn v2_gaussians(
+    layout: &Layout,
+    boxes: &[u8],
+    count: usize,
+    block_size: usize,
+    values: &mut [u64],
+    deltas: impl Fn(usize) -> u64,
+    pos_at: u64,
+    name: &str,
+) -> Result<Vec<Gaussian>, WsplatError> {
+    let nf = layout.fields.len();
+    let pb = layout.pos_bits();
+    let limit = (1u64 << (3 * pb)) - 1;
+    let idx = |f: Field| layout.fields.iter().position(|x| x.0 == f).unwrap();
+    let (ix, iy, iz) = (idx(Field::Px), idx(Field::Py), idx(Field::Pz));
+    let mut out = Vec::with_capacity(count);
+    for b in 0..count.div_ceil(block_size) {
+        let (lo, hi, lsc) = box_at(boxes, b);
+        let mut code = 0u64;
+        for r in b * block_size..count.min((b + 1) * block_size) {
+            let delta = deltas(r);
+            code = match code.checked_add(delta) {
+                Some(c) if delta <= limit && c <= limit => c,
+                _ => return err(ErrorKind::BadPayload, pos_at, format!("{name}.pos: block {b}: Morton deltas add up past 2^{} - 1", 3 * pb)),
+            };
+            let (mut x, mut y, mut z) = (0u64, 0u64, 0u64);
+            for i in 0..pb {
+                x |= ((code >> (3 * i)) & 1) << i;
+                y |= ((code >> (3 * i + 1)) & 1) << i;
+                z |= ((code >> (3 * i + 2)) & 1) << i;
+            }
+            let v = &mut values[r * nf..(r + 1) * nf];
+            (v[ix], v[iy], v[iz]) = (x, y, z);
+            let mut word = 0u128;
+            for (j, &(_, off, _)) in layout.fields.iter().enumerate() {
+                word |= (v[j] as u128) << off;
+            }
+            out.push(layout.decode(&word.to_le_bytes()[..layout.record_bytes], lo, hi, lsc));
+        }
+    }
+    Ok(out)
+}
+
+/// A range-coded DYNA chunk (web/docs/wsplat-v2.md, "Range-coded dynamic records") after its count: the boxes,
+/// the stream's length in words, the words; decoded with the file's `models` (updated). The count was bounded by
+/// the chunk's bytes (`check_ratio`) and every size is checked against the bytes present before anything is decoded.
+fn decode_dyna_range(
+    payload: &[u8],
+    payload_off: u64,
+    start: usize,
+    count: usize,
+    block_size: usize,
+    layout: &Layout,
+    models: &mut dyna_range::Models,
+) -> Result<Vec<Gaussian>, WsplatError> {
+    let blocks = count.div_ceil(block_size);
+    let boxes_at = start + 4;
+    let at = |p: usize| payload_off + p as u64;
+    if (payload.len() - boxes_at) / BLOCK_HEADER < blocks {
+        return err(ErrorKind::BadPayload, at(boxes_at), format!("DYNA.boxes: {blocks} boxes past the end of the chunk"));
+    }
+    let words_at = boxes_at + blocks * BLOCK_HEADER;
+    if words_at + 4 > payload.len() {
+        return err(ErrorKind::BadPayload, at(words_at), "DYNA.words: the stream's length past the end of the chunk");
+    }
+    let nwords = u32_at(payload, words_at) as usize;
+    let stream_at = words_at + 4;
+    let left = payload.len() - stream_at;
+    if nwords > left / 4 {
+        return err(ErrorKind::BadPayload, at(words_at), format!("DYNA.words: {nwords} words, the chunk has {left} bytes after it"));
+    }
+    if 4 * nwords < left {
+        return err(ErrorKind::BadPayload, at(stream_at + 4 * nwords), format!("DYNA.length: {} bytes after the stream", left - 4 * nwords));
+    }
+    let boxes = &payload[boxes_at..words_at];
+    check_boxes(boxes, blocks, at(boxes_at), "DYNA")?;
+    let words: Vec<u32> = payload[stream_at..].chunks_exact(4).map(|w| u32::from_le_bytes(w.try_into().unwrap())).collect();
+    let (deltas, coded) = dyna_range::decode_chunk(models, words, count).map_err(|e| {
+        let off = match e {
+            StreamError::Symbol(..) => stream_at,
+            StreamError::Truncated { .. } => payload.len(),
+            StreamError::Padding { word, .. } => stream_at + 4 * word,
+        };
+        WsplatError { kind: ErrorKind::BadPayload, offset: at(off), message: format!("DYNA.stream: {e}") }
+    })?;
+    let nf = layout.fields.len();
+    let mut values = vec![0u64; count * nf];
+    let layout_index: Vec<usize> = (0..nf).filter(|&j| !matches!(layout.fields[j].0, Field::Px | Field::Py | Field::Pz)).collect();
+    for (v, &j) in coded.iter().zip(&layout_index) {
+        for (r, &x) in v.iter().enumerate() {
+            values[r * nf + j] = x;
+        }
+    }
+    v2_gaussians(layout, boxes, count, block_size, &mut values, |r| deltas[r], at(stream_at), "DYNA")
+}
+
 /// A v2 chunk's sections (web/docs/wsplat-v2.md): boxes, the Morton-delta planes, one plane per field byte.
 fn decode_records_v2(
     payload: &[u8],
@@ -845,14 +1021,6 @@ fn decode_records_v2(
 ) -> Result<Vec<Gaussian>, WsplatError> {
     let blocks = count.div_ceil(block_size);
     let planes = layout.v2_planes();
-    let raw = blocks as u64 * BLOCK_HEADER as u64 + count as u64 * planes.len() as u64;
-    if raw > MAX_RATIO * payload.len() as u64 {
-        return err(
-            ErrorKind::BadPayload,
-            payload_off + start as u64,
-            format!("{name}.count: {count} records decode to {raw} bytes > {MAX_RATIO} x the chunk's {}", payload.len()),
-        );
-    }
     let mut pos = start + 4;
     let boxes_at = payload_off + pos as u64;
     let (boxes, _, next) = v2_section(payload, payload_off, pos, blocks * BLOCK_HEADER, &format!("{name}.boxes"), 0)?;
@@ -883,18 +1051,7 @@ fn decode_records_v2(
         return err(ErrorKind::BadPayload, payload_off + pos as u64, format!("{name}.length: {} bytes after the last section", payload.len() - pos));
     }
     // checked in this order (as every decoder does): boxes, field values, Morton deltas
-    let boxes_of = |b: usize| {
-        let f = |k: usize| f32_at(&boxes, b * BLOCK_HEADER + 4 * k);
-        ([f(0), f(1), f(2)], [f(3), f(4), f(5)], [f(6), f(7)])
-    };
-    for b in 0..blocks {
-        let (lo, hi, lsc) = boxes_of(b);
-        let ok =
-            (0..3).all(|k| lo[k].is_finite() && hi[k].is_finite() && lo[k] <= hi[k]) && lsc[0].is_finite() && lsc[1].is_finite() && lsc[0] <= lsc[1];
-        if !ok {
-            return err(ErrorKind::BadPayload, boxes_at, format!("{name}.boxes: block {b}: box must be finite with lo <= hi"));
-        }
-    }
+    check_boxes(&boxes, blocks, boxes_at, name)?;
     // the stored integer of every field per record (positions from the Morton deltas, per block)
     let nf = layout.fields.len();
     let mut values = vec![0u64; count * nf];
@@ -914,37 +1071,9 @@ fn decode_records_v2(
             }
         }
     }
-    let pb = layout.pos_bits();
-    let wp = (3 * pb).div_ceil(8) as usize;
-    let limit = (1u64 << (3 * pb)) - 1;
-    let idx = |f: Field| layout.fields.iter().position(|x| x.0 == f).unwrap();
-    let (ix, iy, iz) = (idx(Field::Px), idx(Field::Py), idx(Field::Pz));
-    let mut out = Vec::with_capacity(count);
-    for b in 0..blocks {
-        let (lo, hi, lsc) = boxes_of(b);
-        let mut code = 0u64;
-        for r in b * block_size..count.min((b + 1) * block_size) {
-            let delta = (0..wp).fold(0u64, |acc, k| acc | (data[k][r] as u64) << (8 * k));
-            code = match code.checked_add(delta) {
-                Some(c) if delta <= limit && c <= limit => c,
-                _ => return err(ErrorKind::BadPayload, pos_at, format!("{name}.pos: block {b}: Morton deltas add up past 2^{} - 1", 3 * pb)),
-            };
-            let (mut x, mut y, mut z) = (0u64, 0u64, 0u64);
-            for i in 0..pb {
-                x |= ((code >> (3 * i)) & 1) << i;
-                y |= ((code >> (3 * i + 1)) & 1) << i;
-                z |= ((code >> (3 * i + 2)) & 1) << i;
-            }
-            let v = &mut values[r * nf..(r + 1) * nf];
-            (v[ix], v[iy], v[iz]) = (x, y, z);
-            let mut word = 0u128;
-            for (j, &(_, off, _)) in layout.fields.iter().enumerate() {
-                word |= (v[j] as u128) << off;
-            }
-            out.push(layout.decode(&word.to_le_bytes()[..layout.record_bytes], lo, hi, lsc));
-        }
-    }
-    Ok(out)
+    let wp = (3 * layout.pos_bits()).div_ceil(8) as usize;
+    let delta = |r: usize| (0..wp).fold(0u64, |acc, k| acc | (data[k][r] as u64) << (8 * k));
+    v2_gaussians(layout, &boxes, count, block_size, &mut values, delta, pos_at, name)
 }
 
 /// A minimal encoder (one STAT chunk per `static_chunk` Gaussians, one DYNA chunk per frame) with fixed layouts:

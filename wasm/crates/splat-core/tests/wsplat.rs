@@ -2,6 +2,7 @@
 //! vector in tests/vectors/wsplat/, the malformed cases the spec names, and a bounded seeded mutation test
 //! (no panic, errors carry an offset inside the data, streaming never disagrees with whole-buffer decoding).
 
+use splat_core::dyna_range;
 use splat_core::gaussians::Gaussian;
 use splat_core::scene::{read_wsplat, StreamingScene};
 use splat_core::wsplat::{encode::encode, Decoder, ErrorKind, Event};
@@ -294,6 +295,46 @@ fn shared_vectors() {
                 close("opacity", &[g.opacity]);
                 close("color", &g.color);
             }
+            // range-coded files: the last record of the last DYNA chunk and the sum of every dynamic mean (each chunk
+            // decodes with the models of the chunks before it)
+            if let Some(last) = expect.get("last_dynamic") {
+                let chunks: Vec<Vec<Gaussian>> = Decoder::new()
+                    .push(&bytes)
+                    .unwrap()
+                    .into_iter()
+                    .filter_map(|e| match e {
+                        Event::Dynamic { gaussians, .. } => Some(gaussians),
+                        _ => None,
+                    })
+                    .collect();
+                let g = *chunks.last().unwrap().last().unwrap();
+                let want = |k: &str| -> Vec<f64> {
+                    match &last[k] {
+                        serde_json::Value::Array(a) => a.iter().map(|x| x.as_f64().unwrap()).collect(),
+                        v => vec![v.as_f64().unwrap()],
+                    }
+                };
+                let got: [(&str, Vec<f32>); 5] = [
+                    ("mean", g.mean.to_vec()),
+                    ("quat", g.quat.to_vec()),
+                    ("scale", g.scale.to_vec()),
+                    ("opacity", vec![g.opacity]),
+                    ("color", g.color.to_vec()),
+                ];
+                for (k, v) in got {
+                    for (a, b) in v.iter().zip(want(k)) {
+                        assert!((*a as f64 - b).abs() <= tol as f64 * b.abs().max(1.0), "{name}: last_dynamic.{k}: {v:?} vs {:?}", want(k));
+                    }
+                }
+                let mut sum = [0f64; 3];
+                for g in chunks.iter().flatten() {
+                    (0..3).for_each(|k| sum[k] += g.mean[k] as f64);
+                }
+                let want: Vec<f64> = expect["dynamic_mean_sum"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+                for k in 0..3 {
+                    assert!((sum[k] - want[k]).abs() <= 1e-2, "{name}: dynamic_mean_sum {sum:?} vs {want:?}");
+                }
+            }
         } else {
             let e = got.err().unwrap_or_else(|| panic!("{name}: decoded, but expected {}", expect["error_kind"]));
             assert_eq!(e.kind.name(), expect["error_kind"].as_str().unwrap(), "{name}: {e}");
@@ -373,4 +414,131 @@ fn v2_seeded_mutations_never_panic_and_streaming_agrees() {
     }
     // a flipped literal inside a zstd frame often still decodes (only the chunk CRC, fixed here, catches it)
     assert!(errors > 100, "mutations must be caught ({errors} errors)");
+}
+
+/// The chunks of a file: (tag, payload).
+fn chunks(bytes: &[u8]) -> Vec<([u8; 4], &[u8])> {
+    let mut out = Vec::new();
+    let mut at = 12;
+    while at < bytes.len() {
+        let len = u32::from_le_bytes(bytes[at + 4..at + 8].try_into().unwrap()) as usize;
+        out.push((bytes[at..at + 4].try_into().unwrap(), &bytes[at + 8..at + 8 + len]));
+        at += 12 + len;
+    }
+    out
+}
+
+const RANGE_VECTORS: [&str; 6] = [
+    "valid_v2_range_iso",
+    "valid_v2_range_aniso",
+    "valid_v2_range_streamed",
+    "valid_v2_range_streamed_iso",
+    "valid_v2_range_custom",
+    "valid_v2_range_degenerate",
+];
+
+/// The Python encoder (constriction's Python binding) and this crate's model write the same words: every DYNA
+/// stream of the range-coded vectors, decoded here with the models carried from chunk to chunk and encoded again
+/// here, is the file's stream (plus the zero words an encoder pads a degenerate chunk with).
+#[test]
+fn range_streams_are_the_words_the_python_encoder_wrote() {
+    for name in RANGE_VECTORS {
+        let bytes = vector(name);
+        let ch = chunks(&bytes);
+        let head: serde_json::Value = serde_json::from_slice(ch[0].1).unwrap();
+        assert_eq!(head["dynamic_codec"], "range", "{name}");
+        let layout: Vec<(&'static str, u32)> = head["dynamic_layout"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| {
+                let n = f[0].as_str().unwrap();
+                let name = ["px", "py", "pz", "qx", "qy", "qz", "sx", "sy", "sz", "s", "o", "r", "g", "b"].into_iter().find(|x| *x == n).unwrap();
+                (name, f[1].as_u64().unwrap() as u32)
+            })
+            .collect();
+        let block_size = head["block_size"].as_u64().unwrap() as usize;
+        let (mut dec, mut enc) = (dyna_range::Models::new(&layout), dyna_range::Models::new(&layout));
+        let mut n = 0;
+        for (_, p) in ch.iter().filter(|c| &c.0 == b"DYNA") {
+            let count = u32::from_le_bytes(p[4..8].try_into().unwrap()) as usize;
+            let words_at = 8 + 32 * count.div_ceil(block_size);
+            let nw = u32::from_le_bytes(p[words_at..words_at + 4].try_into().unwrap()) as usize;
+            let words: Vec<u32> = p[words_at + 4..].chunks_exact(4).map(|w| u32::from_le_bytes(w.try_into().unwrap())).collect();
+            assert_eq!(words.len(), nw);
+            let (deltas, values) = dyna_range::decode_chunk(&mut dec, words.clone(), count).unwrap();
+            let again = dyna_range::encode_chunk(&mut enc, &deltas, &values);
+            assert_eq!(&words[..again.len()], &again[..], "{name}: chunk {n}");
+            assert!(words[again.len()..].iter().all(|&w| w == 0), "{name}: chunk {n}: padding");
+            assert_eq!(dec, enc);
+            n += 1;
+        }
+        assert!(n >= 1, "{name}: no DYNA chunk");
+        if name == "valid_v2_range_degenerate" {
+            let (_, p) = ch.iter().find(|c| &c.0 == b"DYNA").unwrap();
+            assert_eq!(&p[p.len() - 8..], &[0; 8], "the degenerate vector's stream ends in padding");
+        }
+    }
+}
+
+#[test]
+fn range_progressive_parse_gives_the_same_scene_at_any_split() {
+    for name in ["valid_v2_range_streamed", "valid_v2_range_iso"] {
+        let bytes = vector(name);
+        let whole = read_wsplat(&bytes).unwrap();
+        let mut rng = Rng(5);
+        for _ in 0..10 {
+            let mut s = StreamingScene::default();
+            let mut at = 0;
+            while at < bytes.len() {
+                let end = (at + 1 + rng.below(2000)).min(bytes.len());
+                s.push(&bytes[at..end]).unwrap();
+                at = end;
+            }
+            s.finish().unwrap();
+            assert_eq!(s.scene.statics, whole.statics, "{name}");
+            assert_eq!(s.scene.dynamic, whole.dynamic, "{name}");
+        }
+    }
+}
+
+/// Mutations inside the range-coded DYNA chunks (CRC fixed so they reach the boxes, the word count and the
+/// streams): never a panic, errors inside the data, streaming agrees with whole-buffer decoding.
+#[test]
+fn range_seeded_mutations_never_panic_and_streaming_agrees() {
+    let bytes = vector("valid_v2_range_aniso");
+    let mut dynas = Vec::new();
+    let mut at = 12;
+    while at < bytes.len() {
+        let len = u32::from_le_bytes(bytes[at + 4..at + 8].try_into().unwrap()) as usize;
+        if &bytes[at..at + 4] == b"DYNA" {
+            dynas.push((at, len));
+        }
+        at += 12 + len;
+    }
+    let mut rng = Rng(0xd1a);
+    let mut errors = 0;
+    for round in 0..600 {
+        let mut b = bytes.clone();
+        let (chunk_at, len) = dynas[rng.below(dynas.len())];
+        for _ in 0..1 + rng.below(3) {
+            let i = chunk_at + 8 + rng.below(len);
+            b[i] = if round % 2 == 0 { b[i] ^ (1 << rng.below(8)) } else { rng.next() as u8 };
+        }
+        fix_crc(&mut b, chunk_at);
+        let whole = read_wsplat(&b);
+        if let Err(e) = &whole {
+            errors += 1;
+            assert!(e.offset <= b.len() as u64, "offset {} past {} bytes: {e}", e.offset, b.len());
+        }
+        let split = rng.below(b.len());
+        let mut s = StreamingScene::default();
+        let streamed = s.push(&b[..split]).and_then(|_| s.push(&b[split..])).and_then(|_| s.finish());
+        match (&whole, &streamed) {
+            (Ok(w), Ok(_)) => assert_eq!(w.dynamic, s.scene.dynamic),
+            (Err(a), Err(b2)) => assert_eq!((a.kind, a.offset), (b2.kind, b2.offset), "round {round}"),
+            _ => panic!("round {round}: whole {:?} vs streamed {:?}", whole.as_ref().err(), streamed.err()),
+        }
+    }
+    assert!(errors > 300, "mutations must be caught ({errors} errors)");
 }

@@ -257,46 +257,51 @@ def test_property_v2_equals_v1_for_any_layout_and_block_size(n, bits, block, iso
     np.testing.assert_array_equal(s2.dynamic[0].numpy()["means"], s3.dynamic[0].numpy()["means"])  # same order too
 
 
-_V2 = (VECTORS / "valid_v2_iso.wsplat").read_bytes()
+# a v2 file with zstd dynamics, and a streamed one with range-coded dynamics (models carried across its windows)
+PROPERTY_FILES = {n: (VECTORS / f"{n}.wsplat").read_bytes() for n in ("valid_v2_iso", "valid_v2_range_streamed")}
 
 
-@settings(max_examples=150, deadline=None)
-@given(cut=st.integers(0, len(_V2)), split=st.integers(0, len(_V2)))
-def test_property_any_prefix_is_a_prefix_of_whole_chunks(cut, split):
+@pytest.mark.parametrize("name", PROPERTY_FILES)
+@settings(max_examples=100, deadline=None)
+@given(cut=st.floats(0, 1), split=st.floats(0, 1))
+def test_property_any_prefix_is_a_prefix_of_whole_chunks(name, cut, split):
     """Fed in two pieces, any prefix decodes to whole chunks only (never a partial or wrong record)."""
-    whole = wsplat.decode(_V2)
+    data = PROPERTY_FILES[name]
+    whole = wsplat.decode(data)
     dec = ProgressiveDecoder()
-    prefix = _V2[:cut]
-    dec.feed(prefix[:split])
-    dec.feed(prefix[split:])
+    prefix = data[: int(cut * len(data))]
+    dec.feed(prefix[: int(split * len(prefix))])
+    dec.feed(prefix[int(split * len(prefix)) :])
     if dec.header is None:
         return
     got = dec.scene()
     assert len(got.static) <= len(whole.static)
     np.testing.assert_array_equal(got.static.means.numpy(), whole.static.means[: len(got.static)].numpy())
-    if cut < len(_V2):
+    for a, b in zip(got.dynamic, whole.dynamic):
+        np.testing.assert_array_equal(a.means.numpy(), b.means[: len(a)].numpy())
+    if len(prefix) < len(data):
         with pytest.raises(WsplatError) as e:
             dec.finish()
         assert e.value.kind == "truncated"
 
 
-@settings(max_examples=200, deadline=None)
-@given(
-    data=st.lists(st.tuples(st.integers(12, len(_V2) - 1), st.integers(0, 255)), min_size=1, max_size=4),
-    cut=st.integers(13, len(_V2)),
-)
-def test_property_v2_mutations_raise_wsplat_error_only(data, cut):
-    """Random byte changes (the CRC is recomputed, so they reach the sections) and truncations: a WsplatError
-    naming an offset inside the data, or a valid scene; never another exception."""
-    buf = bytearray(_V2)
-    for at, v in data:
-        buf[at] = v
-    chunks = split_chunks(bytes(buf)) if buf[:12] == _V2[:12] else None
+@pytest.mark.parametrize("name", PROPERTY_FILES)
+@settings(max_examples=150, deadline=None)
+@given(edits=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), min_size=1, max_size=4), cut=st.floats(0, 1))
+def test_property_v2_mutations_raise_wsplat_error_only(name, edits, cut):
+    """Random byte changes (the CRC is recomputed, so they reach the sections, boxes, lengths and streams) and
+    truncations: a WsplatError naming an offset inside the data, or a valid scene; never another exception."""
+    data = PROPERTY_FILES[name]
+    buf = bytearray(data)
+    for at, v in edits:
+        buf[12 + int(at * (len(data) - 13))] = v
     try:
-        fixed = join_chunks(chunks, V2_HEAD) if chunks and all(len(t) == 4 for t, _ in chunks) else bytes(buf)
+        chunks = split_chunks(bytes(buf))
+        fixed = join_chunks(chunks, V2_HEAD) if all(len(t) == 4 for t, _ in chunks) else bytes(buf)
     except struct.error:
         fixed = bytes(buf)
-    for d in (fixed[:cut], bytes(buf)[:cut]):
+    n = 13 + int(cut * (len(data) - 13))
+    for d in (fixed[:n], bytes(buf)[:n]):
         try:
             wsplat.decode(d)
         except WsplatError as e:
@@ -425,43 +430,3 @@ def test_unknown_dynamic_codec_is_a_bad_header():
     with pytest.raises(WsplatError) as e:
         wsplat.decode(join_chunks([(b"HEAD", json.dumps(head).encode())] + ch[1:], V2_HEAD))
     assert (e.value.kind, e.value.offset, e.value.field) == ("bad_header", 20, "HEAD.dynamic_codec")
-
-
-_R = (VECTORS / "valid_v2_range_streamed.wsplat").read_bytes()
-
-
-@settings(max_examples=60, deadline=None)
-@given(cut=st.integers(0, len(_R)), split=st.integers(0, len(_R)))
-def test_property_any_prefix_of_a_range_coded_file_is_a_prefix_of_whole_chunks(cut, split):
-    whole = wsplat.decode(_R)
-    dec = ProgressiveDecoder()
-    dec.feed(_R[:cut][:split])
-    dec.feed(_R[:cut][split:])
-    if dec.header is None:
-        return
-    got = dec.scene()
-    for a, b in zip(got.dynamic, whole.dynamic):
-        np.testing.assert_array_equal(a.means.numpy(), b.means[: len(a)].numpy())
-
-
-@settings(max_examples=150, deadline=None)
-@given(
-    data=st.lists(st.tuples(st.integers(12, len(_R) - 1), st.integers(0, 255)), min_size=1, max_size=4),
-    cut=st.integers(13, len(_R)),
-)
-def test_property_range_coded_mutations_raise_wsplat_error_only(data, cut):
-    """Byte changes inside a range-coded file (CRC recomputed, so they reach the boxes, lengths and streams) and
-    truncations: a WsplatError naming an offset inside the data, or a valid scene; never another exception."""
-    buf = bytearray(_R)
-    for at, v in data:
-        buf[at] = v
-    try:
-        chunks = split_chunks(bytes(buf))
-        fixed = join_chunks(chunks, V2_HEAD) if all(len(t) == 4 for t, _ in chunks) else bytes(buf)
-    except struct.error:
-        fixed = bytes(buf)
-    for d in (fixed[:cut], bytes(buf)[:cut]):
-        try:
-            wsplat.decode(d)
-        except WsplatError as e:
-            assert 0 <= e.offset <= len(d)

@@ -381,23 +381,20 @@ fn v2_progressive_parse_gives_the_same_scene_at_any_split() {
     }
 }
 
-/// Mutations inside the sections of a v2 STAT chunk (CRC fixed so they reach the zstd frames, filters, lengths
-/// and values): never a panic, errors inside the data, streaming agrees with whole-buffer decoding.
-#[test]
-fn v2_seeded_mutations_never_panic_and_streaming_agrees() {
-    let bytes = vector("valid_v2_aniso");
-    let head_len = u32::from_le_bytes(bytes[16..20].try_into().unwrap()) as usize;
-    let stat_at = 12 + 12 + head_len;
-    let stat_len = u32::from_le_bytes(bytes[stat_at + 4..stat_at + 8].try_into().unwrap()) as usize;
-    let mut rng = Rng(0xbeef);
+/// Byte changes inside the payloads of `chunks` ((offset, payload length) of each; CRC fixed so they reach what the
+/// payloads hold): never a panic, errors inside the data, streaming agrees with whole-buffer decoding. The number of
+/// rounds that failed.
+fn payload_mutations(bytes: &[u8], chunks: &[(usize, usize)], seed: u64) -> usize {
+    let mut rng = Rng(seed);
     let mut errors = 0;
     for round in 0..600 {
-        let mut b = bytes.clone();
+        let mut b = bytes.to_vec();
+        let (chunk_at, len) = chunks[rng.below(chunks.len())];
         for _ in 0..1 + rng.below(3) {
-            let i = stat_at + 8 + rng.below(stat_len);
+            let i = chunk_at + 8 + rng.below(len);
             b[i] = if round % 2 == 0 { b[i] ^ (1 << rng.below(8)) } else { rng.next() as u8 };
         }
-        fix_crc(&mut b, stat_at);
+        fix_crc(&mut b, chunk_at);
         let whole = read_wsplat(&b);
         if let Err(e) = &whole {
             errors += 1;
@@ -407,25 +404,36 @@ fn v2_seeded_mutations_never_panic_and_streaming_agrees() {
         let mut s = StreamingScene::default();
         let streamed = s.push(&b[..split]).and_then(|_| s.push(&b[split..])).and_then(|_| s.finish());
         match (&whole, &streamed) {
-            (Ok(w), Ok(_)) => assert_eq!(w.statics, s.scene.statics),
+            (Ok(w), Ok(_)) => assert!(w.statics == s.scene.statics && w.dynamic == s.scene.dynamic, "round {round}"),
             (Err(a), Err(b2)) => assert_eq!((a.kind, a.offset), (b2.kind, b2.offset), "round {round}"),
             _ => panic!("round {round}: whole {:?} vs streamed {:?}", whole.as_ref().err(), streamed.err()),
         }
     }
-    // a flipped literal inside a zstd frame often still decodes (only the chunk CRC, fixed here, catches it)
-    assert!(errors > 100, "mutations must be caught ({errors} errors)");
+    errors
 }
 
-/// The chunks of a file: (tag, payload).
-fn chunks(bytes: &[u8]) -> Vec<([u8; 4], &[u8])> {
+/// The (offset, payload length) of every chunk tagged `tag`.
+fn chunks_tagged(bytes: &[u8], tag: &[u8; 4]) -> Vec<(usize, usize)> {
     let mut out = Vec::new();
     let mut at = 12;
     while at < bytes.len() {
         let len = u32::from_le_bytes(bytes[at + 4..at + 8].try_into().unwrap()) as usize;
-        out.push((bytes[at..at + 4].try_into().unwrap(), &bytes[at + 8..at + 8 + len]));
+        if &bytes[at..at + 4] == tag {
+            out.push((at, len));
+        }
         at += 12 + len;
     }
     out
+}
+
+/// Mutations inside the sections of a v2 STAT chunk (CRC fixed so they reach the zstd frames, filters, lengths
+/// and values).
+#[test]
+fn v2_seeded_mutations_never_panic_and_streaming_agrees() {
+    let bytes = vector("valid_v2_aniso");
+    let errors = payload_mutations(&bytes, &chunks_tagged(&bytes, b"STAT")[..1], 0xbeef);
+    // a flipped literal inside a zstd frame often still decodes (only the chunk CRC, fixed here, catches it)
+    assert!(errors > 100, "mutations must be caught ({errors} errors)");
 }
 
 const RANGE_VECTORS: [&str; 6] = [
@@ -444,8 +452,8 @@ const RANGE_VECTORS: [&str; 6] = [
 fn range_streams_are_the_words_the_python_encoder_wrote() {
     for name in RANGE_VECTORS {
         let bytes = vector(name);
-        let ch = chunks(&bytes);
-        let head: serde_json::Value = serde_json::from_slice(ch[0].1).unwrap();
+        let payload = |(at, len): (usize, usize)| &bytes[at + 8..at + 8 + len];
+        let head: serde_json::Value = serde_json::from_slice(payload(chunks_tagged(&bytes, b"HEAD")[0])).unwrap();
         assert_eq!(head["dynamic_codec"], "range", "{name}");
         let layout: Vec<(&'static str, u32)> = head["dynamic_layout"]
             .as_array()
@@ -460,7 +468,7 @@ fn range_streams_are_the_words_the_python_encoder_wrote() {
         let block_size = head["block_size"].as_u64().unwrap() as usize;
         let (mut dec, mut enc) = (dyna_range::Models::new(&layout), dyna_range::Models::new(&layout));
         let mut n = 0;
-        for (_, p) in ch.iter().filter(|c| &c.0 == b"DYNA") {
+        for p in chunks_tagged(&bytes, b"DYNA").into_iter().map(payload) {
             let count = u32::from_le_bytes(p[4..8].try_into().unwrap()) as usize;
             let words_at = 8 + 32 * count.div_ceil(block_size);
             let nw = u32::from_le_bytes(p[words_at..words_at + 4].try_into().unwrap()) as usize;
@@ -475,7 +483,7 @@ fn range_streams_are_the_words_the_python_encoder_wrote() {
         }
         assert!(n >= 1, "{name}: no DYNA chunk");
         if name == "valid_v2_range_degenerate" {
-            let (_, p) = ch.iter().find(|c| &c.0 == b"DYNA").unwrap();
+            let p = payload(chunks_tagged(&bytes, b"DYNA")[0]);
             assert_eq!(&p[p.len() - 8..], &[0; 8], "the degenerate vector's stream ends in padding");
         }
     }
@@ -503,42 +511,10 @@ fn range_progressive_parse_gives_the_same_scene_at_any_split() {
 }
 
 /// Mutations inside the range-coded DYNA chunks (CRC fixed so they reach the boxes, the word count and the
-/// streams): never a panic, errors inside the data, streaming agrees with whole-buffer decoding.
+/// streams); a changed stream decodes with the models of the chunks before it, and the chunks after it with its.
 #[test]
 fn range_seeded_mutations_never_panic_and_streaming_agrees() {
     let bytes = vector("valid_v2_range_aniso");
-    let mut dynas = Vec::new();
-    let mut at = 12;
-    while at < bytes.len() {
-        let len = u32::from_le_bytes(bytes[at + 4..at + 8].try_into().unwrap()) as usize;
-        if &bytes[at..at + 4] == b"DYNA" {
-            dynas.push((at, len));
-        }
-        at += 12 + len;
-    }
-    let mut rng = Rng(0xd1a);
-    let mut errors = 0;
-    for round in 0..600 {
-        let mut b = bytes.clone();
-        let (chunk_at, len) = dynas[rng.below(dynas.len())];
-        for _ in 0..1 + rng.below(3) {
-            let i = chunk_at + 8 + rng.below(len);
-            b[i] = if round % 2 == 0 { b[i] ^ (1 << rng.below(8)) } else { rng.next() as u8 };
-        }
-        fix_crc(&mut b, chunk_at);
-        let whole = read_wsplat(&b);
-        if let Err(e) = &whole {
-            errors += 1;
-            assert!(e.offset <= b.len() as u64, "offset {} past {} bytes: {e}", e.offset, b.len());
-        }
-        let split = rng.below(b.len());
-        let mut s = StreamingScene::default();
-        let streamed = s.push(&b[..split]).and_then(|_| s.push(&b[split..])).and_then(|_| s.finish());
-        match (&whole, &streamed) {
-            (Ok(w), Ok(_)) => assert_eq!(w.dynamic, s.scene.dynamic),
-            (Err(a), Err(b2)) => assert_eq!((a.kind, a.offset), (b2.kind, b2.offset), "round {round}"),
-            _ => panic!("round {round}: whole {:?} vs streamed {:?}", whole.as_ref().err(), streamed.err()),
-        }
-    }
+    let errors = payload_mutations(&bytes, &chunks_tagged(&bytes, b"DYNA"), 0xd1a);
     assert!(errors > 300, "mutations must be caught ({errors} errors)");
 }

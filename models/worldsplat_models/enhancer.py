@@ -38,6 +38,7 @@ from safetensors import safe_open
 from . import rflow
 from .configs import SIZES, DataConfig, DiTConfig, VAEConfig, from_dict
 from .dit import DiT4D
+from .pixel_mix import PixelMix, PixelMixConfig, mix
 from .vae import MultiModalVAE
 from .weights import write_safetensors
 
@@ -62,6 +63,9 @@ class EnhancerConfig:
     # ... and when sampling: 0 starts from the render latent itself (the mean of the training sources), measured
     # +0.13 / +0.07 dB over a 0.1-noised start at 2 / 4 m and equal to averaging four noised starts
     sample_noise: float = 0.0
+    # the pixel mix of the output with the render (pixel_mix.py), fitted after the enhancer to its outputs; None
+    # for files without one (their default blend is "holes")
+    pixel_mix: PixelMixConfig | None = None
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -122,11 +126,14 @@ def config_from_dict(d: dict) -> EnhancerConfig:
     d = dict(d)
     data = from_dict(DataConfig, d.pop("data"))
     dit = from_dict(DiTConfig, d.pop("dit"))
+    mix_cfg = d.pop("pixel_mix", None)
+    if mix_cfg is not None:
+        mix_cfg = PixelMixConfig(**{**mix_cfg, "dilations": tuple(mix_cfg.get("dilations", ()))})
     names = {f.name for f in dataclasses.fields(EnhancerConfig)}
     unknown = set(d) - names
     if unknown:
         raise ValueError(f"EnhancerConfig: unknown field(s) {sorted(unknown)}")
-    return EnhancerConfig(data=data, dit=dit, **d)
+    return EnhancerConfig(data=data, dit=dit, pixel_mix=mix_cfg, **d)
 
 
 # --- VAE I/O: images <-> normalised image latents -------------------------------------------------------------------
@@ -178,6 +185,12 @@ class Enhancer(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.dit = DiT4D(cfg.dit, cfg.num_classes)
+        self.mix = PixelMix(cfg.pixel_mix) if cfg.pixel_mix is not None else None
+
+    def attach_mix(self, net: PixelMix) -> None:
+        """Bundle a pixel mix fitted to this enhancer's outputs (saved with it; the default blend becomes "mix")."""
+        self.cfg = dataclasses.replace(self.cfg, pixel_mix=net.cfg)
+        self.mix = net
 
     @staticmethod
     def control(
@@ -303,7 +316,7 @@ def load_enhancer(path) -> tuple[Enhancer, nn.Module]:
 
 # --- inference ------------------------------------------------------------------------------------------------------
 
-BLENDS = ("none", "holes")
+BLENDS = ("none", "holes", "mix")
 
 
 def _resize(x: torch.Tensor, size: tuple[int, int], mode: str) -> torch.Tensor:
@@ -349,8 +362,8 @@ def enhance(
 
     Images are resized to the model's resolution and back; frames run in windows of the model's clip length
     (trajectory re-based on each window's first frame). blend "none" returns the model's output (the paper);
-    "holes" keeps the render where its alpha covers the pixel and takes the model's output in the holes.
-    `start` > 0 starts the sampler from the noised render latent instead of pure noise (see Enhancer.sample).
+    "holes" keeps the render where its alpha covers the pixel and takes the model's output in the holes; "mix" the
+    file's pixel mix (pixel_mix.py; `default_blend`). `start` > 0 starts the sampler from the noised render latent instead of pure noise (see Enhancer.sample).
     `timings` (a dict) receives seconds per stage: encode, denoise, decode."""
     if blend not in BLENDS:
         raise ValueError(f"blend must be one of {BLENDS}, got {blend!r}")
@@ -411,16 +424,34 @@ def enhance(
         tm["denoise"] += c2 - c1
         tm["decode"] += c3 - c2
     c0 = time.perf_counter()
-    out = finish(out, render, alpha, blend)
+    low = None
+    if blend == "mix" and (h, w) != (H, W):  # the mix's gate is read at the model image
+        r_low = (r_small * 255).round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy()
+        low = (r_low.reshape(T, V, h, w, 3), a_small.reshape(T, V, h, w).numpy())
+    out = finish(out, render, alpha, blend, model.mix, low)
     tm["decode"] += time.perf_counter() - c0
     if timings is not None:
         timings.update(tm)
     return out
 
 
-def finish(refined: np.ndarray, render: np.ndarray, alpha: np.ndarray, blend: str = "none") -> np.ndarray:
+def default_blend(model: Enhancer) -> str:
+    """ "mix" when the file bundles a pixel mix, else "holes"."""
+    return "mix" if model.mix is not None else "holes"
+
+
+def finish(
+    refined: np.ndarray,
+    render: np.ndarray,
+    alpha: np.ndarray,
+    blend: str = "none",
+    mix_net: PixelMix | None = None,
+    low: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Model-resolution output (T,V,h,w,3) -> the render's size (bilinear), then the blend: "none" keeps the model's
-    output, "holes" keeps the render where its alpha covers a pixel (alpha-weighted)."""
+    output, "holes" keeps the render where its alpha covers a pixel (alpha-weighted), "mix" the pixel mix
+    (`mix_net`, pixel_mix.py) whose gate is read at the model image from `low` = (render, alpha), the render as the
+    model read it (default: `render`, area-resized to (h, w) when larger)."""
     if blend not in BLENDS:
         raise ValueError(f"blend must be one of {BLENDS}, got {blend!r}")
     T, V, h, w, _ = refined.shape
@@ -432,4 +463,19 @@ def finish(refined: np.ndarray, render: np.ndarray, alpha: np.ndarray, blend: st
     if blend == "holes":
         a = np.clip(np.asarray(alpha, np.float32), 0, 1)[..., None]
         out = np.round(a * render + (1 - a) * out).astype(np.uint8)
+    elif blend == "mix":
+        if mix_net is None:
+            raise ValueError('blend "mix" needs an enhancer file with a pixel mix (this one has none)')
+        r_low, a_low = low if low is not None else (render, alpha)
+        if r_low.shape[2:4] != (h, w):  # area-resized to the model image, as `enhance` reads the render
+            Hl, Wl = r_low.shape[2:4]
+            r = _resize(
+                torch.from_numpy(np.ascontiguousarray(r_low)).float().reshape(-1, Hl, Wl, 3).permute(0, 3, 1, 2),
+                (h, w),
+                "area",
+            )
+            a = _resize(torch.from_numpy(np.asarray(a_low, np.float32)).reshape(-1, 1, Hl, Wl), (h, w), "area")
+            r_low = r.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy().reshape(T, V, h, w, 3)
+            a_low = a.numpy().reshape(T, V, h, w)
+        out = mix(mix_net, refined, r_low, a_low, render, alpha)
     return out

@@ -44,10 +44,12 @@ def test_shipped_enhancer_fills_holes_at_4m(monkeypatch):
 
 
 def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
-    """The v2 bridge refines what reconstruct serves: on the default preset (not a training scenario) the learned
-    decoder's 4D scene seen from +4 m, refined as the playground serves it (blend "holes"), scores above the raw
-    render over all pixels and inside its holes, against the world's exact view. Measured with the shipped v2
-    weights: +0.3 dB all pixels, +2.7 dB in the holes; the session-2 model (noise source, session-1 VAE) is skipped."""
+    """The v2 bridge refines what reconstruct serves: on the default preset (not a training or a pixel-mix scenario)
+    the learned decoder's 4D scene seen from +4 m, refined as the playground serves it (the file's default blend, the
+    pixel mix since session 13), scores above the raw render over all pixels and inside its holes, and above the
+    session-12 "holes" blend, against the world's exact view. Measured with the shipped weights (session 13): raw
+    19.50 dB, holes blend 19.81, pixel mix 19.93 (in the holes: 16.46 / 19.46 / 19.81); at -2 / +2 m the mix gains
+    +0.12 / +0.12 dB over the holes blend as well. The session-2 model (noise source, session-1 VAE) is skipped."""
     import worldsplat_models.conditions as cond
     from worldsplat.core.scenario import default_scenario
     from worldsplat.evaluation.nvs import image_metrics
@@ -55,21 +57,27 @@ def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
     from worldsplat.pipeline.refine import load_refiner, refine_track
     from worldsplat.pipeline.render import render_scene_track
     from worldsplat.world import build_world, simulate
+    from worldsplat_models.enhancer import default_blend, finish
 
     model, _ = load_refiner(str(WEIGHTS))
     if model.cfg.source != "render":
         pytest.skip("the shipped enhancer is not the v2 bridge")
+    assert default_blend(model) == "mix"  # the served file bundles its pixel mix
     monkeypatch.setattr(cond, "encode_captions", lambda caps: torch.zeros(len(caps), 384))
     sc = default_scenario().with_updates(image={"width": 112, "height": 64}, clip={"frames": 4})
     world = build_world(sc)
     scene = to_scene4d(reconstruct(simulate(world, 0.0), load_models()), {"scenario": sc.model_dump(mode="json")})
     raw = render_scene_track(scene, 4.0)
-    out = refine_track(scene, 4.0, blend="holes", render=raw)
+    out = refine_track(scene, 4.0, render=raw)  # the served blend
+    full = refine_track(scene, 4.0, blend="none", render=raw)
+    holes_blend = finish(full, raw.rgb, raw.alpha, "holes")
     truth = simulate(world, 4.0).rgb
     H, W = truth.shape[2:4]
     holes = (raw.alpha < 0.5).reshape(-1, H, W)
     assert holes.mean() > 0.03
     m_raw = image_metrics(raw.rgb.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes)
     m_ref = image_metrics(out.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes)
-    assert m_ref["psnr"] > m_raw["psnr"] + 0.15, (m_raw, m_ref)
+    m_holes = image_metrics(holes_blend.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes)
+    assert m_ref["psnr"] > m_raw["psnr"] + 0.25, (m_raw, m_ref)
     assert m_ref["psnr_holes"] > m_raw["psnr_holes"] + 1.5, (m_raw, m_ref)
+    assert m_ref["psnr"] > m_holes["psnr"] + 0.05, (m_holes, m_ref)

@@ -51,6 +51,7 @@ def tiny_models_and_sample():
     from worldsplat.world import build_world, simulate
     from worldsplat_models.configs import get_config
     from worldsplat_models.enhancer import Enhancer, enhancer_config
+    from worldsplat_models.pixel_mix import PixelMix
     from worldsplat_models.vae import MultiModalVAE
 
     torch.manual_seed(0)
@@ -59,6 +60,7 @@ def tiny_models_and_sample():
     with torch.no_grad():  # a fresh ControlNet is zero-initialised (ignores its input): wake it up
         for p in mixed.parameters():
             p.add_(0.05 * torch.randn_like(p))
+    mixed.attach_mix(PixelMix().eval())  # a fresh mix: gate 1/2 everywhere
     models = {"mixed": (mixed, vae), "degraded": (Enhancer(enhancer_config("tiny")).eval(), vae)}
     sc = load_preset("urban_straight").with_updates(
         image={"width": 48, "height": 32}, clip={"frames": 2}, rig={"cameras": ["CAM_FRONT", "CAM_BACK"]}
@@ -79,6 +81,10 @@ def test_versions_on_a_novel_view_sample(tiny_models_and_sample):
     assert not np.array_equal(frames["A"], frames["E"])  # the render condition matters
     a = s["alpha_4d"].astype(np.float32)
     assert np.array_equal(frames["E+holes"][a > 0.999], s["render_4d"][a > 0.999])
+    # the fresh pixel mix (gate 1/2): half render, half output where covered; the output alone in the holes
+    half = (s["render_4d"].astype(float) + frames["E"]) / 2
+    assert np.abs(frames["E+mix"][a > 0.999] - half[a > 0.999]).max() <= 0.51
+    assert np.array_equal(frames["E+mix"][a == 0], frames["E"][a == 0])
     # the 3D (single-frame) render has at least as many holes as the 4D aggregate
     assert (s["alpha_3d"] < 0.5).mean() >= (s["alpha_4d"] < 0.5).mean()
 
@@ -96,7 +102,8 @@ def test_a_render_bridge_enhancer_runs_every_version_it_can(tiny_models_and_samp
         )
     ).eval()
     models = {**models, "mixed": (bridge, models["mixed"][1])}
-    assert versions_of(models) == tuple(v for v in VERSIONS if v not in ("A", "E@0.5"))
+    # ... and without a pixel mix in the file, no E+mix
+    assert versions_of(models) == tuple(v for v in VERSIONS if v not in ("A", "E@0.5", "E+mix"))
     frames = run_versions(models, s, torch.zeros(384), steps=1)
     assert set(frames) == set(versions_of(models))
     # a fresh bridge predicts zero velocity: E is the render through the VAE, not a sample from noise

@@ -10,7 +10,9 @@ Mapping of the paper's versions (C-Reprojection / 3D Gs / 4D Gs / Mixed Aug / En
      has no effect without the model);
   E  4D Gaussians refined by the mixed-conditioning enhancer (the shipped model): the full method;
   E+holes  E, but the render is kept wherever it covers a pixel and the model's output fills only the holes (the
-     playground's default);
+     playground's default for enhancer files without a pixel mix);
+  E+mix    E mixed with the render per pixel by the file's pixel mix (pixel_mix.py; the playground's default when the
+     file bundles one);
   E@0.5    E with the sampler started halfway, from the noised render latent (SDEdit-style) instead of pure noise;
   oracle   the 4D oracle lifting's render (the reference; identical to D while the Gaussians are the oracle's);
   VAE      ground truth passed through the VAE (the ceiling of any latent-space refinement).
@@ -38,13 +40,15 @@ from worldsplat.pipeline.scene import generate_scene, oracle_scene
 from worldsplat.training.pairs import load_sample, make_sample, sample_path, sample_scenario, save_sample, split_seeds
 from worldsplat.world import build_world, simulate
 from worldsplat_models import conditions as caption_encoder
-from worldsplat_models.enhancer import decode_latents, encode_images, enhance, load_enhancer
+from worldsplat_models.enhancer import decode_latents, encode_images, enhance, finish, load_enhancer
 from worldsplat_models.weights import weights_dir as default_weights_dir
 
-VERSIONS = ("A", "B", "C", "D", "E", "E+holes", "E@0.5", "oracle", "VAE")
+VERSIONS = ("A", "B", "C", "D", "E", "E+holes", "E+mix", "E@0.5", "oracle", "VAE")
 # The same D/E with the learned Gaussian decoder's 4D scene (reconstruct mode) in place of the oracle lifting:
 # the paper's setting, where the Gaussians come from the decoder. Present when the sample has render_dec.
-DECODER_VERSIONS = ("D-dec", "E-dec", "E-dec+holes")
+DECODER_VERSIONS = ("D-dec", "E-dec", "E-dec+holes", "E-dec+mix")
+# versions that need an enhancer file with a pixel mix
+MIX_ONLY = ("E+mix", "E-dec+mix")
 DESCRIPTIONS = {
     "A": "reprojected S', B', T', caption only (render zeroed), mixed enhancer",
     "B": "single-frame 3D Gaussians + enhancer (no mixed aug)",
@@ -52,12 +56,14 @@ DESCRIPTIONS = {
     "D": "4D Gaussians, no enhancement (raw render)",
     "E": "4D Gaussians + enhancer with mixed aug (full)",
     "E+holes": "E, model output only in the render's holes",
+    "E+mix": "E, mixed with the render per pixel by the file's pixel mix",
     "E@0.5": "E, sampler started at s=0.5 from the noised render latent",
     "oracle": "4D oracle lifting render (reference)",
     "VAE": "ground truth through the VAE (latent ceiling)",
     "D-dec": "learned decoder's 4D Gaussians, raw render",
     "E-dec": "learned decoder's 4D Gaussians + enhancer with mixed aug",
     "E-dec+holes": "E-dec, model output only in the render's holes",
+    "E-dec+mix": "E-dec, mixed with the render per pixel by the file's pixel mix (served)",
 }
 
 
@@ -80,10 +86,13 @@ def load_enhancers(weights_dir: Path):
 NOISE_SOURCE_ONLY = ("A", "E@0.5")
 
 
-def versions_of(models: dict) -> tuple[str, ...]:
-    """The versions the loaded enhancers can run (all of VERSIONS for noise-source models)."""
+def versions_of(models: dict, decoder: bool = False) -> tuple[str, ...]:
+    """The versions the loaded enhancers can run (all of VERSIONS for noise-source models with a pixel mix), and with
+    `decoder` the decoder scene's versions after them."""
     bridge = models["mixed"][0].cfg.source == "render"
-    return tuple(v for v in VERSIONS if not (bridge and v in NOISE_SOURCE_ONLY))
+    no_mix = models["mixed"][0].mix is None
+    names = VERSIONS + (DECODER_VERSIONS if decoder else ())
+    return tuple(v for v in names if not (bridge and v in NOISE_SOURCE_ONLY) and not (no_mix and v in MIX_ONLY))
 
 
 def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int = 0) -> dict:
@@ -106,15 +115,17 @@ def run_versions(models: dict, sample: dict, caption_emb, steps: int, seed: int 
         out["A"] = enhance(*mixed, r4, a4, use_render=False, **kw)
     if "E@0.5" in runnable:
         out["E@0.5"] = enhance(*mixed, r4, a4, start=0.5, **kw)
-    a = np.clip(a4, 0, 1)[..., None]
-    out["E+holes"] = np.round(a * r4 + (1 - a) * out["E"]).astype(np.uint8)
+    net = mixed[0].mix
+    out["E+holes"] = finish(out["E"], r4, a4, "holes")
+    if "E+mix" in runnable:
+        out["E+mix"] = finish(out["E"], r4, a4, "mix", net)
     if "render_dec" in sample:
         rd, ad = sample["render_dec"], sample["alpha_dec"].astype(np.float32)
         out["D-dec"] = rd
         out["E-dec"] = enhance(*mixed, rd, ad, **kw)
-        out["E-dec+holes"] = np.round(
-            np.clip(ad, 0, 1)[..., None] * rd + (1 - np.clip(ad, 0, 1)[..., None]) * out["E-dec"]
-        ).astype(np.uint8)
+        out["E-dec+holes"] = finish(out["E-dec"], rd, ad, "holes")
+        if net is not None:
+            out["E-dec+mix"] = finish(out["E-dec"], rd, ad, "mix", net)
     vae = mixed[1]
     T, V, H, W, _ = sample["target"].shape
     flat = sample["target"].reshape(T * V, H, W, 3)
@@ -167,7 +178,7 @@ def evaluate(
     models = load_enhancers(weights_dir)
     generators = load_models(weights_dir)
     decoder_models = generators if "reconstruct" in generators.modes else None
-    versions = versions_of(models) + (DECODER_VERSIONS if decoder_models is not None else ())
+    versions = versions_of(models, decoder=decoder_models is not None)
     seeds = split_seeds(split, count)
     per = {v: {s: [] for s in shifts} for v in versions}
     depth = {s: [] for s in shifts}
@@ -197,7 +208,7 @@ def evaluate(
                 examples[s] = {
                     "target": sample["target"],
                     "alpha": sample["alpha_4d"],
-                    **({k: frames[k] for k in ("D", "E", "E+holes", "A") if k in frames}),
+                    **({k: frames[k] for k in ("D", "E", "E+holes", "E+mix", "A") if k in frames}),
                 }
             if bar is not None:
                 bar.update(1)

@@ -34,11 +34,10 @@ from worldsplat.pipeline.render import render_scene_track
 from worldsplat.pipeline.scene import generate_scene
 from worldsplat.world import build_world
 from worldsplat_models import conditions as caption_encoder
-from worldsplat_models.enhancer import enhance, finish, load_enhancer
+from worldsplat_models.enhancer import default_blend, enhance, finish, load_enhancer
 from worldsplat_models.weights import weights_dir
 
 WEIGHTS = weights_dir() / "enhancer_small.safetensors"
-DEFAULT_BLEND = "holes"
 
 
 def refine_available(weights: Path | None = None) -> bool:
@@ -87,7 +86,7 @@ def refine_track(
     progress=None,
     cancelled=None,
     scenario=None,
-    blend: str = DEFAULT_BLEND,
+    blend: str | None = None,
     seed: int = 0,
     weights: Path | None = None,
     timings: dict | None = None,
@@ -95,9 +94,10 @@ def refine_track(
 ) -> np.ndarray:
     """Refined frames (T,V',H,W,3) uint8 of the scene seen from the track shifted `shift_m` m left, for `cameras`
     (names, rig order; None = all). progress(stage, fraction) with stages "render", "conditions", "refine";
-    cancelled() is checked between stages (raises worldsplat.core.errors.Cancelled). blend "holes" (default) keeps the
-    render where it covers the pixel and fills its holes with the model's output; "none" returns the model's output
-    everywhere (the paper's form). `render` (a TrackRender of the full rig) skips the render stage."""
+    cancelled() is checked between stages (raises worldsplat.core.errors.Cancelled). blend None (default) is the
+    file's own (`enhancer.default_blend`): "mix" (the pixel mix of render and output it bundles, pixel_mix.py) or
+    "holes" (keeps the render where it covers the pixel and fills its holes with the model's output); "none" returns
+    the model's output everywhere (the paper's form). `render` (a TrackRender of the full rig) skips the render stage."""
     shift_m = check_shift(shift_m)
     if steps is not None and (not isinstance(steps, int) or not 1 <= steps <= 64):
         raise ValueError(f"steps must be an integer in 1..64, got {steps!r}")
@@ -112,6 +112,8 @@ def refine_track(
     world = build_world(scenario_of(scene, scenario))
     _check_rig(scene, world)
     model, vae = load_refiner(None if weights is None else str(weights))
+    blend = blend or default_blend(model)
+    tm["blend"] = blend
     steps = steps or model.cfg.dit.sampler_steps  # the model's own (1 for the v2 bridge, 8 for the session-2 model)
     tm["steps"] = steps
 
@@ -166,7 +168,8 @@ def refine_track(
         timings=tm,
     )
     t0 = time.perf_counter()
-    out = finish(refined[:, idx], full.rgb[:, full_idx], full.alpha[:, full_idx], blend)
+    low_view = (low.rgb[:, idx], low.alpha[:, idx])
+    out = finish(refined[:, idx], full.rgb[:, full_idx], full.alpha[:, full_idx], blend, model.mix, low_view)
     tm["decode"] = tm.get("decode", 0.0) + time.perf_counter() - t0
     prog("refine", 1.0)
     return out
@@ -178,7 +181,7 @@ def stage_timings(
     scenario=None,
     steps: int | None = None,
     cameras: list[str] | None = None,
-    blend: str = DEFAULT_BLEND,
+    blend: str | None = None,
     weights: Path | None = None,
 ) -> dict:
     """Seconds per stage of one refined video (render, conditions, encode, denoise, decode, video) and per

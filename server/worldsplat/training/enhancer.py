@@ -219,6 +219,8 @@ def train(
     called every `grow_every` steps and returns newly cached (degraded, clean) pairs to add (training while the pair
     generator still runs; not bit-reproducible, the provenance says so)."""
     cfg = model.cfg
+    if model.mix is not None:  # a bundled pixel mix is fitted to a trained enhancer's outputs afterwards, not here
+        model.mix.requires_grad_(False)
     first_step: list[int] = []
 
     def step_fn(_model, step: int, gen: torch.Generator):
@@ -355,6 +357,22 @@ def _current_command(cmd: str | None) -> str | None:
     )
 
 
+def _mix_lines(mp: dict) -> list[str]:
+    gains = mp.get("test_gain_vs_ddec", {})
+    fig = "; ".join(
+        f"{float(s):g} m: mix {g['mix']:+.2f}, holes {g['holes']:+.2f}, full output {g['full']:+.2f} dB"
+        for s, g in sorted(gains.items(), key=lambda kv: float(kv[0]))
+    )
+    return [
+        f"- pixel mix (bundled, tensors `mix.*`; `worldsplat_models/pixel_mix.py`; the default blend \"mix\"): "
+        f"{mp.get('params')} parameters, fitted after the enhancer (which it leaves unchanged) to its outputs, "
+        f"{mp.get('steps')} Adam steps on {mp.get('train_clip_shifts')} clip-shifts of {mp.get('data')}; wall time "
+        f"{mp.get('wall_s')} s",
+        f"- pixel mix, test clips 0-5, E-dec - D-dec (PSNR over every camera and frame): {fig}",
+        f"- pixel mix, this run: `{mp.get('command')}`",
+    ]
+
+
 def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
     """models/weights/MODEL_CARD_enhancer.md from the provenance stored in the shipped weight files."""
     lines = [
@@ -427,6 +445,7 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
                 f"them with the shipped VAE and decoder): `{_current_command(prov.get('command'))}`"
             ),
             *([f"- history: {prov['note']}"] if prov.get("note") else []),
+            *(_mix_lines(prov["pixel_mix"]) if prov.get("pixel_mix") else []),
             "",
         ]
     path = path or Path(weights_dir) / "MODEL_CARD_enhancer.md"

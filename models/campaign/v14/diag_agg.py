@@ -23,7 +23,6 @@ from worldsplat.pipeline.render import render_scene_track  # noqa: E402
 from worldsplat.pipeline.scene import oracle_scene  # noqa: E402
 from worldsplat.training.data import ShardDataset  # noqa: E402
 
-ds = ShardDataset(sys.argv[1], "test")
 FUSION = "fuse" in {f.name for f in dataclasses.fields(Economy)}  # only with session 11's diff applied
 
 rows: dict = {}
@@ -45,22 +44,28 @@ def sc(s, scene, t=1):
     return float(np.mean([psnr(_img(tr[0, v]), _img(s["rgb"][t, v])) for v in range(6)]))
 
 
-for i in range(int(sys.argv[2]) if len(sys.argv) > 2 else 3):
-    s = ds[i]
-    clip = clip_view(s, rig_of(s))
-    gcol = s["rgb"].astype(np.float32) / 255.0
-    gdep = np.asarray(s["depth"], np.float64)
-    gdyn = np.asarray(s["dynamic"], np.float32)
-    eco = Economy.for_decoded(1.0)
-    for k, surf in ((0.3, False), (0.15, False), (0.3, True), (0.5, True)):
-        dec = build(clip, gcol, gdep, gdyn, k=k, surfel=surf)
-        k = f"{k}{'s' if surf else ''}"
-        add(f"k{k} agg", sc(s, to_scene4d(dec, economy=eco)))
-        if FUSION:
-            add(f"k{k} agg fuse", sc(s, to_scene4d(dec, economy=dataclasses.replace(eco, fuse=True))))
-        add(f"k{k} frame t only", sc(s, to_scene4d(only_frames(dec, {1}), economy=eco)))
-        add(f"k{k} frames t,t+1", sc(s, to_scene4d(only_frames(dec, {1, 2}), economy=eco)))
-        add(f"k{k} frames t-1,t", sc(s, to_scene4d(only_frames(dec, {0, 1}), economy=eco)))
-    add("oracle mode (served lifting)", sc(s, oracle_scene(clip)))
-    print(i, {k: round(v[-1], 2) for k, v in rows.items()}, flush=True)
-print("mean", {k: round(float(np.mean(v)), 2) for k, v in rows.items()})
+def main(data: str, n: int) -> None:
+    ds = ShardDataset(data, "test")
+    for i in range(n):
+        s = ds[i]
+        clip = clip_view(s, rig_of(s))
+        gcol = s["rgb"].astype(np.float32) / 255.0
+        gdep = np.asarray(s["depth"], np.float64)
+        gdyn = np.asarray(s["dynamic"], np.float32)
+        eco = Economy.for_decoded(1.0)
+        for k, surf in ((0.3, False), (0.15, False), (0.3, True), (0.5, True)):
+            dec = build(clip, gcol, gdep, gdyn, k=k, surfel=surf)
+            k = f"{k}{'s' if surf else ''}"
+            add(f"k{k} agg", sc(s, to_scene4d(dec, economy=eco)))
+            if FUSION:
+                add(f"k{k} agg fuse", sc(s, to_scene4d(dec, economy=dataclasses.replace(eco, fuse=True))))
+            add(f"k{k} frame t only", sc(s, to_scene4d(only_frames(dec, {1}), economy=eco)))
+            add(f"k{k} frames t,t+1", sc(s, to_scene4d(only_frames(dec, {1, 2}), economy=eco)))
+            add(f"k{k} frames t-1,t", sc(s, to_scene4d(only_frames(dec, {0, 1}), economy=eco)))
+        add("oracle mode (served lifting)", sc(s, oracle_scene(clip)))
+        print(i, {k: round(v[-1], 2) for k, v in rows.items()}, flush=True)
+    print("mean", {k: round(float(np.mean(v)), 2) for k, v in rows.items()})
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 3)

@@ -84,6 +84,6 @@ def test_gallery_grid(models, tmp_path):
 
 
 def test_gallery_cli_arguments():
-    args = build_parser(only="gallery").parse_args(["gallery", "--weights", "models/campaign", "--random", "2"])
-    assert args.weights == Path("models/campaign") and args.random == 2 and args.frame == 1 and args.steps == 8
+    args = build_parser(only="gallery").parse_args(["gallery", "--weights", "runs/weights", "--random", "2"])
+    assert args.weights == Path("runs/weights") and args.random == 2 and args.frame == 1 and args.steps == 8
     assert args.presets.split(",") == list(gallery.DEFAULT_PRESETS)

@@ -3,8 +3,8 @@
 Per camera: primary rays (unit camera-z directions, so the ray parameter IS the camera-z depth) hit the ground
 plane z = 0 analytically, then every primitive that survives frustum culling is tested only on the pixels of its
 projected screen rectangle (box slab test / sphere quadratic) with a z-test. Shading is then done once for all
-views of a frame: procedural textures (asphalt noise, lane paint, paving, facade windows, car lights), Lambert
-sun + sky ambient, shadows from a sun shadow map, street lights and headlights at night, wet roads and rain
+views of a frame: each surface's procedural texture (`world.surfaces`: asphalt noise, lane paint, paving, facade
+windows, car lights), Lambert sun + sky ambient, shadows from a sun shadow map, street lights and headlights at night, wet roads and rain
 streaks, and exponential fog by depth. Sky pixels have depth +inf and class SKY.
 """
 
@@ -17,22 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from worldsplat.core.camera import Camera
-from worldsplat.world.classes import CROSSWALK, CURB, LANE_MARKING, SIDEWALK, SKY, TERRAIN
+from worldsplat.world.classes import SKY
 from worldsplat.world.lighting import Lighting
-from worldsplat.world.prims import (
-    BOX,
-    M_BUILDING,
-    M_BUS,
-    M_CABIN,
-    M_CAR_BODY,
-    M_FOLIAGE,
-    M_HOUSE,
-    M_LAMP,
-    M_PERSON,
-    M_TRAFFIC_LIGHT,
-    SPHERE,
-    Prims,
-)
+from worldsplat.world.prims import BOX, Prims
+from worldsplat.world.surfaces import ground_albedo, prim_hits, shade_prims, sky_colour, wet_reflection
 
 NEAR = 0.05
 FAR = 250.0
@@ -48,30 +36,6 @@ def single_threaded_blas():
     except ImportError:  # pragma: no cover - threadpoolctl ships with the pinned environment
         return contextlib.nullcontext()
     return threadpool_limits(limits=1, user_api="blas")
-
-
-# -- hashing noise (deterministic, vectorized) --------------------------------------------------------------------
-def hash01(a: np.ndarray, b: np.ndarray, c: int | np.ndarray = 0) -> np.ndarray:
-    """Integer lattice coordinates -> pseudo-random float32 in [0, 1)."""
-    h = (
-        np.asarray(a).astype(np.int64).astype(np.uint32) * np.uint32(374761393)
-        + np.asarray(b).astype(np.int64).astype(np.uint32) * np.uint32(668265263)
-        + np.asarray(c).astype(np.int64).astype(np.uint32) * np.uint32(2246822519)
-    )
-    h = (h ^ (h >> np.uint32(13))) * np.uint32(1274126177)
-    h = h ^ (h >> np.uint32(16))
-    return (h >> np.uint32(8)).astype(np.float32) * np.float32(1.0 / (1 << 24))
-
-
-def value_noise(x: np.ndarray, y: np.ndarray, scale: float, seed: int = 0) -> np.ndarray:
-    """Smooth 2D value noise in [0, 1) with cells of `scale` metres."""
-    gx, gy = x / scale, y / scale
-    ix, iy = np.floor(gx), np.floor(gy)
-    fx, fy = (gx - ix).astype(np.float32), (gy - iy).astype(np.float32)
-    fx, fy = fx * fx * (3 - 2 * fx), fy * fy * (3 - 2 * fy)
-    a, b = hash01(ix, iy, seed), hash01(ix + 1, iy, seed)
-    c, d = hash01(ix, iy + 1, seed), hash01(ix + 1, iy + 1, seed)
-    return (a + (b - a) * fx) * (1 - fy) + (c + (d - c) * fx) * fy
 
 
 # -- visibility ---------------------------------------------------------------------------------------------------
@@ -276,288 +240,66 @@ class ShadeInput:
 
 
 def shade(world, prims: Prims, si: ShadeInput, smap: ShadowMap | None) -> tuple[np.ndarray, np.ndarray]:
-    """Colour (N,3) float32 in [0,1] and semantic class (N,) uint8 for every ray."""
+    """Colour (N,3) float32 in [0,1] and semantic class (N,) uint8 for every ray: each surface's albedo and
+    emission (`world.surfaces`), then light, the sky and fog."""
     L: Lighting = world.lighting
-    road = world.road
     n = si.t.shape[0]
     rgb = np.zeros((n, 3), np.float32)
     sem = np.full(n, SKY, np.uint8)
     albedo = np.zeros((n, 3), np.float32)
     emissive = np.zeros((n, 3), np.float32)
     normal = np.zeros((n, 3), np.float32)
-    wet = L.weather == "rain"
-
-    # Ground.
     g = np.nonzero(si.pid == PID_GROUND)[0]
     if len(g):
-        x, y = si.p[g, 0], si.p[g, 1]
-        cls, u, v = road.ground(x, y)
-        sem[g] = cls
-        fine = hash01(np.floor(x * 8), np.floor(y * 8), 1)
-        coarse = value_noise(x, y, 3.0, 2)
-        alb = np.zeros((len(g), 3), np.float32)
-        base = (0.2 + 0.05 * coarse + 0.05 * fine)[:, None]
-        asphalt = base * np.array([1.0, 1.0, 1.04], np.float32)
-        if wet:
-            asphalt *= 0.6
-        alb[:] = asphalt
-        paint = 0.78 + 0.08 * fine
-        is_mark = cls == LANE_MARKING
-        yellow = road.marking_colour_is_yellow(x, y) & is_mark
-        alb[is_mark] = paint[is_mark, None] * np.array([1.0, 1.0, 1.0], np.float32)
-        alb[yellow] = paint[yellow, None] * np.array([0.95, 0.75, 0.2], np.float32)
-        cw = cls == CROSSWALK
-        alb[cw] = paint[cw, None]
-        curb = cls == CURB
-        alb[curb] = np.array([0.62, 0.62, 0.6], np.float32) * (0.9 + 0.1 * fine[curb, None])
-        sw = cls == SIDEWALK
-        if sw.any():
-            fu, fv = np.mod(u[sw], 1.2), np.mod(v[sw], 1.2)
-            joint = (fu < 0.05) | (fv < 0.05)
-            tile = 0.5 + 0.06 * hash01(np.floor(u[sw] / 1.2), np.floor(v[sw] / 1.2), 3)
-            tile = np.where(joint, tile * 0.7, tile)
-            alb[sw] = tile[:, None] * np.array([1.0, 0.97, 0.92], np.float32)
-        ter = cls == TERRAIN
-        if ter.any():
-            gn = 0.75 + 0.25 * value_noise(x[ter], y[ter], 1.5, 4) + 0.1 * fine[ter]
-            alb[ter] = gn[:, None] * np.array([0.26, 0.38, 0.15], np.float32)
-        albedo[g] = alb
+        albedo[g], sem[g] = ground_albedo(world.road, si.p[g, 0], si.p[g, 1], L.weather == "rain")
         normal[g] = (0.0, 0.0, 1.0)
-        if wet:
-            # Wet road: a dim reflection of the sky, stronger at grazing angles.
-            dn = si.d[g] / np.linalg.norm(si.d[g], axis=1, keepdims=True)
-            fres = (0.08 + 0.5 * (1 + dn[:, 2]) ** 5).astype(np.float32)
-            emissive[g] += fres[:, None] * L.sky_horizon.astype(np.float32) * 0.6
-
-    # Primitives.
+        if L.weather == "rain":
+            emissive[g] += wet_reflection(si.d[g], L.sky_horizon)
     h = np.nonzero(si.pid >= 0)[0]
     if len(h):
-        k = si.pid[h]
-        sem[h] = prims.cls[k]
-        c, s = np.cos(prims.yaw[k]).astype(np.float32), np.sin(prims.yaw[k]).astype(np.float32)
-        rel = (si.p[h] - prims.center[k]).astype(np.float32)  # small offsets: float32 is exact enough
-        lx, ly, lz = c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1], rel[:, 2]
-        half = prims.half[k].astype(np.float32)
-        sphere = prims.shape[k] == SPHERE
-        # Box normal: the local axis where the hit point is closest to the face.
-        ax, ay, az = np.abs(lx) / half[:, 0], np.abs(ly) / half[:, 1], np.abs(lz) / half[:, 2]
-        on_x = (ax >= ay) & (ax >= az)
-        on_y = ~on_x & (ay >= az)
-        axis = np.where(on_x, 0, np.where(on_y, 1, 2)).astype(np.int8)
-        sign = np.where(on_x, np.sign(lx), np.where(on_y, np.sign(ly), np.sign(lz)))
-        nlx, nly = np.where(on_x, sign, 0).astype(np.float32), np.where(on_y, sign, 0).astype(np.float32)
-        nlz = np.where(axis == 2, sign, 0).astype(np.float32)
-        nw = np.stack([c * nlx - s * nly, s * nlx + c * nly, nlz], -1)
-        if sphere.any():
-            nsph = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-9)
-            nw = np.where(sphere[:, None], nsph, nw)
-        normal[h] = nw
-        col = prims.color[k].copy()
-        em = np.zeros_like(col)
-        mat = prims.material[k]
-        key = prims.key[k]
-        z = si.p[h, 2].astype(np.float32)
-        side_face = axis < 2
-        along = np.where(axis == 0, ly, lx)  # horizontal coordinate on a vertical face
-        face_half = np.where(axis == 0, half[:, 1], half[:, 0])
-
-        def windows(sel, floor_h, col_w, win_w, ground_floor):
-            a = along[sel]
-            zz = z[sel]
-            fz = np.mod(zz, floor_h) / floor_h
-            fa = np.mod(a + 100.0, col_w) / col_w
-            inner = np.abs(a) < face_half[sel] - 0.6
-            win = (
-                side_face[sel]
-                & inner
-                & (fz > 0.3)
-                & (fz < 0.78)
-                & (np.abs(fa - 0.5) < win_w / 2)
-                & (zz > ground_floor)
-                & (zz < 2 * half[sel, 2] - 0.8)
-            )
-            return win, np.floor(zz / floor_h), np.floor((a + 100.0) / col_w)
-
-        b = (mat == M_BUILDING) | (mat == M_HOUSE)
-        if b.any():
-            bi = np.nonzero(b)[0]
-            house = mat[bi] == M_HOUSE
-            win, fl, cl = windows(
-                bi,
-                np.where(house, 2.9, 3.3),
-                np.where(house, 3.6, 2.6),
-                np.where(house, 0.35, 0.55),
-                np.where(house, 0.6, 3.0),
-            )
-            shop = (
-                (~house)
-                & side_face[bi]
-                & (z[bi] > 0.4)
-                & (z[bi] < 2.7)
-                & (np.mod(along[bi] + 100.0, 5.0) > 0.6)
-                & (np.abs(along[bi]) < face_half[bi] - 0.5)
-            )
-            glass = win | shop
-            roof = axis[bi] == 2
-            cb = col[bi]
-            cb = cb * (0.95 + 0.05 * hash01(np.floor(z[bi] * 2), np.floor(along[bi] * 2), 5))[:, None]
-            cb[roof] = np.where(
-                house[roof, None], np.array([0.42, 0.2, 0.15], np.float32), np.array([0.36, 0.36, 0.37], np.float32)
-            )
-            reflect = 0.1 + 0.25 * hash01(fl, cl, (key[bi] * 1000).astype(np.int64))
-            cb[glass] = (
-                np.array([0.08, 0.1, 0.13], np.float32) + reflect[glass, None] * L.sky_horizon.astype(np.float32) * 0.8
-            )
-            col[bi] = cb
-            if L.lights_on:
-                lit = glass & (hash01(fl, cl, (key[bi] * 7919).astype(np.int64) + 11) < (0.45 if L.night else 0.25))
-                lit |= shop & L.night & (hash01(np.floor(along[bi] / 5.0), fl, 23) < 0.35)
-                e = em[bi]
-                e[lit] = np.array([1.0, 0.82, 0.5], np.float32) * (0.6 if L.night else 0.35)
-                em[bi] = e
-        veh = mat == M_CAR_BODY
-        if veh.any():
-            vi = np.nonzero(veh)[0]
-            cv = col[vi]
-            lxv, lyv, hv = lx[vi], ly[vi], half[vi]
-            wheel = (z[vi] < 0.62) & (np.abs(np.abs(lxv) - (hv[:, 0] - 0.85)) < 0.38) & side_face[vi]
-            sill = z[vi] < 0.3
-            cv[sill] *= 0.35
-            cv[wheel] = (0.03, 0.03, 0.03)
-            front = (axis[vi] == 0) & (sign[vi] > 0)
-            rear = (axis[vi] == 0) & (sign[vi] < 0)
-            lamp_zone = (np.abs(lyv) > hv[:, 1] - 0.45) & (np.abs(z[vi] - (z[vi] - lz[vi] + hv[:, 2] * 0.55)) < 0.14)
-            head = front & lamp_zone
-            tail = rear & lamp_zone
-            grille = front & ~lamp_zone & (np.abs(lz[vi]) < hv[:, 2] * 0.5)
-            cv[grille] *= 0.4
-            cv[head] = (0.92, 0.92, 0.85)
-            cv[tail] = (0.7, 0.05, 0.05)
-            col[vi] = cv
-            ev = em[vi]
-            if L.lights_on:
-                ev[head] = (1.6, 1.5, 1.2)
-                ev[tail] = (1.2, 0.05, 0.03)
-            em[vi] = ev
-        cab = mat == M_CABIN
-        if cab.any():
-            ci = np.nonzero(cab)[0]
-            # Windows on every vertical face, framed by a thin band of body colour (pillars, sills).
-            a_ci = np.abs(along[ci])
-            glass = (
-                side_face[ci]
-                & (a_ci < face_half[ci] - 0.12)
-                & (lz[ci] > -0.75 * half[ci, 2])
-                & (lz[ci] < 0.8 * half[ci, 2])
-            )
-            cc = col[ci]
-            cc[glass] = np.array([0.12, 0.15, 0.19], np.float32) + 0.3 * L.sky_horizon.astype(np.float32)
-            col[ci] = cc
-        bus = mat == M_BUS
-        if bus.any():
-            bi2 = np.nonzero(bus)[0]
-            zz = z[bi2]
-            band = side_face[bi2] & (zz > 1.25) & (zz < 2.5) & (np.mod(along[bi2] + 100, 1.6) > 0.12)
-            cb2 = col[bi2]
-            cb2[band] = np.array([0.06, 0.08, 0.1], np.float32) + 0.2 * L.sky_horizon.astype(np.float32)
-            cb2[zz < 0.6] *= 0.3
-            col[bi2] = cb2
-        fol = mat == M_FOLIAGE
-        if fol.any():
-            fi = np.nonzero(fol)[0]
-            pf = si.p[h[fi]]
-            nz = hash01(np.floor(pf[:, 0] * 3) + np.floor(pf[:, 2] * 3) * 131, np.floor(pf[:, 1] * 3), 9)
-            col[fi] *= (0.7 + 0.6 * nz)[:, None]
-        per = mat == M_PERSON
-        if per.any():
-            pi = np.nonzero(per)[0]
-            legs = lz[pi] < -0.1 * half[pi, 2]
-            cp = col[pi]
-            cp[legs] = (0.12, 0.12, 0.18)
-            col[pi] = cp
-        lamp = mat == M_LAMP
-        if lamp.any() and L.lights_on:
-            em[lamp] = (2.0, 1.8, 1.3)
-        tl = mat == M_TRAFFIC_LIGHT
-        if tl.any():
-            ti = np.nonzero(tl)[0]
-            disc = side_face[ti] & (np.abs(along[ti]) < 0.1) & (np.abs(np.mod(lz[ti] + 0.45, 0.3) - 0.15) < 0.09)
-            slot = np.floor((lz[ti] + 0.45) / 0.3)  # 0 bottom (green) .. 2 top (red)
-            on = np.where(key[ti] < 0.5, 2, 0)
-            colour = np.where(
-                (slot == 2)[:, None],
-                np.array([1.0, 0.1, 0.05], np.float32),
-                np.where(
-                    (slot == 1)[:, None], np.array([1.0, 0.7, 0.1], np.float32), np.array([0.1, 1.0, 0.4], np.float32)
-                ),
-            )
-            lit = disc & (slot == on)
-            et = em[ti]
-            et[lit] = colour[lit] * 1.5
-            ct = col[ti]
-            ct[disc & ~lit] = colour[disc & ~lit] * 0.2
-            col[ti] = ct
-            em[ti] = et
-        albedo[h] = col
-        emissive[h] += em
-
-    hit = si.pid != PID_SKY
-    hi = np.nonzero(hit)[0]
+        ph = prim_hits(prims, si.pid[h], si.p[h])
+        sem[h] = prims.cls[ph.k]
+        normal[h] = ph.normal
+        shade_prims(ph, prims, si.p[h], L)
+        albedo[h] = ph.col
+        emissive[h] += ph.em
+    hi = np.nonzero(si.pid != PID_SKY)[0]
     if len(hi):
-        nrm = normal[hi]
-        sun = L.sun_dir.astype(np.float32)
-        lambert = np.clip(nrm @ sun, 0.0, None)
-        if smap is not None and L.shadows:
-            # Only sunlit-facing points need the lookup; a normal offset of about one shadow-map texel avoids
-            # self-shadowing ("acne") at grazing light.
-            facing = np.nonzero(lambert > 0)[0]
-            lambert[facing] *= smap.lit(si.p[hi[facing]], 0.4 * nrm[facing])
-        light = (
-            L.ambient.astype(np.float32)[None] * (0.75 + 0.25 * nrm[:, 2:3])
-            + lambert[:, None] * L.sun_color.astype(np.float32)[None]
-        )
-        if L.lights_on:
-            light = light + _artificial_light(world, si.p[hi], nrm, si.ego_to_world)
-        rgb[hi] = albedo[hi] * light + emissive[hi]
-
-    # Sky.
-    sk = np.nonzero(~hit)[0]
+        rgb[hi] = albedo[hi] * _light(world, si.p[hi], normal[hi], si.ego_to_world, smap) + emissive[hi]
+    sk = np.nonzero(si.pid == PID_SKY)[0]
     if len(sk):
-        dn = si.d[sk] / np.linalg.norm(si.d[sk], axis=1, keepdims=True)
-        el = np.clip(dn[:, 2], 0.0, 1.0).astype(np.float32)
-        w = np.sqrt(el)[:, None]
-        sky = L.sky_horizon[None].astype(np.float32) * (1 - w) + L.sky_zenith[None].astype(np.float32) * w
-        if L.weather in ("clear",) and L.time_of_day != "night":
-            cosang = np.clip(dn @ L.sun_dir, 0, 1).astype(np.float32)
-            sky = sky + L.sun_color.astype(np.float32)[None] * (0.5 * cosang**48 + (cosang > 0.9995))[:, None]
-            # A few fair-weather clouds on a virtual plane above the scene.
-            px, py = dn[:, 0] / (dn[:, 2] + 0.05), dn[:, 1] / (dn[:, 2] + 0.05)
-            cl = 0.65 * value_noise(px, py, 0.9, 31) + 0.35 * value_noise(px, py, 0.3, 32)
-            cover = (np.clip((cl - 0.58) * 4.0, 0, 1) * np.clip(el * 8.0, 0, 1))[:, None]
-            cloud = np.float32(0.92) * (L.ambient.astype(np.float32) + L.sun_color.astype(np.float32) * 0.6)
-            sky = sky * (1 - cover) + np.clip(cloud, 0, 1)[None] * cover
-        elif L.weather in ("overcast", "rain"):
-            cl = value_noise(dn[:, 0] / (dn[:, 2] + 0.08), dn[:, 1] / (dn[:, 2] + 0.08), 0.6, 21)
-            sky = sky * (0.88 + 0.2 * cl)[:, None]
-        if L.night:
-            stars = (
-                (
-                    hash01(np.floor(dn[:, 0] * 400), np.floor(dn[:, 1] * 400) + np.floor(dn[:, 2] * 400) * 977, 17)
-                    > 0.9985
-                )
-                & (el > 0.05)
-                & (L.weather == "clear")
-            )
-            sky = sky + stars[:, None] * 0.6
-        rgb[sk] = sky
+        rgb[sk] = sky_colour(L, si.d[sk])
+    _fog(L, rgb, si.t, hi, sk)
+    return rgb, sem
 
-    # Fog / aerial perspective.
+
+def _light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.ndarray, smap: ShadowMap | None) -> np.ndarray:
+    """Light (n,3) arriving at surface points p with normals nrm: sky ambient, the sun (Lambert, shadowed), and
+    street lights and headlights when the lights are on."""
+    L: Lighting = world.lighting
+    sun = L.sun_dir.astype(np.float32)
+    lambert = np.clip(nrm @ sun, 0.0, None)
+    if smap is not None and L.shadows:
+        # Only sunlit-facing points need the lookup; a normal offset of about one shadow-map texel avoids
+        # self-shadowing ("acne") at grazing light.
+        facing = np.nonzero(lambert > 0)[0]
+        lambert[facing] *= smap.lit(p[facing], 0.4 * nrm[facing])
+    light = (
+        L.ambient.astype(np.float32)[None] * (0.75 + 0.25 * nrm[:, 2:3])
+        + lambert[:, None] * L.sun_color.astype(np.float32)[None]
+    )
+    if L.lights_on:
+        light = light + _artificial_light(world, p, nrm, ego_to_world)
+    return light
+
+
+def _fog(L: Lighting, rgb: np.ndarray, t: np.ndarray, hi: np.ndarray, sk: np.ndarray) -> None:
+    """Aerial perspective by depth on surfaces (hi), and a fog-veiled sky (sk), in place."""
     if len(hi):
-        f = np.exp(-si.t[hi] / L.fog_distance).astype(np.float32)[:, None]
+        f = np.exp(-t[hi] / L.fog_distance).astype(np.float32)[:, None]
         rgb[hi] = rgb[hi] * f + L.fog_color.astype(np.float32)[None] * (1 - f)
     if L.weather == "fog" and len(sk):
         rgb[sk] = rgb[sk] * 0.15 + L.fog_color.astype(np.float32)[None] * 0.85
-    return rgb, sem
 
 
 def _artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.ndarray) -> np.ndarray:

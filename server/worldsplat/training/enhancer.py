@@ -62,8 +62,9 @@ def has_clean_pair(seed: int) -> bool:
 
 
 def has_decoder_pair(seed: int, every: int = 2) -> bool:
-    """Every `every`-th seed also gets a degraded pair rendered from the learned decoder's reconstruction (2: the
-    session-2 pairs; 1: every seed, the v2 enhancer's, which refines what the playground serves)."""
+    """Every `every`-th seed also gets a degraded pair rendered from the learned decoder's reconstruction (2: every
+    other seed, the ablation model's recipe; 1: every seed, the served enhancer's, which refines what the playground
+    serves)."""
     return seed % every == every - 1
 
 
@@ -350,11 +351,22 @@ def heldout_metrics(model, vae, samples: list[dict], steps: int = 8) -> dict:
     }
 
 
-def _current_command(cmd: str | None) -> str | None:
-    """A recorded command in today's spelling (`python -m worldsplat_models.train_enhancer` is now the CLI's)."""
-    return (
-        None if cmd is None else cmd.replace("python -m worldsplat_models.train_enhancer", "worldsplat train-enhancer")
-    )
+# A run recorded by a one-off script outside the product; the scripts are in git history, not in the tree.
+_SCRIPT_RUN = "a one-off training script (in git history, from before the research records left the tree)"
+# Provenance keys of a bundled VAE that name its history, not what it is (the history is CHANGELOG.md's).
+_HISTORY_KEYS = ("note", "campaign", "source")
+
+
+def _current_command(cmd: str | None) -> str:
+    """A recorded command in today's spelling, quoted (`python -m worldsplat_models.train_enhancer` is now the CLI's),
+    or what ran it when that was a script outside the product."""
+    if cmd is None or str(cmd).startswith("python models/"):
+        return _SCRIPT_RUN
+    return "`" + cmd.replace("python -m worldsplat_models.train_enhancer", "worldsplat train-enhancer") + "`"
+
+
+def _vae_facts(meta: dict) -> dict:
+    return {k: v for k, v in meta.items() if k not in _HISTORY_KEYS}
 
 
 def _mix_lines(mp: dict) -> list[str]:
@@ -369,7 +381,7 @@ def _mix_lines(mp: dict) -> list[str]:
         f"{mp.get('steps')} Adam steps on {mp.get('train_clip_shifts')} clip-shifts of {mp.get('data')}; wall time "
         f"{mp.get('wall_s')} s",
         f"- pixel mix, test clips 0-5, E-dec - D-dec (PSNR over every camera and frame): {fig}",
-        f"- pixel mix, this run: `{mp.get('command')}`",
+        f"- pixel mix, this run: {_current_command(mp.get('command'))} (the fit: `worldsplat.training.pixel_mix`)",
     ]
 
 
@@ -384,8 +396,8 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
         "evaluation: `web/docs/refinement.md`.",
         "",
         "The training pairs are rendered from the served scenes (eq. 3 via `aggregate_4d`, with the economy; the "
-        "decoder's with the decoded cells and the scale floor). The ablation model (`_nomix`) is still the session-2 "
-        "one, trained on the plain union with the session-1 VAE.",
+        "decoder's with the decoded cells and the scale floor). The ablation model (`_nomix`) is older: trained on "
+        "the plain union with an 8x VAE of 4 latent channels. How each file came to be: CHANGELOG.md (Refinement).",
         "",
     ]
     for name in ("enhancer_small.safetensors", "enhancer_small_nomix.safetensors"):
@@ -411,7 +423,7 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
             f"render_drop {cfg['render_drop']}, cond_drop {cfg['dit']['cond_drop']}; sampler: rectified flow, "
             f"{cfg['dit']['sampler_steps']} Euler step(s), shift {cfg['dit']['sampler_shift']}, from "
             + (
-                f"the render's own latent (latent bridge, v2; trained from it + {cfg['source_noise']} noise, "
+                f"the render's own latent (latent bridge; trained from it + {cfg['source_noise']} noise, "
                 f"sampled from it + {cfg.get('sample_noise', 0.0)})"
                 if cfg.get("source") == "render"
                 else "seeded noise"
@@ -428,7 +440,7 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
                 else " (no decoder renders)"
             ),
             f"- VAE (frozen, bundled): `{prov.get('vae')}`, trained by `worldsplat train vae` (models "
-            f"engineer's code; this snapshot: {json.dumps(prov.get('vae_meta', {}), sort_keys=True)})",
+            f"engineer's code; this snapshot: {json.dumps(_vae_facts(prov.get('vae_meta', {})), sort_keys=True)})",
             f"- training: {prov.get('steps')} steps, batch 1 clip (24 images), AdamW lr {prov.get('lr')} "
             f"(warm-up + cosine), seed {prov.get('seed')}, {prov.get('threads')} thread(s); wall time "
             f"{prov.get('wall_s_this_run')} s on a 2-core CPU (no GPU), shared with other jobs",
@@ -438,13 +450,12 @@ def write_model_card(weights_dir: Path, path: Path | None = None) -> Path:
             f"refined in holes only {hv.get('refined_holes', {}).get('psnr')} dB; test-split ablation in "
             "web/docs/refinement.md",
             (
-                f"- this run: `{_current_command(prov.get('command'))}` --grow (with --grow the pool of pairs grew while the pair "
+                f"- this run: {_current_command(prov.get('command'))}, with --grow (with --grow the pool of pairs grew while the pair "
                 "generator ran, so the step stream is not bit-reproducible)"
                 if prov.get("grow")
                 else f"- reproduce (the exact command of this file; makes the pairs first, then trains on all of "
-                f"them with the shipped VAE and decoder): `{_current_command(prov.get('command'))}`"
+                f"them with the shipped VAE and decoder): {_current_command(prov.get('command'))}"
             ),
-            *([f"- history: {prov['note']}"] if prov.get("note") else []),
             *(_mix_lines(prov["pixel_mix"]) if prov.get("pixel_mix") else []),
             "",
         ]

@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "data on every core + the whole v2/v3 stack on a lent GPU in one budgeted run (weights, card, logs)",
     ),
     "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
+    "judge": ("worldsplat.cli.judge", "the downstream judge: train it, score held-out clips and served scenes"),
     "gallery": ("worldsplat.cli.gallery", "GT | VAE | reconstruct | generate PNGs of presets and held-out scenarios"),
     "bench": ("worldsplat.cli.bench", "speed-against-error benchmark report"),
     "import-scenario": ("worldsplat.cli.scenario_files", "OpenSCENARIO 1.x / CommonRoad XML -> scenario JSON"),

@@ -1,0 +1,265 @@
+"""Decoding: `ProgressiveDecoder` takes bytes as they arrive and yields chunks (it never trusts a count before the
+bytes behind it are present); `decode(data) -> Scene4D` / `read(path)` validate everything and raise
+`WsplatError(kind, offset, field)`."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from worldsplat.core.camera import RigCamera
+from worldsplat.gaussians import context_coder
+from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.gaussians.wsplat.chunks import parse_end, parse_head
+from worldsplat.gaussians.wsplat.spec import (
+    FORMAT_FIELDS,
+    MAGIC,
+    MAX_CHUNK,
+    MAX_HEAD,
+    MAX_RATIO,
+    TAGS,
+    VERSIONS,
+    WsplatError,
+)
+from worldsplat.gaussians.wsplat.v1 import _payload_size, decode_blocks
+from worldsplat.gaussians.wsplat.v2 import decode_blocks_v2, decode_dyna_range, v2_raw_size
+
+
+class ProgressiveDecoder:
+    """Feed bytes as they arrive; `feed` returns the events completed by them:
+    ("header", dict), ("static", Gaussians), ("dynamic", (frame, Gaussians)), ("end", None).
+    Malformed input raises WsplatError at the first bad byte; an unfinished stream is simply incomplete."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.base = 0  # absolute offset of buf[0]
+        self.header: dict | None = None
+        self.static: list[Gaussians] = []
+        self.dynamic: dict[int, list[Gaussians]] = {}
+        self.num_static = 0
+        self.num_dynamic: list[int] = []
+        self.end: dict | None = None  # a streamed file's END! payload (totals, bounds, extra meta)
+        self.version = 0  # the file's, once its first 12 bytes are in
+        self.models: context_coder.Models | None = None  # a range-coded file's models, carried from DYNA to DYNA
+        self.stage = "magic"  # magic -> head -> stat -> dyna -> done; a streamed file: magic -> head -> stream -> done
+        self.bytes_fed = 0
+
+    @property
+    def done(self) -> bool:
+        return self.stage == "done"
+
+    def feed(self, data: bytes) -> list[tuple[str, object]]:
+        if self.stage == "done" and data:
+            raise WsplatError("trailing_data", self.bytes_fed, "file", "bytes after END!")
+        self.buf += data
+        self.bytes_fed += len(data)
+        events = []
+        while True:
+            ev = self._step()
+            if ev is None:
+                break
+            if ev[0] != "":
+                events.append(ev)
+        return events
+
+    def _consume(self, n: int) -> None:
+        del self.buf[:n]
+        self.base += n
+
+    def _step(self):
+        if self.stage == "magic":
+            if len(self.buf) >= 8 and bytes(self.buf[:8]) != MAGIC:
+                raise WsplatError("bad_magic", 0, "magic", "not a .wsplat file")
+            if len(self.buf) < 8 and bytes(self.buf) != MAGIC[: len(self.buf)]:
+                raise WsplatError("bad_magic", 0, "magic", "not a .wsplat file")
+            if len(self.buf) < 12:
+                return None
+            (ver,) = struct.unpack_from("<I", self.buf, 8)
+            if ver not in VERSIONS:
+                raise WsplatError("bad_version", 8, "version", f"version {ver}, this decoder reads {VERSIONS}")
+            self.version = ver
+            self._consume(12)
+            self.stage = "head"
+            return ("", None)
+        if self.stage == "done":
+            if self.buf:
+                raise WsplatError("trailing_data", self.base, "file", "bytes after END!")
+            return None
+        if len(self.buf) < 8:
+            return None
+        tag = bytes(self.buf[:4])
+        (length,) = struct.unpack_from("<I", self.buf, 4)
+        at = self.base
+        if tag not in TAGS:
+            raise WsplatError("bad_tag", at, "chunk.tag", f"unknown chunk tag {tag!r}")
+        if length > MAX_CHUNK:
+            raise WsplatError("chunk_too_large", at + 4, "chunk.length", f"{length} bytes > MAX_CHUNK")
+        expect = {
+            "head": (b"HEAD",),
+            "stat": (b"STAT", b"DYNA", b"END!"),
+            "dyna": (b"DYNA", b"END!"),
+            "stream": (b"STAT", b"DYNA", b"END!"),
+        }[self.stage]
+        if tag not in expect:
+            raise WsplatError(
+                "bad_order",
+                at,
+                "chunk.tag",
+                f"{tag.decode(errors='replace')} not allowed here (expected {'/'.join(t.decode() for t in expect)})",
+            )
+        if tag == b"HEAD" and length > MAX_HEAD:
+            raise WsplatError("bad_header", at + 4, "HEAD.length", f"{length} bytes > {MAX_HEAD}")
+        if len(self.buf) < 12 + length:
+            return None
+        payload = memoryview(bytes(self.buf[8 : 8 + length]))
+        (crc,) = struct.unpack_from("<I", self.buf, 8 + length)
+        if crc != zlib.crc32(bytes(self.buf[: 8 + length])):
+            raise WsplatError("bad_crc", at + 8 + length, "chunk.crc", f"CRC mismatch in {tag.decode()} chunk")
+        pbase = at + 8
+        ev = self._chunk(tag, payload, pbase, at)
+        self._consume(12 + length)
+        return ev
+
+    def _chunk(self, tag: bytes, payload: memoryview, pbase: int, at: int):
+        if tag == b"HEAD":
+            self.header = parse_head(bytes(payload), pbase, self.version)
+            self.num_dynamic = [0] * len(self.header["frame_times"])
+            self.stage = "stream" if self.header["streamed"] else "stat"
+            if self.version == 2 and self.header["dynamic_codec"] == "range":
+                self.models = context_coder.Models(self.header["dynamic_layout"].fields)
+            return ("header", self.header)
+        h = self.header
+        streamed = h["streamed"]
+        if tag == b"END!":
+            if streamed:
+                totals, src = parse_end(payload, pbase, len(h["frame_times"])), "END!"
+            elif len(payload) != 0:
+                raise WsplatError("bad_payload", pbase, "END!.length", "END! payload must be empty")
+            else:
+                totals, src = h, "HEAD"
+            if self.num_static != totals["num_static"]:
+                raise WsplatError(
+                    "count_mismatch",
+                    at,
+                    f"{src}.num_static",
+                    f"STAT chunks hold {self.num_static}, {src} says {totals['num_static']}",
+                )
+            for t, (got, want) in enumerate(zip(self.num_dynamic, totals["num_dynamic"])):
+                if got != want:
+                    raise WsplatError(
+                        "count_mismatch", at, f"{src}.num_dynamic[{t}]", f"DYNA chunks hold {got}, {src} says {want}"
+                    )
+            self.end = totals if streamed else None
+            self.stage = "done"
+            return ("end", None)
+        if tag == b"STAT":
+            layout, head_len, name = h["static_layout"], 4, "STAT"
+            if len(payload) < 4:
+                raise WsplatError("bad_payload", pbase, "STAT.count", "payload shorter than its count")
+            (count,) = struct.unpack_from("<I", payload, 0)
+        else:
+            self.stage = "stream" if streamed else "dyna"
+            layout, head_len, name = h["dynamic_layout"], 8, "DYNA"
+            if len(payload) < 8:
+                raise WsplatError("bad_payload", pbase, "DYNA.frame", "payload shorter than frame + count")
+            frame, count = struct.unpack_from("<II", payload, 0)
+            if frame >= len(h["frame_times"]):
+                raise WsplatError("bad_payload", pbase, "DYNA.frame", f"frame {frame} >= {len(h['frame_times'])}")
+        coff = pbase + head_len - 4
+        if count < 1:
+            raise WsplatError("bad_payload", coff, f"{name}.count", "count must be >= 1")
+        # Check the length implied by count against the bytes present before decoding anything.
+        need = head_len + _payload_size(count, layout, h["block_size"])
+        if self.version == 2:  # compressed: bounded by MAX_RATIO, the sections then checked one by one
+            raw = v2_raw_size(count, layout, h["block_size"])
+            if raw > MAX_RATIO * len(payload):
+                raise WsplatError(
+                    "bad_payload",
+                    coff,
+                    f"{name}.count",
+                    f"count {count} decodes to {raw} bytes > {MAX_RATIO} x the chunk's {len(payload)}",
+                )
+        elif len(payload) != need:
+            raise WsplatError(
+                "bad_payload",
+                coff,
+                f"{name}.count",
+                f"count {count} implies {need} payload bytes, chunk has {len(payload)}",
+            )
+        if streamed:
+            pass  # the totals come with END!
+        elif tag == b"STAT":
+            if self.num_static + count > h["num_static"]:
+                raise WsplatError("count_mismatch", coff, "STAT.count", "more static Gaussians than HEAD.num_static")
+        elif self.num_dynamic[frame] + count > h["num_dynamic"][frame]:
+            raise WsplatError(
+                "count_mismatch", coff, "DYNA.count", f"more dynamic Gaussians than HEAD.num_dynamic[{frame}]"
+            )
+        if tag == b"DYNA" and self.models is not None:
+            a = decode_dyna_range(payload, head_len, count, layout, h["block_size"], pbase, self.models)
+        else:
+            dec = decode_blocks_v2 if self.version == 2 else decode_blocks
+            a = dec(payload, head_len, count, layout, h["block_size"], pbase, name)
+        g = Gaussians.from_numpy(**a)
+        if tag == b"STAT":
+            self.num_static += count
+            self.static.append(g)
+            return ("static", g)
+        self.num_dynamic[frame] += count
+        self.dynamic.setdefault(frame, []).append(g)
+        return ("dynamic", (frame, g))
+
+    def scene(self) -> Scene4D:
+        """The scene decoded so far (static prefix + complete dynamic chunks); requires the header."""
+        if self.header is None:
+            raise WsplatError("truncated", self.bytes_fed, "HEAD", "stream ended before the header")
+        h = self.header
+        rig = [RigCamera.from_json(c) for c in h["rig"]]
+        dyn = [Gaussians.cat(self.dynamic.get(t, [])) for t in range(len(h["frame_times"]))]
+        skip = (
+            "static_layout",
+            "dynamic_layout",
+            "rig",
+            "ego_to_world",
+            "frame_times",
+            "num_dynamic",
+            "bounds",
+            "streamed",
+            *FORMAT_FIELDS,
+        )
+        meta = {k: v for k, v in h.items() if k not in skip}
+        meta["static_layout"] = h["static_layout"].to_json()
+        meta["dynamic_layout"] = h["dynamic_layout"].to_json()
+        meta["bounds"] = h["bounds"]
+        if self.end is not None:  # a whole streamed file: the totals, bounds and late meta of its END!
+            meta.update({k: v for k, v in self.end.items() if k != "num_dynamic"})
+        elif h["streamed"]:
+            meta["num_static"] = self.num_static
+        return Scene4D(
+            Gaussians.cat(self.static),
+            dyn,
+            np.asarray(h["frame_times"]),
+            rig,
+            np.asarray(h["ego_to_world"], dtype=np.float64),
+            meta,
+        )
+
+    def finish(self) -> Scene4D:
+        if self.stage != "done":
+            where = {"magic": "file header", "head": "HEAD chunk", "stat": "END! chunk", "dyna": "END! chunk"}
+            where["stream"] = where["stat"]
+            raise WsplatError("truncated", self.base, "file", f"stream ended before the {where[self.stage]}")
+        return self.scene()
+
+
+def decode(data: bytes) -> Scene4D:
+    dec = ProgressiveDecoder()
+    dec.feed(bytes(data))
+    return dec.finish()
+
+
+def read(path: str | Path) -> Scene4D:
+    return decode(Path(path).read_bytes())

@@ -1,0 +1,156 @@
+"""A *streamed* .wsplat written piece by piece while its scene is generated (`StreamWriter`), and
+`encode_streamed`, the streamed file of a whole scene (tests, vectors)."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import torch
+
+from worldsplat.gaussians import context_coder
+from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.gaussians.wsplat.chunks import _bounds, _chunk, _head
+from worldsplat.gaussians.wsplat.encoder import (
+    POS_PRECISION_OF_VERSION,
+    _dyna_chunks,
+    _dynamic_codec,
+    _pos_precision,
+    _stat_chunks,
+    choose_layouts,
+    layouts_for,
+)
+from worldsplat.gaussians.wsplat.layout import Layout, check_layout_v2, parse_layout
+from worldsplat.gaussians.wsplat.quantise import _sanitized_numpy
+from worldsplat.gaussians.wsplat.spec import DEFAULT_BLOCK_SIZE, DEFAULT_VERSION, FIRST_CHUNK, MAGIC, VERSIONS
+
+
+class StreamWriter:
+    """A *streamed* .wsplat, written piece by piece while its scene is generated (web/docs/wsplat-v1.md, "Streamed
+    files"): HEAD without totals (`num_static`, `num_dynamic` and `bounds` are null), then STAT and DYNA chunks in
+    any order (a window's static Gaussians, then its frames' dynamics, window after window), then END! whose JSON
+    payload carries the totals, the bounds and the meta known only at the end. Readers check the totals against the
+    chunks, so only END! closes the file and a file missing a chunk is refused.
+
+        w = StreamWriter(skeleton, static_layout, dynamic_layout)   # skeleton: frames, rig, poses, meta
+        pieces = [w.head(), *w.static(g), *w.dynamic(t, g), ..., w.end(extra_meta)]
+
+    The layouts are fixed by the HEAD (`layouts_for` the first window); static Gaussians given to an isotropic layout
+    must be isotropic (an anisotropic one is written with its geometric-mean scale). A v2 writer range-codes the
+    DYNA chunks by default (`dynamic_codec`): its models carry from chunk to chunk, so the pieces must reach the file
+    in the order they were returned (as they do)."""
+
+    def __init__(
+        self,
+        skeleton: Scene4D,
+        static_layout: Layout,
+        dynamic_layout: Layout,
+        block_size: int = 0,
+        version: int | None = None,
+        pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
+        dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
+        dynamic_codec: str | None = None,
+    ):
+        self.version = version or DEFAULT_VERSION
+        self.pos_precision = _pos_precision(pos_precision, self.version, static_layout)
+        self.dynamic_pos_precision = _pos_precision(dynamic_pos_precision, self.version, dynamic_layout, dynamic=True)
+        if self.version not in VERSIONS:
+            raise ValueError(f"wsplat: version {self.version} not in {VERSIONS}")
+        if self.version == 2:
+            check_layout_v2(static_layout, 0, "static_layout"), check_layout_v2(dynamic_layout, 0, "dynamic_layout")
+        self.skeleton, self.sl, self.dl = skeleton, static_layout, dynamic_layout
+        self.dynamic_codec = _dynamic_codec(dynamic_codec, self.version)
+        self.models = context_coder.Models(dynamic_layout.fields) if self.dynamic_codec == "range" else None
+        self.block_size = block_size or DEFAULT_BLOCK_SIZE
+        self.num_static, self.num_dynamic = 0, [0] * len(skeleton.frame_times)
+        self._means: list[np.ndarray] = []
+        self._next_size = FIRST_CHUNK
+        self.closed = False
+
+    @classmethod
+    def for_window(
+        cls,
+        skeleton: Scene4D,
+        static: Gaussians,
+        dynamic: list[Gaussians],
+        version: int | None = None,
+        dynamic_codec: str | None = None,
+    ) -> StreamWriter:
+        """A writer whose layouts fit the first window's Gaussians (`layouts_for`; no dynamics yet: they are taken
+        to look like the static ones)."""
+        dyn = [d for d in dynamic if len(d)]
+        sl, dl = layouts_for(static, dyn or [static], version)
+        return cls(skeleton, sl, dl, version=version, dynamic_codec=dynamic_codec)
+
+    def head(self) -> bytes:
+        """The preamble and HEAD."""
+        return MAGIC + struct.pack("<I", self.version) + _head(self.skeleton, self.sl, self.dl, self.block_size,
+                                                                None, None, None, self.version, self.dynamic_codec)  # fmt: skip
+
+    def _numpy(self, g: Gaussians, layout: Layout) -> dict[str, np.ndarray]:
+        a = _sanitized_numpy(g, layout)
+        if layout.isotropic and len(a["means"]):
+            a["scales"] = np.repeat(np.exp(np.log(a["scales"]).mean(1, keepdims=True)), 3, axis=1)
+        self._means.append(a["means"])
+        return a
+
+    def static(self, g: Gaussians) -> list[bytes]:
+        """STAT chunks of static Gaussians in importance order (the first chunk of the file is FIRST_CHUNK records,
+        then they double)."""
+        st = self._numpy(g, self.sl)
+        chunks, self._next_size = _stat_chunks(
+            st, self.sl, self.block_size, self._next_size, self.version, pos_precision=self.pos_precision
+        )
+        self.num_static += len(st["means"])
+        return chunks
+
+    def dynamic(self, t: int, g: Gaussians) -> list[bytes]:
+        """DYNA chunks of frame t's dynamic Gaussians (none when it has none)."""
+        if not 0 <= t < len(self.num_dynamic):
+            raise ValueError(f"wsplat: frame {t} out of range")
+        d = self._numpy(g, self.dl)
+        self.num_dynamic[t] += len(d["means"])
+        return _dyna_chunks(t, d, self.dl, self.block_size, self.version, pos_precision=self.dynamic_pos_precision,
+                            models=self.models)  # fmt: skip
+
+    def end(self, meta: dict | None = None) -> bytes:
+        """END! with the totals, the bounds and `meta` (extra fields, ignored by readers)."""
+        body = {"num_static": self.num_static, "num_dynamic": list(self.num_dynamic), "bounds": _bounds(self._means)}
+        for k, v in (meta or {}).items():
+            if k not in body and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
+                body[k] = v
+        self.closed = True
+        return _chunk(b"END!", json.dumps(body, separators=(",", ":")).encode())
+
+
+def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, block_size: int = DEFAULT_BLOCK_SIZE,
+                    static_split: list[int] | None = None, end_meta: dict | None = None,
+                    version: int | None = None, static_layout: list | None = None,
+                    dynamic_layout: list | None = None,
+                    pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
+                    dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
+                    dynamic_codec: str | None = None) -> bytes:  # fmt: skip
+    """A streamed file of a whole scene (tests, vectors): its static set cut at `static_split` (indices into the
+    importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame).
+    Layouts: the version's defaults unless given (as `encode`)."""
+    T = len(scene.frame_times)
+    parts = parts or [list(range(T))]
+    cuts = [0, *(static_split or []), len(scene.static)]
+    if len(cuts) != len(parts) + 1:
+        raise ValueError("wsplat: static_split needs one cut fewer than parts")
+    sl, dl = choose_layouts(scene, version)
+    if static_layout is not None:
+        sl = parse_layout(static_layout, 0, "static_layout")
+    if dynamic_layout is not None:
+        dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
+    w = StreamWriter(scene, sl, dl, block_size, version, pos_precision, dynamic_pos_precision, dynamic_codec)
+    out = bytearray(w.head())
+    for i, frames in enumerate(parts):
+        for c in w.static(scene.static.subset(torch.arange(cuts[i], cuts[i + 1]))):
+            out += c
+        for t in frames:
+            for c in w.dynamic(t, scene.dynamic[t]):
+                out += c
+    out += w.end(end_meta)
+    return bytes(out)

@@ -9,7 +9,10 @@ import time
 import pytest
 from fastapi.testclient import TestClient
 
-from worldsplat.api.app import MAX_BODY, ApiError, create_app, parse_range
+from worldsplat.api.app import create_app
+from worldsplat.api.errors import ApiError
+from worldsplat.api.middleware import MAX_BODY
+from worldsplat.api.streaming import parse_range
 from worldsplat.core.scenario import load_preset
 
 TINY = {

@@ -15,8 +15,9 @@ import torch
 import zstandard
 from fastapi.testclient import TestClient
 
-from worldsplat.api.app import STREAM_CHUNK, create_app
+from worldsplat.api.app import create_app
 from worldsplat.api.encoding import StreamEncoder, negotiate, parse_accept_encoding
+from worldsplat.api.streaming import STREAM_CHUNK
 from worldsplat.core.camera import default_rig
 from worldsplat.gaussians import Gaussians, Scene4D, wsplat
 from worldsplat.gaussians.wsplat import ProgressiveDecoder

@@ -43,7 +43,7 @@ def test_generate_defaults_to_the_servers_mode(monkeypatch):
 
 
 def test_one_shift_limit_everywhere():
-    from worldsplat.api.app import VideoRequest
+    from worldsplat.api.schemas import VideoRequest
     from worldsplat.cli.eval import parse_shifts
     from worldsplat.pipeline.refine import refine_track
 

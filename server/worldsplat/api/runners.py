@@ -74,7 +74,7 @@ class Pipeline:
         return render_track(scene, shift_m, cameras, progress=progress, cancelled=cancelled)
 
     def refinement_status(self) -> tuple[bool, str]:
-        """(available, why not): refinement (issue 7) needs `worldsplat.pipeline.refine` and its enhancer weights."""
+        """(available, why not): refinement needs `worldsplat.pipeline.refine` and its enhancer weights."""
         try:
             from worldsplat.pipeline.refine import WEIGHTS, refine_available  # noqa: PLC0415
         except ImportError as e:

@@ -30,8 +30,9 @@ import zstandard
 
 from worldsplat.gaussians.wsplat import ProgressiveDecoder
 
-from .app import STREAM_CHUNK, create_app
+from .app import create_app
 from .encoding import BROTLI_LGWIN
+from .streaming import STREAM_CHUNK
 
 CODINGS = ("identity", "gzip", "br", "zstd")
 LEVELS = {"gzip": (1, 6, 9), "br": (4, 5, 6, 9, 11), "zstd": (3, 9, 19)}

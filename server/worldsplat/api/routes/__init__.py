@@ -1,0 +1,1 @@
+"""The API's routes, one router per concern; `app.create_app` includes them in this order (the OpenAPI order)."""

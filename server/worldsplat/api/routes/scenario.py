@@ -1,0 +1,91 @@
+"""The scenario routes: presets, the scenario's JSON schema, the road the world builds for a scenario, and scenario
+files read as `worldsplat import-scenario` reads them."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Body
+from fastapi.responses import JSONResponse
+
+from worldsplat.core.scenario import Scenario, list_presets, load_preset
+from worldsplat.world.agents import scenario_road
+
+from ..errors import ApiError
+from ..openapi import errors, ok
+from ..scenario_files import MAX_IMPORT_BODY, FileProblems, ImportOut, ImportRequest, import_files
+from ..schemas import ErrorBody, RoadLayout, RoadRequest
+
+router = APIRouter(tags=["scenario"])
+
+
+@router.get("/api/presets")
+def presets() -> list[dict]:
+    return [dict(p, scenario=load_preset(p["name"]).model_dump(mode="json")) for p in list_presets()]
+
+
+@router.get("/api/presets/{name}", responses=errors(404))
+def preset(name: str) -> dict:
+    names = {p["name"] for p in list_presets()}
+    if name not in names:
+        raise ApiError(404, f"unknown preset {name[:64]!r}; choose from {sorted(names)}")
+    return load_preset(name).model_dump(mode="json")
+
+
+@router.get("/api/schema")
+def schema() -> dict:
+    return Scenario.model_json_schema()
+
+
+@router.post(
+    "/api/road",
+    responses={
+        200: ok(description="the world's road for the scenario (the cross road where the world puts it)"),
+        **errors(400, 413, 422),
+    },
+)
+def scenario_road_layout(req: Annotated[RoadRequest, Body()]) -> RoadLayout:
+    """The road the world builds for a scenario, without building the world: lanes, widths and, for an
+    intersection, the cross road's distance along the main road (`road.junction_s` when set, else the world's
+    seeded draw, which only the server knows). A scenario its cross-field rules refuse is a 422 naming the field."""
+    sc = req.scenario
+    road = scenario_road(sc)[0]
+    source = None
+    if road.cross_s is not None:
+        turning = sc.ego.manoeuvre in ("turn_left", "turn_right")
+        source = "scenario" if sc.road.junction_s is not None else "manoeuvre" if turning else "seed"
+    return RoadLayout(
+        kind=road.kind,
+        setting=road.setting,
+        lanes_per_direction=road.lanes,
+        lane_width=road.lane_width,
+        median=road.median,
+        curvature=road.curvature,
+        y0=road.y0,
+        lanes_edge=road.lanes_edge,
+        road_half=road.road_half,
+        curb_out=road.curb_out,
+        walk_out=road.walk_out,
+        junction_s=road.cross_s,
+        junction_from=source,
+        crosswalks_s=list(road.crosswalks_s),
+    )
+
+
+@router.post(
+    "/api/scenario-files",
+    response_model=None,
+    responses={
+        200: ok(ImportOut, "the scenario file as a checked v2 scenario (load it into the form; POST /api/scenes)"),
+        **errors(400, 422),
+        413: {"model": ErrorBody, "description": f"request body over {MAX_IMPORT_BODY >> 20} MiB"},
+    },
+)
+def import_scenario_files(req: Annotated[ImportRequest, Body()]) -> JSONResponse:
+    """Scenario files (the page's drag and drop) read as `worldsplat import-scenario` reads them: an .xosc with
+    its .xodr road, a CommonRoad .xml, or a scenario / preset .json. 422 entries name the file and the element."""
+    try:
+        return JSONResponse(import_files(req))
+    except FileProblems as e:
+        problems = [{"field": f, "message": m} for f, m in e.problems]
+        return JSONResponse({"detail": problems, "error": str(e), "field": problems[0]["field"]}, status_code=422)

@@ -1,0 +1,117 @@
+"""`worldsplat judge train|heldout|eval`: the downstream judge, a small segmentation model of the world's classes
+trained on world ground truth (web/docs/downstream.md).
+
+    worldsplat judge train --data DATA --out DIR [--steps N] [--minutes M]     weights + held-out figures + card
+    worldsplat judge heldout --data DATA [--weights W] --out DIR               mIoU on DATA/test (world images)
+    worldsplat judge eval --count N --shifts 0,2,-2,4,-4 --out DIR             domain gap per mode and shift,
+                                                                               judge Fréchet distances
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from worldsplat.cli.eval import parse_shifts
+
+
+def _weights_default() -> Path:
+    from worldsplat_models.weights import weights_dir
+
+    return weights_dir() / "judge_small.safetensors"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="what", metavar="WHAT", required=True)
+    t = sub.add_parser("train", help="train the judge on DATA/train (shards of `worldsplat dataset`)")
+    t.add_argument("--data", type=Path, required=True, help="dataset folder with train/ (and test/ for the figures)")
+    t.add_argument("--out", type=Path, required=True, help="checkpoints, log, judge_small.safetensors, heldout.json")
+    t.add_argument("--steps", type=int, default=1200, help="optimizer steps (default 1200)")
+    t.add_argument("--batch", type=int, default=12, help="images per step (default 12)")
+    t.add_argument("--width", type=int, default=24, help="channels of the first level (default 24)")
+    t.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (default 3e-3)")
+    t.add_argument("--minutes", type=float, default=None, help="stop (with a checkpoint) after this wall time")
+    t.add_argument("--clips", type=int, default=None, help="use the first N training clips (default all)")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    h = sub.add_parser("heldout", help="the judge's mIoU on held-out world clips (DATA/test)")
+    h.add_argument("--data", type=Path, required=True, help="dataset folder with test/")
+    h.add_argument("--split", default="test", choices=("val", "test"))
+    h.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
+    h.add_argument("--threads", type=int, default=2)
+    h.add_argument("--out", type=Path, required=True, help="output directory (heldout.json, heldout.md)")
+    e = sub.add_parser("eval", help="domain gap: the judge on renders of served scenes vs the world's exact labels")
+    e.add_argument("--split", default="test", choices=("val", "test"), help="held-out split of the clips")
+    e.add_argument("--count", type=int, default=2, help="clips of the split (default 2)")
+    e.add_argument("--start", type=int, default=0, help="first clip index (default 0)")
+    e.add_argument("--shifts", default="0,2,-2,4,-4", help="lateral shifts in metres, comma-separated")
+    e.add_argument("--modes", default="oracle,reconstruct,generate", help="served modes, comma-separated")
+    e.add_argument("--frames", default="", help="frames judged, comma-separated (default all)")
+    e.add_argument("--steps", type=int, default=8, help="generate mode's sampler steps (default 8)")
+    e.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
+    e.add_argument("--threads", type=int, default=2)
+    e.add_argument("--out", type=Path, required=True, help="output directory (downstream.json/.md/.png)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    torch.set_num_threads(args.threads)
+    if args.what == "train":
+        return run_train(args)
+    from worldsplat.evaluation import downstream
+    from worldsplat_models.judge import load_judge
+
+    judge = load_judge(args.weights or _weights_default())
+    if args.what == "heldout":
+        result = downstream.heldout(judge, args.data, args.split)
+        downstream.write_heldout(result, args.out)
+        print(downstream.heldout_markdown(result))
+        return 0
+    modes = tuple(m for m in args.modes.split(",") if m)
+    frames = [int(f) for f in args.frames.split(",") if f.strip()] or None
+    if args.count < 1:
+        raise ValueError("--count must be at least 1")
+    result = downstream.domain_gap(
+        judge,
+        args.split,
+        args.count,
+        parse_shifts(args.shifts),
+        modes,
+        frames=frames,
+        steps=args.steps,
+        start=args.start,
+    )
+    downstream.write_domain_gap(result, args.out)
+    print(downstream.domain_gap_markdown(result))
+    return 0
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from worldsplat.training.judge import train_judge
+    from worldsplat_models.judge import load_judge
+
+    if args.steps < 1 or args.batch < 1:
+        raise ValueError("--steps and --batch must be at least 1")
+    path = train_judge(
+        args.data,
+        args.out,
+        steps=args.steps,
+        batch=args.batch,
+        width=args.width,
+        lr=args.lr,
+        minutes=args.minutes,
+        seed=args.seed,
+        threads=args.threads,
+        clips=args.clips,
+    )
+    print(f"wrote {path}")
+    if (Path(args.data) / "test").is_dir():
+        from worldsplat.evaluation import downstream
+
+        result = downstream.heldout(load_judge(path), args.data, "test")
+        downstream.write_heldout(result, args.out)
+        print(downstream.heldout_markdown(result))
+        print(json.dumps({"miou": result["miou"], "groups": result["groups"]}))
+    return 0

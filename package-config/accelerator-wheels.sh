@@ -1,5 +1,5 @@
 #!/bin/sh
-# Here, before a device run of `worldsplat train-accelerator` (issue 12 item 6; web/docs/models.md "On an
+# Here, before a device run of `worldsplat train-accelerator` (web/docs/models.md "On an
 # accelerator"), from the repository root: what the lent H200 lacks, into .whl/ (ignored; carried by the call).
 #   1. The pure-Python dependencies of the path the run imports (worldsplat.core.scenario needs pydantic; torch,
 #      numpy, tqdm, safetensors, pillow and matplotlib are in the machine's image, /work/.library/device/KINDS.md),

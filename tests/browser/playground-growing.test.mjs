@@ -1,4 +1,4 @@
-// The page shows a scene growing while it is generated (issue 15, item 3), in headless Chromium (WebGL2), against the
+// The page shows a scene growing while it is generated, in headless Chromium (WebGL2), against the
 // real server app with the fast pipeline double (tests/python/api_double.py) built window by window at 1.5 s per
 // frame: two 4-frame windows, each handed to the live stream (?wait=true) when done. While the job still runs and the
 // progress bar shows less than 100 %, the viewer has drawn the first window (soon after it arrived; not blank); that

@@ -1,4 +1,4 @@
-// The bird's-eye editor's cross road (issue 18 item 3 with road.junction_s), in headless Chromium against the API
+// The bird's-eye editor's cross road (road.junction_s), in headless Chromium against the API
 // double (the real routes, POST /api/road included; scenes synthetic): an intersection's cross road is drawn where the
 // world puts it, seeded (only the server knows the draw), a turning ego's and set by the junction input, checked on
 // the editor's geometry model against the world built in Python and on the canvas pixels (the surface's run along a

@@ -1,4 +1,4 @@
-// Drag and drop of Gaussian files on the playground page (issue 13): one file of each kind `worldsplat import` reads
+// Drag and drop of Gaussian files on the playground page: one file of each kind `worldsplat import` reads
 // (.ply .glb .spz .sog .splat: converted by POST /api/scene-files, the same Python readers, into a .wsplat v2) and a
 // .wsplat v2 (read by the viewer itself), dropped as a user drops them, in headless Chromium (WebGL2) against the real
 // app with the fast pipeline double (tests/python/api_double.py). Each renders the same street, the converted ones in

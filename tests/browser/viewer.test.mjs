@@ -1,4 +1,4 @@
-// Headless render tests of the wasm viewer (issue 4): the bundle in web/pkg renders the shared raster vectors and a
+// Headless render tests of the wasm viewer: the bundle in web/pkg renders the shared raster vectors and a
 // streamed 4D fixture in Chromium through WebGPU and, in a separate launch, WebGL2; pixels come back through a
 // mapped wgpu buffer (Viewer.read_pixels) and are compared with the native splat-render output (>= 40 dB) and the
 // torch reference. Prints which path ran. Diffs on failure and the README screenshot go to tests/artifacts/.

@@ -1,4 +1,4 @@
-// .wsplat v2 in the browser (issue 13; web/docs/wsplat-v2.md): the wasm bundle in web/pkg decodes v2 files (zstd
+// .wsplat v2 in the browser (web/docs/wsplat-v2.md): the wasm bundle in web/pkg decodes v2 files (zstd
 // byte planes through ruzstd; range-coded dynamic records through constriction, models carried from DYNA chunk to
 // DYNA chunk) whole and streamed, and draws the same images as the v1 file of the same scene.
 // Files: tests/browser/lib/wsplat_pairs.py writes each scene as v1, v2 (zstd dynamics) and v2 with range-coded

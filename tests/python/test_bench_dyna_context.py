@@ -1,4 +1,4 @@
-"""bench.dyna_context: the range coder's models (gaussians.context_coder) see the dependence between fields (issue 13)."""
+"""bench.dyna_context: the range coder's models (gaussians.context_coder) see the dependence between fields."""
 
 import collections
 

@@ -1,4 +1,4 @@
-"""The four corner-case presets (issue 18) happen in the world: each event is checked geometrically against the
+"""The four corner-case presets happen in the world: each event is checked geometrically against the
 world's exact agent and ego poses (footprints, lanes), `worldsplat sim` names every explicit agent by its id in
 conditions/boxes.json at the pose the world gives it, and the oracle and generate modes build each one."""
 

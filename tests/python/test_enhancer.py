@@ -1,4 +1,4 @@
-"""Enhanced diffusion model (issue 7): shapes, conditioning, learning, weights round trip, inference helper."""
+"""Enhanced diffusion model: shapes, conditioning, learning, weights round trip, inference helper."""
 
 import numpy as np
 import pytest
@@ -251,7 +251,7 @@ def test_render_bridge_learns_the_correction_not_the_image():
 
 
 def test_a_growing_pair_pool_takes_whole_clips_only(tmp_path):
-    """train-enhancer --grow loads a seed only once every file make_pairs writes for it exists: in session 8 a seed
+    """train-enhancer --grow loads a seed only once every file make_pairs writes for it exists: once a seed
     loaded before its `_dec` pair was written trained without it (124 decoder pairs for 169 clips)."""
     from worldsplat.training.enhancer import clip_pair_paths, complete_seeds
 

@@ -1,4 +1,4 @@
-"""The shipped enhancer weights (issue 7): load, and on the playground's default preset (never a training scenario:
+"""The shipped enhancer weights: load, and on the playground's default preset (never a training scenario:
 training uses random train-split scenarios) at +4 m fill the render's holes far better than the raw render does
 (a metric floor against the world's exact ground truth). Night scenes are harder: black holes are already close to a
 dark sky there (see web/docs/refinement.md for the test-split averages)."""
@@ -36,20 +36,20 @@ def test_shipped_enhancer_fills_holes_at_4m(monkeypatch):
     H, W = truth.shape[2:4]
     m_raw = image_metrics(raw.rgb.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes.reshape(-1, H, W))
     m_ref = image_metrics(out.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes.reshape(-1, H, W))
-    # floor: the v2 bridge gains +2.35 dB here (+0.60 dB over all pixels); the session-2 model gained > 3 dB in
-    # these holes but lost elsewhere. On the held-out test split the v2 model fills holes better at every shift
-    # (E+holes hole PSNR 16.67 / 18.06 / 18.91 vs 15.95 / 17.64 / 18.54 dB at 0 / 2 / 4 m, refinement.md session 8)
+    # floor: the render bridge gains +2.35 dB here (+0.60 dB over all pixels); the older noise-source model gained
+    # > 3 dB in these holes but lost elsewhere, and on the held-out test split the bridge fills holes better at every
+    # shift (E+holes hole PSNR 16.67 / 18.06 / 18.91 vs 15.95 / 17.64 / 18.54 dB at 0 / 2 / 4 m; CHANGELOG.md)
     assert m_ref["psnr_holes"] > m_raw["psnr_holes"] + 2.0, (m_raw, m_ref)
     assert m_ref["psnr"] > m_raw["psnr"] + 0.3, (m_raw, m_ref)
 
 
 def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
-    """The v2 bridge refines what reconstruct serves: on the default preset (not a training or a pixel-mix scenario)
+    """The render bridge refines what reconstruct serves: on the default preset (not a training or a pixel-mix scenario)
     the learned decoder's 4D scene seen from +4 m, refined as the playground serves it (the file's default blend, the
-    pixel mix since session 13), scores above the raw render over all pixels and inside its holes, and above the
-    session-12 "holes" blend, against the world's exact view. Measured with the shipped weights (session 13): raw
+    pixel mix), scores above the raw render over all pixels and inside its holes, and above the "holes" blend,
+    against the world's exact view. Measured with the shipped weights: raw
     19.50 dB, holes blend 19.81, pixel mix 19.93 (in the holes: 16.46 / 19.46 / 19.81); at -2 / +2 m the mix gains
-    +0.12 / +0.12 dB over the holes blend as well. The session-2 model (noise source, session-1 VAE) is skipped."""
+    +0.12 / +0.12 dB over the holes blend as well. The noise-source ablation model (`_nomix`) is skipped."""
     import worldsplat_models.conditions as cond
     from worldsplat.core.scenario import default_scenario
     from worldsplat.evaluation.nvs import image_metrics
@@ -61,7 +61,7 @@ def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
 
     model, _ = load_refiner(str(WEIGHTS))
     if model.cfg.source != "render":
-        pytest.skip("the shipped enhancer is not the v2 bridge")
+        pytest.skip("the shipped enhancer is not a render bridge")
     assert default_blend(model) == "mix"  # the served file bundles its pixel mix
     monkeypatch.setattr(cond, "encode_captions", lambda caps: torch.zeros(len(caps), 384))
     sc = default_scenario().with_updates(image={"width": 112, "height": 64}, clip={"frames": 4})

@@ -1,4 +1,4 @@
-"""`worldsplat eval nvs` (issue 7): metrics, the A-E versions on a real novel-view sample, the report's structure."""
+"""`worldsplat eval nvs`: metrics, the A-E versions on a real novel-view sample, the report's structure."""
 
 import json
 
@@ -90,7 +90,7 @@ def test_versions_on_a_novel_view_sample(tiny_models_and_sample):
 
 
 def test_a_render_bridge_enhancer_runs_every_version_it_can(tiny_models_and_sample):
-    """The v2 enhancer (source "render") has no render-free A and no SDEdit E@0.5: they are left out, by name."""
+    """A render-bridge enhancer (source "render") has no render-free A and no SDEdit E@0.5: they are left out, by name."""
     from worldsplat.evaluation.nvs import versions_of
     from worldsplat_models.enhancer import Enhancer, EnhancerConfig, enhancer_config
 

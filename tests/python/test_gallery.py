@@ -23,7 +23,7 @@ DATA = DataConfig(height=32, width=48, views=6, frames=2, max_boxes=8)  # the 6-
 
 @pytest.fixture(scope="module")
 def models():
-    """Tiny v2 stack (layout-map control, pixel-guided decoder) for the whole 6-camera rig."""
+    """Tiny model stack (layout-map control, pixel-guided decoder) for the whole 6-camera rig."""
     torch.manual_seed(0)
     vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)
     C = vae_cfg.joint_channels

@@ -299,7 +299,7 @@ def test_spz_reads_v2_and_the_v4_container():
     body += bytes([128] * 3 * n) + bytes([160] * 3 * n) + bytes([128, 128, 128] * n)
     h = spz.decode(gzip.compress(body))
     assert np.allclose(h.opacities.numpy(), 1) and np.allclose(h.quats.numpy()[:, 0], 1, atol=0.02)
-    # v4 from the v3 arrays: per-attribute zstd streams behind a table of contents
+    # SPZ v4 from the SPZ v3 arrays: per-attribute zstd streams behind a table of contents
     import zstandard  # noqa: PLC0415
 
     plain = gzip.decompress(spz.encode(g))
@@ -310,7 +310,7 @@ def test_spz_reads_v2_and_the_v4_container():
     streams = [zstandard.ZstdCompressor().compress(a) for a in arrays]
     head = struct.pack("<IIIBBBBI", 0x5053474E, 4, 50, 0, plain[13], 0, 5, 32) + bytes(12)
     toc = b"".join(struct.pack("<QQ", len(s), len(a)) for s, a in zip(streams, arrays))
-    v4 = spz.decode(head + toc + b"".join(streams))
-    v3 = spz.decode(spz.encode(g))
+    spz_v4 = spz.decode(head + toc + b"".join(streams))
+    spz_v3 = spz.decode(spz.encode(g))
     for k in ("means", "scales", "opacities", "colors", "quats"):
-        assert torch.equal(getattr(v4, k), getattr(v3, k)), k
+        assert torch.equal(getattr(spz_v4, k), getattr(spz_v3, k)), k

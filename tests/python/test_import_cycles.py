@@ -1,4 +1,4 @@
-"""No import cycle between any two Python files of `worldsplat` / `worldsplat_models` (issue 16).
+"""No import cycle between any two Python files of `worldsplat` / `worldsplat_models`.
 
 import-linter's `acyclic_siblings` contract (pyproject.toml) checks siblings at every depth; a package and one of
 its own modules importing each other (`pkg/__init__.py` <-> `pkg/reader.py`, even through a function-level import)

@@ -70,7 +70,7 @@ def test_learns_layout_and_caption():
 
 
 def test_warm_start_widens_the_layout_input_and_keeps_what_the_file_computed(tmp_path):
-    """A v9 prior (11 layout channels: the map layer appended) warm-started from a 7-channel file computes exactly
+    """A map-layer prior (11 layout channels: the map layer appended) warm-started from a 7-channel file computes exactly
     what the file's model did until it learns to read the new channels (training.campaign.warm_start)."""
     import dataclasses
 

@@ -1,4 +1,4 @@
-"""Scale-out smoke test: the torchrun/DDP path of train.train_loop with 2 gloo processes on CPU (issue 6, item 8).
+"""Scale-out smoke test: the torchrun/DDP path of train.train_loop with 2 gloo processes on CPU.
 
 A few DiT steps on per-rank synthetic latents: the loss on a fixed probe batch falls and both ranks hold
 bit-identical weights after every step (DDP averaged the gradients and applied the same update)."""

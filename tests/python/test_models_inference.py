@@ -138,8 +138,8 @@ def onnx_dir(models, tmp_path_factory):
     return out
 
 
-# the v1 models carry no layout prior and no reconstruct decoder; those graphs are checked in
-# test_models_inference_v2 and test_models_reconstruct_decoder
+# the sketch-control models carry no layout prior and no reconstruct decoder; those graphs are checked in
+# test_models_inference_layout and test_models_reconstruct_decoder
 @pytest.mark.parametrize("kind", [k for k in ox.GRAPHS if k not in ("layout_prior", "gs_decoder_reconstruct")])
 def test_onnx_parity(models, onnx_dir, kind):
     assert (onnx_dir / f"{kind}.onnx").exists()

@@ -1,4 +1,4 @@
-"""Networks of issue 6 on random tensors with the tiny config: shapes, gradients, wiring, bounds, rectified flow."""
+"""The networks on random tensors with the tiny config: shapes, gradients, wiring, bounds, rectified flow."""
 
 import math
 

@@ -97,7 +97,7 @@ def test_onnx_serves_the_reconstruct_decoder(models, tmp_path):
 
 def test_decoded_scales_are_floored_at_the_model_sampling_rate(models):
     """Every decoded Gaussian is at least the served 0.3 model pixels wide at its depth (so a display larger than the
-    model image shows no gaps between them; models.md "v6" item 3), and the floor adds in quadrature."""
+    model image shows no gaps between them; models.md, "Scale floor at display sizes"), and the floor adds in quadrature."""
     clip, _ = tiny_clip(T=2)
     dec = inf.reconstruct(clip, models)
     d = CFG.data

@@ -21,8 +21,8 @@ RECON_PSNR_FLOOR = 21.0  # dB, reconstruct mode rendered at the rig cameras (0 m
 # this clip: 24.14 vs 22.30 dB (40,696 vs 24,136 static Gaussians); unmerged 24.21.
 DECODED_CELLS_GAIN_MIN = 1.0  # dB
 RECON_DEPTH_ABSREL_MAX = 0.35  # rendered depth vs GT depth
-# generate on this clip, 4 steps, road AbsRel / dynamic IoU: the shipped v4 set 0.077 / 0.77, with the snap onto the
-# layout's ground plane 0.025 (the same sample); the v1 set (grey blur) 0.145 / 0.04
+# generate on this clip, 4 steps, road AbsRel / dynamic IoU: the shipped set 0.077 / 0.77, with the snap onto the
+# layout's ground plane 0.025 (the same sample); the first, sketch-control set (grey blur) 0.145 / 0.04
 GEN_ROAD_DEPTH_ABSREL_MAX = 0.06  # rendered depth on the road surface (the layout states it)
 GEN_SNAP_ROAD_GAIN_MIN = 0.02  # the snap's gain on road AbsRel
 GEN_DYNAMIC_IOU_MIN = 0.5  # rendered dynamic mask vs the exact one
@@ -51,7 +51,7 @@ def test_shipped_weights_meta_and_size():
     for kind in ("vae", "decoder", "dit", "prior"):
         path = DEFAULT_DIR / f"{kind}_small.safetensors"
         if kind == "prior" and not path.exists():
-            continue  # a v1 set has no layout prior
+            continue  # a sketch-control set has no layout prior
         md = read_metadata(path)
         assert md["kind"] == kind and md.get("steps_done", md.get("steps", 0)) > 0
 

@@ -1,4 +1,4 @@
-"""generate mode streams a first window of one frame (issue 15): the window plan, the networks run on a short window
+"""generate mode streams a first window of one frame: the window plan, the networks run on a short window
 at its own length (no padding), and the scene handed to the sink window by window in that plan."""
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Refined novel-track video (issue 7): novel-track renders, reprojected conditions, refine_track."""
+"""Refined novel-track video: novel-track renders, reprojected conditions, refine_track."""
 
 import json
 

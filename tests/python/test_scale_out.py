@@ -1,4 +1,4 @@
-"""Beyond one machine (issue 14): the dataset and a scene batch through a local Ray equal the local runs byte for
+"""Beyond one machine: the dataset and a scene batch through a local Ray equal the local runs byte for
 byte, a task whose worker is killed mid-way is redone, bad input is refused clearly, and the nuScenes export loads
 in the official devkit with every box on its agent's pixels."""
 

@@ -340,7 +340,7 @@ def test_corner_cases_build_with_one_frame(name):
     assert all(a.poses.shape == (1, 3) for a in w.agents) and any(a.agent_id for a in w.agents)
 
 
-# -- road.junction_s: where the intersection's cross road is (issue 18 item 4) ----------------------------------------
+# -- road.junction_s: where the intersection's cross road is ----------------------------------------
 def test_junction_s_is_left_out_of_the_canonical_json_when_unset():
     from worldsplat.core.scenario import list_presets, scenario_id
 

@@ -1,5 +1,5 @@
-"""The v2 campaign end to end at two steps a stage: shards with layout maps -> VAE -> cache (in two parts, merged)
--> decoder -> DiT -> layout prior -> residual (v4) DiT -> fp16 snapshot that the pipeline serves; a second run
+"""The model stack's training stages end to end at two steps a stage: shards with layout maps -> VAE -> cache (in two parts, merged)
+-> decoder -> DiT -> layout prior -> residual DiT -> fp16 snapshot that the pipeline serves; a second run
 resumes from the checkpoints instead of starting over."""
 
 import json
@@ -48,7 +48,7 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     c.train_prior(vae, out, steps=2, batch=4, ckpt_every=1)
     fig = [json.loads(line) for line in (out / "prior_v2_heldout.jsonl").read_text().splitlines()]
     assert [f["step"] for f in fig] == [1, 2] and len(fig[0]["heldout_mse"]) == 3
-    # v4: the DiT generates the frozen prior's residual (its own run folder, beside the same cache)
+    # the DiT generates the frozen prior's residual (its own run folder, beside the same cache)
     out4 = tmp_path / "runs4"
     out4.mkdir()
     for p in out.glob("cache_*.pt"):
@@ -56,7 +56,7 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     c.train_dit(vae, out4, steps=2, batch=2, ckpt_every=1, prior_path=out / "prior_v2.safetensors")
     cfg4 = read_metadata(out4 / "dit_v2.safetensors")["config"]
     assert cfg4["target"] == "prior_residual" and cfg4["residual_scale"] > 0
-    # both read the map layer by default (v9: all 11 layout channels); 7 keeps the v4-v8 input
+    # both read the map layer by default (all 11 layout channels); 7 keeps the road and agent channels alone
     assert cfg4["control_channels"] == 11
     assert read_metadata(out / "prior_v2.safetensors")["config"]["in_channels"] == 11
     dest = tmp_path / "snapshot"
@@ -67,7 +67,7 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     m = load_models(dest)
     assert m.modes == ["reconstruct", "generate"] and m.dit.cfg.control_hint == 16
     assert all(p.dtype == torch.float32 for p in m.decoder.parameters())
-    c.snapshot(out4, dest)  # the v4 DiT over the v2 one: served with the prior beside it
+    c.snapshot(out4, dest)  # the residual DiT over the first one: served with the prior beside it
     m4 = load_models(dest)
     assert m4.modes == ["reconstruct", "generate"] and m4.prior is not None and m4.dit.cfg.target == "prior_residual"
     # reconstruct mode's own per-pixel decoder: grown from the 2x2 one in its own folder, snapshot under its role
@@ -81,4 +81,4 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     m1 = load_models(dest)
     assert len(m1.decoder_reconstruct.ups) == len(m1.decoder.ups) + 1  # one more 2x up-sampling: per pixel
     (dest / "prior_small.safetensors").unlink()
-    assert load_models(dest).modes == ["reconstruct"]  # a v4 DiT without its prior cannot generate
+    assert load_models(dest).modes == ["reconstruct"]  # a residual DiT without its prior cannot generate

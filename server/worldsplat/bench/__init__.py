@@ -1,4 +1,4 @@
-"""Speed against error: one benchmark command, one report (issue 8).
+"""Speed against error: one benchmark command, one report.
 
 Every section measures one knob that trades speed for accuracy, in this run, on this machine, and returns a
 `Section` (a table, optional Pareto plot, the chosen default and why). `worldsplat bench --out DIR` runs them

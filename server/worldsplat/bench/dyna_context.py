@@ -1,4 +1,4 @@
-"""What the generated scene's dynamic records cost under the context-modelling range coder (issue 13, bar 2).
+"""What the generated scene's dynamic records cost under the context-modelling range coder (the dynamic-records bar of web/docs/wsplat-v2.md).
 
     python -m worldsplat.bench.dyna_context [SCENE.wsplat]    (default: generate the default preset)
 

@@ -28,10 +28,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("worldsplat.cli.serve", "serve the playground (page, wasm viewer, API)"),
     "train": ("worldsplat.cli.train", "train a generation model (vae, decoder, dit)"),
     "train-enhancer": ("worldsplat.cli.train_enhancer", "train the enhanced diffusion model (refinement)"),
-    "train-campaign": ("worldsplat.cli.train_campaign", "the v2 training campaign, stage by stage (resumable)"),
+    "train-campaign": (
+        "worldsplat.cli.train_campaign",
+        "train the served model stack stage by stage: VAE, cache, decoder, prior, DiT (resumable)",
+    ),
     "train-accelerator": (
         "worldsplat.cli.train_accelerator",
-        "data on every core + the whole v2/v3 stack on a lent GPU in one budgeted run (weights, card, logs)",
+        "data on every core + the whole model stack on a lent GPU in one budgeted run (weights, card, logs)",
     ),
     "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
     "judge": ("worldsplat.cli.judge", "the downstream judge: train it, score held-out clips and served scenes"),

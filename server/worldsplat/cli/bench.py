@@ -20,7 +20,7 @@ SECTIONS: dict[str, str] = {
     "quant": "quant",  # .wsplat quantization vs bytes and PSNR
     "budget": "budget",  # Gaussian budget / merge thresholds vs novel-view PSNR
     "viewer": "viewer",  # viewer frame time native + headless Chromium
-    "peers": "peers",  # this viewer against peer splat viewers in the same browser (issue 17)
+    "peers": "peers",  # this viewer against peer splat viewers in the same browser
     "onnx": "onnx",  # onnxruntime vs torch eager
     "steps": "steps",  # sampler steps vs error and time
     "stages": "stages",  # the paper's efficiency table for the small config

@@ -5,7 +5,7 @@
   or the camera of `--camera-json` (the shared camera JSON; `--shift-m` does not apply to it).
 - FILE.mp4 / FILE.webm: every frame (or just T) as a video at the scene's fps; a mosaic for `--camera all`.
 - DIR: one PNG per frame and camera, `DIR/<frame:03d>_<camera>.png`.
-- `--refine`: the enhanced diffusion model repairs the shifted-track render (issue 7, `worldsplat.pipeline.refine`); needs
+- `--refine`: the enhanced diffusion model repairs the shifted-track render (`worldsplat.pipeline.refine`); needs
   the shipped enhancer and the scene's scenario (in the .wsplat header of `worldsplat generate`, or `--scenario`).
 Every image comes from the one track renderer (`worldsplat.pipeline.render`, built on `gaussians.raster.render_view`).
 """

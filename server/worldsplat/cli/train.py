@@ -38,27 +38,11 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true")
 
 
-def run(args: argparse.Namespace) -> int:
-    from worldsplat.training.data import ShardDataset
-    from worldsplat.training.loop import (
-        build_cache,
-        decoder_step_fn,
-        dit_step_fn,
-        fit_latent_stats,
-        load_samples,
-        setup_distributed,
-        train_loop,
-        vae_step_fn,
-    )
-    from worldsplat_models.configs import TrainConfig, get_config
-    from worldsplat_models.weights import build, load_weights, save_weights
+def train_config(args: argparse.Namespace):
+    from worldsplat_models.configs import TrainConfig
 
-    torch.set_num_threads(args.threads)
-    rank, world = setup_distributed()
-    cfg = get_config(args.size)
-    dcfg = cfg.data
     default_lr = {"vae": 1e-3, "decoder": 5e-4, "dit": 3e-4}[args.kind]
-    tcfg = TrainConfig(
+    return TrainConfig(
         steps=args.steps,
         lr=args.lr or default_lr,
         seed=args.seed,
@@ -67,6 +51,65 @@ def run(args: argparse.Namespace) -> int:
         bf16=args.bf16,
         warmup=min(100, max(1, args.steps // 20)),
     )
+
+
+def encode_with_vae(args: argparse.Namespace, samples: list[dict], dcfg, rank: int) -> None:
+    """decoder and dit train on the frozen VAE's latents: encode the samples in place, through a latent cache in
+    --out that rank 0 writes and a re-run reads."""
+    from worldsplat.training.loop import build_cache
+    from worldsplat_models.weights import load_weights
+
+    if args.vae is None:
+        raise ValueError(f"train {args.kind}: --vae weights are required")
+    vae = load_weights(args.vae, "vae")
+    cache = args.out / f"latents_{args.vae.stem}_{len(samples)}.pt"
+    if cache.exists():
+        enc = torch.load(cache, weights_only=False)
+        for s, e in zip(samples, enc):
+            s.update(e)
+    else:
+        build_cache(vae, samples, dcfg, progress=not args.no_progress)
+        if rank == 0:
+            torch.save([{k: s[k] for k in ("L", "control", "caption_emb")} for s in samples], cache)
+    for s in samples:
+        s.pop("sketch", None)
+
+
+def model_and_step(args: argparse.Namespace, cfg, samples: list[dict], rank: int, meta: dict):
+    """The network of `args.kind` and its training step over the samples (meta records what the step reads)."""
+    from worldsplat.training.loop import decoder_step_fn, dit_step_fn, vae_step_fn
+    from worldsplat_models.weights import build
+
+    dcfg = cfg.data
+    if args.kind == "vae":
+        return build("vae", cfg.vae), vae_step_fn(samples, dcfg, images_per_step=4 * args.batch)
+    encode_with_vae(args, samples, dcfg, rank)
+    meta["vae"] = str(args.vae)
+    if args.kind == "decoder":
+        model = build("decoder", cfg.decoder)  # before the step function, as the seeded initialisation expects
+        step = decoder_step_fn(
+            samples,
+            dcfg,
+            render_every=args.render_every,
+            render_views=args.render_views,
+            render_down=args.render_down,
+        )
+        meta.update(render_views=args.render_views, render_down=args.render_down, render_every=args.render_every)
+        return model, step
+    return build("dit", cfg.dit, dcfg.num_classes), dit_step_fn(samples, batch=args.batch)
+
+
+def run(args: argparse.Namespace) -> int:
+    from worldsplat.training.data import ShardDataset
+    from worldsplat.training.loop import fit_latent_stats, load_samples, setup_distributed, train_loop
+    from worldsplat_models.configs import get_config
+    from worldsplat_models.weights import save_weights
+
+    torch.set_num_threads(args.threads)
+    rank, world = setup_distributed()
+    cfg = get_config(args.size)
+    dcfg = cfg.data
+    tcfg = train_config(args)
     args.out.mkdir(parents=True, exist_ok=True)
     ds = ShardDataset(args.data, "train", dcfg.max_boxes, limit=args.clips)
     t0 = time.time()
@@ -86,39 +129,7 @@ def run(args: argparse.Namespace) -> int:
         "bf16": args.bf16,
     }
     torch.manual_seed(args.seed)
-
-    if args.kind == "vae":
-        model = build("vae", cfg.vae)
-        step = vae_step_fn(samples, dcfg, images_per_step=4 * args.batch)
-    else:
-        if args.vae is None:
-            raise ValueError(f"train {args.kind}: --vae weights are required")
-        vae = load_weights(args.vae, "vae")
-        cache = args.out / f"latents_{args.vae.stem}_{len(samples)}.pt"
-        if cache.exists():
-            enc = torch.load(cache, weights_only=False)
-            for s, e in zip(samples, enc):
-                s.update(e)
-        else:
-            build_cache(vae, samples, dcfg, progress=not args.no_progress)
-            if rank == 0:
-                torch.save([{k: s[k] for k in ("L", "control", "caption_emb")} for s in samples], cache)
-        for s in samples:
-            s.pop("sketch", None)
-        meta["vae"] = str(args.vae)
-        if args.kind == "decoder":
-            model = build("decoder", cfg.decoder)
-            step = decoder_step_fn(
-                samples,
-                dcfg,
-                render_every=args.render_every,
-                render_views=args.render_views,
-                render_down=args.render_down,
-            )
-            meta.update(render_views=args.render_views, render_down=args.render_down, render_every=args.render_every)
-        else:
-            model = build("dit", cfg.dit, dcfg.num_classes)
-            step = dit_step_fn(samples, batch=args.batch)
+    model, step = model_and_step(args, cfg, samples, rank, meta)
     meta["params"] = sum(p.numel() for p in model.parameters())
 
     def finish(m, n_steps):

@@ -1,5 +1,5 @@
 """`worldsplat train-accelerator --out OUT [--minutes 9] [--size large|smoke]`: world data on every CPU core, then
-the whole v2/v3 stack (VAE, cache, Gaussian decoder, DiT) on the GPU within the budget, the held-out evaluation of
+the whole model stack (VAE, cache, Gaussian decoder, DiT) on the GPU within the budget, the held-out evaluation of
 the result, and its fp16 weights (OUT/weights.tar.NN), model card (OUT/MODEL_CARD.md, OUT/card.json), curves and
 logs in at most 8 files (`worldsplat.training.accelerator`; web/docs/models.md "On an accelerator").
 `--write-captions` (here, before the run): the caption table the lent machine reads instead of the sentence encoder.

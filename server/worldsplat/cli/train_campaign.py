@@ -1,4 +1,4 @@
-"""`worldsplat train-campaign vae|cache|decoder|prior|dit|snapshot ...`: the v2 training campaign, stage by stage
+"""`worldsplat train-campaign vae|cache|decoder|prior|dit|snapshot ...`: the served model stack, stage by stage
 (see `worldsplat.training.campaign`; checkpoints resume from --out, which belongs outside the work tree)."""
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("stage", choices=STAGES)
     p.add_argument("--data", type=Path, help="dataset root (`worldsplat dataset` shards; vae and cache stages)")
     p.add_argument("--out", type=Path, required=True, help="checkpoints, logs and caches (outside the work tree)")
-    p.add_argument("--vae", type=Path, help="the frozen v2 VAE (cache, decoder and dit stages)")
+    p.add_argument("--vae", type=Path, help="the frozen VAE weights (cache, decoder and dit stages)")
     p.add_argument("--split", default="train", choices=("train", "val", "test"), help="cache stage")
     p.add_argument("--clips", type=int, default=None)
     p.add_argument("--start", type=int, default=0, help="cache: first shard (a part; join parts with --merge)")
     p.add_argument("--merge", action="store_true", help="cache: join the parts written with --start")
     p.add_argument("--steps", type=int, default=1000)
     p.add_argument("--batch", type=int, default=None, help="dit: clips per step (2); prior: images per step (16)")
-    p.add_argument("--prior", type=Path, help="dit: generate the residual of this frozen layout prior (v4)")
+    p.add_argument("--prior", type=Path, help="dit: generate the residual of this frozen layout prior")
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument(
@@ -35,10 +35,10 @@ def configure(p: argparse.ArgumentParser) -> None:
         "--layout-channels",
         type=int,
         default=None,
-        help="prior|dit: read the first N layout channels (7: road and agents, v4-v8; default all 11: with the map layer)",
+        help="prior|dit: read the first N layout channels (7: road and agents alone; default all 11: with the map layer)",
     )
     p.add_argument("--init", type=Path, help="vae|decoder|prior|dit: warm start from a weight file (matching tensors)")
-    p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. models/campaign)")
+    p.add_argument("--dest", type=Path, help="snapshot: folder for the fp16 weights (e.g. runs/snapshot)")
     p.add_argument(
         "--reconstruct-decoder",
         action="store_true",

@@ -1,5 +1,5 @@
 """Reconstruct mode at display sizes other than the model image: PSNR and gap fraction of the served scene at the rig
-cameras, per decoded scale floor (web/docs/models.md "v6" items 2 and 3).
+cameras, per decoded scale floor (web/docs/models.md, "Scale floor at display sizes").
 
     python -m worldsplat.evaluation.display_sizes [--weights W] [--preset urban_straight] \
         [--sizes 112x64,200x112,400x224] [--floors 0,0.3,0.5] [--frames 0,4]

@@ -1,4 +1,4 @@
-"""The gallery (issue 12, "Show it"): what each mode makes of a scenario, next to the exact ground truth.
+"""The gallery: what each mode makes of a scenario, next to the exact ground truth.
 
     worldsplat gallery [--weights DIR] [--data DATA --split test] [--random 4] [--presets a,b,c,d] [--frame 1]
                        [--steps 8] [--out web/docs/img/gallery]
@@ -9,7 +9,7 @@ One PNG per case (presets and random scenarios of a held-out split), columns the
     ground truth      the world's exact render at the models' resolution
     VAE decode        the clip through the VAE (encode -> decode), the ceiling of every learned row below it
     reconstruct       reconstruct mode: ground-truth video -> VAE -> Gaussian decoder -> served scene, rendered
-    layout map        what the generator was given: the per-camera layout maps (v2 DiT) or the sketch (v1 DiT)
+    layout map        what the generator was given: the per-camera layout maps, or the sketch for a sketch-control DiT
     generate          generate mode: conditions -> DiT (`steps` Euler steps, the scenario's seed) -> Gaussian
                       decoder -> served scene, rendered
 

@@ -81,7 +81,7 @@ def load_enhancers(weights_dir: Path):
     return out
 
 
-# A render-bridge enhancer (EnhancerConfig.source == "render", the v2 model) starts from the render, so it has no
+# A render-bridge enhancer (EnhancerConfig.source == "render", the served model) starts from the render, so it has no
 # render-free version A and no SDEdit start E@0.5.
 NOISE_SOURCE_ONLY = ("A", "E@0.5")
 

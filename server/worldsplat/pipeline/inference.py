@@ -58,7 +58,7 @@ class Models:
     data: DataConfig
     version: str  # short hash of the weight files (for cache keys)
     weights_dir: Path
-    prior: torch.nn.Module | None = None  # the layout prior, for a DiT that generates its residual (v4)
+    prior: torch.nn.Module | None = None  # the layout prior, for a DiT that generates its residual
     # A finer decoder for reconstruct mode only (one Gaussian per model pixel): its latents come from the VAE
     # encoder, so it may read the pixel guide closely; on generated latents it would read their noise as geometry.
     decoder_reconstruct: torch.nn.Module | None = None
@@ -200,7 +200,7 @@ def _check_rig(rig, V: int) -> None:
 
 
 def pixel_guide(models: Models, L: torch.Tensor) -> torch.Tensor:
-    """The v2 decoder's pixel guide: the VAE's own decoding of L (T,V,C,h,w) -> (T,V,5,H,W) = rgb [-1,1],
+    """The decoder's pixel guide: the VAE's own decoding of L (T,V,C,h,w) -> (T,V,5,H,W) = rgb [-1,1],
     normalised depth, mask probability."""
     T, V = L.shape[:2]
     rgb, dn, m = models.vae.decode_joint(L.reshape(T * V, *L.shape[2:]).float())
@@ -209,7 +209,7 @@ def pixel_guide(models: Models, L: torch.Tensor) -> torch.Tensor:
 
 
 def layout_size(models: Models) -> tuple[int, int] | None:
-    """(W, H) of the layout maps the DiT (v2) or the layout prior (v4) reads, or None when the DiT reads the sketch
+    """(W, H) of the layout maps a layout-control DiT or the layout prior reads, or None when the DiT reads the sketch
     latent (v1)."""
     if models.prior is None and (models.dit is None or not models.dit.cfg.control_hint):
         return None
@@ -219,7 +219,7 @@ def layout_size(models: Models) -> tuple[int, int] | None:
 # The decoders were supervised at the model image only, so nothing finer than its pixel was ever seen: each decoded
 # Gaussian's std is widened by this many model pixels (in quadrature, as Mip-Splatting's 3D filter bounds a Gaussian
 # by its training sampling rate), so a display larger than the model image shows no gaps between them. Measured on
-# the default scene, reconstruct at the rig (web/docs/models.md "v6"): 0 / 0.3 / 0.5 -> 22.22 / 22.16 / 22.00 dB at
+# the default scene, reconstruct at the rig (web/docs/models.md, "Scale floor"): 0 / 0.3 / 0.5 -> 22.22 / 22.16 / 22.00 dB at
 # 112x64, 22.11 / 22.15 / 22.05 at 200x112, 22.04 / 22.17 / 22.13 at 400x224; pixels under alpha 0.9 at 400x224
 # 25 / 15 / 6 %.
 DECODED_SCALE_FLOOR_MODEL_PX = 0.3
@@ -293,7 +293,7 @@ def _camera_ray_depth(dec: DecodedFrames, t: int, v: int, means: torch.Tensor):
 
 
 # Generated ground Gaussians within this log-depth ratio (x/ 1.8) of the plane the layout states are put onto it
-# (snap_to_layout). Swept on test clips 0-2 (web/docs/models.md "v6"): 0.15 / 0.3 / 0.6 / 1.0 -> road AbsRel
+# (snap_to_layout). Swept on test clips 0-2 (CHANGELOG.md, the ground snap): 0.15 / 0.3 / 0.6 / 1.0 -> road AbsRel
 # 0.122 / 0.078 / 0.028 / 0.022, all-pixel 0.258 / 0.242 / 0.229 / 0.229; beyond 0.6 nothing more is gained and
 # more of what stands on the road (trees, walls the layout does not know) would be flattened onto it.
 LAYOUT_SNAP_LOG_TOL = 0.6
@@ -349,7 +349,7 @@ def _cell_surface(mask: torch.Tensor, depth_m: torch.Tensor, f: int) -> tuple[to
 
 # Generated Gaussians in cells the map layer covers move onto its surface when within this log-depth ratio of it
 # (x/ 3: a facade the generator put at half or twice its distance still lands on it; a wall behind a tree, which the
-# generator drew as a tree, farther off, keeps its place). Measured in web/docs/models.md "v9".
+# generator drew as a tree, farther off, keeps its place). Measured: CHANGELOG.md, the map layer.
 MAP_SNAP_LOG_TOL = 1.1
 MAP_MIN_OPACITY = 0.95  # building cells' Gaussians at least this opaque (a facade is not see-through)
 
@@ -487,7 +487,7 @@ def snap_agents_to_layout(
             if small.any():
                 target = _box_centre_points(dec, t, v, box, cover, z_box, f)
                 g.means = torch.where(small[:, None], target.to(g.means.dtype), g.means)
-            if solid:  # an agent is solid where the layout states it (issue 12 item 1), whatever colour it got
+            if solid:  # an agent is solid where the layout states it , whatever colour it got
                 g.opacities = torch.where(ok, g.opacities.clamp_min(AGENT_MIN_OPACITY), g.opacities)
             ego = g.means.double() @ w2e[:3, :3].T + w2e[:3, 3]
             in_moving, in_standing = _inside_boxes(ego, mov, margin), _inside_boxes(ego, stand, margin)
@@ -604,7 +604,7 @@ def sample_latents(
     pad: bool = True,
 ) -> torch.Tensor:
     """Rectified-flow sampling of L (T,V,C,h,w), window by window; the noise depends only on (seed, window).
-    A DiT that generates the layout prior's residual (v4) gives L = mu + residual_scale * sample.
+    A DiT that generates the layout prior's residual gives L = mu + residual_scale * sample.
     `pad` False: a clip shorter than a window (or its last window) is sampled at its own length (`_windows`)."""
     d, dcfg = models.data, models.dit.cfg
     T = cond["control"].shape[0]

@@ -6,7 +6,7 @@ Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V vie
     dit_step      z, s, box_corners, box_cls, box_moving, box_mask, traj, caption, control, drop -> velocity
     gs_decoder    L (1,T,V,C,h,w), intrinsics (1,T,V,4), cam_to_world (1,T,V,4,4) -> means, quats, scales,
                   opacities, colors, depth, dynamic_logit
-    layout_prior  control (1,T,V,7,H,W), caption (1,384) -> mu (1,T,V,C,h,w)   (v4 models only)
+    layout_prior  control (1,T,V,7,H,W), caption (1,384) -> mu (1,T,V,C,h,w)   (residual-DiT models only)
     gs_decoder_reconstruct   as gs_decoder, for reconstruct mode's own decoder where one is shipped
 Parity tolerance (documented in web/docs/models.md): max |ORT - torch| <= 1e-3 (absolute) on every output at
 float32, checked by tests/python/test_models_onnx.py; `speed_ratio` times both side by side.

@@ -114,7 +114,9 @@ def refine_track(
     model, vae = load_refiner(None if weights is None else str(weights))
     blend = blend or default_blend(model)
     tm["blend"] = blend
-    steps = steps or model.cfg.dit.sampler_steps  # the model's own (1 for the v2 bridge, 8 for the session-2 model)
+    steps = (
+        steps or model.cfg.dit.sampler_steps
+    )  # the model's own (1 for the served render bridge, 8 for the noise-source ablation model)
     tm["steps"] = steps
 
     H, W = scene.rig[0].height, scene.rig[0].width

@@ -47,9 +47,11 @@ ORACLE_VERSION = "oracle-3"
 STREAM_VERSION = "w8"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
-# sampling and decoding instead of a whole window's (issue 15; the bound on the finished scene: playground.md)
+# sampling and decoding instead of a whole window's (the bound on the finished scene: playground.md)
 FIRST_WINDOW = 1
-FIRST_STEPS = 4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 33.9 dB on v4 (models.md)
+FIRST_STEPS = (
+    4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
+)
 
 Progress = Callable[[str, float], None]
 CancelCheck = Callable[[], bool]

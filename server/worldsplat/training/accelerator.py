@@ -1,4 +1,4 @@
-"""The whole v2/v3 stack on one lent accelerator in one run (issue 12 item 6): world data on every CPU core, then the
+"""The whole model stack on one lent accelerator in one run: world data on every CPU core, then the
 campaign's stages (VAE, cache, Gaussian decoder, DiT) on the GPU at a larger size, each within its share of a wall
 budget, then the fp16 snapshot, a model card and the logs. `worldsplat train-accelerator --help` is the command;
 `package-config/accelerator-run.sh` runs it on the lent machine, web/docs/models.md ("On an accelerator") says how.
@@ -488,7 +488,7 @@ def train_all(plan: Plan, log=None) -> dict:
     train_n = min(plan.train_clips or table.train, table.train)
     test_n = min(plan.test_clips, table.test)
     card = {
-        "what": "v2/v3 stack trained on one accelerator in one run (worldsplat train-accelerator)",
+        "what": "model stack trained on one accelerator in one run (worldsplat train-accelerator)",
         "size": plan.size,
         "config": dataclasses.asdict(size),
         "device": torch.cuda.get_device_name(0) if device.type == "cuda" else platform.processor() or "cpu",

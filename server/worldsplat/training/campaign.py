@@ -1,11 +1,11 @@
-"""The v2 training campaign (issue 12): a 4x-down-sampling VAE with 8 latent channels per modality, the pixel-guided
+"""Training the served model stack stage by stage: a 4x-down-sampling VAE with 8 latent channels per modality, the pixel-guided
 Gaussian decoder and the DiT with pixel-space layout control, trained stage by stage on world shards.
 
     vae      crops of all three modalities; held-out RGB / 8x8-pooled RGB / depth AbsRel / mask IoU per checkpoint
     vae-decoder  decoder-only fine-tune with a chroma term (latents unchanged: caches and later stages stay valid)
     cache    shards -> frozen-VAE latents + layout maps + conditions + caption embeddings (one .pt per split)
     decoder  eq. 5 losses with the VAE's decoding of L as the pixel guide
-    prior    the layout prior (v4): MSE regression of L from each camera's layout map; held-out MSE per modality
+    prior    the layout prior: MSE regression of L from each camera's layout map; held-out MSE per modality
     dit      rectified flow on L (or, with --prior, on the residual L - mu), layout maps through the hint encoder;
              held-out flow loss per checkpoint
 
@@ -65,8 +65,8 @@ def vae_config(channels=(32, 96), latent: int = 8, blocks: int = 1) -> VAEConfig
 def dit_config(
     vae, target: str = "latent", residual_scale: float = 1.0, layout_channels: int = len(LAYOUT_CHANNELS)
 ) -> DiTConfig:
-    """v3: layout tokens at the main stream's input and a latent-resolution conv head (no ControlNet copies: the
-    v2 DiT, with them, had not learned to follow the layout after 600 steps). v4: the same network generating the
+    """Layout at the input: layout tokens at the main stream's input and a latent-resolution conv head (no ControlNet copies: a
+    ControlNet DiT trained from scratch had not learned to follow the layout after 600 steps); with a prior, the same network generating the
     layout prior's residual (target "prior_residual")."""
     C = vae.cfg.joint_channels
     hint = vae.cfg.downsample * 4
@@ -86,14 +86,14 @@ def dit_config(
 
 
 def prior_config(vae, layout_channels: int = len(LAYOUT_CHANNELS)) -> LayoutPriorConfig:
-    """layout_channels: 7 (road and agents, v4-v8) or 11 (with the map layer, v9): the first ones of LAYOUT_CHANNELS."""
+    """layout_channels: 7 (road and agents alone) or 11 (with the map layer): the first ones of LAYOUT_CHANNELS."""
     return LayoutPriorConfig(
         in_channels=layout_channels, out_channels=vae.cfg.joint_channels, downsample=vae.cfg.downsample
     )
 
 
 def decoder_config(vae, stride: int = 2) -> GSDecoderConfig:
-    """The v2 decoder: one Gaussian per `stride` x `stride` model pixels (2: two up-sampling blocks from the 4x
+    """The pixel-guided decoder: one Gaussian per `stride` x `stride` model pixels (2: two up-sampling blocks from the 4x
     latent at patch 2; 1: a third block of 32 channels, one Gaussian per pixel)."""
     ups = {2: (64, 32), 1: (64, 32, 32)}
     if stride not in ups:
@@ -503,7 +503,7 @@ def train_dit(
     prior_path: Path | None = None,
     layout_channels: int = len(LAYOUT_CHANNELS),
 ) -> None:
-    """Rectified flow on L, or with `prior_path` on the frozen layout prior's residual (L - mu) / scale (v4)."""
+    """Rectified flow on L, or with `prior_path` on the frozen layout prior's residual (L - mu) / scale."""
     torch.set_num_threads(threads)
     vae = load_weights(vae_path, "vae").eval()
     samples = load_cache(out, "train")[:clips]

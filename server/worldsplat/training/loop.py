@@ -220,7 +220,7 @@ def vae_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4,
 def vae_decoder_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4, chroma_weight: float = 4.0):
     """Decoder-only fine-tune (the encoder and the latent statistics stay frozen, so every latent already cached,
     and every model trained on them, stays valid; as Stability's ft-MSE decoder for the SD VAE). Whole images,
-    decoded from the posterior mean (what inference decodes), vae_loss with the chroma term: the v2 VAE decoded
+    decoded from the posterior mean (what inference decodes), vae_loss with the chroma term: the served VAE decoded
     every scene nearly grey (mean saturation 0.03 where the ground truth has 0.19 on a sunny clip) because most
     world scenes are dim, so plain L1 + SSIM paid little for colour."""
 
@@ -390,7 +390,7 @@ def decoder_losses(
     intr = torch.as_tensor(s["intrinsics"])[None].to(dev)
     c2w = torch.as_tensor(s["cam_to_world"])[None].to(dev)
     H, W = s["rgb"].shape[2:4]
-    # v2 decoders re-read the VAE's own decoding of (the noisy) L as a pixel guide
+    # pixel-guided decoders re-read the VAE's own decoding of (the noisy) L as a pixel guide
     g = dec(L, intr, c2w, (H, W)) if guide_fn is None else dec(L, intr, c2w, (H, W), guide=guide_fn(L))
     g = {k: v[0] for k, v in g.items()}
     T, V, gh, gw = g["depth"].shape

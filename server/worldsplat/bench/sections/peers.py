@@ -1,4 +1,4 @@
-"""This viewer against peer splat viewers in the same browser (issue 17): the wasm viewer (web/pkg) and the peers
+"""This viewer against peer splat viewers in the same browser: the wasm viewer (web/pkg) and the peers
 pinned as dev-only npm tools in package-config (gsplat.js, Spark on three.js, GaussianSplats3D) draw the same
 scene along the same camera path on the same 800x450 canvas in headless Debian Chromium (SwiftShader, no GPU).
 

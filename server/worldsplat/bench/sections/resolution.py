@@ -1,4 +1,4 @@
-"""Model resolution vs error vs time (issue 12): what a scene generated at H x W can show on the playground's image,
+"""Model resolution vs error vs time: what a scene generated at H x W can show on the playground's image,
 and what the served network stack costs per window at that size.
 
 Error is a ceiling, measured against the world's exact ground truth at the playground's default image: the GT
@@ -48,7 +48,7 @@ def run(quick: bool) -> Section:
     clip = simulate(build_world(disp), frames=[0, 2])
     gt = torch.as_tensor(clip.rgb).float().div(255).flatten(0, 1).permute(0, 3, 1, 2)
     gh0, gw0 = gaussian_grid(models)
-    stride = d.height // gh0  # model pixels per Gaussian (2 for the v2 decoder)
+    stride = d.height // gh0  # model pixels per Gaussian (2 for the served decoder)
 
     def window(m, cond, rig, ego):
         def run_once():

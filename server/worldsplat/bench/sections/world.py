@@ -1,7 +1,7 @@
 """Ground-truth renderer throughput: the world must be cheap enough to be the training data and the judge.
 
 Knob: image size. The world is exact at every size, so the "error" axis is the resolution lost (pixels per
-view); the cost is seconds per clip. Target from issue 2: 6 cameras x 8 frames at 112x200 in <= 3 s.
+view); the cost is seconds per clip. Target: 6 cameras x 8 frames at 112x200 in <= 3 s.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def run(quick: bool) -> Section:
         columns=["image", "views", "frames", "seconds / clip", "Mrays/s", "time ratio"],
         rows=rows,
         default="200x112",
-        why="200x112 is the playground's default image: every issue-2 geometry test holds at it and a 6x8 clip "
+        why="200x112 is the playground's default image: every world geometry test holds at it and a 6x8 clip "
         "renders within the 3 s target on 2 cores; 400x224 quadruples the cost for detail the 64x112 models "
         "never see.",
         pareto=Pareto("seconds per clip", "pixels per view", points, default="200x112"),

@@ -1,5 +1,6 @@
-"""The inference glue with the v2 (and v3, v4 DiT) networks (tiny, random): pixel-guided decoder, layout-map control,
-4x VAE, the layout prior whose residual the v4 DiT generates; torch and the ONNX serving graphs agree."""
+"""The inference glue with the layout-control networks (tiny, random): pixel-guided decoder, layout-map control
+through a ControlNet or at the DiT's input, 4x VAE, the layout prior whose residual a DiT generates; torch and the
+ONNX serving graphs agree."""
 
 import copy
 import dataclasses
@@ -19,18 +20,18 @@ torch.set_num_threads(1)
 CFG = get_config("tiny")
 
 
-@pytest.fixture(scope="module", params=["v2", "v3", "v4"])
-def models_v2(request):
-    """v2: layout through a zero-initialised ControlNet branch; v3: layout at the input + latent-resolution head;
-    v4: v3 generating the residual of a layout prior."""
+@pytest.fixture(scope="module", params=["controlnet", "layout_at_input", "prior_residual"])
+def layout_models(request):
+    """controlnet: layout through a zero-initialised ControlNet branch; layout_at_input: layout at the input +
+    latent-resolution head; prior_residual: the latter generating the residual of a layout prior."""
     torch.manual_seed(0)
     vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)  # 4x down-sampling
     C = vae_cfg.joint_channels
     dit_cfg = dataclasses.replace(CFG.dit, in_channels=C, out_channels=C, patch=2, control_channels=7, control_hint=8)
-    if request.param in ("v3", "v4"):
+    if request.param in ("layout_at_input", "prior_residual"):
         dit_cfg = dataclasses.replace(dit_cfg, control_depth=0, control_at_input=True, refine_channels=8)
     prior = None
-    if request.param == "v4":
+    if request.param == "prior_residual":
         dit_cfg = dataclasses.replace(dit_cfg, target="prior_residual", residual_scale=0.5)
         prior_cfg = LayoutPriorConfig(out_channels=C, downsample=4, widths=(8, 8, 8, 8), blocks=1, cond_dim=16)
         prior = build("prior", prior_cfg).eval()
@@ -64,61 +65,61 @@ def _cond(clip, s, layout=True):
     return cond
 
 
-def test_v2_generate_reads_layout_maps(models_v2):
+def test_generate_reads_layout_maps(layout_models):
     clip, s = tiny_clip(T=2)
-    assert inf.layout_size(models_v2) == (CFG.data.width, CFG.data.height)
+    assert inf.layout_size(layout_models) == (CFG.data.width, CFG.data.height)
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
     cond = _cond(clip, s)
-    a = inf.generate(cond, steps=2, seed=1, models=models_v2, rig=clip.rig, caption_embedding=emb)
-    ds = models_v2.vae.cfg.downsample
+    a = inf.generate(cond, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
+    ds = layout_models.vae.cfg.downsample
     assert a.latents.shape[-2:] == (CFG.data.height // ds, CFG.data.width // ds)
     # one Gaussian per pixel at the model resolution
     assert a.gaussians[0][0].means.shape[0] == CFG.data.height * CFG.data.width
     other = dict(cond, layout=np.zeros_like(cond["layout"]))
-    b = inf.generate(other, steps=2, seed=1, models=models_v2, rig=clip.rig, caption_embedding=emb)
+    b = inf.generate(other, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
     assert not torch.equal(a.latents, b.latents), "the layout maps must steer the sample"
     with pytest.raises(ValueError, match="layout maps"):
-        inf.generate(_cond(clip, s, layout=False), steps=1, models=models_v2, rig=clip.rig, caption_embedding=emb)
+        inf.generate(_cond(clip, s, layout=False), steps=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
 
 
-def test_v2_reconstruct_decodes_with_the_vae_guide(models_v2):
+def test_reconstruct_decodes_with_the_vae_guide(layout_models):
     clip, _ = tiny_clip(T=2)
-    dec = inf.reconstruct(clip, models_v2)
+    dec = inf.reconstruct(clip, layout_models)
     g = dec.frame(0)
-    guide = inf.pixel_guide(models_v2, dec.latents[:1])
+    guide = inf.pixel_guide(layout_models, dec.latents[:1])
     want = ((guide[0, 0, :3] + 1) / 2).permute(1, 2, 0).reshape(-1, 3)
     # the head adds small residuals (random init) to the VAE's own colours
     assert (g.colors[: want.shape[0]] - want).abs().mean() < 0.1
 
 
-def test_v4_sample_is_prior_plus_scaled_residual(models_v2):
-    """L = mu + residual_scale * (the flow's sample); without its prior a v4 DiT offers no generate mode."""
-    if models_v2.prior is None:
-        pytest.skip("v2/v3 DiTs generate L itself")
+def test_residual_sample_is_prior_plus_scaled_residual(layout_models):
+    """L = mu + residual_scale * (the flow's sample); without its prior a residual DiT offers no generate mode."""
+    if layout_models.prior is None:
+        pytest.skip("these DiTs generate L itself")
     clip, s = tiny_clip(T=2)
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
-    cond = inf.condition_tensors(models_v2, _cond(clip, s), clip.ego_to_world, emb)
-    L = inf.sample_latents(models_v2, cond, steps=2, seed=3)
-    mu = models_v2.prior.clip(cond["control"][None].float(), emb[None])[0]
-    flow_only = dataclasses.replace(models_v2, prior=None)
-    flow_only.dit = copy.deepcopy(models_v2.dit)
-    flow_only.dit.cfg = dataclasses.replace(models_v2.dit.cfg, target="latent")
+    cond = inf.condition_tensors(layout_models, _cond(clip, s), clip.ego_to_world, emb)
+    L = inf.sample_latents(layout_models, cond, steps=2, seed=3)
+    mu = layout_models.prior.clip(cond["control"][None].float(), emb[None])[0]
+    flow_only = dataclasses.replace(layout_models, prior=None)
+    flow_only.dit = copy.deepcopy(layout_models.dit)
+    flow_only.dit.cfg = dataclasses.replace(layout_models.dit.cfg, target="latent")
     r = inf.sample_latents(flow_only, cond, steps=2, seed=3)
     assert torch.allclose(L, mu + 0.5 * r, atol=1e-5)
-    assert "generate" not in dataclasses.replace(models_v2, prior=None).modes
-    assert "generate" in models_v2.modes
+    assert "generate" not in dataclasses.replace(layout_models, prior=None).modes
+    assert "generate" in layout_models.modes
 
 
-def test_v2_onnx_matches_torch(models_v2, tmp_path):
-    graphs = ox.export(models_v2, tmp_path)
-    assert ("layout_prior" in graphs) == (models_v2.prior is not None)
+def test_layout_models_onnx_match_torch(layout_models, tmp_path):
+    graphs = ox.export(layout_models, tmp_path)
+    assert ("layout_prior" in graphs) == (layout_models.prior is not None)
     for kind in graphs:
-        assert ox.parity(models_v2, tmp_path, kind) < ox.PARITY_ATOL, kind
-    ort = ox.use_onnx(copy.deepcopy(models_v2), tmp_path, threads=1)
+        assert ox.parity(layout_models, tmp_path, kind) < ox.PARITY_ATOL, kind
+    ort = ox.use_onnx(copy.deepcopy(layout_models), tmp_path, threads=1)
     clip, s = tiny_clip(T=2)
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
     cond = _cond(clip, s)
-    a = inf.generate(cond, steps=2, seed=1, models=models_v2, rig=clip.rig, caption_embedding=emb)
+    a = inf.generate(cond, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
     b = inf.generate(cond, steps=2, seed=1, models=ort, rig=clip.rig, caption_embedding=emb)
     assert torch.allclose(a.latents, b.latents, atol=ox.PARITY_ATOL)
     assert torch.allclose(a.frame(1).means, b.frame(1).means, atol=1e-2)

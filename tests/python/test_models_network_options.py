@@ -1,4 +1,4 @@
-"""The v2 network options (issue 12): space-to-depth VAE stem, pixel-guided Gaussian decoder, pixel-space layout
+"""The network options of the served stack: space-to-depth VAE stem, pixel-guided Gaussian decoder, pixel-space layout
 control through a hint encoder."""
 
 import math
@@ -25,8 +25,8 @@ def test_vae_unshuffle_stem_shapes_and_downsample():
         vae.encode(torch.zeros(1, 3, 36, 48))
 
 
-def test_vae_v1_weights_keep_their_layout():
-    """blocks=1, unshuffle=1 is the v1 network: the same parameter names (shipped v1 files still load)."""
+def test_vae_without_unshuffle_keeps_its_parameter_names():
+    """blocks=1, unshuffle=1 is the first 8x network: the same parameter names (its weight files still load)."""
     names = set(MultiModalVAE(VAEConfig()).state_dict())
     assert {
         "encoder.stem.weight",
@@ -187,7 +187,7 @@ def test_dit_reads_pixel_layout_through_the_hint_encoder():
         assert (a - b).abs().max() > 1e-3 * a.abs().max()
 
 
-def _v3_config(**kw):
+def _input_layout_config(**kw):
     base = dict(
         in_channels=6,
         out_channels=6,
@@ -207,12 +207,12 @@ def _v3_config(**kw):
     return DiTConfig(**(base | kw))
 
 
-def test_dit_v3_layout_at_input_and_latent_head():
-    """v3: the layout enters the main stream at its input (a fresh model's output already depends on it once the
+def test_dit_layout_at_input_and_latent_head():
+    """Layout at the input: the layout enters the main stream at its input (a fresh model's output already depends on it once the
     adaLN-zero output layer is non-zero), and the latent-resolution head sees layout features at the latent grid."""
     torch.manual_seed(0)
     B, T, V, C, h, w = 1, 2, 2, 6, 4, 8
-    dit = DiT4D(_v3_config())
+    dit = DiT4D(_input_layout_config())
     assert not hasattr(dit, "control_blocks") or len(dit.control_blocks) == 0
     x, s = torch.randn(B, T, V, C, h, w), torch.rand(B)
     cond = _cond(B, T, V, h * 4, w * 4)
@@ -230,15 +230,15 @@ def test_dit_v3_layout_at_input_and_latent_head():
     assert dit.refiner.out.weight.grad.abs().sum() > 0
 
 
-def test_dit_v3_config_errors():
+def test_dit_input_layout_config_errors():
     with pytest.raises(ValueError, match="control_hint"):
-        DiT4D(_v3_config(control_hint=0))
+        DiT4D(_input_layout_config(control_hint=0))
     with pytest.raises(ValueError, match="multiple of patch"):
-        DiT4D(_v3_config(control_hint=8, patch=16))
+        DiT4D(_input_layout_config(control_hint=8, patch=16))
 
 
-def test_dit_v3_learns_a_layout_to_latent_map_faster_than_controlnet():
-    """The reason for v3 (models.md): trained from scratch, a ControlNet branch behind zero-initialised projections
+def test_dit_layout_at_input_learns_a_layout_to_latent_map_faster_than_controlnet():
+    """Why the layout goes in at the input (models.md): trained from scratch, a ControlNet branch behind zero-initialised projections
     learns to follow the layout slowly. Same data, seed, steps and optimizer: a fixed latent that is a function of
     the layout map (x = pooled layout), regressed by the flow loss at fixed s = 1 (pure data side)."""
     B, T, V, C, h, w = 2, 2, 2, 6, 4, 8
@@ -258,7 +258,7 @@ def test_dit_v3_learns_a_layout_to_latent_map_faster_than_controlnet():
             opt.step()
         return loss.item()
 
-    v2 = _v3_config(control_depth=1, control_at_input=False, refine_channels=0)
-    v3 = _v3_config()
-    l2, l3 = final_loss(v2), final_loss(v3)
+    controlnet = _input_layout_config(control_depth=1, control_at_input=False, refine_channels=0)
+    at_input = _input_layout_config()
+    l2, l3 = final_loss(controlnet), final_loss(at_input)
     assert l3 < 0.7 * l2, (l3, l2)  # measured 0.0145 vs 0.0266

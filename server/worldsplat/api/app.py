@@ -25,7 +25,7 @@ from . import runners
 from .errors import add_error_handlers
 from .middleware import MAX_BODY, BodyLimit, MethodGuard
 from .openapi import document
-from .routes import jobs, meta, page, scenario, scenes, videos
+from .routes import exports, jobs, meta, page, scenario, scenes, videos
 from .scenario_files import MAX_IMPORT_BODY
 from .scene_files import GATE, MAX_SCENE_FILE
 from .state import MAX_SCENE_PIXELS, Playground
@@ -73,7 +73,7 @@ def create_app(
     )
     app.add_middleware(MethodGuard, routes=app.router.routes)  # outermost: OPTIONS / 405 / unknown /api paths
     add_error_handlers(app)
-    for module in (meta, scenario, scenes, videos, jobs, page):
+    for module in (meta, scenario, scenes, exports, videos, jobs, page):
         app.include_router(module.router)
     app.openapi = functools.partial(document, app)
     # the wasm bundle (built by wasm/build.sh into web/pkg, git-ignored): may appear after the server started

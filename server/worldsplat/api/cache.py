@@ -1,7 +1,9 @@
-"""Content-addressed artifact store for the server: scenes (.wsplat) and videos (.mp4/.webm), each with a JSON meta.
+"""Content-addressed artifact store for the server: scenes (.wsplat), videos (.mp4/.webm) and a scene's exports
+(downloads: .ply .glb .spz .sog .splat .wsplat, or a .zip of a clip's frames), each with a JSON meta.
 
 Layout under `root`:
-    scenes/<id>.wsplat + scenes/<id>.json      videos/<id>.mp4 + videos/<id>.json      tmp/ (writes in flight)
+    scenes/<id>.wsplat + scenes/<id>.json      videos/<id>.mp4 + videos/<id>.json      exports/<id>.<ext> + .json
+    tmp/ (writes in flight)
 Every artifact is written to `tmp/` first, fsynced, then renamed into place (and the directory fsynced), so a crash
 (kill -9) leaves either the whole file or nothing; `recover()` on start-up deletes what was left in `tmp/`.
 An entry's meta is written after its artifact, so an artifact without meta is an interrupted entry and is removed.
@@ -17,6 +19,7 @@ import json
 import os
 import re
 import secrets
+import shutil
 import threading
 import time
 from collections.abc import Iterator
@@ -26,7 +29,11 @@ from worldsplat.core.io import fsync_dir, write_json_atomic
 
 ID_RE = re.compile(r"^[0-9a-f]{32}$")
 # kind -> allowed artifact extensions
-KINDS: dict[str, tuple[str, ...]] = {"scenes": (".wsplat",), "videos": (".mp4", ".webm")}
+KINDS: dict[str, tuple[str, ...]] = {
+    "scenes": (".wsplat",),
+    "videos": (".mp4", ".webm"),
+    "exports": (".ply", ".glb", ".spz", ".sog", ".splat", ".wsplat", ".zip"),  # a scene's downloads (exports.py)
+}
 
 
 class InvalidId(ValueError):
@@ -243,6 +250,10 @@ class ArtifactCache:
         """After a crash: delete writes in flight and artifacts whose meta never landed."""
         torn = 0
         for p in self.tmp.iterdir():
+            if p.is_dir():  # an export's frames being written (exports.write_clip_zip)
+                shutil.rmtree(p, ignore_errors=True)
+                torn += 1
+                continue
             with contextlib.suppress(FileNotFoundError, IsADirectoryError):
                 p.unlink()
                 torn += 1

@@ -34,7 +34,9 @@ class RoadRequest(BaseModel):
     model_config = ConfigDict(
         extra="forbid", json_schema_extra={"examples": [{"scenario": {"road": {"kind": "intersection"}, "seed": 7}}]}
     )
-    scenario: Scenario = Field(description="the scenario (see GET /api/schema); its agents play no part in the road")
+    scenario: Scenario = Field(
+        description="the scenario (see GET /api/schema); its agents play no part in the road, only in `motion`"
+    )
 
 
 class VideoRequest(BaseModel):
@@ -116,6 +118,21 @@ class SceneState(BaseModel):
     job: JobOut | None = None
 
 
+class Footprint(BaseModel):
+    id: str | None = Field(None, description="the agent's id (null: the ego)")
+    length: float = Field(description="m")
+    width: float = Field(description="m")
+    poses: list[list[float]] = Field(description="[x, y, yaw] of the footprint's centre at each frame (m, m, rad)")
+
+
+class MotionPreview(BaseModel):
+    """Where the world puts the ego and each explicit agent at each frame (worldsplat.world.preview)."""
+
+    times: list[float] = Field(description="the clip's frame times (s)")
+    ego: Footprint
+    agents: list[Footprint] = Field(description="the scenario's agents, in its order")
+
+
 class RoadLayout(BaseModel):
     """The world's road for a scenario (worldsplat.world.road.RoadGeometry, as the world builds it): what the page's
     bird's-eye editor draws. World frame: the ego's rear axle starts at the origin facing +x, y left; the main road's
@@ -141,6 +158,7 @@ class RoadLayout(BaseModel):
         "travel to the cross road's sidewalk) or the seed's draw; null: no cross road"
     )
     crosswalks_s: list[float] = Field(description="mid-block crosswalks on the main road (m along it)")
+    motion: MotionPreview = Field(description="the ego and the agents at each frame, as the world moves them")
 
 
 class VideoState(BaseModel):

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Body
 from fastapi.responses import JSONResponse
 
 from worldsplat.core.scenario import Scenario, list_presets, load_preset
-from worldsplat.world.agents import scenario_road
+from worldsplat.world.preview import motion_preview, road_layout
 
 from ..errors import ApiError
 from ..openapi import errors, ok
@@ -40,36 +40,18 @@ def schema() -> dict:
 @router.post(
     "/api/road",
     responses={
-        200: ok(description="the world's road for the scenario (the cross road where the world puts it)"),
+        200: ok(
+            description="the world's road for the scenario (the cross road where the world puts it) and its motion"
+        ),
         **errors(400, 413, 422),
     },
 )
 def scenario_road_layout(req: Annotated[RoadRequest, Body()]) -> RoadLayout:
     """The road the world builds for a scenario, without building the world: lanes, widths and, for an
     intersection, the cross road's distance along the main road (`road.junction_s` when set, else the world's
-    seeded draw, which only the server knows). A scenario its cross-field rules refuse is a 422 naming the field."""
-    sc = req.scenario
-    road = scenario_road(sc)[0]
-    source = None
-    if road.cross_s is not None:
-        turning = sc.ego.manoeuvre in ("turn_left", "turn_right")
-        source = "scenario" if sc.road.junction_s is not None else "manoeuvre" if turning else "seed"
-    return RoadLayout(
-        kind=road.kind,
-        setting=road.setting,
-        lanes_per_direction=road.lanes,
-        lane_width=road.lane_width,
-        median=road.median,
-        curvature=road.curvature,
-        y0=road.y0,
-        lanes_edge=road.lanes_edge,
-        road_half=road.road_half,
-        curb_out=road.curb_out,
-        walk_out=road.walk_out,
-        junction_s=road.cross_s,
-        junction_from=source,
-        crosswalks_s=list(road.crosswalks_s),
-    )
+    seeded draw, which only the server knows); and the ego and the agents at each frame, as the world moves them.
+    A scenario its cross-field rules refuse is a 422 naming the field."""
+    return RoadLayout(**road_layout(req.scenario), motion=motion_preview(req.scenario))
 
 
 @router.post(

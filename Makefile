@@ -15,8 +15,12 @@ setup:
 	@mkdir -p $(XDG_RUNTIME_DIR) && chmod 700 $(XDG_RUNTIME_DIR)
 	@$(SETUP) all
 
+# Stages run in order; each one's wall time is printed at the end (where the suite's time goes).
+TEST_STAGES := test-lint test-rust test-wasm test-python test-browser
 test: setup
-	@$(MAKE) --no-print-directory test-lint test-rust test-wasm test-python test-browser
+	@times=""; for t in $(TEST_STAGES); do s=$$(date +%s); \
+	  $(MAKE) --no-print-directory $$t || { echo "make test: $$t failed"; exit 1; }; \
+	  times="$$times $$t=$$(( $$(date +%s) - s ))s"; done; echo "make test: stage wall times:$$times"
 
 # Python layering (import-linter contracts in pyproject.toml), lint and format (ruff)
 test-lint:
@@ -24,8 +28,11 @@ test-lint:
 	$(ROOT)/.venv/bin/ruff check server models tests
 	$(ROOT)/.venv/bin/ruff format --check server models tests
 
+# pytest-xdist: one worker per core (tests are single-threaded: conftest pins torch to one thread); a file's tests
+# stay on one worker so module fixtures are built once.
+PYTEST_WORKERS ?= $(shell nproc)
 test-python:
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile
 
 test-rust: test-rust-lint
 	@if [ -f wasm/Cargo.toml ]; then cd wasm && cargo test --workspace; else echo "wasm/: no workspace yet"; fi

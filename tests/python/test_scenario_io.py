@@ -543,7 +543,7 @@ def _inside_footprint(means: np.ndarray, pose: np.ndarray, size, margin: float =
     return int(((np.abs(local[:, 0]) < size[0] / 2 + margin) & (np.abs(local[:, 1]) < size[1] / 2 + margin)).sum())
 
 
-# -- a four-way junction written by scenariogeneration's CommonJunctionCreator (issue 18 item 4) -------------------
+# -- a four-way junction written by scenariogeneration's CommonJunctionCreator -------------------------------------
 J_START, J_RADIUS, J_ARM = (10.0, -30.0, 0.3), 20.0, 100.0  # road 1's start (x, y, heading), the circle, arm length
 
 

@@ -1,4 +1,4 @@
-"""Layout maps (issue 12, layout control): exact per-camera maps from the conditions alone, checked against the
+"""Layout maps (the DiT's layout control): exact per-camera maps from the conditions alone, checked against the
 world's own ground truth (semantics, depth) of the same cameras, at the rig and on a shifted track."""
 
 import numpy as np
@@ -89,7 +89,7 @@ def _metres(x: np.ndarray) -> np.ndarray:
 
 
 def test_map_layer_states_buildings_trees_and_poles_where_the_world_shows_them(urban):
-    """The map layer (v9): building / vegetation / furniture channels on the world's own pixels of those classes
+    """The map layer: building / vegetation / furniture channels on the world's own pixels of those classes
     (they are the same volumes, without texture), and map_depth exact on facades."""
     world, clip, lm, _ = urban
     ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}

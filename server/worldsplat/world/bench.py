@@ -1,6 +1,6 @@
 """Renderer benchmark: `python -m worldsplat.world.bench [--preset NAME] [--repeat N]`.
 
-Times `simulate` for 6 cameras x 8 frames at 200x112 (the issue's target: <= 3 s on 2 cores) and prints seconds,
+Times `simulate` for 6 cameras x 8 frames at 200x112 (the target: <= 3 s on 2 cores) and prints seconds,
 rays per second and the ratio to the 3 s budget. Also times `build_world` and `world.conditions`.
 """
 

@@ -197,7 +197,7 @@ def world_conditions(
     world: World, shift_m: float = 0.0, cameras: list[str] | None = None, layout_size: tuple[int, int] | None = None
 ) -> dict:
     """The models' conditions; with layout_size = (W, H) also the per-camera layout maps at that size
-    (`layout`, (T,V,H,W,7), see world.layout_maps), which the v2 DiT reads as its control."""
+    (`layout`, (T,V,H,W,7), see world.layout_maps), which the DiT reads as its layout control."""
     with single_threaded_blas():
         out = _world_conditions(world, shift_m, cameras)
         if layout_size is not None:

@@ -1,4 +1,4 @@
-"""Per-camera layout maps: what the conditions alone say each pixel should show (issue 12, layout control).
+"""Per-camera layout maps: what the conditions alone say each pixel should show (the DiT's layout control).
 
 Rendered by ray casting a *layout world* that holds only what a scenario states: the road plane with its drivable
 area, painted markings and sidewalks, and one solid box per agent (its 3D box, not its detailed parts). Textures,

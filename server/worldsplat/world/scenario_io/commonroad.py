@@ -133,99 +133,22 @@ def import_commonroad(
     st = problems[pid].initial_state
     cx, cy, h = float(st.position[0]), float(st.position[1]), float(st.orientation)
     off = EGO_LENGTH / 2 - EGO_REAR_OVERHANG
-    rx, ry = cx - off * math.cos(h), cy - off * math.sin(h)
-    frame = Frame(rx, ry, h)
+    frame = Frame(cx - off * math.cos(h), cy - off * math.sin(h), h)
     road, start_lane = _road(cr.lanelet_network, cx, cy, h, warnings)
     road["setting"] = setting
     dt = float(cr.dt)
     if fps is None:
-        step = max(1, round(0.2 / dt))
-        fps = 1.0 / (dt * step)
+        fps = 1.0 / (dt * max(1, round(0.2 / dt)))
     agents, t_end = [], 0.0
-
-    def pose(x, y, yaw, c):
-        px = x + c[0] * math.cos(yaw) - c[1] * math.sin(yaw)
-        py = y + c[0] * math.sin(yaw) + c[1] * math.cos(yaw)
-        return frame.point(px, py)
-
     for ob in cr.static_obstacles:
-        where = f"StaticObstacle[{ob.obstacle_id}]"
-        cls = CLASS.get(ob.obstacle_type.value)
-        if cls is None:
-            errors.append(f"{where} (type {ob.obstacle_type.value}): not supported")
-            continue
-        try:
-            length, width, c = _size(ob.obstacle_shape, where, cls)
-        except ImportRefused as e:
-            errors.extend(e.errors)
-            continue
-        s0 = ob.initial_state
-        x, y = pose(float(s0.position[0]), float(s0.position[1]), float(s0.orientation), c)
-        agents.append(
-            {
-                "id": f"static_{ob.obstacle_id}",
-                "class": cls,
-                "size": {"length": length, "width": width, "height": _height(cls)},
-                "start": {
-                    "kind": "pose",
-                    "x": round(x, 6),
-                    "y": round(y, 6),
-                    "yaw_deg": round(math.degrees(frame.yaw(float(s0.orientation))), 6),
-                },
-            }
-        )
+        agent = _static_agent(ob, frame, errors)
+        if agent is not None:
+            agents.append(agent)
     for ob in cr.dynamic_obstacles:
-        where = f"DynamicObstacle[{ob.obstacle_id}]"
-        cls = CLASS.get(ob.obstacle_type.value)
-        if cls is None:
-            errors.append(f"{where} (type {ob.obstacle_type.value}): not supported")
-            continue
-        try:
-            length, width, c = _size(ob.obstacle_shape, where, cls)
-        except ImportRefused as e:
-            errors.extend(e.errors)
-            continue
-        pred = ob.prediction
-        states = [ob.initial_state]
-        if pred is not None:
-            if type(pred).__name__ != "TrajectoryPrediction":
-                errors.append(f"{where}/{type(pred).__name__}: not supported (trajectory predictions only)")
-                continue
-            states += list(pred.trajectory.state_list)
-        t0 = int(ob.initial_state.time_step)
-        if t0 != 0:
-            errors.append(f"{where}/initialState/time: {t0}; obstacles that appear later are not supported")
-            continue
-        ts = np.array([int(s.time_step) * dt for s in states])
-        doc = {
-            "id": f"dyn_{ob.obstacle_id}",
-            "class": cls,
-            "size": {"length": length, "width": width, "height": _height(cls)},
-        }
-        if len(states) == 1:
-            s0 = states[0]
-            x, y = pose(float(s0.position[0]), float(s0.position[1]), float(s0.orientation), c)
-            doc["start"] = {
-                "kind": "pose",
-                "x": round(x, 6),
-                "y": round(y, 6),
-                "yaw_deg": round(math.degrees(frame.yaw(float(s0.orientation))), 6),
-            }
-            doc["motion"] = {"speed": max(0.0, float(getattr(s0, "velocity", 0.0) or 0.0))}
-            if doc["motion"]["speed"] > 0:
-                warnings.append(f"{where}: no trajectory; it drives straight at its initial velocity")
-        else:
-            on_frame = np.isclose((ts * fps) % 1.0, 0.0, atol=1e-6) | np.isclose((ts * fps) % 1.0, 1.0, atol=1e-6)
-            keep = np.arange(len(states)) if len(states) <= 64 else np.flatnonzero(on_frame)
-            keep = keep[subsample(ts[keep])]
-            kf = []
-            for i in keep:
-                s = states[i]
-                x, y = pose(float(s.position[0]), float(s.position[1]), float(s.orientation), c)
-                kf.append({"t": round(float(ts[i]), 6), "x": round(x, 6), "y": round(y, 6)})
-            doc["motion"] = {"keyframes": kf}
-            t_end = max(t_end, float(ts[-1]))
-        agents.append(doc)
+        agent, t_last = _dynamic_agent(ob, frame, dt, fps, errors, warnings)
+        if agent is not None:
+            agents.append(agent)
+            t_end = max(t_end, t_last)
     if errors:
         raise ImportRefused(errors)
     ego_speed = float(getattr(st, "velocity", 0.0) or 0.0)
@@ -242,3 +165,96 @@ def import_commonroad(
         "caption": f"Imported from CommonRoad {cr.scenario_id}.",
     }
     return Imported(sc, warnings)
+
+
+def _class_and_size(ob, where: str, errors: list[str]) -> tuple[str, float, float, tuple[float, float]] | None:
+    """An obstacle's class, length, width and footprint centre (obstacle frame), or None with the problem in
+    `errors`."""
+    cls = CLASS.get(ob.obstacle_type.value)
+    if cls is None:
+        errors.append(f"{where} (type {ob.obstacle_type.value}): not supported")
+        return None
+    try:
+        length, width, c = _size(ob.obstacle_shape, where, cls)
+    except ImportRefused as e:
+        errors.extend(e.errors)
+        return None
+    return cls, length, width, c
+
+
+def _centre(frame: Frame, state, c: tuple[float, float]) -> tuple[float, float]:
+    """The footprint centre of an obstacle state (its position + the shape's centre c, turned by its orientation)
+    in the world frame."""
+    x, y, yaw = float(state.position[0]), float(state.position[1]), float(state.orientation)
+    px = x + c[0] * math.cos(yaw) - c[1] * math.sin(yaw)
+    py = y + c[0] * math.sin(yaw) + c[1] * math.cos(yaw)
+    return frame.point(px, py)
+
+
+def _pose_start(frame: Frame, state, c: tuple[float, float]) -> dict:
+    x, y = _centre(frame, state, c)
+    return {
+        "kind": "pose",
+        "x": round(x, 6),
+        "y": round(y, 6),
+        "yaw_deg": round(math.degrees(frame.yaw(float(state.orientation))), 6),
+    }
+
+
+def _static_agent(ob, frame: Frame, errors: list[str]) -> dict | None:
+    """A static obstacle as a standing agent."""
+    where = f"StaticObstacle[{ob.obstacle_id}]"
+    found = _class_and_size(ob, where, errors)
+    if found is None:
+        return None
+    cls, length, width, c = found
+    return {
+        "id": f"static_{ob.obstacle_id}",
+        "class": cls,
+        "size": {"length": length, "width": width, "height": _height(cls)},
+        "start": _pose_start(frame, ob.initial_state, c),
+    }
+
+
+def _dynamic_agent(
+    ob, frame: Frame, dt: float, fps: float, errors: list[str], warnings: list[str]
+) -> tuple[dict | None, float]:
+    """A dynamic obstacle as a keyframed agent (its trajectory's states, at most 64, the frame times kept first), or
+    one driving straight at its initial velocity when it has no trajectory; and the time of its last state."""
+    where = f"DynamicObstacle[{ob.obstacle_id}]"
+    found = _class_and_size(ob, where, errors)
+    if found is None:
+        return None, 0.0
+    cls, length, width, c = found
+    pred = ob.prediction
+    states = [ob.initial_state]
+    if pred is not None:
+        if type(pred).__name__ != "TrajectoryPrediction":
+            errors.append(f"{where}/{type(pred).__name__}: not supported (trajectory predictions only)")
+            return None, 0.0
+        states += list(pred.trajectory.state_list)
+    t0 = int(ob.initial_state.time_step)
+    if t0 != 0:
+        errors.append(f"{where}/initialState/time: {t0}; obstacles that appear later are not supported")
+        return None, 0.0
+    ts = np.array([int(s.time_step) * dt for s in states])
+    doc = {
+        "id": f"dyn_{ob.obstacle_id}",
+        "class": cls,
+        "size": {"length": length, "width": width, "height": _height(cls)},
+    }
+    if len(states) == 1:
+        doc["start"] = _pose_start(frame, states[0], c)
+        doc["motion"] = {"speed": max(0.0, float(getattr(states[0], "velocity", 0.0) or 0.0))}
+        if doc["motion"]["speed"] > 0:
+            warnings.append(f"{where}: no trajectory; it drives straight at its initial velocity")
+        return doc, 0.0
+    on_frame = np.isclose((ts * fps) % 1.0, 0.0, atol=1e-6) | np.isclose((ts * fps) % 1.0, 1.0, atol=1e-6)
+    keep = np.arange(len(states)) if len(states) <= 64 else np.flatnonzero(on_frame)
+    keep = keep[subsample(ts[keep])]
+    kf = []
+    for i in keep:
+        x, y = _centre(frame, states[i], c)
+        kf.append({"t": round(float(ts[i]), 6), "x": round(x, 6), "y": round(y, 6)})
+    doc["motion"] = {"keyframes": kf}
+    return doc, float(ts[-1])

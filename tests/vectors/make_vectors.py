@@ -1,4 +1,4 @@
-"""Regenerate the shared test vectors deterministically: `python tests/vectors/make_vectors.py [raster|wsplat|rig]`.
+"""Regenerate the shared test vectors deterministically: `python tests/vectors/make_vectors.py [raster|wsplat|rig|editor]`.
 
 raster/<case>.json          camera + Gaussians (non-finite numbers as "NaN", "Infinity", "-Infinity")
 raster/<case>.expected.png  torch reference render, RGB8, round(255 * clamp(c, 0, 1))
@@ -6,6 +6,8 @@ raster/<case>.expected.json {"alpha_sum", "rgb_mean", "finite", "visible"}
 wsplat/<name>.wsplat + <name>.json  valid files with expected decoded values, malformed files with the error
 rig/rig_shift.json          a preset's rig (intrinsics + camera_to_ego), its ego poses, and world_to_camera of every
                             rig camera at several lateral shifts and frames (Python's rig + shift composition)
+editor/paths.json           scenarios with what POST /api/road answers for them (worldsplat.world.preview: the road's
+                            layout, every footprint's pose at each frame) and points of the main road (road.xy)
 Every renderer / decoder must pass all of them (see web/docs/gaussians.md).
 """
 
@@ -1046,14 +1048,119 @@ def write_rig(out_dir: Path = HERE / "rig") -> list[str]:
     return [f"rig_shift.json ({len(v['cases'])} cameras)"]
 
 
+# ---------------------------------------------------------------------------------------------- editor paths
+EDITOR_SCENARIOS = {
+    # a curve: a lane agent changing lanes then stopping, an oncoming one slowing, a keyframed pedestrian (Hermite)
+    # and the ego on its own keyframed path
+    "curve_events_keyframes": {
+        "seed": 5,
+        "road": {
+            "kind": "curve",
+            "setting": "suburban",
+            "lanes_per_direction": 2,
+            "lane_width": 3.5,
+            "curvature": 0.01,
+        },
+        "ego": {
+            "speed": 8.0,
+            "start_lane": 0,
+            "path": [{"t": 0, "x": 0, "y": 0}, {"t": 2, "x": 16, "y": 1.0}, {"t": 4, "x": 30, "y": 4.0}],
+        },
+        "clip": {"frames": 16, "fps": 4.0},
+        "agents": [
+            {
+                "id": "car1",
+                "class": "car",
+                "start": {"kind": "lane", "direction": "same", "lane": 1, "s": 12.0, "lateral": 0.3},
+                "motion": {
+                    "speed": 9.0,
+                    "events": [
+                        {"t": 0.5, "action": "lane_change", "lane": 0, "duration": 1.5},
+                        {"t": 2.25, "action": "stop", "duration": 1.5},
+                    ],
+                },
+            },
+            {
+                "id": "bus1",
+                "class": "bus",
+                "start": {"kind": "lane", "direction": "opposite", "lane": 0, "s": 60.0},
+                "motion": {"speed": 6.0, "events": [{"t": 1.0, "action": "set_speed", "speed": 3.0, "duration": 1.0}]},
+            },
+            {
+                "id": "ped1",
+                "class": "pedestrian",
+                "motion": {
+                    "keyframes": [
+                        {"t": 0, "x": 20, "y": 9},
+                        {"t": 1.5, "x": 21, "y": 6},
+                        {"t": 3, "x": 24, "y": 5.5},
+                        {"t": 3.5, "x": 24.5, "y": 5.5},
+                    ]
+                },
+            },
+        ],
+    },
+    # a straight highway (median): a free-pose cyclist, a truck on the ego's lane, the ego changing lanes
+    "highway_pose_lane_change": {
+        "seed": 9,
+        "road": {"kind": "straight", "setting": "highway", "lanes_per_direction": 3, "lane_width": 3.75},
+        "ego": {"speed": 12.0, "start_lane": 1, "manoeuvre": "lane_change_left"},
+        "clip": {"frames": 12, "fps": 4.0},
+        "agents": [
+            {
+                "id": "bike",
+                "class": "cyclist",
+                "start": {"kind": "pose", "x": 30.0, "y": -9.0, "yaw_deg": 20.0},
+                "motion": {"speed": 4.0},
+            },
+            {
+                "id": "truck1",
+                "class": "truck",
+                "start": {"kind": "lane", "direction": "same", "lane": 1, "s": 40.0},
+                "motion": {"speed": 10.0},
+            },
+        ],
+    },
+}
+EDITOR_ROAD_SD = [(-20.0, -5.25), (0.0, 0.0), (25.0, 3.5), (60.0, -8.0), (90.0, 12.0)]
+
+
+def editor_case(name: str) -> dict:
+    from worldsplat.core.scenario import Scenario
+    from worldsplat.world.agents import scenario_road
+    from worldsplat.world.preview import POSE_DECIMALS, motion_preview, road_layout
+
+    sc = Scenario.model_validate(EDITOR_SCENARIOS[name])
+    road = scenario_road(sc)[0]
+    s, d = np.array(EDITOR_ROAD_SD).T
+    x, y, h = road.xy(s, d)
+    points = np.round(np.stack([s, d, x, y, h], -1), POSE_DECIMALS).tolist()
+    return {
+        "name": name,
+        "scenario": sc.model_dump(mode="json", by_alias=True, exclude_none=True),
+        "layout": road_layout(sc),
+        "road_points": points,
+        "preview": motion_preview(sc),
+    }
+
+
+def write_editor(out_dir: Path = HERE / "editor") -> list[str]:
+    out_dir.mkdir(exist_ok=True)
+    cases = [editor_case(n) for n in EDITOR_SCENARIOS]
+    (out_dir / "paths.json").write_text(json.dumps({"cases": cases}, indent=1) + "\n")
+    return [f"paths.json ({len(cases)} scenarios)"]
+
+
 def main(argv: list[str]) -> int:
-    which = argv[1:] or ["raster", "wsplat", "rig"]
+    which = argv[1:] or ["raster", "wsplat", "rig", "editor"]
     if "raster" in which:
         print("raster:", ", ".join(write_raster()))
     if "wsplat" in which:
         print("wsplat:", ", ".join(write_wsplat(HERE / "wsplat")))
     if "rig" in which:
         print("rig:", ", ".join(write_rig()))
+    if "editor" in which:
+        print("editor:", ", ".join(write_editor()))
     return 0
 
 

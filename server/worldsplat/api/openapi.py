@@ -116,6 +116,7 @@ SCENE_LINKS = {
     "GetSceneWsplat": {"operationId": "scene_wsplat", "parameters": {"scene_id": "$response.body#/scene_id"}},
     "GetSceneEvents": {"operationId": "scene_events", "parameters": {"scene_id": "$response.body#/scene_id"}},
     "CreateVideo": {"operationId": "create_video", "parameters": {"scene_id": "$response.body#/scene_id"}},
+    "GetSceneExport": {"operationId": "scene_export", "parameters": {"scene_id": "$response.body#/scene_id"}},
 }
 SCENE_JOB_LINKS = {  # a 202 carries the job (a 200 from the cache may not)
     "GetSceneJob": {"operationId": "job_status", "parameters": {"job_id": "$response.body#/job/id"}},

@@ -11,7 +11,7 @@ from worldsplat.core import paths
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--weights", type=Path, default=None, help="weights folder, v1 or v2 (default: the shipped ones)")
+    p.add_argument("--weights", type=Path, default=None, help="weights folder (default: the shipped ones)")
     p.add_argument("--data", type=Path, default=None, help="dataset root with SPLIT/clip_*.npz (default: made here)")
     p.add_argument("--split", default="test", choices=("train", "val", "test"), help="split of the random cases")
     p.add_argument("--random", type=int, default=4, help="random scenarios of the split (default 4)")

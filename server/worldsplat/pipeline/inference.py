@@ -210,7 +210,7 @@ def pixel_guide(models: Models, L: torch.Tensor) -> torch.Tensor:
 
 def layout_size(models: Models) -> tuple[int, int] | None:
     """(W, H) of the layout maps a layout-control DiT or the layout prior reads, or None when the DiT reads the sketch
-    latent (v1)."""
+    latent."""
     if models.prior is None and (models.dit is None or not models.dit.cfg.control_hint):
         return None
     return (models.data.width, models.data.height)
@@ -556,7 +556,7 @@ def condition_tensors(
     if len(conditions["boxes"]) != T:
         raise ValueError(f"generate: boxes for {len(conditions['boxes'])} frames, sketch has {T}")
     if layout_size(models) is not None:
-        # v2: the per-camera layout maps in pixel space, read by the DiT's hint encoder
+        # layout control: the per-camera layout maps in pixel space, read by the DiT's hint encoder
         if "layout" not in conditions:
             raise ValueError("generate: these models read layout maps; pass world.conditions(layout_size=...)")
         lay = torch.from_numpy(np.asarray(conditions["layout"], np.float32))

@@ -66,7 +66,7 @@ class Size:
     why these numbers); `smoke`: tiny, a CPU test runs the whole command end to end in seconds."""
 
     vae_channels: tuple[int, ...] = (64, 192)
-    vae_latent: int = 8  # per modality, as the CPU campaign (the pipeline's 4x down-sampling v2 latent)
+    vae_latent: int = 8  # per modality, as the CPU campaign (the pipeline's 4x down-sampling latent)
     vae_blocks: int = 2
     vae_batch: int = 64  # images per step (each of the three modalities a separate VAE input)
     vae_lr: float = 1e-3

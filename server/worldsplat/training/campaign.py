@@ -584,7 +584,7 @@ def plot_curves(out: Path, png: Path) -> Path:
         h = rows(f"{kind}_v2_heldout.jsonl")
         if kind == "dit" and h:
             ax[i].plot([x["step"] for x in h], [x["heldout_flow_loss"] for x in h], "o-", label="held-out flow loss")
-        ax[i].set_title(f"{kind} v2")
+        ax[i].set_title(kind)
         ax[i].set_xlabel("step")
         ax[i].legend(fontsize=7)
     h = rows("vae_v2_heldout.jsonl")
@@ -596,7 +596,7 @@ def plot_curves(out: Path, png: Path) -> Path:
         ax3.plot(s, [x["depth_absrel"] for x in h], "s--", c="k", label="depth AbsRel (target 0.05)")
         ax3.plot(s, [x["mask_iou"] for x in h], "s--", c="r", label="mask IoU (target 0.8)")
         ax3.legend(fontsize=7, loc="center right")
-        ax[3].set_title("VAE v2 held-out (test clips)")
+        ax[3].set_title("VAE held-out (test clips)")
         ax[3].set_xlabel("step")
         ax[3].legend(fontsize=7, loc="lower right")
     fig.tight_layout()

@@ -3,11 +3,14 @@
 // the ego, its keyframes listed to re-time or remove; per agent a start (free pose or lane) and scripted events (lane
 // change, stop, set speed at time t) to add and remove; the caption; a time scrubber previewing the motion; the four
 // corner-case presets. It edits the scenario the form edits (`getBase()`: agents, ego.path, caption), so generate and
-// the share link carry all of it. An intersection's cross road is drawn where the world puts it (road.junction_s, or
-// the server's POST /api/road answer when that is unset) and can be dragged along the road (sets road.junction_s).
+// the share link carry all of it. The road and the motion are the world's: POST /api/road answers the road's layout
+// and every footprint at each frame as the world computes them (worldsplat.world.preview), so the preview is the
+// generated scene's motion; the editor itself only reads starts and keyframes (what a drag moves). An intersection's
+// cross road is drawn where the world puts it and can be dragged along the road (sets road.junction_s).
 // World frame (web/docs/world.md): the ego's rear axle starts at the origin facing +x, y left.
 
 const CLASSES = ["car", "bus", "truck", "pedestrian", "cyclist"];
+// class default sizes (worldsplat.core.scenario CLASS_SIZE): a new agent's box until the server's answer has its own
 const SIZE = { car: [4.5, 1.85], bus: [11.0, 2.55], truck: [7.5, 2.45], pedestrian: [0.5, 0.6], cyclist: [1.8, 0.6] };
 const SPEED = { car: 8, bus: 6, truck: 6, pedestrian: 1.4, cyclist: 4 };
 // the scenario's bounds per class (worldsplat.core.scenario CLASS_MAX_SPEED / CLASS_MAX_ACCEL)
@@ -16,24 +19,19 @@ const MAX_ACCEL = { car: 9, bus: 6, truck: 6, pedestrian: 3, cyclist: 4 };
 const ACTIONS = { lane_change: "lane change", stop: "stop", set_speed: "set speed" };
 const COLOUR = { car: "#4ea1ff", bus: "#f0b429", truck: "#e07b39", pedestrian: "#e85d75", cyclist: "#5ccf8f" };
 export const CORNER_CASES = ["cut_in", "crossing_pedestrian", "stopped_vehicle", "oncoming_overtaker"];
-const EGO = { length: 4.6, width: 1.9, rear: 1.0 };
 const VIEW = { x0: -20, x1: 80 };   // metres shown along x; y follows the canvas aspect
 
-// ---- road geometry (mirrors worldsplat.world.road) -----------------------------------------------------------------
-// cross-section beside the lanes per setting (worldsplat.core.scenario ROAD_SHOULDER / ROAD_SIDEWALK / CURB_WIDTH)
-const SHOULDER = { urban: 2.3, suburban: 1.6, highway: 2.5 };
-const SIDEWALK = { urban: 3.5, suburban: 1.8, highway: 0 };
-const CURB = 0.2;
+// ---- the world's road and motion: POST /api/road answers both (worldsplat.world.preview) -------------------------
 export const JUNCTION_S = [-100, 140];   // road.junction_s's bounds (worldsplat.core.scenario JUNCTION_S)
 const TURN_ENTRY_MIN = 3;                // a turning ego needs the cross road this far + its half width ahead
 
-export function roadOf(s) {
-  const r = s.road || {}, lanes = r.lanes_per_direction ?? 2, w = r.lane_width ?? 3.5;
-  const setting = SHOULDER[r.setting] === undefined ? "urban" : r.setting;
-  const median = setting === "highway" ? 2.6 : 0;
-  const k = r.kind === "curve" ? (r.curvature ?? 0) : 0;
+/** The main road of a POST /api/road answer: its widths, lane centres and the map between world (x, y) and road
+ * coordinates (s along the centreline, d left of it). The centreline is the answer's documented curve: through
+ * (0, y0) heading +x, straight or an arc of `curvature`; lane 0 is the kerb lane of its direction. */
+export function roadOf(layout) {
+  const lanes = layout.lanes_per_direction, w = layout.lane_width, median = layout.median;
+  const k = layout.curvature, y0 = layout.y0;
   const laneD = (lane, dir) => -dir * (median / 2 + (lanes - lane - 0.5) * w);
-  const y0 = -laneD((s.ego || {}).start_lane ?? 0, 1);
   const xy = (sv, d) => {
     if (k === 0) return [sv, y0 + d, 0];
     const rr = 1 / k, th = sv / rr, rho = rr - d;
@@ -44,77 +42,52 @@ export function roadOf(s) {
     const rr = 1 / k, sg = Math.sign(rr), dx = x, dy = y - (y0 + rr);
     return [rr * Math.atan2(sg * dx, -sg * dy), rr - sg * Math.hypot(dx, dy)];
   };
-  const edge = median / 2 + lanes * w, roadHalf = edge + SHOULDER[setting];
-  const curbOut = roadHalf + (setting === "highway" ? 0 : CURB), walkOut = curbOut + SIDEWALK[setting];
-  return { lanes, w, median, k, y0, laneD, xy, sd, edge, roadHalf, curbOut, walkOut };
+  return { lanes, w, median, k, y0, laneD, xy, sd, edge: layout.lanes_edge, roadHalf: layout.road_half,
+    curbOut: layout.curb_out, walkOut: layout.walk_out };
 }
 
 /** Where road.junction_s may put the cross road for this scenario: the schema's bounds, and for a turning ego (no
- * explicit path) at least 3 m + the cross road's half width ahead (the scenario's own rule). */
-export function junctionBounds(s) {
+ * explicit path) at least 3 m + the cross road's half width ahead (the scenario's own rule; `road`: roadOf). */
+export function junctionBounds(s, road) {
   const m = (s.ego || {}).manoeuvre, turning = (m === "turn_left" || m === "turn_right") && !(s.ego || {}).path;
-  return [turning ? Math.ceil((roadOf(s).walkOut + TURN_ENTRY_MIN) * 10) / 10 : JUNCTION_S[0], JUNCTION_S[1]];
+  return [turning && road ? Math.ceil((road.walkOut + TURN_ENTRY_MIN) * 10) / 10 : JUNCTION_S[0], JUNCTION_S[1]];
 }
 
-/** What POST /api/road's answer depends on (the road, the seed, the ego's start, manoeuvre, speed and path, the
- * clip): the key of the editor's copy of it. */
+/** What the road in POST /api/road's answer depends on (the road, the seed, the ego's start, manoeuvre, speed and
+ * path, the clip), and what its motion depends on besides (the agents). */
 function roadKey(s) {
   const e = s.ego || {};
   return JSON.stringify([s.seed, s.road, e.start_lane, e.manoeuvre, e.speed, e.path || null, s.clip]);
 }
+function motionKey(s) { return JSON.stringify([roadKey(s), s.agents || []]); }
 
-function smoothstep(u) { u = Math.min(1, Math.max(0, u)); return u * u * (3 - 2 * u); }
-
-/** Pose [x, y, yaw] of an agent at time t (a preview: keyframes linear, events as the world scripts them). */
-export function agentPose(s, a, t) {
-  const road = roadOf(s), m = a.motion || {};
+/** An agent's pose [x, y, yaw] at t = 0, read from its start or its first keyframes (what a drag moves); null for
+ * a lane start while the road is unknown. Every later pose is the server's. */
+export function startPose(road, a) {
+  const m = a.motion || {};
   if (m.keyframes && m.keyframes.length) {
-    const kf = m.keyframes;
-    let i = 0;
-    while (i < kf.length - 2 && kf[i + 1].t < t) i++;
-    const p = kf[i], q = kf[Math.min(i + 1, kf.length - 1)];
-    const u = q.t > p.t ? Math.min(1, Math.max(0, (t - p.t) / (q.t - p.t))) : 0;
-    const yaw = Math.atan2(q.y - p.y, q.x - p.x);
-    return [p.x + u * (q.x - p.x), p.y + u * (q.y - p.y), Number.isFinite(yaw) ? yaw : 0];
-  }
-  // distance travelled: the speed ramps linearly over each stop / set_speed event, from the previous event's target
-  // (as worldsplat.world.agents._speed_profile)
-  let dist = 0;
-  const dt = 0.02, events = m.events || [];
-  const speedAt = (tt) => {
-    let v = m.speed || 0, cur = m.speed || 0;
-    for (const e of events) {
-      if (e.action === "lane_change") continue;
-      const target = e.action === "stop" ? 0 : e.speed;
-      if (tt >= e.t) v = cur + (target - cur) * Math.min(1, (tt - e.t) / e.duration);
-      cur = target;
-    }
-    return v;
-  };
-  for (let tt = 0; tt < t - 1e-9; tt += dt) {
-    const h = Math.min(dt, t - tt);
-    dist += 0.5 * (speedAt(tt) + speedAt(tt + h)) * h;
+    const [p, q] = m.keyframes, yaw = q ? Math.atan2(q.y - p.y, q.x - p.x) : 0;
+    return [p.x, p.y, Number.isFinite(yaw) ? yaw : 0];
   }
   const st = a.start || { kind: "pose", x: 0, y: 0, yaw_deg: 0 };
-  if (st.kind === "pose") {
-    const yaw = (st.yaw_deg || 0) * Math.PI / 180;
-    return [st.x + dist * Math.cos(yaw), st.y + dist * Math.sin(yaw), yaw];
-  }
+  if (st.kind === "pose") return [st.x, st.y, (st.yaw_deg || 0) * Math.PI / 180];
+  if (!road) return null;
   const dir = st.direction === "opposite" ? -1 : 1;
-  let d = road.laneD(st.lane, dir) + dir * (st.lateral || 0);
-  for (const e of events) {
-    if (e.action !== "lane_change" || t < e.t) continue;
-    const to = road.laneD(e.lane, dir) + dir * (st.lateral || 0);
-    d = d + (to - d) * smoothstep((t - e.t) / e.duration);
-  }
-  const [x, y, h] = road.xy(st.s + dir * dist, d);
+  const [x, y, h] = road.xy(st.s, road.laneD(st.lane, dir) + dir * (st.lateral || 0));
   return [x, y, h + (dir < 0 ? Math.PI : 0)];
 }
 
-export function egoPose(s, t) {
-  const e = s.ego || {};
-  if (e.path && e.path.length > 1) return agentPose(s, { motion: { keyframes: e.path } }, t);
-  return [(e.speed || 0) * t, 0, 0];
+/** A footprint's pose at time t from the server's frames (`times`, `poses`): a frame's own pose at its time, the
+ * straight blend of the two frames around t between them (the scene exists only at frames), held past the ends. */
+export function poseAt(times, poses, t) {
+  const n = times.length;
+  if (n === 1 || t <= times[0]) return poses[0];
+  if (t >= times[n - 1]) return poses[n - 1];
+  let i = 0;
+  while (times[i + 1] <= t) i++;
+  const u = (t - times[i]) / (times[i + 1] - times[i]), p = poses[i], q = poses[i + 1];
+  const turn = Math.atan2(Math.sin(q[2] - p[2]), Math.cos(q[2] - p[2]));
+  return [p[0] + u * (q[0] - p[0]), p[1] + u * (q[1] - p[1]), p[2] + u * turn];
 }
 
 // ---- the editor ----------------------------------------------------------------------------------------------------
@@ -166,8 +139,9 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   const $ = (id) => host.querySelector(`#${id}`);
   const canvas = $("ed-canvas"), ctx = canvas.getContext("2d");
   // pathSpeed: the speed a path's waypoints are timed with (the agent's speed when its first waypoint was set)
-  // road: the server's road for the scenario (POST /api/road) once asked, {key, layout | null, error}
-  const ui = { mode: "select", selected: null, drag: null, time: 0, pathSpeed: new WeakMap(), road: null };
+  // road: the server's latest answer (POST /api/road) {roadKey, motionKey, layout | null, motion | null, error};
+  // known: the last answer with a road (drawn while a newer one is on its way)
+  const ui = { mode: "select", selected: null, drag: null, time: 0, pathSpeed: new WeakMap(), road: null, known: null };
 
   const scenario = () => {
     const base = getBase();
@@ -180,45 +154,81 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   const view = () => ({ ...getForm(), agents: scenario().agents, ego: { ...getForm().ego, path: scenario().ego.path } });
   const duration = () => { const c = getForm().clip || {}; return Math.max(0, ((c.frames || 1) - 1) / (c.fps || 4)); };
 
-  // ---- the world's road: the page knows the main road and a set road.junction_s; a seeded (or turning ego's) cross
-  // road only the server knows, so the editor asks POST /api/road whenever what it depends on changes ------------
+  // ---- the world's road and motion: only the server knows them (the seed's draws, the world's motion), so the
+  // editor asks POST /api/road whenever what they depend on changes; the last answer stays drawn meanwhile --------
   let roadTimer = null, roadAsked = null, roadSeq = 0;
+  const post = async (scenario) => {
+    const resp = await fetch("/api/road", { method: "POST", headers: { "content-type": "application/json" },
+      body: JSON.stringify({ scenario }) });
+    return [resp, await resp.json()];
+  };
   function askRoad(v) {
-    const key = roadKey(v);
-    if (roadAsked === key || (ui.road && ui.road.key === key)) return;
+    const key = motionKey(v);
+    if (roadAsked === key || (ui.road && ui.road.motionKey === key)) return;
     roadAsked = key;
     clearTimeout(roadTimer);
-    const seq = ++roadSeq;
+    const seq = ++roadSeq, crossAsked = v.road?.kind === "intersection" && v.road.junction_s == null;
     roadTimer = setTimeout(async () => {
-      let layout = null, error = null;
+      let layout = null, motion = null, error = null;
       try {
-        const resp = await fetch("/api/road", { method: "POST", headers: { "content-type": "application/json" },
-          body: JSON.stringify({ scenario: { ...v, agents: [] } }) });  // agents play no part in the road
-        const body = await resp.json();
-        if (resp.ok) layout = body; else error = body.error || resp.statusText;
+        let [resp, body] = await post(v);
+        if (!resp.ok && String(body.field || "").startsWith("scenario.agents")) {
+          error = body.error;  // an agent the scenario refuses: the road (and the ego) without the agents
+          [resp, body] = await post({ ...v, agents: [] });
+          if (resp.ok) body.motion.agents = [];
+        }
+        if (resp.ok) ({ motion, ...layout } = body); else error = body.error || resp.statusText;
       } catch (e) {
         error = String(e.message || e);
       }
       if (seq !== roadSeq) return;  // a newer question is on its way
-      ui.road = { key, layout, error };
+      ui.road = { roadKey: roadKey(v), motionKey: key, layout, motion, error };
+      if (layout) ui.known = ui.road;
       roadAsked = null;
-      onRoad(layout);
+      if (crossAsked) onRoad(layout);
+      note(error && motion ? `preview: ${error}` : "");
       draw();
     }, 120);
   }
+  /** The main road to draw and edit on (roadOf): the last answer's, null before the first. */
+  const mainRoad = () => (ui.known ? roadOf(ui.known.layout) : null);
+  /** Lanes per direction: the scenario's own field (the schema's default 2). */
+  const lanesOf = (v) => (v.road || {}).lanes_per_direction ?? 2;
 
-  /** The editor's model of the road it draws: the main road (roadOf) and, for an intersection, the cross road's
-   * centreline `junction_s` (world x) with where it comes from ("scenario": road.junction_s; "seed" / "manoeuvre":
-   * the server's answer for the scenario; null while that answer is pending or was refused). */
+  /** The server's motion for the scenario: {times, ego, agents} of the answer for `v`, else (while a newer answer is
+   * pending) the last one, `stale`. */
+  function motionOf(v) {
+    if (!ui.known || !ui.known.motion) return null;
+    return { ...ui.known.motion, stale: ui.known.motionKey !== motionKey(v) };
+  }
+  /** Agent i's pose at time t: the server's; while a newer answer is on its way, the last one moved with the
+   * agent's start (what a drag changes), or its start pose where the last answer does not have the agent. */
+  function agentPoseAt(v, i, t) {
+    const a = v.agents[i], m = motionOf(v), f = m && m.agents[i], start = startPose(mainRoad(), a);
+    if (!f || f.id !== a.id) return start;
+    const p = poseAt(m.times, f.poses, t);
+    if (!m.stale || !start) return p;
+    return [p[0] + start[0] - f.poses[0][0], p[1] + start[1] - f.poses[0][1], p[2]];
+  }
+  /** The ego's footprint {pose, length, width} at time t (null before the first answer). */
+  function egoAt(v, t) {
+    const m = motionOf(v);
+    return m ? { pose: poseAt(m.times, m.ego.poses, t), length: m.ego.length, width: m.ego.width } : null;
+  }
+
+  /** The editor's model of the road it draws: the main road (roadOf of the server's answer) and, for an
+   * intersection, the cross road's centreline `junction_s` (world x) with where it comes from ("scenario":
+   * road.junction_s; "seed" / "manoeuvre": the server's answer for the scenario; null while that answer is pending
+   * or was refused). */
   function geometry(v = view()) {
-    const road = roadOf(v), r = v.road || {}, out = { ...road, kind: r.kind, junction_s: null, junction_from: null };
+    askRoad(v);
+    const road = mainRoad(), r = v.road || {}, out = { ...road, kind: r.kind, junction_s: null, junction_from: null };
     delete out.xy; delete out.sd; delete out.laneD;
     if (r.kind !== "intersection") return out;
     if (typeof r.junction_s === "number" && Number.isFinite(r.junction_s)) {
       return { ...out, junction_s: r.junction_s, junction_from: "scenario" };
     }
-    askRoad(v);
-    const known = ui.road && ui.road.key === roadKey(v) && ui.road.layout;
+    const known = ui.road && ui.road.roadKey === roadKey(v) && ui.road.layout;
     return known ? { ...out, junction_s: known.junction_s, junction_from: known.junction_from } : out;
   }
 
@@ -254,18 +264,11 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     ctx.restore();
   }
 
-  function draw() {
-    const s = scenario();
-    if (!s) return;
-    fit();
-    const dpr = window.devicePixelRatio || 1, v = view(), road = roadOf(v), geo = geometry(v);
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    const { r } = scale();
-    ctx.fillStyle = "#1d2330";
-    ctx.fillRect(0, 0, r.width, r.height);
+  /** The main road from above and an intersection's cross road (x = cs, or null), in the canvas rect `r`. */
+  function drawRoad(road, cs, r) {
     // sidewalks, then road surfaces, then lane lines: the main road along s and an intersection's cross road, a
     // straight road along y through x = junction_s (worldsplat.world.road: the same cross-section)
-    const cs = geo.junction_s, S0 = VIEW.x0 - 10, S1 = VIEW.x1 + 10;
+    const S0 = VIEW.x0 - 10, S1 = VIEW.x1 + 10;
     const yTop = toWorld(0, -10)[1], yBottom = toWorld(0, r.height + 10)[1];
     const strip = (d0, d1, style) => {
       ctx.fillStyle = style;
@@ -310,44 +313,69 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
       });
     }
     ctx.setLineDash([]);
-    const from = { scenario: "set", seed: "the seed's", manoeuvre: "the turn's" }[geo.junction_from];
+  }
+
+  function draw() {
+    const s = scenario();
+    if (!s) return;
+    fit();
+    const dpr = window.devicePixelRatio || 1, v = view(), road = mainRoad(), geo = geometry(v);
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    const { r } = scale();
+    ctx.fillStyle = "#1d2330";
+    ctx.fillRect(0, 0, r.width, r.height);
+    if (road) drawRoad(road, geo.junction_s, r);
+    const cs = geo.junction_s, from = { scenario: "set", seed: "the seed's", manoeuvre: "the turn's" }[geo.junction_from];
     $("ed-junction").hidden = v.road?.kind !== "intersection";
     $("ed-junction").textContent = cs === null ? (ui.road && ui.road.error ? `cross road: ${ui.road.error}` : "cross road: …")
       : `cross road at ${cs.toFixed(1)} m (${from}); drag it along the road to move it`;
     const t = ui.time;
-    // paths
-    const pathLine = (pts, colour) => {
+    // paths: the world's (every frame's pose, from the server) with the keyframes set in the editor as dots
+    const pathLine = (poses, keys, colour) => {
       ctx.strokeStyle = colour;
       ctx.beginPath();
-      for (const k of pts) { const p = toPixel(k.x, k.y); ctx.lineTo(p[0], p[1]); }
+      for (const q of poses) { const p = toPixel(q[0], q[1]); ctx.lineTo(p[0], p[1]); }
       ctx.stroke();
-      for (const k of pts) { const p = toPixel(k.x, k.y); ctx.fillStyle = colour; ctx.fillRect(p[0] - 2, p[1] - 2, 4, 4); }
+      ctx.fillStyle = colour;
+      for (const k of keys || []) { const p = toPixel(k.x, k.y); ctx.fillRect(p[0] - 2, p[1] - 2, 4, 4); }
     };
-    if (v.ego.path) pathLine(v.ego.path, "#ffffff");
-    s.agents.forEach((a) => { if (a.motion && a.motion.keyframes) pathLine(a.motion.keyframes, COLOUR[a.class]); });
-    // the ego (rear axle pose -> footprint centre)
-    const [ex, ey, eh] = egoPose(v, t), off = EGO.length / 2 - EGO.rear;
-    box(ex + off * Math.cos(eh), ey + off * Math.sin(eh), eh, EGO.length, EGO.width, "#9aa3b2",
-      ui.selected === "ego" ? "#fff" : "#222");
+    const m = motionOf(v);
+    if (m && v.ego.path) pathLine(m.ego.poses, v.ego.path, "#ffffff");
     s.agents.forEach((a, i) => {
-      const [x, y, yaw] = agentPose(v, a, t), [l, w] = dims(a);
-      box(x, y, yaw, l, w, COLOUR[a.class] || "#888", ui.selected === i ? "#fff" : "#111");
+      const f = m && m.agents[i] && m.agents[i].id === a.id ? m.agents[i] : null;
+      if (f && a.motion.keyframes) pathLine(f.poses, a.motion.keyframes, COLOUR[a.class]);
+    });
+    const ego = egoAt(v, t);
+    if (ego) {
+      const [ex, ey, eh] = ego.pose;
+      box(ex, ey, eh, ego.length, ego.width, "#9aa3b2", ui.selected === "ego" ? "#fff" : "#222");
+    }
+    s.agents.forEach((a, i) => {
+      const pose = agentPoseAt(v, i, t), [l, w] = dims(v, i);
+      if (pose) box(pose[0], pose[1], pose[2], l, w, COLOUR[a.class] || "#888", ui.selected === i ? "#fff" : "#111");
     });
     $("ed-time-label").textContent = `t = ${t.toFixed(2)} s`;
   }
 
-  function dims(a) { return a.size ? [a.size.length, a.size.width] : SIZE[a.class]; }
+  /** Agent i's footprint length and width: the server's once it answered for the agent, else its own size or its
+   * class default. */
+  function dims(v, i) {
+    const a = v.agents[i], m = motionOf(v), f = m && !m.stale && m.agents[i];
+    if (f && f.id === a.id) return [f.length, f.width];
+    return a.size ? [a.size.length, a.size.width] : SIZE[a.class];
+  }
 
   function hit(x, y) {
     const s = scenario(), v = view();
     for (let i = s.agents.length - 1; i >= 0; i--) {
-      const a = s.agents[i], [ax, ay, yaw] = agentPose(v, a, ui.time), [l, w] = dims(a);
-      const dx = x - ax, dy = y - ay, c = Math.cos(yaw), sn = Math.sin(yaw);
+      const pose = agentPoseAt(v, i, ui.time), [l, w] = dims(v, i);
+      if (!pose) continue;
+      const [ax, ay, yaw] = pose, dx = x - ax, dy = y - ay, c = Math.cos(yaw), sn = Math.sin(yaw);
       const lx = c * dx + sn * dy, ly = -sn * dx + c * dy;
       if (Math.abs(lx) <= Math.max(l, 1.2) / 2 && Math.abs(ly) <= Math.max(w, 1.2) / 2) return i;
     }
-    const [ex, ey] = egoPose(v, ui.time);
-    if (Math.hypot(x - ex - 1.3, y - ey) < 2.4) return "ego";
+    const ego = egoAt(v, ui.time);
+    if (ego && Math.hypot(x - ego.pose[0], y - ego.pose[1]) < 2.4) return "ego";
     return null;
   }
 
@@ -408,7 +436,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     const act = $("ed-ev-action").value, a = scenario().agents[ui.selected];
     $("ed-ev-arg-label").hidden = act === "stop";
     $("ed-ev-arg-name").textContent = act === "lane_change" ? "lane" : "m/s";
-    const lanes = roadOf(view()).lanes;
+    const lanes = lanesOf(view());
     $("ed-ev-arg").max = act === "lane_change" ? String(lanes - 1) : String(a ? MAX_SPEED[a.class] : 40);
     $("ed-ev-arg").step = act === "lane_change" ? "1" : "0.5";
     if ($("ed-ev-arg").value === "" && a && a.start && a.start.kind === "lane" && act === "lane_change") {
@@ -419,7 +447,9 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   /** The agent's start as a lane placement (nearest lane at its t = 0 pose) or a free pose (where it is at t = 0). */
   function setStart(a, kind) {
     if (!a || !a.start || a.start.kind === kind) return;
-    const v = view(), road = roadOf(v), [x, y, yaw] = agentPose(v, a, 0);
+    const road = mainRoad(), pose = startPose(road, a);
+    if (!road || !pose) return note("the road is on its way from the server: try again");
+    const [x, y, yaw] = pose;
     if (kind === "lane") {
       const [sv, d] = road.sd(x, y), dir = d < 0 ? 1 : -1;
       const lane = Math.min(road.lanes - 1, Math.max(0,
@@ -455,7 +485,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     if (!Number.isFinite(t) || t < 0 || t > 60) return note("event time: 0 to 60 s");
     const e = { t: round(t), action, duration: Math.min(20, Math.max(0.2, Number.isFinite(dur) ? round(dur) : 2)) };
     if (action === "lane_change") {
-      const lanes = roadOf(view()).lanes;
+      const lanes = lanesOf(view());
       if ($("ed-ev-arg").value === "" || !Number.isInteger(arg) || arg < 0 || arg >= lanes) {
         return note(`lane change: a target lane 0..${lanes - 1}`);
       }
@@ -537,11 +567,13 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
 
   /** Move an agent so its pose at t = 0 is at (x, y); keyframed agents move as a whole. */
   function moveTo(a, x, y) {
-    const v = view(), [x0, y0] = agentPose(v, a, 0);
+    const road = mainRoad(), pose = startPose(road, a);
+    if (!pose) return;
+    const [x0, y0] = pose;
     if (a.motion && a.motion.keyframes) {
       for (const k of a.motion.keyframes) { k.x = round(k.x + x - x0); k.y = round(k.y + y - y0); }
     } else if (a.start.kind === "lane") {
-      const road = roadOf(v), [sv, d] = road.sd(x, y), dir = a.start.direction === "opposite" ? -1 : 1;
+      const [sv, d] = road.sd(x, y), dir = a.start.direction === "opposite" ? -1 : 1;
       a.start.s = round(sv);
       a.start.lateral = round(dir * (d - road.laneD(a.start.lane, dir)));
     } else {
@@ -556,7 +588,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   }
 
   function addWaypoint(target, x, y) {
-    const s = scenario(), v = view();
+    const s = scenario();
     if (target === "ego") {
       const path = s.ego.path || [{ t: 0, x: 0, y: 0 }];
       const last = path.at(-1), speed = Math.max(1, getForm().ego?.speed || 8);
@@ -566,7 +598,9 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     }
     const a = s.agents[target];
     if (!a.motion.keyframes) {
-      const [x0, y0] = agentPose(v, a, 0);
+      const pose = startPose(mainRoad(), a);
+      if (!pose) return;
+      const [x0, y0] = pose;
       ui.pathSpeed.set(a, a.motion.speed || SPEED[a.class]);
       a.motion = { keyframes: [{ t: 0, x: round(x0), y: round(y0) }] };
       delete a.start;
@@ -600,7 +634,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
       return;
     }
     if (typeof i === "number") {
-      const [ax, ay] = agentPose(view(), s.agents[i], 0);
+      const [ax, ay] = startPose(mainRoad(), s.agents[i]) || [x, y];
       ui.drag = { i, dx: ax - x, dy: ay - y, rotate: e.shiftKey, u0: u, yaw0: s.agents[i].start?.yaw_deg || 0 };
       canvas.setPointerCapture(e.pointerId);
     }
@@ -637,7 +671,8 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
       else select(null);
     } else if (a && e.key.startsWith("Arrow")) {  // nudge: 0.5 m, with Shift 2 m
       e.preventDefault();
-      const step = e.shiftKey ? 2 : 0.5, [x, y] = agentPose(view(), a, 0);
+      const step = e.shiftKey ? 2 : 0.5, [x, y] = startPose(mainRoad(), a) || [NaN, NaN];
+      if (!Number.isFinite(x)) return;
       const d = { ArrowUp: [step, 0], ArrowDown: [-step, 0], ArrowLeft: [0, step], ArrowRight: [0, -step] }[e.key];
       moveTo(a, x + d[0], y + d[1]);
       draw();
@@ -645,7 +680,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   });
   /** The cross road to x = junction_s (0.1 m steps, within junctionBounds): sets the form's road.junction_s. */
   function moveJunction(x) {
-    const [lo, hi] = junctionBounds(view()), js = Math.min(hi, Math.max(lo, Math.round(x * 10) / 10));
+    const [lo, hi] = junctionBounds(view(), mainRoad()), js = Math.min(hi, Math.max(lo, Math.round(x * 10) / 10));
     setField("road.junction_s", js);
     $("ed-sel").textContent = `junction at ${js.toFixed(1)} m`;
     draw();

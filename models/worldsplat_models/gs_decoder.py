@@ -28,77 +28,16 @@ import torch.nn.functional as F
 
 from .configs import GSDecoderConfig
 from .dit import Attention, sincos_2d
+from .geometry import matrix_to_quaternion, pixel_rays, plucker, quaternion_multiply
 from .vae import ResBlock
 
 HEAD_CHANNELS = {"offset": 3, "quat": 4, "scale": 3, "opacity": 1, "color": 3, "depth": 1, "dynamic": 1}
 
 
-def pixel_rays(
-    intrinsics: torch.Tensor, cam_to_world: torch.Tensor, image_hw: tuple[int, int], grid_hw: tuple[int, int]
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Ray origins (..., 3) and directions (..., gh, gw, 3) with unit camera-z component, for the centres of a
-    gh x gw grid covering an image of image_hw pixels. intrinsics (..., 4) = fx, fy, cx, cy in image pixels."""
-    with torch.autocast(device_type=intrinsics.device.type, enabled=False):  # geometry stays float32
-        return _pixel_rays(intrinsics.float(), cam_to_world.float(), image_hw, grid_hw)
-
-
-def _pixel_rays(intrinsics, cam_to_world, image_hw, grid_hw):
-    H, W = image_hw
-    gh, gw = grid_hw
-    dev = intrinsics.device
-    u = (torch.arange(gw, dtype=torch.float32, device=dev) + 0.5) * (W / gw)
-    v = (torch.arange(gh, dtype=torch.float32, device=dev) + 0.5) * (H / gh)
-    fx, fy, cx, cy = [intrinsics[..., i, None, None].float() for i in range(4)]
-    x = (u[None, :] - cx) / fx
-    y = (v[:, None] - cy) / fy
-    x, y = torch.broadcast_tensors(x, y)
-    d_cam = torch.stack([x, y, torch.ones_like(x)], dim=-1)
-    R = cam_to_world[..., :3, :3].float()
-    dirs = torch.einsum("...ij,...hwj->...hwi", R, d_cam)
-    return cam_to_world[..., :3, 3].float(), dirs
-
-
-def plucker(origins: torch.Tensor, dirs: torch.Tensor, ray_scale: float) -> torch.Tensor:
-    """(..., 3), (..., h, w, 3) -> (..., 6, h, w): [o x d, d] with d normalised and o in units of ray_scale."""
-    dirs, origins = dirs.float(), origins.float()
-    d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-    o = (origins / ray_scale)[..., None, None, :].expand_as(d)
-    out = torch.cat([torch.cross(o, d, dim=-1), d], dim=-1)
-    n = out.dim()
-    return out.permute(*range(n - 3), n - 1, n - 3, n - 2)  # explicit perm (ONNX rejects negative ones)
-
-
-def matrix_to_quaternion(R: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) wxyz (branch-free, stable for any rotation)."""
-    m = R.float()
-    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
-    w = torch.sqrt((1 + m00 + m11 + m22).clamp_min(0)) / 2
-    x = torch.sqrt((1 + m00 - m11 - m22).clamp_min(0)) / 2
-    y = torch.sqrt((1 - m00 + m11 - m22).clamp_min(0)) / 2
-    z = torch.sqrt((1 - m00 - m11 + m22).clamp_min(0)) / 2
-    x = torch.where(m[..., 2, 1] - m[..., 1, 2] < 0, -x, x)  # copysign (not exportable to ONNX)
-    y = torch.where(m[..., 0, 2] - m[..., 2, 0] < 0, -y, y)
-    z = torch.where(m[..., 1, 0] - m[..., 0, 1] < 0, -z, z)
-    q = torch.stack([w, x, y, z], dim=-1)
-    return q / q.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-
-
-def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        dim=-1,
-    )
-
-
 def safe_normalize_quaternion(q: torch.Tensor) -> torch.Tensor:
-    """Bias towards identity then normalise; a zero or non-finite input becomes the identity rotation."""
+    """The rotation head's activation: bias towards identity then normalise; a zero or non-finite input becomes the
+    identity rotation. (Not `geometry.normalize_quaternion`: that one rounds differently, and the shipped weights'
+    outputs and the exported ONNX graph are this function's.)"""
     q = torch.nan_to_num(q.float(), nan=0.0, posinf=0.0, neginf=0.0)
     q = q + torch.tensor([1.0, 0.0, 0.0, 0.0], device=q.device)
     n = q.norm(dim=-1, keepdim=True)

@@ -6,9 +6,9 @@ import torch
 
 from worldsplat.core.camera import Camera, default_rig, yaw_pose
 from worldsplat.gaussians import Gaussians, lift, rasterize
-from worldsplat.gaussians.aggregate import Economy, aggregate_4d, economize, quat_from_matrix, transform
-from worldsplat.gaussians.project import quat_to_rotmat
+from worldsplat.gaussians.aggregate import Economy, aggregate_4d, economize, transform
 from worldsplat.gaussians.raster import render_view
+from worldsplat_models.geometry import matrix_to_quaternion, quaternion_to_matrix
 
 
 def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
@@ -108,8 +108,8 @@ def test_ego_frame_inputs_are_moved_to_world():
     assert np.allclose(w.means[0].numpy(), R[:3, :3] @ [1, 2, 3] + R[:3, 3], atol=1e-5)
     q = g.quats / g.quats.norm()
     wq = w.quats / w.quats.norm()
-    assert np.allclose(quat_to_rotmat(wq)[0].numpy(), R[:3, :3] @ quat_to_rotmat(q)[0].numpy(), atol=1e-5)
-    assert np.allclose(quat_to_rotmat(torch.tensor(quat_from_matrix(R[:3, :3]))[None])[0].numpy(), R[:3, :3])
+    assert np.allclose(quaternion_to_matrix(wq)[0].numpy(), R[:3, :3] @ quaternion_to_matrix(q)[0].numpy(), atol=1e-5)
+    assert np.allclose(quaternion_to_matrix(torch.tensor(matrix_to_quaternion(R[:3, :3]))[None])[0].numpy(), R[:3, :3])
 
 
 def test_economy_merges_repeats_and_drops_what_cannot_show():

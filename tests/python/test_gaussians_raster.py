@@ -13,8 +13,9 @@ from PIL import Image
 
 from worldsplat.core.camera import Camera
 from worldsplat.gaussians import Gaussians, rasterize
-from worldsplat.gaussians.project import project, quat_to_rotmat, tile_intersect
+from worldsplat.gaussians.project import project, tile_intersect
 from worldsplat.gaussians.raster import composite
+from worldsplat_models.geometry import quaternion_to_matrix
 
 VECTORS = Path(__file__).resolve().parents[1] / "vectors"
 sys.path.insert(0, str(VECTORS))
@@ -67,7 +68,7 @@ def test_projection_culls_and_sanitizes():
     g3 = one((0, 0, 5), scale=(0.3, 0.01, 0.01))
     assert torch.allclose(project(g2, CAM).conic, project(g3, CAM).conic)  # |q| = 0 -> identity
     assert torch.allclose(
-        quat_to_rotmat(torch.tensor([[0.0, 0, 0, 1.0]])), torch.tensor([[[-1.0, 0, 0], [0, -1, 0], [0, 0, 1]]])
+        quaternion_to_matrix(torch.tensor([[0.0, 0, 0, 1.0]])), torch.tensor([[[-1.0, 0, 0], [0, -1, 0], [0, 0, 1]]])
     )
 
 

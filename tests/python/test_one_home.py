@@ -1,5 +1,5 @@
-"""Concepts with one definition (issue 16): preset files wherever a scenario file is taken, one default mode, one
-shift limit, one cancellation exception, one atomic writer, one PSNR, one weights folder."""
+"""Concepts with one definition: preset files wherever a scenario file is taken, one default mode, one shift limit,
+one cancellation exception, one atomic writer, one PSNR, one weights folder, one home for rotation and ray math."""
 
 import argparse
 import json
@@ -165,3 +165,54 @@ def test_the_weights_folder_is_spelled_once(monkeypatch, tmp_path):
     assert (weights_dir() / "MODEL_CARD.md").exists()
     monkeypatch.setenv("WORLDSPLAT_WEIGHTS", str(tmp_path))
     assert weights_dir() == Path(tmp_path)
+
+
+def test_rotation_and_ray_math_has_one_home():
+    """worldsplat_models.geometry holds the quaternion, rotation-matrix and ray math; the decoder network, the
+    rasterizer, lifting, aggregation, the .wsplat encoder and the file formats use its functions, none its own."""
+    import importlib
+
+    geometry = importlib.import_module("worldsplat_models.geometry")
+    users = {
+        name: importlib.import_module(name)
+        for name in (
+            "worldsplat_models.gs_decoder",
+            "worldsplat.gaussians.aggregate",
+            "worldsplat.gaussians.fileformat",
+            "worldsplat.gaussians.lift",
+            "worldsplat.gaussians.project",
+            "worldsplat.gaussians.wsplat.quantise",
+            "worldsplat.scale.nuscenes",
+        )
+    }
+    shared = {
+        "quaternion_multiply": (
+            "worldsplat_models.gs_decoder",
+            "worldsplat.gaussians.aggregate",
+            "worldsplat.gaussians.wsplat.quantise",
+        ),
+        "matrix_to_quaternion": (
+            "worldsplat_models.gs_decoder",
+            "worldsplat.gaussians.aggregate",
+            "worldsplat.gaussians.lift",
+            "worldsplat.scale.nuscenes",
+        ),
+        "quaternion_to_matrix": ("worldsplat.gaussians.project", "worldsplat.gaussians.wsplat.quantise"),
+        "normalize_quaternion": (
+            "worldsplat.gaussians.project",
+            "worldsplat.gaussians.wsplat.quantise",
+            "worldsplat.gaussians.fileformat",
+        ),
+        "pixel_rays": ("worldsplat_models.gs_decoder",),
+        "plucker": ("worldsplat_models.gs_decoder",),
+    }
+    for fn, modules in shared.items():
+        for m in modules:
+            assert getattr(users[m], fn) is getattr(geometry, fn), (m, fn)
+    # the Hamilton product's first line and the rotation matrix's first entry are written in geometry.py only
+    root = Path(geometry.__file__).resolve().parents[2]
+    for path in [*(root / "server").rglob("*.py"), *(root / "models" / "worldsplat_models").rglob("*.py")]:
+        text = path.read_text()
+        if path.name != "geometry.py":
+            assert "aw * bw - ax * bx - ay * by - az * bz" not in text, path
+            assert "1 - 2 * (y * y + z * z)" not in text, path

@@ -119,11 +119,11 @@ def test_round_trip_within_quantization(iso):
     err = matched_error(sc.static, back.static)
     assert err["means"] < 0.05 and err["scales"] < 0.3 and err["opacities"] < 0.04 and err["colors"] < 0.04, err
     if not iso:  # rotation survives smallest-three (compare rotation matrices: q and -q are the same rotation)
-        from worldsplat.gaussians.project import quat_to_rotmat
+        from worldsplat_models.geometry import quaternion_to_matrix
 
         idx = torch.cdist(sc.static.means.double(), back.static.means.double()).argmin(1)
         qa = sc.static.quats / sc.static.quats.norm(dim=1, keepdim=True)
-        d = (quat_to_rotmat(qa) - quat_to_rotmat(back.static.quats[idx])).abs().max()
+        d = (quaternion_to_matrix(qa) - quaternion_to_matrix(back.static.quats[idx])).abs().max()
         assert float(d) < 0.05
 
 
@@ -143,9 +143,9 @@ def test_bytes_per_gaussian_of_default_layouts():
 
 
 def _covariances(q, s):
-    from worldsplat.gaussians.project import quat_to_rotmat
+    from worldsplat_models.geometry import quaternion_to_matrix
 
-    R = quat_to_rotmat(torch.as_tensor(q, dtype=torch.float64))
+    R = quaternion_to_matrix(torch.as_tensor(q, dtype=torch.float64))
     return R @ torch.diag_embed(torch.as_tensor(s, dtype=torch.float64) ** 2) @ R.transpose(1, 2)
 
 

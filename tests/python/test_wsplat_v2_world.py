@@ -10,9 +10,9 @@ from worldsplat.core.metrics import psnr
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians import Gaussians, Scene4D, wsplat
 from worldsplat.gaussians.lift import SURFEL_THICKNESS, lift, lift_surfels
-from worldsplat.gaussians.project import quat_to_rotmat
 from worldsplat.gaussians.raster import render_view
 from worldsplat.world import build_world, simulate
+from worldsplat_models.geometry import quaternion_to_matrix
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +41,7 @@ def test_lift_surfels_flattens_surface_splats_onto_the_surface(clip):
         & (np.linalg.norm(g.means[:, :2].numpy() - cam.camera_to_world[:2, 3], axis=1) < 15)
     )
     assert road.sum() > 100
-    r = quat_to_rotmat(g.quats.double()[torch.as_tensor(road)])
+    r = quaternion_to_matrix(g.quats.double()[torch.as_tensor(road)])
     thin = s[torch.as_tensor(road)].argmin(1)
     axis = r[torch.arange(len(thin)), :, thin]
     assert (axis[:, 2].abs() > 0.99).float().mean() > 0.95

@@ -34,6 +34,7 @@ from worldsplat.core.camera import RigCamera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.lift import SKY_CHANNEL
 from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat_models.geometry import matrix_to_quaternion, quaternion_multiply
 
 DYNAMIC_THRESHOLD = 0.5  # extras[:, 0] (dynamic probability / mask) above this -> dynamic
 SKY_COVER = 0.5  # a merged sky Gaussian's std is at least this fraction of its cell
@@ -102,46 +103,12 @@ class AggregateStats:
         return d
 
 
-def quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """3x3 rotation -> wxyz unit quaternion."""
-    m = np.asarray(R, dtype=np.float64)
-    t = np.trace(m)
-    if t > 0:
-        s = math.sqrt(t + 1.0) * 2
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
-        q = [0.0] * 4
-        q[0] = (m[k, j] - m[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + k] = (m[k, i] + m[i, k]) / s
-    q = np.asarray(q)
-    return q / np.linalg.norm(q)
-
-
-def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
-
-
 def transform(g: Gaussians, m: np.ndarray) -> Gaussians:
     """Apply a rigid 4x4 transform (e.g. ego_to_world[t]) to Gaussians: means and rotations."""
     R = torch.as_tensor(np.asarray(m)[:3, :3], dtype=g.means.dtype)
     t = torch.as_tensor(np.asarray(m)[:3, 3], dtype=g.means.dtype)
-    qr = torch.as_tensor(quat_from_matrix(np.asarray(m)[:3, :3]), dtype=g.quats.dtype).expand_as(g.quats)
-    return Gaussians(g.means @ R.T + t, quat_mul(qr, g.quats), g.scales, g.opacities, g.colors, g.extras)
+    qr = torch.as_tensor(matrix_to_quaternion(np.asarray(m)[:3, :3]), dtype=g.quats.dtype).expand_as(g.quats)
+    return Gaussians(g.means @ R.T + t, quaternion_multiply(qr, g.quats), g.scales, g.opacities, g.colors, g.extras)
 
 
 def split_dynamic(g: Gaussians, threshold: float = DYNAMIC_THRESHOLD) -> tuple[Gaussians, Gaussians]:

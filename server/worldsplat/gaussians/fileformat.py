@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from worldsplat_models.geometry import normalize_quaternion
+
 SH_C0 = 0.28209479177387814
 # The most Gaussians any import accepts: 16.7M (a 1M-Gaussian scene is a large one), so a declared count can
 # never make a reader allocate more than ~1 GiB even where the bytes behind it are compressed.
@@ -51,6 +53,5 @@ def check_finite(fmt: str, values: np.ndarray, field: str, base: int, stride: in
 
 
 def canonical_quats(q: np.ndarray) -> np.ndarray:
-    """Quaternions wxyz normalized; zero ones become the identity (the renderer's QUAT_EPS rule)."""
-    n = np.linalg.norm(q, axis=1, keepdims=True)
-    return np.where(n > 1e-12, q / np.maximum(n, 1e-12), np.array([1.0, 0, 0, 0]))
+    """Quaternions wxyz normalized; zero ones (|q| < 1e-12) become the identity."""
+    return normalize_quaternion(q, 1e-12)

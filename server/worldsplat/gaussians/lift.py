@@ -20,7 +20,7 @@ import torch
 from worldsplat.core.camera import Camera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.types import Gaussians
-from worldsplat_models.gs_decoder import matrix_to_quaternion
+from worldsplat_models.geometry import matrix_to_quaternion
 
 FOOTPRINT = 0.7  # px: splat std relative to the pixel pitch (tuned on the presets, see gaussians.md)
 OPACITY = 0.98

@@ -15,6 +15,7 @@ import torch
 from worldsplat.core.camera import Camera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.types import Gaussians
+from worldsplat_models.geometry import normalize_quaternion, quaternion_to_matrix
 
 
 @dataclass
@@ -39,25 +40,6 @@ def compute_dtype(g: Gaussians) -> torch.dtype:
     return torch.float64 if g.means.dtype == torch.float64 else torch.float32
 
 
-def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    """Unit quaternions (N,4) wxyz -> rotation matrices (N,3,3) (local -> world)."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        -1,
-    ).reshape(q.shape[:-1] + (3, 3))
-
-
 def sanitize(g: Gaussians) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Drop Gaussians with any non-finite mean/quat/scale/opacity/colour or opacity < ALPHA_MIN; normalize
     quaternions (|q| < QUAT_EPS -> identity); clamp scale, opacity and colour. Returns (kept rows, fields)."""
@@ -70,11 +52,7 @@ def sanitize(g: Gaussians) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         keep = finite & (f["opacities"].clamp(0, 1) >= C.ALPHA_MIN)
         index = keep.nonzero().squeeze(1)
     f = {k: t[index] for k, t in f.items()}
-    q = f["quats"]
-    sq = (q * q).sum(-1, keepdim=True)
-    norm = torch.sqrt(sq.clamp_min(C.QUAT_EPS**2))  # clamp keeps the gradient finite at q = 0
-    ident = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dt, device=q.device)
-    f["quats"] = torch.where(sq >= C.QUAT_EPS**2, q / norm, ident)
+    f["quats"] = normalize_quaternion(f["quats"], C.QUAT_EPS)
     f["scales"] = f["scales"].clamp(C.SCALE_MIN, C.SCALE_MAX)
     f["opacities"] = f["opacities"].clamp(0.0, 1.0)
     f["colors"] = f["colors"].clamp(0.0, 1.0)
@@ -135,7 +113,7 @@ def project(g: Gaussians, camera: Camera) -> Projected:
     tx = z * (x / z).clamp(-lim_x, lim_x)
     ty = z * (y / z).clamp(-lim_y, lim_y)
     # T = J R_wc R(q) diag(s) (2x3), written out because J has only four non-zeros; cov2d = T T^T + DILATION I.
-    M = torch.einsum("ij,njk->nik", R, quat_to_rotmat(f["quats"])) * f["scales"][:, None, :]
+    M = torch.einsum("ij,njk->nik", R, quaternion_to_matrix(f["quats"])) * f["scales"][:, None, :]
     iz = 1.0 / z
     T0 = (camera.fx * iz)[:, None] * (M[:, 0] - (tx * iz)[:, None] * M[:, 2])
     T1 = (camera.fy * iz)[:, None] * (M[:, 1] - (ty * iz)[:, None] * M[:, 2])

@@ -41,7 +41,6 @@ from worldsplat.core.io import atomic_write_bytes, write_json_atomic
 from worldsplat.core.limits import MAX_SHIFT_M
 from worldsplat.core.scenario import Scenario, scenario_id
 from worldsplat.gaussians import wsplat
-from worldsplat.gaussians.aggregate import quat_from_matrix
 from worldsplat.pipeline.refine import scenario_of
 from worldsplat.pipeline.render import render_track
 from worldsplat.world import build_world, simulate
@@ -50,6 +49,7 @@ from worldsplat.world.dataset import load_shard
 from worldsplat.world.instances import instance_mask, unoccluded_pixels
 from worldsplat.world.layout import World
 from worldsplat.world.road import bev_layers
+from worldsplat_models.geometry import matrix_to_quaternion
 
 DEFAULT_VERSION = "v1.0-mini-like"
 TABLES = (
@@ -103,7 +103,7 @@ def token(*parts) -> str:
 
 def quaternion(r: np.ndarray) -> list[float]:
     """Rotation matrix (3,3) -> unit quaternion [w, x, y, z] (w >= 0), the devkit's order."""
-    q = quat_from_matrix(r)
+    q = matrix_to_quaternion(r)
     return (q if q[0] >= 0 else -q).tolist()
 
 

@@ -6,13 +6,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 
 from worldsplat.gaussians import constants as C
-from worldsplat.gaussians.project import quat_to_rotmat
 from worldsplat.gaussians.types import Gaussians
 from worldsplat.gaussians.wsplat.layout import Layout
 from worldsplat.gaussians.wsplat.spec import ISOTROPY_TOL, POS_SIZE_PERCENTILE, Q_CANON
+from worldsplat_models.geometry import normalize_quaternion, quaternion_multiply, quaternion_to_matrix
 
 
 def _canon_steps(bits: int) -> int:
@@ -59,29 +58,15 @@ def _octahedral_rotations() -> np.ndarray:
 CUBE_ROTATIONS = _octahedral_rotations()
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
-
-
 def canonical_rotation(q: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit quaternions (N,4) wxyz + scales (N,3) -> the same covariances as q * g (g the cube rotation that brings
     q closest to the identity, made w >= 0) with the scales permuted to match: |x|, |y|, |z| <= sin(pi/8)."""
     # w of q * g is q . (gw, -gx, -gy, -gz): one (N,4) @ (4,24) product picks g, then one product per Gaussian
     k = np.argmax(np.abs(q @ (CUBE_ROTATIONS * [1.0, -1.0, -1.0, -1.0]).T), axis=1)
-    out = _quat_mul(q, CUBE_ROTATIONS[k])
+    out = quaternion_multiply(q, CUBE_ROTATIONS[k])
     out *= np.where(out[:, :1] < 0, -1.0, 1.0)
     # R(q g) = R(q) R(g); S'^2 = R(g)^T S^2 R(g): axis j of the new frame is old axis argmax_i |R(g)[i, j]|.
-    rg = quat_to_rotmat(torch.as_tensor(CUBE_ROTATIONS)).numpy()  # (24,3,3)
+    rg = quaternion_to_matrix(CUBE_ROTATIONS)  # (24,3,3)
     perm = np.argmax(np.abs(rg), axis=1)  # (24,3): new axis j <- old axis
     return out, np.take_along_axis(scales, perm[k], axis=1)
 
@@ -98,8 +83,7 @@ def _sanitized_numpy(g: Gaussians, layout: Layout | None = None) -> dict[str, np
     a["scales"] = np.clip(a["scales"], C.SCALE_MIN, C.SCALE_MAX)
     a["opacities"] = np.clip(a["opacities"], 0, 1)
     a["colors"] = np.clip(a["colors"], 0, 1)
-    qn = np.linalg.norm(a["quats"], axis=1, keepdims=True)
-    a["quats"] = np.where(qn >= C.QUAT_EPS, a["quats"] / np.maximum(qn, C.QUAT_EPS), [1.0, 0, 0, 0])
+    a["quats"] = normalize_quaternion(a["quats"], C.QUAT_EPS)
     if layout is not None and layout.canonical and len(a["quats"]):
         a["quats"], a["scales"] = canonical_rotation(a["quats"], a["scales"])
     return a

@@ -126,13 +126,21 @@ def _world(data):
 
 
 def test_overlap_and_off_world_name_the_agent_and_the_time():
-    from worldsplat.world.agents import check_scenario
+    from worldsplat.world.agents import check_scenario, scenario_overlaps
 
     # agents[1] drives into the stopped agents[0]: first contact between 1.0 and 1.25 s (gap 10 m - 4.5 m at 4.8 m/s).
     s = Scenario.parse({**SMALL, "agents": [car("stopped", s=30.0), {**car("late", s=20.0), "motion": {"speed": 4.8}}]})
     assert check_scenario(s) == ["agents[1]: overlaps agents[0] at t = 1.25 s"]
-    with pytest.raises(ScenarioError, match=r"agents\[1\]: overlaps agents\[0\] at t = 1.25 s"):
-        _world(s.to_json_dict())
+    assert check_scenario(s, strict=False) == []
+    (o,) = scenario_overlaps(s)
+    assert (o.agent, o.agent_id, o.other, o.other_id, o.first) == (1, "late", 0, "stopped", 1.25)
+    assert (
+        o.last == s.duration
+        and o.warning == f"agents[1] (late): overlaps agents[0] (stopped) from t = 1.25 to {o.last:.2f} s"
+    )
+    world = _world(s.to_json_dict())  # accepted: the world renders them as they are, one through the other
+    late = next(a for a in world.agents if a.agent_id == "late")
+    assert late.poses[-1, 0] - late.poses[0, 0] == pytest.approx(4.8 * s.duration, abs=0.01)
     assert check_scenario(Scenario.parse({**SMALL, "agents": [car("on_ego", s=2.0)]})) == [
         "agents[0]: overlaps the ego at t = 0.00 s"
     ]

@@ -16,16 +16,25 @@ def configure_import_scenario(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", required=True, help="the scenario JSON to write")
     p.add_argument("--ego", help="OpenSCENARIO: the ego entity's name (default: Ego / Hero)")
-    p.add_argument("--setting", default="urban", choices=["urban", "suburban"], help="the world's setting")
+    p.add_argument(
+        "--setting",
+        choices=["urban", "suburban", "highway"],
+        help="the world's setting (default: the OpenDRIVE road's type, a median making it a highway; else urban)",
+    )
     p.add_argument("--fps", type=float, help="clip frame rate (default: 4, CommonRoad: a multiple of its dt)")
     p.add_argument("--frames", type=int, help="clip frames (default: the file's duration, at most 32)")
+    p.add_argument(
+        "--strict", action="store_true", help="refuse agents that overlap (default: import them, with a warning each)"
+    )
 
 
 def run_import_scenario(args: argparse.Namespace) -> int:
     from worldsplat.world.scenario_io import ImportRefused, load_scenario_file
 
     try:  # the same code as POST /api/scenario-files (the page's drag and drop)
-        loaded = load_scenario_file(args.file, ego=args.ego, setting=args.setting, fps=args.fps, frames=args.frames)
+        loaded = load_scenario_file(
+            args.file, ego=args.ego, setting=args.setting, fps=args.fps, frames=args.frames, strict=args.strict
+        )
     except ImportRefused as e:
         for w in e.warnings:
             print(f"warning: {w}", file=sys.stderr)

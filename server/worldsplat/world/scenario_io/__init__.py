@@ -7,16 +7,17 @@ listed in `warnings`. `export_openscenario(scenario, out)` writes .xosc + .xodr.
 
 `load_scenario_file(path)` is what `worldsplat import-scenario` and `POST /api/scenario-files` (the page's drag and
 drop) both run: the import (or a scenario / preset .json), validated (`Scenario.parse`) and checked against the
-road (`check_scenario`), every problem an `ImportRefused` message naming the element or field.
+road (`check_scenario`), every problem an `ImportRefused` message naming the element or field. Agents that overlap
+are accepted and reported (`Loaded.overlaps`, and a warning each), or refused with `strict`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from worldsplat.core.scenario import Scenario, ScenarioError
-from worldsplat.world.agents import check_scenario
+from worldsplat.world.agents import Overlap, scenario_overlaps
 from worldsplat.world.scenario_io.common import Frame, Imported, ImportRefused, fit_clip, subsample, wrap
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "Imported",
     "ImportRefused",
     "Loaded",
+    "Overlap",
     "SCENARIO_SUFFIXES",
     "fit_clip",
     "import_scenario",
@@ -55,20 +57,23 @@ class Loaded:
     scenario: Scenario  # validated, and checked against the road
     warnings: list[str]
     format: str  # openscenario | commonroad | scenario
+    overlaps: list[Overlap] = field(default_factory=list)  # explicit agents that overlap, and when
 
 
 def load_scenario_file(
     path: str | Path,
     ego: str | None = None,
-    setting: str = "urban",
+    setting: str | None = None,
     fps: float | None = None,
     frames: int | None = None,
     road_dir: str | Path | None = None,
+    strict: bool = False,
 ) -> Loaded:
     """An .xosc, CommonRoad .xml or scenario / preset .json file as a checked v2 scenario; raises ImportRefused.
 
-    `ego` (OpenSCENARIO), `setting`, `fps` and `frames` are the import's options (ignored for .json);
-    `road_dir` confines an .xosc's OpenDRIVE file to that folder, found by its bare name (uploads)."""
+    `ego` (OpenSCENARIO), `setting` (default: the OpenDRIVE road's, else urban), `fps` and `frames` are the
+    import's options (ignored for .json); `road_dir` confines an .xosc's OpenDRIVE file to that folder, found by
+    its bare name (uploads). Overlapping agents are reported, or with `strict` refused."""
     path = Path(path)
     kind = SCENARIO_SUFFIXES.get(path.suffix.lower())
     if kind is None:
@@ -78,7 +83,7 @@ def load_scenario_file(
         if kind == "scenario":
             sc = Scenario.load(path)
         else:
-            opts: dict = {"setting": setting, "frames": frames}
+            opts: dict = {"setting": setting if kind == "openscenario" else setting or "urban", "frames": frames}
             if fps is not None:
                 opts["fps"] = fps
             if kind == "openscenario":
@@ -94,7 +99,10 @@ def load_scenario_file(
         raise ImportRefused([f"{path.name}: cannot read: {e}"]) from None
     except ValueError as e:  # a .json that is not JSON, or not a scenario
         raise ImportRefused([f"{path.name}: {e}"]) from None
-    problems = check_scenario(sc)
-    if problems:
-        raise ImportRefused(problems, warnings)
-    return Loaded(sc, warnings, kind)
+    try:
+        overlaps = scenario_overlaps(sc)
+    except ScenarioError as e:
+        raise ImportRefused(e.errors, warnings) from None
+    if strict and overlaps:
+        raise ImportRefused([o.message for o in overlaps], warnings)
+    return Loaded(sc, warnings + [o.warning for o in overlaps], kind, overlaps)

@@ -26,6 +26,23 @@ class OdrRoad:
     curvature: float
     lanes: int
     lane_width: float
+    median: float = 0.0  # m between the innermost driving lanes: a `median` lane (id +-1) each side
+    road_type: str | None = None  # the road's OpenDRIVE type (town, rural, motorway, ...), if it says
+
+    @property
+    def median_lanes(self) -> int:
+        return 1 if self.median > 0.0 else 0
+
+    def is_driving(self, lane_id: int) -> bool:
+        return self.median_lanes < abs(lane_id) <= self.median_lanes + self.lanes
+
+    def kerb_index(self, lane_id: int) -> int:
+        """The world's lane index of a driving lane (0 at the kerb)."""
+        return self.lanes - (abs(lane_id) - self.median_lanes)
+
+    def right_lane_at(self, t: float) -> int:
+        """The id of the right-hand driving lane whose centre is nearest lateral offset t (< 0)."""
+        return -(int(round((abs(t) - self.median / 2) / self.lane_width + 0.5)) + self.median_lanes)
 
     def ref(self, s: float) -> tuple[float, float, float]:
         k, h0 = self.curvature, self.hdg
@@ -54,9 +71,10 @@ class OdrRoad:
         return s, t
 
     def lane_t(self, lane_id: int) -> float:
-        """t of a lane centre (OpenDRIVE lane id: -1.. right of the reference line, 1.. left)."""
-        k = abs(lane_id)
-        return math.copysign((k - 0.5) * self.lane_width, lane_id)
+        """t of a driving lane's centre (OpenDRIVE lane id: -1.. right of the reference line, 1.. left; beyond
+        the median lanes where there are)."""
+        k = abs(lane_id) - self.median_lanes
+        return math.copysign(self.median / 2 + (k - 0.5) * self.lane_width, lane_id)
 
 
 def _plan_road(where: str, road, errors: list[str], arm_of: str | None = None) -> OdrRoad | None:
@@ -104,8 +122,10 @@ def _plan_road(where: str, road, errors: list[str], arm_of: str | None = None) -
     if len(widths) != 1:
         errors.append(f"{where}/road[{rid}]/lanes: lane widths {sorted(widths)}; one width is supported")
         ok = False
-    if not ok:
+    median = _median(f"{where}/road[{rid}]/lanes/laneSection", sections[0], errors)
+    if not ok or median is None:
         return None
+    rtype = road.find("type")
     return OdrRoad(
         float(g.get("x")),
         float(g.get("y")),
@@ -114,7 +134,30 @@ def _plan_road(where: str, road, errors: list[str], arm_of: str | None = None) -
         curvature,
         counts["right"],
         widths.pop(),
+        median,
+        rtype.get("type") if rtype is not None else None,
     )
+
+
+def _median(where: str, section, errors: list[str]) -> float | None:
+    """The median's width: 0 without median lanes, else the sum of the innermost lane each side (type median, the
+    same constant width); None (and the problem in `errors`) for any other median."""
+    halves = []
+    for side in ("left", "right"):
+        medians = [ln for ln in section.findall(f"{side}/lane") if ln.get("type") == "median"]
+        for ln in medians:
+            ws = ln.findall("width")
+            if abs(int(ln.get("id"))) != 1 or len(ws) != 1 or any(abs(float(ws[0].get(c, 0.0))) > 1e-9 for c in "bcd"):
+                errors.append(
+                    f"{where}/{side}/lane[{ln.get('id')}]: a median is supported as the innermost lane (id +-1) of "
+                    "constant width each side"
+                )
+                return None
+            halves.append(round(float(ws[0].get("a")), 4))
+    if len(halves) not in (0, 2) or (halves and halves[0] != halves[1]):
+        errors.append(f"{where}: median lanes {halves} m; the world builds one median lane of one width each side")
+        return None
+    return float(sum(halves))
 
 
 @dataclass
@@ -218,6 +261,9 @@ def _junction_arms(where: str, jid: str, roads, errors: list[str]) -> tuple[dict
         if link is None:
             errors.append(f"{where}/road[{rid}]/link: not linked to junction[{jid}] (every road is one of its arms)")
         if road is None or link is None:
+            continue
+        if road.median > 0.0:
+            errors.append(f"{where}/road[{rid}]/lanes: a median on an arm of junction[{jid}] is not supported")
             continue
         end_s = road.length if link == "successor" else 0.0
         out = road.hdg + (math.pi if link == "successor" else 0.0)

@@ -1,8 +1,9 @@
 """OpenDRIVE out: the world's main road (and an intersection's cross road), through scenariogeneration's `xodr`.
 
-The reference line is the main road's centreline; the lanes are the world's driving lanes, the same number each way.
-An intersection is written as `CommonJunctionCreator` writes a four-way junction, the layout `opendrive_read`
-reads back.
+The reference line is the main road's centreline; the lanes are the world's driving lanes, the same number each way,
+with a highway's median as one `median` lane each side of it (ids +-1; the driving lanes then start at +-2). The
+road's type says the setting (town: urban, rural: suburban, motorway: highway). An intersection is written as
+`CommonJunctionCreator` writes a four-way junction, the layout `opendrive_read` reads back.
 """
 
 from __future__ import annotations
@@ -14,6 +15,25 @@ import numpy as np
 from scenariogeneration import xodr
 
 JUNCTION_ID, CROSS_ARM = 100, 120.0  # the exported junction's id; its cross road's arms reach 120 m from the centre
+ROAD_TYPE = {"urban": xodr.RoadType.town, "suburban": xodr.RoadType.rural, "highway": xodr.RoadType.motorway}
+
+
+def _median_road(road, geom, x0: float, y0: float, h0: float) -> xodr.Road:
+    """One road with a median lane (half the median wide) each side of the reference line, then the driving lanes
+    (broken lines between them, a solid one at each edge)."""
+    planview = xodr.PlanView(x0, y0, h0)
+    planview.add_geometry(geom)
+    section = xodr.LaneSection(0, xodr.standard_lane(0, None))
+    for add in (section.add_left_lane, section.add_right_lane):
+        median = xodr.Lane(xodr.LaneType.median, a=road.median / 2)
+        median.add_roadmark(xodr.std_roadmark_solid())
+        add(median)
+        for k in range(road.lanes):
+            edge = k == road.lanes - 1
+            add(xodr.standard_lane(road.lane_width, xodr.std_roadmark_solid() if edge else xodr.std_roadmark_broken()))
+    lanes = xodr.Lanes()
+    lanes.add_lanesection(section)
+    return xodr.Road(0, planview, lanes)
 
 
 def write_opendrive(road, s0: float, length: float, name: str) -> tuple[xodr.OpenDrive, Callable]:
@@ -28,8 +48,12 @@ def write_opendrive(road, s0: float, length: float, name: str) -> tuple[xodr.Ope
     odr = xodr.OpenDrive(name)
     if road.cross_s is None:
         geom = xodr.Arc(road.curvature, length=length) if road.curvature != 0.0 else xodr.Line(length)
-        odr_road = xodr.create_road([geom], id=0, **lanes)
-        odr_road.planview.set_start_point(x0, y0, h0)
+        if road.median > 0.0:
+            odr_road = _median_road(road, geom, x0, y0, h0)
+        else:
+            odr_road = xodr.create_road([geom], id=0, **lanes)
+            odr_road.planview.set_start_point(x0, y0, h0)
+        odr_road.add_type(ROAD_TYPE[road.setting])
         odr.add_road(odr_road)
         odr.adjust_roads_and_lanes()
         return odr, lambda s: (0, s - s0)
@@ -48,6 +72,7 @@ def write_opendrive(road, s0: float, length: float, name: str) -> tuple[xodr.Ope
         jc.add_connection(a, b)
     west.planview.set_start_point(x0, y0, h0)
     for arm in (west, east, south, north):
+        arm.add_type(ROAD_TYPE[road.setting])
         odr.add_road(arm)
     odr.add_junction_creator(jc)
     odr.adjust_roads_and_lanes()

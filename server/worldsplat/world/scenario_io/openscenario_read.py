@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scenariogeneration import xosc
 
-from worldsplat.core.scenario import CLASS_MAX_ACCEL, JUNCTION_S
+from worldsplat.core.scenario import CLASS_MAX_ACCEL, HIGHWAY_MEDIAN, JUNCTION_S
 from worldsplat.world.scenario_io.common import Frame, Imported, ImportRefused, fit_clip, wrap
 from worldsplat.world.scenario_io.opendrive_read import OdrJunction, OdrRoad, read_opendrive
 
@@ -33,7 +33,13 @@ def _enum(e) -> str:
 
 class _Reader:
     def __init__(
-        self, path: Path, ego_name: str | None, setting: str, fps: float, frames: int | None, road_dir: Path | None
+        self,
+        path: Path,
+        ego_name: str | None,
+        setting: str | None,
+        fps: float,
+        frames: int | None,
+        road_dir: Path | None,
     ):
         self.xosc = xosc
         self.path, self.setting, self.fps, self.frames_opt = path, setting, fps, frames
@@ -98,7 +104,8 @@ class _Reader:
         out = min((a.out for a in jn.arms.values()), key=lambda o: abs(wrap(o - h)))
         if abs(wrap(out - h)) > math.radians(1):
             raise ImportRefused([f"{where}: the ego must start heading along one of {jn.where}'s roads"])
-        self.road = OdrRoad(jn.cx, jn.cy, out, math.inf, 0.0, jn.lanes, jn.lane_width)
+        road_type = next(iter(jn.arms.values())).road.road_type
+        self.road = OdrRoad(jn.cx, jn.cy, out, math.inf, 0.0, jn.lanes, jn.lane_width, road_type=road_type)
         for rid, a in jn.arms.items():
             if abs(math.sin(a.out - out)) < 0.5:  # along the main road
                 self.arm_flip[rid] = math.cos(a.road.hdg - out) < 0
@@ -115,7 +122,7 @@ class _Reader:
             if self.road is None:
                 raise ImportRefused([f"{where}/LanePosition: needs the OpenDRIVE road"])
             lane_id, s, off = int(pos.lane_id), float(pos.s), float(pos.offset or 0.0)
-            if abs(lane_id) > self.road.lanes or lane_id == 0:
+            if not self.road.is_driving(lane_id):
                 raise ImportRefused([f"{where}/LanePosition: lane {lane_id} is not a driving lane of the road"])
             x, y, h = self.road.point(s, self.road.lane_t(lane_id) + off)
             if lane_id > 0:
@@ -140,7 +147,7 @@ class _Reader:
             raise ImportRefused([f"{w}: {kind} {jn.where} (a LanePosition on one of its 4 arms, or a WorldPosition)"])
         arm = jn.arms[rid].road
         lane_id, s, off = int(pos.lane_id), float(pos.s), float(pos.offset or 0.0)
-        if abs(lane_id) > arm.lanes or lane_id == 0:
+        if not arm.is_driving(lane_id):
             raise ImportRefused([f"{w}: lane {lane_id} is not a driving lane of the road"])
         x, y, h = arm.point(s, arm.lane_t(lane_id) + off)
         if lane_id > 0:
@@ -360,6 +367,8 @@ class _Reader:
         for t, a, w in events:
             if _name(a) == "FollowTrajectoryAction" and not verts:
                 verts = self._trajectory(a, w, t)
+            elif _name(a) == "AbsoluteSpeedAction" and float(a.speed) == ego["speed"]:
+                continue  # keeps the speed it has: nothing to do
             elif _name(a) == "AbsoluteSpeedAction" and not verts:
                 self.errors.append(
                     f"{w}/AbsoluteSpeedAction: a speed change of the ego is not supported (give the ego a trajectory)"
@@ -380,13 +389,36 @@ class _Reader:
             raise ImportRefused([f"{where}/AbsoluteSpeedAction: ego speed {ego['speed']:g} m/s beyond 30"])
         return {"frame": frame, "ego": ego, "road": road_doc, "t_last": t_last}
 
+    def _setting(self, road: OdrRoad | None) -> str:
+        """The world's setting: a highway where the road has a median (the world's), else the one asked for, else
+        the road's OpenDRIVE type's (town: urban, rural: suburban), else urban."""
+        median = road.median if road is not None else 0.0
+        if median > 0.0:
+            if abs(median - HIGHWAY_MEDIAN) > 0.01:
+                raise ImportRefused(
+                    [
+                        f"RoadNetwork: a median of {median:g} m; the world builds a highway's median {HIGHWAY_MEDIAN:g} m wide"
+                    ]
+                )
+            if self.setting not in (None, "highway"):
+                self.warnings.append(
+                    f"RoadNetwork: the road has a median; the world builds it as a highway, not {self.setting}"
+                )
+            return "highway"
+        if self.setting == "highway":
+            raise ImportRefused(["--setting highway: the world's highway has a median the OpenDRIVE road lacks"])
+        if self.setting is not None:
+            return self.setting
+        rtype = road.road_type if road is not None else None
+        return "suburban" if rtype == "rural" else "urban"
+
     def _ego_road(self, x: float, y: float, h: float, lane, where: str) -> tuple[dict, int]:
         """The scenario's `road` section and the ego's start lane, from the road at the ego's start (x, y, h and
         its lane position, if any); sets `ego_s`, the ego's s on the main road."""
         road = self.road
         road_doc = {
             "kind": "straight",
-            "setting": self.setting,
+            "setting": self._setting(road),
             "lanes_per_direction": 2,
             "lane_width": 3.5,
             "curvature": 0.0,
@@ -395,12 +427,17 @@ class _Reader:
             self.ego_s = 0.0
             return road_doc, 0
         s, t = road.project(x, y) if lane is None else (lane[0], road.lane_t(lane[1]) + lane[2])
-        lane_id = -int(round(abs(t) / road.lane_width + 0.5)) if t < 0 else None
-        if lane_id is None or abs(t - road.lane_t(lane_id)) > 0.05 or abs(wrap(h - road.ref(s)[2])) > math.radians(1):
+        lane_id = road.right_lane_at(t) if t < 0 else None
+        if (
+            lane_id is None
+            or not road.is_driving(lane_id)
+            or abs(t - road.lane_t(lane_id)) > 0.05
+            or abs(wrap(h - road.ref(s)[2])) > math.radians(1)
+        ):
             raise ImportRefused(
                 [f"{where}/TeleportAction: the ego must start on the centre of a right-hand lane, heading along it"]
             )
-        start_lane = road.lanes - abs(lane_id)
+        start_lane = road.kerb_index(lane_id)
         if abs(road.curvature) > 0.015:
             raise ImportRefused([f"RoadNetwork: curvature {road.curvature:g} 1/m beyond the world's 0.015"])
         if not 1 <= road.lanes <= 4 or not 2.75 <= road.lane_width <= 4.5:
@@ -482,6 +519,8 @@ class _Reader:
             n = _name(a)
             if n == "FollowTrajectoryAction" and not verts and not ev_out:
                 verts = self._trajectory(a, w, t)
+            elif n == "AbsoluteSpeedAction" and float(a.speed) == v_now:
+                continue  # keeps the speed it has: nothing to do
             elif n == "AbsoluteSpeedAction":
                 target = float(a.speed)
                 dur = self._speed_change_duration(a.transition_dynamics, v_now, target, cls, w)
@@ -499,14 +538,14 @@ class _Reader:
                 dyn = a.transition_dynamics
                 dur = float(dyn.value) if _enum(dyn.dimension) == "time" else float(dyn.value) / max(0.5, v_now)
                 lane_id = -int(a.lane) if flip else int(a.lane)
-                if self.road is None or lane_id == 0 or abs(lane_id) > self.road.lanes:
+                if self.road is None or not self.road.is_driving(lane_id):
                     self.errors.append(f"{w}/AbsoluteLaneChangeAction: lane {lane_id} is not a driving lane")
                     continue
                 ev_out.append(
                     {
                         "t": round(t, 6),
                         "action": "lane_change",
-                        "lane": self.road.lanes - abs(lane_id),
+                        "lane": self.road.kerb_index(lane_id),
                         "duration": max(0.2, dur),
                         "_side": lane_id > 0,
                     }
@@ -564,7 +603,7 @@ class _Reader:
         return {
             "kind": "lane",
             "direction": "same" if same else "opposite",
-            "lane": self.road.lanes - abs(lane_id),
+            "lane": self.road.kerb_index(lane_id),
             "s": round(s_c - self.ego_s, 6),
             "lateral": round(lat, 6),
         }
@@ -578,13 +617,11 @@ def _safe_id(name: str) -> str:
 def import_openscenario(
     path: str | Path,
     ego: str | None = None,
-    setting: str = "urban",
+    setting: str | None = None,
     fps: float = 4.0,
     frames: int | None = None,
     road_dir: str | Path | None = None,
 ) -> Imported:
     """An OpenSCENARIO 1.x file (and its OpenDRIVE road) as a v2 scenario document. With `road_dir`, the road file
     the scenario names is looked up there by its bare name only (uploads: no other path is ever opened)."""
-    if setting == "highway":
-        raise ImportRefused(["--setting highway: the world's highway has a median the OpenDRIVE road lacks"])
     return _Reader(Path(path), ego, setting, fps, frames, Path(road_dir) if road_dir is not None else None).run()

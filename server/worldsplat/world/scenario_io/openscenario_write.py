@@ -1,8 +1,10 @@
 """OpenSCENARIO 1.x out (with its OpenDRIVE road, `opendrive_write`), through scenariogeneration's `xosc`.
 
-The ego: a LanePosition + speed when it keeps its lane, else its rear-axle trajectory at the frames. Agents: lane
-starts as LanePosition + AbsoluteSpeedAction + timed AbsoluteLaneChange / AbsoluteSpeed actions; free poses and
-keyframes as a Polyline trajectory (vertex times). `openscenario_read` reads every such file back.
+The ego: a LanePosition + speed when it keeps its lane, else its rear-axle trajectory at the frames. Explicit agents:
+lane starts as LanePosition + AbsoluteSpeedAction + timed AbsoluteLaneChange / AbsoluteSpeed actions; free poses and
+keyframes as a Polyline trajectory (vertex times). The procedural traffic: trajectories through its poses at the
+frame times. Every entity gets a maneuver (one that keeps its speed where nothing is scripted).
+`openscenario_read` reads every such file back.
 """
 
 from __future__ import annotations
@@ -13,7 +15,16 @@ import numpy as np
 from scenariogeneration import xosc
 
 from worldsplat.core.scenario import Scenario
-from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG, ego_rear_poses, scenario_road, spec_poses
+from worldsplat.world.agents import (
+    CLASS_IDS,
+    EGO_LENGTH,
+    EGO_REAR_OVERHANG,
+    STANDING,
+    ego_rear_poses,
+    scenario_road,
+    spec_poses,
+)
+from worldsplat.world.layout import build_world
 from worldsplat.world.scenario_io.common import ImportRefused
 from worldsplat.world.scenario_io.opendrive_write import write_opendrive
 
@@ -23,6 +34,7 @@ VEHICLE_CATEGORY = {
     "truck": xosc.VehicleCategory.truck,
     "cyclist": xosc.VehicleCategory.bicycle,
 }
+CLASS_NAMES = {v: k for k, v in CLASS_IDS.items()}
 FRONT_AXLE, REAR_AXLE = xosc.Axle(0.5, 0.8, 1.6, 2.9, 0.4), xosc.Axle(0, 0.8, 1.6, 0, 0.4)
 STEP = xosc.TransitionDynamics(xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0)
 
@@ -68,6 +80,10 @@ class _Story:
         fta = xosc.FollowTrajectoryAction(traj, xosc.FollowingMode.position, xosc.ReferenceContext.relative, 1, 0)
         self.timed(name + "_follow", entity, fta, 0.0)
 
+    def hold(self, entity: str, speed: float) -> None:
+        """`entity`'s maneuver when nothing is scripted: keep its speed from t = 0 (so no maneuver is empty)."""
+        self.timed(f"{entity}_keeps_speed", entity, xosc.AbsoluteSpeedAction(speed, STEP), 0.0)
+
     def storyboard(self, duration: float) -> xosc.StoryBoard:
         """One story, one act from t = 0, a maneuver group per event; stops at `duration`."""
         story = xosc.Story("worldsplat")
@@ -84,12 +100,6 @@ class _Story:
             mg.add_actor(entity)
             mg.add_maneuver(man)
             act.add_maneuver_group(mg)
-        if not self.events:
-            man = xosc.Maneuver("idle")
-            mg = xosc.ManeuverGroup("idle")
-            mg.add_actor("Ego")
-            mg.add_maneuver(man)
-            act.add_maneuver_group(mg)
         story.add_act(act)
         stop = xosc.ValueTrigger(
             "stop",
@@ -104,20 +114,25 @@ class _Story:
 
 
 def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
-    """Write OUT.xosc and OUT.xodr (the main road, reference line = the world's centreline); returns warnings."""
+    """Write OUT.xosc and OUT.xodr (the main road, reference line = the world's centreline); returns warnings.
+
+    Every agent of the scene is written: the explicit ones as the scenario states them, the procedural traffic the
+    seed adds (`traffic`) as trajectories through its poses at the frame times (standing ones at their pose)."""
     out = Path(out)
     xosc_path, xodr_path = out.with_suffix(".xosc"), out.with_suffix(".xodr")
     warnings: list[str] = []
     sc = scenario
-    if sc.road.setting == "highway":
-        raise ImportRefused(["road.setting: highway (its median) cannot be exported to OpenDRIVE yet"])
     road, _, times, travel = scenario_road(sc)
+    if road.median > 0.0 and road.cross_s is not None:
+        raise ImportRefused(["road: an intersection on a highway (its median) cannot be exported to OpenDRIVE yet"])
     s0, length = -150.0, travel + 400.0
     odr, road_at = write_opendrive(road, s0, length, xodr_path.stem)
     odr.write_xml(str(xodr_path))
+    median_lanes = 1 if road.median > 0.0 else 0
 
     def lane_id(lane: int, direction: int) -> int:
-        return -(road.lanes - lane) if direction > 0 else (road.lanes - lane)
+        k = road.lanes - lane + median_lanes
+        return -k if direction > 0 else k
 
     def lane_position(s: float, off: float, lane: int) -> xosc.LanePosition | None:
         at = road_at(s)
@@ -127,6 +142,10 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
     _write_ego(story, sc, road, times, travel, lane_id, lane_position, warnings)
     for i, a in enumerate(sc.agents):
         _write_agent(story, i, a, road, times, lane_id, lane_position, warnings)
+    taken = {a.id for a in sc.agents}
+    for agent in build_world(sc).agents:
+        if agent.agent_id is None:
+            _write_traffic(story, agent, times, taken)
     doc = xosc.Scenario(
         (sc.caption or "WorldSplat scenario")[:200],
         "worldsplat",
@@ -141,7 +160,7 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
 
 
 def _write_ego(story: _Story, sc: Scenario, road, times, travel, lane_id, lane_position, warnings: list[str]) -> None:
-    """The ego: a lane start at its speed when it keeps its lane, else its rear-axle trajectory at the frames."""
+    """The ego: a lane start keeping its speed when it keeps its lane, else its rear-axle trajectory at the frames."""
     story.entities.add_scenario_object(
         "Ego", _vehicle("ego", "car", EGO_LENGTH, 1.9, 1.5, EGO_LENGTH / 2 - EGO_REAR_OVERHANG)
     )
@@ -149,6 +168,7 @@ def _write_ego(story: _Story, sc: Scenario, road, times, travel, lane_id, lane_p
         pos = lane_position(0.0, 0.0, lane_id(sc.ego.start_lane, 1)) or xosc.WorldPosition(0, 0, 0, 0)
         story.init.add_init_action("Ego", xosc.TeleportAction(pos))
         story.init.add_init_action("Ego", xosc.AbsoluteSpeedAction(float(sc.ego.speed), STEP))
+        story.hold("Ego", float(sc.ego.speed))
         return
     ego = ego_rear_poses(road, sc, times, travel)
     story.init.add_init_action("Ego", xosc.TeleportAction(xosc.WorldPosition(0, 0, 0, 0)))
@@ -157,14 +177,10 @@ def _write_ego(story: _Story, sc: Scenario, road, times, travel, lane_id, lane_p
 
 
 def _write_agent(story: _Story, i: int, a, road, times, lane_id, lane_position, warnings: list[str]) -> None:
-    """An explicit agent: a lane start with its speed and timed events, else a pose start and a trajectory."""
+    """An explicit agent: a lane start with its speed and timed events, else a pose start and a trajectory (or,
+    standing, a pose that keeps its speed of 0)."""
     name = a.id
-    l, w, h = a.dims
-    if a.cls == "pedestrian":
-        obj = xosc.Pedestrian(name, 80, xosc.PedestrianCategory.pedestrian, _bbox(l, w, h, 0.0))
-    else:
-        obj = _vehicle(name, a.cls, l, w, h)
-    story.entities.add_scenario_object(name, obj)
+    story.entities.add_scenario_object(name, _entity(name, a.cls, *a.dims))
     st, m = a.start, a.motion
     lane_pos = None
     if st is not None and st.kind == "lane":
@@ -178,9 +194,10 @@ def _write_agent(story: _Story, i: int, a, road, times, lane_id, lane_position, 
         story.init.add_init_action(name, xosc.TeleportAction(lane_pos))
         story.init.add_init_action(name, xosc.AbsoluteSpeedAction(float(m.speed), STEP))
         for j, e in enumerate(m.events):
-            story.timed(
-                f"{name}_e{j}", name, _event_action(e, lane_id(e.lane, direction) if e.lane is not None else 0), e.t
-            )
+            lane = lane_id(e.lane, direction) if e.lane is not None else 0
+            story.timed(f"{name}_e{j}", name, _event_action(e, lane), e.t)
+        if not m.events:
+            story.hold(name, float(m.speed))
         return
     if m.keyframes is not None:
         tk = np.array([k.t for k in m.keyframes])
@@ -189,11 +206,40 @@ def _write_agent(story: _Story, i: int, a, road, times, lane_id, lane_position, 
     else:
         tk = times
         pts = spec_poses(a, road, times)
-    story.init.add_init_action(
-        name, xosc.TeleportAction(xosc.WorldPosition(*(float(v) for v in pts[0][:2]), 0, float(pts[0][2])))
-    )
+    story.init.add_init_action(name, xosc.TeleportAction(_world_position(pts[0])))
     if len(tk) > 1 and (m.keyframes is not None or m.speed > 0 or m.events):
         story.polyline(name, name, tk, pts)
+    else:
+        story.init.add_init_action(name, xosc.AbsoluteSpeedAction(0.0, STEP))
+        story.hold(name, 0.0)
+
+
+def _write_traffic(story: _Story, agent, times, taken: set[str]) -> None:
+    """A procedural agent (`traffic`): its poses at the frame times as a trajectory, or, standing still through the
+    clip, its pose at a speed of 0."""
+    cls = CLASS_NAMES[agent.cls]
+    name = f"traffic{agent.track_id}_{cls}"
+    while name in taken:
+        name += "_"
+    taken.add(name)
+    story.entities.add_scenario_object(name, _entity(name, cls, *agent.size))
+    poses = agent.poses
+    story.init.add_init_action(name, xosc.TeleportAction(_world_position(poses[0])))
+    if len(times) > 1 and float(np.max(np.linalg.norm(poses[:, :2] - poses[0, :2], axis=1))) > STANDING:
+        story.polyline(name, name, times, poses)
+    else:
+        story.init.add_init_action(name, xosc.AbsoluteSpeedAction(0.0, STEP))
+        story.hold(name, 0.0)
+
+
+def _entity(name: str, cls: str, l: float, w: float, h: float):
+    if cls == "pedestrian":
+        return xosc.Pedestrian(name, 80, xosc.PedestrianCategory.pedestrian, _bbox(l, w, h, 0.0))
+    return _vehicle(name, cls, l, w, h)
+
+
+def _world_position(pose) -> xosc.WorldPosition:
+    return xosc.WorldPosition(float(pose[0]), float(pose[1]), 0, float(pose[2]))
 
 
 def _event_action(e, lane: int):

@@ -1,4 +1,4 @@
-"""Held-out evaluation of the shipped models against the world's exact ground truth (issue 6 report).
+"""Held-out evaluation of the shipped models against the world's exact ground truth.
 
     python -m worldsplat.evaluation.models --data runs/data --split test --out runs/eval/models.json
 
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -243,6 +244,86 @@ def _hull(p: np.ndarray) -> np.ndarray:
     return np.asarray(lower[:-1] + upper[:-1])
 
 
+@dataclass
+class _GenerateScores:
+    """What `eval_generate` accumulates over the views of every clip (pooled where a per-view mean would mislead)."""
+
+    iou_box: list = field(default_factory=list)
+    iou_gt: list = field(default_factory=list)
+    ceiling: list = field(default_factory=list)
+    absrel: list = field(default_factory=list)
+    absrel_road: list = field(default_factory=list)
+    ps: list = field(default_factory=list)
+    ps8: list = field(default_factory=list)
+    absrel_agent: list = field(default_factory=list)
+    alpha_agent: list = field(default_factory=list)
+    se_agent: float = 0.0
+    n_agent: int = 0
+    absrel_structure: list = field(default_factory=list)
+    se_structure: float = 0.0
+    n_structure: int = 0
+
+    def add_view(self, out: dict, s: dict, z, t: int, v: int, box_mask: np.ndarray) -> None:
+        """One rendered view `out` against the clip's ground truth (s, z) at frame t, view v."""
+        pred_dyn = (out["extras"][..., 0] / out["alpha"].clamp_min(1e-3)) > 0.5
+        pred_dyn &= out["alpha"] > 0.5
+        bm, gm = torch.from_numpy(box_mask), torch.as_tensor(s["dynamic"][t, v])
+        # pooled over all views (a per-view mean would count empty-vs-empty views as 1.0)
+        self.iou_box.append(iou_counts(pred_dyn, bm))
+        self.iou_gt.append(iou_counts(pred_dyn, gm))
+        self.ceiling.append(iou_counts(gm, bm))  # reference: exact silhouettes vs the boxier hulls
+        gt_rgb = torch.as_tensor(s["rgb"][t, v]).float() / 255.0
+        self.ps.append(psnr(out["rgb"].clamp(0, 1), gt_rgb))
+        pool = lambda x: torch.nn.functional.avg_pool2d(x.permute(2, 0, 1)[None], 8)  # noqa: E731
+        self.ps8.append(psnr(pool(out["rgb"].clamp(0, 1)), pool(gt_rgb)))
+        rd = out["depth"] / out["alpha"].clamp_min(1e-3)
+        gt_depth = torch.as_tensor(s["depth"][t, v])
+        self.absrel.append(depth_abs_rel(rd, gt_depth))
+        if "semantic" not in z:
+            return
+        # road surface (road, markings, crosswalks): the layout the DiT is given
+        road = torch.from_numpy(np.isin(z["semantic"][t, v], ROAD_CLASSES))
+        self.absrel_road.append(depth_abs_rel(rd, gt_depth, valid=road))
+        agent = torch.from_numpy(np.isin(z["semantic"][t, v], AGENT_CLASSES))
+        structure = torch.from_numpy(np.isin(z["semantic"][t, v], STRUCTURE_CLASSES))
+        if structure.any():  # facades, trees, poles: what the map layer states
+            self.absrel_structure.append(depth_abs_rel(rd, gt_depth, valid=structure))
+            self.se_structure += float(((out["rgb"].clamp(0, 1) - gt_rgb)[structure] ** 2).sum())
+            self.n_structure += 3 * int(structure.sum())
+        if agent.any():
+            self.absrel_agent.append(depth_abs_rel(rd, gt_depth, valid=agent))
+            self.alpha_agent.append(out["alpha"][agent].float())
+            self.se_agent += float(((out["rgb"].clamp(0, 1) - gt_rgb)[agent] ** 2).sum())
+            self.n_agent += 3 * int(agent.sum())
+
+    def summary(self) -> dict:
+        nan = float("nan")
+        return {
+            "dynamic_iou_vs_projected_boxes": pooled_iou(self.iou_box, empty=nan),
+            "dynamic_iou_vs_gt_mask": pooled_iou(self.iou_gt, empty=nan),
+            "depth_absrel": float(np.nanmean(self.absrel)),
+            "depth_absrel_road": float(np.nanmean(self.absrel_road)) if self.absrel_road else nan,
+            "gt_mask_iou_vs_projected_boxes": pooled_iou(self.ceiling, empty=nan),
+            "rgb_psnr": float(np.mean(self.ps)),
+            "rgb_psnr_pool8": float(np.mean(self.ps8)),
+            # pooled over every agent pixel of the scored frames (a per-view mean would weigh a 3-pixel car like a bus)
+            "agent_depth_absrel": float(np.nanmean(self.absrel_agent)) if self.absrel_agent else nan,
+            "agent_alpha": float(torch.cat(self.alpha_agent).mean()) if self.alpha_agent else nan,
+            "agent_rgb_psnr": psnr_from_mse(self.se_agent / self.n_agent) if self.n_agent else nan,
+            "structure_depth_absrel": float(np.nanmean(self.absrel_structure)) if self.absrel_structure else nan,
+            "structure_rgb_psnr": psnr_from_mse(self.se_structure / self.n_structure) if self.n_structure else nan,
+        }
+
+
+def _clip_latents(models: Models, s: dict, cond: dict, latents: str, steps: int, seed: int) -> torch.Tensor:
+    """The latents `eval_generate` decodes for one clip: a DiT sample, the layout prior's mean, or the VAE encoding."""
+    if latents == "sample":
+        return sample_latents(models, cond, steps=steps, seed=seed)
+    if latents == "prior":
+        return prior_mean(models, cond["control"][None], cond["caption"][None])[0]
+    return encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
+
+
 @torch.no_grad()
 def eval_generate(
     models: Models,
@@ -258,21 +339,21 @@ def eval_generate(
     snap_map: bool = True,
 ) -> dict:
     """Layout fidelity of generated scenes, decoded as generate mode serves them (`decode_generated`; `snap` False
-        leaves out its snaps onto the layout: road Gaussians onto its plane, agents' onto their boxes; `snap_agents` False
+    leaves out its snaps onto the layout: road Gaussians onto its plane, agents' onto their boxes; `snap_agents` False
     the second alone). Agent pixels (the ground truth's vehicle, pedestrian and cyclist classes) are scored on their
-    own too, the defect an all-pixel mean hides: depth AbsRel, alpha (solid: near 1), RGB PSNR. latents="encode" swaps the DiT sample for the
-        VAE encoding of the ground-truth clip: the same metrics then measure the ceiling of the VAE + Gaussian-decoder path, i.e. what a
-        perfect diffusion model could reach with these weights. latents="prior" takes the layout prior's mean alone
-        (a v4 DiT's residual set to zero): what the DiT adds on top of it. RGB PSNR against the ground truth, on all
-        pixels and 8x8-pooled (colour layout: a generated scene need not copy the textures, but road, facade and
-        vehicle colours should be where the ground truth has them)."""
+    own too, the defect an all-pixel mean hides: depth AbsRel, alpha (solid: near 1), RGB PSNR. latents="encode"
+    swaps the DiT sample for the VAE encoding of the ground-truth clip: the same metrics then measure the ceiling of
+    the VAE + Gaussian-decoder path, i.e. what a perfect diffusion model could reach with these weights.
+    latents="prior" takes the layout prior's mean alone (a prior-residual DiT's residual set to zero): what the DiT
+    adds on top of it. RGB PSNR against the ground truth, on all pixels and 8x8-pooled (colour layout: a generated
+    scene need not copy the textures, but road, facade and vehicle colours should be where the ground truth has
+    them)."""
     if latents not in ("sample", "encode", "prior"):
         raise ValueError(f"eval_generate: latents must be 'sample', 'encode' or 'prior', got {latents!r}")
     if latents == "prior" and getattr(models, "prior", None) is None:
         raise ValueError("eval_generate: latents='prior' needs models with a layout prior (prior_small.safetensors)")
-    iou_box, iou_gt, absrel, absrel_road, ceiling, ps, ps8 = [], [], [], [], [], [], []
-    absrel_agent, alpha_agent, se_agent, n_agent = [], [], 0.0, 0
-    absrel_structure, se_structure, n_structure = [], 0.0, 0
+    scores = _GenerateScores()
+    tol = {} if snap_log_tol is None else {"snap_log_tol": snap_log_tol}
     for i in range(min(n, len(ds))):
         s = ds[i]
         z = ds.load(i)
@@ -280,13 +361,7 @@ def eval_generate(
         ego = s["ego_to_world"].astype(np.float64)
         T, V = s["rgb"].shape[:2]
         cond = condition_tensors(models, shard_condition_dict(s, z), ego)
-        if latents == "sample":
-            L = sample_latents(models, cond, steps=steps, seed=seed)
-        elif latents == "prior":
-            L = prior_mean(models, cond["control"][None], cond["caption"][None])[0]
-        else:
-            L = encode_clip(models, s["rgb"], s["depth"], s["dynamic"])
-        tol = {} if snap_log_tol is None else {"snap_log_tol": snap_log_tol}
+        L = _clip_latents(models, s, cond, latents, steps, seed)
         dec = decode_generated(
             models,
             L,
@@ -306,52 +381,13 @@ def eval_generate(
             g = scene.at_frame(t)
             for v in range(V):
                 cam = scene.camera(t, v)
-                out = raster_view(g, cam)
-                pred_dyn = (out["extras"][..., 0] / out["alpha"].clamp_min(1e-3)) > 0.5
-                pred_dyn &= out["alpha"] > 0.5
                 box_mask = projected_box_mask(np.asarray(z["box_corners"][t][moving], np.float64), cam)
-                bm, gm = torch.from_numpy(box_mask), torch.as_tensor(s["dynamic"][t, v])
-                # pooled over all views (a per-view mean would count empty-vs-empty views as 1.0)
-                iou_box.append(iou_counts(pred_dyn, bm))
-                iou_gt.append(iou_counts(pred_dyn, gm))
-                ceiling.append(iou_counts(gm, bm))  # reference: exact silhouettes vs the boxier hulls
-                gt_rgb = torch.as_tensor(s["rgb"][t, v]).float() / 255.0
-                ps.append(psnr(out["rgb"].clamp(0, 1), gt_rgb))
-                pool = lambda x: torch.nn.functional.avg_pool2d(x.permute(2, 0, 1)[None], 8)  # noqa: E731
-                ps8.append(psnr(pool(out["rgb"].clamp(0, 1)), pool(gt_rgb)))
-                rd = out["depth"] / out["alpha"].clamp_min(1e-3)
-                absrel.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v])))
-                if "semantic" in z:  # road surface (road, markings, crosswalks): the layout the DiT is given
-                    road = torch.from_numpy(np.isin(z["semantic"][t, v], ROAD_CLASSES))
-                    absrel_road.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=road))
-                    agent = torch.from_numpy(np.isin(z["semantic"][t, v], AGENT_CLASSES))
-                    structure = torch.from_numpy(np.isin(z["semantic"][t, v], STRUCTURE_CLASSES))
-                    if structure.any():  # facades, trees, poles: what the map layer states (v9)
-                        absrel_structure.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=structure))
-                        se_structure += float(((out["rgb"].clamp(0, 1) - gt_rgb)[structure] ** 2).sum())
-                        n_structure += 3 * int(structure.sum())
-                    if agent.any():
-                        absrel_agent.append(depth_abs_rel(rd, torch.as_tensor(s["depth"][t, v]), valid=agent))
-                        alpha_agent.append(out["alpha"][agent].float())
-                        se_agent += float(((out["rgb"].clamp(0, 1) - gt_rgb)[agent] ** 2).sum())
-                        n_agent += 3 * int(agent.sum())
+                scores.add_view(raster_view(g, cam), s, z, t, v, box_mask)
     return {
         "clips": min(n, len(ds)),
         "steps": steps if latents == "sample" else None,
         "latents": latents,
-        "dynamic_iou_vs_projected_boxes": pooled_iou(iou_box, empty=float("nan")),
-        "dynamic_iou_vs_gt_mask": pooled_iou(iou_gt, empty=float("nan")),
-        "depth_absrel": float(np.nanmean(absrel)),
-        "depth_absrel_road": float(np.nanmean(absrel_road)) if absrel_road else float("nan"),
-        "gt_mask_iou_vs_projected_boxes": pooled_iou(ceiling, empty=float("nan")),
-        "rgb_psnr": float(np.mean(ps)),
-        "rgb_psnr_pool8": float(np.mean(ps8)),
-        # pooled over every agent pixel of the scored frames (a per-view mean would weigh a 3-pixel car like a bus)
-        "agent_depth_absrel": float(np.nanmean(absrel_agent)) if absrel_agent else float("nan"),
-        "agent_alpha": float(torch.cat(alpha_agent).mean()) if alpha_agent else float("nan"),
-        "agent_rgb_psnr": psnr_from_mse(se_agent / n_agent) if n_agent else float("nan"),
-        "structure_depth_absrel": float(np.nanmean(absrel_structure)) if absrel_structure else float("nan"),
-        "structure_rgb_psnr": psnr_from_mse(se_structure / n_structure) if n_structure else float("nan"),
+        **scores.summary(),
     }
 
 
@@ -371,7 +407,7 @@ def steps_vs_error_for(
 ) -> list[dict]:
     """Error of N-step samples against a ref_steps sample from the same noise, for one condition set
     (`inference.condition_tensors(models, world.conditions(), ego_to_world)`): PSNR of the VAE-decoded RGB (range
-    [0, 1]), latent RMSE, and the sampling time (torch eager, this machine). Used by the benchmark (issue 8)."""
+    [0, 1]), latent RMSE, and the sampling time (torch eager, this machine). Used by the benchmark."""
     ref = sample_latents(models, cond, steps=ref_steps, seed=seed, shift=shift)
     ref_rgb = (models.vae.decode_joint(ref.flatten(0, 1))[0] + 1) / 2
     rows = []
@@ -393,7 +429,7 @@ def steps_vs_error_for(
 
 def shard_condition_dict(s: dict, z: dict) -> dict:
     """A shard's conditions in `world.conditions()` form (boxes per frame in world metres; the layout maps when
-    the shard has them, i.e. written since the v2 DiT's control existed)."""
+    the shard has them: shards written before the layout-control DiT have none)."""
     T = s["rgb"].shape[0]
     boxes = [
         [

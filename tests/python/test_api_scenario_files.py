@@ -6,13 +6,15 @@ the server's disk; the OpenAPI document lists every answer."""
 from __future__ import annotations
 
 import json
+import random
+import re
 
 import pytest
 from fastapi.testclient import TestClient
 
 from test_scenario_io import AT, write_commonroad, write_xosc, xosc
 from worldsplat.api.app import create_app
-from worldsplat.api.scenario_files import MAX_IMPORT_BODY
+from worldsplat.api.scenario_files import FILE_NAME_PATTERN, MAX_IMPORT_BODY, ScenarioFileIn
 from worldsplat.cli import main as cli_main
 from worldsplat.core.scenario import Scenario, load_preset
 
@@ -132,3 +134,35 @@ def test_body_limit_is_the_import_limit_and_documented(client):
     assert op["requestBody"]["content"].keys() == {"application/json"}
     for code in ("400", "413", "422"):
         assert op["responses"][code]["content"]["application/json"]["schema"]["$ref"].endswith("/ErrorBody")
+
+
+def test_the_documented_file_name_pattern_is_what_the_server_accepts(client):
+    """The OpenAPI pattern of files[].name accepts exactly the names the server's checks let through (its pydantic
+    pattern, then import_files' extension check), so a schema-valid name is never refused for its name."""
+    doc = client.get("/openapi.json").json()["components"]["schemas"]["ScenarioFileIn"]["properties"]["name"]
+    assert doc["pattern"] == FILE_NAME_PATTERN and doc["maxLength"] == 200
+    rng = random.Random(5)
+    alphabet = ["a", ".", "/", "\\", "\x00", " ", "é", "X", ".xosc", ".XML", ".json", ".xodr", ".txt", ".Json"]
+    names = [
+        "a.xosc",
+        ".xosc",
+        "..xosc",
+        "a.XoSc",
+        "a.xosc ",
+        "a.xosc.",
+        "a/b.json",
+        "a.xml",
+        "a.txt",
+        "x" * 196 + ".xml",
+    ]
+    names += ["x" * 197 + ".xml"] + ["".join(rng.choices(alphabet, k=rng.randint(1, 6))) for _ in range(300)]
+    for name in names:
+        documented = re.fullmatch(FILE_NAME_PATTERN, name) is not None and len(name) <= 200
+        try:
+            ScenarioFileIn(name=name, text="")
+            valid = True
+        except ValueError:
+            valid = False
+        r = client.post("/api/scenario-files", json={"files": [{"name": name, "text": "{"}]}) if valid else None
+        refused_for_name = not valid or (r.status_code == 422 and r.json()["field"] == "files[0].name")
+        assert documented != refused_for_name, (name, documented, r.text if r else "pydantic")

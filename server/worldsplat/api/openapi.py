@@ -41,6 +41,22 @@ def errors(*codes: int) -> dict:
     return out
 
 
+# What the server refuses with a 422 naming the field although the request fits the schema: rules between fields
+# (or against the server's limits) that JSON Schema cannot state. Each operation's 422 lists its own.
+SCENARIO_RULES = (
+    "a scenario its cross-field rules refuse: times that must increase (ego.path and agents' keyframes, events), "
+    "speeds within a class's bound (also between keyframes), ego.start_lane and lane changes within the road's "
+    "lanes, road.junction_s only for kind intersection and far enough for a turn, turns only at an intersection, "
+    "an agent's start or keyframes (not both), an event's fields for its kind, sizes within a class's range, agents "
+    "that overlap or leave the world (POST /api/road checks the road's rules alone)"
+)
+
+
+def invalid(rules: str) -> dict:
+    """The 422 entry of an operation: the error model, and what it refuses beyond the schema (`rules`)."""
+    return {422: {"model": ErrorBody, "description": f"{ERROR_TEXT[422]}; beyond the schema: {rules}"}}
+
+
 def ok(model=None, description: str = "OK", links: dict | None = None, **extra) -> dict:
     d = {"description": description, **extra}
     if model is not None:
@@ -139,7 +155,8 @@ def document(app: FastAPI) -> dict:
             for op in ops.values():
                 r422 = op.get("responses", {}).get("422")
                 if r422 is not None:
-                    r422["description"] = ERROR_TEXT[422]
+                    if r422.get("description") == "Validation Error":  # FastAPI's default: ours says more
+                        r422["description"] = ERROR_TEXT[422]
                     r422["content"] = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
         schemas = spec.setdefault("components", {}).setdefault("schemas", {})
         schemas.pop("HTTPValidationError", None)

@@ -20,12 +20,29 @@ MAX_FILES = 8
 # a bare file name: no folders, no control characters, not "." / ".." (nor anything ending in a dot)
 NAME_PATTERN = r"^[^/\\\x00-\x1f\x7f]{0,199}[^/\\\x00-\x1f\x7f.]$"
 ROAD_SUFFIXES = (".xodr",)
+
+
+def _any_case(ext: str) -> str:
+    return "".join(f"[{c.lower()}{c.upper()}]" for c in ext.lstrip("."))
+
+
+# What the server accepts as a file's name, stated for the OpenAPI document: a bare name (NAME_PATTERN, at most 200
+# characters) whose extension (`Path.suffix`, any case) is a scenario file's or a road's; `import_files` checks the
+# same with a message naming the extensions (test_api_scenario_files pins the two together)
+FILE_NAME_PATTERN = (
+    r"^[^/\\\x00-\x1f\x7f]+\.(" + "|".join(_any_case(e) for e in (*SCENARIO_SUFFIXES, *ROAD_SUFFIXES)) + ")$"
+)
 log = logging.getLogger("worldsplat.api")
 
 
 class ScenarioFileIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    name: str = Field(pattern=NAME_PATTERN, description="the file's name, without folders (e.g. cut_in.xosc)")
+    name: str = Field(
+        pattern=NAME_PATTERN,
+        max_length=200,
+        description="the file's name, without folders, ending in .xosc, .xml, .json or .xodr (e.g. cut_in.xosc)",
+        json_schema_extra={"pattern": FILE_NAME_PATTERN},
+    )
     text: str = Field(description="the file's content as UTF-8 text (all files together: at most 4 MiB of request)")
 
 

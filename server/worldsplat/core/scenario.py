@@ -339,6 +339,7 @@ class Rig(_Strict):
         min_length=1,
         max_length=6,
         description="a subset of the default 6-camera rig (stored in rig order)",
+        json_schema_extra={"items": {"enum": list(CAMERA_NAMES), "type": "string"}, "uniqueItems": True},
     )
 
     @field_validator("cameras")

@@ -11,8 +11,7 @@ from fastapi.responses import StreamingResponse
 
 from .. import exports
 from ..errors import ApiError
-from ..openapi import ERROR_TEXT, errors, stream_responses
-from ..schemas import ErrorBody
+from ..openapi import errors, invalid, stream_responses
 from ..state import Pg
 from ..streaming import file_response
 
@@ -32,11 +31,7 @@ FORMAT_TEXT = (
     responses={
         **stream_responses(MEDIA, "file (`Content-Disposition: attachment` names it)"),
         **errors(404, 409, 416),
-        422: {
-            "model": ErrorBody,
-            "description": f"{ERROR_TEXT[422]}: an unknown `format`, or a `frame` outside the scene's frames "
-            "(0 .. frames - 1, GET /api/scenes/{scene_id} says `frames`)",
-        },
+        **invalid("a `frame` outside the scene's frames (0 .. frames - 1: GET /api/scenes/{scene_id} says `frames`)"),
     },
 )
 async def scene_export(

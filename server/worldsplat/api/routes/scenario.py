@@ -12,7 +12,7 @@ from worldsplat.core.scenario import Scenario, list_presets, load_preset
 from worldsplat.world.preview import motion_preview, road_layout
 
 from ..errors import ApiError
-from ..openapi import errors, ok
+from ..openapi import SCENARIO_RULES, errors, invalid, ok
 from ..scenario_files import MAX_IMPORT_BODY, FileProblems, ImportOut, ImportRequest, import_files
 from ..schemas import ErrorBody, RoadLayout, RoadRequest
 
@@ -43,7 +43,8 @@ def schema() -> dict:
         200: ok(
             description="the world's road for the scenario (the cross road where the world puts it) and its motion"
         ),
-        **errors(400, 413, 422),
+        **errors(400, 413),
+        **invalid(SCENARIO_RULES),
     },
 )
 def scenario_road_layout(req: Annotated[RoadRequest, Body()]) -> RoadLayout:
@@ -59,7 +60,11 @@ def scenario_road_layout(req: Annotated[RoadRequest, Body()]) -> RoadLayout:
     response_model=None,
     responses={
         200: ok(ImportOut, "the scenario file as a checked v2 scenario (load it into the form; POST /api/scenes)"),
-        **errors(400, 422),
+        **errors(400),
+        **invalid(
+            "a file that does not read as its format (the entry names the file, files[i], and the element), not "
+            "exactly one scenario file, road files beside anything but an .xosc, the same name twice"
+        ),
         413: {"model": ErrorBody, "description": f"request body over {MAX_IMPORT_BODY >> 20} MiB"},
     },
 )

@@ -18,7 +18,17 @@ from ..cache import LiveFile
 from ..encoding import negotiate
 from ..errors import ApiError
 from ..jobs import ACTIVE
-from ..openapi import RETRY_AFTER, SCENE_JOB_LINKS, SCENE_LINKS, SSE, errors, ok, stream_responses
+from ..openapi import (
+    RETRY_AFTER,
+    SCENARIO_RULES,
+    SCENE_JOB_LINKS,
+    SCENE_LINKS,
+    SSE,
+    errors,
+    invalid,
+    ok,
+    stream_responses,
+)
 from ..scenario_files import NAME_PATTERN
 from ..scene_files import MAX_SCENE_FILE, Format, SceneFileProblem, convert
 from ..schemas import ErrorBody, SceneRequest, SceneState
@@ -57,7 +67,8 @@ def binary() -> dict:
                 },
             },
         ),
-        **errors(400, 422),
+        **errors(400),
+        **invalid("a body that is not a file of `format` (the entry names the format, the field, the byte offset)"),
         413: {"model": ErrorBody, "description": f"request body over {MAX_SCENE_FILE >> 20} MiB"},
         503: {"model": ErrorBody, "description": "busy with another file (`Retry-After`)", "headers": RETRY_AFTER},
     },
@@ -96,7 +107,11 @@ async def import_scene_file(
             "queued or running (an existing job for the same scene is returned)",
             SCENE_LINKS | SCENE_JOB_LINKS,
         ),
-        **errors(400, 409, 413, 422, 429, 503),
+        **errors(400, 409, 413, 429, 503),
+        **invalid(
+            f"{SCENARIO_RULES}; a scene over this server's size: frames x cameras x width x height above its "
+            "limit (worldsplat serve --max-scene-mpix)"
+        ),
     },
 )
 def create_scene(req: Annotated[SceneRequest, Body()], pg: Pg) -> JSONResponse:

@@ -75,6 +75,9 @@ def _webp(rgba: np.ndarray) -> bytes:
 
 
 # ---------------------------------------------------------------------------------------------- writer
+ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
 def encode(g: Gaussians, extras: dict | None = None) -> bytes:
     """Gaussians -> .sog bytes (zip of meta.json + 5 WebP textures). `extras` travels in meta.json under
     "worldsplat" (readers ignore unknown keys)."""
@@ -127,10 +130,11 @@ def encode(g: Gaussians, extras: dict | None = None) -> bytes:
     if extras:
         meta["worldsplat"] = extras
     out = io.BytesIO()
+    # fixed entry times: the same Gaussians give the same bytes (an export is content-addressed, compared with the CLI's)
     with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_STORED) as z:
-        z.writestr("meta.json", json.dumps(meta, separators=(",", ":")))
+        z.writestr(zipfile.ZipInfo("meta.json", ZIP_TIME), json.dumps(meta, separators=(",", ":")))
         for name, data in files.items():
-            z.writestr(name, data)
+            z.writestr(zipfile.ZipInfo(name, ZIP_TIME), data)
     return out.getvalue()
 
 

@@ -32,9 +32,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "worldsplat.cli.train_campaign",
         "train the served model stack stage by stage: VAE, cache, decoder, prior, DiT (resumable)",
     ),
-    "train-accelerator": (
-        "worldsplat.cli.train_accelerator",
-        "data on every core + the whole model stack on a lent GPU in one budgeted run (weights, card, logs)",
+    "train-stack": (
+        "worldsplat.cli.train_stack",
+        "train the served stack (VAE, decoder, prior, DiT, enhancer, pixel mix) on the CPU or a GPU (resumable)",
     ),
     "eval": ("worldsplat.cli.eval", "evaluate against the world's exact ground truth"),
     "judge": ("worldsplat.cli.judge", "the downstream judge: train it, score held-out clips and served scenes"),

@@ -103,7 +103,8 @@ def train_loop(
 ) -> list[dict]:
     """Generic loop. step_fn(model, step, generator) -> (loss tensor, logs dict). Resumes from
     out_dir/<name>.ckpt.pt when present. Returns the log history of this run (rank 0 writes it to <name>.log.jsonl).
-    on_checkpoint(model, steps_done) runs after each checkpoint (e.g. to export weights). `minutes`: stop (with a
+    on_checkpoint(model, steps_done) runs after each checkpoint (e.g. to export weights); returning True stops the
+    loop there (the checkpoint just written is where a later run resumes). `minutes`: stop (with a
     checkpoint) once this much wall time has passed; a later run resumes. `device`: where the model trains (the
     step function puts its batch there; the step's generator stays on the CPU); bf16 autocast follows it.
     """
@@ -164,8 +165,8 @@ def train_loop(
                     f.write(json.dumps(rec) + "\n")
             if (step + 1) % tcfg.ckpt_every == 0 or step + 1 == tcfg.steps or out_of_time:
                 save_checkpoint(ckpt, model, opt, step + 1)
-                if on_checkpoint is not None:
-                    on_checkpoint(model, step + 1)
+                if on_checkpoint is not None and on_checkpoint(model, step + 1) is True:
+                    break  # the callback stops the run (a divergence guard, a planned interruption)
         if out_of_time:
             break
     if bar is not None:

@@ -1,6 +1,7 @@
 // The playground page: scenario panel -> POST /api/scenes -> progress (SSE) -> .wsplat stream into the wasm viewer;
-// timeline, cameras, track shift, track videos (raw and refined), share links, drag-and-drop (scenes to the viewer,
-// scenario files to the form), stats.
+// timeline, cameras, track shift, track videos (raw and refined), share links, downloads (the scene in the formats
+// `worldsplat export` writes, the scenario as JSON), drag-and-drop (scenes to the viewer, scenario files to the form),
+// stats.
 // No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
 import { SHIFT_MAX_M } from "./limits.js";
 import { decodeShare, RIG_CAMERAS, shareUrl } from "./share.js";
@@ -16,6 +17,7 @@ const state = {
   frames: 0, fps: 4, frame: 0, playing: false, shift: 0, camera: "CAM_FRONT",
   dirty: true, events: [], errors: [], lastError: null, genJobId: null, videoJobId: null,
   videos: {}, streamBytes: 0,
+  readyScene: null,  // the scene id whose generation finished (the cache holds it whole): what Download exports
   timing: null,  // the last generate: ms from its POST to firstByte, firstStatic, firstDraw, whole (stream_latency)
 };
 
@@ -172,6 +174,7 @@ function followEvents(url, onProgress) {
 async function generate(scenario, mode, view = null) {
   clearError();
   $("generate-btn").disabled = true;
+  setReadyScene(null);
   state.timing = { t0: performance.now() };
   try {
     const { body } = await apiJson("/api/scenes", {
@@ -201,6 +204,7 @@ async function generate(scenario, mode, view = null) {
     if (!streamed) await streamScene(`/api/scenes/${body.scene_id}/wsplat`);
     if (view) applyView(view);
     $("gen-progress").hidden = true;
+    setReadyScene(body.scene_id);
     return body.scene_id;
   } catch (e) {
     $("gen-progress").hidden = true;
@@ -469,6 +473,7 @@ async function openLocalFile(file) {
     v.load_bytes(bytes);
     if (free) state.camera = "free";  // a bare point cloud: the viewer starts orbiting it
     state.sceneId = null;
+    setReadyScene(null);
     state.streamBytes = bytes.length;
     $("scene-badge").textContent = `file: ${file.name}`;
     $("mode-badge").textContent = "mode: local file";
@@ -537,6 +542,41 @@ function share() {
   return url;
 }
 
+// ---- downloads: GET /api/scenes/{id}/export (the CLI's export of the scene) and the scenario as JSON ----------------
+function setReadyScene(sceneId) {
+  state.readyScene = sceneId;
+  $("download-btn").disabled = !sceneId;
+}
+
+/** The export the dialog's choices name: the format, and the current frame or `all` (the whole clip). */
+function downloadChoice() {
+  return { format: $("download-format").value, frame: $("download-all").checked ? "all" : String(state.frame) };
+}
+
+function syncDownload() {
+  const { format, frame } = downloadChoice();
+  $("download-current-label").textContent = `current frame (${state.frame + 1} of ${state.frames})`;
+  // no `download` name here: the server's Content-Disposition names the file
+  $("download-scene").href = `/api/scenes/${state.readyScene}/export?${new URLSearchParams({ format, frame })}`;
+  const opt = $("download-format").selectedOptions[0].textContent;
+  $("download-name").textContent = frame === "all"
+    ? (format === "wsplat" ? `${opt}: the whole 4D scene` : `${opt}: a zip of all ${state.frames} frames`)
+    : `${opt}: frame ${state.frame + 1}`;
+}
+
+const FILE_ID_CHARS = 8;  // the scene id's prefix in file names, as the server's exports name theirs
+let scenarioBlobUrl = null;
+function openDownload() {
+  if (!state.readyScene) return;
+  syncDownload();
+  if (scenarioBlobUrl) URL.revokeObjectURL(scenarioBlobUrl);
+  const json = `${JSON.stringify(state.scenario, null, 2)}\n`;
+  scenarioBlobUrl = URL.createObjectURL(new Blob([json], { type: "application/json" }));
+  $("download-scenario").href = scenarioBlobUrl;
+  $("download-scenario").download = `worldsplat-${state.readyScene.slice(0, FILE_ID_CHARS)}.scenario.json`;
+  if (typeof $("download-dialog").showModal === "function") $("download-dialog").showModal();
+}
+
 // ---- wiring ----------------------------------------------------------------------------------------------------------
 function wire() {
   state.editor = initEditor({ host: $("scenario-editor"), getBase: () => state.base, getForm: readForm, selectPreset,
@@ -559,6 +599,9 @@ function wire() {
   document.querySelectorAll("#shift-quick button").forEach((b) => { b.onclick = () => setShift(b.dataset.shift); });
   $("video-btn").onclick = () => requestVideos();
   $("share-btn").onclick = () => share();
+  $("download-btn").onclick = () => openDownload();
+  $("download-format").onchange = syncDownload;
+  for (const id of ["download-current", "download-all"]) $(id).onchange = syncDownload;
   document.addEventListener("keydown", (e) => {
     if (e.target.closest("input, select, textarea")) return;
     if (e.code === "Space") { e.preventDefault(); setPlaying(!state.playing); }
@@ -636,7 +679,7 @@ async function main() {
 // Test and console hooks: the state, the viewer and a few actions (used by tests/browser/playground*.test.mjs).
 window.playground = {
   state, generate: (s, m, v) => generate(s, m, v), readForm, fillForm, setShift, setFrame, setCamera, share,
-  requestVideos, openLocalFile, importScenarioFiles, render,
+  requestVideos, openLocalFile, importScenarioFiles, render, openDownload,
   ready: null,
 };
 window.playground.ready = main();

@@ -204,3 +204,42 @@ def test_exports_pass_the_asam_openscenario_checker(tmp_path):
     bad = run([str(tmp_path / "broken.xosc")])  # the checker finds what it should
     assert bad.returncode == 1 and "resolvable_entity_references" in bad.stdout, bad.stdout
     assert sys.executable != str(QC_PYTHON)
+
+
+# -- CommonRoad ------------------------------------------------------------------------------------------------------
+STRAIGHT_AND_CURVED = [p for p in PRESETS if load_preset(p).road.kind != "intersection"]
+
+
+@pytest.mark.parametrize("preset", STRAIGHT_AND_CURVED)
+def test_commonroad_export_is_schema_valid_and_imports_back_with_every_agent(tmp_path, preset):
+    from commonroad.common.writer.file_writer_xml import XMLFileWriter
+
+    from worldsplat.world.scenario_io import export_scenario
+
+    sc = load_preset(preset)
+    export_scenario(sc, tmp_path / f"{preset}.xml")
+    assert XMLFileWriter.check_validity_of_commonroad_file((tmp_path / f"{preset}.xml").read_bytes())
+    setting = "suburban" if sc.road.setting == "suburban" else "urban"  # CommonRoad has no setting; a median none
+    imp = import_scenario(tmp_path / f"{preset}.xml", setting=setting, fps=sc.clip.fps, frames=sc.clip.frames)
+    back = Scenario.parse(imp.scenario)
+    assert back.road.lanes_per_direction == sc.road.lanes_per_direction
+    assert back.road.lane_width == pytest.approx(sc.road.lane_width, abs=1e-3)
+    assert back.road.curvature == pytest.approx(sc.road.curvature, abs=2e-4)
+    want = [(a.cls, a.poses) for a in build_world(sc).agents]
+    got = [(a.cls, a.poses) for a in build_world(back).agents]
+    assert_same_agents(sorted(want, key=_order), sorted(got, key=_order), preset)  # static obstacles come first
+
+
+def _order(agent):
+    cls, poses = agent
+    return (cls, round(float(poses[0, 0]), 1), round(float(poses[0, 1]), 1))
+
+
+def test_commonroad_export_says_what_it_cannot_carry(tmp_path):
+    from worldsplat.world.scenario_io import ImportRefused, export_scenario
+
+    warnings = export_scenario(load_preset("four_way_intersection"), tmp_path / "x.xml")
+    assert "road: the junction's cross road is not written (the main road's lanes are)" in warnings
+    assert "ego: written as its start (the planning problem's initial state), not its path" in warnings
+    with pytest.raises(ImportRefused, match=r"x\.osc: unknown scenario file type"):
+        export_scenario(load_preset("empty_road"), tmp_path / "x.osc")

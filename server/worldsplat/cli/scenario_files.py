@@ -1,5 +1,6 @@
-"""`worldsplat import-scenario` and `worldsplat export-scenario`: OpenSCENARIO 1.x / CommonRoad XML in, OpenSCENARIO
-(+ OpenDRIVE) out. Unsupported elements are refused naming the element; approximations are printed as warnings."""
+"""`worldsplat import-scenario` and `worldsplat export-scenario`: OpenSCENARIO 1.x (+ OpenDRIVE) and CommonRoad XML in
+and out. Unsupported elements are refused naming the element; approximations and overlapping agents are printed as
+warnings."""
 
 from __future__ import annotations
 
@@ -51,16 +52,17 @@ def run_import_scenario(args: argparse.Namespace) -> int:
 
 def configure_export_scenario(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="a scenario JSON file or a preset name")
-    p.add_argument("--out", required=True, help="OUT.xosc (OUT.xodr is written beside it)")
+    p.add_argument(
+        "--out", required=True, help="OUT.xosc (OpenSCENARIO; OUT.xodr is written beside it) or OUT.xml (CommonRoad)"
+    )
 
 
 def run_export_scenario(args: argparse.Namespace) -> int:
     from worldsplat.core.scenario import resolve_scenario
-    from worldsplat.world.scenario_io import ImportRefused
-    from worldsplat.world.scenario_io.openscenario import export_openscenario
+    from worldsplat.world.scenario_io import ImportRefused, export_scenario
 
     try:
-        warnings = export_openscenario(resolve_scenario(args.scenario), args.out)
+        warnings = export_scenario(resolve_scenario(args.scenario), args.out)
     except ImportRefused as e:
         for m in e.errors:
             print(f"worldsplat export-scenario: {m}", file=sys.stderr)
@@ -68,5 +70,5 @@ def run_export_scenario(args: argparse.Namespace) -> int:
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     out = Path(args.out)
-    print(f"{out.with_suffix('.xosc')} + {out.with_suffix('.xodr')}")
+    print(f"{out} + {out.with_suffix('.xodr')}" if out.suffix.lower() == ".xosc" else str(out))
     return 0

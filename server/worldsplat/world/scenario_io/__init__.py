@@ -3,7 +3,8 @@
 `import_scenario(path)` -> `Imported(scenario, warnings)`: a v2 scenario (explicit agents, ego path) in the world
 frame (the ego's start: rear axle at the origin, facing +x). What cannot be represented raises `ImportRefused`,
 whose `errors` name the element (`Storyboard/.../ParameterSetAction: not supported`); what is approximated is
-listed in `warnings`. `export_openscenario(scenario, out)` writes .xosc + .xodr. Coverage: web/docs/world.md.
+listed in `warnings`. `export_scenario(scenario, out)` writes OUT.xosc + OUT.xodr, or CommonRoad OUT.xml, with every
+agent of the scene. Coverage: web/docs/world.md.
 
 `load_scenario_file(path)` is what `worldsplat import-scenario` and `POST /api/scenario-files` (the page's drag and
 drop) both run: the import (or a scenario / preset .json), validated (`Scenario.parse`) and checked against the
@@ -27,6 +28,7 @@ __all__ = [
     "Loaded",
     "Overlap",
     "SCENARIO_SUFFIXES",
+    "export_scenario",
     "fit_clip",
     "import_scenario",
     "load_scenario_file",
@@ -43,10 +45,25 @@ def import_scenario(path: str | Path, **options) -> Imported:
 
         return import_openscenario(path, **options)
     if path.suffix.lower() == ".xml":
-        from worldsplat.world.scenario_io.commonroad import import_commonroad  # noqa: PLC0415 - its library, only for that format
+        from worldsplat.world.scenario_io.commonroad_read import import_commonroad  # noqa: PLC0415 - its library, only for that format
 
         return import_commonroad(path, **options)
     raise ImportRefused([f"{path.name}: unknown scenario file type (expected .xosc or CommonRoad .xml)"])
+
+
+def export_scenario(scenario: Scenario, out: str | Path) -> list[str]:
+    """Write `scenario` with every agent of its scene as OUT.xosc (+ OUT.xodr) or as CommonRoad OUT.xml, by the
+    suffix of `out`; returns what the file cannot carry (warnings)."""
+    suffix = Path(out).suffix.lower()
+    if suffix == ".xosc":
+        from worldsplat.world.scenario_io.openscenario import export_openscenario  # noqa: PLC0415 - its library, only for that format
+
+        return export_openscenario(scenario, out)
+    if suffix == ".xml":
+        from worldsplat.world.scenario_io.commonroad_write import export_commonroad  # noqa: PLC0415 - its library, only for that format
+
+        return export_commonroad(scenario, out)
+    raise ImportRefused([f"{Path(out).name}: unknown scenario file type (write .xosc or CommonRoad .xml)"])
 
 
 SCENARIO_SUFFIXES = {".xosc": "openscenario", ".xml": "commonroad", ".json": "scenario"}

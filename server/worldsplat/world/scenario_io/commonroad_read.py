@@ -1,4 +1,5 @@
-"""CommonRoad XML in, through `commonroad-io` (its XML reader; the protobuf format is not used).
+"""CommonRoad XML in, through `commonroad-io` (its XML reader; the protobuf format is not used); `commonroad_write`
+writes it.
 
 Dynamic obstacles become keyframed agents (their trajectory states), static obstacles standing agents, the planning
 problem's initial state the ego (position taken as the vehicle centre; the ego's rear axle is 1.3 m behind it).
@@ -15,7 +16,7 @@ import numpy as np
 from commonroad.common.reader.file_reader_xml import XMLFileReader
 from shapely.geometry import Point
 
-from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG
+from worldsplat.world.agents import EGO_LENGTH, EGO_REAR_OVERHANG, STANDING
 from worldsplat.world.scenario_io.common import Frame, Imported, ImportRefused, fit_clip, subsample
 
 CLASS = {
@@ -88,6 +89,8 @@ def _road(network, x: float, y: float, h: float, warnings: list[str]) -> tuple[d
     head = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
     total = float(seg.sum())
     k = float((head[-1] - head[0]) / max(total - 0.5 * (seg[0] + seg[-1]), 1e-6)) if len(head) > 1 else 0.0
+    offset = -(left + 0.5) * width  # the ego's lane centre from the road's centreline (the left edge of its direction)
+    k = k / (1.0 + k * offset)  # that lane's curvature -> the centreline's, which the world's road.curvature is
     if abs(k) < 1e-4:
         k = 0.0
     if abs(k) > 0.015:
@@ -243,6 +246,10 @@ def _dynamic_agent(
         "class": cls,
         "size": {"length": length, "width": width, "height": _height(cls)},
     }
+    moved = max(np.hypot(*(np.asarray(s.position) - np.asarray(states[0].position))) for s in states)
+    if len(states) > 1 and moved <= STANDING:  # a trajectory that holds its pose: a standing agent
+        doc["start"] = _pose_start(frame, states[0], c)
+        return doc, float(ts[-1])
     if len(states) == 1:
         doc["start"] = _pose_start(frame, states[0], c)
         doc["motion"] = {"speed": max(0.0, float(getattr(states[0], "velocity", 0.0) or 0.0))}

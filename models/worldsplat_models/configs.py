@@ -55,41 +55,45 @@ class DiTConfig:
     """4D-aware DiT backbone (cross-view spatial + temporal + cross-attention blocks, adaLN-zero, ControlNet).
 
     `in_channels`/`control_channels` let a second model (the enhancement model) reuse the same backbone with other
-    inputs: the generator uses L (3 modalities) in and the sketch latent as control; the enhancer uses the image
-    latent in and render latent + sketch latent as control."""
+    inputs: the generator uses L (3 modalities) in and the layout maps (or the sketch latent) as control; the
+    enhancer uses the image latent in and render latent + sketch latent as control. Every field is stored in a
+    weight file's metadata (weights.py) and read back by name, so the shipped files fix which control path a model
+    uses: the generator (dit_small) the layout-map path (control_hint, control_at_input, refine_channels,
+    hint_stem_stride, target "prior_residual"), the enhancer (enhancer_small) the ControlNet path on patchified
+    latents."""
 
-    in_channels: int = 12
-    control_channels: int = 4
-    out_channels: int = 12
-    patch: int = 2
-    dim: int = 128
-    depth: int = 6
-    heads: int = 4
-    mlp_ratio: float = 4.0
-    control_depth: int = 2  # ControlNet blocks (copies of the first main blocks), zero-initialised outputs
+    in_channels: int = 12  # latent channels the flow runs on (input and, by default, output)
+    control_channels: int = 4  # channels of the control input (a latent, or a layout map when control_hint > 0)
+    out_channels: int = 12  # channels of the predicted velocity
+    patch: int = 2  # latent pixels per token side
+    dim: int = 128  # token width
+    depth: int = 6  # main blocks
+    heads: int = 4  # attention heads per block
+    mlp_ratio: float = 4.0  # MLP hidden width / dim
+    control_depth: int = 2  # ControlNet blocks (copies of the first main blocks), zero-initialised outputs; 0 = none
     cond_dim: int = 128  # width of condition tokens before the fusion MLP projects them to `dim`
     caption_dim: int = 384  # all-MiniLM-L6-v2 sentence embedding
     box_fourier: int = 4  # Fourier frequencies per box-corner coordinate
-    max_views: int = 6
-    max_frames: int = 8
+    max_views: int = 6  # size of the learned view embedding
+    max_frames: int = 8  # size of the learned frame embedding
     cond_drop: float = 0.15  # probability of dropping all conditions in training (for CFG)
     sampler_shift: float = 2.0  # timestep shift of the Euler sampler (OpenSora/SD3 form)
-    sampler_steps: int = 8
-    cfg_scale: float = 1.0
-    # Pixel-space layout control (v2): when > 0 the control input is a per-camera layout map of
-    # `control_channels` channels at `control_hint` times the token grid (pixels per token side), read by a small
-    # trainable conv encoder (ControlNet's hint encoder) instead of being patchified like a latent.
+    sampler_steps: int = 8  # Euler steps of the sampler
+    cfg_scale: float = 1.0  # classifier-free guidance scale (1 = conditional prediction only)
+    # Pixel-space layout control: when > 0 the control input is a per-camera layout map of `control_channels`
+    # channels at `control_hint` times the token grid (pixels per token side), read by a small trainable conv
+    # encoder (ControlNet's hint encoder, `HintEncoder`) instead of being patchified like a latent. 0: a latent.
     control_hint: int = 0
-    # v3: the layout tokens enter the main stream at its input (a plain Linear, not zero-initialised). ControlNet's
-    # zero-initialised branch protects a pretrained base; trained from scratch here it learned the control too slowly
-    # (600 steps: generated depth AbsRel 0.86, the layout ignored), so the generator conditions on layout directly.
+    # The layout tokens enter the main stream at its input (a plain Linear, not zero-initialised) instead of through
+    # ControlNet's zero-initialised branch, which protects a pretrained base; trained from scratch the branch learned
+    # the control too slowly (the layout ignored), so the generator conditions on the layout directly.
     control_at_input: bool = False
-    # v3: a convolutional head at latent resolution (width; 0 = off) that adds a residual to the unpatchified
-    # token output from [token output, z_s, layout features at latent resolution]: a 4x4-latent token cannot draw
-    # a lane marking, the head can.
+    # Width of a convolutional head at latent resolution (0 = off) that adds a residual to the unpatchified token
+    # output from [token output, z_s, layout features at latent resolution]: a 4x4-latent token cannot draw a lane
+    # marking, the head can (`LatentRefiner`; needs control_hint).
     refine_channels: int = 0
-    hint_stem_stride: int = 1  # 2: the hint encoder's first conv already down-samples (v3; see HintEncoder)
-    # v4: what the flow generates. "latent": L itself; "prior_residual": (L - mu) / residual_scale, mu being the
+    hint_stem_stride: int = 1  # 2: the hint encoder's first conv already down-samples (about 4x fewer FLOPs)
+    # What the flow generates. "latent": L itself; "prior_residual": (L - mu) / residual_scale, mu being the
     # LayoutPrior's regression of L from the layout (layout_prior.py), so generation = mu + residual_scale * sample.
     target: str = "latent"
     residual_scale: float = 1.0
@@ -137,7 +141,7 @@ class GSDecoderConfig:
     opacity_bias: float = 2.0  # start near-opaque: sigmoid(x + 2) ~ 0.88
     ray_scale: float = 20.0  # metres; Plucker origins are divided by this
     patch: int = 1  # latent pixels per token side (attention runs on the h/patch x w/patch grid)
-    # Pixel guide (v2): the VAE-decoded rgb + normalised depth + mask (5 channels) re-read by every up-sampling
+    # Pixel guide: the VAE-decoded rgb + normalised depth + mask (5 channels; 0 = none) re-read by every up-sampling
     # block at its resolution, and the base that the colour, depth and dynamic heads add their residual to.
     guide_channels: int = 0
     reread_latent: bool = False  # every up-sampling block also re-reads L (nearest-resized) beside the rays

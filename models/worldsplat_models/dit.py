@@ -11,13 +11,14 @@ Self-attention and MLP are modulated by adaLN-zero from the flow time s. A Contr
 latents for the enhancement model), and adds its outputs to the main stream through zero-initialised projections,
 so a fresh ControlNet leaves the base model unchanged.
 
-v3 (DiTConfig.control_at_input / refine_channels; served since session 5 as the v4 generator, on the layout prior's residual):
-the layout does not need ControlNet's protection of a pretrained base, so its hint tokens are added to the main
-stream's input, and a small conv head at latent resolution (LatentRefiner) draws what a 4x4-latent token cannot
-(markings, box edges) from the hint encoder's latent-resolution features; no ControlNet copies (control_depth 0).
+Layout control (DiTConfig.control_at_input / refine_channels; the served generator, which generates the layout
+prior's residual): the layout does not need ControlNet's protection of a pretrained base, so its hint tokens are
+added to the main stream's input, and a small conv head at latent resolution (LatentRefiner) draws what a
+4x4-latent token cannot (markings, box edges) from the hint encoder's latent-resolution features; no ControlNet
+copies (control_depth 0).
 
 The backbone is generic in `in_channels`, `control_channels` and `out_channels` (DiTConfig), so the enhancement
-model (issue 7) is `DiT4D(DiTConfig(in_channels=4, control_channels=8, out_channels=4), num_classes)`.
+model is `DiT4D(DiTConfig(in_channels=4, control_channels=8, out_channels=4), num_classes)`.
 """
 
 from __future__ import annotations
@@ -127,7 +128,7 @@ class HintEncoder(nn.Module):
     """Pixel-space layout map (N, C, H, W) -> one D-wide token per `factor` x `factor` pixels (N, S, D): a stack
     of stride-2 convolutions, as ControlNet's hint encoder, so thin lane markings survive to the token grid.
 
-    stem_stride 1 (v2) starts with a 3x3 conv at full resolution; 2 (v3) lets the first conv down-sample already
+    stem_stride 1 starts with a 3x3 conv at full resolution; 2 lets the first conv down-sample already
     (its 3x3 window at stride 2 still reads every pixel): about 4x fewer FLOPs, the hint encoder having been the
     largest cost of a DiT step at 64x112."""
 
@@ -171,7 +172,7 @@ class HintEncoder(nn.Module):
 
 
 class LatentRefiner(nn.Module):
-    """Convolutional head at latent resolution (v3): residual on the unpatchified token output, from [token output,
+    """Convolutional head at latent resolution: residual on the unpatchified token output, from [token output,
     z_s, layout features], with the flow time as a per-channel bias. The last conv starts at zero, so a fresh head
     leaves the token output as it is."""
 

@@ -14,7 +14,7 @@ decoder Gaussians seen from shifted tracks) mixed with clean ones (the true view
 conditions only (ablation version A).
 
 Source of the flow (`EnhancerConfig.source`): "noise" (the paper's: the sampler starts from seeded Gaussian noise,
-the render enters only as a condition) or "render" (v2, a latent bridge as in InDI / I2SB): the flow runs from the
+the render enters only as a condition) or "render" (a latent bridge as in InDI / I2SB): the flow runs from the
 render's own latent, lightly noised (`source_noise`), to the true view's latent, so where the render is already
 right the velocity is near zero and the output keeps it, and the model's work goes into holes, ghosts and blur.
 With few Euler steps the bridge is close to the MMSE restoration, which is what PSNR rewards; it needs the render
@@ -58,7 +58,7 @@ class EnhancerConfig:
     clean_prob: float = 0.3  # share of clean pairs in a mixed batch
     render_drop: float = 0.1  # probability of zeroing the render condition (keeps S', B', T', caption)
     num_classes: int = 17
-    source: str = "noise"  # where the flow starts: "noise" (paper) or "render" (v2 latent bridge; module doc)
+    source: str = "noise"  # where the flow starts: "noise" (paper) or "render" (latent bridge; module doc)
     source_noise: float = 0.0  # std of the noise added to the render latent at the bridge's source, in training
     # ... and when sampling: 0 starts from the render latent itself (the mean of the training sources), measured
     # +0.13 / +0.07 dB over a 0.1-noised start at 2 / 4 m and equal to averaging four noised starts
@@ -98,7 +98,7 @@ def enhancer_config(size: str = "small") -> EnhancerConfig:
             latent_channels=2,
         )
     if size == "small":
-        # v2: the shipped v2 VAE's 8-channel latents at 1/4 resolution (16x28), a bridge from the render's latent
+        # the shipped VAE's 8-channel latents at 1/4 resolution (16x28), a bridge from the render's latent
         # (module doc). The generator's block design at 3/4 width and 2/3 depth, patch 2 (112 tokens per image):
         # 0.7 s per training step on one contended core (patch 4: 0.16 s, but a token then draws 4x4 latents).
         return EnhancerConfig(

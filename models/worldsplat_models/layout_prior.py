@@ -9,9 +9,9 @@ road, markings, boxes and their depth where the layout states them, a plausible 
 
 The DiT (DiTConfig.target = "prior_residual") then runs rectified flow on r = (L - mu) / residual_scale and the
 sample is L = mu + residual_scale * r. This is CorrDiff's split (Mardani et al. 2023, regression mean + diffusion
-residual): trained from scratch on two CPU cores, the v2/v3 DiTs had not learned to follow the layout after
-1500 steps (a grey blur), while a regression reads the layout from its first steps, and the residual the flow has to
-model is smaller and closer to noise-like texture. A weak DiT then degrades to the conditional mean, not to grey.
+residual): trained from scratch on two CPU cores, DiTs conditioned on the layout alone had not learned to follow it
+after 1500 steps (a grey blur), while a regression reads the layout from its first steps, and the residual the flow
+has to model is smaller and closer to noise-like texture. A weak DiT then degrades to the conditional mean, not to grey.
 """
 
 from __future__ import annotations

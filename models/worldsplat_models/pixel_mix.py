@@ -3,7 +3,7 @@
 The enhancer's output E is a VAE decoding: right in the render's holes and ghosts, but it carries the VAE's blur
 (its own-view ceiling is ~26 dB at the model image). The render D of the 4D Gaussians is sharp where it is right and
 wrong in holes, behind disocclusions and where the Gaussians disagree. Their errors are only partly correlated, so
-a mix beats either alone (measured: `web/docs/refinement.md`, "v13 pixel mix"). This small convolutional net reads
+a mix beats either alone (measured: `web/docs/refinement.md`, "Figures"). This small convolutional net reads
 (D, E, |D - E|, alpha) at the model image and says, per pixel, how much of the render to keep:
 
     out = w * D + (1 - w) * E,      w = alpha * gate,   gate = sigmoid(net(D, E, |D - E|, alpha))

@@ -1,4 +1,4 @@
-"""Near vehicles and people stay solid in the oracle 4D scene (issue 12, item 1; web/docs/gaussians.md,
+"""Near vehicles and people stay solid in the oracle 4D scene (web/docs/gaussians.md,
 "Dynamic objects stay solid").
 
 The economy used to merge each frame's dynamic Gaussians in the static cells (3 pixel footprints) with a

@@ -1,4 +1,4 @@
-""".wsplat v2 static Gaussians against SOG on the same scenes (issue 13's target: <= 0.8x SOG's bytes on the wire
+""".wsplat v2 static Gaussians against SOG on the same scenes (target: <= 0.8x SOG's bytes on the wire
 after HTTP compression, at <= 0.1 dB loss against float32 measured against exact ground truth). web/docs/wsplat-v2.md,
 "Against SOG".
 
@@ -20,7 +20,7 @@ what HTTP compression can make of it), SOG (PlayCanvas splat-transform, dev-only
 wire, v2 / SOG; encode CPU time of each v2 as a ratio to v1's; PSNR against the world's exact ground truth at three
 rig cameras of frame 0 for float32, v2 and SOG, and the change of v2 and SOG against float32 (mean and worst camera).
 v2 at level 15 decodes to the same integers as at the default level, so its loss is the default's.
-Dynamic records (`--dynamic`; issue 13: <= 4 bytes per Gaussian per frame on the wire): the DYNA chunks of v1 and v2
+Dynamic records (`--dynamic`; target: <= 4 bytes per Gaussian per frame on the wire): the DYNA chunks of v1 and v2
 (the default layouts; v2 range-coded, its default, and with zstd planes) per dynamic Gaussian per frame, raw and on
 the wire, of the world oracle scene (urban_straight, 200x112, 4 frames: the bench's quant fixture) and of the whole
 generated scene (every frame's dynamics), and the change of each against float32 on the ground truth's dynamic

@@ -52,6 +52,16 @@ def check_finite(fmt: str, values: np.ndarray, field: str, base: int, stride: in
         raise FormatError(fmt, base + i * stride, f"{field}[{i}]", f"not finite ({v[i].tolist()})", where=where)
 
 
+def writable_arrays(fmt: str, g, count_offset: int = 0, count_field: str = "count") -> dict[str, np.ndarray]:
+    """What a writer takes from Gaussians `g`: its fields (extras aside) as float64 arrays, refused with a
+    FormatError when there are more than MAX_GAUSSIANS (the count field at `count_offset`) or a value is not finite."""
+    a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
+    check_count(fmt, len(a["means"]), count_offset, count_field)
+    for k, v in a.items():
+        check_finite(fmt, v, f"Gaussians.{k}", 0, 0)
+    return a
+
+
 def canonical_quats(q: np.ndarray) -> np.ndarray:
     """Quaternions wxyz normalized; zero ones (|q| < 1e-12) become the identity."""
     return normalize_quaternion(q, 1e-12)

@@ -25,7 +25,14 @@ import struct
 import numpy as np
 import pygltflib
 
-from worldsplat.gaussians.fileformat import SH_C0, FormatError, canonical_quats, check_count, check_finite
+from worldsplat.gaussians.fileformat import (
+    SH_C0,
+    FormatError,
+    canonical_quats,
+    check_count,
+    check_finite,
+    writable_arrays,
+)
 from worldsplat.gaussians.types import Gaussians
 
 FMT = "glb"
@@ -54,13 +61,10 @@ def _turn(means: np.ndarray, quats: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 # ---------------------------------------------------------------------------------------------- writer
 def encode(g: Gaussians, extras: dict | None = None) -> bytes:
-    a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
+    a = writable_arrays(FMT, g)
     n = len(a["means"])
     if n < 1:
         raise ValueError("glb: a glTF accessor needs at least one Gaussian")
-    check_count(FMT, n, 0, "count")
-    for k, v in a.items():
-        check_finite(FMT, v, f"Gaussians.{k}", 0, 0)
     means, quats = _turn(a["means"], canonical_quats(a["quats"]))
     colour = np.clip(np.round(np.concatenate([a["colors"], a["opacities"][:, None]], 1) * 255), 0, 255)
     arrays = [

@@ -27,7 +27,13 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from worldsplat.gaussians.fileformat import SH_C0, FormatError, canonical_quats, check_count, check_finite
+from worldsplat.gaussians.fileformat import (
+    SH_C0,
+    FormatError,
+    canonical_quats,
+    check_count,
+    writable_arrays,
+)
 from worldsplat.gaussians.types import Gaussians
 from worldsplat.gaussians.wsplat import _morton_order
 
@@ -81,13 +87,10 @@ ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 def encode(g: Gaussians, extras: dict | None = None) -> bytes:
     """Gaussians -> .sog bytes (zip of meta.json + 5 WebP textures). `extras` travels in meta.json under
     "worldsplat" (readers ignore unknown keys)."""
-    a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
+    a = writable_arrays(FMT, g)
     n = len(a["means"])
     if n < 1:
         raise ValueError("sog: a SOG file needs at least one Gaussian")
-    check_count(FMT, n, 0, "count")
-    for k, v in a.items():
-        check_finite(FMT, v, f"Gaussians.{k}", 0, 0)
     order = _morton_order(a["means"])  # neighbours in neighbouring texels: smaller textures
     a = {k: v[order] for k, v in a.items()}
     w, h = texture_size(n)

@@ -24,7 +24,13 @@ import zlib
 import numpy as np
 import zstandard
 
-from worldsplat.gaussians.fileformat import SH_C0, FormatError, canonical_quats, check_count, check_finite
+from worldsplat.gaussians.fileformat import (
+    SH_C0,
+    FormatError,
+    canonical_quats,
+    check_count,
+    writable_arrays,
+)
 from worldsplat.gaussians.types import Gaussians
 
 MAGIC = 0x5053474E  # "NGSP"
@@ -42,11 +48,8 @@ def _sizes(n: int, version: int, sh_degree: int) -> list[int]:
 def encode(g: Gaussians, fractional_bits: int | None = None) -> bytes:
     """Gaussians -> .spz bytes (version 3, gzip). `fractional_bits` defaults to the most that keeps every position
     inside the int24 range (12, the reference encoder's, for scenes within 2 km of the origin)."""
-    a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
+    a = writable_arrays(FMT, g, 8, "numPoints")
     n = len(a["means"])
-    check_count(FMT, n, 8, "numPoints")
-    for k, v in a.items():
-        check_finite(FMT, v, f"Gaussians.{k}", 0, 0)
     if fractional_bits is None:
         reach = float(np.abs(a["means"]).max()) if n else 0.0
         fractional_bits = int(np.clip(22 - math.ceil(math.log2(max(reach, 1.0))), 0, 16))

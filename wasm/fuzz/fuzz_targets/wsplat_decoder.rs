@@ -8,7 +8,7 @@
 //! into the file's later DYNA chunks.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use splat_core::scene::{read_wsplat, StreamingScene};
+use splat_format::scene::{read_wsplat, StreamingScene};
 
 const V2: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_iso.wsplat");
 const RANGE: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_range_aniso.wsplat");

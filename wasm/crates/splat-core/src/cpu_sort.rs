@@ -1,8 +1,8 @@
 //! CPU depth sort for the path without compute shaders (WebGL2): stable LSD radix sort of the visible
 //! Gaussians by camera z (ascending; ties keep input order), 8-bit digits, passes whose digit is constant skipped.
 
-use crate::constants::NEAR;
-use crate::gaussians::PackedSplat;
+use splat_format::constants::NEAR;
+use splat_format::gaussians::PackedSplat;
 
 #[derive(Default)]
 pub struct CpuSorter {

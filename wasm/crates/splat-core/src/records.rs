@@ -5,7 +5,7 @@
 //! the compute path. `shaders/splat_instanced.wgsl` fetches them with `textureLoad`. A third texture (`R32Uint`)
 //! holds the draw order (texel k: the record drawn k-th), read by vertex index: 4 bytes per Gaussian.
 
-use crate::gaussians::PackedSplat;
+use splat_format::gaussians::PackedSplat;
 
 /// Texels per row of both record textures (`RECORD_TEX_WIDTH` in `splat_instanced.wgsl`; a test compares them).
 /// 2048 is the smallest `max_texture_dimension_2d` wgpu allows, so any adapter takes the width.

@@ -14,10 +14,10 @@
 use crate::budget::FrameBudget;
 use crate::cpu_sort::{CpuSortJob, CpuSorter, SortKey};
 use crate::external_sort::ExternalSort;
-use crate::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
 use crate::gpu_sort::{GpuSort, SortBindings};
 use crate::quads::{quad_index_buffer, INDICES_PER_INSTANCE};
 use crate::records::RecordTextures;
+use splat_format::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
 
 pub use crate::device::Gpu;
 pub use crate::external_sort::{CpuSortSource, SortRequest};

@@ -1,8 +1,8 @@
 //! What one draw of a view needs on the GPU side: the draw path, the per-view uniform (mirrors `struct View` in
 //! `shaders/view.wgsl`, shared by the splat draw and the GPU sort) and the view rectangle.
 
-use crate::camera::Camera;
 use bytemuck::{Pod, Zeroable};
+use splat_format::camera::Camera;
 
 /// Most views one `render` call composes (the 6-camera mosaic needs 6).
 pub const MAX_VIEWS: usize = 8;

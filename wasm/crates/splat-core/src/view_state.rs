@@ -2,11 +2,12 @@
 //! BEV view, at a frame and a lateral track shift. Serializes to JSON for share links. Shared by the browser
 //! front and the native `splat-render`.
 
-use crate::camera::{bev_camera, default_rig, mat_mul, translation, Camera, FreeCamera, RigCamera};
-use crate::constants::SHIFT_MAX_M;
-use crate::scene::Scene;
+use crate::camera::{bev_camera, FreeCamera};
 use crate::view::ViewRect;
 use serde_json::{json, Value};
+use splat_format::camera::{default_rig, mat_mul, rigid_inverse, translation, Camera, RigCamera};
+use splat_format::constants::SHIFT_MAX_M;
+use splat_format::scene::Scene;
 
 /// Mosaic cells, nuScenes style: front row left to right, back row left to right.
 pub const MOSAIC_ORDER: [&str; 6] = ["CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT"];
@@ -146,7 +147,7 @@ impl ViewState {
             _ => &rig[0],
         };
         let cam = rc.at(&ego, self.shift_m);
-        let c2w = crate::camera::rigid_inverse(&cam.world_to_camera);
+        let c2w = rigid_inverse(&cam.world_to_camera);
         let f = [c2w[0][2], c2w[1][2], c2w[2][2]];
         let yaw = f[1].atan2(f[0]);
         let pitch = f[2].clamp(-1.0, 1.0).asin();

@@ -2,10 +2,10 @@
 //! compared with the torch reference PNG: PSNR >= 40 dB. Both draw paths (GPU-sorted storage, CPU-sorted
 //! instanced). On failure the render and a diff image go to tests/artifacts/raster/.
 
-use splat_core::camera::Camera;
-use splat_core::gaussians::{gaussians_from_json, pack_all};
 use splat_core::headless;
 use splat_core::renderer::{DrawPath, Renderer, ViewRect};
+use splat_format::camera::Camera;
+use splat_format::gaussians::{gaussians_from_json, pack_all};
 use std::path::{Path, PathBuf};
 
 const PSNR_MIN: f64 = 40.0;

@@ -1,14 +1,14 @@
 //! Renderer behaviour beyond pixels: a sort is reused while the view holds, a sliced CPU sort draws the previous
 //! order until it finishes and then matches the one-shot sort, the 4D dynamic set follows the frame.
 
-use splat_core::camera::Camera;
 use splat_core::cpu_sort::CpuSorter;
-use splat_core::gaussians::{gaussians_from_json, pack_all};
 use splat_core::headless;
 use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, ViewRect};
+use splat_format::camera::Camera;
+use splat_format::gaussians::{gaussians_from_json, pack_all};
 use std::path::Path;
 
-fn vector(name: &str) -> (Camera, Vec<splat_core::gaussians::PackedSplat>) {
+fn vector(name: &str) -> (Camera, Vec<splat_format::gaussians::PackedSplat>) {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../../tests/vectors/raster/{name}.json"));
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
     (Camera::from_json(&v["camera"]).unwrap(), pack_all(&gaussians_from_json(&v["gaussians"]).unwrap()).0)
@@ -112,7 +112,7 @@ fn external_sort_draws_the_last_order_until_the_exact_one_arrives_and_drops_stal
     let size = [cam.width, cam.height];
     let a = [ViewRect { camera: cam.clone(), origin: [0, 0] }];
     let b = [ViewRect { camera: yawed(&cam, 0.3), origin: [0, 0] }];
-    let exact = |views: &[ViewRect], statics: &[splat_core::gaussians::PackedSplat], dynamic: &[splat_core::gaussians::PackedSplat]| {
+    let exact = |views: &[ViewRect], statics: &[splat_format::gaussians::PackedSplat], dynamic: &[splat_format::gaussians::PackedSplat]| {
         let mut r = Renderer::new(&gpu);
         r.update(statics, dynamic);
         headless::render_rgba(&mut r, views, size).unwrap().0
@@ -201,10 +201,10 @@ fn gpu_radix_sort_equals_the_cpu_sort_across_many_blocks() {
         s ^= s << 17;
         s
     };
-    let splats: Vec<splat_core::gaussians::PackedSplat> = (0..150_000)
+    let splats: Vec<splat_format::gaussians::PackedSplat> = (0..150_000)
         .map(|_| {
             let z = (next() % 3000) as f32 * 0.01 - 2.0;
-            splat_core::gaussians::PackedSplat { mean: [(next() % 100) as f32 * 0.01, 0.0, z], shape: [0; 2], rgba: 0xff00_00ff }
+            splat_format::gaussians::PackedSplat { mean: [(next() % 100) as f32 * 0.01, 0.0, z], shape: [0; 2], rgba: 0xff00_00ff }
         })
         .collect();
     let (cam, _) = vector("random_200");
@@ -297,7 +297,7 @@ fn frame_budget_draws_the_static_prefix_while_moving_and_the_whole_scene_when_he
     let b = [ViewRect { camera: yawed(&cam, 0.2), origin: [0, 0] }];
     for path in [DrawPath::Storage, DrawPath::Instanced] {
         let gpu = headless::gpu(Some(path)).unwrap();
-        let exact = |s: &[splat_core::gaussians::PackedSplat]| {
+        let exact = |s: &[splat_format::gaussians::PackedSplat]| {
             let mut r = Renderer::new(&gpu);
             r.update(s, dynamic);
             headless::render_rgba(&mut r, &b, size).unwrap().0

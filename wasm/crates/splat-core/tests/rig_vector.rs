@@ -3,10 +3,10 @@
 //! `ViewState`) must give Python's world_to_camera and intrinsics for every rig camera, shift and frame.
 
 use serde_json::Value;
-use splat_core::camera::{default_rig, mat4_from_json, Camera, Mat4, RigCamera};
-use splat_core::constants::SHIFT_MAX_M;
-use splat_core::scene::Scene;
 use splat_core::view_state::ViewState;
+use splat_format::camera::{default_rig, mat4_from_json, Camera, Mat4, RigCamera};
+use splat_format::constants::SHIFT_MAX_M;
+use splat_format::scene::Scene;
 use std::path::PathBuf;
 
 const TOL: f64 = 1e-5;

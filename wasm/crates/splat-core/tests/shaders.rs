@@ -1,8 +1,8 @@
 //! naga validation of every shader the renderer compiles (no GPU needed), and the WGSL constant mirror.
 
-use splat_core::constants::MIRRORED;
 use splat_core::renderer::{splat_shader_source, DrawPath, SHADER_BLIT, SHADER_CONSTANTS};
 use splat_core::shaders::sort_shader_source;
+use splat_format::constants::MIRRORED;
 
 fn validate(name: &str, src: &str) -> naga::Module {
     let module = naga::front::wgsl::parse_str(src).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));

@@ -2,12 +2,12 @@
 //! to PNG, at a rig camera / the mosaic / BEV at a frame and lateral shift, or at any camera JSON
 //! (the same file `worldsplat render --camera-json` takes). `splat-render bench` measures frame and sort time.
 
-use splat_core::camera::Camera;
-use splat_core::gaussians::{gaussians_from_json, Gaussian};
 use splat_core::headless;
 use splat_core::renderer::{DrawPath, Renderer, ViewRect};
-use splat_core::scene::{read_wsplat, Scene};
 use splat_core::view_state::ViewState;
+use splat_format::camera::{rigid_inverse, Camera};
+use splat_format::gaussians::{gaussians_from_json, Gaussian};
+use splat_format::scene::{read_wsplat, Scene};
 use std::time::Instant;
 
 const USAGE: &str = "usage:
@@ -87,8 +87,8 @@ fn load(path: &str) -> Result<(Scene, Option<Camera>), String> {
         let cam = v.get("camera").map(Camera::from_json).transpose()?;
         return Ok((Scene::from_gaussians(&gs), cam));
     }
-    if splat_core::ply::is_ply(&bytes) {
-        return Ok((Scene::from_gaussians(&splat_core::ply::read_ply(&bytes)?), None));
+    if splat_format::ply::is_ply(&bytes) {
+        return Ok((Scene::from_gaussians(&splat_format::ply::read_ply(&bytes)?), None));
     }
     Ok((read_wsplat(&bytes).map_err(|e| format!("{path}: {e}"))?, None))
 }
@@ -439,7 +439,7 @@ fn bench_paths(a: &Args) -> Result<(), String> {
         );
         if let Some(d) = &out_dir {
             let cam = &state.views(&scene, size)[0].camera;
-            std::fs::write(d.join(format!("synth_{n}.ply")), splat_core::ply::write_ply(&gs)).map_err(|e| e.to_string())?;
+            std::fs::write(d.join(format!("synth_{n}.ply")), splat_format::ply::write_ply(&gs)).map_err(|e| e.to_string())?;
             std::fs::write(d.join(format!("camera_{n}.json")), cam.to_json().to_string()).map_err(|e| e.to_string())?;
             for (k, name) in ["storage", "instanced"].iter().enumerate() {
                 let file = d.join(format!("{name}_{n}.png"));
@@ -467,7 +467,7 @@ fn synth(a: &Args) -> Result<(), String> {
     let n: usize = a.get("count").ok_or("--count N is required")?.parse().map_err(|_| "--count: expected an integer")?;
     let out = a.get("out").ok_or("--out FILE.ply is required")?;
     let gs = synthetic(n, 0x9e3779b97f4a7c15 ^ n as u64);
-    std::fs::write(out, splat_core::ply::write_ply(&gs)).map_err(|e| format!("{out}: {e}"))
+    std::fs::write(out, splat_format::ply::write_ply(&gs)).map_err(|e| format!("{out}: {e}"))
 }
 
 fn fixture4d(a: &Args) -> Result<(), String> {
@@ -482,7 +482,7 @@ fn fixture4d(a: &Args) -> Result<(), String> {
     let statics: Vec<Gaussian> = gs.iter().filter_map(Gaussian::sanitized).collect();
     // A bright cluster in front of the vector's camera that moves sideways frame by frame.
     let cam = Camera::from_json(&v["camera"])?;
-    let c2w = splat_core::camera::rigid_inverse(&cam.world_to_camera);
+    let c2w = rigid_inverse(&cam.world_to_camera);
     let at = |x: f64, z: f64| [0, 1, 2].map(|k| (c2w[k][0] * x + c2w[k][2] * z + c2w[k][3]) as f32);
     let dynamic: Vec<Vec<Gaussian>> = (0..frames)
         .map(|f| {
@@ -497,7 +497,7 @@ fn fixture4d(a: &Args) -> Result<(), String> {
                 .collect()
         })
         .collect();
-    let bytes = splat_core::wsplat::encode::encode(&statics, &dynamic, 4.0, 256, chunk.max(1));
+    let bytes = splat_format::wsplat::encode::encode(&statics, &dynamic, 4.0, 256, chunk.max(1));
     std::fs::write(out, bytes).map_err(|e| format!("{out}: {e}"))
 }
 

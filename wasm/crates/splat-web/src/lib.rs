@@ -3,13 +3,13 @@
 //! Every error reaches JS as an `Error` with a message; nothing panics on bad input.
 #![cfg(target_arch = "wasm32")]
 
-use splat_core::ply::{is_ply, read_ply};
+use splat_format::ply::{is_ply, read_ply};
 mod sort_worker;
 
 use sort_worker::{SortWorker, WorkerMessage};
 use splat_core::renderer::{CpuSortSource, DrawPath, Gpu, Offscreen, Renderer};
-use splat_core::scene::{read_wsplat, Scene, StreamingScene};
 use splat_core::view_state::{rig_of, CameraMode, ViewState};
+use splat_format::scene::{read_wsplat, Scene, StreamingScene};
 use std::cell::RefCell;
 use std::rc::{Rc, Weak};
 use wasm_bindgen::prelude::*;
@@ -299,7 +299,7 @@ impl Inner {
     }
 }
 
-fn progress_json(p: &splat_core::wsplat::Progress, frames: usize) -> String {
+fn progress_json(p: &splat_format::wsplat::Progress, frames: usize) -> String {
     serde_json::json!({
         "bytes": p.bytes, "static_loaded": p.static_decoded, "static_total": p.static_total,
         "dynamic_loaded": p.dynamic_decoded, "dynamic_total": p.dynamic_total, "frames": frames, "done": p.done,
@@ -493,7 +493,7 @@ impl Viewer {
     /// Load Gaussians in the shared raster-vector JSON (`{"means", "quats", "scales", "opacities", "colors"}`).
     pub fn load_gaussians_json(&self, json: &str) -> Result<(), JsError> {
         let v: serde_json::Value = serde_json::from_str(json).map_err(|e| js_err(format!("load_gaussians_json: {e}")))?;
-        let gs = splat_core::gaussians::gaussians_from_json(&v).map_err(js_err)?;
+        let gs = splat_format::gaussians::gaussians_from_json(&v).map_err(js_err)?;
         let mut i = self.inner.borrow_mut();
         i.reset_scene();
         i.stream = None;
@@ -547,7 +547,7 @@ impl Viewer {
     /// View through any camera given as the shared camera JSON (web/docs/conventions.md).
     pub fn set_camera_json(&self, json: &str) -> Result<(), JsError> {
         let v: serde_json::Value = serde_json::from_str(json).map_err(|e| js_err(format!("set_camera_json: {e}")))?;
-        let cam = splat_core::camera::Camera::from_json(&v).map_err(js_err)?;
+        let cam = splat_format::camera::Camera::from_json(&v).map_err(js_err)?;
         self.inner.borrow_mut().state.mode = CameraMode::Custom(cam);
         Ok(())
     }

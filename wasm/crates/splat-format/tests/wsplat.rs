@@ -2,10 +2,10 @@
 //! vector in tests/vectors/wsplat/, the malformed cases the spec names, and a bounded seeded mutation test
 //! (no panic, errors carry an offset inside the data, streaming never disagrees with whole-buffer decoding).
 
-use splat_core::dyna_range;
-use splat_core::gaussians::Gaussian;
-use splat_core::scene::{read_wsplat, StreamingScene};
-use splat_core::wsplat::{encode::encode, Decoder, ErrorKind, Event};
+use splat_format::gaussians::Gaussian;
+use splat_format::scene::{read_wsplat, StreamingScene};
+use splat_format::wsplat::dyna_range;
+use splat_format::wsplat::{encode::encode, Decoder, ErrorKind, Event};
 use std::path::Path;
 
 struct Rng(u64);

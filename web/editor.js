@@ -186,7 +186,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
       if (layout) ui.known = ui.road;
       roadAsked = null;
       if (crossAsked) onRoad(layout);
-      note(error && motion ? `preview: ${error}` : "");
+      if (error) note(`preview: ${error}`);
       draw();
     }, 120);
   }

@@ -25,6 +25,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="dataset processes")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--lr", action="append", default=[], metavar="STAGE=LR", help="force a stage's lr (no sweep)")
+    p.add_argument("--minutes", type=float, default=None, help="wall budget of the run (the stages share it)")
     p.add_argument("--k", type=float, default=3.0, help="diverged: held-out figure above k x its best")
     p.add_argument("--captions", type=Path, default=None, help="caption table (where no sentence encoder is)")
     p.add_argument("--write-captions", type=Path, metavar="TABLE", help="write the caption table of the size's clips")
@@ -37,13 +38,24 @@ def run(a: argparse.Namespace) -> int:
 
     size = recipe.SIZES[a.size]
     if a.write_captions is not None:
-        print(caption_table(a.write_captions, size.clips, size.test_clips, workers=a.workers))
+        print(caption_table(a.write_captions, size.clips, size.test_clips, size.pair_clips, size.val_clips, a.workers))
         return 0
     if a.run_dir is None:
         raise ValueError("train-stack: --run-dir is required")
     lrs = {k: float(v) for k, v in (s.split("=", 1) for s in a.lr)}
     plan = recipe.Plan(
-        a.run_dir, a.size, a.device, a.data, a.seed, a.threads, a.workers, a.captions, a.until, lrs, k=a.k
+        a.run_dir,
+        a.size,
+        a.device,
+        a.data,
+        a.seed,
+        a.threads,
+        a.workers,
+        a.captions,
+        a.until,
+        lrs,
+        k=a.k,
+        minutes=a.minutes,
     )
     try:
         card = recipe.train_stack(plan)

@@ -151,7 +151,7 @@ def vae_heldout(vae, samples: list[dict], dcfg: DataConfig = DCFG) -> dict:
     """RGB PSNR, 8x8-pooled RGB PSNR (colour), depth AbsRel (0.5 < GT < 80 m), pooled dynamic-mask IoU."""
     was = vae.training
     vae.eval()
-    dev = next(vae.parameters()).device  # the CPU, or an accelerator (training.accelerator)
+    dev = next(vae.parameters()).device  # the CPU, or a GPU (training.recipe)
     ps, pp, rel, iou = [], [], [], []
     for s in samples:
         rgb, depth, mask, _ = vae_inputs(collate([s]), dcfg)

@@ -37,12 +37,16 @@ def device_generator(device: torch.device, seed: int) -> torch.Generator:
 # --- caption embeddings (made where the sentence encoder is installed, read where it is not) ----------------------
 
 
-def caption_table(path: Path, train: int, test: int, workers: int = 1) -> Path:
-    """The captions of train clips 0..train-1 and test clips 0..test-1 (from each scenario's world layout, no
-    rendering: the function `worldsplat dataset` calls) and their sentence embeddings, one file."""
-    jobs = [("train", i) for i in range(train)] + [("test", i) for i in range(test)]
+def caption_table(path: Path, train: int, test: int, pairs: int = 0, val: int = 0, workers: int = 1) -> Path:
+    """The captions of train clips 0..train-1, test clips 0..test-1 and the enhancer's pair clips (train seeds
+    0..pairs-1 and val seeds 0..val-1 of `pairs.split_seeds`), each from its scenario's world layout without
+    rendering, and their sentence embeddings, one file."""
+    from worldsplat.training.pairs import sample_scenario, split_seeds  # noqa: PLC0415
+
+    jobs = [clip_scenario("train", i) for i in range(train)] + [clip_scenario("test", i) for i in range(test)]
+    jobs += [sample_scenario(s) for s in split_seeds("train", pairs) + split_seeds("val", val)]
     with ThreadPoolExecutor(max(1, workers)) as pool:
-        caps = list(pool.map(lambda j: build_world(clip_scenario(*j)).caption, jobs))
+        caps = list(pool.map(lambda sc: build_world(sc).caption, jobs))
     uniq = list(dict.fromkeys(caps))
     emb = caption_module.encode_captions(uniq)
     buf = io.BytesIO()

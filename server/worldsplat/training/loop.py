@@ -385,7 +385,7 @@ def decoder_losses(
     cheap steps of `decoder_step_fn(render_every=k)`)."""
     w_ssim, w_depth, w_mask, w_direct = weights
     L = s["L"][None]
-    dev = L.device  # the sample's latents may live on an accelerator (training.accelerator); noise is drawn on the CPU
+    dev = L.device  # the sample's latents may live on an accelerator (training.recipe); noise is drawn on the CPU
     if latent_noise > 0:
         L = L + latent_noise * torch.randn(L.shape, generator=gen).to(dev)
     intr = torch.as_tensor(s["intrinsics"])[None].to(dev)

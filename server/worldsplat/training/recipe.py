@@ -5,7 +5,8 @@ enhancer and pixel mix, in the configurations the playground serves, on the CPU 
               device as tensors (`device_data`); the enhancer's pairs rendered from the trained decoder
     stages    vae -> cache (frozen latents) -> decoder -> prior -> residuals -> dit -> enhancer -> mix, each a
               `stage_runner.Stage` (`stack_stages`): lr sweep, warm-up + clipping, divergence guard with rollback,
-              resume, throughput; `--until STAGE` stops after a stage
+              resume, throughput; `--until STAGE` stops after a stage; `--minutes` shares a wall budget among
+              the stages left (what one leaves flows on; a stage out of time ends on its best checkpoint)
     snapshot  RUN/weights/<role>_small.safetensors (fp16; the enhancer bundles its VAE and the mix), named as
               `pipeline.inference.load_models` and `pipeline.refine` read them; RUN/cards/<stage>.json and
               RUN/MODEL_CARD.md (held-out figures, sweep, divergences, throughput)
@@ -122,6 +123,7 @@ class Plan:
     stop_at: tuple[str, int] | None = None
     k: float = 3.0
     retries: int = 1
+    minutes: float | None = None  # wall budget of the whole run: the stages share what the data leaves
 
 
 # --- data -------------------------------------------------------------------------------------------------------------
@@ -162,29 +164,39 @@ def serving_models(vae, dec):
     return Models(cpu[0], cpu[1], None, campaign.DCFG, "train-stack", Path("."))
 
 
-def make_pairs(out: Path, split: str, count: int, models, shift: float | None = None) -> list[Path]:
+def make_pairs(out: Path, split: str, count: int, models, shift: float | None = None, workers: int = 1) -> list[Path]:
     """Per clip of a split: the decoder's reconstruction of the true track rendered on a shifted track (train: the
     seed's `train_shift`, val: `shift`) with its exact view, and for train seeds with a clean pair the same scene
-    rendered on the true track (the bridge's clean condition). Existing files are kept (a restart continues)."""
+    rendered on the true track (the bridge's clean condition). Existing files are kept (a restart continues);
+    `workers` > 1: one process per clip at a time."""
+    from worldsplat.training.pairs import split_seeds  # noqa: PLC0415
+
+    jobs = [(out, split, seed, models, shift) for seed in split_seeds(split, count)]
+    if workers <= 1 or len(jobs) <= 1:
+        return [p for j in jobs for p in _pair_clip(j)]
+    with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn")) as pool:
+        return [p for paths in pool.map(_pair_clip, jobs) for p in paths]
+
+
+def _pair_clip(job) -> list[Path]:
     from worldsplat.training.enhancer import decoder_scene, has_clean_pair, train_shift  # noqa: PLC0415
-    from worldsplat.training.pairs import make_sample, sample_path, sample_scenario, save_sample, split_seeds  # noqa: PLC0415
+    from worldsplat.training.pairs import make_sample, sample_path, sample_scenario, save_sample  # noqa: PLC0415
     from worldsplat.world import build_world, simulate  # noqa: PLC0415
 
-    paths = []
-    for seed in split_seeds(split, count):
-        todo = [(train_shift(seed) if shift is None else shift, "_dec")]
-        if split == "train" and has_clean_pair(seed):
-            todo.append((0.0, "_clean"))
-        want = [(s, tag, sample_path(out, split, seed, s, tag)) for s, tag in todo]
-        if not all(p.exists() for *_, p in want):
-            world = build_world(sample_scenario(seed))
-            source = simulate(world, 0.0)
-            scene = decoder_scene(source, models)
-            for s, _, p in want:
-                if not p.exists():
-                    save_sample(p, make_sample(world, s, ("4d",), source=source, scene=scene))
-        paths += [p for *_, p in want]
-    return paths
+    out, split, seed, models, shift = job
+    torch.set_num_threads(1)
+    todo = [(train_shift(seed) if shift is None else shift, "_dec")]
+    if split == "train" and has_clean_pair(seed):
+        todo.append((0.0, "_clean"))
+    want = [(s, sample_path(out, split, seed, s, tag)) for s, tag in todo]
+    if not all(p.exists() for _, p in want):
+        world = build_world(sample_scenario(seed))
+        source = simulate(world, 0.0)
+        scene = decoder_scene(source, models)
+        for s, p in want:
+            if not p.exists():
+                save_sample(p, make_sample(world, s, ("4d",), source=source, scene=scene))
+    return [p for _, p in want]
 
 
 # --- the stages ------------------------------------------------------------------------------------------------------
@@ -268,8 +280,8 @@ def encode_pairs(paths: list[Path], vae_cpu) -> tuple[list[dict], list[dict]]:
 def train_enhancer_mix(size: StackSize, run: Run, vae, dec, cards: dict, until: str):
     models = serving_models(vae, dec)
     pairs = run.dir / "pairs"
-    train_paths = make_pairs(pairs, "train", size.pair_clips, models)
-    val_paths = make_pairs(pairs, "val", size.val_clips, models, shift=2.0)
+    train_paths = make_pairs(pairs, "train", size.pair_clips, models, workers=run.workers)
+    val_paths = make_pairs(pairs, "val", size.val_clips, models, shift=2.0, workers=run.workers)
     degraded, clean = encode_pairs(train_paths, models.vae)
     val, _ = encode_pairs(val_paths, models.vae)
     model = seeded(run.seed + 5, lambda: Enhancer(enhancer_cfg(size, vae)))
@@ -348,7 +360,9 @@ def train_stack(plan: Plan) -> dict:
         raise ValueError(f"until must be one of {', '.join(STAGES)}, got {plan.until!r}")
     size, t0 = SIZES[plan.size], time.time()
     run = Run(Path(plan.run_dir), resolve_device(plan.device), plan.seed, size.sweep_steps, plan.k, plan.retries,
-              plan.threads, dict(plan.lr_override), plan.stop_at)  # fmt: skip
+              plan.threads, dict(plan.lr_override), plan.stop_at, plan.workers)  # fmt: skip
+    if plan.minutes is not None:
+        run.deadline = t0 + 60 * plan.minutes
     torch.set_num_threads(plan.threads)
     data = Path(plan.data or run.dir / "data")
     cards: dict = {}

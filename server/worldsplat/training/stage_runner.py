@@ -30,6 +30,9 @@ from worldsplat.training.loop import train_loop, unwrap
 from worldsplat_models.configs import TrainConfig
 
 SWEEP_FACTORS = (0.3, 1.0, 3.0)
+# Shares of a budgeted run's wall time, in training order (the enhancer's includes its pair renders; the last
+# share is the snapshot's and the cards').
+SHARES = {"vae": 0.18, "decoder": 0.16, "prior": 0.1, "dit": 0.2, "enhancer": 0.2, "mix": 0.06, "snapshot": 0.1}
 
 
 class StageStopped(Exception):
@@ -88,6 +91,17 @@ class Run:
     threads: int = 1
     lr_override: dict = field(default_factory=dict)
     stop_at: tuple[str, int] | None = None
+    workers: int = 1  # processes for the CPU-side data of a stage (the enhancer's pair renders)
+    deadline: float | None = None  # time.time() by which every stage must be done
+    shares: dict = field(default_factory=lambda: dict(SHARES))
+
+    def minutes_for(self, name: str) -> float | None:
+        """The stage's share of the time left, among the stages not done yet (None: no budget)."""
+        if self.deadline is None:
+            return None
+        later = list(self.shares)[list(self.shares).index(name) :]
+        left = self.deadline - time.time()
+        return max(0.05, left * self.shares[name] / sum(self.shares[k] for k in later) / 60)
 
     @property
     def bf16(self) -> bool:
@@ -200,7 +214,7 @@ def train_guarded(stage: Stage, run: Run, fwd, state: dict, sp: Path, ckpt: Path
         cfg = tcfg(stage, run, stage.steps, lr, min(stage.warmup, max(1, stage.steps // 10)), stage.eval_every)
         t0 = time.perf_counter()
         hist = train_loop(stage.name, stage.model, timed_step(stage, fwd, timers), cfg, run.dir, progress=False,
-                          device=run.device, on_checkpoint=on_ckpt)  # fmt: skip
+                          device=run.device, on_checkpoint=on_ckpt, minutes=run.minutes_for(stage.name))  # fmt: skip
         record_throughput(stage, state, hist, time.perf_counter() - t0, timers)
         if verdict.get("status") == "diverged":
             state["diverged_at"].append(hist[-1]["step"])

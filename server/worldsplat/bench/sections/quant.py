@@ -137,6 +137,73 @@ def _format_rows(label: str, g: Gaussians, renders, ref, gt, work: Path, log) ->
     return rows
 
 
+def _scores(data: bytes, renders_scene, ref: list, gt: list) -> tuple[float, float]:
+    """PSNR of a .wsplat file's renders against the float32 renders and against the ground truth (means over views)."""
+    imgs = renders_scene(wsplat.decode(data))
+    p_ref = float(np.mean([psnr(a, b) for a, b in zip(imgs, ref)]))
+    p_gt = float(np.mean([psnr(a, g) for a, g in zip(imgs, gt)]))
+    return p_ref, p_gt
+
+
+def _bit_sweep(scene: Scene4D, world: str, renders_scene, ref: list, gt: list, psnr_gt_ref: float):
+    """v1 at each position/colour bit setting (SETTINGS): rows, Pareto points and PSNR vs ground truth by bits."""
+    rows, points, by_bits = [], [], {}
+    n = len(scene.static)
+    for name, (pb, cb) in SETTINGS.items():
+        data = wsplat.encode(scene, static_layout=layout(pb, cb), version=1)
+        p_ref, p_gt = _scores(data, renders_scene, ref, gt)
+        raw, gz, br = _wire(_chunk_bytes(data, b"STAT"))
+        rows.append([world, f"v1 {name}", raw / n, gz / n, br / n, p_ref, p_gt, p_gt - psnr_gt_ref])
+        points.append((name, len(data) / n, p_gt))
+        by_bits[pb] = p_gt
+    return rows, points, by_bits
+
+
+def _default_layouts(scene: Scene4D, world: str, renders_scene, ref: list, gt: list, psnr_gt_ref: float, ratios):
+    """v1 and v2 at their default layouts: the static and dynamic parts of the same file (rows; `ratios` filled)."""
+    rows = []
+    n, nd = len(scene.static), sum(len(d) for d in scene.dynamic)
+    for v in (1, 2):
+        data = wsplat.encode(scene, version=v)
+        p_ref, p_gt = _scores(data, renders_scene, ref, gt)
+        raw, gz, br = _wire(_chunk_bytes(data, b"STAT"))
+        rows.append([world, f".wsplat v{v} static", raw / n, gz / n, br / n, p_ref, p_gt, p_gt - psnr_gt_ref])
+        ratios[f"world_static_v{v}_br"] = br / n
+        ratios[f"world_change_v{v}"] = p_gt - psnr_gt_ref
+        if nd:
+            raw, gz, br = _wire(_chunk_bytes(data, b"DYNA"))
+            label = f"urban_straight oracle dynamic ({nd} over {len(scene.dynamic)} frames)"
+            kind = " (range-coded)" if v == 2 else ""  # v2's default dynamic codec (wsplat.V2_DYNAMIC_CODEC)
+            rows.append([label, f".wsplat v{v} dynamic{kind}, per G per frame", raw / nd, gz / nd, br / nd, p_ref,
+                         p_gt, p_gt - psnr_gt_ref])  # fmt: skip
+            ratios[f"dynamic_v{v}_br"] = br / nd
+            ratios[f"dynamic_v{v}_raw"] = raw / nd
+    return rows
+
+
+def _street_rows(size: int, cams: list[str], tmp: Path, log, ratios: dict) -> list:
+    """The formats on a synthetic street PLY of `size` Gaussians, against its float32 render (no ground truth)."""
+    g = street_ply(size)
+    rig = default_rig(96, 54)
+    ego = np.eye(4)
+    ego[0, 3] = 30.0  # the middle of the street: every camera sees road and facades
+    skel = Scene4D(g, [Gaussians.empty()], np.zeros(1), rig, ego[None], {"fps": 10.0})
+    cams_p = [skel.camera(0, c) for c in cams[:1]]  # one camera: 1M-Gaussian renders are slow here
+
+    def renders_p(x):
+        return [render_view(x, c).rgb for c in cams_p]
+
+    label = f"street PLY {size // 1000}k"
+    got = _format_rows(label, g, renders_p, renders_p(g), None, tmp, log)
+    by = {r[1]: r for r in got}
+    sog = by.get("SOG (splat-transform)", by["SOG (ours)"])
+    ratios[f"{label}: v2 / SOG"] = by[".wsplat v2"][4] / sog[4]
+    ratios[f"{label}: v1 br / SOG"] = by[".wsplat v1"][4] / sog[4]
+    ratios[f"{label}: v1 raw / SOG"] = by[".wsplat v1"][2] / sog[2]
+    ratios[f"{label}: SOG source"] = sog[1]
+    return [[*r[:6], "-", "-"] for r in got]
+
+
 def run(quick: bool) -> Section:
     w, h = (100, 56) if quick else (200, 112)
     frames = 1 if quick else 4
@@ -152,65 +219,17 @@ def run(quick: bool) -> Section:
 
     ref = renders_scene(scene)
     psnr_gt_ref = float(np.mean([psnr(r, g) for r, g in zip(ref, gt)]))
-    rows, points, by_bits = [], [], {}
     n = len(scene.static)
     world = f"urban_straight oracle ({n} static)"
-    for name, (pb, cb) in SETTINGS.items():
-        data = wsplat.encode(scene, static_layout=layout(pb, cb), version=1)
-        dec = wsplat.decode(data)
-        imgs = renders_scene(dec)
-        p_ref = float(np.mean([psnr(a, b) for a, b in zip(imgs, ref)]))
-        p_gt = float(np.mean([psnr(a, g) for a, g in zip(imgs, gt)]))
-        raw, gz, br = _wire(_chunk_bytes(data, b"STAT"))
-        rows.append([world, f"v1 {name}", raw / n, gz / n, br / n, p_ref, p_gt, p_gt - psnr_gt_ref])
-        points.append((name, len(data) / n, p_gt))
-        by_bits[pb] = p_gt
+    rows, points, by_bits = _bit_sweep(scene, world, renders_scene, ref, gt, psnr_gt_ref)
     ratios = {}
-    nd = sum(len(d) for d in scene.dynamic)
-    for v in (1, 2):  # the default layouts, static and dynamic parts of the same file
-        data = wsplat.encode(scene, version=v)
-        dec = wsplat.decode(data)
-        imgs = renders_scene(dec)
-        p_ref = float(np.mean([psnr(a, b) for a, b in zip(imgs, ref)]))
-        p_gt = float(np.mean([psnr(a, g) for a, g in zip(imgs, gt)]))
-        raw, gz, br = _wire(_chunk_bytes(data, b"STAT"))
-        rows.append([world, f".wsplat v{v} static", raw / n, gz / n, br / n, p_ref, p_gt, p_gt - psnr_gt_ref])
-        ratios[f"world_static_v{v}_br"] = br / n
-        ratios[f"world_change_v{v}"] = p_gt - psnr_gt_ref
-        if nd:
-            raw, gz, br = _wire(_chunk_bytes(data, b"DYNA"))
-            label = f"urban_straight oracle dynamic ({nd} over {len(scene.dynamic)} frames)"
-            kind = " (range-coded)" if v == 2 else ""  # v2's default dynamic codec (wsplat.V2_DYNAMIC_CODEC)
-            rows.append([label, f".wsplat v{v} dynamic{kind}, per G per frame", raw / nd, gz / nd, br / nd, p_ref,
-                         p_gt, p_gt - psnr_gt_ref])  # fmt: skip
-            ratios[f"dynamic_v{v}_br"] = br / nd
-            ratios[f"dynamic_v{v}_raw"] = raw / nd
+    rows += _default_layouts(scene, world, renders_scene, ref, gt, psnr_gt_ref, ratios)
     with tempfile.TemporaryDirectory() as tmp:
         for r in _format_rows("world", scene.static, lambda g: renders_scene(_static_scene(scene, g)), ref, gt,
                               Path(tmp), log)[2:]:  # fmt: skip
             rows.append([world, r[1], *r[2:], r[6] - psnr_gt_ref])
         for size in (5000,) if quick else (100_000, 1_000_000):
-            g = street_ply(size)
-            rig = default_rig(96, 54)
-            ego = np.eye(4)
-            ego[0, 3] = 30.0  # the middle of the street: every camera sees road and facades
-            skel = Scene4D(g, [Gaussians.empty()], np.zeros(1), rig, ego[None], {"fps": 10.0})
-            cams_p = [skel.camera(0, c) for c in cams[:1]]  # one camera: 1M-Gaussian renders are slow here
-
-            def renders_p(x, cams_p=cams_p):
-                return [render_view(x, c).rgb for c in cams_p]
-
-            label = f"street PLY {size // 1000}k"
-            ref_p = renders_p(g)
-            got = _format_rows(label, g, renders_p, ref_p, None, Path(tmp), log)
-            for r in got:
-                rows.append([*r[:6], "-", "-"])  # no ground truth for a PLY
-            by = {r[1]: r for r in got}
-            sog = by.get("SOG (splat-transform)", by["SOG (ours)"])
-            ratios[f"{label}: v2 / SOG"] = by[".wsplat v2"][4] / sog[4]
-            ratios[f"{label}: v1 br / SOG"] = by[".wsplat v1"][4] / sog[4]
-            ratios[f"{label}: v1 raw / SOG"] = by[".wsplat v1"][2] / sog[2]
-            ratios[f"{label}: SOG source"] = sog[1]
+            rows += _street_rows(size, cams, Path(tmp), log, ratios)
     for k, v in ratios.items():
         log(f"quant: {k} = {v if isinstance(v, str) else round(v, 3)}")
     return Section(

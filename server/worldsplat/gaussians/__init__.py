@@ -1,5 +1,6 @@
 """Gaussian core: one splatting math (web/docs/splatting-math.md), the torch reference rasterizer, oracle lifting,
-4D aggregation (paper eq. 3), the .wsplat v1 stream format and PLY interop. See web/docs/gaussians.md."""
+4D aggregation (paper eq. 3), the .wsplat v1 / v2 stream format (the `wsplat` package) and file interop (PLY, glTF,
+SPZ, SOG, .splat). Rotation and ray math is `worldsplat_models.geometry`'s. See web/docs/gaussians.md."""
 
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.raster import rasterize

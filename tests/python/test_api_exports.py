@@ -139,7 +139,7 @@ def test_clear_4xx_answers(served):
     assert r.status_code == 422 and r.json()["field"] == "format"
     for bad in (str(state["frames"]), "99"):
         r = client.get(url, params={"format": "ply", "frame": bad})
-        assert r.status_code == 422 and r.json()["field"] == "frame", r.text
+        assert r.status_code == 404 and r.json()["field"] == "frame", r.text
         assert f"{state['frames']} frame(s), 0 .. {state['frames'] - 1}" in r.json()["error"]
     for bad in ("-1", "x", "1.5", "01"):
         r = client.get(url, params={"format": "ply", "frame": bad})

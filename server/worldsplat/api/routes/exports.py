@@ -11,7 +11,8 @@ from fastapi.responses import StreamingResponse
 
 from .. import exports
 from ..errors import ApiError
-from ..openapi import errors, invalid, stream_responses
+from ..openapi import ERROR_TEXT, errors, stream_responses
+from ..schemas import ErrorBody
 from ..state import Pg
 from ..streaming import file_response
 
@@ -30,8 +31,12 @@ FORMAT_TEXT = (
     response_class=StreamingResponse,
     responses={
         **stream_responses(MEDIA, "file (`Content-Disposition: attachment` names it)"),
-        **errors(404, 409, 416),
-        **invalid("a `frame` outside the scene's frames (0 .. frames - 1: GET /api/scenes/{scene_id} says `frames`)"),
+        **errors(409, 416),
+        404: {
+            "model": ErrorBody,
+            "description": f"{ERROR_TEXT[404]}; or no such frame in the scene: `frame` is 0 .. frames - 1 (GET "
+            "/api/scenes/{scene_id} says `frames`), the answer's `field` is `frame`",
+        },
     },
 )
 async def scene_export(
@@ -51,13 +56,13 @@ async def scene_export(
 ):
     """The scene of a finished job as a file to download, byte-identical to `worldsplat export` of the scene's
     .wsplat with the same format and frame. Built on the first request (seconds; a clip of PLY frames can be
-    hundreds of MB) and then served from the cache. 404: no such scene; 409: the scene is still being generated."""
+    hundreds of MB) and then served from the cache. 404: no such scene, or no such frame in it; 409: the scene is still being generated."""
     meta = pg.ready_scene(scene_id)
     one = None if frame == "all" else int(frame)
     frames = int(meta.get("frames") or 1)
     if one is not None and one >= frames:
         raise ApiError(
-            422, f"frame: {one} is out of range: this scene has {frames} frame(s), 0 .. {frames - 1}", field="frame"
+            404, f"frame: no frame {one} in this scene: it has {frames} frame(s), 0 .. {frames - 1}", field="frame"
         )
     if one is None and fmt == "wsplat":
         opened = pg.cache.open_artifact("scenes", scene_id)

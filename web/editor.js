@@ -156,7 +156,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
 
   // ---- the world's road and motion: only the server knows them (the seed's draws, the world's motion), so the
   // editor asks POST /api/road whenever what they depend on changes; the last answer stays drawn meanwhile --------
-  let roadTimer = null, roadAsked = null, roadSeq = 0;
+  let roadTimer = null, roadAsked = null, roadSeq = 0, roadWaiters = [];  // roadWaiters: freshRoad's resolves
   const post = async (scenario) => {
     const resp = await fetch("/api/road", { method: "POST", headers: { "content-type": "application/json" },
       body: JSON.stringify({ scenario }) });
@@ -185,6 +185,9 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
       ui.road = { roadKey: roadKey(v), motionKey: key, layout, motion, error };
       if (layout) ui.known = ui.road;
       roadAsked = null;
+      const waiting = roadWaiters;  // the answer is for the scenario as it is now (a newer question would be pending)
+      roadWaiters = [];
+      for (const resolve of waiting) resolve(layout ? roadOf(layout) : null);
       if (crossAsked) onRoad(layout);
       if (error) note(`preview: ${error}`);
       draw();
@@ -192,6 +195,15 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   }
   /** The main road to draw and edit on (roadOf): the last answer's, null before the first. */
   const mainRoad = () => (ui.known ? roadOf(ui.known.layout) : null);
+  /** The main road of the scenario as it is now, once the server answered for it (null if it refused): what a lane
+   * placement is computed on, so a road just changed in the form is never placed on with the previous answer's. */
+  function freshRoad() {
+    const v = view(), key = roadKey(v);
+    if (ui.known && ui.known.roadKey === key) return Promise.resolve(roadOf(ui.known.layout));
+    if (ui.road && ui.road.motionKey === motionKey(v)) return Promise.resolve(null);  // refused as it is
+    askRoad(v);
+    return new Promise((resolve) => roadWaiters.push(resolve));
+  }
   /** Lanes per direction: the scenario's own field (the schema's default 2). */
   const lanesOf = (v) => (v.road || {}).lanes_per_direction ?? 2;
 
@@ -201,14 +213,14 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     if (!ui.known || !ui.known.motion) return null;
     return { ...ui.known.motion, stale: ui.known.motionKey !== motionKey(v) };
   }
-  /** Agent i's pose at time t: the server's; while a newer answer is on its way, the last one moved with the
-   * agent's start (what a drag changes), or its start pose where the last answer does not have the agent. */
+  /** Agent i's pose at time t: the server's; while a newer answer is on its way, the last one moved and turned with
+   * the agent's start (what a drag changes), or its start pose where the last answer does not have the agent. */
   function agentPoseAt(v, i, t) {
     const a = v.agents[i], m = motionOf(v), f = m && m.agents[i], start = startPose(mainRoad(), a);
     if (!f || f.id !== a.id) return start;
     const p = poseAt(m.times, f.poses, t);
     if (!m.stale || !start) return p;
-    return [p[0] + start[0] - f.poses[0][0], p[1] + start[1] - f.poses[0][1], p[2]];
+    return [p[0] + start[0] - f.poses[0][0], p[1] + start[1] - f.poses[0][1], p[2] + start[2] - f.poses[0][2]];
   }
   /** The ego's footprint {pose, length, width} at time t (null before the first answer). */
   function egoAt(v, t) {
@@ -444,11 +456,12 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     }
   }
 
-  /** The agent's start as a lane placement (nearest lane at its t = 0 pose) or a free pose (where it is at t = 0). */
-  function setStart(a, kind) {
+  /** The agent's start as a lane placement (nearest lane at its t = 0 pose) or a free pose (where it is at t = 0) on
+   * `road` (roadOf of the server's answer for the scenario as it is: `freshRoad`). */
+  function setStart(a, kind, road) {
     if (!a || !a.start || a.start.kind === kind) return;
-    const road = mainRoad(), pose = startPose(road, a);
-    if (!road || !pose) return note("the road is on its way from the server: try again");
+    const pose = startPose(road, a);
+    if (!road || !pose) return note(`no road from the server${ui.road && ui.road.error ? `: ${ui.road.error}` : ""}`);
     const [x, y, yaw] = pose;
     if (kind === "lane") {
       const [sv, d] = road.sd(x, y), dir = d < 0 ? 1 : -1;
@@ -477,7 +490,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     }
   }
 
-  function addEvent() {
+  async function addEvent() {
     const a = scenario().agents[ui.selected];
     if (!a || (a.motion && a.motion.keyframes)) return;
     const action = $("ed-ev-action").value, t = Number($("ed-ev-t").value), dur = Number($("ed-ev-dur").value);
@@ -489,7 +502,8 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
       if ($("ed-ev-arg").value === "" || !Number.isInteger(arg) || arg < 0 || arg >= lanes) {
         return note(`lane change: a target lane 0..${lanes - 1}`);
       }
-      if (a.start.kind !== "lane") setStart(a, "lane");
+      if (a.start.kind !== "lane") setStart(a, "lane", await freshRoad());
+      if (a.start.kind !== "lane") return;
       e.lane = arg;
     } else if (action === "set_speed") {
       if ($("ed-ev-arg").value === "" || !Number.isFinite(arg) || arg < 0) return note("set speed: a target speed in m/s");
@@ -691,7 +705,12 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     else if (ui.selected === "ego") delete s.ego.path;
     select(null);
   }
-  $("ed-start").onchange = (e) => { setStart(scenario().agents[ui.selected], e.target.value); renderScript(); draw(); };
+  $("ed-start").onchange = async (e) => {
+    const a = scenario().agents[ui.selected], kind = e.target.value;
+    setStart(a, kind, await freshRoad());
+    renderScript();
+    draw();
+  };
   $("ed-unpath").onclick = () => {
     const a = scenario().agents[ui.selected];
     if (a && a.motion.keyframes) unpath(a); else if (ui.selected === "ego") delete scenario().ego.path;

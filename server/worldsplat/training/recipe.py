@@ -42,7 +42,7 @@ from worldsplat.training.device_data import (
     fit_stats,
     load_clips,
 )
-from worldsplat.training.stage_runner import Run, run_stage
+from worldsplat.training.stage_runner import Run, fit_batch, run_stage
 from worldsplat.world.dataset import write_dataset
 from worldsplat_models.dit import DiT4D
 from worldsplat_models.enhancer import Enhancer, enhancer_config, save_enhancer
@@ -76,6 +76,8 @@ class StackSize:
     decoder: tuple = (128, 4, 4, (64, 32))  # dim, depth, heads, up-sampling channels
     enhancer: tuple = (96, 4, 4, 2)  # dim, depth, heads, control depth
     mix_width: int = 24
+    pair_image: tuple = (112, 64)  # width, height of the pair clips (tiny: smaller, an untrained decoder's
+    # Gaussians are large and slow to render on the CPU)
     render_every: int = 4
     eval_every: int = 250
     sweep_steps: int = 50
@@ -86,7 +88,7 @@ SIZES = {
     "tiny": StackSize(
         clips=3, test_clips=1, pair_clips=1, val_clips=1, vae=((8, 16), 2, 1), prior=((8, 16, 16, 16), 1),
         dit=(32, 1, 2), decoder=(32, 1, 2, (16, 8)), enhancer=(32, 1, 2, 1), mix_width=8, render_every=2,
-        eval_every=2, sweep_steps=2,
+        eval_every=2, sweep_steps=2, pair_image=(56, 32),
         stages={"vae": StageSize(4, 4, 1e-3), "prior": StageSize(4, 4, 1e-3), "dit": StageSize(4, 1, 5e-4),
                 "decoder": StageSize(4, 1, 5e-4), "enhancer": StageSize(4, 1, 3e-4), "mix": StageSize(4, 8, 2e-3)},
     ),
@@ -164,14 +166,16 @@ def serving_models(vae, dec):
     return Models(cpu[0], cpu[1], None, campaign.DCFG, "train-stack", Path("."))
 
 
-def make_pairs(out: Path, split: str, count: int, models, shift: float | None = None, workers: int = 1) -> list[Path]:
+def make_pairs(
+    out: Path, split: str, count: int, models, shift: float | None = None, workers: int = 1, image=(112, 64)
+) -> list[Path]:
     """Per clip of a split: the decoder's reconstruction of the true track rendered on a shifted track (train: the
     seed's `train_shift`, val: `shift`) with its exact view, and for train seeds with a clean pair the same scene
     rendered on the true track (the bridge's clean condition). Existing files are kept (a restart continues);
     `workers` > 1: one process per clip at a time."""
     from worldsplat.training.pairs import split_seeds  # noqa: PLC0415
 
-    jobs = [(out, split, seed, models, shift) for seed in split_seeds(split, count)]
+    jobs = [(out, split, seed, models, shift, image) for seed in split_seeds(split, count)]
     if workers <= 1 or len(jobs) <= 1:
         return [p for j in jobs for p in _pair_clip(j)]
     with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn")) as pool:
@@ -183,14 +187,14 @@ def _pair_clip(job) -> list[Path]:
     from worldsplat.training.pairs import make_sample, sample_path, sample_scenario, save_sample  # noqa: PLC0415
     from worldsplat.world import build_world, simulate  # noqa: PLC0415
 
-    out, split, seed, models, shift = job
+    out, split, seed, models, shift, image = job
     torch.set_num_threads(1)
     todo = [(train_shift(seed) if shift is None else shift, "_dec")]
     if split == "train" and has_clean_pair(seed):
         todo.append((0.0, "_clean"))
     want = [(s, sample_path(out, split, seed, s, tag)) for s, tag in todo]
     if not all(p.exists() for _, p in want):
-        world = build_world(sample_scenario(seed))
+        world = build_world(sample_scenario(seed, *image))
         source = simulate(world, 0.0)
         scene = decoder_scene(source, models)
         for s, p in want:
@@ -215,7 +219,8 @@ def stage_kw(size: StackSize, name: str) -> dict:
 def train_vae(size: StackSize, run: Run, imgs, test_imgs, cards: dict):
     ch, lat, blocks = size.vae
     vae = seeded(run.seed + 1, lambda: MultiModalVAE(campaign.vae_config(ch, lat, blocks)))
-    stage = st.vae_stage(vae, imgs, test_imgs, size.stages["vae"].batch, run.seed, **stage_kw(size, "vae"))
+    kw = stage_kw(size, "vae")
+    stage = fit_batch(lambda n: st.vae_stage(vae, imgs, test_imgs, n, run.seed, **kw), size.stages["vae"].batch, run)
     cards["vae"] = run_stage(stage, run)
     vae.eval().requires_grad_(False)
     fit_stats(vae, imgs)
@@ -226,7 +231,8 @@ def train_prior_dit(size: StackSize, run: Run, vae, cache, test_cache, cards: di
     widths, blocks = size.prior
     cfg = dataclasses.replace(campaign.prior_config(vae), widths=tuple(widths), blocks=blocks)
     prior = seeded(run.seed + 2, lambda: LayoutPrior(cfg))
-    stage = st.prior_stage(prior, cache, test_cache, size.stages["prior"].batch, **stage_kw(size, "prior"))
+    kw = stage_kw(size, "prior")
+    stage = fit_batch(lambda n: st.prior_stage(prior, cache, test_cache, n, **kw), size.stages["prior"].batch, run)
     cards["prior"] = run_stage(stage, run) | {"figures": st.prior_figures(prior, cache, test_cache)}
     prior.eval().requires_grad_(False)
     if until == "prior":
@@ -237,7 +243,8 @@ def train_prior_dit(size: StackSize, run: Run, vae, cache, test_cache, cards: di
         campaign.dit_config(vae, "prior_residual", scale, cfg.in_channels), dim=dim, depth=depth, heads=heads
     )
     dit = seeded(run.seed + 3, lambda: DiT4D(dcfg))
-    stage = st.dit_stage(dit, cache, test_cache, size.stages["dit"].batch, run.seed, **stage_kw(size, "dit"))
+    kw = stage_kw(size, "dit")
+    stage = fit_batch(lambda n: st.dit_stage(dit, cache, test_cache, n, run.seed, **kw), size.stages["dit"].batch, run)
     cards["dit"] = run_stage(stage, run) | {"residual_scale": scale}
     cards["dit"]["figures"] = {"heldout_flow_loss": cards["dit"]["best"]}
     return prior, dit.eval()
@@ -280,8 +287,9 @@ def encode_pairs(paths: list[Path], vae_cpu) -> tuple[list[dict], list[dict]]:
 def train_enhancer_mix(size: StackSize, run: Run, vae, dec, cards: dict, until: str):
     models = serving_models(vae, dec)
     pairs = run.dir / "pairs"
-    train_paths = make_pairs(pairs, "train", size.pair_clips, models, workers=run.workers)
-    val_paths = make_pairs(pairs, "val", size.val_clips, models, shift=2.0, workers=run.workers)
+    kw = {"workers": run.workers, "image": size.pair_image}
+    train_paths = make_pairs(pairs, "train", size.pair_clips, models, **kw)
+    val_paths = make_pairs(pairs, "val", size.val_clips, models, shift=2.0, **kw)
     degraded, clean = encode_pairs(train_paths, models.vae)
     val, _ = encode_pairs(val_paths, models.vae)
     model = seeded(run.seed + 5, lambda: Enhancer(enhancer_cfg(size, vae)))
@@ -296,7 +304,8 @@ def train_enhancer_mix(size: StackSize, run: Run, vae, dec, cards: dict, until: 
     train, select = mix_data(model.cpu(), models.vae, val_paths, run.device)
     model.to(run.device)
     net = seeded(run.seed + 6, lambda: PixelMix(PixelMixConfig(width=size.mix_width)))
-    stage = st.mix_stage(net, train, select, size.stages["mix"].batch, **stage_kw(size, "mix"))
+    kw = stage_kw(size, "mix")
+    stage = fit_batch(lambda n: st.mix_stage(net, train, select, n, **kw), size.stages["mix"].batch, run)
     cards["mix"] = run_stage(stage, run)
     from worldsplat.training.pixel_mix import mean_psnr  # noqa: PLC0415
 
@@ -350,6 +359,7 @@ def resolve_device(name: str | None) -> torch.device:
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
         torch.backends.cudnn.benchmark = True
+        torch._dynamo.config.suppress_errors = True  # a forward torch.compile cannot take runs eager, not fails
     return dev
 
 

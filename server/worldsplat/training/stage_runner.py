@@ -119,6 +119,25 @@ def prepare(stage: Stage, run: Run) -> Callable:
     return stage.model
 
 
+def fit_batch(build: Callable[[int], Stage], n: int, run: Run, memory_share: float = 0.5, most: int = 8) -> Stage:
+    """The stage at a batch sized to the device: on CUDA one forward and backward at batch n measures the peak
+    memory, and the batch grows by the whole factor that keeps it under `memory_share` of the device (at most
+    `most` x); elsewhere the stage as built (the CPU's batch is the size's)."""
+    stage = build(n)
+    if run.device.type != "cuda":
+        return stage
+    fwd = prepare(stage, run)
+    torch.cuda.reset_peak_memory_stats(run.device)
+    with torch.autocast("cuda", dtype=torch.bfloat16):
+        loss, _ = stage.loss(fwd, stage.batch(0, torch.Generator().manual_seed(run.seed)), 0)
+    loss.backward()
+    stage.model.zero_grad(set_to_none=True)
+    peak = torch.cuda.max_memory_allocated(run.device)
+    total = torch.cuda.get_device_properties(run.device).total_memory
+    factor = max(1, min(most, int(memory_share * total / max(peak, 1))))
+    return build(n * factor) if factor > 1 else stage
+
+
 def timed_step(stage: Stage, fwd, timers: dict) -> Callable:
     def step(model, i, gen):
         t = time.perf_counter()

@@ -51,6 +51,24 @@ def test_random_scenarios_export_and_import_back_with_every_agent(tmp_path, seed
     assert_same_agents(want, got, f"seed {seed}: {sc.road.kind} {sc.road.setting} {sc.ego.manoeuvre}")
 
 
+HIGHWAY_JUNCTION = {
+    "seed": 5,
+    "road": {"kind": "intersection", "setting": "highway", "lanes_per_direction": 3, "junction_s": 40.0},
+    "ego": {"manoeuvre": "turn_left", "start_lane": 2},
+    "agents": [
+        {"id": "truck", "class": "truck", "start": {"kind": "lane", "lane": 1, "s": 25.0}, "motion": {"speed": 12.0}}
+    ],
+}
+
+
+def test_a_highway_junction_exports_with_its_medians_and_imports_back(tmp_path):
+    sc = Scenario.parse(HIGHWAY_JUNCTION)
+    want, got = round_trip(sc, tmp_path / "hwj")
+    assert_same_agents(want, got, "highway junction")
+    road = import_scenario(tmp_path / "hwj.xosc").scenario["road"]
+    assert (road["kind"], road["setting"], road["junction_s"]) == ("intersection", "highway", 40.0)
+
+
 def test_random_seeds_cover_the_road_kinds_and_settings():
     scs = [random_scenario(s, frames=6, explicit_agents=0.5) for s in RANDOM_SEEDS]
     assert {s.road.kind for s in scs} == {"straight", "curve", "intersection"}
@@ -191,6 +209,8 @@ def test_exports_pass_the_asam_openscenario_checker(tmp_path):
     for seed in RANDOM_SEEDS:
         export_openscenario(random_scenario(seed, frames=6, explicit_agents=0.5), tmp_path / f"rnd{seed}")
         files.append(str(tmp_path / f"rnd{seed}.xosc"))
+    export_openscenario(Scenario.parse(HIGHWAY_JUNCTION), tmp_path / "hwj")
+    files.append(str(tmp_path / "hwj.xosc"))
     broken = (tmp_path / "urban_straight.xosc").read_text().replace('entityRef="Ego"', 'entityRef="Nobody"')
     (tmp_path / "broken.xosc").write_text(broken)
     (tmp_path / "broken.xodr").write_text((tmp_path / "urban_straight.xodr").read_text())

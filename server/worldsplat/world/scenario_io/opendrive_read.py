@@ -179,6 +179,7 @@ class OdrJunction:
     connecting: list[str]  # ids of its connecting roads (not read: the world builds the junction's surface)
     lanes: int
     lane_width: float
+    median: float = 0.0
 
 
 ARM_ANGLE_TOL = math.radians(0.05)  # arms at right angles within this (scenariogeneration writes them exactly)
@@ -226,7 +227,7 @@ def _read_junction(where: str, roads, junctions) -> OdrJunction:
     cx, cy = _junction_centre(jw, arms, quarter, errors)
     if errors:
         raise ImportRefused(errors)
-    return OdrJunction(jid, jw, cx, cy, arms, connecting, first.road.lanes, first.road.lane_width)
+    return OdrJunction(jid, jw, cx, cy, arms, connecting, first.road.lanes, first.road.lane_width, first.road.median)
 
 
 def _junction_arms(where: str, jid: str, roads, errors: list[str]) -> tuple[dict[str, OdrArm], list[str]]:
@@ -262,9 +263,6 @@ def _junction_arms(where: str, jid: str, roads, errors: list[str]) -> tuple[dict
             errors.append(f"{where}/road[{rid}]/link: not linked to junction[{jid}] (every road is one of its arms)")
         if road is None or link is None:
             continue
-        if road.median > 0.0:
-            errors.append(f"{where}/road[{rid}]/lanes: a median on an arm of junction[{jid}] is not supported")
-            continue
         end_s = road.length if link == "successor" else 0.0
         out = road.hdg + (math.pi if link == "successor" else 0.0)
         arms[rid] = OdrArm(road, wrap(out), end_s)
@@ -276,14 +274,14 @@ def _right_angle_arms(where: str, jw: str, arms: dict[str, OdrArm], errors: list
     junction at right angles; problems are appended to `errors`."""
     ids = list(arms)
     first = arms[ids[0]]
-    sections = {(a.road.lanes, a.road.lane_width) for a in arms.values()}
-    if len(sections) != 1:
+    layout = lambda r: (r.lanes, r.lane_width, r.median)  # noqa: E731
+    if len({layout(a.road) for a in arms.values()}) != 1:
         for rid, a in arms.items():
-            if (a.road.lanes, a.road.lane_width) != (first.road.lanes, first.road.lane_width):
+            if layout(a.road) != layout(first.road):
                 errors.append(
-                    f"{where}/road[{rid}]/lanes: {a.road.lanes} lanes of {a.road.lane_width:g} m each way, road"
-                    f"[{ids[0]}] {first.road.lanes} of {first.road.lane_width:g} m; the world's cross road has the "
-                    "main road's lanes"
+                    f"{where}/road[{rid}]/lanes: {a.road.lanes} lanes of {a.road.lane_width:g} m each way"
+                    f"{_beside(a.road)}, road[{ids[0]}] {first.road.lanes} of {first.road.lane_width:g} m"
+                    f"{_beside(first.road)}; the world's cross road has the main road's lanes"
                 )
     quarter = {}
     for rid, a in arms.items():
@@ -302,6 +300,10 @@ def _right_angle_arms(where: str, jw: str, arms: dict[str, OdrArm], errors: list
         else:
             quarter[k] = rid
     return quarter
+
+
+def _beside(road: OdrRoad) -> str:
+    return f" beside a {road.median:g} m median" if road.median else ""
 
 
 def _junction_centre(jw: str, arms: dict[str, OdrArm], quarter: dict[int, str], errors: list[str]):

@@ -18,10 +18,10 @@ JUNCTION_ID, CROSS_ARM = 100, 120.0  # the exported junction's id; its cross roa
 ROAD_TYPE = {"urban": xodr.RoadType.town, "suburban": xodr.RoadType.rural, "highway": xodr.RoadType.motorway}
 
 
-def _median_road(road, geom, x0: float, y0: float, h0: float) -> xodr.Road:
+def _median_road(road, geom, road_id: int = 0, start: tuple[float, float, float] | None = None) -> xodr.Road:
     """One road with a median lane (half the median wide) each side of the reference line, then the driving lanes
     (broken lines between them, a solid one at each edge)."""
-    planview = xodr.PlanView(x0, y0, h0)
+    planview = xodr.PlanView(*start) if start is not None else xodr.PlanView()
     planview.add_geometry(geom)
     section = xodr.LaneSection(0, xodr.standard_lane(0, None))
     for add in (section.add_left_lane, section.add_right_lane):
@@ -33,7 +33,7 @@ def _median_road(road, geom, x0: float, y0: float, h0: float) -> xodr.Road:
             add(xodr.standard_lane(road.lane_width, xodr.std_roadmark_solid() if edge else xodr.std_roadmark_broken()))
     lanes = xodr.Lanes()
     lanes.add_lanesection(section)
-    return xodr.Road(0, planview, lanes)
+    return xodr.Road(road_id, planview, lanes)
 
 
 def write_opendrive(road, s0: float, length: float, name: str) -> tuple[xodr.OpenDrive, Callable]:
@@ -49,7 +49,7 @@ def write_opendrive(road, s0: float, length: float, name: str) -> tuple[xodr.Ope
     if road.cross_s is None:
         geom = xodr.Arc(road.curvature, length=length) if road.curvature != 0.0 else xodr.Line(length)
         if road.median > 0.0:
-            odr_road = _median_road(road, geom, x0, y0, h0)
+            odr_road = _median_road(road, geom, 0, (x0, y0, h0))
         else:
             odr_road = xodr.create_road([geom], id=0, **lanes)
             odr_road.planview.set_start_point(x0, y0, h0)
@@ -58,10 +58,13 @@ def write_opendrive(road, s0: float, length: float, name: str) -> tuple[xodr.Ope
         odr.adjust_roads_and_lanes()
         return odr, lambda s: (0, s - s0)
     c, r = float(road.cross_s), float(road.curb_out)
-    west = xodr.create_road([xodr.Line(c - r - s0)], id=1, **lanes)
-    east = xodr.create_road([xodr.Line(s0 + length - c - r)], id=2, **lanes)
-    south = xodr.create_road([xodr.Line(CROSS_ARM - r)], id=3, **lanes)
-    north = xodr.create_road([xodr.Line(CROSS_ARM - r)], id=4, **lanes)
+    arm_lengths = (c - r - s0, s0 + length - c - r, CROSS_ARM - r, CROSS_ARM - r)
+    if road.median > 0.0:
+        west, east, south, north = (_median_road(road, xodr.Line(a), k + 1) for k, a in enumerate(arm_lengths))
+    else:
+        west, east, south, north = (
+            xodr.create_road([xodr.Line(a)], id=k + 1, **lanes) for k, a in enumerate(arm_lengths)
+        )
     jc = xodr.CommonJunctionCreator(id=JUNCTION_ID, name="junction", startnum=JUNCTION_ID)
     # (x, y, heading into the junction) around its centre; main-road arms along +x, cross-road arms along +y
     jc.add_incoming_road_cartesian_geometry(west, -r, 0, 0, "successor")

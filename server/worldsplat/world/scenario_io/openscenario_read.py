@@ -105,7 +105,7 @@ class _Reader:
         if abs(wrap(out - h)) > math.radians(1):
             raise ImportRefused([f"{where}: the ego must start heading along one of {jn.where}'s roads"])
         road_type = next(iter(jn.arms.values())).road.road_type
-        self.road = OdrRoad(jn.cx, jn.cy, out, math.inf, 0.0, jn.lanes, jn.lane_width, road_type=road_type)
+        self.road = OdrRoad(jn.cx, jn.cy, out, math.inf, 0.0, jn.lanes, jn.lane_width, jn.median, road_type)
         for rid, a in jn.arms.items():
             if abs(math.sin(a.out - out)) < 0.5:  # along the main road
                 self.arm_flip[rid] = math.cos(a.road.hdg - out) < 0

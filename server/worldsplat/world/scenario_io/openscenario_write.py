@@ -25,7 +25,6 @@ from worldsplat.world.agents import (
     spec_poses,
 )
 from worldsplat.world.layout import build_world
-from worldsplat.world.scenario_io.common import ImportRefused
 from worldsplat.world.scenario_io.opendrive_write import write_opendrive
 
 VEHICLE_CATEGORY = {
@@ -123,8 +122,6 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
     warnings: list[str] = []
     sc = scenario
     road, _, times, travel = scenario_road(sc)
-    if road.median > 0.0 and road.cross_s is not None:
-        raise ImportRefused(["road: an intersection on a highway (its median) cannot be exported to OpenDRIVE yet"])
     s0, length = -150.0, travel + 400.0
     odr, road_at = write_opendrive(road, s0, length, xodr_path.stem)
     odr.write_xml(str(xodr_path))

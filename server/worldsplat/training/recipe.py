@@ -20,7 +20,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
-import os
 import platform
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -459,7 +458,3 @@ def write_cards(run_dir: Path, card: dict) -> None:
     lines += ["", "Held-out figures per stage:", ""]
     lines += [f"- {n}: `{json.dumps(c.get('figures', {}))}`" for n, c in card["stages"].items()]
     atomic_write_bytes(run_dir / "MODEL_CARD.md", ("\n".join(lines) + "\n").encode())
-
-
-def default_workers() -> int:
-    return max(1, (os.cpu_count() or 1))

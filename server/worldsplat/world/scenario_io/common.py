@@ -1,7 +1,7 @@
 """What the scenario-file readers share: the refusal, the import's result, the file's frame -> ours, the clip.
 
-`scenario_io` (the entry points) and each format's reader (`openscenario`, `commonroad`) import these from here,
-so no reader imports its package back.
+`scenario_io` (the entry points) and each format's reader and writer (`openscenario_read`, `opendrive_read`,
+`commonroad_read`, `openscenario_write`, `commonroad_write`) import these from here, so none imports its package back.
 """
 
 from __future__ import annotations

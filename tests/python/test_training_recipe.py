@@ -52,6 +52,8 @@ def test_stage_sweeps_trains_and_resumes_to_the_same_weights(tmp_path):
     assert state["done"] and state["lr"] in [float(k) for k in state["sweep"]]
     assert state["lr"] == min((float(k) for k in state["sweep"]), key=lambda k: state["sweep"][f"{k:.3g}"])
     assert state["best"] < state["heldout"][0]["value"] and not state["diverged_at"]
+    fresh = toy_stage()  # the sweep trained copies: step 0 is the initial weights' figure
+    assert state["heldout"][0]["value"] == fresh.heldout(fresh.model)
     assert state["throughput"]["images_per_s"] > 0 and 0 <= state["throughput"]["step_share"] <= 1
     # stopped at step 4, then run again: the same weights as the run that went through
     stopped = Run(tmp_path / "b", torch.device("cpu"), sweep_steps=2, stop_at=("toy", 4))

@@ -203,7 +203,7 @@ def enhancer_stage(model, degraded: list[dict], clean: list[dict], val: list[dic
     def loss(fwd, b, i):
         x, cond, render_lat = b
         with torch.device(dev):  # the bridge draws its source noise without naming a device
-            return model.loss(x, cond, generator=device_generator(dev, seed * 1_000_003 + i), render_lat=render_lat), {}
+            return fwd.loss(x, cond, generator=device_generator(dev, seed * 1_000_003 + i), render_lat=render_lat), {}
 
     @torch.no_grad()
     def heldout(m):

@@ -244,8 +244,8 @@ mod tests {
         let (u2, _, _) = project(&front.at(&IDENTITY, 2.0), [11.7, 0.0, 1.5]);
         assert!((u2 - (100.0 + cam.fx * 2.0 / 10.0)).abs() < 1e-9, "u2 = {u2}");
         // A point above the camera appears above the centre (y down).
-        let (_, v3, _) = project(&cam, [11.7, 0.0, 2.5]);
-        assert!(v3 < 56.0);
+        let (_, v_above, _) = project(&cam, [11.7, 0.0, 2.5]);
+        assert!(v_above < 56.0);
         // The left camera looks left.
         let (_, _, zl) = project(&rig[5].at(&IDENTITY, 0.0), [0.0, 10.0, 1.5]);
         assert!(zl > 5.0);

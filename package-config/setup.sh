@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One idempotent set-up for every ecosystem the project uses. Each step checks
-# first, so the second run takes a few seconds. Usage: setup.sh [python|rust|browser|all]
+# first, so the second run takes a few seconds. Usage: setup.sh [python|qc|rust|browser|all]
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 HERE="$ROOT/package-config"
@@ -42,6 +42,17 @@ setup_python() {
   "$venv/bin/worldsplat" export-onnx >/dev/null
 }
 
+setup_qc() {
+  # The ASAM OpenSCENARIO XML checker (tests/python/test_scenario_export.py) pins lxml < 6 while the project pins
+  # lxml 6, so it lives in a venv of its own.
+  local venv="$ROOT/.venv-qc"
+  if ! "$venv/bin/python" -c "import qc_openscenario" 2>/dev/null; then
+    log "qc: installing asam-qc-openscenarioxml $ASAM_QC_OPENSCENARIOXML_VERSION into .venv-qc"
+    python3 -m venv "$venv"
+    "$venv/bin/pip" install -q "asam-qc-openscenarioxml==$ASAM_QC_OPENSCENARIOXML_VERSION"
+  fi
+}
+
 setup_rust() {
   command -v cargo >/dev/null || { log "rust: cargo missing; install rustup first"; exit 1; }
   rustup target list --installed | grep -qx "$RUST_WASM_TARGET" || rustup target add "$RUST_WASM_TARGET"
@@ -69,9 +80,10 @@ setup_browser() {
 
 case "$WHAT" in
   python) setup_python ;;
+  qc) setup_qc ;;
   rust) setup_rust ;;
   browser) setup_apt; setup_browser ;;
   apt) setup_apt ;;
-  all) setup_apt; setup_python; setup_rust; setup_browser ;;
-  *) log "unknown target '$WHAT' (python|rust|browser|apt|all)"; exit 2 ;;
+  all) setup_apt; setup_python; setup_qc; setup_rust; setup_browser ;;
+  *) log "unknown target '$WHAT' (python|qc|rust|browser|apt|all)"; exit 2 ;;
 esac

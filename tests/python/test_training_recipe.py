@@ -122,3 +122,28 @@ def load_models_file(path):
     from safetensors.torch import load_file
 
     return load_file(str(path))
+
+
+def test_small_is_the_served_configuration_and_every_size_builds():
+    import dataclasses
+
+    from worldsplat.training.recipe import SIZES, stack_configs
+    from worldsplat_models.enhancer import Enhancer, load_enhancer
+    from worldsplat_models.weights import KINDS, build, read_metadata, weights_dir
+
+    served = stack_configs(SIZES["small"])
+    for kind in ("vae", "decoder", "prior", "dit"):
+        have = read_metadata(weights_dir() / f"{kind}_small.safetensors")["config"]
+        mine = dataclasses.asdict(served[kind])
+        if kind == "dit":  # the trained prior's residual RMS
+            have.pop("residual_scale"), mine.pop("residual_scale")
+        assert json.loads(json.dumps(mine)) == have, kind
+    enh, _ = load_enhancer(weights_dir() / "enhancer_small.safetensors")
+    assert served["enhancer"].dit == enh.cfg.dit and served["mix"] == enh.cfg.pixel_mix
+    assert dataclasses.replace(enh.cfg, pixel_mix=None) == served["enhancer"]
+    for name in ("tiny", "large"):
+        cfgs = stack_configs(SIZES[name])
+        with torch.device("meta"):
+            for kind in KINDS:
+                assert sum(p.numel() for p in build(kind, cfgs[kind]).parameters()) > 0, (name, kind)
+            Enhancer(cfgs["enhancer"])

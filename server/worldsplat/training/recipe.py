@@ -26,6 +26,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -215,9 +216,29 @@ def stage_kw(size: StackSize, name: str) -> dict:
     return {"steps": s.steps, "lr": s.lr, "eval_every": size.eval_every, "warmup": 100}
 
 
-def train_vae(size: StackSize, run: Run, imgs, test_imgs, cards: dict):
+def stack_configs(size: StackSize) -> dict:
+    """The six models' configurations at a size: the served ones (`campaign`'s builders, `enhancer_config("small")`,
+    `PixelMixConfig`) at the size's widths; the DiT's residual_scale is the trained prior's, set after it."""
     ch, lat, blocks = size.vae
-    vae = seeded(run.seed + 1, lambda: MultiModalVAE(campaign.vae_config(ch, lat, blocks)))
+    vae = SimpleNamespace(cfg=campaign.vae_config(ch, lat, blocks))  # what the campaign's builders read
+    widths, pblocks = size.prior
+    prior = dataclasses.replace(campaign.prior_config(vae), widths=tuple(widths), blocks=pblocks)
+    dim, depth, heads = size.dit
+    dit = campaign.dit_config(vae, "prior_residual", 1.0, prior.in_channels)
+    ddim, ddepth, dheads, ups = size.decoder
+    dec = campaign.decoder_config(vae)
+    return {
+        "vae": vae.cfg,
+        "decoder": dataclasses.replace(dec, dim=ddim, depth=ddepth, heads=dheads, up_channels=tuple(ups)),
+        "prior": prior,
+        "dit": dataclasses.replace(dit, dim=dim, depth=depth, heads=heads),
+        "enhancer": enhancer_cfg(size, lat),
+        "mix": PixelMixConfig(width=size.mix_width),
+    }
+
+
+def train_vae(size: StackSize, run: Run, imgs, test_imgs, cards: dict):
+    vae = seeded(run.seed + 1, lambda: MultiModalVAE(stack_configs(size)["vae"]))
     kw = stage_kw(size, "vae")
     stage = fit_batch(lambda n: st.vae_stage(vae, imgs, test_imgs, n, run.seed, **kw), size.stages["vae"].batch, run)
     cards["vae"] = run_stage(stage, run)
@@ -227,21 +248,16 @@ def train_vae(size: StackSize, run: Run, imgs, test_imgs, cards: dict):
 
 
 def train_prior_dit(size: StackSize, run: Run, vae, cache, test_cache, cards: dict, until: str):
-    widths, blocks = size.prior
-    cfg = dataclasses.replace(campaign.prior_config(vae), widths=tuple(widths), blocks=blocks)
-    prior = seeded(run.seed + 2, lambda: LayoutPrior(cfg))
+    cfgs = stack_configs(size)
+    prior = seeded(run.seed + 2, lambda: LayoutPrior(cfgs["prior"]))
     kw = stage_kw(size, "prior")
     stage = fit_batch(lambda n: st.prior_stage(prior, cache, test_cache, n, **kw), size.stages["prior"].batch, run)
     cards["prior"] = run_stage(stage, run) | {"figures": st.prior_figures(prior, cache, test_cache)}
     prior.eval().requires_grad_(False)
     if until == "prior":
         return prior, None
-    scale = attach_residuals(prior, [cache, test_cache], cfg.in_channels)
-    dim, depth, heads = size.dit
-    dcfg = dataclasses.replace(
-        campaign.dit_config(vae, "prior_residual", scale, cfg.in_channels), dim=dim, depth=depth, heads=heads
-    )
-    dit = seeded(run.seed + 3, lambda: DiT4D(dcfg))
+    scale = attach_residuals(prior, [cache, test_cache], cfgs["prior"].in_channels)
+    dit = seeded(run.seed + 3, lambda: DiT4D(dataclasses.replace(cfgs["dit"], residual_scale=scale)))
     kw = stage_kw(size, "dit")
     stage = fit_batch(lambda n: st.dit_stage(dit, cache, test_cache, n, run.seed, **kw), size.stages["dit"].batch, run)
     cards["dit"] = run_stage(stage, run) | {"residual_scale": scale}
@@ -251,9 +267,7 @@ def train_prior_dit(size: StackSize, run: Run, vae, cache, test_cache, cards: di
 
 def train_decoder(size: StackSize, run: Run, vae, data: tuple, cards: dict):
     cache, imgs, test_cache, test_imgs = data
-    dim, depth, heads, ups = size.decoder
-    cfg = dataclasses.replace(campaign.decoder_config(vae), dim=dim, depth=depth, heads=heads, up_channels=tuple(ups))
-    dec = seeded(run.seed + 4, lambda: GaussianDecoder(cfg))
+    dec = seeded(run.seed + 4, lambda: GaussianDecoder(stack_configs(size)["decoder"]))
     stage = st.decoder_stage(dec, cache, imgs, test_cache, test_imgs, vae, size.stages["decoder"].batch,
                              size.render_every, **stage_kw(size, "decoder"))  # fmt: skip
     cards["decoder"] = run_stage(stage, run)
@@ -261,9 +275,10 @@ def train_decoder(size: StackSize, run: Run, vae, data: tuple, cards: dict):
     return dec.eval()
 
 
-def enhancer_cfg(size: StackSize, vae):
-    """The served enhancer (`enhancer_config("small")`: a render bridge on the stack's VAE) at the size's widths."""
-    base, c = enhancer_config("small"), vae.cfg.latent_channels
+def enhancer_cfg(size: StackSize, c: int):
+    """The served enhancer (`enhancer_config("small")`: a render bridge on the stack's VAE of c latent channels per
+    modality) at the size's widths."""
+    base = enhancer_config("small")
     dim, depth, heads, cdepth = size.enhancer
     dit = dataclasses.replace(base.dit, in_channels=c, out_channels=c, control_channels=2 * c + 1, dim=dim,
                               depth=depth, heads=heads, control_depth=cdepth)  # fmt: skip
@@ -291,7 +306,7 @@ def train_enhancer_mix(size: StackSize, run: Run, vae, dec, cards: dict, until: 
     val_paths = make_pairs(pairs, "val", size.val_clips, models, shift=2.0, **kw)
     degraded, clean = encode_pairs(train_paths, models.vae)
     val, _ = encode_pairs(val_paths, models.vae)
-    model = seeded(run.seed + 5, lambda: Enhancer(enhancer_cfg(size, vae)))
+    model = seeded(run.seed + 5, lambda: Enhancer(stack_configs(size)["enhancer"]))
     stage = st.enhancer_stage(model, degraded, clean, val, run.device, run.seed, **stage_kw(size, "enhancer"))
     cards["enhancer"] = run_stage(stage, run) | {
         "pairs": {"degraded": len(degraded), "clean": len(clean), "val": len(val)}
@@ -302,7 +317,7 @@ def train_enhancer_mix(size: StackSize, run: Run, vae, dec, cards: dict, until: 
         return model, None
     train, select = mix_data(model.cpu(), models.vae, val_paths, run.device)
     model.to(run.device)
-    net = seeded(run.seed + 6, lambda: PixelMix(PixelMixConfig(width=size.mix_width)))
+    net = seeded(run.seed + 6, lambda: PixelMix(stack_configs(size)["mix"]))
     kw = stage_kw(size, "mix")
     stage = fit_batch(lambda n: st.mix_stage(net, train, select, n, **kw), size.stages["mix"].batch, run)
     cards["mix"] = run_stage(stage, run)

@@ -14,12 +14,12 @@ colours and lighting are absent: they are the model's to generate. Channels (`LA
     depth       layout depth (camera z of the road plane or box hit), log-normalised to [-1, 1] over
                 [near, far] as the models normalise depth; +1 where the ray meets neither (sky, far)
 
-Then the *map layer* (v9, appended so that a model trained on the first 7 channels reads them unchanged): the
+Then the *map layer* (appended after them, so that a model trained on the first 7 channels reads them unchanged): the
 scenario's static structure as a city map states it (building footprints with their heights, trees, poles / signs /
 barriers), each as its solid volume without texture or colour, as CityDreamer's building-instance and height maps
 condition a city generator. The street's buildings and trees are a deterministic function of the scenario (its road
 kind and seed), so a generator that is not told where they stand can only draw an average facade at an average
-distance (web/docs/models.md "v9": all-pixel depth AbsRel stuck at 0.22 while the road was 0.03).
+distance (without the map layer, all-pixel depth AbsRel stayed at 0.22 while the road reached 0.03; CHANGELOG.md).
 
     building    1 where a building volume is nearer than the road / agent surface above
     vegetation  1 where a tree (trunk or crown) is
@@ -66,7 +66,7 @@ LAYOUT_CHANNELS = (
     "furniture",
     "map_depth",
 )
-ROAD_AGENT_CHANNELS = 7  # the first 7: the road and the agents alone (what the v4-v8 models read)
+ROAD_AGENT_CHANNELS = 7  # the first 7: the road and the agents alone (what a road-only model reads)
 MAP_CLASSES = {"building": (BUILDING,), "vegetation": (VEGETATION,), "furniture": (POLE, SIGN, BARRIER)}
 LAYOUT_RANGE = 90.0  # metres: the road plane beyond this is left out (as the sketch's lines are)
 LAYOUT_NEAR, LAYOUT_FAR = 0.5, 80.0  # metres: the depth channel's normalisation range

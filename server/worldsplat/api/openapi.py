@@ -48,7 +48,8 @@ SCENARIO_RULES = (
     "speeds within a class's bound (also between keyframes), ego.start_lane and lane changes within the road's "
     "lanes, road.junction_s only for kind intersection and far enough for a turn, turns only at an intersection, "
     "an agent's start or keyframes (not both), an event's fields for its kind, sizes within a class's range, agents "
-    "that overlap or leave the world (POST /api/road checks the road's rules alone)"
+    "that leave the world (agents that overlap are accepted and reported; POST /api/road checks the road's rules "
+    "alone)"
 )
 
 

@@ -2,7 +2,7 @@
 CommonRoad .xml, or a scenario / preset .json) read by the same code as `worldsplat import-scenario`
 (`worldsplat.world.scenario_io.load_scenario_file`). The files are written to a private temporary folder under
 names checked here; an .xosc's road is looked up among them by name only, so no other path is ever opened.
-Every refusal is a 422 whose entries name the file (`files[0]`) and, in the message, the element or field."""
+Agents that overlap are imported and listed (`overlaps`), or with `strict` refused. Every refusal is a 422 whose entries name the file (`files[0]`) and, in the message, the element or field."""
 
 from __future__ import annotations
 
@@ -11,9 +11,11 @@ import tempfile
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from worldsplat.world.scenario_io import SCENARIO_SUFFIXES, ImportRefused, load_scenario_file
+
+from .schemas import OverlapOut
 
 MAX_IMPORT_BODY = 4 << 20  # the request (JSON), all files together
 MAX_FILES = 8
@@ -77,6 +79,11 @@ class ImportRequest(BaseModel):
         None, ge=1.0, le=30.0, allow_inf_nan=False, description="clip frame rate (default: 4, CommonRoad: its dt)"
     )
     frames: int | None = Field(None, ge=1, le=32, description="clip frames (default: the file's duration, <= 32)")
+    strict: StrictBool = Field(
+        False,
+        description="refuse agents that overlap (a 422 naming them and when); default: import them as they are and "
+        "list them in `overlaps`",
+    )
 
 
 class ImportOut(BaseModel):
@@ -84,7 +91,10 @@ class ImportOut(BaseModel):
     format: Literal["openscenario", "commonroad", "scenario"]
     source: str = Field(description="the name of the scenario file read")
     agents: int = Field(description="explicit agents in the scenario")
-    warnings: list[str] = Field(description="what the import approximated (never dropped silently)")
+    warnings: list[str] = Field(
+        description="what the import approximated (never dropped silently), and each overlap as one line"
+    )
+    overlaps: list[OverlapOut] = Field(description="the agents that overlap another (or the ego), and when")
 
 
 class FileProblems(Exception):
@@ -134,6 +144,8 @@ def import_files(req: ImportRequest) -> dict:
         except Exception as e:  # noqa: BLE001 - a reader's own failure on an odd file: the client's 422, logged
             log.warning("import of %s failed", names[i], exc_info=True)
             raise FileProblems([(f"files[{i}]", f"{names[i]}: cannot import: {type(e).__name__}: {e}")]) from None
+    if req.strict and loaded.overlaps:
+        raise FileProblems([(f"files[{i}]", f"{names[i]}: {o.warning} (strict)") for o in loaded.overlaps])
     sc = loaded.scenario
     return {
         "scenario": sc.to_json_dict(),
@@ -141,4 +153,5 @@ def import_files(req: ImportRequest) -> dict:
         "source": names[i],
         "agents": len(sc.agents),
         "warnings": loaded.warnings,
+        "overlaps": [o.to_json() for o in loaded.overlaps],
     }

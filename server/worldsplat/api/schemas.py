@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, field_validator
 
 from worldsplat.core.camera import CAMERA_NAMES
 from worldsplat.core.limits import MAX_SHIFT_M
@@ -27,6 +27,11 @@ class SceneRequest(BaseModel):
         None,
         description="oracle | reconstruct | generate; a mode whose weights this server lacks is 409 (GET "
         "/api/modes lists those it has); default: the best mode whose weights exist",
+    )
+    strict: StrictBool = Field(
+        False,
+        description="refuse agents that overlap (a 422 naming them); default: accept them, as they are, and list "
+        "them in the answer's `overlaps`",
     )
 
 
@@ -107,6 +112,15 @@ class JobOut(BaseModel):
     events: str = Field(description="SSE progress of this job")
 
 
+class OverlapOut(BaseModel):
+    """Two footprints that overlap: an explicit agent and another (or the ego), from `first_s` to `last_s`."""
+
+    agent: str = Field(description="the agent's id")
+    other: str = Field(description="the other agent's id, or `ego`")
+    first_s: float = Field(description="the first frame time they overlap at (s)")
+    last_s: float = Field(description="the last frame time they overlap at (s)")
+
+
 class SceneState(BaseModel):
     model_config = ConfigDict(extra="allow")
     scene_id: str
@@ -116,6 +130,10 @@ class SceneState(BaseModel):
     bytes: int | None = Field(None, description="size of the whole .wsplat (ready)")
     wsplat: str | None = Field(None, description="the stream: /api/scenes/{id}/wsplat")
     job: JobOut | None = None
+    overlaps: list[OverlapOut] | None = Field(
+        None, description="POST /api/scenes: the scenario's agents that overlap, and when (rendered as they are)"
+    )
+    warnings: list[str] | None = Field(None, description="POST /api/scenes: each overlap as one readable line")
 
 
 class Footprint(BaseModel):

@@ -11,7 +11,7 @@ from fastapi import APIRouter, Body, Query, Request
 from fastapi.responses import JSONResponse, Response, StreamingResponse
 
 from worldsplat.core.scenario import ScenarioError, default_preset_name, load_preset
-from worldsplat.world.agents import check_scenario
+from worldsplat.world.agents import scenario_overlaps
 
 from .. import runners
 from ..cache import LiveFile
@@ -109,12 +109,15 @@ async def import_scene_file(
         ),
         **errors(400, 409, 413, 429, 503),
         **invalid(
-            f"{SCENARIO_RULES}; a scene over this server's size: frames x cameras x width x height above its "
-            "limit (worldsplat serve --max-scene-mpix)"
+            f"{SCENARIO_RULES}; with `strict`, agents that overlap (the entry names them and when); a scene over "
+            "this server's size: frames x cameras x width x height above its limit (worldsplat serve "
+            "--max-scene-mpix)"
         ),
     },
 )
 def create_scene(req: Annotated[SceneRequest, Body()], pg: Pg) -> JSONResponse:
+    """Queue the scene of a scenario (or a preset). Agents that overlap are generated as they are and listed in the
+    answer (`overlaps`, `warnings`); with `strict` they are a 422 naming them."""
     pg.require_ready()
     if req.scenario is not None:
         scenario = req.scenario
@@ -133,10 +136,17 @@ def create_scene(req: Annotated[SceneRequest, Body()], pg: Pg) -> JSONResponse:
             f"{pg.max_scene_pixels / 1e6:.1f}M (worldsplat serve --max-scene-mpix)",
             field="scenario.image",
         )
-    problems = check_scenario(scenario)  # what needs the road: overlaps, off-world agents (scenario v2)
-    if problems:
+    try:  # what needs the road: off-world agents refused, overlapping ones reported (scenario v2)
+        overlaps = scenario_overlaps(scenario)
+    except ScenarioError as e:
         raise ApiError(
-            422, "; ".join(f"scenario.{p}" for p in problems), field="scenario." + problems[0].split(":", 1)[0]
+            422, "; ".join(f"scenario.{p}" for p in e.errors), field="scenario." + e.errors[0].split(":", 1)[0]
+        ) from None
+    if req.strict and overlaps:
+        raise ApiError(
+            422,
+            "strict: " + "; ".join(f"scenario.{o.warning}" for o in overlaps),
+            field=f"scenario.agents[{overlaps[0].agent}]",
         )
     mode = req.mode or pg.default_mode
     if mode not in pg.modes:
@@ -145,7 +155,9 @@ def create_scene(req: Annotated[SceneRequest, Body()], pg: Pg) -> JSONResponse:
             f"mode: {mode!r} is not available here (its weights are not installed); available modes: {pg.modes}",
             field="mode",
         )
-    state = pg.submit_scene(scenario, mode)
+    state = dict(pg.submit_scene(scenario, mode))
+    state["overlaps"] = [o.to_json() for o in overlaps]
+    state["warnings"] = [o.warning for o in overlaps]
     return JSONResponse(state, status_code=200 if state["status"] == "ready" else 202)
 
 

@@ -1,7 +1,7 @@
 // The playground page: scenario panel -> POST /api/scenes -> progress (SSE) -> .wsplat stream into the wasm viewer;
 // timeline, cameras, track shift, track videos (raw and refined), share links, downloads (the scene in the formats
-// `worldsplat export` writes, the scenario as JSON), drag-and-drop (scenes to the viewer, scenario files to the form),
-// stats.
+// `worldsplat export` writes, the scenario as JSON), scenario files in and out (import: the file picker or drag and
+// drop, to the form; export: OpenSCENARIO + OpenDRIVE, CommonRoad, JSON), drag-and-drop of scenes to the viewer, stats.
 // No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
 import { SHIFT_MAX_M } from "./limits.js";
 import { decodeShare, RIG_CAMERAS, shareUrl } from "./share.js";
@@ -139,6 +139,7 @@ function selectPreset(name) {
   $("preset").value = p.name;
   $("preset-desc").textContent = p.description;
   fillForm(p.scenario);
+  showScenarioWarnings([]);
 }
 
 // ---- jobs and progress ---------------------------------------------------------------------------------------------
@@ -181,6 +182,7 @@ async function generate(scenario, mode, view = null) {
       method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify({ scenario, mode }),
     });
     state.sceneId = body.scene_id;
+    if (body.overlaps && body.overlaps.length) showScenarioWarnings(body.warnings, body.overlaps.length);
     $("scene-badge").textContent = `scene: ${body.scene_id.slice(0, 12)}`;
     $("scene-badge").title = body.scene_id;
     let streamed = false;
@@ -505,14 +507,62 @@ async function importScenarioFiles(files) {
     });
     fillForm(body.scenario);
     state.imported = body;
-    const warn = body.warnings.length ? `; ${body.warnings.length} warning(s): ${body.warnings.join("; ")}` : "";
+    const warn = body.warnings.length ? `; ${body.warnings.length} warning(s), listed below` : "";
     $("preset-desc").textContent = `Imported from ${body.source} (${body.format}, ${body.agents} agent(s))${warn}. ` +
       "Generate to see it.";
+    showScenarioWarnings(body.warnings, body.overlaps.length);
     return body;
   } catch (e) {
     showError(`import ${main ? main.name : "files"}: ${e.message}`);
     state.imported = null;
     return null;
+  }
+}
+
+/** The scenario panel's warning line: what an import approximated and which agents overlap when (`overlaps` of
+ * them); hidden when there is none. */
+function showScenarioWarnings(warnings, overlaps = 0) {
+  const line = $("scenario-warnings");
+  line.hidden = !warnings.length;
+  const head = overlaps ? `⚠ ${overlaps} overlap(s), kept as they are` : `⚠ ${warnings.length} warning(s)`;
+  line.textContent = warnings.length ? `${head}: ${warnings.join("; ")}` : "";
+}
+
+/** The form's scenario as a file, written by the server as `worldsplat export-scenario` writes it
+ * (POST /api/scenario-export): `openscenario` (a zip of the .xosc and its .xodr), `commonroad` (.xml) or `json`.
+ * Saves it as the server names it; resolves with { name, bytes, warnings }, or null after showing its error. */
+async function exportScenario(format = $("scenario-export-format").value) {
+  clearError();
+  $("scenario-export-btn").disabled = true;
+  try {
+    const resp = await fetch("/api/scenario-export", {
+      method: "POST", headers: { "content-type": "application/json" },
+      body: JSON.stringify({ scenario: readForm(), format }),
+    });
+    if (!resp.ok) {
+      let body = null;
+      try { body = await resp.json(); } catch { body = null; }
+      showError(`Export scenario: ${(body && body.error) || resp.statusText} (HTTP ${resp.status})`,
+        body ? errorFields(body) : []);
+      return null;
+    }
+    const blob = await resp.blob();
+    const name = (/filename="([^"]+)"/.exec(resp.headers.get("content-disposition") || "") || [])[1] ||
+      `scenario.${format}`;
+    const warnings = JSON.parse(resp.headers.get("x-export-warnings") || "[]");
+    if (warnings.length) showScenarioWarnings(warnings);
+    const url = URL.createObjectURL(blob);
+    const a = Object.assign(document.createElement("a"), { href: url, download: name });
+    document.body.append(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 60_000);
+    return { name, bytes: blob.size, warnings };
+  } catch (e) {
+    showError(`Export scenario: ${e.message}`);
+    return null;
+  } finally {
+    $("scenario-export-btn").disabled = false;
   }
 }
 
@@ -600,6 +650,10 @@ function wire() {
   $("video-btn").onclick = () => requestVideos();
   $("share-btn").onclick = () => share();
   $("download-btn").onclick = () => openDownload();
+  $("scenario-export-btn").onclick = () => exportScenario();
+  $("scenario-import").onchange = (e) => {
+    if (e.target.files.length) importScenarioFiles(e.target.files).finally(() => { e.target.value = ""; });
+  };
   $("download-format").onchange = syncDownload;
   for (const id of ["download-current", "download-all"]) $(id).onchange = syncDownload;
   document.addEventListener("keydown", (e) => {
@@ -679,7 +733,7 @@ async function main() {
 // Test and console hooks: the state, the viewer and a few actions (used by tests/browser/playground*.test.mjs).
 window.playground = {
   state, generate: (s, m, v) => generate(s, m, v), readForm, fillForm, setShift, setFrame, setCamera, share,
-  requestVideos, openLocalFile, importScenarioFiles, render, openDownload,
+  requestVideos, openLocalFile, importScenarioFiles, exportScenario, render, openDownload,
   ready: null,
 };
 window.playground.ready = main();

@@ -1,6 +1,6 @@
 """Every numerical guard of the splatting math, in one place (web/docs/splatting-math.md, "Guards in one list").
 
-The Rust viewer mirrors these in `wasm/crates/splat-core/src/constants.rs`; the shared vectors in
+The Rust viewer mirrors these in `wasm/crates/splat-format/src/constants.rs`; the shared vectors in
 `tests/vectors/raster/` pin both to the same values.
 """
 

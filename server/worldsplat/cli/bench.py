@@ -25,6 +25,7 @@ SECTIONS: dict[str, str] = {
     "steps": "steps",  # sampler steps vs error and time
     "stages": "stages",  # the paper's efficiency table for the small config
     "resolution": "resolution",  # model image size vs error ceiling vs time per window
+    "downstream": "downstream",  # the judge's mIoU on each served mode vs exact labels
 }
 
 

@@ -49,6 +49,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     e.add_argument("--modes", default="oracle,reconstruct,generate", help="served modes, comma-separated")
     e.add_argument("--frames", default="", help="frames judged, comma-separated (default all)")
     e.add_argument("--steps", type=int, default=8, help="generate mode's sampler steps (default 8)")
+    e.add_argument("--cameras", default="", help="cameras judged, comma-separated names (default all six)")
+    e.add_argument("--clip-frames", type=int, default=4, help="frames of each clip's scenario (default 4)")
+    e.add_argument("--cache", type=Path, default=None, help="keep each clip's images here (default runs/judge_renders)")
     e.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
     e.add_argument("--threads", type=int, default=2)
     e.add_argument("--out", type=Path, required=True, help="output directory (downstream.json/.md/.png)")
@@ -60,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     if args.what == "train":
         return run_train(args)
+    from worldsplat.core.paths import runs_dir
     from worldsplat.evaluation import downstream
     from worldsplat_models.judge import load_judge
 
@@ -71,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     modes = tuple(m for m in args.modes.split(",") if m)
     frames = [int(f) for f in args.frames.split(",") if f.strip()] or None
+    cameras = [c for c in args.cameras.split(",") if c.strip()] or None
     if args.count < 1:
         raise ValueError("--count must be at least 1")
     result = downstream.domain_gap(
@@ -80,8 +85,11 @@ def run(args: argparse.Namespace) -> int:
         parse_shifts(args.shifts),
         modes,
         frames=frames,
+        cameras=cameras,
         steps=args.steps,
         start=args.start,
+        clip_frames=args.clip_frames,
+        cache=args.cache or runs_dir() / "judge_renders",
     )
     downstream.write_domain_gap(result, args.out)
     print(downstream.domain_gap_markdown(result))

@@ -17,6 +17,7 @@ class group's figure is the mean IoU of its present classes (`GROUPS`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -24,8 +25,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from worldsplat.core.io import write_npz_atomic
 from worldsplat.pipeline.render import render_scene_track
-from worldsplat.pipeline.scene import generate_scene
+from worldsplat.pipeline.scene import generate_scene, model_version
 from worldsplat.training.judge import load_images
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import (
@@ -98,6 +100,8 @@ def summary(conf: np.ndarray) -> dict:
 
 def gaussian_fit(feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     f = np.asarray(feats, np.float64)
+    if f.ndim != 2 or len(f) < 2:
+        raise ValueError(f"a Gaussian fit needs 2+ feature rows, got shape {f.shape}")
     return f.mean(0), np.cov(f, rowvar=False)
 
 
@@ -167,28 +171,41 @@ def write_heldout(r: dict, out: Path) -> None:
 # --- domain gap: the judge on renders of served scenes --------------------------------------------------------------
 
 
-def _judge_clip(judge, scenario, modes, shifts, frames, cameras, steps, conf, feats, timing) -> None:
-    """Add one clip's confusion matrices and features to conf[row][shift] / feats[row][shift] (in place)."""
+def _clip_renders(scenario, modes, shifts, frames, cameras, steps) -> dict[str, np.ndarray]:
+    """One clip's images: `gt_<shift>` the world's, `labels_<shift>` its classes, `<mode>_<shift>` the renders of
+    the mode's served scene on that track; plus `<mode>_scene_s` and `<mode>_render_s` (seconds)."""
     world = build_world(scenario)
     names = [c.name for c in world.rig]
     cams = names if cameras is None else list(cameras)
     views = [names.index(c) for c in cams]
-    truth = {}
+    out = {}
     for s in shifts:
         clip = simulate(world, s, cameras=cams, frames=frames)
-        truth[s] = clip.semantic
-        conf[GROUND_TRUTH][s] += confusion(segment(judge, clip.rgb), clip.semantic)
-        feats[GROUND_TRUTH][s].append(features(judge, clip.rgb))
+        out[f"gt_{s}"], out[f"labels_{s}"] = clip.rgb, clip.semantic
     for mode in modes:
         t0 = time.perf_counter()
         scene = generate_scene(scenario, mode=mode, steps=steps)
         t1 = time.perf_counter()
         for s in shifts:
-            rgb = render_scene_track(scene, s, views=views, frames=frames).rgb
-            conf[mode][s] += confusion(segment(judge, rgb), truth[s])
-            feats[mode][s].append(features(judge, rgb))
-        timing[mode]["scene_s"] += t1 - t0
-        timing[mode]["render_s"] += time.perf_counter() - t1
+            out[f"{mode}_{s}"] = render_scene_track(scene, s, views=views, frames=frames).rgb
+        out[f"{mode}_scene_s"], out[f"{mode}_render_s"] = np.array(t1 - t0), np.array(time.perf_counter() - t1)
+    return out
+
+
+def _cached_renders(cache: Path | None, key: dict, make) -> dict[str, np.ndarray]:
+    """`make()`'s arrays, kept in CACHE under a name hashed from `key` (the clip, the served models' versions and
+    everything that changes the images), so re-judging with other judge weights does not re-render."""
+    if cache is None:
+        return make()
+    name = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+    path = Path(cache) / f"renders_{key['split']}_{key['clip']:06d}_{name}.npz"
+    if path.exists():
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files}
+    arrays = make()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_npz_atomic(path, arrays, compressed=True)
+    return arrays
 
 
 def domain_gap(
@@ -202,13 +219,14 @@ def domain_gap(
     steps: int = 8,
     start: int = 0,
     clip_frames: int = 4,
+    cache: Path | None = None,
     progress: bool = True,
 ) -> dict:
     """The judge on world images (ground truth row) and on renders of each mode's served scene, clips
     start..start+count-1 of `split` (the dataset's scenarios at the model image, `clip_frames` frames), at each
     shift, against the world's exact labels of that track. Returns per row and shift the `summary`, per mode the
     judge Fréchet distance to the world images of the same clips and tracks, and the sampling floor of that
-    distance (the world images split in two halves)."""
+    distance (the world images split in two halves). With `cache`, each clip's images are kept there and reused."""
     shifts, modes = tuple(float(s) for s in shifts), tuple(modes)
     rows = (GROUND_TRUTH, *modes)
     conf = {r: {s: np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64) for s in shifts} for r in rows}
@@ -218,7 +236,25 @@ def domain_gap(
     indices = list(range(start, start + count))
     for i in tqdm(indices, desc="judge eval", unit="clip", disable=not progress):
         sc = clip_scenario(split, i, frames=clip_frames)
-        _judge_clip(judge, sc, modes, shifts, frames, cameras, steps, conf, feats, timing)
+        key = {
+            "split": split,
+            "clip": i,
+            "clip_frames": clip_frames,
+            "frames": frames,
+            "cameras": cameras,
+            "steps": steps,
+            "shifts": list(shifts),
+            "modes": {m: model_version(m) for m in modes},
+        }
+        imgs = _cached_renders(cache, key, lambda sc=sc: _clip_renders(sc, modes, shifts, frames, cameras, steps))
+        for s in shifts:
+            labels = imgs[f"labels_{s}"]
+            for row, k in [(GROUND_TRUTH, f"gt_{s}")] + [(m, f"{m}_{s}") for m in modes]:
+                conf[row][s] += confusion(segment(judge, imgs[k]), labels)
+                feats[row][s].append(features(judge, imgs[k]))
+        for m in modes:
+            timing[m]["scene_s"] += float(imgs[f"{m}_scene_s"])
+            timing[m]["render_s"] += float(imgs[f"{m}_render_s"])
     table = {r: {str(s): summary(conf[r][s]) for s in shifts} for r in rows}
     for r in rows:
         table[r]["all"] = summary(sum(conf[r].values()))
@@ -232,7 +268,9 @@ def domain_gap(
         for m in modes
     }
     half = np.random.default_rng(0).permutation(len(world_all))
-    floor = judge_frechet(world_all[half[: len(half) // 2]], world_all[half[len(half) // 2 :]])
+    floor = (
+        judge_frechet(world_all[half[: len(half) // 2]], world_all[half[len(half) // 2 :]]) if len(half) >= 4 else None
+    )
     return {
         "split": split,
         "clips": indices,
@@ -284,7 +322,7 @@ def domain_gap_markdown(r: dict) -> str:
         lines.append(f"| {m} | " + " | ".join(f"{r['frechet'][m][s]:.2f}" for s in shifts + ["all"]) + " |")
     lines += [
         "",
-        f"Sampling floor (the world images split in two random halves): {r['frechet_floor_world_halves']:.2f}; "
+        f"Sampling floor (the world images split in two random halves): {_fmt(r['frechet_floor_world_halves'])}; "
         f"features: {r['feature_dim']} per image.",
     ]
     return "\n".join(lines)

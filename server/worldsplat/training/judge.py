@@ -21,7 +21,6 @@ import torch.nn.functional as F
 
 from worldsplat.training.loop import train_loop
 from worldsplat.world.classes import CLASS_NAMES
-from worldsplat.world.dataset import load_shard
 from worldsplat_models.configs import TrainConfig
 from worldsplat_models.judge import Judge, JudgeConfig, num_params, save_judge, to_input
 
@@ -42,10 +41,11 @@ def load_images(data: Path, split: str, limit: int | None = None) -> tuple[np.nd
     """Every camera and frame of the split's clips: images (N, H, W, 3) uint8 and classes (N, H, W) uint8."""
     images, labels = [], []
     for f in shard_files(data, split, limit):
-        z = load_shard(f)
-        H, W = z["rgb"].shape[-3:-1]
-        images.append(z["rgb"].reshape(-1, H, W, 3))
-        labels.append(z["semantic"].reshape(-1, H, W))
+        with np.load(f, allow_pickle=False) as z:  # only the two arrays (a shard holds a dozen more)
+            rgb, semantic = z["rgb"], z["semantic"]
+        H, W = rgb.shape[-3:-1]
+        images.append(rgb.reshape(-1, H, W, 3))
+        labels.append(semantic.reshape(-1, H, W))
     return np.concatenate(images), np.concatenate(labels)
 
 

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 from tqdm import tqdm
 
 from worldsplat.core.io import write_npz_atomic
@@ -38,6 +39,7 @@ from worldsplat.world.classes import (
     CROSSWALK,
     CURB,
     LANE_MARKING,
+    PALETTE,
     POLE,
     ROAD,
     SIDEWALK,
@@ -232,6 +234,7 @@ def domain_gap(
     conf = {r: {s: np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64) for s in shifts} for r in rows}
     feats = {r: {s: [] for s in shifts} for r in rows}
     timing = {m: {"scene_s": 0.0, "render_s": 0.0} for m in modes}
+    examples: dict[str, np.ndarray] = {}
     t0 = time.time()
     indices = list(range(start, start + count))
     for i in tqdm(indices, desc="judge eval", unit="clip", disable=not progress):
@@ -247,6 +250,8 @@ def domain_gap(
             "modes": {m: model_version(m) for m in modes},
         }
         imgs = _cached_renders(cache, key, lambda sc=sc: _clip_renders(sc, modes, shifts, frames, cameras, steps))
+        if not examples:  # the first clip's first judged frame and camera: the figure's images
+            examples.update({k: v[0, 0] for k, v in imgs.items() if v.ndim >= 4})
         for s in shifts:
             labels = imgs[f"labels_{s}"]
             for row, k in [(GROUND_TRUTH, f"gt_{s}")] + [(m, f"{m}_{s}") for m in modes]:
@@ -288,7 +293,27 @@ def domain_gap(
         "timing_s": {m: {k: round(v, 1) for k, v in t.items()} for m, t in timing.items()},
         "wall_s": round(time.time() - t0, 1),
         "weights": getattr(judge, "meta", {}).get("provenance", {}),
+        "examples": {k: v for k, v in examples.items()},
+        "example_labels": {k: segment(judge, v) for k, v in examples.items() if not k.startswith("labels_")},
     }
+
+
+def example_figure(r: dict) -> np.ndarray:
+    """One view of the first clip per shift (rows): each row's image and the judge's labels on it, then the exact
+    labels; uint8 (H', W', 3)."""
+    ex, labs = r["examples"], r["example_labels"]
+    gap = 2
+    rows = []
+    for s in r["shifts"]:
+        tiles = []
+        for row in ("gt", *r["modes"]):
+            tiles += [ex[f"{row}_{s}"], PALETTE[labs[f"{row}_{s}"]]]
+        tiles.append(PALETTE[ex[f"labels_{s}"]])
+        H = tiles[0].shape[0]
+        sep = np.full((H, gap, 3), 255, np.uint8)
+        rows.append(np.concatenate([x for t in tiles for x in (t, sep)][:-1], axis=1))
+        rows.append(np.full((gap, rows[-1].shape[1], 3), 255, np.uint8))
+    return np.concatenate(rows[:-1], axis=0)
 
 
 def domain_gap_markdown(r: dict) -> str:
@@ -361,6 +386,11 @@ def plot_domain_gap(r: dict, path: Path) -> Path:
 def write_domain_gap(r: dict, out: Path) -> None:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "downstream.json").write_text(json.dumps(r, indent=1) + "\n")
+    (out / "downstream.json").write_text(
+        json.dumps({k: v for k, v in r.items() if k not in ("examples", "example_labels")}, indent=1) + "\n"
+    )
     (out / "downstream.md").write_text(domain_gap_markdown(r) + "\n")
     plot_domain_gap(r, out / "downstream_miou.png")
+    if r.get("examples"):
+        fig = example_figure(r)
+        Image.fromarray(fig.repeat(2, 0).repeat(2, 1)).save(out / "downstream_examples.png")

@@ -29,16 +29,7 @@ impl FreeCamera {
         [0, 1, 2].map(|i| self.target[i] - self.distance * f[i])
     }
     pub fn camera(&self, width: u32, height: u32) -> Camera {
-        let fx = width as f64 / (2.0 * (self.hfov_deg.to_radians() / 2.0).tan());
-        Camera {
-            width,
-            height,
-            fx,
-            fy: fx,
-            cx: width as f64 / 2.0,
-            cy: height as f64 / 2.0,
-            world_to_camera: rigid_inverse(&look_pose(self.eye(), self.yaw, self.pitch)),
-        }
+        Camera::centred(width, height, self.hfov_deg, rigid_inverse(&look_pose(self.eye(), self.yaw, self.pitch)))
     }
     /// Orbit by angles (radians); pitch stays within +-89 degrees.
     pub fn orbit(&mut self, dyaw: f64, dpitch: f64) {
@@ -103,19 +94,13 @@ mod tests {
     use super::*;
     use splat_format::camera::IDENTITY;
 
-    fn project(cam: &Camera, p: [f64; 3]) -> (f64, f64, f64) {
-        let m = &cam.world_to_camera;
-        let c: Vec<f64> = (0..3).map(|i| m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2] + m[i][3]).collect();
-        (cam.fx * c[0] / c[2] + cam.cx, cam.fy * c[1] / c[2] + cam.cy, c[2])
-    }
-
     #[test]
     fn bev_looks_down_with_forward_up() {
         let cam = bev_camera(&IDENTITY, 256, 256, 50.0, 60.0);
-        let (u, v, z) = project(&cam, [10.0, 0.0, 0.0]);
+        let (u, v, z) = cam.project([10.0, 0.0, 0.0]);
         assert!((z - 50.0).abs() < 1e-9);
         assert!((u - 128.0).abs() < 1e-9 && v < 128.0);
-        let (u_left, _, _) = project(&cam, [0.0, 10.0, 0.0]);
+        let (u_left, _, _) = cam.project([0.0, 10.0, 0.0]);
         assert!(u_left < 128.0);
     }
 }

@@ -95,6 +95,19 @@ fn size(obj: &Value, key: &str, what: &str) -> Result<u32, String> {
     }
 }
 
+/// The intrinsics fields of a camera JSON object (the shared camera JSON and a rig camera's):
+/// width, height, fx, fy, cx, cy, read in that order.
+fn intrinsics(v: &Value, what: &str) -> Result<(u32, u32, f64, f64, f64, f64), String> {
+    Ok((
+        size(v, "width", what)?,
+        size(v, "height", what)?,
+        number(v, "fx", what)?,
+        number(v, "fy", what)?,
+        number(v, "cx", what)?,
+        number(v, "cy", what)?,
+    ))
+}
+
 impl Camera {
     /// Parse the shared camera JSON; errors name the field.
     pub fn from_json(v: &Value) -> Result<Camera, String> {
@@ -102,18 +115,12 @@ impl Camera {
         if !v.is_object() {
             return Err(format!("{what}: expected an object"));
         }
-        let cam = Camera {
-            width: size(v, "width", what)?,
-            height: size(v, "height", what)?,
-            fx: number(v, "fx", what)?,
-            fy: number(v, "fy", what)?,
-            cx: number(v, "cx", what)?,
-            cy: number(v, "cy", what)?,
-            world_to_camera: mat4_from_json(
-                v.get("world_to_camera").ok_or_else(|| format!("{what}: missing field world_to_camera"))?,
-                "camera json: world_to_camera",
-            )?,
-        };
+        let (width, height, fx, fy, cx, cy) = intrinsics(v, what)?;
+        let world_to_camera = mat4_from_json(
+            v.get("world_to_camera").ok_or_else(|| format!("{what}: missing field world_to_camera"))?,
+            "camera json: world_to_camera",
+        )?;
+        let cam = Camera { width, height, fx, fy, cx, cy, world_to_camera };
         if cam.fx <= 0.0 || cam.fy <= 0.0 {
             return Err(format!("{what}: fx and fy must be positive"));
         }
@@ -129,11 +136,24 @@ impl Camera {
                "world_to_camera": mat4_to_json(&self.world_to_camera)})
     }
 
+    /// A camera with square pixels, the principal point at the image centre and a horizontal field of view.
+    pub fn centred(width: u32, height: u32, hfov_deg: f64, world_to_camera: Mat4) -> Camera {
+        let fx = width as f64 / (2.0 * (hfov_deg.to_radians() / 2.0).tan());
+        Camera { width, height, fx, fy: fx, cx: width as f64 / 2.0, cy: height as f64 / 2.0, world_to_camera }
+    }
+
     /// The same view at another resolution (intrinsics scaled).
     pub fn resized(&self, width: u32, height: u32) -> Camera {
         let sx = width as f64 / self.width as f64;
         let sy = height as f64 / self.height as f64;
         Camera { width, height, fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy, ..self.clone() }
+    }
+
+    /// A world point's pixel position (u, v) and its camera depth z (u, v are +-inf or NaN for z = 0).
+    pub fn project(&self, p: [f64; 3]) -> (f64, f64, f64) {
+        let m = &self.world_to_camera;
+        let c: Vec<f64> = (0..3).map(|i| m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2] + m[i][3]).collect();
+        (self.fx * c[0] / c[2] + self.cx, self.fy * c[1] / c[2] + self.cy, c[2])
     }
 
     pub fn position(&self) -> [f64; 3] {
@@ -165,19 +185,10 @@ impl RigCamera {
 
     pub fn from_json(v: &Value, what: &str) -> Result<RigCamera, String> {
         let name = v.get("name").and_then(Value::as_str).ok_or_else(|| format!("{what}: missing string name"))?;
-        Ok(RigCamera {
-            name: name.to_string(),
-            width: size(v, "width", what)?,
-            height: size(v, "height", what)?,
-            fx: number(v, "fx", what)?,
-            fy: number(v, "fy", what)?,
-            cx: number(v, "cx", what)?,
-            cy: number(v, "cy", what)?,
-            camera_to_ego: mat4_from_json(
-                v.get("camera_to_ego").ok_or_else(|| format!("{what}: missing camera_to_ego"))?,
-                &format!("{what}.camera_to_ego"),
-            )?,
-        })
+        let (width, height, fx, fy, cx, cy) = intrinsics(v, what)?;
+        let camera_to_ego =
+            mat4_from_json(v.get("camera_to_ego").ok_or_else(|| format!("{what}: missing camera_to_ego"))?, &format!("{what}.camera_to_ego"))?;
+        Ok(RigCamera { name: name.to_string(), width, height, fx, fy, cx, cy, camera_to_ego })
     }
 }
 
@@ -208,17 +219,8 @@ pub fn default_rig(width: u32, height: u32) -> Vec<RigCamera> {
     ];
     SPEC.iter()
         .map(|&(name, yaw, pos, hfov)| {
-            let fx = width as f64 / (2.0 * (hfov.to_radians() / 2.0).tan());
-            RigCamera {
-                name: name.to_string(),
-                width,
-                height,
-                fx,
-                fy: fx,
-                cx: width as f64 / 2.0,
-                cy: height as f64 / 2.0,
-                camera_to_ego: look_pose(pos, yaw.to_radians(), 0.0),
-            }
+            let Camera { fx, fy, cx, cy, .. } = Camera::centred(width, height, hfov, IDENTITY);
+            RigCamera { name: name.to_string(), width, height, fx, fy, cx, cy, camera_to_ego: look_pose(pos, yaw.to_radians(), 0.0) }
         })
         .collect()
 }
@@ -227,27 +229,21 @@ pub fn default_rig(width: u32, height: u32) -> Vec<RigCamera> {
 mod tests {
     use super::*;
 
-    fn project(cam: &Camera, p: [f64; 3]) -> (f64, f64, f64) {
-        let m = &cam.world_to_camera;
-        let c: Vec<f64> = (0..3).map(|i| m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2] + m[i][3]).collect();
-        (cam.fx * c[0] / c[2] + cam.cx, cam.fy * c[1] / c[2] + cam.cy, c[2])
-    }
-
     #[test]
     fn front_camera_sees_ahead_and_shift_moves_left() {
         let rig = default_rig(200, 112);
         let front = &rig[0];
         let cam = front.at(&IDENTITY, 0.0);
-        let (u, v, z) = project(&cam, [11.7, 0.0, 1.5]);
+        let (u, v, z) = cam.project([11.7, 0.0, 1.5]);
         assert!((u - 100.0).abs() < 1e-9 && (v - 56.0).abs() < 1e-9 && (z - 10.0).abs() < 1e-9);
         // Shifting the track 2 m left makes a point on the old axis appear to the right.
-        let (u2, _, _) = project(&front.at(&IDENTITY, 2.0), [11.7, 0.0, 1.5]);
+        let (u2, _, _) = front.at(&IDENTITY, 2.0).project([11.7, 0.0, 1.5]);
         assert!((u2 - (100.0 + cam.fx * 2.0 / 10.0)).abs() < 1e-9, "u2 = {u2}");
         // A point above the camera appears above the centre (y down).
-        let (_, v_above, _) = project(&cam, [11.7, 0.0, 2.5]);
+        let (_, v_above, _) = cam.project([11.7, 0.0, 2.5]);
         assert!(v_above < 56.0);
         // The left camera looks left.
-        let (_, _, zl) = project(&rig[5].at(&IDENTITY, 0.0), [0.0, 10.0, 1.5]);
+        let (_, _, zl) = rig[5].at(&IDENTITY, 0.0).project([0.0, 10.0, 1.5]);
         assert!(zl > 5.0);
     }
 

@@ -4,8 +4,8 @@
 use super::dyna_range;
 use super::header::{DynamicCodec, Header, Totals};
 use super::layout::Layout;
-use super::v2::{check_ratio, decode_dyna_range, decode_records_v2};
-use super::{err, f32_at, u32_at, ErrorKind, WsplatError, BLOCK_HEADER, MAGIC, MAX_CHUNK, MAX_HEAD, VERSIONS};
+use super::v2::{decode_dyna_range, decode_records_v2, Chunk};
+use super::{err, f32_at, u32_at, ErrorKind, WsplatError, BLOCK_HEADER, MAGIC, MAX_CHUNK, MAX_HEAD, MAX_RATIO, VERSIONS};
 use crate::gaussians::Gaussian;
 use serde_json::Value;
 
@@ -327,14 +327,23 @@ fn decode_records(
     if count == 0 {
         return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name}.count: must be >= 1"));
     }
-    if version == 2 {
-        check_ratio(payload, payload_off, start, count, block_size, layout, name)?;
-        if let Some(models) = models {
-            return decode_dyna_range(payload, payload_off, start, count, block_size, layout, models).map(|g| (g, count));
-        }
-        return decode_records_v2(payload, payload_off, start, count, block_size, layout, name).map(|g| (g, count));
-    }
     let blocks = count.div_ceil(block_size);
+    if version == 2 {
+        // A v2 chunk decodes to at most MAX_RATIO x its bytes (its boxes and byte planes), checked before anything.
+        let raw = blocks as u64 * BLOCK_HEADER as u64 + count as u64 * layout.v2_planes().len() as u64;
+        if raw > MAX_RATIO * payload.len() as u64 {
+            return err(
+                ErrorKind::BadPayload,
+                payload_off + start as u64,
+                format!("{name}.count: {count} records decode to {raw} bytes > {MAX_RATIO} x the chunk's {}", payload.len()),
+            );
+        }
+        let chunk = Chunk { payload, payload_off, start, count, block_size, layout };
+        if let Some(models) = models {
+            return decode_dyna_range(chunk, models).map(|g| (g, count));
+        }
+        return decode_records_v2(chunk, name).map(|g| (g, count));
+    }
     let want = (start as u64 + 4) + blocks as u64 * BLOCK_HEADER as u64 + count as u64 * layout.record_bytes as u64;
     if payload.len() as u64 != want {
         return err(

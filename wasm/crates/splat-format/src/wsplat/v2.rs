@@ -3,7 +3,7 @@
 
 use super::dyna_range::{self, StreamError};
 use super::layout::{Field, Layout};
-use super::{err, f32_at, u32_at, ErrorKind, WsplatError, BLOCK_HEADER, MAX_RATIO};
+use super::{err, f32_at, u32_at, ErrorKind, WsplatError, BLOCK_HEADER};
 use crate::gaussians::Gaussian;
 
 /// One v2 section: `filter u8, length u32, zstd frame` at `pos`, decompressed into exactly `size` bytes.
@@ -51,27 +51,6 @@ fn v2_section(payload: &[u8], payload_off: u64, pos: usize, size: usize, label: 
         }
     }
     Ok((out, filter, pos + 5 + len))
-}
-
-/// v2: a chunk decodes to at most MAX_RATIO x its bytes (its boxes and v2's byte planes), checked before anything.
-pub(super) fn check_ratio(
-    payload: &[u8],
-    payload_off: u64,
-    start: usize,
-    count: usize,
-    block_size: usize,
-    layout: &Layout,
-    name: &str,
-) -> Result<(), WsplatError> {
-    let raw = count.div_ceil(block_size) as u64 * BLOCK_HEADER as u64 + count as u64 * layout.v2_planes().len() as u64;
-    if raw > MAX_RATIO * payload.len() as u64 {
-        return err(
-            ErrorKind::BadPayload,
-            payload_off + start as u64,
-            format!("{name}.count: {count} records decode to {raw} bytes > {MAX_RATIO} x the chunk's {}", payload.len()),
-        );
-    }
-    Ok(())
 }
 
 fn box_at(boxes: &[u8], b: usize) -> ([f32; 3], [f32; 3], [f32; 2]) {
@@ -139,18 +118,23 @@ fn v2_gaussians(
     Ok(out)
 }
 
+/// A v2 STAT or DYNA chunk's records: `count` of them (already read and bounded) after the count at `start` of a
+/// payload that begins at `payload_off` in the file.
+#[derive(Clone, Copy)]
+pub(super) struct Chunk<'a> {
+    pub payload: &'a [u8],
+    pub payload_off: u64,
+    pub start: usize,
+    pub count: usize,
+    pub block_size: usize,
+    pub layout: &'a Layout,
+}
+
 /// A range-coded DYNA chunk (web/docs/wsplat-v2.md, "Range-coded dynamic records") after its count: the boxes,
 /// the stream's length in words, the words; decoded with the file's `models` (updated). The count was bounded by
-/// the chunk's bytes (`check_ratio`) and every size is checked against the bytes present before anything is decoded.
-pub(super) fn decode_dyna_range(
-    payload: &[u8],
-    payload_off: u64,
-    start: usize,
-    count: usize,
-    block_size: usize,
-    layout: &Layout,
-    models: &mut dyna_range::Models,
-) -> Result<Vec<Gaussian>, WsplatError> {
+/// the chunk's bytes (`decode_records`) and every size is checked against the bytes present before anything is decoded.
+pub(super) fn decode_dyna_range(chunk: Chunk, models: &mut dyna_range::Models) -> Result<Vec<Gaussian>, WsplatError> {
+    let Chunk { payload, payload_off, start, count, block_size, layout } = chunk;
     let blocks = count.div_ceil(block_size);
     let boxes_at = start + 4;
     let at = |p: usize| payload_off + p as u64;
@@ -193,15 +177,8 @@ pub(super) fn decode_dyna_range(
 }
 
 /// A v2 chunk's sections (web/docs/wsplat-v2.md): boxes, the Morton-delta planes, one plane per field byte.
-pub(super) fn decode_records_v2(
-    payload: &[u8],
-    payload_off: u64,
-    start: usize,
-    count: usize,
-    block_size: usize,
-    layout: &Layout,
-    name: &str,
-) -> Result<Vec<Gaussian>, WsplatError> {
+pub(super) fn decode_records_v2(chunk: Chunk, name: &str) -> Result<Vec<Gaussian>, WsplatError> {
+    let Chunk { payload, payload_off, start, count, block_size, layout } = chunk;
     let blocks = count.div_ceil(block_size);
     let planes = layout.v2_planes();
     let mut pos = start + 4;

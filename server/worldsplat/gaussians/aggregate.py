@@ -172,35 +172,19 @@ def economize(
     budget: int | None = None,
     cell_factor: float | None = None,
     cover: float = 0.0,
+    emitted: CellTable | None = None,
 ) -> Gaussians:
     """Drop, merge, order by importance, cap (see the module docstring). Works on detached numpy copies; the
     result is a new Gaussians (isotropic inputs stay isotropic; a merged cell takes the rotation of its most
     opaque member). `cell_factor` overrides `eco.cell_factor` (the dynamic sets use `eco.dynamic_cell_factor`).
     `cover` > 0: a merged Gaussian stands for the surface patch its members tile, not for their centres
-    (see `merged_variance`)."""
-    return _economize(g, eco, camera_centres, focal, stats, budget, cell_factor, cover)[0]
-
-
-def _economize(
-    g: Gaussians,
-    eco: Economy,
-    camera_centres: np.ndarray,
-    focal: float,
-    stats: AggregateStats | None = None,
-    budget: int | None = None,
-    cell_factor: float | None = None,
-    cover: float = 0.0,
-    taken: CellTable | None = None,
-) -> tuple[Gaussians, np.ndarray, np.ndarray]:
-    """`economize`, also returning the cell key and the log of the geometric-mean scale of every output Gaussian.
-    `taken`: cells already emitted by earlier windows (`WindowAggregator`); a cell found there is emitted again only
-    when this window sees it at least `FINER` times finer (see WindowAggregator), else its members count as
-    merged away."""
+    (see `merged_variance`). `emitted`: the cells earlier windows emitted (`WindowAggregator`); a cell found there
+    is emitted again only when this window sees it at least `FINER` times finer, else its members count as merged
+    away; the cells this call emits are added to it."""
     stats = stats or AggregateStats()
     a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
-    none = np.zeros(0, np.int64), np.zeros(0)
     if len(a["means"]) == 0:
-        return g.detach(), *none
+        return g.detach()
     keep = _finite_rows(a)
     a["opacities"] = np.clip(np.nan_to_num(a["opacities"]), 0, 1)
     transparent = keep & (a["opacities"] < max(eco.min_opacity, C.ALPHA_MIN))
@@ -219,7 +203,7 @@ def _economize(
     dist, sky = dist[~far], sky[~far]
     n = len(a["means"])
     if n == 0:
-        return Gaussians.empty(0 if g.extras is None else g.extras.shape[1]), *none
+        return Gaussians.empty(0 if g.extras is None else g.extras.shape[1])
     s = np.clip(a["scales"], C.SCALE_MIN, C.SCALE_MAX)
     # One resolution per place: the pixel footprint from the nearest camera, times cell_factor, rounded to a
     # power of two. Every observation of a surface (any frame, any view, any depth) lands in the same cell.
@@ -264,8 +248,8 @@ def _economize(
     log_scale = np.log(scales).mean(1)
     importance = opac * np.exp(2 * log_scale) * (1 + np.log(counts))
     idx = np.argsort(-importance, kind="stable")
-    if taken is not None and len(taken.keys):
-        again = taken.emit(uniq[idx], log_scale[idx])
+    if emitted is not None and len(emitted.keys):
+        again = emitted.emit(uniq[idx], log_scale[idx])
         stats.merged_away += int((~again).sum())  # their members merged into the cell's earlier Gaussian
         idx = idx[again]
     if budget is not None:
@@ -279,8 +263,10 @@ def _economize(
     }
     if extras is not None:
         out["extras"] = extras[idx]
+    if emitted is not None:
+        emitted.add(uniq[idx], log_scale[idx])
     dtype = torch.float64 if g.means.dtype == torch.float64 else torch.float32
-    return Gaussians.from_numpy(**out, dtype=dtype), uniq[idx], log_scale[idx]
+    return Gaussians.from_numpy(**out, dtype=dtype)
 
 
 def importance_order(g: Gaussians) -> Gaussians:
@@ -383,10 +369,7 @@ class WindowAggregator:
         st.dynamic_union += sum(len(d) for d in dynamics.values())
         if eco.enabled:
             budget = None if eco.static_budget is None else max(0, eco.static_budget - st.static_kept)
-            static, keys, log_scale = _economize(
-                static, eco, self.centres.reshape(-1, 3), self.focal, st, budget, taken=self.cells
-            )
-            self.cells.add(keys, log_scale)
+            static = economize(static, eco, self.centres.reshape(-1, 3), self.focal, st, budget, emitted=self.cells)
             dynamics = {
                 t: economize(
                     d,

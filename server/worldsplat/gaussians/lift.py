@@ -45,10 +45,12 @@ def lift(
     max_depth: float = MAX_DEPTH,
     sky: bool = True,
     sky_distance: float = SKY_DISTANCE,
+    thickness: float | None = None,
 ) -> Gaussians:
     """rgb (H,W,3) uint8 or float in [0,1], depth (H,W) camera z (sky = +inf), dynamic (H,W) bool or None.
     Returns Gaussians in world coordinates with extras[:, 0] = dynamic mask, extras[:, 1] = sky flag.
-    `sky=False` drops sky pixels instead of lifting them onto the shell."""
+    `sky=False` drops sky pixels instead of lifting them onto the shell. `thickness`: flatten each surface splat
+    onto its surface, this thin across it (`_flatten`); None keeps every splat isotropic."""
     H, W = camera.height, camera.width
     depth = np.asarray(depth, dtype=np.float64)
     if depth.shape != (H, W) or np.asarray(rgb).shape[:2] != (H, W):
@@ -70,7 +72,7 @@ def lift(
     dyn = np.zeros(n) if dynamic is None else np.asarray(dynamic, dtype=bool)[keep].astype(np.float64)
     dyn = np.where(is_sky[keep], 0.0, dyn)  # the sky never moves
     extras = np.stack([dyn, is_sky[keep].astype(np.float64)], 1)
-    return Gaussians.from_numpy(
+    g = Gaussians.from_numpy(
         means,
         np.tile([1.0, 0, 0, 0], (n, 1)),
         np.repeat(scale[:, None], 3, 1),
@@ -78,31 +80,34 @@ def lift(
         col[keep],
         extras=extras,
     )
+    if thickness is None:
+        return g
+    return _flatten(g, depth, surface, keep, origin, dirs, depth / f, thickness)
 
 
-def lift_surfels(
-    rgb: np.ndarray,
+def lift_surfels(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray | None, camera: Camera) -> Gaussians:
+    """`lift` with surface splats SURFEL_THICKNESS thin across their surface (the bench's world PLY)."""
+    return lift(rgb, depth, dynamic, camera, thickness=SURFEL_THICKNESS)
+
+
+def _flatten(
+    g: Gaussians,
     depth: np.ndarray,
-    dynamic: np.ndarray | None,
-    camera: Camera,
-    *,
-    thickness: float = SURFEL_THICKNESS,
-    max_depth: float = MAX_DEPTH,
+    surface: np.ndarray,
+    keep: np.ndarray,
+    origin: np.ndarray,
+    dirs: np.ndarray,
+    pitch: np.ndarray,
+    thickness: float,
 ) -> Gaussians:
-    """`lift`, with each surface pixel's Gaussian flattened onto the surface it lies on (anisotropic, as a 3DGS
-    capture's are): covariance `FOOTPRINT^2 (du du^T + dv dv^T) + (thickness * iso)^2 n n^T`, where du / dv are the
-    world steps to the next pixel along the row / column (the one-sided difference of the smaller step, so a depth
-    edge does not stretch a splat across it) and n their normal; seen from its own camera it covers the same pixels
-    as `lift`'s isotropic splat. Pixels whose steps exceed SURFEL_MAX_STEP x the isotropic pitch (grazing surfaces,
-    silhouettes) and the sky keep `lift`'s isotropic Gaussian. Same Gaussians, order and extras as `lift`."""
-    g = lift(rgb, depth, dynamic, camera, max_depth=max_depth)
-    depth = np.asarray(depth, dtype=np.float64)
-    surface = np.isfinite(depth) & (depth > 0) & (depth < max_depth)
-    is_sky = np.isposinf(depth) | (np.isfinite(depth) & (depth >= max_depth))
-    keep = surface | is_sky
-    origin, dirs = camera.pixel_rays()
+    """`lift`'s Gaussians `g` with each surface pixel's flattened onto the surface it lies on (anisotropic, as a
+    3DGS capture's are): covariance `FOOTPRINT^2 (du du^T + dv dv^T) + (thickness * iso)^2 n n^T`, where du / dv are
+    the world steps to the next pixel along the row / column (the one-sided difference of the smaller step, so a
+    depth edge does not stretch a splat across it) and n their normal; seen from its own camera it covers the same
+    pixels as the isotropic splat. Pixels whose steps exceed SURFEL_MAX_STEP x the isotropic pitch (`pitch`: the
+    pixel pitch at the pixel's depth; grazing surfaces, silhouettes) and the sky keep the isotropic Gaussian. Same
+    Gaussians, order and extras as `g`; `surface`, `keep`, `origin`, `dirs` are `lift`'s (H, W) masks and rays."""
     p = origin + np.where(surface, depth, np.nan)[..., None] * dirs
-    pitch = depth / np.sqrt(camera.fx * camera.fy)  # the isotropic lift's pixel pitch at the pixel's depth
 
     def step(axis: int) -> tuple[np.ndarray, np.ndarray]:
         d = np.diff(p, axis=axis)

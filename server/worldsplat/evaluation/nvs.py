@@ -271,25 +271,24 @@ def markdown_table(result: dict) -> str:
             + [f"{r[s]['psnr_holes']:.2f}" for s in shifts]
         )
         rows.append(f"| {v} | {result['descriptions'][v]} | " + " | ".join(cells) + " |")
-    d = result["table"]["D"]
-    rows.append("")
-    rows.append(
-        "Depth AbsRel of the 4D render vs exact depth (covered pixels, < 80 m): "
-        + ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts)
-        + ". Hole fraction of the 4D render: "
-        + ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts)
-        + "."
-    )
+
+    def geometry(d: dict) -> tuple[str, str]:
+        """A 4D render's depth AbsRel and hole fraction per shift."""
+        absrel = ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts)
+        return absrel, ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts)
+
+    absrel, holes = geometry(result["table"]["D"])
+    rows += [
+        "",
+        f"Depth AbsRel of the 4D render vs exact depth (covered pixels, < 80 m): {absrel}. "
+        f"Hole fraction of the 4D render: {holes}.",
+    ]
     if "D-dec" in result["table"]:
-        d = result["table"]["D-dec"]
-        rows.append("")
-        rows.append(
-            "The same for the learned decoder's 4D render (D-dec): depth AbsRel "
-            + ", ".join(f"{s} m: {d[s].get('depth_absrel', float('nan')):.3f}" for s in shifts)
-            + "; hole fraction "
-            + ", ".join(f"{s} m: {100 * d[s]['hole_frac']:.1f}%" for s in shifts)
-            + "."
-        )
+        absrel, holes = geometry(result["table"]["D-dec"])
+        rows += [
+            "",
+            f"The same for the learned decoder's 4D render (D-dec): depth AbsRel {absrel}; hole fraction {holes}.",
+        ]
     return "\n".join(rows)
 
 

@@ -284,6 +284,15 @@ def _grid_pitch(who: str, n: int, H: int, W: int) -> int:
     return f
 
 
+def _views(dec: DecodedFrames, control: torch.Tensor, who: str):
+    """Each view of each frame: (t, v, its Gaussians, their grid pitch `_grid_pitch`, its layout maps as float)."""
+    T, V, _, H, W = control.shape
+    for t in range(T):
+        for v in range(V):
+            g = dec.gaussians[t][v]
+            yield t, v, g, _grid_pitch(who, len(g), H, W), control[t, v].float()
+
+
 def _camera_ray_depth(dec: DecodedFrames, t: int, v: int, means: torch.Tensor):
     """(origin, camera-z depth of each mean) of view v at frame t: a mean moves along its ray as o + (m - o) r."""
     cam = dec.rig[v].at(dec.ego_to_world[t])
@@ -308,28 +317,22 @@ def snap_to_layout(dec: DecodedFrames, control: torch.Tensor, log_tol: float = L
     its dynamic probability is <= 0.5 and its depth is within exp(+-log_tol) of the plane's (so a tree or wall
     the layout does not know about keeps its place). In place; returns the fraction of Gaussians moved."""
     ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
-    T, V, _, H, W = control.shape
     moved = total = 0
-    for t in range(T):
-        for v in range(V):
-            g = dec.gaussians[t][v]
-            n = len(g)
-            f = _grid_pitch("snap_to_layout", n, H, W)
-            c = control[t, v].float()
-            ground = ((c[ch["drivable"]] + c[ch["sidewalk"]]) > 0.5) & (c[ch["vehicle"]] + c[ch["vulnerable"]] < 0.5)
-            ground &= c[ch["depth"]] < 0.999  # the plane is in range
-            cell_ground = -F.max_pool2d(-ground[None, None].float(), f)[0, 0] > 0.5
-            # a plane's inverse depth is linear in the image: its cell mean is the value at the cell's centre ray
-            z_plane = 1.0 / F.avg_pool2d(1.0 / layout_depth_m(c[ch["depth"]])[None, None], f)[0, 0]
-            o, z = _camera_ray_depth(dec, t, v, g.means)
-            ratio = z_plane.reshape(-1) / z.clamp_min(1e-3)
-            ok = cell_ground.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 0)
-            if g.extras is not None:
-                ok &= g.extras[:, 0] <= 0.5
-            r = torch.where(ok, ratio, torch.ones_like(ratio))[:, None]
-            g.means = o + (g.means - o) * r
-            g.scales = g.scales * r
-            moved, total = moved + int(ok.sum()), total + n
+    for t, v, g, f, c in _views(dec, control, "snap_to_layout"):
+        ground = ((c[ch["drivable"]] + c[ch["sidewalk"]]) > 0.5) & (c[ch["vehicle"]] + c[ch["vulnerable"]] < 0.5)
+        ground &= c[ch["depth"]] < 0.999  # the plane is in range
+        cell_ground = -F.max_pool2d(-ground[None, None].float(), f)[0, 0] > 0.5
+        # a plane's inverse depth is linear in the image: its cell mean is the value at the cell's centre ray
+        z_plane = 1.0 / F.avg_pool2d(1.0 / layout_depth_m(c[ch["depth"]])[None, None], f)[0, 0]
+        o, z = _camera_ray_depth(dec, t, v, g.means)
+        ratio = z_plane.reshape(-1) / z.clamp_min(1e-3)
+        ok = cell_ground.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 0)
+        if g.extras is not None:
+            ok &= g.extras[:, 0] <= 0.5
+        r = torch.where(ok, ratio, torch.ones_like(ratio))[:, None]
+        g.means = o + (g.means - o) * r
+        g.scales = g.scales * r
+        moved, total = moved + int(ok.sum()), total + len(g)
     return moved / max(total, 1)
 
 
@@ -369,33 +372,27 @@ def snap_to_map(
     become opaque (opacity >= MAP_MIN_OPACITY). `classes`: the map channels snapped. Maps without the map layer (7 channels) leave the scene unchanged. In place;
     returns the fraction of Gaussians moved."""
     ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
-    T, V, C, H, W = control.shape
-    if C < len(LAYOUT_CHANNELS):
+    if control.shape[2] < len(LAYOUT_CHANNELS):
         return 0.0
     moved = total = 0
-    for t in range(T):
-        for v in range(V):
-            g = dec.gaussians[t][v]
-            n = len(g)
-            f = _grid_pitch("snap_to_map", n, H, W)
-            c = control[t, v].float()
-            depth = layout_depth_m(c[ch["map_depth"]])
-            structure = sum(c[ch[k]] for k in classes).clamp(0, 1)
-            cover, z_map = _cell_surface(structure, depth, f)
-            building, _ = _cell_surface(c[ch["building"]], depth, f)
-            agent = F.max_pool2d((c[ch["vehicle"]] + c[ch["vulnerable"]])[None, None], f)[0, 0] > 0.5
-            o, z = _camera_ray_depth(dec, t, v, g.means)
-            ratio = z_map.reshape(-1) / z.clamp_min(1e-3)
-            ok = (cover.reshape(-1) > 0.5) & ~agent.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 1e-3)
-            if g.extras is not None:
-                ok &= g.extras[:, 0] <= 0.5
-            r = ratio[:, None]
-            g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
-            g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
-            if solid:
-                firm = ok & (building.reshape(-1) > 0.5)
-                g.opacities = torch.where(firm, g.opacities.clamp_min(MAP_MIN_OPACITY), g.opacities)
-            moved, total = moved + int(ok.sum()), total + n
+    for t, v, g, f, c in _views(dec, control, "snap_to_map"):
+        depth = layout_depth_m(c[ch["map_depth"]])
+        structure = sum(c[ch[k]] for k in classes).clamp(0, 1)
+        cover, z_map = _cell_surface(structure, depth, f)
+        building, _ = _cell_surface(c[ch["building"]], depth, f)
+        agent = F.max_pool2d((c[ch["vehicle"]] + c[ch["vulnerable"]])[None, None], f)[0, 0] > 0.5
+        o, z = _camera_ray_depth(dec, t, v, g.means)
+        ratio = z_map.reshape(-1) / z.clamp_min(1e-3)
+        ok = (cover.reshape(-1) > 0.5) & ~agent.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 1e-3)
+        if g.extras is not None:
+            ok &= g.extras[:, 0] <= 0.5
+        r = ratio[:, None]
+        g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
+        g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
+        if solid:
+            firm = ok & (building.reshape(-1) > 0.5)
+            g.opacities = torch.where(firm, g.opacities.clamp_min(MAP_MIN_OPACITY), g.opacities)
+        moved, total = moved + int(ok.sum()), total + len(g)
     return moved / max(total, 1)
 
 

@@ -42,12 +42,22 @@ def sample_from_simulation(clip, conditions: dict, max_boxes: int) -> dict:
     """A `worldsplat.world.simulate` clip + `world.conditions()` -> one training sample."""
     intr, c2w = rig_arrays(clip)
     ego = np.asarray(clip.ego_to_world, np.float64)
-    corners, cls, moving, mask = pack_boxes(conditions["boxes"], ego, max_boxes)
     return {
         "rgb": np.asarray(clip.rgb, np.uint8),
         "depth": np.asarray(clip.depth, np.float32),
         "dynamic": np.asarray(clip.dynamic, bool),
         "sketch": sketch_rgb(conditions["sketch"]),
+        **_poses_and_boxes(
+            intr, c2w, ego, conditions["boxes"], max_boxes, conditions["ego_traj"], conditions["caption"]
+        ),
+    }
+
+
+def _poses_and_boxes(intr, c2w, ego: np.ndarray, boxes: list, max_boxes: int, traj, caption) -> dict:
+    """The sample fields from `intrinsics` to `caption` (module docstring); `ego` (T,4,4) float64, `boxes` one
+    list per frame in the world frame (`pack_boxes` puts them in each frame's ego frame)."""
+    corners, cls, moving, mask = pack_boxes(boxes, ego, max_boxes)
+    return {
         "intrinsics": intr,
         "cam_to_world": c2w,
         "ego_to_world": ego.astype(np.float32),
@@ -55,8 +65,8 @@ def sample_from_simulation(clip, conditions: dict, max_boxes: int) -> dict:
         "box_cls": cls,
         "box_moving": moving,
         "box_mask": mask,
-        "traj": np.asarray(conditions["ego_traj"], np.float32),
-        "caption": str(conditions["caption"]),
+        "traj": np.asarray(traj, np.float32),
+        "caption": str(caption),
     }
 
 
@@ -118,7 +128,6 @@ def sample_from_shard(z: dict, max_boxes: int, shift_index: int | None = None) -
         ]
         for t in range(T)
     ]
-    corners, cls, moving, mask = pack_boxes(boxes, ego, max_boxes)
     sfx = "" if shift_index is None else "_shifted"
     pick_ = (lambda a: a) if shift_index is None else (lambda a: a[shift_index])
     return {
@@ -126,15 +135,9 @@ def sample_from_shard(z: dict, max_boxes: int, shift_index: int | None = None) -
         "depth": pick_(z["depth" + sfx]).astype(np.float32),
         "dynamic": pick_(z["dynamic" + sfx]).astype(bool),
         "sketch": sketch_rgb(pick_(z["sketch" + sfx])),
-        "intrinsics": np.ascontiguousarray(intr, dtype=np.float32),
-        "cam_to_world": c2w,
-        "ego_to_world": ego.astype(np.float32),
-        "box_corners": corners,
-        "box_cls": cls,
-        "box_moving": moving,
-        "box_mask": mask,
-        "traj": np.asarray(z["ego_traj"], np.float32),
-        "caption": str(z["caption"]),
+        **_poses_and_boxes(
+            np.ascontiguousarray(intr, dtype=np.float32), c2w, ego, boxes, max_boxes, z["ego_traj"], z["caption"]
+        ),
         "seed": int(z["seed"]),
         "scenario": str(z["scenario"]),
         "shift_m": shift,

@@ -19,6 +19,7 @@ The server inherits this process's environment (OMP_NUM_THREADS, OMP_WAIT_POLICY
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import socket
@@ -45,6 +46,18 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def _server(preload: bool):
+    """(url, a scratch folder) of a playground server on a fresh cache in that folder; stopped on exit."""
+    with tempfile.TemporaryDirectory() as tmp:
+        proc, url = _start(Path(tmp) / "cache", preload=preload)
+        try:
+            yield url, Path(tmp)
+        finally:
+            proc.terminate()
+            proc.wait(30)
 
 
 def _start(cache: Path, preload: bool = True) -> tuple[subprocess.Popen, str]:
@@ -298,33 +311,23 @@ def main(argv=None) -> None:
             a.out.write_text(json.dumps(rows, indent=1) + "\n")
         return
     for mode in a.modes.split(","):
-        with tempfile.TemporaryDirectory() as tmp:
-            proc, url = _start(Path(tmp) / "cache", preload=not a.no_preload)
-            try:
-                modes = httpx.get(f"{url}/api/modes", timeout=120).json()["modes"]
-                if mode not in modes:
-                    print(f"{mode}: not available here ({modes})", file=sys.stderr)
-                    continue
-                for label, seed in (("cold", 101), ("warm", 102)):
-                    row = {"preset": a.preset, "client": "httpx", "server": label, "preload": not a.no_preload}
-                    row.update(measure(url, a.preset, mode, seed))
+        with _server(preload=not a.no_preload) as (url, _):
+            modes = httpx.get(f"{url}/api/modes", timeout=120).json()["modes"]
+            if mode not in modes:
+                print(f"{mode}: not available here ({modes})", file=sys.stderr)
+                continue
+            for label, seed in (("cold", 101), ("warm", 102)):
+                row = {"preset": a.preset, "client": "httpx", "server": label, "preload": not a.no_preload}
+                row.update(measure(url, a.preset, mode, seed))
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+        if a.browser:
+            with _server(preload=not a.no_preload) as (url, tmp):
+                if a.shots:
+                    a.shots.mkdir(parents=True, exist_ok=True)
+                for row in browser_rows(url, a.preset, mode, tmp, a.shots):
                     print(json.dumps(row), flush=True)
                     rows.append(row)
-            finally:
-                proc.terminate()
-                proc.wait(30)
-        if a.browser:
-            with tempfile.TemporaryDirectory() as tmp:
-                proc, url = _start(Path(tmp) / "cache", preload=not a.no_preload)
-                try:
-                    if a.shots:
-                        a.shots.mkdir(parents=True, exist_ok=True)
-                    for row in browser_rows(url, a.preset, mode, Path(tmp), a.shots):
-                        print(json.dumps(row), flush=True)
-                        rows.append(row)
-                finally:
-                    proc.terminate()
-                    proc.wait(30)
     if a.out:
         a.out.write_text(json.dumps(rows, indent=1) + "\n")
 

@@ -8,20 +8,13 @@ mid-way leaves at most a hidden temporary file, which the retry and the next run
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable
 from pathlib import Path
 
 from worldsplat.scale.ray_runner import TaskResources, run_tasks
-from worldsplat.world.dataset import (
-    EXPLICIT_AGENTS,
-    check_same_run,
-    prepare_split,
-    run_params,
-    shard_path,
-    write_clip,
-    write_manifest,
-)
+from worldsplat.world.dataset import prepare_split, shard_path, write_clip, write_dataset
 
 
 def clip_task(out: str, split: str, index: int, shifts: tuple, kw: dict, threads: int, fault: Callable | None):
@@ -36,30 +29,30 @@ def write_dataset_ray(
     out: Path,
     split: str,
     count: int,
-    width: int = 112,
-    height: int = 64,
-    frames: int = 4,
-    fps: float = 4.0,
-    preset_mix: bool = False,
-    shifts: tuple[float, ...] = (),
-    start: int = 0,
-    progress: bool = True,
     resources: TaskResources | None = None,
     fault: Callable | None = None,
-    explicit_agents: float = EXPLICIT_AGENTS,
+    **options,
 ) -> dict:
-    """Like `write_dataset`, inside a `ray_session`; returns written / skipped / manifest."""
-    res = resources or TaskResources()
-    out = Path(out).resolve()  # the workers' view of the folder: absolute (shared storage on a cluster)
-    kw = dict(
-        width=width, height=height, frames=frames, fps=fps, preset_mix=preset_mix, explicit_agents=explicit_agents
-    )
-    indices = range(start, start + count)
-    check_same_run(out, split, indices, shifts, **kw)
-    prepare_split(out, split)
+    """`write_dataset` with the same options, one Ray task per clip, inside a `ray_session`; returns written /
+    skipped / manifest."""
+    write_clips = functools.partial(_write_clips_ray, resources or TaskResources(), fault)
+    # the workers' view of the folder: absolute (shared storage on a cluster)
+    return write_dataset(Path(out).resolve(), split, count, write_clips=write_clips, **options)
+
+
+def _write_clips_ray(
+    res: TaskResources,
+    fault: Callable | None,
+    out: Path,
+    split: str,
+    indices: range,
+    shifts: tuple,
+    kw: dict,
+    progress: bool,
+) -> list:
     done = [i for i in indices if shard_path(out, split, i).exists()]
     todo = [i for i in indices if i not in set(done)]
-    entries = {i: write_clip(out, split, i, shifts, **kw)[0] for i in done}  # complete: entry only, no write
+    clips = {i: (write_clip(out, split, i, shifts, **kw)[0], False) for i in done}  # complete: entry only, no write
     results = run_tasks(
         clip_task,
         [(str(out), split, i, tuple(shifts), kw, res.threads, fault) for i in todo],
@@ -68,15 +61,7 @@ def write_dataset_ray(
         unit="clip",
         progress=progress,
     )
-    written = 0
     for i, (entry, wrote) in zip(todo, results):
-        entries[i] = entry
-        written += wrote
+        clips[i] = entry, wrote
     prepare_split(out, split)  # temporaries of workers killed mid-way
-    mpath = write_manifest(
-        out,
-        split,
-        [entries[i] for i in indices],
-        run_params(width, height, frames, fps, preset_mix, shifts, explicit_agents),
-    )
-    return {"written": written, "skipped": len(indices) - written, "manifest": str(mpath)}
+    return [clips[i] for i in indices]

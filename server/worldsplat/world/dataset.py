@@ -10,6 +10,7 @@ re-run skips it. Shard keys are listed in `SHARD_KEYS` and documented in web/doc
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -251,8 +252,12 @@ def write_dataset(
     start: int = 0,
     progress: bool = True,
     explicit_agents: float = EXPLICIT_AGENTS,
+    write_clips: Callable | None = None,
 ) -> dict:
-    """Write clips start..start+count-1 of a split; existing complete shards are skipped (resumable)."""
+    """Write clips start..start+count-1 of a split; existing complete shards are skipped (resumable).
+    `write_clips(out, split, indices, shifts, kw, progress)` writes the clips (`write_clip` each) and returns their
+    (manifest entry, written) in index order: by default one after the other here; `worldsplat.scale.dataset`
+    runs one Ray task per clip."""
 
     out = Path(out)
     kw = dict(
@@ -261,13 +266,13 @@ def write_dataset(
     indices = range(start, start + count)
     check_same_run(out, split, indices, shifts, **kw)
     prepare_split(out, split)
-    written = skipped = 0
-    index = []
-    for i in tqdm(indices, desc=f"dataset {split}", unit="clip", disable=not progress):
-        entry, wrote = write_clip(out, split, i, shifts, **kw)
-        index.append(entry)
-        written += wrote
-        skipped += not wrote
+    clips = (write_clips or _write_clips_here)(out, split, indices, shifts, kw, progress)
+    written = sum(wrote for _, wrote in clips)
     params = run_params(width, height, frames, fps, preset_mix, shifts, explicit_agents)
-    mpath = write_manifest(out, split, index, params)
-    return {"written": written, "skipped": skipped, "manifest": str(mpath)}
+    mpath = write_manifest(out, split, [entry for entry, _ in clips], params)
+    return {"written": written, "skipped": len(indices) - written, "manifest": str(mpath)}
+
+
+def _write_clips_here(out: Path, split: str, indices: range, shifts: tuple, kw: dict, progress: bool) -> list:
+    clips = tqdm(indices, desc=f"dataset {split}", unit="clip", disable=not progress)
+    return [write_clip(out, split, i, shifts, **kw) for i in clips]

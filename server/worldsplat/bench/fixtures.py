@@ -25,16 +25,20 @@ class OracleFixture:
 def oracle_fixture(
     preset: str = "urban_straight", width: int = 200, height: int = 112, frames: int = 1
 ) -> OracleFixture:
+    world = build_world(sized_preset(preset, width, height, frames))
+    clip = simulate(world)
+    return OracleFixture(oracle_scene(clip), world, clip, width, height)
+
+
+def sized_preset(preset: str, width: int, height: int, frames: int):
+    """A preset scenario at this image size and clip length."""
     sc = load_preset(preset)
-    sc = sc.model_copy(
+    return sc.model_copy(
         update={
             "image": sc.image.model_copy(update={"width": width, "height": height}),
             "clip": sc.clip.model_copy(update={"frames": frames}),
         }
     )
-    world = build_world(sc)
-    clip = simulate(world)
-    return OracleFixture(oracle_scene(clip), world, clip, width, height)
 
 
 def shipped_generator(section: str):
@@ -43,11 +47,5 @@ def shipped_generator(section: str):
     if "generate" not in models.modes:
         raise FileNotFoundError(f"{section}: the shipped DiT weights are missing in {models.weights_dir}")
     d = models.data
-    sc = load_preset("urban_straight")
-    sc = sc.model_copy(
-        update={
-            "image": sc.image.model_copy(update={"width": d.width, "height": d.height}),
-            "clip": sc.clip.model_copy(update={"frames": d.frames}),
-        }
-    )
+    sc = sized_preset("urban_straight", d.width, d.height, d.frames)
     return models, sc, build_world(sc)

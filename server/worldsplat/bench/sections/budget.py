@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from worldsplat.bench.fixtures import sized_preset
 from worldsplat.bench.report import Pareto, Section
 from worldsplat.bench.timing import time_once
 from worldsplat.core.metrics import psnr
-from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians import wsplat
 from worldsplat.gaussians.aggregate import Economy, aggregate_4d
 from worldsplat.gaussians.economy import lift_clip, render_frame_views
@@ -19,14 +19,7 @@ def run(quick: bool) -> Section:
 
     w, h, frames = (100, 56, 2) if quick else (200, 112, 4)
     shift = 2.0
-    sc = load_preset("urban_straight")
-    sc = sc.model_copy(
-        update={
-            "image": sc.image.model_copy(update={"width": w, "height": h}),
-            "clip": sc.clip.model_copy(update={"frames": frames}),
-        }
-    )
-    world = build_world(sc)
+    world = build_world(sized_preset("urban_straight", w, h, frames))
     clip = simulate(world)
     gt = simulate(world, shift_m=shift)
     per_view = lift_clip(clip)

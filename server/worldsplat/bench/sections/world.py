@@ -6,9 +6,9 @@ view); the cost is seconds per clip. Target: 6 cameras x 8 frames at 112x200 in 
 
 from __future__ import annotations
 
+from worldsplat.bench.fixtures import sized_preset
 from worldsplat.bench.report import Pareto, Section
 from worldsplat.bench.timing import compare
-from worldsplat.core.scenario import load_preset
 from worldsplat.world import build_world, simulate
 
 
@@ -16,16 +16,9 @@ def run(quick: bool) -> Section:
 
     sizes = [(56, 100), (112, 200)] if quick else [(56, 100), (112, 200), (224, 400)]
     frames = 2 if quick else 8
-    base = load_preset("urban_straight")
     fns, worlds = {}, {}
     for h, w in sizes:
-        sc = base.model_copy(
-            update={
-                "image": base.image.model_copy(update={"width": w, "height": h}),
-                "clip": base.clip.model_copy(update={"frames": frames}),
-            }
-        )
-        world = build_world(sc)
+        world = build_world(sized_preset("urban_straight", w, h, frames))
         worlds[(h, w)] = world
         fns[f"{w}x{h}"] = lambda wd=world: simulate(wd)
     timings = compare(fns, repeats=1 if quick else 2, warmup=0 if quick else 1)

@@ -2,12 +2,13 @@
 control through a hint encoder."""
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
 import torch.nn.functional as F
 
-from worldsplat_models.configs import DiTConfig, GSDecoderConfig, VAEConfig
+from worldsplat_models.configs import GSDecoderConfig, VAEConfig, get_config
 from worldsplat_models.dit import DiT4D, HintEncoder
 from worldsplat_models.gs_decoder import GaussianDecoder
 from worldsplat_models.vae import MultiModalVAE
@@ -151,20 +152,7 @@ def _cond(B, T, V, H, W, N=4):
 def test_dit_reads_pixel_layout_through_the_hint_encoder():
     torch.manual_seed(0)
     B, T, V, C, h, w = 1, 2, 2, 6, 4, 8
-    cfg = DiTConfig(
-        in_channels=C,
-        out_channels=C,
-        patch=2,
-        control_channels=7,
-        control_hint=8,
-        dim=32,
-        depth=2,
-        heads=2,
-        control_depth=1,
-        cond_dim=32,
-        max_views=2,
-        max_frames=2,
-    )
+    cfg = replace(get_config("tiny").dit, in_channels=C, out_channels=C, patch=2, control_channels=7, control_hint=8)
     dit = DiT4D(cfg)
     x, s = torch.randn(B, T, V, C, h, w), torch.rand(B)
     cond = _cond(B, T, V, h * 4, w * 4)
@@ -188,23 +176,9 @@ def test_dit_reads_pixel_layout_through_the_hint_encoder():
 
 
 def _input_layout_config(**kw):
-    base = dict(
-        in_channels=6,
-        out_channels=6,
-        patch=2,
-        control_channels=7,
-        control_hint=8,
-        dim=32,
-        depth=2,
-        heads=2,
-        control_depth=0,
-        cond_dim=32,
-        max_views=2,
-        max_frames=2,
-        control_at_input=True,
-        refine_channels=16,
-    )
-    return DiTConfig(**(base | kw))
+    """The tiny DiT with the layout at its input through the hint encoder (`kw` overrides)."""
+    base = dict(patch=2, control_channels=7, control_hint=8, control_depth=0, control_at_input=True, refine_channels=16)
+    return replace(get_config("tiny").dit, **(base | kw))
 
 
 def test_dit_layout_at_input_and_latent_head():

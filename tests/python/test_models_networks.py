@@ -1,13 +1,14 @@
 """The networks on random tensors with the tiny config: shapes, gradients, wiring, bounds, rectified flow."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
 from worldsplat_models import rflow
-from worldsplat_models.configs import DiTConfig, get_config
+from worldsplat_models.configs import get_config
 from worldsplat_models.dit import DiT4D, dropped
 from worldsplat_models.gs_decoder import GaussianDecoder, matrix_to_quaternion, safe_normalize_quaternion
 from worldsplat_models.vae import MultiModalVAE, denormalize_depth, normalize_depth
@@ -151,18 +152,7 @@ def test_dit_box_changes_output_only_when_valid():
 
 
 def test_dit_reusable_with_other_channels():
-    cfg = DiTConfig(
-        in_channels=2,
-        control_channels=5,
-        out_channels=2,
-        dim=32,
-        depth=2,
-        heads=2,
-        control_depth=1,
-        cond_dim=32,
-        max_views=2,
-        max_frames=2,
-    )
+    cfg = replace(get_config("tiny").dit, in_channels=2, control_channels=5, out_channels=2)
     dit = DiT4D(cfg)
     c = random_cond(1, 2, 2)
     c["control"] = torch.randn(1, 2, 2, 5, 4, 6)

@@ -147,6 +147,11 @@ class Keyframe(_Strict):
     y: float = Field(ge=-WORLD_Y, le=WORLD_Y, description="world y in metres (left positive)")
 
 
+def _keyframes(description: str):
+    """An optional keyframe list (the ego's path, an agent's trajectory): 2 to 64 keyframes."""
+    return Field(None, min_length=2, max_length=64, description=description)
+
+
 def _check_keyframes(kf: list[Keyframe], name: str, max_speed: float) -> None:
     for i in range(1, len(kf)):
         dt = kf[i].t - kf[i - 1].t
@@ -161,11 +166,8 @@ class Ego(_Strict):
     speed: float = Field(8.0, ge=0.0, le=30.0, description="ego speed in m/s")
     start_lane: int = Field(0, ge=0, le=3, description="lane index counted from the kerb (0 = rightmost)")
     manoeuvre: Manoeuvre = "keep_lane"
-    path: list[Keyframe] | None = Field(
-        None,
-        min_length=2,
-        max_length=64,
-        description="explicit ego path (rear axle) as time-stamped keyframes in "
+    path: list[Keyframe] | None = _keyframes(
+        "explicit ego path (rear axle) as time-stamped keyframes in "
         "the world frame, starting at t = 0, x = 0, y = 0; replaces "
         "speed and manoeuvre; interpolated smoothly, heading from the "
         "tangent (+x at t = 0)",
@@ -244,11 +246,8 @@ class AgentEvent(_Strict):
 class AgentMotion(_Strict):
     speed: float = Field(0.0, ge=0.0, le=40.0, description="initial speed in m/s along the lane or heading")
     events: list[AgentEvent] = Field(default_factory=list, max_length=16, description="scripted events in time order")
-    keyframes: list[Keyframe] | None = Field(
-        None,
-        min_length=2,
-        max_length=64,
-        description="an explicit trajectory (footprint centre) instead of a "
+    keyframes: list[Keyframe] | None = _keyframes(
+        "an explicit trajectory (footprint centre) instead of a "
         "start and events: interpolated smoothly, heading from "
         "the tangent, held after the last keyframe",
     )

@@ -67,6 +67,17 @@ def ok(model=None, description: str = "OK", links: dict | None = None, **extra) 
     return d
 
 
+def job_responses(state, links: dict, job_links: dict, codes: tuple[int, ...], rules: str, queued: str) -> dict:
+    """The answers of an operation that queues a job: 202 with the job (`queued` says which), 200 when the result is
+    already cached; its error answers (`codes`) and what its 422 refuses beyond the schema (`rules`)."""
+    return {
+        200: ok(state, "already cached (status ready)", links),
+        202: ok(state, queued, links | job_links),
+        **errors(*codes),
+        **invalid(rules),
+    }
+
+
 def stream_responses(media_types: tuple[str, ...], what: str, coded: bool = False) -> dict:
     binary = {"schema": {"type": "string", "format": "binary"}}
     common = {

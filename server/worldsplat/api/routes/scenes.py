@@ -26,6 +26,7 @@ from ..openapi import (
     SSE,
     errors,
     invalid,
+    job_responses,
     ok,
     stream_responses,
 )
@@ -100,20 +101,15 @@ async def import_scene_file(
     "/api/scenes",
     status_code=202,
     response_model=None,
-    responses={
-        200: ok(SceneState, "already cached (status ready)", SCENE_LINKS),
-        202: ok(
-            SceneState,
-            "queued or running (an existing job for the same scene is returned)",
-            SCENE_LINKS | SCENE_JOB_LINKS,
-        ),
-        **errors(400, 409, 413, 429, 503),
-        **invalid(
-            f"{SCENARIO_RULES}; with `strict`, agents that overlap (the entry names them and when); a scene over "
-            "this server's size: frames x cameras x width x height above its limit (worldsplat serve "
-            "--max-scene-mpix)"
-        ),
-    },
+    responses=job_responses(
+        SceneState,
+        SCENE_LINKS,
+        SCENE_JOB_LINKS,
+        (400, 409, 413, 429, 503),
+        f"{SCENARIO_RULES}; with `strict`, agents that overlap (the entry names them and when); a scene over "
+        "this server's size: frames x cameras x width x height above its limit (worldsplat serve --max-scene-mpix)",
+        queued="queued or running (an existing job for the same scene is returned)",
+    ),
 )
 def create_scene(req: Annotated[SceneRequest, Body()], pg: Pg) -> JSONResponse:
     """Queue the scene of a scenario (or a preset). Agents that overlap are generated as they are and listed in the

@@ -12,7 +12,7 @@ from worldsplat.core.camera import CAMERA_NAMES
 from .. import runners
 from ..errors import ApiError
 from ..jobs import QueueFull
-from ..openapi import VIDEO_JOB_LINKS, VIDEO_LINKS, errors, invalid, ok, stream_responses
+from ..openapi import VIDEO_JOB_LINKS, VIDEO_LINKS, errors, job_responses, ok, stream_responses
 from ..schemas import VideoRequest, VideoState
 from ..state import Pg, Playground, checked_id, video_state
 from ..streaming import file_response
@@ -39,12 +39,14 @@ def check_refinement(pg: Playground, rig: list[str]) -> None:
     "/api/scenes/{scene_id}/videos",
     status_code=202,
     response_model=None,
-    responses={
-        200: ok(VideoState, "already cached (status ready)", VIDEO_LINKS),
-        202: ok(VideoState, "queued or running", VIDEO_LINKS | VIDEO_JOB_LINKS),
-        **errors(400, 404, 409, 413, 429),
-        **invalid("`cameras` not all in the scene's rig (GET /api/scenes/{scene_id} says `cameras`)"),
-    },
+    responses=job_responses(
+        VideoState,
+        VIDEO_LINKS,
+        VIDEO_JOB_LINKS,
+        (400, 404, 409, 413, 429),
+        "`cameras` not all in the scene's rig (GET /api/scenes/{scene_id} says `cameras`)",
+        queued="queued or running",
+    ),
 )
 def create_video(scene_id: str, req: Annotated[VideoRequest, Body()], pg: Pg) -> JSONResponse:
     meta = pg.ready_scene(scene_id)

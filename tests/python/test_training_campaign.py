@@ -19,16 +19,16 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     write_dataset(data, "train", 2, progress=False)
     write_dataset(data, "test", 1, progress=False)
     c.train_vae(data, out, clips=2, steps=2, ckpt_every=1, test_clips=1, channels=(8, 16), latent=2)
-    fig = [json.loads(line) for line in (out / "vae_v2_heldout.jsonl").read_text().splitlines()]
+    fig = [json.loads(line) for line in (out / "vae_heldout.jsonl").read_text().splitlines()]
     assert [f["step"] for f in fig] == [1, 2] and all(0 < f["rgb_psnr"] < 60 for f in fig)
-    vae = out / "vae_v2.safetensors"
+    vae = out / "vae.safetensors"
     # decoder-only fine-tune: the encoder (hence every cached latent) is untouched, the decoder moves
     ft = tmp_path / "vae_ft"
     c.train_vae_decoder(data, vae, ft, clips=2, steps=2, ckpt_every=1, test_clips=1)
-    before, after = load_weights(vae, "vae").state_dict(), load_weights(ft / "vae_v2.safetensors", "vae").state_dict()
+    before, after = load_weights(vae, "vae").state_dict(), load_weights(ft / "vae.safetensors", "vae").state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before if k.startswith("encoder.") or "latent_" in k)
     assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith("decoder."))
-    fig = [json.loads(line) for line in (ft / "vae_decoder_v2_heldout.jsonl").read_text().splitlines()]
+    fig = [json.loads(line) for line in (ft / "vae_decoder_heldout.jsonl").read_text().splitlines()]
     assert [f["step"] for f in fig] == [1, 2] and 0 <= fig[-1]["saturation_decoded"] <= 1
     c.build_cache(data, vae, out, "test")
     c.build_cache(data, vae, out, "train", clips=1)
@@ -43,27 +43,27 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     c.train_dit(vae, out, steps=2, batch=2, ckpt_every=1)
     # resume: a longer target continues from the checkpoint (step 3 only), it does not start over
     c.train_dit(vae, out, steps=3, batch=2, ckpt_every=1)
-    log = [json.loads(line)["step"] for line in (out / "dit_v2_heldout.jsonl").read_text().splitlines()]
+    log = [json.loads(line)["step"] for line in (out / "dit_heldout.jsonl").read_text().splitlines()]
     assert log == [1, 2, 3]
     c.train_prior(vae, out, steps=2, batch=4, ckpt_every=1)
-    fig = [json.loads(line) for line in (out / "prior_v2_heldout.jsonl").read_text().splitlines()]
+    fig = [json.loads(line) for line in (out / "prior_heldout.jsonl").read_text().splitlines()]
     assert [f["step"] for f in fig] == [1, 2] and len(fig[0]["heldout_mse"]) == 3
     # the DiT generates the frozen prior's residual (its own run folder, beside the same cache)
     out4 = tmp_path / "runs4"
     out4.mkdir()
     for p in out.glob("cache_*.pt"):
         (out4 / p.name).symlink_to(p)
-    c.train_dit(vae, out4, steps=2, batch=2, ckpt_every=1, prior_path=out / "prior_v2.safetensors")
-    cfg4 = read_metadata(out4 / "dit_v2.safetensors")["config"]
+    c.train_dit(vae, out4, steps=2, batch=2, ckpt_every=1, prior_path=out / "prior.safetensors")
+    cfg4 = read_metadata(out4 / "dit.safetensors")["config"]
     assert cfg4["target"] == "prior_residual" and cfg4["residual_scale"] > 0
     # both read the map layer by default (all 11 layout channels); 7 keeps the road and agent channels alone
     assert cfg4["control_channels"] == 11
-    assert read_metadata(out / "prior_v2.safetensors")["config"]["in_channels"] == 11
+    assert read_metadata(out / "prior.safetensors")["config"]["in_channels"] == 11
     dest = tmp_path / "snapshot"
     paths = c.snapshot(out, dest)
     names = {"vae_small.safetensors", "decoder_small.safetensors", "dit_small.safetensors", "prior_small.safetensors"}
     assert {p.name for p in paths} == names
-    assert read_metadata(dest / "dit_small.safetensors")["campaign"] == "v2"
+    assert read_metadata(dest / "dit_small.safetensors")["source"] == "dit.safetensors"
     m = load_models(dest)
     assert m.modes == ["reconstruct", "generate"] and m.dit.cfg.control_hint == 16
     assert all(p.dtype == torch.float32 for p in m.decoder.parameters())
@@ -74,7 +74,7 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     out1 = tmp_path / "runs1"
     out1.mkdir()
     (out1 / "cache_train_2.pt").symlink_to(out / "cache_train_2.pt")
-    c.train_decoder(vae, out1, steps=1, ckpt_every=1, stride=1, render_down=1, init=out / "decoder_v2.safetensors")
+    c.train_decoder(vae, out1, steps=1, ckpt_every=1, stride=1, render_down=1, init=out / "decoder.safetensors")
     assert [p.name for p in c.snapshot(out1, dest, roles={"decoder": "decoder_reconstruct"})] == [
         "decoder_reconstruct_small.safetensors"
     ]

@@ -202,12 +202,12 @@ def train_vae(
         fit_latent_stats(m, samples[:12], DCFG)
         fig = vae_heldout(m, test) | {"step": done, "wall_s": round(time.time() - t0, 1)}
         print(json.dumps(fig), flush=True)
-        with open(out / "vae_v2_heldout.jsonl", "a") as f:
+        with open(out / "vae_heldout.jsonl", "a") as f:
             f.write(json.dumps(fig) + "\n")
-        save_weights(m, out / "vae_v2.safetensors", "vae", {"steps": done, "clips": len(samples)})
+        save_weights(m, out / "vae.safetensors", "vae", {"steps": done, "clips": len(samples)})
 
     train_loop(
-        "vae_v2",
+        "vae",
         vae,
         vae_step_fn(samples, DCFG, images_per_step=images),
         tcfg,
@@ -247,13 +247,13 @@ def train_vae_decoder(
         m = unwrap(model).eval()
         fig = vae_heldout(m, test) | saturation(m, test) | {"step": done, "wall_s": round(time.time() - t0, 1)}
         print(json.dumps(fig), flush=True)
-        with open(out / "vae_decoder_v2_heldout.jsonl", "a") as f:
+        with open(out / "vae_decoder_heldout.jsonl", "a") as f:
             f.write(json.dumps(fig) + "\n")
-        save_weights(m, out / "vae_v2.safetensors", "vae", {"steps": done, "decoder_finetune": True})
+        save_weights(m, out / "vae.safetensors", "vae", {"steps": done, "decoder_finetune": True})
         m.train()
 
     train_loop(
-        "vae_decoder_v2",
+        "vae_decoder",
         vae,
         vae_decoder_step_fn(samples, DCFG, images_per_step=images, chroma_weight=chroma_weight),
         tcfg,
@@ -390,9 +390,9 @@ def train_decoder(
     )
 
     def on_ckpt(model, done):
-        save_weights(unwrap(model), out / "decoder_v2.safetensors", "decoder", {"steps": done, "clips": len(samples)})
+        save_weights(unwrap(model), out / "decoder.safetensors", "decoder", {"steps": done, "clips": len(samples)})
 
-    train_loop("decoder_v2", dec, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
+    train_loop("decoder", dec, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
 def prior_batch(samples: list[dict], gen: torch.Generator, k: int, channels: int) -> tuple[torch.Tensor, ...]:
@@ -452,7 +452,7 @@ def train_prior(
     @torch.no_grad()
     def on_ckpt(model, done):
         m = unwrap(model).eval()
-        save_weights(m, out / "prior_v2.safetensors", "prior", {"steps": done, "clips": len(samples)})
+        save_weights(m, out / "prior.safetensors", "prior", {"steps": done, "clips": len(samples)})
         per, base = [], []
         for s in test:
             L = s["L"].float()
@@ -461,11 +461,11 @@ def train_prior(
         rec = {"step": done, "heldout_mse": np.mean(per, 0).round(4).tolist()}
         rec["mean_latent_mse"] = np.mean(base, 0).round(4).tolist()
         print(json.dumps(rec), flush=True)
-        with open(out / "prior_v2_heldout.jsonl", "a") as f:
+        with open(out / "prior_heldout.jsonl", "a") as f:
             f.write(json.dumps(rec) + "\n")
         m.train()
 
-    train_loop("prior_v2", prior, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
+    train_loop("prior", prior, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
 def dit_batch(samples: list[dict], channels: int) -> tuple[torch.Tensor, dict]:
@@ -531,18 +531,18 @@ def train_dit(
     @torch.no_grad()
     def on_ckpt(model, done):
         m = unwrap(model).eval()
-        save_weights(m, out / "dit_v2.safetensors", "dit", {"steps": done, "clips": len(samples)})
+        save_weights(m, out / "dit.safetensors", "dit", {"steps": done, "clips": len(samples)})
         gen = torch.Generator().manual_seed(0)  # the same noise and times at every checkpoint
         losses = [
             float(rflow.training_loss(m, *dit_batch([s], layout_channels), shift=m.cfg.sampler_shift, generator=gen))
             for s in test
         ]
         rec = {"step": done, "heldout_flow_loss": float(np.mean(losses))}
-        with open(out / "dit_v2_heldout.jsonl", "a") as f:
+        with open(out / "dit_heldout.jsonl", "a") as f:
             f.write(json.dumps(rec) + "\n")
         m.train()
 
-    train_loop("dit_v2", dit, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
+    train_loop("dit", dit, step, tcfg, out, progress=False, on_checkpoint=on_ckpt)
 
 
 def snapshot(
@@ -555,11 +555,11 @@ def snapshot(
     dest.mkdir(parents=True, exist_ok=True)
     written = []
     for kind in kinds:
-        src = Path(out) / f"{kind}_v2.safetensors"
+        src = Path(out) / f"{kind}.safetensors"
         if src.exists():
             m = load_weights(src, kind)
             meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
-            meta.update({"campaign": "v2", "source": src.name})
+            meta.update({"source": src.name})
             role = (roles or {}).get(kind, kind)
             written.append(save_weights(m, dest / f"{role}_small.safetensors", kind, meta, dtype=torch.float16))
     return written
@@ -578,16 +578,16 @@ def plot_curves(out: Path, png: Path) -> Path:
 
     fig, ax = plt.subplots(1, 4, figsize=(16, 3.4))
     for i, kind in enumerate(("vae", "decoder", "dit")):
-        r = rows(f"{kind}_v2.log.jsonl")
+        r = rows(f"{kind}.log.jsonl")
         if r:
             ax[i].plot([x["step"] for x in r], [x["loss"] for x in r], lw=0.8, label="train loss")
-        h = rows(f"{kind}_v2_heldout.jsonl")
+        h = rows(f"{kind}_heldout.jsonl")
         if kind == "dit" and h:
             ax[i].plot([x["step"] for x in h], [x["heldout_flow_loss"] for x in h], "o-", label="held-out flow loss")
         ax[i].set_title(kind)
         ax[i].set_xlabel("step")
         ax[i].legend(fontsize=7)
-    h = rows("vae_v2_heldout.jsonl")
+    h = rows("vae_heldout.jsonl")
     if h:
         s = [x["step"] for x in h]
         ax[3].plot(s, [x["rgb_psnr"] for x in h], "o-", label="RGB PSNR (target 25)")

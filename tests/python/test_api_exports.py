@@ -87,7 +87,7 @@ def test_the_clip_is_a_zip_of_the_cli_per_frame_files(served, tmp_path, fmt):
             assert len(decode_gaussians(data, f".{fmt}", n)[0]) > 0
 
 
-def test_wsplat_clip_is_the_scene_and_a_frame_is_a_one_frame_scene(served):
+def test_wsplat_clip_is_the_scene_and_a_frame_is_a_one_frame_scene(served, tmp_path):
     client, scene_id, scene_path, state, _ = served
     r = client.get(f"/api/scenes/{scene_id}/export", params={"format": "wsplat", "frame": "all"})
     assert r.status_code == 200 and r.content == scene_path.read_bytes()
@@ -96,6 +96,8 @@ def test_wsplat_clip_is_the_scene_and_a_frame_is_a_one_frame_scene(served):
     t = 3
     r = client.get(f"/api/scenes/{scene_id}/export", params={"format": "wsplat", "frame": str(t)})
     assert r.status_code == 200, r.text
+    cli_export(scene_path, tmp_path / "cli.wsplat", str(t))
+    assert r.content == (tmp_path / "cli.wsplat").read_bytes(), "the .wsplat frame differs from the CLI export"
     one = wsplat.decode(r.content)
     assert one.num_frames == 1 and len(one.dynamic[0]) == 0
     assert len(one.static) == len(scene.at_frame(t))

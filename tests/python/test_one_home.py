@@ -216,3 +216,11 @@ def test_rotation_and_ray_math_has_one_home():
         if path.name != "geometry.py":
             assert "aw * bw - ax * bx - ay * by - az * bz" not in text, path
             assert "1 - 2 * (y * y + z * z)" not in text, path
+
+
+def test_the_served_wsplat_version_is_spelled_once():
+    """The API repeats it (so that it starts without torch); the CLI's .wsplat export and the server write the same."""
+    from worldsplat.api import runners
+    from worldsplat.gaussians import wsplat
+
+    assert runners.WSPLAT_VERSION == wsplat.SERVED_VERSION

@@ -10,7 +10,6 @@ exporter's version) and built once; one build runs at a time, as the exports can
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 import threading
 import zipfile
@@ -20,7 +19,7 @@ from typing import Literal
 import worldsplat
 
 from .cache import ArtifactCache
-from .runners import WSPLAT_VERSION, content_id
+from .runners import content_id
 
 ExportFormat = Literal["ply", "glb", "spz", "sog", "splat", "wsplat"]
 # format -> (extension, media type): glTF binary and zip are registered types; PLY, SPZ, .splat and .wsplat have none
@@ -55,23 +54,6 @@ def export_id(scene_id: str, fmt: str, frame: int | None) -> str:
 
 def media_type(fmt: str, frame: int | None) -> str:
     return EXPORTS[fmt][1] if frame is not None or fmt == "wsplat" else ZIP_MEDIA
-
-
-def one_frame_wsplat(scene, t: int) -> bytes:
-    """Frame t as a one-frame .wsplat: its Gaussians (static + dynamic) all static, in importance order (as the
-    .wsplat chunks want), at the frame's time and ego pose, in the version the server writes."""
-    from worldsplat.gaussians import wsplat  # noqa: PLC0415 - heavy (torch)
-    from worldsplat.gaussians.aggregate import importance_order  # noqa: PLC0415
-    from worldsplat.gaussians.types import Gaussians  # noqa: PLC0415
-
-    one = dataclasses.replace(
-        scene,
-        static=importance_order(scene.at_frame(t)),
-        dynamic=[Gaussians.empty()],
-        frame_times=scene.frame_times[t : t + 1],
-        ego_to_world=scene.ego_to_world[t : t + 1],
-    )
-    return wsplat.encode(one, version=WSPLAT_VERSION)
 
 
 def write_clip_zip(scene, fmt: str, scene_id: str, out: Path) -> int:
@@ -111,9 +93,6 @@ def build(cache: ArtifactCache, scene_id: str, fmt: str, frame: int | None) -> t
         with cache.writer("exports", eid, ext) as tmp:
             if frame is None:
                 files = write_clip_zip(scene, fmt, scene_id, tmp)
-            elif fmt == "wsplat":
-                tmp.write_bytes(one_frame_wsplat(scene, frame))
-                files = 1
             else:
                 files = len(export_scene(scene, tmp, frames=frame))
         meta = {"ext": ext, "scene_id": scene_id, "format": fmt, "frame": frame, "files": files}

@@ -24,9 +24,9 @@ from .cache import ArtifactCache
 from .jobs import JobContext, JobError
 
 VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
-# The .wsplat version the server writes (scenes, streamed or whole, and converted scene files): v2 (zstd byte planes,
-# web/docs/wsplat-v2.md), which the viewer's wasm decoder reads whole and streamed (tests/browser/wsplat-v2.test.mjs).
-# v1 files (older caches, dropped files) are still read everywhere.
+# The .wsplat version the server writes: `wsplat.SERVED_VERSION` (v2, tests/browser/wsplat-v2.test.mjs), repeated
+# here so that the API starts without importing torch; tests/python/test_one_home.py pins the two equal. v1 files
+# (older caches, dropped files) are still read everywhere.
 WSPLAT_VERSION = 2
 
 

@@ -1,4 +1,4 @@
-"""`worldsplat export SCENE.wsplat --out X.ply|X.glb|X.spz|X.sog|X.splat` and
+"""`worldsplat export SCENE.wsplat --out X.ply|X.glb|X.spz|X.sog|X.splat|X.wsplat` and
 `worldsplat import X.ply|X.glb|X.spz|X.sog|X.splat --out SCENE.wsplat` (web/docs/gaussians.md, "Files in and out")."""
 
 from __future__ import annotations
@@ -9,11 +9,12 @@ from pathlib import Path
 
 FORMATS = ".ply (3DGS PLY), .glb (glTF 2.0 KHR_gaussian_splatting), .spz (Niantic SPZ), .sog (PlayCanvas SOG), "
 FORMATS += ".splat (antimatter15)"
+EXPORT_FORMATS = FORMATS + ", .wsplat (the frame as a one-frame scene, everything static)"
 
 
 def configure_export(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", help="input .wsplat")
-    p.add_argument("--out", required=True, help=f"output file, by extension: {FORMATS}")
+    p.add_argument("--out", required=True, help=f"output file, by extension: {EXPORT_FORMATS}")
     p.add_argument(
         "--frame",
         default="0",

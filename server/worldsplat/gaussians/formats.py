@@ -1,7 +1,8 @@
 """Gaussian files in and out, by extension (web/docs/gaussians.md, "Files in and out"): .ply (3DGS PLY),
 .glb (glTF KHR_gaussian_splatting), .spz (Niantic SPZ), .sog (PlayCanvas SOG), .splat (antimatter15).
 
-None of these formats has frames, so a 4D scene leaves as one file per frame: frame t's file holds the static base
+None of these formats has frames, so a 4D scene leaves as one file per frame (a .wsplat export too: frame t as a
+one-frame scene, everything static): frame t's file holds the static base
 plus frame t's dynamic Gaussians (paper eq. 3, `Scene4D.at_frame(t)`), named `STEM.fNNN.EXT` when every frame is
 written (`export_scene(..., frames="all")`). The .glb and .sog files also carry the frame's metadata (its index and
 time, the rig, that frame's ego pose, fps, caption) under "worldsplat" (glTF `asset.extras`, SOG `meta.json`), so
@@ -11,17 +12,19 @@ with the default rig at the identity pose.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
 from worldsplat.core.camera import RigCamera, default_rig
 from worldsplat.core.io import atomic_write_bytes
-from worldsplat.gaussians import gltf, ply, sog, splat_format, spz
+from worldsplat.gaussians import gltf, ply, sog, splat_format, spz, wsplat
+from worldsplat.gaussians.aggregate import importance_order
 from worldsplat.gaussians.fileformat import FormatError
 from worldsplat.gaussians.types import Gaussians, Scene4D
 
-EXPORTS = (".ply", ".glb", ".spz", ".sog", ".splat")
+EXPORTS = (".ply", ".glb", ".spz", ".sog", ".splat", ".wsplat")
 IMPORTS = (".ply", ".glb", ".spz", ".sog", ".splat")
 
 
@@ -97,6 +100,28 @@ def frame_path(out: Path, t: int) -> Path:
     return out.with_name(f"{out.stem}.f{t:03d}{out.suffix}")
 
 
+def frame_scene(scene: Scene4D, t: int, static_only: bool = False) -> Scene4D:
+    """Frame t as a one-frame scene: its Gaussians (static + that frame's dynamics, or the static base alone) all
+    static, in importance order (as .wsplat chunks want), at the frame's time and ego pose."""
+    g = scene.static if static_only else scene.at_frame(t)
+    return dataclasses.replace(
+        scene,
+        static=importance_order(g),
+        dynamic=[Gaussians.empty()],
+        frame_times=scene.frame_times[t : t + 1],
+        ego_to_world=scene.ego_to_world[t : t + 1],
+    )
+
+
+def _write_frame(scene: Scene4D, t: int, path: Path, static_only: bool) -> tuple[Path, int, int]:
+    if path.suffix.lower() == ".wsplat":
+        one = frame_scene(scene, t, static_only)
+        return path, len(one.static), wsplat.write(one, path, version=wsplat.SERVED_VERSION)
+    g = scene.static if static_only else scene.at_frame(t)
+    extras = frame_extras(scene, t) | ({"frame": None} if static_only else {})
+    return path, len(g), write_gaussians(g, path, extras)
+
+
 def export_scene(scene: Scene4D, out: str | Path, frames: str | int = 0, static_only: bool = False) -> list:
     """Write frame `frames` (static + its dynamics) to `out`, or every frame to `STEM.fNNN.EXT` with
     `frames="all"`; `static_only` writes the static base alone (no frame's dynamics). Returns (path, Gaussians,
@@ -104,13 +129,10 @@ def export_scene(scene: Scene4D, out: str | Path, frames: str | int = 0, static_
     out = Path(out)
     kind(out, EXPORTS)
     if static_only:
-        todo = [(out, scene.static, frame_extras(scene, 0) | {"frame": None})]
-    elif frames == "all":
-        todo = [(frame_path(out, t), scene.at_frame(t), frame_extras(scene, t)) for t in range(scene.num_frames)]
-    else:
-        t = int(frames)
-        todo = [(out, scene.at_frame(t), frame_extras(scene, t))]
-    return [(p, len(g), write_gaussians(g, p, extras)) for p, g, extras in todo]
+        return [_write_frame(scene, 0, out, static_only=True)]
+    if frames == "all":
+        return [_write_frame(scene, t, frame_path(out, t), False) for t in range(scene.num_frames)]
+    return [_write_frame(scene, int(frames), out, False)]
 
 
 def scene_from_gaussians(g: Gaussians, extras: dict, name: str, fps: float = 10.0) -> Scene4D:

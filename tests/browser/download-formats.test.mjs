@@ -81,7 +81,7 @@ test("Download saves every format, a frame and the whole clip, each the CLI's ex
     } else {
       assert.deepEqual(r.gaussians, [out.expected[FRAME]], `${r.name}: frame ${FRAME}'s Gaussians`);
     }
-    if (f.format !== "wsplat" || f.frame === "all") assert.equal(r.cli_identical, true, `${r.name} = worldsplat export`);
+    assert.equal(r.cli_identical, true, `${r.name} = worldsplat export`);
     if (r.splat_transform !== null) {
       assert.equal(r.splat_transform, out.expected[FRAME], `${r.name}: splat-transform reads every Gaussian`);
       theirs.push(r.name);

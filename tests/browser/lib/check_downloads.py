@@ -50,7 +50,10 @@ def check(scene: Path, f: dict, work: Path) -> dict:
     if fmt == "wsplat":
         s = wsplat.decode(data)
         row["gaussians"] = [len(s.static) + len(d) for d in s.dynamic]
-        row["cli_identical"] = None if frame != "all" else data == scene.read_bytes()  # no CLI writes a frame .wsplat
+        if frame == "all":  # the clip is the scene's own file; a frame is `worldsplat export --out X.wsplat --frame T`
+            row["cli_identical"] = data == scene.read_bytes()
+        else:
+            row["cli_identical"] = data == next(iter(cli_export(scene, fmt, frame, work).values()))
         return row
     if frame == "all":
         with zipfile.ZipFile(io.BytesIO(data)) as z:

@@ -102,6 +102,18 @@ def test_cli_exports_the_default_preset(tmp_path, capsys):
     assert f"{n} agents" in capsys.readouterr().out
 
 
+def test_a_caption_with_characters_xml_cannot_hold_exports_without_them(tmp_path):
+    """A caption is free text; XML 1.0 cannot hold control characters, so they are left out (and said), not a crash."""
+    sc = load_preset("empty_road").with_updates(caption="rain\x00 at\x1b night \u00e9\t")
+    from worldsplat.world.scenario_io import export_scenario
+
+    warnings = export_scenario(sc, tmp_path / "c.xosc")
+    assert any("caption" in w for w in warnings)
+    text = (tmp_path / "c.xosc").read_text()
+    assert "rain at night \u00e9" in text and "\x00" not in text and "\x1b" not in text
+    import_scenario(tmp_path / "c.xosc", fps=sc.clip.fps, frames=sc.clip.frames)  # the file parses back
+
+
 # -- agents that overlap ----------------------------------------------------------------------------------------------
 def write_colliding_cut_in(tmp_path) -> Path:
     """A cut-in written by scenariogeneration: the cutting-in car closes on the lead car until their boxes touch."""

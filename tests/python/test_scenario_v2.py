@@ -327,17 +327,21 @@ def test_random_scenarios_can_carry_explicit_agents_and_they_fit_the_world():
     assert all(m.with_updates(agents=[]) == random_scenario(i, frames=8) for i, m in enumerate(mixed))
 
 
-def test_api_refuses_overlapping_agents_naming_the_field(tmp_path):
+def test_api_reports_overlapping_agents_and_refuses_them_when_strict(tmp_path):
     from fastapi.testclient import TestClient
 
     from worldsplat.api.app import create_app
 
-    bad = {**SMALL, "agents": [car("stopped", s=30.0), {**car("late", s=20.0), "motion": {"speed": 4.8}}]}
+    crash = {**SMALL, "agents": [car("stopped", s=30.0), {**car("late", s=20.0), "motion": {"speed": 4.8}}]}
     with TestClient(create_app(tmp_path / "cache", warm=False, max_queued=4)) as c:
-        r = c.post("/api/scenes", json={"scenario": bad, "mode": "oracle"})
-    assert r.status_code == 422, r.text
-    assert r.json()["field"] == "scenario.agents[1]"
-    assert "scenario.agents[1]: overlaps agents[0] at t = 1.25 s" in r.json()["error"]
+        strict = c.post("/api/scenes", json={"scenario": crash, "mode": "oracle", "strict": True})
+        kept = c.post("/api/scenes", json={"scenario": crash, "mode": "oracle"})
+    assert strict.status_code == 422, strict.text
+    assert strict.json()["field"] == "scenario.agents[1]"
+    assert "overlaps agents[0]" in strict.json()["error"] and "1.25" in strict.json()["error"]
+    assert kept.status_code in (200, 202), kept.text
+    assert kept.json()["overlaps"] == [{"agent": "late", "other": "stopped", "first_s": 1.25, "last_s": 1.75}]
+    assert any("overlaps agents[0]" in w for w in kept.json()["warnings"])
 
 
 @pytest.mark.parametrize("name", CORNER_CASES)

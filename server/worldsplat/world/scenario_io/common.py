@@ -45,6 +45,16 @@ class Frame:
         return wrap(h - self.h)
 
 
+def xml_text(s: str) -> str:
+    """`s` as an XML 1.0 attribute can hold it: characters outside XML's Char production (control characters other
+    than tab, newline and carriage return; U+FFFE, U+FFFF) are dropped, as no escape can write them."""
+    return "".join(
+        c
+        for c in s
+        if c in "\t\n\r" or "\x20" <= c <= "\ud7ff" or "\ue000" <= c <= "\ufffd" or "\U00010000" <= c <= "\U0010ffff"
+    )
+
+
 def wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 

@@ -25,6 +25,7 @@ from worldsplat.world.agents import (
     spec_poses,
 )
 from worldsplat.world.layout import build_world
+from worldsplat.world.scenario_io.common import xml_text
 from worldsplat.world.scenario_io.opendrive_write import write_opendrive
 
 VEHICLE_CATEGORY = {
@@ -143,8 +144,11 @@ def export_openscenario(scenario: Scenario, out: str | Path) -> list[str]:
     for agent in build_world(sc).agents:
         if agent.agent_id is None:
             _write_traffic(story, agent, times, taken)
+    description = xml_text((sc.caption or "WorldSplat scenario")[:200])
+    if sc.caption and description != sc.caption[:200]:
+        warnings.append("caption: characters XML cannot hold (control characters) left out of the file header")
     doc = xosc.Scenario(
-        (sc.caption or "WorldSplat scenario")[:200],
+        description,
         "worldsplat",
         xosc.ParameterDeclarations(),
         story.entities,

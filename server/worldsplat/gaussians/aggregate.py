@@ -163,6 +163,27 @@ def merged_variance(total_var: np.ndarray, cover: float = 0.0) -> np.ndarray:
     return 12.0 * cover**2 * (total_var / 2.0)
 
 
+def _kept_rows(g: Gaussians, eco: Economy, camera_centres: np.ndarray, stats: AggregateStats):
+    """The rows `economize` works on, as float64 numpy: finite, opaque enough and (sky aside) within range of a
+    camera; with each row's distance to the nearest camera and its sky flag. Counts what it drops in `stats`."""
+    a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
+    keep = _finite_rows(a)
+    a["opacities"] = np.clip(np.nan_to_num(a["opacities"]), 0, 1)
+    transparent = keep & (a["opacities"] < max(eco.min_opacity, C.ALPHA_MIN))
+    stats.dropped_transparent += int(transparent.sum())
+    keep &= ~transparent
+    a = {k: v[keep] for k, v in a.items()}
+    sky = (
+        a["extras"][:, SKY_CHANNEL] > 0.5
+        if "extras" in a and a["extras"].shape[1] > SKY_CHANNEL
+        else np.zeros(len(a["means"]), dtype=bool)
+    )
+    dist = nearest_distance(a["means"], camera_centres)
+    far = (dist > eco.max_range) & ~sky
+    stats.dropped_range += int(far.sum())
+    return {k: v[~far] for k, v in a.items()}, dist[~far], sky[~far]
+
+
 def economize(
     g: Gaussians,
     eco: Economy,
@@ -182,25 +203,9 @@ def economize(
     is emitted again only when this window sees it at least `FINER` times finer, else its members count as merged
     away; the cells this call emits are added to it."""
     stats = stats or AggregateStats()
-    a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
-    if len(a["means"]) == 0:
+    if len(g) == 0:
         return g.detach()
-    keep = _finite_rows(a)
-    a["opacities"] = np.clip(np.nan_to_num(a["opacities"]), 0, 1)
-    transparent = keep & (a["opacities"] < max(eco.min_opacity, C.ALPHA_MIN))
-    stats.dropped_transparent += int(transparent.sum())
-    keep &= ~transparent
-    a = {k: v[keep] for k, v in a.items()}
-    sky = (
-        a["extras"][:, SKY_CHANNEL] > 0.5
-        if "extras" in a and a["extras"].shape[1] > SKY_CHANNEL
-        else np.zeros(len(a["means"]), dtype=bool)
-    )
-    dist = nearest_distance(a["means"], camera_centres)
-    far = (dist > eco.max_range) & ~sky
-    stats.dropped_range += int(far.sum())
-    a = {k: v[~far] for k, v in a.items()}
-    dist, sky = dist[~far], sky[~far]
+    a, dist, sky = _kept_rows(g, eco, camera_centres, stats)
     n = len(a["means"])
     if n == 0:
         return Gaussians.empty(0 if g.extras is None else g.extras.shape[1])

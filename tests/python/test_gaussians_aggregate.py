@@ -6,8 +6,9 @@ import torch
 
 from worldsplat.core.camera import Camera, default_rig, yaw_pose
 from worldsplat.gaussians import Gaussians, lift, rasterize
-from worldsplat.gaussians.aggregate import Economy, aggregate_4d, economize, transform
+from worldsplat.gaussians.aggregate import Economy, aggregate_4d, economize
 from worldsplat.gaussians.raster import render_view
+from worldsplat.gaussians.types import transform
 from worldsplat_models.geometry import matrix_to_quaternion, quaternion_to_matrix
 
 

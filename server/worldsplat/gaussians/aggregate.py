@@ -33,8 +33,7 @@ import torch
 from worldsplat.core.camera import RigCamera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.lift import SKY_CHANNEL
-from worldsplat.gaussians.types import Gaussians, Scene4D
-from worldsplat_models.geometry import matrix_to_quaternion, quaternion_multiply
+from worldsplat.gaussians.types import Gaussians, Scene4D, transform
 
 DYNAMIC_THRESHOLD = 0.5  # extras[:, 0] (dynamic probability / mask) above this -> dynamic
 SKY_COVER = 0.5  # a merged sky Gaussian's std is at least this fraction of its cell
@@ -101,14 +100,6 @@ class AggregateStats:
         d["kept_fraction_of_naive"] = self.kept / max(1, self.naive)
         d.update(self.extra)
         return d
-
-
-def transform(g: Gaussians, m: np.ndarray) -> Gaussians:
-    """Apply a rigid 4x4 transform (e.g. ego_to_world[t]) to Gaussians: means and rotations."""
-    R = torch.as_tensor(np.asarray(m)[:3, :3], dtype=g.means.dtype)
-    t = torch.as_tensor(np.asarray(m)[:3, 3], dtype=g.means.dtype)
-    qr = torch.as_tensor(matrix_to_quaternion(np.asarray(m)[:3, :3]), dtype=g.quats.dtype).expand_as(g.quats)
-    return Gaussians(g.means @ R.T + t, quaternion_multiply(qr, g.quats), g.scales, g.opacities, g.colors, g.extras)
 
 
 def split_dynamic(g: Gaussians, threshold: float = DYNAMIC_THRESHOLD) -> tuple[Gaussians, Gaussians]:

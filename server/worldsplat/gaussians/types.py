@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from worldsplat.core.camera import Camera, RigCamera
+from worldsplat_models.geometry import matrix_to_quaternion, quaternion_multiply
 
 _FIELDS = ("means", "quats", "scales", "opacities", "colors")
 
@@ -101,6 +102,52 @@ class Gaussians:
         return Gaussians(*(torch.cat([getattr(p, f) for p in parts]) for f in _FIELDS), ex)
 
 
+def transform(g: Gaussians, m: np.ndarray) -> Gaussians:
+    """Apply a rigid 4x4 transform (e.g. ego_to_world[t], or an agent's box_to_world) to Gaussians: means and
+    rotations."""
+    R = torch.as_tensor(np.asarray(m)[:3, :3], dtype=g.means.dtype)
+    t = torch.as_tensor(np.asarray(m)[:3, 3], dtype=g.means.dtype)
+    qr = torch.as_tensor(matrix_to_quaternion(np.asarray(m)[:3, :3]), dtype=g.quats.dtype).expand_as(g.quats)
+    return Gaussians(g.means @ R.T + t, quaternion_multiply(qr, g.quats), g.scales, g.opacities, g.colors, g.extras)
+
+
+@dataclass
+class AgentObject:
+    """One agent as one set of Gaussians in its own box frame (x forward, y left, z up; origin at the box centre),
+    posed per frame by its track: an object is drawn once and moved, not re-drawn per frame.
+
+    gaussians   the canonical Gaussians, box frame
+    poses       (T, 4, 4) box_to_world per frame of the scene; `present[t]` False where the agent is not in frame t
+                (its pose row is then ignored)
+    residuals   optional per-frame Gaussians in the world frame added to the posed object (people and cyclists
+                may keep a small per-frame residual); None or one entry per frame (None where there is none)"""
+
+    agent_id: int
+    cls: int  # world class id (worldsplat.world.classes)
+    size: np.ndarray  # (3,) length, width, height in m
+    gaussians: Gaussians
+    poses: np.ndarray
+    present: np.ndarray
+    residuals: list[Gaussians | None] | None = None
+
+    def __post_init__(self) -> None:
+        self.size = np.asarray(self.size, dtype=np.float64).reshape(3)
+        self.poses = np.asarray(self.poses, dtype=np.float64).reshape(-1, 4, 4)
+        self.present = np.asarray(self.present, dtype=bool).reshape(-1)
+        if len(self.present) != len(self.poses):
+            raise ValueError(f"AgentObject {self.agent_id}: {len(self.poses)} poses but {len(self.present)} flags")
+        if self.residuals is not None and len(self.residuals) != len(self.poses):
+            raise ValueError(f"AgentObject {self.agent_id}: {len(self.poses)} poses but {len(self.residuals)} residuals")
+
+    def at_frame(self, t: int) -> Gaussians:
+        """The object posed at frame t (plus its residual there); empty where the agent is absent."""
+        if not self.present[t]:
+            return self.gaussians.subset(torch.zeros(len(self.gaussians), dtype=torch.bool))
+        g = transform(self.gaussians, self.poses[t])
+        r = None if self.residuals is None else self.residuals[t]
+        return g if r is None else Gaussians.cat([g, r])
+
+
 @dataclass
 class Scene4D:
     """A 4D Gaussian scene (paper eq. 3 output): the static base in world coordinates, in importance order, plus
@@ -112,6 +159,7 @@ class Scene4D:
     rig: list[RigCamera]
     ego_to_world: np.ndarray
     meta: dict = field(default_factory=dict)  # scenario_id, mode, model_version, caption, fps
+    objects: list[AgentObject] = field(default_factory=list)  # agents drawn once in their box frames, posed per frame
 
     def __post_init__(self) -> None:
         self.frame_times = np.asarray(self.frame_times, dtype=np.float64).reshape(-1)
@@ -121,6 +169,9 @@ class Scene4D:
             raise ValueError(
                 f"Scene4D: {t} frame times but {len(self.dynamic)} dynamic sets and {len(self.ego_to_world)} ego poses"
             )
+        for o in self.objects:
+            if len(o.poses) != t:
+                raise ValueError(f"Scene4D: {t} frame times but agent object {o.agent_id} has {len(o.poses)} poses")
 
     @property
     def num_frames(self) -> int:
@@ -134,11 +185,25 @@ class Scene4D:
             return float((self.num_frames - 1) / max(1e-9, self.frame_times[-1] - self.frame_times[0]))
         return 10.0
 
-    def at_frame(self, t: int) -> Gaussians:
-        """Static union plus frame t's dynamic set (paper eq. 3)."""
+    def dynamic_at(self, t: int) -> Gaussians:
+        """Frame t's dynamic set with the agent objects posed at t (what a per-frame format writes for frame t)."""
         if not 0 <= t < self.num_frames:
             raise ValueError(f"frame {t} out of range 0..{self.num_frames - 1}")
-        return Gaussians.cat([self.static, self.dynamic[t]])
+        if not self.objects:
+            return self.dynamic[t]
+        return Gaussians.cat([self.dynamic[t]] + [o.at_frame(t) for o in self.objects])
+
+    def at_frame(self, t: int) -> Gaussians:
+        """Static union plus frame t's dynamic set and posed agent objects (paper eq. 3)."""
+        return Gaussians.cat([self.static, self.dynamic_at(t)])
+
+    def baked(self) -> Scene4D:
+        """The same scene with its agent objects posed into every frame's dynamic set (for writers that carry
+        per-frame Gaussians only: PLY, glTF, SPZ, SOG, .splat, .wsplat v1/v2)."""
+        if not self.objects:
+            return self
+        dyn = [self.dynamic_at(t) for t in range(self.num_frames)]
+        return Scene4D(self.static, dyn, self.frame_times, self.rig, self.ego_to_world, dict(self.meta))
 
     def camera(self, t: int, view: int | str, shift_m: float = 0.0) -> Camera:
         if isinstance(view, str):

@@ -129,9 +129,10 @@ def street_scene(n: int, seed: int = 0):
 
 def scene_files(n: int, wsplat: bool) -> tuple[Path, Path]:
     """scene_<n>.ply (and .wsplat) under WORK, written once per SCENE_VERSION."""
-    from worldsplat.gaussians.aggregate import importance_order, transform  # noqa: PLC0415 - heavy (torch)
+    from worldsplat.gaussians.aggregate import importance_order  # noqa: PLC0415 - heavy (torch)
     from worldsplat.gaussians.formats import scene_from_gaussians  # noqa: PLC0415 - heavy (torch)
     from worldsplat.gaussians.ply import write_ply  # noqa: PLC0415 - heavy (torch)
+    from worldsplat.gaussians.types import transform  # noqa: PLC0415 - heavy (torch)
 
     WORK.mkdir(parents=True, exist_ok=True)
     ply, ws, stamp = WORK / f"scene_{n}.ply", WORK / f"scene_{n}.wsplat", WORK / f"scene_{n}.version"

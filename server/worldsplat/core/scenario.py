@@ -201,6 +201,7 @@ CLASS_SIZE_BOUNDS = {
     "pedestrian": ((0.3, 1.0), (0.3, 1.0), (0.9, 2.1)),
     "cyclist": ((1.3, 2.2), (0.4, 1.0), (1.4, 2.2)),
 }
+COLOUR_PATTERN = re.compile(r"^#[0-9A-Fa-f]{6}$")  # agents[i].colour
 CLASS_MAX_SPEED = {"car": 40.0, "bus": 30.0, "truck": 30.0, "pedestrian": 4.0, "cyclist": 12.0}
 CLASS_MAX_ACCEL = {"car": 9.0, "bus": 6.0, "truck": 6.0, "pedestrian": 3.0, "cyclist": 4.0}
 
@@ -264,6 +265,27 @@ class AgentSpec(_Strict):
         None, discriminator="kind", description="lane placement or free world pose (not with motion.keyframes)"
     )
     motion: AgentMotion = Field(default_factory=AgentMotion)
+    colour: str | None = Field(
+        None,
+        description='"#rrggbb": the body colour of a vehicle, the clothing of a person or cyclist; default (omitted): '
+        "drawn from the seed, or a colour word of the caption (world.md)",
+        json_schema_extra={"pattern": COLOUR_PATTERN.pattern},
+    )
+
+    @field_validator("colour", mode="before")
+    @classmethod
+    def _colour(cls, v):
+        if v is not None and not (isinstance(v, str) and COLOUR_PATTERN.match(v)):
+            raise ValueError(f"{v!r} is not a colour: give it as \"#rrggbb\" (hex, e.g. \"#c81e1e\" for red)")
+        return v if v is None else v.lower()
+
+    @model_serializer(mode="wrap")
+    def _omit_unset_colour(self, handler):
+        # Unset, colour is left out of the canonical JSON, so agents without one keep their scene ids.
+        data = handler(self)
+        if isinstance(data, dict) and data.get("colour") is None:
+            data.pop("colour", None)
+        return data
 
     @property
     def dims(self) -> tuple[float, float, float]:

@@ -19,14 +19,15 @@ import sys
 import time
 
 import numpy as np
+import torch
 
-from worldsplat.core.metrics import psnr
+from worldsplat.core.metrics import psnr, ssim_map
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians import wsplat
 from worldsplat.gaussians.aggregate import WINDOW_FINER, Economy, aggregate_4d, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.raster import render_view
-from worldsplat.gaussians.types import Scene4D
+from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.world import build_world, simulate
 
 
@@ -232,6 +233,99 @@ def table(result: dict) -> str:
     return "\n".join(lines)
 
 
+# --------------------------------------------------------------------------- frame t's own lifting vs the served scene
+def static_mask(depth: np.ndarray, dynamic: np.ndarray) -> np.ndarray:
+    """Static surface pixels (road, buildings, vegetation): finite depth, not a moving agent."""
+    return np.isfinite(depth) & ~np.asarray(dynamic, bool)
+
+
+def luma_ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """SSIM of the luma of two uint8 images, the whole image's SSIM map averaged over `mask`."""
+    w = torch.tensor([0.299, 0.587, 0.114], dtype=torch.float32)
+    ya, yb = ((torch.from_numpy(np.ascontiguousarray(x)).float() / 255.0) @ w for x in (a, b))
+    m = ssim_map(ya[None, None], yb[None, None])[0, 0].numpy()
+    return float(m[mask].mean()) if mask.any() else float("nan")
+
+
+def in_view_per_pixel(g: Gaussians, cameras: list) -> float:
+    """Gaussians whose centre lies in front of and inside at least one of `cameras`, per pixel of those cameras."""
+    p = g.means.detach().double().numpy()
+    seen = np.zeros(len(p), dtype=bool)
+    for cam in cameras:
+        uv, z = cam.project(p)
+        seen |= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    return int(seen.sum()) / sum(c.width * c.height for c in cameras)
+
+
+def _score(g: Gaussians, cams: list, gt, i: int) -> dict:
+    ps, pa, ss = [], [], []
+    for v, cam in enumerate(cams):
+        img, ref = render_view(g, cam).rgb, gt.rgb[i, v]
+        ps.append(psnr(img, ref, static_mask(gt.depth[i, v], gt.dynamic[i, v])))
+        pa.append(psnr(img, ref))
+        ss.append(luma_ssim(img, ref, np.isfinite(gt.depth[i, v])))
+    return {"static_psnr": float(np.mean(ps)), "psnr": float(np.mean(pa)), "ssim": float(np.mean(ss))}
+
+
+def measure_own(presets: list[str], frames: list[int], scales: list[int], economy: Economy, window: int, log=print):
+    """Frame t of the served oracle scene (window by window, `window` frames each) against frame t's own lifting
+    (its views lifted, nothing else, no economy), both rendered at every rig camera at `scales` x the served image
+    against the world's exact images at that size: PSNR of static pixels (finite depth, no agent) and of all
+    pixels, SSIM of luma on non-sky pixels, Gaussians in view at frame t per served pixel; per preset the scene's
+    static count and .wsplat bytes."""
+    rows = []
+    for preset in presets:
+        scenario = load_preset(preset)
+        world = build_world(scenario)
+        clip = simulate(world)
+        T, V, H, W = clip.depth.shape
+        per_view = lift_clip(clip)
+        t0 = time.time()
+        scene, st = aggregate_windows(
+            per_view, clip.frame_times, clip.rig, clip.ego_to_world, windows(T, window), economy=economy,
+            image_size=(H, W),
+        )  # fmt: skip
+        row = {"preset": preset, "static": st.static_kept, "sky": st.sky_kept, "dynamic": st.dynamic_kept,
+               "bytes": len(wsplat.encode(scene)), "aggregate_s": time.time() - t0, "frames": {}}  # fmt: skip
+        for s in scales:
+            big = world if s == 1 else build_world(scenario.with_updates(image={"width": W * s, "height": H * s}))
+            gt = simulate(big, frames=frames)
+            for i, t in enumerate(frames):
+                own, served = Gaussians.cat(per_view[t]), scene.at_frame(t)
+                cams = [rc.at(clip.ego_to_world[t]) for rc in big.rig]
+                served_cams = [rc.at(clip.ego_to_world[t]) for rc in clip.rig]
+                r = {"own": _score(own, cams, gt, i), "served": _score(served, cams, gt, i)}
+                r["own_in_view"] = in_view_per_pixel(own, served_cams)
+                r["served_in_view"] = in_view_per_pixel(served, served_cams)
+                r["gap"] = r["served"]["static_psnr"] - r["own"]["static_psnr"]
+                row["frames"][f"{t}@{s}x"] = r
+                log(
+                    f"{preset} frame {t} at {s}x: static PSNR own {r['own']['static_psnr']:.2f} served "
+                    f"{r['served']['static_psnr']:.2f} ({r['gap']:+.2f}); SSIM luma non-sky own "
+                    f"{r['own']['ssim']:.3f} served {r['served']['ssim']:.3f}; in view per served pixel own "
+                    f"{r['own_in_view']:.2f} served {r['served_in_view']:.2f}"
+                )
+        log(f"{preset}: static {row['static']} (sky {row['sky']}), dynamic {row['dynamic']}, .wsplat {row['bytes']} B")
+        rows.append(row)
+    return {"presets": presets, "frames": frames, "scales": scales, "window": window, "rows": rows}
+
+
+def own_table(result: dict) -> str:
+    lines = [
+        "| preset | frame @ size | static PSNR own / served (gap) dB | SSIM luma non-sky own / served | "
+        "in view per served px own / served | static | .wsplat bytes |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in result["rows"]:
+        for k, r in row["frames"].items():
+            lines.append(
+                f"| {row['preset']} | {k} | {r['own']['static_psnr']:.2f} / {r['served']['static_psnr']:.2f} "
+                f"({r['gap']:+.2f}) | {r['own']['ssim']:.3f} / {r['served']['ssim']:.3f} | "
+                f"{r['own_in_view']:.2f} / {r['served_in_view']:.2f} | {row['static']:,} | {row['bytes']:,} |"
+            )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--preset", default="urban_straight")
@@ -248,6 +342,14 @@ def main(argv: list[str] | None = None) -> int:
         help="compare aggregations instead: comma-separated `all` (one union over all frames), SIZE (windows of SIZE "
         "frames, the first to see a cell makes it) or SIZE:FINER (re-emit a cell seen FINER times finer)",
     )
+    p.add_argument(
+        "--own",
+        default=None,
+        help="compare instead frame t of the served scene with frame t's own lifting, on these comma-separated "
+        "presets (at --frames, default 0; every rig camera; static pixels, luma SSIM)",
+    )
+    p.add_argument("--scales", default="1,2", help="--own: render sizes as multiples of the served image")
+    p.add_argument("--window", type=int, default=4, help="--own: frames per window (pipeline.scene.ORACLE_WINDOW)")
     p.add_argument("--json", default=None, help="also write the result as JSON here")
     a = p.parse_args(argv)
     eco = Economy(
@@ -260,7 +362,12 @@ def main(argv: list[str] | None = None) -> int:
     frames = None if a.frames is None else [int(x) for x in a.frames.split(",")]
     shifts = [float(x) for x in a.shifts.split(",")]
     log = lambda m: print(m, flush=True)  # noqa: E731
-    if a.windows is not None:
+    if a.own is not None:
+        res = measure_own(
+            a.own.split(","), frames or [0], [int(x) for x in a.scales.split(",")], eco, a.window, log=log
+        )
+        print(own_table(res))
+    elif a.windows is not None:
         res = measure_windows(a.preset, shifts, frames, eco, parse_windows(a.windows), log=log)
         print(windows_table(res))
     else:

@@ -55,6 +55,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     e.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
     e.add_argument("--threads", type=int, default=2)
     e.add_argument("--out", type=Path, required=True, help="output directory (downstream.json/.md/.png)")
+    a = sub.add_parser("ablation", help="the novel-view ablation versions A-E: judge Fréchet distances and mIoU")
+    a.add_argument("--split", default="test", choices=("val", "test"), help="held-out split of the clips")
+    a.add_argument("--count", type=int, default=8, help="clips of the split (default 8)")
+    a.add_argument("--shifts", default="2,-2", help="lateral shifts in metres, comma-separated (default the paper's)")
+    a.add_argument("--steps", type=int, default=None, help="enhancer sampler steps (default each model's own)")
+    a.add_argument("--cache", type=Path, default=None, help="samples (default runs/judge/ablation_samples)")
+    a.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
+    a.add_argument("--threads", type=int, default=2)
+    a.add_argument("--out", type=Path, required=True, help="output directory (ablation.json, ablation.md)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,6 +77,17 @@ def run(args: argparse.Namespace) -> int:
     from worldsplat_models.judge import load_judge
 
     judge = load_judge(args.weights or _weights_default())
+    if args.what == "ablation":
+        from worldsplat.evaluation import downstream_ablation
+
+        if args.count < 1:
+            raise ValueError("--count must be at least 1")
+        res = downstream_ablation.judge_ablation(
+            judge, args.split, args.count, parse_shifts(args.shifts), steps=args.steps, cache=args.cache
+        )
+        downstream_ablation.write_ablation(res, args.out)
+        print(downstream_ablation.ablation_markdown(res))
+        return 0
     if args.what == "heldout":
         result = downstream.heldout(judge, args.data, args.split)
         downstream.write_heldout(result, args.out)

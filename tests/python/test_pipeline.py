@@ -47,12 +47,15 @@ def test_oracle_scene_of_a_clip_is_the_served_oracle_scene():
 
     sc = load_preset("urban_straight").with_updates(clip={"frames": ORACLE_WINDOW + 1}, image=TINY["image"])
     served = generate_scene(sc, mode="oracle")
-    scored = oracle_scene(simulate(build_world(sc)))
+    world = build_world(sc)
+    scored = oracle_scene(simulate(world), world=world)  # the world's boxes: its agents become objects too
     assert len(served.static) == len(scored.static) > 0
     assert torch.equal(served.static.means, scored.static.means)
     assert torch.equal(served.static.colors, scored.static.colors)
     assert [len(d) for d in served.dynamic] == [len(d) for d in scored.dynamic]
     assert all(torch.equal(a.means, b.means) for a, b in zip(served.dynamic, scored.dynamic, strict=True))
+    assert [o.agent_id for o in served.objects] == [o.agent_id for o in scored.objects] != []
+    assert all(torch.equal(a.gaussians.means, b.gaussians.means) for a, b in zip(served.objects, scored.objects))
 
 
 def test_reconstructed_scene_of_a_clip_is_the_served_reconstruct_scene():
@@ -67,7 +70,7 @@ def test_reconstructed_scene_of_a_clip_is_the_served_reconstruct_scene():
         pytest.skip("reconstruct weights are not shipped here")
     models = inf.load_models()
     sc = load_preset("urban_straight").with_updates(clip={"frames": models.data.frames + 1}, image=TINY["image"])
-    served = generate_scene(sc, mode="reconstruct")
+    served = generate_scene(sc, mode="reconstruct", agents="per_frame")  # to_scene4d keeps per-frame dynamics
     dec = inf.reconstruct(simulate(build_world(sc)), models)
     assert dec.windows == [list(range(models.data.frames)), [models.data.frames]]
     scored = inf.to_scene4d(dec)

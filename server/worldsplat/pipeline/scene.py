@@ -31,6 +31,7 @@ from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
+from worldsplat.gaussians.objects import AGENT_MODES, ObjectBuilder, ObjectSource, agent_tracks, with_objects
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.world import build_world, simulate
 
@@ -107,8 +108,12 @@ def _check(cancelled: CancelCheck | None) -> None:
 
 class SceneSink(Protocol):
     """Takes a scene as it is built: `begin` once (an empty Scene4D with the frame times, rig, ego poses and the meta
-    known before generation), then `window` per window, in order (its static Gaussians in importance order and the
-    dynamic set of each of its frames; all final)."""
+    known before generation, and with agents as objects every tracked agent's `AgentObject` with no Gaussians yet
+    and all its poses), then `window` per window, in order (its static Gaussians in importance order and the
+    dynamic set of each of its frames; all final). A sink that writes per-frame Gaussians only gets each frame's
+    dynamic set with the agent objects built so far posed in; a sink with `takes_objects = True` is called
+    `window(frames, static, dynamic, objects)` with the Gaussians in no box as `dynamic` and, per agent id, the
+    canonical Gaussians (box frame) this window adds to its object (append-only: an object is its parts in order)."""
 
     def begin(self, skeleton: Scene4D) -> None: ...
 
@@ -176,14 +181,21 @@ def generate_scene(
     sink: SceneSink | None = None,
     first_window: int = FIRST_WINDOW,
     first_steps: int | None = None,
+    agents: str = "objects",
+    object_source: ObjectSource | None = None,
 ) -> Scene4D:
     """Build the 4D Gaussian scene of a scenario, window by window (handed to `sink` as they are done). `meta`
     records scenario_id, mode, model_version, caption, fps and the aggregation statistics. `mode` None is
     `default_mode()`. generate mode: the first window has `first_window` frames (0: the models' own windows) and is
-    sampled with `first_steps` Euler steps (None: min(steps, FIRST_STEPS))."""
+    sampled with `first_steps` Euler steps (None: min(steps, FIRST_STEPS)). `agents`: "objects" (each moving
+    agent one set of Gaussians in its box frame, posed by its track: `gaussians.objects`) or "per_frame" (the
+    paper's dynamics, re-drawn every frame). `object_source` draws an agent's object from (class, size, seed,
+    colour) instead (None: generate mode's `generated_object_source()`, the other modes none)."""
     mode = default_mode() if mode is None else mode
     if mode not in ALL_MODES:
         raise ValueError(f"unknown mode {mode!r}; modes are {', '.join(ALL_MODES)}")
+    if agents not in AGENT_MODES:
+        raise ValueError(f"unknown agents {agents!r}; agents are {', '.join(AGENT_MODES)}")
     prog = progress or (lambda stage, f: None)
     _check(cancelled)
     prog("world", 0.0)
@@ -195,37 +207,71 @@ def generate_scene(
         "caption": world.caption,
         "fps": float(world.fps),
         "scenario": scenario.model_dump(mode="json"),
+        "agents": agents,
     }
     _check(cancelled)
+    if object_source is None and mode == "generate":
+        object_source = generated_object_source()
+    objects = (
+        None if agents == "per_frame" else _Objects(world, object_source, int(scenario.seed if seed is None else seed))
+    )
     if mode == "oracle":
         meta["model_version"] = ORACLE_VERSION
-        scene, stats = _oracle(world, meta, prog, cancelled, economy, sink)
+        scene, stats = _oracle(world, meta, prog, cancelled, economy, sink, objects)
     else:
         plan = (int(first_window), int(min(steps, FIRST_STEPS) if first_steps is None else first_steps))
-        scene, stats = _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink, plan)
+        scene, stats = _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink, plan, objects)
     scene.meta["aggregate"] = stats.as_dict()
     prog("done", 1.0)
     return scene
 
 
-class _Collect:
-    """Gathers the windows into the served Scene4D (and forwards them to the caller's sink)."""
+def generated_object_source() -> ObjectSource | None:
+    """Where generate mode's agent objects come from when the caller gives no `object_source`: a generator of an
+    agent's canonical Gaussians from (class, size, seed, colour), box frame. None: generate's agents are the decoded
+    Gaussians in their boxes, made objects like the other modes'."""
+    return None
 
-    def __init__(self, agg: WindowAggregator, meta: dict, sink: SceneSink | None):
+
+class _Objects:
+    """What `_Collect` needs to make agents objects: the world (its agents' boxes), the source and its seed."""
+
+    def __init__(self, world, source: ObjectSource | None, seed: int):
+        self.world, self.source, self.seed = world, source, seed
+
+    def builder(self, agg: WindowAggregator) -> ObjectBuilder:
+        tracks = agent_tracks(self.world, agg.ego_to_world)
+        return ObjectBuilder(tracks, agg.rig, agg.ego_to_world, economy=agg.economy, source=self.source, seed=self.seed)
+
+
+class _Collect:
+    """Gathers the windows into the served Scene4D (and forwards them to the caller's sink); with `objects`, the
+    agents' Gaussians go into their objects (`gaussians.objects.ObjectBuilder`) as the windows come."""
+
+    def __init__(self, agg: WindowAggregator, meta: dict, sink: SceneSink | None, objects: _Objects | None = None):
         self.agg, self.sink, self.statics, self.dynamic, self.timing = agg, sink, [], {}, []
+        self.objects = None if objects is None else objects.builder(agg)
         self.skeleton = agg.scene([], {t: Gaussians.empty() for t in range(len(agg.frame_times))}, meta)
+        if self.objects is not None:
+            self.skeleton.objects = self.objects.skeleton_objects()
         if sink is not None:
             sink.begin(self.skeleton)
 
     def window(self, frames: list[int], per_view: list[list[Gaussians]], timing: dict | None = None) -> None:
         t0 = time.perf_counter()
         static, dynamic = self.agg.add(frames, per_view)
+        added = None
+        if self.objects is not None:
+            dynamic, added = self.objects.add(frames, dynamic)
         t1 = time.perf_counter()
         self.statics.append(static)
         self.dynamic.update(dynamic)
         if self.sink is not None:
-            self.sink.window(frames, static, dynamic)
-        # per window: the stages' seconds (the models' own, aggregation, the sink's writing)
+            if added is not None and getattr(self.sink, "takes_objects", False):
+                self.sink.window(frames, static, dynamic, added)
+            else:
+                self.sink.window(frames, static, dynamic if added is None else self.objects.baked(frames, dynamic))
+        # per window: the stages' seconds (the models' own, aggregation with the objects, the sink's writing)
         row = {**(timing or {}), "aggregate": t1 - t0, "sink": time.perf_counter() - t1}
         self.timing.append({k: round(v, 4) for k, v in row.items()})
 
@@ -233,10 +279,13 @@ class _Collect:
         """The whole scene; meta `timing_s`: the stage totals in `timing` and `windows`, each window's stages."""
         scene = self.agg.scene(self.statics, self.dynamic, self.skeleton.meta)
         scene.meta["timing_s"] = {**(timing or {}), "windows": self.timing}
+        if self.objects is not None:
+            scene.objects = self.objects.objects()
+            scene.meta["agent_objects"] = {**self.objects.stats.as_dict(), "names": self.objects.names()}
         return scene, self.agg.stats
 
 
-def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink, plan=(0, None)):
+def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink, plan=(0, None), objects=None):
     inf = _models_inference()
     if inf is None:
         raise FileNotFoundError(f"mode {mode!r} needs the worldsplat_models package, which is not importable")
@@ -260,7 +309,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     H, W = world.rig[0].height, world.rig[0].width
     eco = inf.decoded_economy(models.data.width, W) if economy is None else economy
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
-    out = _Collect(agg, meta, sink)
+    out = _Collect(agg, meta, sink, objects)
     timing: dict[str, float] = {}
     for wi, frames in enumerate(wins):
         _check(cancelled)
@@ -290,10 +339,10 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     return out.scene(timing)
 
 
-def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None, sink):
+def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None, sink, objects=None):
     H, W = world.rig[0].height, world.rig[0].width
     agg = WindowAggregator(world.frame_times, world.rig, world.ego_to_world, economy=economy, image_size=(H, W))
-    out = _Collect(agg, meta, sink)
+    out = _Collect(agg, meta, sink, objects)
     wins = windows(len(world.frame_times), ORACLE_WINDOW)
     for wi, frames in enumerate(wins):
         _check(cancelled)
@@ -334,11 +383,18 @@ def _aggregate_clip(clip, economy: Economy | None) -> tuple[Scene4D, AggregateSt
     )
 
 
-def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None) -> Scene4D:
+def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None, world=None) -> Scene4D:
     """The oracle scene of a simulated clip (exact RGB + depth + dynamic masks, lifted), aggregated exactly as the
     playground serves it (paper eq. 3 + economy, `aggregate_4d`): the reference the learned models, the refinement
-    pairs and the evaluation are measured on."""
+    pairs and the evaluation are measured on. With the clip's `world` (the agents' boxes), its moving agents are
+    objects as `generate_scene` serves them; without it, per-frame dynamics (a clip alone does not know its boxes)."""
     scene, stats = _aggregate_clip(clip, economy)
+    if world is not None:
+        tracks = agent_tracks(world, world.ego_to_world)
+        if clip.frame_indices and tuple(clip.frame_indices) != tuple(range(world.num_frames)):
+            raise ValueError("oracle_scene: with `world`, the clip must hold every frame of it")
+        frame_windows = windows(clip.depth.shape[0], ORACLE_WINDOW)
+        scene = with_objects(scene, tracks, frame_windows, economy)
     scene.meta.update(
         {
             "mode": "oracle",

@@ -1,0 +1,191 @@
+"""Agents as objects (gaussians.objects, pipeline.scene agents="objects"): an agent's Gaussians of every frame and
+camera become one set in its box frame, posed per frame by its track; Gaussians in no box stay per-frame."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from worldsplat.core.camera import default_rig
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians.objects import AgentTrack, ObjectBuilder, agent_tracks, assign_to_boxes, box_to_world
+from worldsplat.gaussians.types import Gaussians
+
+T = 4
+SIZE = np.array([4.0, 2.0, 1.5])
+
+
+def _track(yaw_rate: float = 0.0) -> AgentTrack:
+    """A car driving +x at 5 m/s (0.5 m per frame) 10 m ahead of a standing ego, turning by yaw_rate per frame."""
+    poses = np.stack([box_to_world(10 + 0.5 * t, 0.0, yaw_rate * t, SIZE[2]) for t in range(T)])
+    return AgentTrack(7, 12, SIZE, poses, np.ones(T, bool))
+
+
+def _side(track: AgentTrack, t: int, side: float, colour) -> Gaussians:
+    """A grid of Gaussians on the car's left (side +1) or right (side -1) face at frame t, world frame, dynamic."""
+    x, z = np.meshgrid(np.linspace(-1.8, 1.8, 13), np.linspace(-0.6, 0.6, 5))
+    local = np.stack([x.ravel(), np.full(x.size, side * SIZE[1] / 2), z.ravel()], 1)
+    world = local @ track.poses[t][:3, :3].T + track.poses[t][:3, 3]
+    n = len(world)
+    return Gaussians.from_numpy(world, [[1, 0, 0, 0]] * n, [[0.05] * 3] * n, [0.9] * n, [colour] * n, [[1.0]] * n)
+
+
+def _builder(track: AgentTrack, **kw) -> ObjectBuilder:
+    ego = np.stack([np.eye(4)] * T)
+    return ObjectBuilder([track], default_rig(160, 90), ego, **kw)
+
+
+def _local(track: AgentTrack, t: int, p: np.ndarray) -> np.ndarray:
+    inv = np.linalg.inv(track.poses[t])
+    return p @ inv[:3, :3].T + inv[:3, 3]
+
+
+def test_an_agent_seen_from_opposite_sides_becomes_one_object_covering_both():
+    tr = _track()
+    left, right = _side(tr, 0, +1, (1, 0, 0)), _side(tr, 2, -1, (0, 0, 1))  # frame 0 sees the left, frame 2 the right
+    empty = Gaussians.from_numpy(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), [], np.zeros((0, 3)), np.zeros((0, 1)))  # fmt: skip
+    b = _builder(tr)
+    leftover, added = b.add(list(range(T)), {0: left, 1: empty, 2: right, 3: empty})
+    assert all(len(d) == 0 for d in leftover.values()) and list(added) == [7]
+    (obj,) = b.objects()
+    y = obj.gaussians.means[:, 1].numpy()
+    assert (y > 0.9).sum() > 10 and (y < -0.9).sum() > 10  # both faces, in the box frame
+    # every frame draws the whole object: frame 1, which no camera saw the car in, too, where the box is then
+    for t in range(T):
+        local = _local(tr, t, obj.at_frame(t).means.double().numpy())
+        assert (local[:, 1] > 0.9).any() and (local[:, 1] < -0.9).any()
+        assert (np.abs(local) <= SIZE / 2 + 0.05).all()
+    red = obj.gaussians.colors[:, 0] > 0.5
+    assert (obj.gaussians.means[red, 1] > 0).all() and (obj.gaussians.means[~red, 1] < 0).all()
+
+
+def test_the_object_follows_its_track_turning_with_it():
+    tr = _track(yaw_rate=math.pi / 8)
+    g = _side(tr, 0, +1, (1, 0, 0))
+    b = _builder(tr)
+    b.add([0], {0: g})
+    (obj,) = b.objects()
+    for t in range(T):
+        p = obj.at_frame(t).means.double().numpy()
+        local = _local(tr, t, p)
+        np.testing.assert_allclose(local[:, 1], SIZE[1] / 2, atol=1e-4)  # on the left face at every frame
+        # the face's normal (box +y) turns with the yaw: world direction of the face from the box centre
+        d = (p - tr.poses[t][:3, 3]).mean(0)
+        assert math.isclose(math.atan2(d[1], d[0]), math.pi / 2 + math.pi / 8 * t, abs_tol=0.05)
+
+
+def test_gaussians_in_no_box_stay_per_frame():
+    tr = _track()
+    car = _side(tr, 1, +1, (1, 0, 0))
+    far = Gaussians.from_numpy([[30.0, 8.0, 1.0], [5.0, -6.0, 0.5]], [[1, 0, 0, 0]] * 2, [[0.1] * 3] * 2, [0.9, 0.9],
+                               [[0, 1, 0]] * 2, [[1.0], [1.0]])  # fmt: skip
+    leftover, added = _builder(tr).add([1], {1: Gaussians.cat([car, far])})
+    assert torch.equal(leftover[1].means, far.means) and torch.equal(leftover[1].colors, far.colors)
+    assert len(added[7]) > 0
+    # the margin: a point 0.2 m off the roof belongs to the box, one 0.5 m off does not
+    roof = tr.poses[1][:3, 3] + [0, 0, SIZE[2] / 2]
+    owner = assign_to_boxes(np.array([roof + [0, 0, 0.2], roof + [0, 0, 0.5]]), [tr], 1)
+    assert owner.tolist() == [0, -1]
+
+
+def test_windows_append_to_the_object_and_an_object_source_replaces_the_decoded_agent():
+    tr = _track()
+    b = _builder(tr)
+    parts = [b.add([t], {t: _side(tr, t, +1 if t < 2 else -1, (1, 0, 0))})[1].get(7) for t in range(T)]
+    sent = [p for p in parts if p is not None]
+    assert len(sent) == 2  # frame 1 repeats frame 0's cells (merged away); frame 2 adds the right face
+    (obj,) = b.objects()
+    assert torch.equal(obj.gaussians.means, Gaussians.cat(sent).means)  # append-only: the object is its parts
+    drawn = Gaussians.from_numpy([[0, 0, 0]], [[1, 0, 0, 0]], [[1, 0.5, 0.4]], [1.0], [[0.2, 0.2, 0.2]], [[1.0]])
+    calls = []
+
+    def source(cls, size, seed, colour):
+        calls.append((cls, tuple(size), seed))
+        return drawn
+
+    b = _builder(tr, source=source, seed=3)
+    leftover, added = b.add([0], {0: _side(tr, 0, +1, (1, 0, 0))})
+    assert calls == [(12, (4.0, 2.0, 1.5), 3007)] and len(leftover[0]) == 0 and torch.equal(added[7].means, drawn.means)
+    assert b.add([1], {1: _side(tr, 1, -1, (1, 0, 0))})[1] == {}  # absorbed, never merged into the drawn object
+
+
+TINY = {"clip": {"frames": 5}, "image": {"width": 96, "height": 54}}
+
+
+class _Sink:
+    def __init__(self, takes_objects=False):
+        self.takes_objects, self.windows, self.skeleton = takes_objects, [], None
+
+    def begin(self, skeleton):
+        self.skeleton = skeleton
+
+    def window(self, frames, static, dynamic, objects=None):
+        self.windows.append((list(frames), dynamic, objects))
+
+
+@pytest.fixture(scope="module")
+def oracle_objects():
+    from worldsplat.pipeline.scene import generate_scene
+
+    sc = load_preset("urban_straight").with_updates(**TINY)
+    baked, objects = _Sink(), _Sink(takes_objects=True)
+    scene = generate_scene(sc, mode="oracle", sink=baked)
+    generate_scene(sc, mode="oracle", sink=objects)
+    per_frame = generate_scene(sc, mode="oracle", agents="per_frame")
+    return sc, scene, baked, objects, per_frame
+
+
+def test_oracle_scene_agents_are_objects_inside_their_boxes(oracle_objects):
+    from worldsplat.world import build_world
+
+    sc, scene, _, _, per_frame = oracle_objects
+    world = build_world(sc)
+    tracks = {tr.agent_id: tr for tr in agent_tracks(world, world.ego_to_world)}
+    assert scene.meta["agents"] == "objects" and len(scene.objects) >= 3
+    assert all(len(d) == 0 for d in scene.dynamic)  # every dynamic pixel of the oracle is a moving agent's
+    for o in scene.objects:
+        tr = tracks[o.agent_id]
+        assert o.cls == tr.cls and np.allclose(o.size, tr.size)
+        for t in range(scene.num_frames):
+            local = _local(tr, t, o.at_frame(t).means.double().numpy())
+            assert (np.abs(local) <= tr.size / 2 + 0.3 + 1e-6).all()
+    # fewer Gaussians than the per-frame copies, and nothing else of the scene changes
+    assert sum(len(o.gaussians) for o in scene.objects) < sum(len(d) for d in per_frame.dynamic)
+    assert torch.equal(scene.static.means, per_frame.static.means)
+
+
+def test_baked_scene_equals_the_objects_posed_and_the_stream_hands_both_over(oracle_objects):
+    sc, scene, baked, objects, _ = oracle_objects
+    b = scene.baked()
+    assert b.objects == [] and len(b.dynamic) == scene.num_frames
+    for t in range(scene.num_frames):
+        want = Gaussians.cat([scene.dynamic[t]] + [o.at_frame(t) for o in scene.objects])
+        assert torch.equal(b.dynamic[t].means, want.means) and torch.equal(b.dynamic[t].colors, want.colors)
+    # a per-frame sink gets the objects so far posed in: the last window's frames are the baked scene's
+    frames, dyn, objs = baked.windows[-1]
+    assert objs is None and all(torch.equal(dyn[t].means, b.dynamic[t].means) for t in frames)
+    # an object sink gets the skeleton's tracks up front, then each window's new parts: they add up to the objects
+    assert {o.agent_id for o in objects.skeleton.objects} >= {o.agent_id for o in scene.objects}
+    assert all(len(o.gaussians) == 0 and len(o.poses) == scene.num_frames for o in objects.skeleton.objects)
+    for o in scene.objects:
+        parts = [w[2][o.agent_id] for w in objects.windows if o.agent_id in w[2]]
+        assert torch.equal(Gaussians.cat(parts).means, o.gaussians.means)
+
+
+def test_oracle_scene_of_a_clip_with_its_world_is_the_served_one(oracle_objects):
+    from worldsplat.pipeline.scene import oracle_scene
+    from worldsplat.world import build_world, simulate
+
+    sc, scene, _, _, _ = oracle_objects
+    world = build_world(sc)
+    scored = oracle_scene(simulate(world), world=world)
+    assert [o.agent_id for o in scored.objects] == [o.agent_id for o in scene.objects]
+    assert all(torch.equal(a.gaussians.means, b.gaussians.means) for a, b in zip(scored.objects, scene.objects))
+
+
+def test_unknown_agents_option_is_refused():
+    from worldsplat.pipeline.scene import generate_scene
+
+    with pytest.raises(ValueError, match="unknown agents"):
+        generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="oracle", agents="blobs")

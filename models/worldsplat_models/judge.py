@@ -77,14 +77,20 @@ class Judge(nn.Module):
             levels.append(h)
         return levels
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x (N, 3, H, W) RGB in [0, 1] -> class logits (N, classes, H, W)."""
-        levels = self._encode(x)
+    def _decode(self, levels: list[torch.Tensor]) -> torch.Tensor:
         h = levels[-1]
         for reduce, up, skip in zip(self.reduce, self.up, reversed(levels[:-1])):
             h = F.interpolate(reduce(h), size=skip.shape[-2:], mode="bilinear", align_corners=False)
             h = up(h + skip)
         return self.head(h)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x (N, 3, H, W) RGB in [0, 1] -> class logits (N, classes, H, W)."""
+        return self._decode(self._encode(x))
+
+    def head_probs(self, levels: list[torch.Tensor]) -> torch.Tensor:
+        """Class probabilities (N, classes, H, W) from the encoder's levels (`_encode`), for heads that read both."""
+        return self._decode(levels).softmax(1)
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """x (N, 3, H, W) -> the deepest level averaged over the image (N, 4w): the Fréchet distances' features."""

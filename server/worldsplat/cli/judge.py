@@ -35,6 +35,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--clips", type=int, default=None, help="use the first N training clips (default all)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    b = sub.add_parser("train-bev", help="train the BEV head (drivable area, vehicles) through the frozen judge")
+    b.add_argument("--data", type=Path, required=True, help="dataset folder with train/ (and test/ for the figures)")
+    b.add_argument("--out", type=Path, required=True, help="checkpoints, log, judge_bev_small.safetensors, figures")
+    b.add_argument("--steps", type=int, default=400, help="optimizer steps (default 400)")
+    b.add_argument("--batch", type=int, default=4, help="frames (six cameras each) per step (default 4)")
+    b.add_argument("--minutes", type=float, default=None, help="stop (with a checkpoint) after this wall time")
+    b.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
     h = sub.add_parser("heldout", help="the judge's mIoU on held-out world clips (DATA/test)")
     h.add_argument("--data", type=Path, required=True, help="dataset folder with test/")
     h.add_argument("--split", default="test", choices=("val", "test"))
@@ -72,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     if args.what == "train":
         return run_train(args)
+    if args.what == "train-bev":
+        return run_train_bev(args)
     from worldsplat.core.paths import runs_dir
     from worldsplat.evaluation import downstream
     from worldsplat_models.judge import load_judge
@@ -142,4 +153,22 @@ def run_train(args: argparse.Namespace) -> int:
         downstream.write_heldout(result, args.out)
         print(downstream.heldout_markdown(result))
         print(json.dumps({"miou": result["miou"], "groups": result["groups"]}))
+    return 0
+
+
+def run_train_bev(args: argparse.Namespace) -> int:
+    from worldsplat.evaluation import downstream
+    from worldsplat.training.judge_bev import train_bev
+    from worldsplat_models.judge import load_judge
+    from worldsplat_models.judge_bev import load_bev
+
+    judge = load_judge(args.weights or _weights_default())
+    path = train_bev(
+        judge, args.data, args.out, args.steps, args.batch, seed=args.seed, threads=args.threads, minutes=args.minutes
+    )
+    print(f"wrote {path}")
+    if (Path(args.data) / "test").is_dir():
+        result = downstream.heldout_bev(judge, load_bev(path), args.data, "test")
+        (Path(args.out) / "heldout_bev.json").write_text(json.dumps(result, indent=1) + "\n")
+        print(json.dumps({k: result[k] for k in ("samples", "bev_miou", "bev_iou")}))
     return 0

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 from PIL import Image
 from tqdm import tqdm
 
@@ -30,6 +31,7 @@ from worldsplat.core.io import write_npz_atomic
 from worldsplat.pipeline.render import render_scene_track
 from worldsplat.pipeline.scene import generate_scene, model_version
 from worldsplat.training.judge import load_images
+from worldsplat.training.judge_bev import bev_logits, load_bev_data
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import (
     AGENT_CLASSES,
@@ -122,6 +124,26 @@ def judge_frechet(feats_a: np.ndarray, feats_b: np.ndarray) -> float:
     return frechet_distance(*gaussian_fit(feats_a), *gaussian_fit(feats_b))
 
 
+def bev_confusion(logits, targets: np.ndarray) -> np.ndarray:
+    """(layers, 3) counts of true positives, false positives and false negatives of BEV logits (N, layers, X, Y)
+    thresholded at 0 (probability 0.5) against exact targets of the same shape."""
+    pred = np.asarray(logits) > 0
+    t = np.asarray(targets).astype(bool)
+    if pred.shape != t.shape:
+        raise ValueError(f"BEV prediction and targets differ in size: {pred.shape} vs {t.shape}")
+    ax = (0, 2, 3)
+    return np.stack([(pred & t).sum(ax), (pred & ~t).sum(ax), (~pred & t).sum(ax)], 1).astype(np.int64)
+
+
+def bev_summary(counts: np.ndarray, layers) -> dict:
+    """IoU per BEV layer (None where the layer is in neither prediction nor target) and their mean."""
+    iou = {}
+    for name, (tp, fp, fn) in zip(layers, counts):
+        iou[name] = float(tp / (tp + fp + fn)) if tp + fp + fn else None
+    vals = [v for v in iou.values() if v is not None]
+    return {"bev_miou": float(np.mean(vals)) if vals else None, "bev_iou": iou}
+
+
 # --- held-out world clips ----------------------------------------------------------------------------------------
 
 
@@ -140,6 +162,25 @@ def heldout(judge: Judge, data: Path, split: str = "test", limit: int | None = N
         "confusion": conf.tolist(),
         "wall_s": round(time.time() - t0, 1),
         "weights": getattr(judge, "meta", {}).get("provenance", {}),
+    }
+
+
+def heldout_bev(judge: Judge, head, data: Path, split: str = "test", limit: int | None = None) -> dict:
+    """The BEV head (through the judge) on every frame of DATA/SPLIT's clips against the world's exact raster."""
+    t0 = time.time()
+    images, targets = load_bev_data(data, split, head.cfg, limit)
+    counts = np.zeros((len(head.cfg.layers), 3), np.int64)
+    with torch.no_grad():
+        for i in range(0, len(images), 8):
+            counts += bev_confusion(bev_logits(judge, head, images[i : i + 8]).numpy(), targets[i : i + 8])
+    return {
+        "split": split,
+        "samples": int(len(images)),
+        "grid": {"x_m": list(head.cfg.x_range), "y_m": list(head.cfg.y_range), "cell_m": head.cfg.cell},
+        **bev_summary(counts, head.cfg.layers),
+        "counts": counts.tolist(),
+        "wall_s": round(time.time() - t0, 1),
+        "weights": getattr(head, "meta", {}).get("provenance", {}),
     }
 
 

@@ -104,15 +104,34 @@ def train_judge(
 ) -> Path:
     """Train a judge on DATA/train; checkpoints and log in OUT, weights in OUT/judge_small.safetensors (exported at
     every checkpoint; a re-run resumes). Returns the weights' path."""
+    images, labels = load_images(data, "train", clips)
+    source = {"data": str(data), "train_clips": len(shard_files(data, "train", clips))}
+    return train_judge_on(images, labels, out, source, steps, batch, width, lr, minutes, seed, threads, progress)
+
+
+def train_judge_on(
+    images: np.ndarray,
+    labels: np.ndarray,
+    out: Path,
+    source: dict,
+    steps: int = 1200,
+    batch: int = 12,
+    width: int = 24,
+    lr: float = 3e-3,
+    minutes: float | None = None,
+    seed: int = 0,
+    threads: int = 2,
+    progress: bool = True,
+) -> Path:
+    """Train a judge on in-memory images (N, H, W, 3) uint8 and their classes (N, H, W); `source` (what the images
+    are) goes into the weights' provenance. Checkpoints, log and OUT/judge_small.safetensors as `train_judge`."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(threads)
     t0 = time.time()
-    images, labels = load_images(data, "train", clips)
     weights = class_weights(labels)
     H, W = images.shape[1:3]
     model = Judge(JudgeConfig(num_classes=NUM_CLASSES, width=width, height_px=H, width_px=W))
-    n_clips = len(shard_files(data, "train", clips))
     tcfg = TrainConfig(
         steps=steps, lr=lr, warmup=min(50, steps // 10), seed=seed, ckpt_every=100, log_every=20, threads=threads
     )
@@ -121,8 +140,7 @@ def train_judge(
     def export(m, done: int) -> None:
         meta = {
             "provenance": {
-                "data": str(data),
-                "train_clips": n_clips,
+                **source,
                 "train_images": int(len(images)),
                 "image": [int(W), int(H)],
                 "steps": int(done),

@@ -14,42 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from worldsplat.core.scenario import TURN_ENTRY_MIN, ScenarioError
+from worldsplat.world.caption import apply_caption_colours
 from worldsplat.world.classes import BUS, CAR, CYCLIST, PEDESTRIAN, TRUCK
+from worldsplat.world.colours import BUS_COLOURS, CLOTHES, TRUCK_COLOURS, VEHICLE_COLOURS, colour_word, hex_rgb
 from worldsplat.world.prims import M_BUS, M_CABIN, M_CAR_BODY, M_PERSON, M_PLAIN, PrimBuilder, Prims
 from worldsplat.world.road import RoadGeometry, make_road
 
-VEHICLE_COLOURS = (
-    ("white", (0.82, 0.83, 0.84)),
-    ("black", (0.05, 0.05, 0.06)),
-    ("silver", (0.58, 0.6, 0.63)),
-    ("grey", (0.32, 0.33, 0.35)),
-    ("red", (0.62, 0.07, 0.06)),
-    ("blue", (0.1, 0.2, 0.55)),
-    ("green", (0.12, 0.34, 0.16)),
-    ("yellow", (0.86, 0.68, 0.1)),
-    ("brown", (0.36, 0.22, 0.12)),
-)
-BUS_COLOURS = (
-    ("red", (0.7, 0.08, 0.06)),
-    ("yellow", (0.9, 0.7, 0.08)),
-    ("blue", (0.1, 0.25, 0.6)),
-    ("white", (0.85, 0.86, 0.88)),
-)
-TRUCK_COLOURS = (
-    ("white", (0.85, 0.85, 0.86)),
-    ("orange", (0.85, 0.4, 0.08)),
-    ("green", (0.15, 0.4, 0.2)),
-    ("blue", (0.12, 0.22, 0.5)),
-)
-CLOTHES = (
-    (0.7, 0.1, 0.1),
-    (0.1, 0.3, 0.7),
-    (0.9, 0.9, 0.85),
-    (0.15, 0.15, 0.15),
-    (0.85, 0.65, 0.1),
-    (0.2, 0.5, 0.3),
-    (0.6, 0.3, 0.5),
-)
 EGO_LENGTH, EGO_WIDTH, EGO_REAR_OVERHANG = 4.6, 1.9, 1.0  # ego origin is the rear axle
 
 
@@ -64,6 +34,7 @@ class Agent:
     poses: np.ndarray  # (T,3) x, y, yaw of the footprint centre (z = 0 is the ground)
     where: tuple  # ("lane", road, direction, lane) | ("sidewalk", side) | ("parked", side)
     agent_id: str | None = None  # the scenario's `agents[i].id` for an explicit agent (v2)
+    colour_asked: bool = False  # the colour is the scenario's (`agents[i].colour` or a caption word), not drawn
 
     def box_corners(self, t: int) -> np.ndarray:
         """(8,3) world corners at frame t: bottom face then top face, each counter-clockwise from rear-right."""
@@ -488,7 +459,7 @@ def build_agents(
         for _ in range(n):
             if add(track):
                 track += 1
-    return tb.agents
+    return apply_caption_colours(tb.agents, scenario.caption)
 
 
 # -- explicit agents (scenario v2) --------------------------------------------------------------------------------
@@ -681,7 +652,10 @@ def explicit_agents(
                 f"y = {poses[k, 1]:.1f}); the world spans {-WORLD_BEHIND:g}..{travel + WORLD_AHEAD:g} m "
                 f"along the road and {WORLD_BESIDE:g} m beyond the sidewalks"
             )
-        if cls in (CAR,):
+        if spec.colour is not None:
+            col = hex_rgb(spec.colour)
+            name = colour_word(col)
+        elif cls in (CAR,):
             name, col = VEHICLE_COLOURS[i % len(VEHICLE_COLOURS)]
         elif cls == BUS:
             name, col = BUS_COLOURS[i % len(BUS_COLOURS)]
@@ -694,11 +668,9 @@ def explicit_agents(
             if len(times) > 1
             else spec.motion.speed > 0 or spec.motion.keyframes is not None
         )
-        agents.append(
-            Agent(
-                i + 1, cls, (l, w, h), col, name, moving, poses, explicit_lane(road, spec, poses[0]), agent_id=spec.id
-            )
-        )
+        where = explicit_lane(road, spec, poses[0])
+        asked = spec.colour is not None
+        agents.append(Agent(i + 1, cls, (l, w, h), col, name, moving, poses, where, spec.id, asked))
     if errors:
         raise ScenarioError(errors)
     return agents

@@ -1,10 +1,14 @@
-"""A caption composed from the layout: weather, time, road, traffic counts and notable objects."""
+"""Captions and the world: a caption composed from the layout (weather, time, road, traffic counts and notable
+objects), and the colour words of a scenario's own caption given to its agents."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 
 from worldsplat.world.classes import BUS, CAR, CYCLIST, PEDESTRIAN, TRUCK
+from worldsplat.world.colours import COLOUR_WORDS
 
 _CLASS_WORD = {CAR: "car", BUS: "bus", TRUCK: "truck", PEDESTRIAN: "pedestrian", CYCLIST: "cyclist"}
 _NUM = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")
@@ -116,3 +120,54 @@ def compose_caption(world) -> str:
     if world.lighting.lights_on:
         text += " Street lights are on."
     return text
+
+
+# -- colour words of a scenario's caption -------------------------------------------------------------------------
+_CLASS_WORDS = {
+    **dict.fromkeys(("car", "cars"), (CAR,)),
+    **dict.fromkeys(("vehicle", "vehicles"), (CAR, BUS, TRUCK)),
+    **dict.fromkeys(("bus", "buses"), (BUS,)),
+    **dict.fromkeys(("truck", "trucks", "lorry", "lorries"), (TRUCK,)),
+    **dict.fromkeys(("pedestrian", "pedestrians", "person", "people", "man", "woman", "walker"), (PEDESTRIAN,)),
+    **dict.fromkeys(("cyclist", "cyclists", "bike", "bicycle", "rider"), (CYCLIST,)),
+}
+_NOT_AN_ADJECTIVE = {"a", "an", "the", "and", "or", "of", "to", "with", "is", "are", "was", "in", "on", "at"}
+
+
+def caption_colours(text: str | None) -> list[tuple[str, tuple[int, ...]]]:
+    """The (colour word, classes) pairs a caption names, in caption order: a colour word followed by a class word,
+    with at most one other word between them ("a red car", "a blue delivery truck"); not across punctuation."""
+    out = []
+    for clause in re.split(r"[.,;:!?()]", (text or "").lower()):
+        words = re.findall(r"[a-z]+", clause)
+        for i, word in enumerate(words):
+            if word not in COLOUR_WORDS:
+                continue
+            for j in (i + 1, i + 2):
+                if j < len(words) and words[j] in _CLASS_WORDS:
+                    out.append((word, _CLASS_WORDS[words[j]]))
+                    break
+                if j < len(words) and (words[j] in _NOT_AN_ADJECTIVE or words[j] in COLOUR_WORDS):
+                    break
+    return out
+
+
+def apply_caption_colours(agents: list, caption: str | None) -> list:
+    """The agents with the caption's colour words given to them: each (colour, class) phrase in caption order colours
+    the nearest agent of that class at frame 0 that carries no asked colour yet (no `agents[i].colour`, no earlier
+    phrase), ahead of the ego before behind it ("a red car ahead" colours the nearest car ahead red). A phrase
+    without such an agent is left unused. The world draws the colour as if `agents[i].colour` had asked for it."""
+    out = list(agents)
+    for word, classes in caption_colours(caption):
+        free = [i for i, a in enumerate(out) if a.cls in classes and not a.colour_asked]
+        if not free:
+            continue
+        i = min(free, key=lambda i: _ahead_then_nearest(out[i]))
+        out[i] = dataclasses.replace(out[i], color=COLOUR_WORDS[word], color_name=word, colour_asked=True)
+    return out
+
+
+def _ahead_then_nearest(agent) -> tuple:
+    """Sort key: agents ahead of the ego at frame 0 (the ego starts at the origin facing +x) first, then by distance."""
+    x, y = float(agent.poses[0, 0]), float(agent.poses[0, 1])
+    return (x <= 0.0, math.hypot(x, y), agent.track_id)

@@ -1,4 +1,4 @@
-""".wsplat v1 and v2 encoders and decoders (web/docs/wsplat-v1.md, web/docs/wsplat-v2.md), one module per concern:
+""".wsplat v1, v2 and v3 encoders and decoders (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md), one module per concern:
 
 | module | what |
 |---|---|
@@ -7,6 +7,7 @@
 | `quantise` | sanitising, rotations, block boxes, quantise / dequantise |
 | `morton` | Morton order of blocks and v2's Morton codes |
 | `v1`, `v2` | chunk bodies of each version (v2: zstd byte planes, range-coded DYNA chunks) |
+| `objects` | v3's OBJC (an agent's canonical Gaussians) and POSE (a run of frames' poses) payloads |
 | `chunks` | chunk framing, HEAD and END! |
 | `encoder` | `encode`, `write`, the default layouts of a scene |
 | `stream` | `StreamWriter` (a streamed file written while the scene is generated), `encode_streamed` |
@@ -23,12 +24,15 @@ from worldsplat.gaussians.wsplat.encoder import (
     choose_layouts,
     dynamic_pos_precision_for,
     encode,
+    frame_dynamics,
     layouts_for,
+    object_layout_for,
     pos_precision_for,
     write,
 )
 from worldsplat.gaussians.wsplat.layout import Layout, check_layout_v2, pack_records, parse_layout, unpack_records
 from worldsplat.gaussians.wsplat.morton import _block_order, _morton_order, morton3, unmorton3
+from worldsplat.gaussians.wsplat.objects import code_quat, decode_objc, decode_pose, encode_objc, encode_pose, quat_code
 from worldsplat.gaussians.wsplat.quantise import (
     CUBE_ROTATIONS,
     _sanitized_numpy,
@@ -56,6 +60,7 @@ from worldsplat.gaussians.wsplat.spec import (
     MAX_HEAD,
     MAX_POS_BITS_V2,
     MAX_RATIO,
+    OBJECT_TAGS,
     Q_CANON,
     SEARCH_LEVEL,
     SERVED_VERSION,
@@ -96,6 +101,15 @@ from worldsplat.gaussians.wsplat.v2 import (
 )
 
 __all__ = [
+    "object_layout_for",
+    "frame_dynamics",
+    "quat_code",
+    "encode_pose",
+    "encode_objc",
+    "decode_pose",
+    "decode_objc",
+    "code_quat",
+    "OBJECT_TAGS",
     "BLOCK_HEADER",
     "CODECS",
     "CUBE_ROTATIONS",

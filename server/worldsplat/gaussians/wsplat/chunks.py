@@ -40,9 +40,11 @@ def _head(
     bounds,
     version: int = 1,
     dynamic_codec: str = "zstd",
+    objects: tuple[Layout, int | None] | None = None,
 ) -> bytes:
     """The HEAD chunk: the scene's frames, rig and poses, its layouts, the totals (None: a streamed file), v2's
-    codecs and its extra meta (unknown fields, ignored by readers)."""
+    codecs, v3's `objects` (the object layout and num_objects, None in a streamed file) and its extra meta (unknown
+    fields, ignored by readers)."""
     if len(scene.frame_times) < 1 or len(scene.frame_times) > MAX_FRAMES:
         raise ValueError(f"wsplat: 1..{MAX_FRAMES} frames required, got {len(scene.frame_times)}")
     if not 1 <= block_size <= 65536:
@@ -67,10 +69,12 @@ def _head(
         "dynamic_layout": dl.to_json(),
         "sh_degree": 0,
     }
-    if version == 2:
+    if version >= 2:
         head["codec"] = "zstd"
         if dynamic_codec != "zstd":
             head["dynamic_codec"] = dynamic_codec
+    if version >= 3:
+        head["object_layout"], head["num_objects"] = objects[0].to_json(), objects[1]
     for k, v in meta.items():  # extra meta travels as unknown (ignored) header fields (never a format field)
         if (
             k not in head
@@ -117,8 +121,9 @@ def _check_totals(h: dict, T: int, bad) -> None:
         bad("bounds", "must be {min: [3 numbers], max: [3 numbers]}")
 
 
-def parse_end(payload: bytes, offset: int, T: int) -> dict:
-    """A streamed file's END! payload: UTF-8 JSON with num_static, num_dynamic[T], bounds (+ ignored extras)."""
+def parse_end(payload: bytes, offset: int, T: int, version: int = 1) -> dict:
+    """A streamed file's END! payload: UTF-8 JSON with num_static, num_dynamic[T], bounds, v3's num_objects
+    (+ ignored extras)."""
 
     def bad(field, msg):
         raise WsplatError("bad_payload", offset, f"END!.{field}" if field else "END!", msg)
@@ -134,6 +139,8 @@ def parse_end(payload: bytes, offset: int, T: int) -> dict:
     if not isinstance(e, dict):
         bad("", "not a JSON object")
     _check_totals(e, T, bad)
+    if version >= 3 and not (_is_int(e.get("num_objects")) and e["num_objects"] >= 0):
+        bad("num_objects", "must be an integer >= 0")
     return e
 
 
@@ -153,9 +160,9 @@ def parse_head(payload: bytes, offset: int, version: int = 1) -> dict:
         bad("format", "must be 'wsplat'")
     if not _is_int(h.get("version")) or h["version"] != version:
         bad("version", f"must be {version} (the file's version)")
-    if version == 2 and h.get("codec") not in CODECS:
+    if version >= 2 and h.get("codec") not in CODECS:
         bad("codec", f"must be one of {list(CODECS)}")
-    if version == 2 and h.setdefault("dynamic_codec", "zstd") not in DYNAMIC_CODECS:
+    if version >= 2 and h.setdefault("dynamic_codec", "zstd") not in DYNAMIC_CODECS:
         bad("dynamic_codec", f"must be one of {list(DYNAMIC_CODECS)} (absent: zstd)")
     for k in ("scenario_id", "mode", "model_version", "caption"):
         if not isinstance(h.get(k), str):
@@ -201,7 +208,15 @@ def parse_head(payload: bytes, offset: int, version: int = 1) -> dict:
         if k not in h:
             bad(k, "missing")
         h[k] = parse_layout(h[k], offset, k)
-        if version == 2:
+        if version >= 2:
             check_layout_v2(h[k], offset, k)
+    if version >= 3:
+        if "object_layout" not in h:
+            bad("object_layout", "missing")
+        h["object_layout"] = check_layout_v2(parse_layout(h["object_layout"], offset, "object_layout"), offset,
+                                             "object_layout")  # fmt: skip
+        no = h.get("num_objects", "missing")
+        if no is not None if streamed else not (_is_int(no) and no >= 0):
+            bad("num_objects", "must be null in a streamed file" if streamed else "must be an integer >= 0")
     h["streamed"] = streamed  # derived: the decoders' own flag (a HEAD field of that name is overridden)
     return h

@@ -12,14 +12,16 @@ import numpy as np
 
 from worldsplat.core.camera import RigCamera
 from worldsplat.gaussians import context_coder
-from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D
 from worldsplat.gaussians.wsplat.chunks import parse_end, parse_head
+from worldsplat.gaussians.wsplat.objects import decode_objc, decode_pose
 from worldsplat.gaussians.wsplat.spec import (
     FORMAT_FIELDS,
     MAGIC,
     MAX_CHUNK,
     MAX_HEAD,
     MAX_RATIO,
+    OBJECT_TAGS,
     TAGS,
     VERSIONS,
     WsplatError,
@@ -30,7 +32,8 @@ from worldsplat.gaussians.wsplat.v2 import decode_blocks_v2, decode_dyna_range, 
 
 class ProgressiveDecoder:
     """Feed bytes as they arrive; `feed` returns the events completed by them:
-    ("header", dict), ("static", Gaussians), ("dynamic", (frame, Gaussians)), ("end", None).
+    ("header", dict), ("static", Gaussians), ("dynamic", (frame, Gaussians)), ("end", None); v3 also
+    ("object", (index, AgentObject with no poses yet)) and ("poses", (first frame, present (F, n), poses (F, n, 4, 4))).
     Malformed input raises WsplatError at the first bad byte; an unfinished stream is simply incomplete."""
 
     def __init__(self) -> None:
@@ -46,6 +49,8 @@ class ProgressiveDecoder:
         self.models: context_coder.Models | None = None  # a range-coded file's models, carried from DYNA to DYNA
         self.stage = "magic"  # magic -> head -> stat -> dyna -> done; a streamed file: magic -> head -> stream -> done
         self.bytes_fed = 0
+        self.objects: list[AgentObject] = []  # v3: the objects defined so far (poses filled as POSE chunks arrive)
+        self.posed: np.ndarray = np.zeros(0, dtype=bool)  # v3: the frames a POSE chunk posed
 
     @property
     def done(self) -> bool:
@@ -93,15 +98,15 @@ class ProgressiveDecoder:
         tag = bytes(self.buf[:4])
         (length,) = struct.unpack_from("<I", self.buf, 4)
         at = self.base
-        if tag not in TAGS:
+        if tag not in TAGS + (OBJECT_TAGS if self.version >= 3 else ()):
             raise WsplatError("bad_tag", at, "chunk.tag", f"unknown chunk tag {tag!r}")
         if length > MAX_CHUNK:
             raise WsplatError("chunk_too_large", at + 4, "chunk.length", f"{length} bytes > MAX_CHUNK")
         expect = {
             "head": (b"HEAD",),
-            "stat": (b"STAT", b"DYNA", b"END!"),
-            "dyna": (b"DYNA", b"END!"),
-            "stream": (b"STAT", b"DYNA", b"END!"),
+            "stat": (b"STAT", b"OBJC", b"DYNA", b"POSE", b"END!"),
+            "dyna": (b"DYNA", b"POSE", b"END!"),
+            "stream": (b"STAT", b"OBJC", b"DYNA", b"POSE", b"END!"),
         }[self.stage]
         if tag not in expect:
             raise WsplatError(
@@ -128,14 +133,17 @@ class ProgressiveDecoder:
             self.header = parse_head(bytes(payload), pbase, self.version)
             self.num_dynamic = [0] * len(self.header["frame_times"])
             self.stage = "stream" if self.header["streamed"] else "stat"
-            if self.version == 2 and self.header["dynamic_codec"] == "range":
+            self.posed = np.zeros(len(self.header["frame_times"]), dtype=bool)
+            if self.version >= 2 and self.header["dynamic_codec"] == "range":
                 self.models = context_coder.Models(self.header["dynamic_layout"].fields)
             return ("header", self.header)
         h = self.header
         streamed = h["streamed"]
+        if tag in OBJECT_TAGS:
+            return self._object_chunk(tag, payload, pbase)
         if tag == b"END!":
             if streamed:
-                totals, src = parse_end(payload, pbase, len(h["frame_times"])), "END!"
+                totals, src = parse_end(payload, pbase, len(h["frame_times"]), self.version), "END!"
             elif len(payload) != 0:
                 raise WsplatError("bad_payload", pbase, "END!.length", "END! payload must be empty")
             else:
@@ -152,6 +160,13 @@ class ProgressiveDecoder:
                     raise WsplatError(
                         "count_mismatch", at, f"{src}.num_dynamic[{t}]", f"DYNA chunks hold {got}, {src} says {want}"
                     )
+            if self.version >= 3 and len(self.objects) != totals["num_objects"]:
+                raise WsplatError(
+                    "count_mismatch",
+                    at,
+                    f"{src}.num_objects",
+                    f"OBJC chunks hold {len(self.objects)}, {src} says {totals['num_objects']}",
+                )
             self.end = totals if streamed else None
             self.stage = "done"
             return ("end", None)
@@ -173,7 +188,7 @@ class ProgressiveDecoder:
             raise WsplatError("bad_payload", coff, f"{name}.count", "count must be >= 1")
         # Check the length implied by count against the bytes present before decoding anything.
         need = head_len + _payload_size(count, layout, h["block_size"])
-        if self.version == 2:  # compressed: bounded by MAX_RATIO, the sections then checked one by one
+        if self.version >= 2:  # compressed: bounded by MAX_RATIO, the sections then checked one by one
             raw = v2_raw_size(count, layout, h["block_size"])
             if raw > MAX_RATIO * len(payload):
                 raise WsplatError(
@@ -201,7 +216,7 @@ class ProgressiveDecoder:
         if tag == b"DYNA" and self.models is not None:
             a = decode_dyna_range(payload, head_len, count, layout, h["block_size"], pbase, self.models)
         else:
-            dec = decode_blocks_v2 if self.version == 2 else decode_blocks
+            dec = decode_blocks_v2 if self.version >= 2 else decode_blocks
             a = dec(payload, head_len, count, layout, h["block_size"], pbase, name)
         g = Gaussians.from_numpy(**a)
         if tag == b"STAT":
@@ -211,6 +226,27 @@ class ProgressiveDecoder:
         self.num_dynamic[frame] += count
         self.dynamic.setdefault(frame, []).append(g)
         return ("dynamic", (frame, g))
+
+    def _object_chunk(self, tag: bytes, payload: memoryview, pbase: int):
+        """v3: an OBJC chunk (a new object) or a POSE chunk (a run of frames' poses of the objects so far)."""
+        h, T = self.header, len(self.header["frame_times"])
+        if tag == b"OBJC":
+            limit = None if h["streamed"] else h["num_objects"]
+            i, agent_id, cls, size, a = decode_objc(
+                payload, pbase, len(self.objects), limit, h["object_layout"], h["block_size"]
+            )
+            obj = AgentObject(
+                agent_id, cls, size, Gaussians.from_numpy(**a), np.tile(np.eye(4), (T, 1, 1)), np.zeros(T)
+            )
+            self.objects.append(obj)
+            return ("object", (i, obj))
+        if not h["streamed"]:
+            self.stage = "dyna"
+        first, present, poses = decode_pose(payload, pbase, T, self.posed, len(self.objects))
+        for i, o in enumerate(self.objects):
+            o.present[first : first + len(present)] = present[:, i]
+            o.poses[first : first + len(present)] = poses[:, i]
+        return ("poses", (first, present, poses))
 
     def scene(self) -> Scene4D:
         """The scene decoded so far (static prefix + complete dynamic chunks); requires the header."""
@@ -235,7 +271,7 @@ class ProgressiveDecoder:
         meta["dynamic_layout"] = h["dynamic_layout"].to_json()
         meta["bounds"] = h["bounds"]
         if self.end is not None:  # a whole streamed file: the totals, bounds and late meta of its END!
-            meta.update({k: v for k, v in self.end.items() if k != "num_dynamic"})
+            meta.update({k: v for k, v in self.end.items() if k not in ("num_dynamic", "num_objects")})
         elif h["streamed"]:
             meta["num_static"] = self.num_static
         return Scene4D(
@@ -245,7 +281,12 @@ class ProgressiveDecoder:
             rig,
             np.asarray(h["ego_to_world"], dtype=np.float64),
             meta,
+            [self._copy(o) for o in self.objects],
         )
+
+    @staticmethod
+    def _copy(o: AgentObject) -> AgentObject:
+        return AgentObject(o.agent_id, o.cls, o.size.copy(), o.gaussians, o.poses.copy(), o.present.copy())
 
     def finish(self) -> Scene4D:
         if self.stage != "done":

@@ -11,10 +11,11 @@ import numpy as np
 
 from worldsplat.core.io import atomic_write_bytes
 from worldsplat.gaussians import context_coder
-from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D
 from worldsplat.gaussians.wsplat.chunks import _bounds, _chunk, _head
 from worldsplat.gaussians.wsplat.layout import Layout, check_layout_v2, parse_layout
 from worldsplat.gaussians.wsplat.morton import _block_order
+from worldsplat.gaussians.wsplat.objects import encode_objc, encode_pose
 from worldsplat.gaussians.wsplat.quantise import _sanitized_numpy, is_isotropic
 from worldsplat.gaussians.wsplat.spec import (
     DEFAULT_BLOCK_SIZE,
@@ -51,7 +52,7 @@ def choose_layouts(scene: Scene4D, version: int | None = None) -> tuple[Layout, 
 def layouts_for(static: Gaussians, dynamic: list[Gaussians], version: int | None = None) -> tuple[Layout, Layout]:
     """The default layouts of a version for these Gaussians (isotropic ones do not pay for a rotation)."""
     dyn = Gaussians.cat(list(dynamic)) if any(len(d) for d in dynamic) else Gaussians.empty()
-    v2 = (version or DEFAULT_VERSION) == 2
+    v2 = (version or DEFAULT_VERSION) >= 2
     si, sa, di, da = (V2_STATIC_ISO, V2_STATIC_ANISO, V2_DYNAMIC_ISO, V2_DYNAMIC_ANISO) if v2 else (
         STATIC_ISO, STATIC_ANISO, DYNAMIC_ISO, DYNAMIC_ANISO)  # fmt: skip
     sl = Layout(tuple(map(tuple, si if is_isotropic(static) else sa)))
@@ -63,7 +64,7 @@ def _blocks(
     a: dict[str, np.ndarray], layout: Layout, block_size: int, version: int, zstd: tuple = (), pos_precision=None
 ) -> bytes:
     """`zstd`: (level, search level) of a v2 chunk (default: ZSTD_LEVEL, SEARCH_LEVEL)."""
-    if version == 2:
+    if version >= 2:
         level, search = (tuple(zstd) + (ZSTD_LEVEL, SEARCH_LEVEL)[len(zstd) :])[:2]
         return encode_blocks_v2(a, layout, block_size, level, search, pos_precision)
     return encode_blocks(a, layout, block_size, pos_precision)
@@ -84,7 +85,7 @@ def dynamic_pos_precision_for(layout: Layout) -> float:
 
 def _dynamic_codec(value: str | None, version: int) -> str:
     """An encoder's dynamic codec: v2's default V2_DYNAMIC_CODEC; v1 has none ("zstd" stands for its records)."""
-    if version != 2:
+    if version < 2:
         if value not in (None, "zstd"):
             raise ValueError(f"wsplat: dynamic_codec {value!r} needs version 2")
         return "zstd"
@@ -96,7 +97,7 @@ def _dynamic_codec(value: str | None, version: int) -> str:
 
 def _pos_precision(value, version: int, layout: Layout, dynamic: bool = False) -> float | None:
     if value == POS_PRECISION_OF_VERSION:
-        if version != 2:
+        if version < 2:
             return None
         return dynamic_pos_precision_for(layout) if dynamic else pos_precision_for(layout)
     return None if value is None else float(value)
@@ -150,6 +151,40 @@ def _dyna_chunks(
     return out
 
 
+def object_layout_for(objects: list[AgentObject]) -> Layout:
+    """v3's default object layout: v2's static layout (isotropic objects do not pay for a rotation)."""
+    gs = [o.gaussians for o in objects if len(o.gaussians)]
+    iso = is_isotropic(Gaussians.cat(gs)) if gs else True
+    return Layout(tuple(map(tuple, V2_STATIC_ISO if iso else V2_STATIC_ANISO)))
+
+
+def frame_dynamics(scene: Scene4D) -> list[Gaussians]:
+    """What v3's DYNA chunks of each frame hold: the frame's dynamic set plus its objects' residuals (world-frame
+    Gaussians of that frame; the objects themselves travel as OBJC + POSE)."""
+    out = []
+    for t in range(scene.num_frames):
+        res = [o.residuals[t] for o in scene.objects if o.present[t] and o.residuals is not None]
+        res = [r for r in res if r is not None and len(r)]
+        out.append(Gaussians.cat([scene.dynamic[t], *res]) if res else scene.dynamic[t])
+    return out
+
+
+def _object_chunks(
+    objects: list[AgentObject], start: int, ol: Layout, block_size: int, zstd: tuple = (), pos_precision=None
+) -> list[bytes]:
+    """OBJC chunks of objects numbered from `start`."""
+    return [
+        _chunk(b"OBJC", encode_objc(start + i, o, ol, block_size, pos_precision, zstd)) for i, o in enumerate(objects)
+    ]
+
+
+def _pose_chunk(objects: list[AgentObject], frames: list[int]) -> bytes:
+    """One POSE chunk of consecutive frames (every object defined so far)."""
+    present = np.stack([o.present[frames] for o in objects], 1) if objects else np.zeros((len(frames), 0), bool)
+    poses = np.stack([o.poses[frames] for o in objects], 1) if objects else np.zeros((len(frames), 0, 4, 4))
+    return _chunk(b"POSE", encode_pose(frames[0], present, poses))
+
+
 def encode(
     scene: Scene4D,
     *,
@@ -162,33 +197,44 @@ def encode(
     dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
     dynamic_codec: str | None = None,
 ) -> bytes:
-    """Scene4D -> .wsplat bytes (`version` 1 or 2, default DEFAULT_VERSION). Static Gaussians keep their
+    """Scene4D -> .wsplat bytes (`version` 1, 2 or 3, default DEFAULT_VERSION). Static Gaussians keep their
     (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of them, Morton-ordered inside
     so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL).
     `pos_precision`: the static blocks' position step against their Gaussians' size (`position_box`; None: the
     points' own box), by default `pos_precision_for` the static layout in v2 and None in v1; `dynamic_pos_precision`
     the same for the dynamic blocks (default: `dynamic_pos_precision_for` the dynamic layout in v2, None in v1).
-    `dynamic_codec`: v2's DYNA chunks, "zstd" or "range" (default V2_DYNAMIC_CODEC; v1 has only its records)."""
+    `dynamic_codec`: v2's DYNA chunks, "zstd" or "range" (default V2_DYNAMIC_CODEC; v1 has only its records).
+    v3 writes the scene's agent objects once (OBJC) and their poses (one POSE chunk of every frame); v1 and v2 write
+    them baked into every frame's dynamic set (`Scene4D.baked`)."""
     version = version or DEFAULT_VERSION
     if version not in VERSIONS:
         raise ValueError(f"wsplat: version {version} not in {VERSIONS}")
     dynamic_codec = _dynamic_codec(dynamic_codec, version)
-    sl, dl = layouts_for(scene.static, scene.dynamic, version)
+    if version < 3:
+        scene = scene.baked()
+    dynamics = frame_dynamics(scene)
+    sl, dl = layouts_for(scene.static, dynamics, version)
     if static_layout is not None:
         sl = parse_layout(static_layout, 0, "static_layout")
     if dynamic_layout is not None:
         dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
-    if version == 2:
+    if version >= 2:
         sl, dl = check_layout_v2(sl, 0, "static_layout"), check_layout_v2(dl, 0, "dynamic_layout")
     st = _sanitized_numpy(scene.static, sl)
-    dyn = [_sanitized_numpy(d, dl) for d in scene.dynamic]
+    dyn = [_sanitized_numpy(d, dl) for d in dynamics]
     bounds = _bounds([st["means"]] + [d["means"] for d in dyn])
     out = bytearray(MAGIC + struct.pack("<I", version))
     nd = [int(len(d["means"])) for d in dyn]
-    out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version, dynamic_codec)
+    ol = object_layout_for(scene.objects)
+    objs = (ol, len(scene.objects)) if version >= 3 else None
+    out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version, dynamic_codec, objs)
     pp = _pos_precision(pos_precision, version, sl)
     for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version, zstd, pp)[0]:
         out += c
+    if version >= 3 and scene.objects:
+        for c in _object_chunks(scene.objects, 0, ol, block_size, zstd, pos_precision_for(ol)):
+            out += c
+        out += _pose_chunk(scene.objects, list(range(scene.num_frames)))
     dp = _pos_precision(dynamic_pos_precision, version, dl, dynamic=True)
     models = context_coder.Models(dl.fields) if dynamic_codec == "range" else None
     for t, d in enumerate(dyn):

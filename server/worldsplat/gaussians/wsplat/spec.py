@@ -12,6 +12,7 @@ MAX_HEAD = 1 << 20
 MAX_FRAMES = 1024
 BLOCK_HEADER = 32
 TAGS = (b"HEAD", b"STAT", b"DYNA", b"END!")
+OBJECT_TAGS = (b"OBJC", b"POSE")  # v3 (web/docs/wsplat-v3.md): an object's canonical Gaussians, a run of poses
 FIELDS = ("px", "py", "pz", "qi", "qa", "qb", "qc", "qx", "qy", "qz", "sx", "sy", "sz", "s", "o", "r", "g", "b")
 # Canonical rotation (qx qy qz): a covariance R S^2 R^T does not change when R is right-multiplied by one of the 24
 # rotations of the cube (axes permuted, scales permuted with them). The encoder picks the one closest to the
@@ -158,7 +159,7 @@ MAX_CHUNK_RECORDS = 262144
 ISOTROPY_TOL = 1e-3
 FAR_FACTOR = 4.0  # see _block_order
 # v2 (web/docs/wsplat-v2.md): planes per chunk, zstd per plane
-VERSIONS = (1, 2)
+VERSIONS = (1, 2, 3)  # v3: v2 with agent objects (OBJC, POSE chunks)
 CODECS = ("zstd",)
 # v2's DYNA chunks: zstd byte planes as the STAT chunks (HEAD `dynamic_codec` absent or "zstd"), or one stream of the
 # adaptive context-modelling range coder (`context_coder`; "range": models carried from chunk to chunk). What v2
@@ -166,7 +167,12 @@ CODECS = ("zstd",)
 # 2.54 -> 2.44; wsplat-v2.md, "Range-coded dynamic records"). Static chunks stay zstd.
 DYNAMIC_CODECS = ("zstd", "range")
 V2_DYNAMIC_CODEC = "range"
-FORMAT_FIELDS = ("codec", "dynamic_codec")  # HEAD fields a scene's meta never writes (they say how chunks decode)
+FORMAT_FIELDS = (
+    "codec",
+    "dynamic_codec",
+    "object_layout",
+    "num_objects",
+)  # HEAD fields a scene's meta never writes (they say how chunks decode)
 # Encoder speed (`python -m worldsplat.bench.encode_speed`, ratios of one run in web/docs/wsplat-v2.md): zstd level 1
 # with every filter tried encodes in 1.1-1.2x v1's time for 1.0-2.6 % more bytes than level 15 (whose best, filters
 # chosen at level 1 and the chosen plane compressed at 15, takes 1.6-2.1x v1's time; every filter at 15: 2.3-3.6x;

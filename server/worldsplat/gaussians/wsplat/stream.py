@@ -10,20 +10,31 @@ import numpy as np
 import torch
 
 from worldsplat.gaussians import context_coder
-from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D
 from worldsplat.gaussians.wsplat.chunks import _bounds, _chunk, _head
 from worldsplat.gaussians.wsplat.encoder import (
     POS_PRECISION_OF_VERSION,
     _dyna_chunks,
     _dynamic_codec,
+    _object_chunks,
     _pos_precision,
+    _pose_chunk,
     _stat_chunks,
-    choose_layouts,
+    frame_dynamics,
     layouts_for,
+    object_layout_for,
+    pos_precision_for,
 )
 from worldsplat.gaussians.wsplat.layout import Layout, check_layout_v2, parse_layout
 from worldsplat.gaussians.wsplat.quantise import _sanitized_numpy
-from worldsplat.gaussians.wsplat.spec import DEFAULT_BLOCK_SIZE, DEFAULT_VERSION, FIRST_CHUNK, MAGIC, VERSIONS
+from worldsplat.gaussians.wsplat.spec import (
+    DEFAULT_BLOCK_SIZE,
+    DEFAULT_VERSION,
+    FIRST_CHUNK,
+    MAGIC,
+    V2_STATIC_ANISO,
+    VERSIONS,
+)
 
 
 class StreamWriter:
@@ -51,13 +62,16 @@ class StreamWriter:
         pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
         dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
         dynamic_codec: str | None = None,
+        object_layout: Layout | None = None,
     ):
         self.version = version or DEFAULT_VERSION
+        self.ol = object_layout or Layout(tuple(map(tuple, V2_STATIC_ANISO)))
+        self.num_objects = 0
         self.pos_precision = _pos_precision(pos_precision, self.version, static_layout)
         self.dynamic_pos_precision = _pos_precision(dynamic_pos_precision, self.version, dynamic_layout, dynamic=True)
         if self.version not in VERSIONS:
             raise ValueError(f"wsplat: version {self.version} not in {VERSIONS}")
-        if self.version == 2:
+        if self.version >= 2:
             check_layout_v2(static_layout, 0, "static_layout"), check_layout_v2(dynamic_layout, 0, "dynamic_layout")
         self.skeleton, self.sl, self.dl = skeleton, static_layout, dynamic_layout
         self.dynamic_codec = _dynamic_codec(dynamic_codec, self.version)
@@ -86,7 +100,8 @@ class StreamWriter:
     def head(self) -> bytes:
         """The preamble and HEAD."""
         return MAGIC + struct.pack("<I", self.version) + _head(self.skeleton, self.sl, self.dl, self.block_size,
-                                                                None, None, None, self.version, self.dynamic_codec)  # fmt: skip
+                                                                None, None, None, self.version, self.dynamic_codec,
+                                                                (self.ol, None))  # fmt: skip
 
     def _numpy(self, g: Gaussians, layout: Layout) -> dict[str, np.ndarray]:
         a = _sanitized_numpy(g, layout)
@@ -114,9 +129,27 @@ class StreamWriter:
         return _dyna_chunks(t, d, self.dl, self.block_size, self.version, pos_precision=self.dynamic_pos_precision,
                             models=self.models)  # fmt: skip
 
+    def objects(self, objects: list[AgentObject]) -> list[bytes]:
+        """v3: OBJC chunks of new agent objects (numbered after the ones written before)."""
+        if self.version < 3:
+            raise ValueError("wsplat: agent objects need version 3 (older versions write Scene4D.baked())")
+        out = _object_chunks(objects, self.num_objects, self.ol, self.block_size, (), pos_precision_for(self.ol))
+        self.num_objects += len(objects)
+        return out
+
+    def poses(self, frames: list[int], objects: list[AgentObject]) -> bytes:
+        """v3: one POSE chunk of consecutive `frames`; `objects`: every object written so far, in order."""
+        if len(objects) != self.num_objects:
+            raise ValueError(f"wsplat: {len(objects)} objects posed, {self.num_objects} written")
+        if list(frames) != list(range(frames[0], frames[0] + len(frames))):
+            raise ValueError("wsplat: a POSE chunk holds consecutive frames")
+        return _pose_chunk(objects, list(frames))
+
     def end(self, meta: dict | None = None) -> bytes:
         """END! with the totals, the bounds and `meta` (extra fields, ignored by readers)."""
         body = {"num_static": self.num_static, "num_dynamic": list(self.num_dynamic), "bounds": _bounds(self._means)}
+        if self.version >= 3:
+            body["num_objects"] = self.num_objects
         for k, v in (meta or {}).items():
             if k not in body and isinstance(v, (str, int, float, bool, list, dict)) and v is not None:
                 body[k] = v
@@ -133,24 +166,46 @@ def encode_streamed(scene: Scene4D, parts: list[list[int]] | None = None, *, blo
                     dynamic_codec: str | None = None) -> bytes:  # fmt: skip
     """A streamed file of a whole scene (tests, vectors): its static set cut at `static_split` (indices into the
     importance order), part i followed by the dynamics of frames `parts[i]` (default: one part, every frame).
-    Layouts: the version's defaults unless given (as `encode`)."""
+    Layouts: the version's defaults unless given (as `encode`). v3: the objects' OBJC chunks after the first part's
+    statics, each part's POSE chunk before its DYNA chunks; older versions write `scene.baked()`."""
+    version = version or DEFAULT_VERSION
+    if version < 3:
+        scene = scene.baked()
+    dynamics = frame_dynamics(scene)
     T = len(scene.frame_times)
     parts = parts or [list(range(T))]
     cuts = [0, *(static_split or []), len(scene.static)]
     if len(cuts) != len(parts) + 1:
         raise ValueError("wsplat: static_split needs one cut fewer than parts")
-    sl, dl = choose_layouts(scene, version)
+    sl, dl = layouts_for(scene.static, dynamics, version)
     if static_layout is not None:
         sl = parse_layout(static_layout, 0, "static_layout")
     if dynamic_layout is not None:
         dl = parse_layout(dynamic_layout, 0, "dynamic_layout")
-    w = StreamWriter(scene, sl, dl, block_size, version, pos_precision, dynamic_pos_precision, dynamic_codec)
+    w = StreamWriter(scene, sl, dl, block_size, version, pos_precision, dynamic_pos_precision, dynamic_codec,
+                     object_layout_for(scene.objects))  # fmt: skip
     out = bytearray(w.head())
     for i, frames in enumerate(parts):
         for c in w.static(scene.static.subset(torch.arange(cuts[i], cuts[i + 1]))):
             out += c
+        if version >= 3 and scene.objects:
+            for c in w.objects(scene.objects if i == 0 else []):
+                out += c
+            for run in _runs(sorted(frames)):
+                out += w.poses(run, scene.objects)
         for t in frames:
-            for c in w.dynamic(t, scene.dynamic[t]):
+            for c in w.dynamic(t, dynamics[t]):
                 out += c
     out += w.end(end_meta)
     return bytes(out)
+
+
+def _runs(frames: list[int]) -> list[list[int]]:
+    """Sorted frames -> runs of consecutive frames (one POSE chunk each)."""
+    out: list[list[int]] = []
+    for t in frames:
+        if out and t == out[-1][-1] + 1:
+            out[-1].append(t)
+        else:
+            out.append([t])
+    return out

@@ -1,8 +1,11 @@
 //! A loaded 4D scene: the static base plus per-frame dynamic Gaussians (packed for the GPU), frame times, rig and
-//! ego poses. Built progressively from .wsplat events, or at once from a PLY / raster-vector JSON.
+//! ego poses. Built progressively from .wsplat events, or at once from a PLY / raster-vector JSON. A v3 file's agent
+//! objects are baked on the CPU: each POSE chunk poses the objects into its frames' dynamic sets (`bake_objects`), so
+//! every draw path draws and sorts them as any dynamic Gaussians.
 
 use crate::camera::{Mat4, RigCamera, IDENTITY};
 use crate::gaussians::{Gaussian, PackedSplat};
+use crate::wsplat::objects::{pose_gaussians, AgentObject, Pose};
 use crate::wsplat::{Decoder, Event, Header, Progress, WsplatError};
 
 #[derive(Clone, Debug, Default)]
@@ -19,6 +22,15 @@ pub struct Scene {
     pub bounds: Option<([f64; 3], [f64; 3])>,
     /// Gaussians the spec's sanitizing dropped while loading.
     pub dropped: u64,
+    /// v3: the agent objects (canonical Gaussians, box frame) and, per frame, each object's pose where present (a
+    /// frame no POSE chunk covered yet, or an object defined after it, is absent there).
+    pub objects: Vec<AgentObject>,
+    pub object_poses: Vec<Vec<Option<Pose>>>,
+}
+
+/// The posed Gaussians of one frame's objects: object i posed by `poses[i]` where present.
+pub fn bake_objects(objects: &[AgentObject], poses: &[Option<Pose>]) -> Vec<Gaussian> {
+    objects.iter().zip(poses).filter_map(|(o, p)| p.as_ref().map(|p| pose_gaussians(&o.gaussians, p))).flatten().collect()
 }
 
 impl Scene {
@@ -57,6 +69,13 @@ impl Scene {
         self.mode = h.mode.clone();
         self.bounds = if h.streamed { None } else { Some((h.bounds_min, h.bounds_max)) }; // streamed: known at END!
         self.dynamic = vec![Vec::new(); h.frame_times.len()];
+        self.object_poses = vec![Vec::new(); h.frame_times.len()];
+    }
+
+    fn add_dynamic(&mut self, frame: usize, gaussians: &[Gaussian]) {
+        let packed: Vec<PackedSplat> = gaussians.iter().filter_map(Gaussian::pack).collect();
+        self.dropped += (gaussians.len() - packed.len()) as u64;
+        self.dynamic[frame].extend(packed);
     }
 
     /// Apply decoded events; returns true if Gaussians were added.
@@ -70,11 +89,18 @@ impl Scene {
                     added = true;
                 }
                 Event::Dynamic { frame, gaussians } => {
-                    let before = gaussians.len();
-                    let packed: Vec<PackedSplat> = gaussians.iter().filter_map(Gaussian::pack).collect();
-                    self.dropped += (before - packed.len()) as u64;
-                    self.dynamic[frame].extend(packed);
+                    self.add_dynamic(frame, &gaussians);
                     added = true;
+                }
+                Event::Object(o) => self.objects.push(o),
+                Event::Poses(p) => {
+                    for (f, row) in p.frames.into_iter().enumerate() {
+                        let frame = p.first + f;
+                        let posed = bake_objects(&self.objects, &row);
+                        self.add_dynamic(frame, &posed);
+                        self.object_poses[frame] = row;
+                        added = true;
+                    }
                 }
                 Event::End => {}
             }

@@ -3,7 +3,7 @@
 //! (no panic, errors carry an offset inside the data, streaming never disagrees with whole-buffer decoding).
 
 use splat_format::gaussians::Gaussian;
-use splat_format::scene::{read_wsplat, StreamingScene};
+use splat_format::scene::{bake_objects, read_wsplat, StreamingScene};
 use splat_format::wsplat::dyna_range;
 use splat_format::wsplat::{encode::encode, Decoder, ErrorKind, Event};
 use std::path::Path;
@@ -121,7 +121,7 @@ fn malformed_streams_name_kind_and_offset() {
     b[0] = b'X';
     assert_eq!(kind_of(&b).0, ErrorKind::BadMagic);
     let mut b = bytes.clone();
-    b[8] = 3; // 1 and 2 are read
+    b[8] = 4; // 1, 2 and 3 are read
     assert_eq!(kind_of(&b), (ErrorKind::BadVersion, 8));
     assert_eq!(kind_of(&bytes[..bytes.len() - 3]).0, ErrorKind::Truncated);
     assert_eq!(kind_of(&bytes[..5]).0, ErrorKind::Truncated);
@@ -335,13 +335,16 @@ fn shared_vectors() {
                     assert!((sum[k] - want[k]).abs() <= 1e-2, "{name}: dynamic_mean_sum {sum:?} vs {want:?}");
                 }
             }
+            if expect.get("objects").is_some() {
+                check_objects(&name, &bytes, &expect);
+            }
         } else {
             let e = got.err().unwrap_or_else(|| panic!("{name}: decoded, but expected {}", expect["error_kind"]));
             assert_eq!(e.kind.name(), expect["error_kind"].as_str().unwrap(), "{name}: {e}");
             if let Some(off) = expect["offset"].as_u64() {
                 assert_eq!(e.offset, off, "{name}: {e}");
             }
-            if name.contains("v2") && e.kind == ErrorKind::BadPayload {
+            if (name.contains("v2") || name.contains("v3")) && e.kind == ErrorKind::BadPayload {
                 // v2's payload errors start with the field the spec names (e.g. "STAT.pos[1].filter: ...")
                 let field = expect["field"].as_str().unwrap();
                 assert!(e.message.starts_with(&format!("{field}:")), "{name}: {e} does not name {field}");
@@ -351,6 +354,61 @@ fn shared_vectors() {
     }
     assert!(n > 0, "tests/vectors/wsplat exists but holds no vectors");
     println!("{n} shared wsplat vectors pass");
+}
+
+/// A v3 vector's objects (agent id, class, size, count, first canonical Gaussian), poses per frame and the baked frames
+/// (each frame's DYNA records plus its posed objects: counts and the sum of their means).
+fn check_objects(name: &str, bytes: &[u8], expect: &serde_json::Value) {
+    let s = read_wsplat(bytes).unwrap();
+    let want = expect["objects"].as_array().unwrap();
+    let tol = &expect["tolerance"];
+    assert_eq!(s.objects.len(), want.len(), "{name}: objects");
+    let f64s = |v: &serde_json::Value| -> Vec<f64> { v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
+    for (i, (o, w)) in s.objects.iter().zip(want).enumerate() {
+        assert_eq!(
+            (o.agent_id as u64, o.cls as u64, o.gaussians.len() as u64),
+            (w["agent_id"].as_u64().unwrap(), w["cls"].as_u64().unwrap(), w["count"].as_u64().unwrap()),
+            "{name}: object {i}"
+        );
+        for (a, b) in o.size.iter().zip(f64s(&w["size"])) {
+            assert!((*a as f64 - b).abs() < 1e-6, "{name}: object {i} size");
+        }
+        if let Some(first) = w.get("first").filter(|v| !v.is_null()) {
+            for (a, b) in o.gaussians[0].mean.iter().zip(f64s(&first["mean"])) {
+                assert!((*a as f64 - b).abs() <= tol["mean"].as_f64().unwrap() * b.abs().max(1.0), "{name}: object {i} first mean");
+            }
+        }
+        let present: Vec<bool> = w["present"].as_array().unwrap().iter().map(|x| x.as_bool().unwrap()).collect();
+        for (f, p) in present.iter().enumerate() {
+            let got = s.object_poses[f].get(i).copied().flatten();
+            assert_eq!(got.is_some(), *p, "{name}: object {i} present in frame {f}");
+            if let Some(pose) = got {
+                let m = pose.matrix();
+                for (r, row) in w["poses"][f].as_array().unwrap().iter().enumerate() {
+                    for (c, x) in f64s(row).iter().enumerate() {
+                        assert!((m[r][c] - x).abs() <= 1e-5, "{name}: object {i} frame {f} pose[{r}][{c}] {} vs {x}", m[r][c]);
+                    }
+                }
+            }
+        }
+    }
+    let mut dyna: Vec<Vec<Gaussian>> = vec![Vec::new(); s.num_frames()];
+    for e in Decoder::new().push(bytes).unwrap() {
+        if let Event::Dynamic { frame, gaussians } = e {
+            dyna[frame].extend(gaussians);
+        }
+    }
+    for (f, want_sum) in expect["baked_mean_sum"].as_array().unwrap().iter().enumerate() {
+        let mut frame = dyna[f].clone();
+        frame.extend(bake_objects(&s.objects, &s.object_poses[f]));
+        assert_eq!(frame.len() as u64, expect["baked_num_dynamic"][f].as_u64().unwrap(), "{name}: baked frame {f}");
+        assert_eq!(s.dynamic[f].len(), frame.iter().filter_map(Gaussian::pack).count(), "{name}: the scene's baked frame {f}");
+        let mut sum = [0f64; 3];
+        frame.iter().for_each(|g| (0..3).for_each(|k| sum[k] += g.mean[k] as f64));
+        for (a, b) in sum.iter().zip(f64s(want_sum)) {
+            assert!((a - b).abs() <= 1e-2, "{name}: baked frame {f} mean sum {sum:?} vs {want_sum}");
+        }
+    }
 }
 
 fn vector(name: &str) -> Vec<u8> {

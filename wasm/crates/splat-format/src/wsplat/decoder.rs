@@ -4,6 +4,7 @@
 use super::dyna_range;
 use super::header::{DynamicCodec, Header, Totals};
 use super::layout::Layout;
+use super::objects::{decode_objc, decode_pose, AgentObject, Poses};
 use super::v2::{decode_dyna_range, decode_records_v2, Chunk};
 use super::{err, f32_at, u32_at, ErrorKind, WsplatError, BLOCK_HEADER, MAGIC, MAX_CHUNK, MAX_HEAD, MAX_RATIO, VERSIONS};
 use crate::gaussians::Gaussian;
@@ -14,7 +15,14 @@ use serde_json::Value;
 pub enum Event {
     Header(Box<Header>),
     Static(Vec<Gaussian>),
-    Dynamic { frame: usize, gaussians: Vec<Gaussian> },
+    Dynamic {
+        frame: usize,
+        gaussians: Vec<Gaussian>,
+    },
+    /// v3: an agent object's canonical Gaussians (box frame).
+    Object(AgentObject),
+    /// v3: a run of frames' poses of the objects defined so far.
+    Poses(Poses),
     End,
 }
 
@@ -51,6 +59,9 @@ pub struct Decoder {
     version: u32,
     /// A range-coded file's models, carried from one DYNA chunk to the next (created with its HEAD).
     models: Option<dyna_range::Models>,
+    /// v3: the objects defined so far, and the frames a POSE chunk posed.
+    objects: usize,
+    posed: Vec<bool>,
 }
 
 impl Default for Decoder {
@@ -71,6 +82,8 @@ impl Decoder {
             failed: None,
             version: 0,
             models: None,
+            objects: 0,
+            posed: Vec::new(),
         }
     }
 
@@ -171,7 +184,8 @@ impl Decoder {
             }
             let tag: [u8; 4] = avail[..4].try_into().unwrap();
             let len = u32_at(avail, 4);
-            if !matches!(&tag, b"HEAD" | b"STAT" | b"DYNA" | b"END!") {
+            let object_tag = self.version >= 3 && matches!(&tag, b"OBJC" | b"POSE");
+            if !matches!(&tag, b"HEAD" | b"STAT" | b"DYNA" | b"END!") && !object_tag {
                 return err(ErrorKind::BadTag, off, format!("chunk tag: {:?} is not HEAD, STAT, DYNA or END!", String::from_utf8_lossy(&tag)));
             }
             if len > MAX_CHUNK {
@@ -202,6 +216,7 @@ impl Decoder {
                     })?;
                     let h = Header::from_json(&v, payload_off, self.version)?;
                     self.dynamic_counts = vec![0; h.frame_times.len()];
+                    self.posed = vec![false; h.frame_times.len()];
                     if h.dynamic_codec == DynamicCodec::Range {
                         self.models = Some(dyna_range::Models::new(&h.dynamic_layout.field_bits()));
                     }
@@ -245,6 +260,21 @@ impl Decoder {
                     }
                     events.push(Event::Dynamic { frame, gaussians: gs });
                 }
+                (b"OBJC", Stage::Static | Stage::Stream) => {
+                    let h = self.header.as_ref().unwrap();
+                    let limit = (!h.streamed).then_some(h.num_objects);
+                    let layout = h.object_layout.as_ref().unwrap();
+                    let o = decode_objc(payload, payload_off, self.objects, limit, layout, h.block_size)?;
+                    self.objects += 1;
+                    events.push(Event::Object(o));
+                }
+                (b"POSE", Stage::Static | Stage::Dynamic | Stage::Stream) => {
+                    let poses = decode_pose(payload, payload_off, &mut self.posed, self.objects)?;
+                    if self.stage == Stage::Static {
+                        self.stage = Stage::Dynamic;
+                    }
+                    events.push(Event::Poses(poses));
+                }
                 (b"END!", Stage::Static | Stage::Dynamic | Stage::Stream) => {
                     let h = self.header.as_mut().unwrap();
                     let src = if h.streamed { "END!" } else { "HEAD" };
@@ -260,6 +290,13 @@ impl Decoder {
                         }
                         let t = Totals::from_json(&v, h.frame_times.len()).map_err(bad)?;
                         (h.num_static, h.num_dynamic, h.bounds_min, h.bounds_max) = (t.num_static, t.num_dynamic, t.bounds_min, t.bounds_max);
+                        if h.version >= 3 {
+                            h.num_objects = v.get("num_objects").and_then(Value::as_u64).ok_or_else(|| WsplatError {
+                                kind: ErrorKind::BadPayload,
+                                offset: payload_off,
+                                message: "END!.num_objects: expected an integer >= 0".into(),
+                            })?;
+                        }
                     } else if len != 0 {
                         return err(ErrorKind::BadPayload, payload_off, format!("END! payload: {len} bytes, must be empty"));
                     }
@@ -278,6 +315,13 @@ impl Decoder {
                                 "END!: frame {f} has {} dynamic Gaussians, {src}.num_dynamic[{f}] says {}",
                                 self.dynamic_counts[f], h.num_dynamic[f]
                             ),
+                        );
+                    }
+                    if h.version >= 3 && self.objects as u64 != h.num_objects {
+                        return err(
+                            ErrorKind::CountMismatch,
+                            off,
+                            format!("END!: {} objects, {src}.num_objects says {}", self.objects, h.num_objects),
                         );
                     }
                     self.stage = Stage::Done;
@@ -328,7 +372,7 @@ fn decode_records(
         return err(ErrorKind::BadPayload, payload_off + start as u64, format!("{name}.count: must be >= 1"));
     }
     let blocks = count.div_ceil(block_size);
-    if version == 2 {
+    if version >= 2 {
         // A v2 chunk decodes to at most MAX_RATIO x its bytes (its boxes and byte planes), checked before anything.
         let raw = blocks as u64 * BLOCK_HEADER as u64 + count as u64 * layout.v2_planes().len() as u64;
         if raw > MAX_RATIO * payload.len() as u64 {

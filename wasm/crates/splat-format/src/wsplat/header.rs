@@ -35,8 +35,12 @@ pub struct Header {
     pub block_size: usize,
     pub static_layout: Layout,
     pub dynamic_layout: Layout,
-    /// The file's version (1 or 2).
+    /// The file's version (1, 2 or 3).
     pub version: u32,
+    /// v3: the layout of the objects' canonical Gaussians (None before v3).
+    pub object_layout: Option<Layout>,
+    /// v3: the OBJC chunks of the file (a streamed file: 0 until its END! arrives with them).
+    pub num_objects: u64,
     /// v2: the codec of the DYNA chunks (v1: Zstd, which stands for its bit-packed records).
     pub dynamic_codec: DynamicCodec,
 }
@@ -57,7 +61,7 @@ impl Header {
         if get("version")?.as_u64() != Some(version as u64) {
             return Err(bad(format!("version: must be {version} (the file's version)")));
         }
-        if version == 2 && v.get("codec").and_then(Value::as_str) != Some("zstd") {
+        if version >= 2 && v.get("codec").and_then(Value::as_str) != Some("zstd") {
             return Err(bad("codec: must be \"zstd\"".into()));
         }
         let dynamic_codec = match (version, v.get("dynamic_codec")) {
@@ -119,9 +123,24 @@ impl Header {
         }
         let mut static_layout = Layout::from_json(get("static_layout")?, "static_layout", offset)?;
         let mut dynamic_layout = Layout::from_json(get("dynamic_layout")?, "dynamic_layout", offset)?;
-        if version == 2 {
+        if version >= 2 {
             static_layout = static_layout.check_v2("static_layout", offset)?;
             dynamic_layout = dynamic_layout.check_v2("dynamic_layout", offset)?;
+        }
+        let (mut object_layout, mut num_objects) = (None, 0);
+        if version >= 3 {
+            object_layout = Some(Layout::from_json(get("object_layout")?, "object_layout", offset)?.check_v2("object_layout", offset)?);
+            let n = get("num_objects")?;
+            num_objects = match (streamed, n.as_u64()) {
+                (true, _) if n.is_null() => 0,
+                (false, Some(n)) => n,
+                _ => {
+                    return Err(bad(format!(
+                        "num_objects: {}",
+                        if streamed { "must be null in a streamed file" } else { "expected an integer >= 0" }
+                    )))
+                }
+            };
         }
         Ok(Header {
             scenario_id: string("scenario_id")?,
@@ -141,6 +160,8 @@ impl Header {
             static_layout,
             dynamic_layout,
             version,
+            object_layout,
+            num_objects,
             dynamic_codec,
         })
     }

@@ -1,4 +1,5 @@
-//! Progressive .wsplat v1 + v2 decoder (web/docs/wsplat-v1.md, web/docs/wsplat-v2.md). Feed bytes as they arrive
+//! Progressive .wsplat v1 + v2 + v3 decoder (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md: v3's agent objects,
+//! OBJC and POSE chunks, in `objects`). Feed bytes as they arrive
 //! (`push`); each complete chunk becomes an `Event`. v2 chunks hold zstd-coded byte planes (ruzstd), each
 //! decompressed into exactly the size its count implies, after the count was bounded by the chunk's bytes; a v2 file
 //! whose HEAD says `dynamic_codec: "range"` holds its DYNA records in one range-coded stream per chunk
@@ -17,6 +18,7 @@ pub mod dyna_range;
 pub mod encode;
 mod header;
 mod layout;
+pub mod objects;
 mod v2;
 
 pub use decoder::{Decoder, Event, Progress};
@@ -26,7 +28,7 @@ pub use layout::{Layout, Q_CANON};
 pub const MAGIC: &[u8; 8] = b"WSPLAT\r\n";
 pub const VERSION: u32 = 1;
 /// The versions this decoder reads.
-pub const VERSIONS: [u32; 2] = [1, 2];
+pub const VERSIONS: [u32; 3] = [1, 2, 3];
 /// A v2 chunk decodes to at most MAX_RATIO x its payload bytes (checked before anything is decompressed).
 pub const MAX_RATIO: u64 = 64;
 /// v2: px py pz share their bits, at most this many (the Morton code fits 63 bits).

@@ -1,0 +1,350 @@
+"""The served scene measured against the world's exact images: density, static-pixel PSNR, luma SSIM, agents seen and
+agent silhouettes, per mode (web/docs/models.md, "Served scene quality").
+
+    python -m worldsplat.evaluation.scene_quality --modes oracle,reconstruct,generate \
+        [--scenarios test:0,test:1,test:2,preset:urban_straight] [--iou-frames all] [--out scene_quality.json]
+
+For each scenario and mode the scene is built by `pipeline.scene.generate_scene` (the call the playground makes) and
+rendered by the project's reference rasterizer (`gaussians.raster`, "pairs" path; separate from the viewer's wgpu
+renderer) at every rig camera on a canvas SCALE x the served image per side, against the world's exact images
+(`world.simulate.render_views`, exact at any size) rendered by the same cameras:
+
+- Gaussians per served pixel: len(scene.at_frame(0)) / (cameras * served W * served H).
+- static PSNR: frame 0, pixels whose exact class is road surface, building or vegetation (STATIC_CLASSES), pooled
+  over the cameras; the render is rounded to 8 bits like every image the project renders.
+- luma SSIM: `core.metrics.ssim_map` (11x11 Gaussian window) of Rec. 601 luma, averaged over non-sky pixels.
+- agents seen: agents within AGENT_RANGE_M of the ego covering >= MIN_SERVED_PX served pixels (exact instance mask
+  at SCALE, / SCALE^2, summed over the cameras). An agent's Gaussians are those whose centres lie in its box (grown
+  by BOX_MARGIN_M; the bottom BOX_FLOOR_M left out so the road under it is not counted), static or dynamic alike
+  (parked agents are static in the scene and still agents). Each agent's membership is an extra channel composited
+  like colour, so occlusion counts: a pixel is covered where the channel is >= 0.5. Seen: covered on >= COVER_MIN of
+  its exact pixels AND |mean colour of its pixels - mean colour of a RING_PX ring around them| in the render is at
+  least CONTRAST_SHARE of that in the exact image (RGB distance in [0, 1] units).
+- silhouette IoU: every frame (or `--iou-frames`), each such agent's rendered channel >= 0.5 against its exact
+  instance mask, pooled over the cameras; the mean over (agent, frame).
+- scene seconds: wall time of `generate_scene` (models loaded before; the first window's caption encoder warm).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from worldsplat.core.camera import Camera, rigid_inverse, yaw_pose
+from worldsplat.core.metrics import psnr, ssim_map
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians.raster import rasterize
+from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.pipeline.scene import ALL_MODES, generate_scene, preload
+from worldsplat.world import build_world
+from worldsplat.world.classes import (
+    BUILDING,
+    CROSSWALK,
+    CURB,
+    LANE_MARKING,
+    ROAD,
+    SIDEWALK,
+    SKY,
+    TERRAIN,
+    VEGETATION,
+)
+from worldsplat.world.dataset import clip_scenario
+from worldsplat.world.instances import instance_mask
+from worldsplat.world.simulate import render_views
+
+SCALE = 2  # canvas per side relative to the served image
+STATIC_CLASSES = (ROAD, LANE_MARKING, CROSSWALK, SIDEWALK, CURB, TERRAIN, BUILDING, VEGETATION)
+AGENT_RANGE_M = 40.0
+MIN_SERVED_PX = 40
+COVER_MIN = 0.8
+CONTRAST_SHARE = 0.5
+COVER_THRESHOLD = 0.5  # rendered membership channel at which a pixel counts as the agent's
+RING_PX = 3  # ring around an agent, in served pixels (SCALE x that on the canvas)
+BOX_MARGIN_M = 0.25
+BOX_FLOOR_M = 0.08
+LUMA = (0.299, 0.587, 0.114)
+DEFAULT_SCENARIOS = "test:0,test:1,test:2,preset:urban_straight"
+SERVED = {"width": 200, "height": 112, "frames": 8, "fps": 4.0}  # the playground's default image and clip
+
+
+def scenario_of(spec: str, served: dict = SERVED):
+    """`test:I` (held-out split clip I, drawn at the served image size and clip length; never a training seed) or
+    `preset:NAME` (a shipped preset as the playground serves it)."""
+    kind, _, name = spec.partition(":")
+    if kind == "preset":
+        return load_preset(name)
+    if kind in ("test", "val"):
+        return clip_scenario(kind, int(name), **served)
+    raise ValueError(f"scenario {spec!r}: expected test:INDEX, val:INDEX or preset:NAME")
+
+
+def scaled(cam: Camera, s: int) -> Camera:
+    """The same camera on a canvas s x larger per side (pixel centres at i + 0.5 keep their rays)."""
+    return Camera(
+        cam.width * s, cam.height * s, cam.fx * s, cam.fy * s, cam.cx * s, cam.cy * s, cam.world_to_camera, cam.name
+    )
+
+
+@dataclass
+class Truth:
+    """The world's exact images of one frame at the canvas cameras: rgb (V,H,W,3) uint8, semantic (V,H,W) class ids,
+    instance (V,H,W) index into world.agents (-1 none)."""
+
+    rgb: np.ndarray
+    semantic: np.ndarray
+    instance: np.ndarray
+
+
+def ground_truth(world, t: int, cams: list[Camera]) -> Truth:
+    gt = render_views(world, t, cams)
+    inst = np.stack([instance_mask(world, t, c) for c in cams])
+    return Truth(gt["rgb"], gt["semantic"], inst)
+
+
+# -- the metrics, on arrays (tested on constructed cases) ---------------------------------------------------------
+def static_psnr(render: np.ndarray, truth: Truth) -> float:
+    """PSNR over the static-class pixels of every view, pooled."""
+    return psnr(render, truth.rgb, np.isin(truth.semantic, STATIC_CLASSES))
+
+
+def luma(rgb: np.ndarray) -> torch.Tensor:
+    """(V,H,W,3) uint8 -> (V,1,H,W) float luma in [0, 1]."""
+    x = torch.as_tensor(np.asarray(rgb)).float() / 255.0
+    return (x @ torch.tensor(LUMA)).unsqueeze(1)
+
+
+def luma_ssim(render: np.ndarray, truth: Truth) -> float:
+    """SSIM of luma (11x11 Gaussian window, whole images) averaged over the non-sky pixels of every view."""
+    m = ssim_map(luma(render), luma(truth.rgb))[:, 0].numpy()
+    keep = truth.semantic != SKY
+    return float(m[keep].mean()) if keep.any() else float("nan")
+
+
+def ring(mask: np.ndarray, width: int) -> np.ndarray:
+    """(V,H,W) bool -> the pixels within `width` (square) of the mask, the mask itself left out."""
+    m = torch.as_tensor(mask).float()[:, None]
+    grown = F.max_pool2d(m, 2 * width + 1, stride=1, padding=width)[:, 0].numpy() > 0
+    return grown & ~mask
+
+
+def contrast(rgb: np.ndarray, inside: np.ndarray, around: np.ndarray) -> float:
+    """|mean colour inside - mean colour around| (RGB distance, [0, 1] units); 0 when either set is empty."""
+    if not inside.any() or not around.any():
+        return 0.0
+    x = np.asarray(rgb, np.float64) / 255.0
+    return float(np.linalg.norm(x[inside].mean(0) - x[around].mean(0)))
+
+
+def agent_view(render: np.ndarray, channel: np.ndarray, truth: Truth, k: int, scale: int = SCALE) -> dict:
+    """One agent on every view of a frame: its exact pixels, the share the render covers, contrast render vs exact."""
+    mine = truth.instance == k
+    px = int(mine.sum())
+    around = ring(mine, RING_PX * scale)
+    covered = float((channel[mine] >= COVER_THRESHOLD).mean()) if px else 0.0
+    c_gt, c_render = contrast(truth.rgb, mine, around), contrast(render, mine, around)
+    return {
+        "agent": int(k),
+        "served_px": px / scale**2,
+        "covered": covered,
+        "contrast_gt": c_gt,
+        "contrast_render": c_render,
+        "seen": bool(covered >= COVER_MIN and c_render >= CONTRAST_SHARE * c_gt),
+    }
+
+
+def silhouette_iou(channel: np.ndarray, truth: Truth, k: int) -> float:
+    """IoU of the rendered membership (>= 0.5) of agent k and its exact instance mask, pooled over the views."""
+    r, g = channel >= COVER_THRESHOLD, truth.instance == k
+    union = int((r | g).sum())
+    return float("nan") if union == 0 else int((r & g).sum()) / union
+
+
+# -- the scene's side: which Gaussians are an agent's, and the render ------------------------------------------------
+def scene_from_world(world, scene: Scene4D, t: int) -> np.ndarray:
+    """4x4 map from the world's frame to the scene's (the learned modes may place the scene in their own frame)."""
+    return scene.ego_to_world[t] @ rigid_inverse(world.ego_to_world[t])
+
+
+def agent_membership(world, scene: Scene4D, t: int, means: torch.Tensor, agents: list[int]) -> torch.Tensor:
+    """(N, len(agents)) float: 1 where a Gaussian's centre lies in the agent's box at frame t (grown by BOX_MARGIN_M,
+    the bottom BOX_FLOOR_M left out), in the scene's frame."""
+    out = torch.zeros(len(means), max(1, len(agents)), dtype=means.dtype)
+    p = means.detach().cpu().double().numpy()
+    w2s = scene_from_world(world, scene, t)
+    for j, k in enumerate(agents):
+        a = world.agents[k]
+        x, y, yaw = a.poses[t]
+        to_box = rigid_inverse(w2s @ yaw_pose(x, y, 0.0, yaw))
+        q = p @ to_box[:3, :3].T + to_box[:3, 3]
+        l, w, h = a.size
+        inside = (
+            (np.abs(q[:, 0]) <= l / 2 + BOX_MARGIN_M)
+            & (np.abs(q[:, 1]) <= w / 2 + BOX_MARGIN_M)
+            & (q[:, 2] >= BOX_FLOOR_M)
+            & (q[:, 2] <= h + BOX_MARGIN_M)
+        )
+        out[torch.from_numpy(inside), j] = 1.0
+    return out
+
+
+def render_frame(g: Gaussians, membership: torch.Tensor, cams: list[Camera]) -> tuple[np.ndarray, np.ndarray]:
+    """Render Gaussians with `membership` as their extra channels: rgb (V,H,W,3) uint8 and channels (V,H,W,K)."""
+    g = Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, membership.to(g.means.dtype))
+    rgbs, chans = [], []
+    with torch.no_grad():
+        for cam in cams:
+            out = rasterize(g, cam, method="pairs")
+            rgbs.append(torch.round(out["rgb"].clamp(0, 1) * 255).to(torch.uint8).numpy())
+            chans.append(out["extras"].float().numpy())
+    return np.stack(rgbs), np.stack(chans)
+
+
+def candidates(world, t: int, truth: Truth, scale: int = SCALE) -> list[int]:
+    """Agents within AGENT_RANGE_M of the ego at frame t covering >= MIN_SERVED_PX served pixels of the views."""
+    ego = world.ego_to_world[t][:2, 3]
+    ids, counts = np.unique(truth.instance[truth.instance >= 0], return_counts=True)
+    out = []
+    for k, n in zip(ids.tolist(), counts.tolist()):
+        near = np.hypot(*(world.agents[k].poses[t][:2] - ego)) <= AGENT_RANGE_M
+        if near and n / scale**2 >= MIN_SERVED_PX:
+            out.append(int(k))
+    return out
+
+
+def canvas_cameras(world, scene: Scene4D, t: int, scale: int) -> tuple[list[Camera], list[Camera]]:
+    """(the scene's cameras, the world's cameras) of frame t on the canvas (one pose for the oracle; the learned
+    modes' scenes may carry their own frame)."""
+    rend = [scaled(scene.camera(t, v), scale) for v in range(len(scene.rig))]
+    exact = [scaled(rc.at(world.ego_to_world[t]), scale) for rc in world.rig]
+    return rend, exact
+
+
+def measure_frame(world, scene: Scene4D, t: int, scale: int = SCALE) -> dict:
+    """Frame t: the render and truth of every view, its eligible agents and their per-agent figures."""
+    rend_cams, exact_cams = canvas_cameras(world, scene, t, scale)
+    truth = ground_truth(world, t, exact_cams)
+    agents = candidates(world, t, truth, scale)
+    g = scene.at_frame(t)
+    rgb, chans = render_frame(g, agent_membership(world, scene, t, g.means, agents), rend_cams)
+    views = [agent_view(rgb, chans[..., j], truth, k, scale) for j, k in enumerate(agents)]
+    ious = [silhouette_iou(chans[..., j], truth, k) for j, k in enumerate(agents)]
+    return {"rgb": rgb, "truth": truth, "agents": views, "iou": ious, "gaussians": len(g)}
+
+
+def measure_scene(world, scene: Scene4D, iou_frames: list[int] | None = None, scale: int = SCALE) -> dict:
+    """Every figure of one built scene (frame 0 for the images and agents seen; `iou_frames`, default all, for the
+    silhouettes)."""
+    f0 = measure_frame(world, scene, 0, scale)
+    rc = scene.rig[0]
+    frames = list(range(scene.num_frames)) if iou_frames is None else [t for t in iou_frames if t < scene.num_frames]
+    ious = list(f0["iou"]) if 0 in frames else []
+    for t in frames:
+        if t != 0:
+            ious += measure_frame(world, scene, t, scale)["iou"]
+    ious = [i for i in ious if np.isfinite(i)]
+    seen = sum(a["seen"] for a in f0["agents"])
+    return {
+        "gaussians_frame0": f0["gaussians"],
+        "gaussians_per_served_px": f0["gaussians"] / (len(scene.rig) * rc.width * rc.height),
+        "static_psnr_db": static_psnr(f0["rgb"], f0["truth"]),
+        "luma_ssim_nonsky": luma_ssim(f0["rgb"], f0["truth"]),
+        "agents_eligible": len(f0["agents"]),
+        "agents_seen": int(seen),
+        "agents_seen_share": seen / len(f0["agents"]) if f0["agents"] else float("nan"),
+        "silhouette_iou": float(np.mean(ious)) if ious else float("nan"),
+        "silhouette_pairs": len(ious),
+        "agents": f0["agents"],
+    }
+
+
+def measure(
+    spec: str, mode: str, iou_frames: list[int] | None = None, scale: int = SCALE, served: dict = SERVED
+) -> dict:
+    """Build the served scene of one scenario in one mode (timed) and measure it."""
+    sc = scenario_of(spec, served)
+    preload(mode)
+    t0 = time.perf_counter()
+    scene = generate_scene(sc, mode=mode)
+    secs = time.perf_counter() - t0
+    row = {"scenario": spec, "mode": mode, "scene_s": secs}
+    row.update(measure_scene(build_world(sc), scene, iou_frames, scale))
+    return row
+
+
+# (key, column, decimals) of the summary table
+FIGURES = (
+    ("gaussians_per_served_px", "Gaussians / served px", 2),
+    ("static_psnr_db", "static PSNR dB", 2),
+    ("luma_ssim_nonsky", "luma SSIM non-sky", 3),
+    ("agents_seen_share", "agents seen", 2),
+    ("silhouette_iou", "silhouette IoU", 3),
+    ("scene_s", "scene s", 1),
+)
+
+
+def summary(rows: list[dict]) -> dict[str, dict]:
+    """Per mode: the mean over scenarios of each figure; agents seen pooled over the scenarios' agents, silhouette
+    IoU weighted by each scenario's (agent, frame) pairs."""
+    out = {}
+    for mode in dict.fromkeys(r["mode"] for r in rows):
+        rs = [r for r in rows if r["mode"] == mode]
+        s = {k: float(np.mean([r[k] for r in rs])) for k, _, _ in FIGURES}
+        elig = sum(r["agents_eligible"] for r in rs)
+        s["agents_eligible"] = elig
+        s["agents_seen_share"] = sum(r["agents_seen"] for r in rs) / elig if elig else float("nan")
+        pairs = sum(r["silhouette_pairs"] for r in rs)
+        s["silhouette_pairs"] = pairs
+        s["silhouette_iou"] = (
+            sum(r["silhouette_iou"] * r["silhouette_pairs"] for r in rs if r["silhouette_pairs"]) / pairs
+            if pairs
+            else float("nan")
+        )
+        s["scenarios"] = len(rs)
+        out[mode] = s
+    return out
+
+
+def table(summ: dict[str, dict]) -> str:
+    """A markdown table, one row per mode."""
+    head = "| mode | " + " | ".join(name for _, name, _ in FIGURES) + " |"
+    lines = [head, "|" + "---|" * (len(FIGURES) + 1)]
+    for mode, s in summ.items():
+        cells = [f"{s[k]:.{d}f}" for k, _, d in FIGURES]
+        lines.append(f"| {mode} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--modes", default="oracle", help=f"comma-separated: {', '.join(ALL_MODES)}")
+    p.add_argument("--scenarios", default=DEFAULT_SCENARIOS, help="comma-separated test:INDEX or preset:NAME")
+    p.add_argument("--iou-frames", default="all", help="frames of the silhouette IoU: all, or e.g. 0,4")
+    p.add_argument("--scale", type=int, default=SCALE, help="canvas per side relative to the served image")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--out", type=Path, default=None, help="write every row and the summary here (JSON)")
+    a = p.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    frames = None if a.iou_frames == "all" else [int(x) for x in a.iou_frames.split(",")]
+    rows = []
+    for mode in a.modes.split(","):
+        for spec in a.scenarios.split(","):
+            r = measure(spec, mode, frames, a.scale)
+            rows.append(r)
+            print(json.dumps({k: v for k, v in r.items() if k != "agents"}), flush=True)
+    summ = summary(rows)
+    print(table(summ))
+    if a.out is not None:
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.write_text(json.dumps({"summary": summ, "rows": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -5,13 +5,15 @@
 //! dynamic records (HEAD dynamic_codec "range") too: the input as the first DYNA payload of a valid range-coded file
 //! (boxes, word count, stream), and as the words of that chunk's stream (its frame, count, boxes and word count kept
 //! consistent), so the fuzzer reaches the range decoder, its models and the stream's end checks; the models carry on
-//! into the file's later DYNA chunks.
+//! into the file's later DYNA chunks. v3's object records too: the input as the first OBJC payload and as the POSE
+//! payload of a valid v3 file, so the fuzzer reaches the object headers, their sections, the present bits and poses.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use splat_format::scene::{read_wsplat, StreamingScene};
 
 const V2: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_iso.wsplat");
 const RANGE: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_range_aniso.wsplat");
+const V3: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v3_objects.wsplat");
 
 fn check(data: &[u8]) {
     let whole = read_wsplat(data);
@@ -83,4 +85,6 @@ fuzz_target!(|data: &[u8]| {
     check(&as_v2_stat(data));
     check(&replace_first(RANGE, b"DYNA", data));
     check(&as_range_stream(data));
+    check(&replace_first(V3, b"OBJC", data));
+    check(&replace_first(V3, b"POSE", data));
 });

@@ -576,3 +576,65 @@ fn range_seeded_mutations_never_panic_and_streaming_agrees() {
     let errors = payload_mutations(&bytes, &chunks_tagged(&bytes, b"DYNA"), 0xd1a);
     assert!(errors > 300, "mutations must be caught ({errors} errors)");
 }
+
+/// `file` with chunk `index`'s payload replaced (length and CRC made consistent).
+fn with_chunk_payload(file: &[u8], index: usize, payload: &[u8]) -> Vec<u8> {
+    let mut at = 12;
+    for _ in 0..index {
+        at += 12 + u32::from_le_bytes(file[at + 4..at + 8].try_into().unwrap()) as usize;
+    }
+    let len = u32::from_le_bytes(file[at + 4..at + 8].try_into().unwrap()) as usize;
+    let mut out = file[..at + 4].to_vec();
+    out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+    out.extend_from_slice(payload);
+    let crc = crc32fast::hash(&out[at..]);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out.extend_from_slice(&file[at + 12 + len..]);
+    out
+}
+
+#[test]
+fn v3_object_and_pose_payload_mutations_never_panic_and_streaming_agrees() {
+    let bytes = vector("valid_v3_objects");
+    let mut chunks = Vec::new(); // (chunk index, payload) of the OBJC and POSE chunks
+    let (mut at, mut index) = (12, 0);
+    while at < bytes.len() {
+        let len = u32::from_le_bytes(bytes[at + 4..at + 8].try_into().unwrap()) as usize;
+        if matches!(&bytes[at..at + 4], b"OBJC" | b"POSE") {
+            chunks.push((index, bytes[at + 8..at + 8 + len].to_vec()));
+        }
+        at += 12 + len;
+        index += 1;
+    }
+    let mut rng = Rng(0x0b1ec7);
+    let mut errors = 0;
+    for round in 0..600 {
+        let (index, payload) = &chunks[rng.below(chunks.len())];
+        let mut p = payload.clone();
+        match round % 3 {
+            0 => {
+                let i = rng.below(p.len().min(64));
+                p[i] ^= 1 << rng.below(8);
+            }
+            1 => p.truncate(rng.below(p.len())),
+            _ => {
+                let i = rng.below(p.len().min(40));
+                p[i] = rng.next() as u8;
+            }
+        }
+        let b = with_chunk_payload(&bytes, *index, &p);
+        let whole = read_wsplat(&b);
+        if let Err(e) = &whole {
+            errors += 1;
+            assert!(e.offset <= b.len() as u64, "offset {} past {} bytes: {e}", e.offset, b.len());
+        }
+        let mut s = StreamingScene::default();
+        let streamed = s.push(&b[..b.len() / 2]).and_then(|_| s.push(&b[b.len() / 2..])).and_then(|_| s.finish());
+        match (&whole, &streamed) {
+            (Ok(w), Ok(_)) => assert_eq!((w.objects.len(), &w.dynamic), (s.scene.objects.len(), &s.scene.dynamic)),
+            (Err(a), Err(b2)) => assert_eq!((a.kind, a.offset), (b2.kind, b2.offset), "round {round}"),
+            _ => panic!("round {round}: whole {:?} vs streamed {:?}", whole.as_ref().err(), streamed.err()),
+        }
+    }
+    assert!(errors > 300, "mutations must be caught ({errors} errors)");
+}

@@ -4,7 +4,10 @@ trained on world ground truth (web/docs/downstream.md).
     worldsplat judge train --data DATA --out DIR [--steps N] [--minutes M]     weights + held-out figures + card
     worldsplat judge heldout --data DATA [--weights W] --out DIR               mIoU on DATA/test (world images)
     worldsplat judge eval --count N --shifts 0,2,-2,4,-4 --out DIR             domain gap per mode and shift,
-                                                                               judge Fréchet distances
+                                                                               judge Fréchet distances, BEV IoU
+    worldsplat judge train-bev --data DATA --out DIR                           the BEV head
+    worldsplat judge ablation --count N --shifts 2,-2 --out DIR                novel-view versions A-E ranked
+    worldsplat judge augment --world DATA --batch DIR --out DIR                world vs world+generated clips
 """
 
 from __future__ import annotations
@@ -20,6 +23,14 @@ def _weights_default() -> Path:
     from worldsplat_models.weights import weights_dir
 
     return weights_dir() / "judge_small.safetensors"
+
+
+def _bev_head(path: Path | None):
+    from worldsplat_models.judge_bev import load_bev
+    from worldsplat_models.weights import weights_dir
+
+    path = path or weights_dir() / "judge_bev_small.safetensors"
+    return load_bev(path) if path.exists() else None
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -62,6 +73,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     e.add_argument("--clip-frames", type=int, default=4, help="frames of each clip's scenario (default 4)")
     e.add_argument("--cache", type=Path, default=None, help="keep each clip's images here (default runs/judge_renders)")
     e.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
+    e.add_argument(
+        "--refine", default="", help="also each mode refined on the track with these blends, e.g. none,holes,mix"
+    )
+    e.add_argument("--bev", type=Path, default=None, help="BEV head weights (default the shipped ones, when present)")
     e.add_argument("--threads", type=int, default=2)
     e.add_argument("--out", type=Path, required=True, help="output directory (downstream.json/.md/.png)")
     a = sub.add_parser("ablation", help="the novel-view ablation versions A-E: judge Fréchet distances and mIoU")
@@ -121,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
         start=args.start,
         clip_frames=args.clip_frames,
         cache=args.cache or runs_dir() / "judge_renders",
+        blends=tuple(b for b in args.refine.split(",") if b.strip()),
+        bev_head=_bev_head(args.bev),
     )
     downstream.write_domain_gap(result, args.out)
     print(downstream.domain_gap_markdown(result))

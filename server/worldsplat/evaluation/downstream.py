@@ -28,10 +28,12 @@ from PIL import Image
 from tqdm import tqdm
 
 from worldsplat.core.io import write_npz_atomic
+from worldsplat.pipeline.refine import WEIGHTS as ENHANCER_WEIGHTS
+from worldsplat.pipeline.refine import load_refiner, refine_track
 from worldsplat.pipeline.render import render_scene_track
 from worldsplat.pipeline.scene import generate_scene, model_version
 from worldsplat.training.judge import load_images
-from worldsplat.training.judge_bev import bev_logits, load_bev_data
+from worldsplat.training.judge_bev import bev_logits, bev_targets, load_bev_data
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import (
     AGENT_CLASSES,
@@ -51,6 +53,7 @@ from worldsplat.world.classes import (
     VEGETATION,
 )
 from worldsplat.world.dataset import clip_scenario
+from worldsplat_models.enhancer import finish
 from worldsplat_models.judge import Judge, features, segment
 
 NUM_CLASSES = len(CLASS_NAMES)
@@ -214,13 +217,21 @@ def write_heldout(r: dict, out: Path) -> None:
 # --- domain gap: the judge on renders of served scenes --------------------------------------------------------------
 
 
-def _clip_renders(scenario, modes, shifts, frames, cameras, steps) -> dict[str, np.ndarray]:
+def refined_row(mode: str, blend: str) -> str:
+    """The domain gap's row of a mode's scene refined on the track (`refine_track`) with a blend."""
+    return f"{mode} refined {blend}"
+
+
+def _clip_renders(scenario, modes, shifts, frames, cameras, steps, blends=()) -> dict[str, np.ndarray]:
     """One clip's images: `gt_<shift>` the world's, `labels_<shift>` its classes, `<mode>_<shift>` the renders of
-    the mode's served scene on that track; plus `<mode>_scene_s` and `<mode>_render_s` (seconds)."""
+    the mode's served scene on that track, `<mode> refined <blend>_<shift>` those refined (`refine_track` on the
+    render of the whole rig, every frame: the refiner's input); plus `<mode>_scene_s`, `<mode>_render_s` and
+    `<mode>_refine_s` (seconds)."""
     world = build_world(scenario)
     names = [c.name for c in world.rig]
     cams = names if cameras is None else list(cameras)
     views = [names.index(c) for c in cams]
+    sel = slice(None) if frames is None else list(frames)
     out = {}
     for s in shifts:
         clip = simulate(world, s, cameras=cams, frames=frames)
@@ -229,9 +240,25 @@ def _clip_renders(scenario, modes, shifts, frames, cameras, steps) -> dict[str, 
         t0 = time.perf_counter()
         scene = generate_scene(scenario, mode=mode, steps=steps)
         t1 = time.perf_counter()
+        refine_s = 0.0
         for s in shifts:
-            out[f"{mode}_{s}"] = render_scene_track(scene, s, views=views, frames=frames).rgb
-        out[f"{mode}_scene_s"], out[f"{mode}_render_s"] = np.array(t1 - t0), np.array(time.perf_counter() - t1)
+            if not blends:
+                out[f"{mode}_{s}"] = render_scene_track(scene, s, views=views, frames=frames).rgb
+                continue
+            full = render_scene_track(scene, s)
+            out[f"{mode}_{s}"] = full.rgb[sel][:, views]
+            t2 = time.perf_counter()
+            # the model's output once; each blend is refine_track's last step on it (the same frames as a call per
+            # blend, at a third of the cost)
+            raw = refine_track(scene, s, cams, scenario=scenario, blend="none", render=full)
+            low = (full.rgb[:, views], full.alpha[:, views])
+            for blend in blends:
+                refined = raw if blend == "none" else finish(raw, *low, blend, load_refiner()[0].mix, low)
+                out[f"{refined_row(mode, blend)}_{s}"] = refined[sel]
+            refine_s += time.perf_counter() - t2
+        render_s = time.perf_counter() - t1 - refine_s
+        out[f"{mode}_scene_s"], out[f"{mode}_render_s"] = np.array(t1 - t0), np.array(render_s)
+        out[f"{mode}_refine_s"] = np.array(refine_s)
     return out
 
 
@@ -251,6 +278,52 @@ def _cached_renders(cache: Path | None, key: dict, make) -> dict[str, np.ndarray
     return arrays
 
 
+def _enhancer_version() -> str:
+    return hashlib.sha256(Path(ENHANCER_WEIGHTS).read_bytes()).hexdigest()[:12]
+
+
+class _Scores:
+    """The domain gap's running sums: per row and shift the class confusion, the judge features and the BEV counts."""
+
+    def __init__(self, rows, shifts, layers):
+        self.conf = {r: {s: np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64) for s in shifts} for r in rows}
+        self.feats = {r: {s: [] for s in shifts} for r in rows}
+        self.bev = {r: {s: np.zeros((len(layers), 3), np.int64) for s in shifts} for r in rows} if layers else None
+
+    def add(self, judge, head, row, s, images, labels, bev_targets_=None) -> None:
+        self.conf[row][s] += confusion(segment(judge, images), labels)
+        self.feats[row][s].append(features(judge, images))
+        if self.bev is not None:
+            with torch.no_grad():
+                self.bev[row][s] += bev_confusion(bev_logits(judge, head, images).numpy(), bev_targets_)
+
+    def table(self, rows, shifts, layers) -> dict:
+        table = {r: {str(s): summary(self.conf[r][s]) for s in shifts} for r in rows}
+        for r in rows:
+            table[r]["all"] = summary(sum(self.conf[r].values()))
+            if self.bev is not None:
+                for s in shifts:
+                    table[r][str(s)].update(bev_summary(self.bev[r][s], layers))
+                table[r]["all"].update(bev_summary(sum(self.bev[r].values()), layers))
+        return table
+
+    def frechet(self, rows, shifts) -> tuple[dict, float | None, np.ndarray]:
+        world_f = {s: np.concatenate(self.feats[GROUND_TRUTH][s]) for s in shifts}
+        world_all = np.concatenate(list(world_f.values()))
+        fd = {
+            m: {
+                **{str(s): judge_frechet(world_f[s], np.concatenate(self.feats[m][s])) for s in shifts},
+                "all": judge_frechet(world_all, np.concatenate([np.concatenate(self.feats[m][s]) for s in shifts])),
+            }
+            for m in rows
+            if m != GROUND_TRUTH
+        }
+        half = np.random.default_rng(0).permutation(len(world_all))
+        n = len(half) // 2
+        floor = judge_frechet(world_all[half[:n]], world_all[half[n:]]) if n >= 2 else None
+        return fd, floor, world_f[shifts[0]]
+
+
 def domain_gap(
     judge: Judge,
     split: str = "test",
@@ -264,17 +337,21 @@ def domain_gap(
     clip_frames: int = 4,
     cache: Path | None = None,
     progress: bool = True,
+    blends: tuple[str, ...] = (),
+    bev_head=None,
 ) -> dict:
     """The judge on world images (ground truth row) and on renders of each mode's served scene, clips
     start..start+count-1 of `split` (the dataset's scenarios at the model image, `clip_frames` frames), at each
-    shift, against the world's exact labels of that track. Returns per row and shift the `summary`, per mode the
-    judge Fréchet distance to the world images of the same clips and tracks, and the sampling floor of that
-    distance (the world images split in two halves). With `cache`, each clip's images are kept there and reused."""
-    shifts, modes = tuple(float(s) for s in shifts), tuple(modes)
-    rows = (GROUND_TRUTH, *modes)
-    conf = {r: {s: np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64) for s in shifts} for r in rows}
-    feats = {r: {s: [] for s in shifts} for r in rows}
-    timing = {m: {"scene_s": 0.0, "render_s": 0.0} for m in modes}
+    shift, against the world's exact labels of that track; with `blends`, also each mode's renders refined with each
+    blend (rows `refined_row(mode, blend)`); with `bev_head` (and every camera), the BEV head's IoU against the
+    world's exact BEV raster. Returns per row and shift the `summary` (+ `bev_summary`), per row the judge Fréchet
+    distance to the world images of the same clips and tracks, and the sampling floor of that distance (the world
+    images split in two halves). With `cache`, each clip's images are kept there and reused."""
+    shifts, modes, blends = tuple(float(s) for s in shifts), tuple(modes), tuple(blends)
+    rows = (GROUND_TRUTH, *modes, *(refined_row(m, b) for m in modes for b in blends))
+    layers = tuple(bev_head.cfg.layers) if bev_head is not None and cameras is None else ()
+    scores = _Scores(rows, shifts, layers)
+    timing = {m: {"scene_s": 0.0, "render_s": 0.0, "refine_s": 0.0} for m in modes}
     examples: dict[str, np.ndarray] = {}
     t0 = time.time()
     indices = list(range(start, start + count))
@@ -289,34 +366,22 @@ def domain_gap(
             "steps": steps,
             "shifts": list(shifts),
             "modes": {m: model_version(m) for m in modes},
+            **({"refine": {"blends": list(blends), "enhancer": _enhancer_version()}} if blends else {}),
         }
-        imgs = _cached_renders(cache, key, lambda sc=sc: _clip_renders(sc, modes, shifts, frames, cameras, steps))
+        make = lambda sc=sc: _clip_renders(sc, modes, shifts, frames, cameras, steps, blends)  # noqa: E731
+        imgs = _cached_renders(cache, key, make)
         if not examples:  # the first clip's first judged frame and camera: the figure's images
             examples.update({k: v[0, 0] for k, v in imgs.items() if v.ndim >= 4})
+        world = build_world(sc) if layers else None
         for s in shifts:
-            labels = imgs[f"labels_{s}"]
-            for row, k in [(GROUND_TRUTH, f"gt_{s}")] + [(m, f"{m}_{s}") for m in modes]:
-                conf[row][s] += confusion(segment(judge, imgs[k]), labels)
-                feats[row][s].append(features(judge, imgs[k]))
+            targets = bev_targets(world, s, bev_head.cfg, frames) if layers else None
+            for row in rows:
+                k = f"gt_{s}" if row == GROUND_TRUTH else f"{row}_{s}"
+                scores.add(judge, bev_head, row, s, imgs[k], imgs[f"labels_{s}"], targets)
         for m in modes:
-            timing[m]["scene_s"] += float(imgs[f"{m}_scene_s"])
-            timing[m]["render_s"] += float(imgs[f"{m}_render_s"])
-    table = {r: {str(s): summary(conf[r][s]) for s in shifts} for r in rows}
-    for r in rows:
-        table[r]["all"] = summary(sum(conf[r].values()))
-    world_f = {s: np.concatenate(feats[GROUND_TRUTH][s]) for s in shifts}
-    world_all = np.concatenate(list(world_f.values()))
-    fd = {
-        m: {
-            **{str(s): judge_frechet(world_f[s], np.concatenate(feats[m][s])) for s in shifts},
-            "all": judge_frechet(world_all, np.concatenate([np.concatenate(feats[m][s]) for s in shifts])),
-        }
-        for m in modes
-    }
-    half = np.random.default_rng(0).permutation(len(world_all))
-    floor = (
-        judge_frechet(world_all[half[: len(half) // 2]], world_all[half[len(half) // 2 :]]) if len(half) >= 4 else None
-    )
+            for k in timing[m]:
+                timing[m][k] += float(imgs.get(f"{m}_{k}", 0.0))
+    fd, floor, first = scores.frechet(rows, shifts)
     return {
         "split": split,
         "clips": indices,
@@ -325,15 +390,19 @@ def domain_gap(
         "cameras": cameras,
         "shifts": list(shifts),
         "modes": list(modes),
+        "rows": list(rows),
+        "blends": list(blends),
+        "bev_layers": list(layers),
         "steps": steps,
-        "images_per_shift": int(len(world_f[shifts[0]])),
-        "table": table,
+        "images_per_shift": int(len(first)),
+        "table": scores.table(rows, shifts, layers),
         "frechet": fd,
         "frechet_floor_world_halves": floor,
-        "feature_dim": int(world_all.shape[1]),
+        "feature_dim": int(first.shape[1]),
         "timing_s": {m: {k: round(v, 1) for k, v in t.items()} for m, t in timing.items()},
         "wall_s": round(time.time() - t0, 1),
         "weights": getattr(judge, "meta", {}).get("provenance", {}),
+        "bev_weights": getattr(bev_head, "meta", {}).get("provenance", {}) if layers else None,
         "examples": {k: v for k, v in examples.items()},
         "example_labels": {k: segment(judge, v) for k, v in examples.items() if not k.startswith("labels_")},
     }
@@ -357,9 +426,41 @@ def example_figure(r: dict) -> np.ndarray:
     return np.concatenate(rows[:-1], axis=0)
 
 
+def _rows(r: dict) -> list[str]:
+    return r.get("rows") or [GROUND_TRUTH, *r["modes"]]
+
+
+def _bev_lines(r: dict, shifts: list[str]) -> list[str]:
+    layers = r.get("bev_layers") or []
+    if not layers:
+        return []
+    lines = [
+        "",
+        "BEV head (through the judge) against the world's exact BEV raster: mean IoU of "
+        f"{', '.join(layers)} per track, and each layer's IoU over all tracks:",
+        "",
+        "| row | "
+        + " | ".join(f"BEV mIoU {s} m" for s in shifts)
+        + " | BEV mIoU all | "
+        + " | ".join(f"{x} IoU" for x in layers)
+        + " |",
+        "|" + "---|" * (len(shifts) + 2 + len(layers)),
+    ]
+    for row in _rows(r):
+        t = r["table"][row]
+        lines.append(
+            f"| {row} | "
+            + " | ".join(_fmt(t[s]["bev_miou"]) for s in shifts)
+            + f" | {_fmt(t['all']['bev_miou'])} | "
+            + " | ".join(_fmt(t["all"]["bev_iou"][x]) for x in layers)
+            + " |"
+        )
+    return lines
+
+
 def domain_gap_markdown(r: dict) -> str:
     shifts = [str(s) for s in r["shifts"]]
-    rows = (GROUND_TRUTH, *r["modes"])
+    rows = _rows(r)
     n = len(r["clips"])
     lines = [
         f"{n} held-out clip(s) of the {r['split']} split ({r['clips'][0]}..{r['clips'][-1]}), "
@@ -383,15 +484,15 @@ def domain_gap_markdown(r: dict) -> str:
         g = r["table"][row]["all"]["groups"]
         lines.append(f"| {row} | " + " | ".join(_fmt(g[k]) for k in groups) + " |")
     lines += ["", "Judge Fréchet distance to the world images of the same clips and tracks (lower is closer):", ""]
-    lines += ["| mode | " + " | ".join(f"{s} m" for s in shifts) + " | all |", "|" + "---|" * (len(shifts) + 2)]
-    for m in r["modes"]:
+    lines += ["| row | " + " | ".join(f"{s} m" for s in shifts) + " | all |", "|" + "---|" * (len(shifts) + 2)]
+    for m in rows[1:]:
         lines.append(f"| {m} | " + " | ".join(f"{r['frechet'][m][s]:.2f}" for s in shifts + ["all"]) + " |")
     lines += [
         "",
         f"Sampling floor (the world images split in two random halves): {_fmt(r['frechet_floor_world_halves'])}; "
         f"features: {r['feature_dim']} per image.",
     ]
-    return "\n".join(lines)
+    return "\n".join(lines + _bev_lines(r, shifts))
 
 
 def plot_domain_gap(r: dict, path: Path) -> Path:
@@ -403,9 +504,9 @@ def plot_domain_gap(r: dict, path: Path) -> Path:
     shifts = sorted(r["shifts"])
     groups = [g for g in GROUPS if g != "sky"]
     fig, axes = plt.subplots(1, 1 + len(groups), figsize=(3.2 * (1 + len(groups)), 3.2), sharey=True)
-    for row in (GROUND_TRUTH, *r["modes"]):
+    for row in _rows(r):
         t = r["table"][row]
-        style = "--" if row == GROUND_TRUTH else "-"
+        style = "--" if row == GROUND_TRUTH else (":" if " refined " in row else "-")
         axes[0].plot(shifts, [t[str(s)]["miou"] for s in shifts], style, marker="o", label=row)
         for ax, g in zip(axes[1:], groups):
             ys = [t[str(s)]["groups"][g] for s in shifts]

@@ -55,6 +55,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
     b.add_argument("--weights", type=Path, default=None, help="judge weights (default the shipped ones)")
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    g = sub.add_parser("scenarios", help="the scenario list of the generated clips (for `worldsplat batch`)")
+    g.add_argument("--split", default="train", choices=("train", "val", "test"))
+    g.add_argument("--start", type=int, default=300, help="first clip index (default 300: after the world clips)")
+    g.add_argument("--count", type=int, default=260, help="clips (default 260)")
+    g.add_argument("--frames", type=int, default=2, help="frames per clip (default 2)")
+    g.add_argument("--out", type=Path, required=True, help="the .jsonl to write")
+    u = sub.add_parser("augment", help="the judge trained on world, world + generated and generated clips, over seeds")
+    u.add_argument("--world", type=Path, required=True, help="dataset folder with train/ and test/ (world clips)")
+    u.add_argument("--batch", type=Path, required=True, help="a `worldsplat batch` folder of generated scenes")
+    u.add_argument("--out", type=Path, required=True, help="runs, augment.json, augment.md")
+    u.add_argument("--n", type=int, default=20, help="world clips (default 20)")
+    u.add_argument("--m", type=int, default=200, help="generated clips (default 200)")
+    u.add_argument("--seeds", default="0,1,2", help="training seeds, comma-separated (default 0,1,2)")
+    u.add_argument("--arms", default="world,world+generated,generated", help="training sets, comma-separated")
+    u.add_argument("--steps", type=int, default=300, help="optimizer steps of every run (default 300)")
+    u.add_argument("--width", type=int, default=16, help="judge width of every run (default 16)")
+    u.add_argument("--threads", type=int, default=1)
     h = sub.add_parser("heldout", help="the judge's mIoU on held-out world clips (DATA/test)")
     h.add_argument("--data", type=Path, required=True, help="dataset folder with test/")
     h.add_argument("--split", default="test", choices=("val", "test"))
@@ -98,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
         return run_train(args)
     if args.what == "train-bev":
         return run_train_bev(args)
+    if args.what in ("scenarios", "augment"):
+        return run_augment(args)
     from worldsplat.core.paths import runs_dir
     from worldsplat.evaluation import downstream
     from worldsplat_models.judge import load_judge
@@ -188,4 +207,29 @@ def run_train_bev(args: argparse.Namespace) -> int:
         result = downstream.heldout_bev(judge, load_bev(path), args.data, "test")
         (Path(args.out) / "heldout_bev.json").write_text(json.dumps(result, indent=1) + "\n")
         print(json.dumps({k: result[k] for k in ("samples", "bev_miou", "bev_iou")}))
+    return 0
+
+
+def run_augment(args: argparse.Namespace) -> int:
+    from worldsplat.evaluation import downstream_augment as aug
+
+    if args.what == "scenarios":
+        print(f"wrote {aug.write_scenarios(args.out, args.split, args.start, args.count, args.frames)}")
+        return 0
+    seeds = tuple(int(x) for x in args.seeds.split(",") if x.strip())
+    arms = tuple(a for a in args.arms.split(",") if a.strip())
+    unknown = set(arms) - set(aug.ARMS)
+    if unknown or not seeds:
+        raise ValueError(f"--arms must be among {', '.join(aug.ARMS)} and --seeds not empty")
+    generated = args.out / "generated"
+    if arms != ("world",):  # the world arm alone needs no generated clips
+        shards = aug.generated_shards(args.batch, generated)
+        if len(shards) < args.m:
+            raise ValueError(f"{args.batch} has {len(shards)} scenes, fewer than --m {args.m}")
+    r = aug.augmentation(
+        args.world, generated, args.out, args.n, args.m, seeds, arms, args.steps, width=args.width, threads=args.threads
+    )
+    (args.out / "augment.json").write_text(json.dumps(r, indent=1) + "\n")
+    (args.out / "augment.md").write_text(aug.augmentation_markdown(r) + "\n")
+    print(aug.augmentation_markdown(r))
     return 0

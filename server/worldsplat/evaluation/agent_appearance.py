@@ -15,6 +15,7 @@ world's exact agent from the same camera, and an agent's asked colour against it
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -136,3 +137,76 @@ def _agent_render(world: World, agent_id: str, t: int) -> tuple[np.ndarray, np.n
     index = next(i for i, a in enumerate(world.agents) if a.agent_id == agent_id)
     cam = world.rig[0].at(world.ego_to_world[t])
     return render_views(world, t, [cam])["rgb"][0], paint_pixels(world, t, cam, index)
+
+
+def fit_table(seeds=(0, 1, 2), yaws=(0.0, 45.0, 90.0, 135.0, 180.0)) -> list[dict]:
+    """Per class: Gaussians per object, the time to make one, and IoU / colour error over seeds and headings."""
+    rows = []
+    for cls, size in DEFAULT_SIZES.items():
+        start = time.perf_counter()
+        n = len(agent_gaussians(cls, size, 0))
+        ms = 1000 * (time.perf_counter() - start)
+        runs = [fit(cls, s, y) for s in seeds for y in yaws]
+        iou, err = [r["iou"] for r in runs], [r["colour_error"] for r in runs]
+        rows.append({"class": cls, "gaussians": n, "ms": ms, "iou_mean": float(np.mean(iou)), "iou_min": min(iou)})
+        rows[-1].update(colour_error_mean=float(np.mean(err)), colour_error_max=max(err))
+    return rows
+
+
+ASKED_CASES = {
+    "car": {"kind": "lane", "s": 14.0},
+    "pedestrian": {"kind": "pose", "x": 9.0, "y": -4.0, "yaw_deg": 90.0},
+    "cyclist": {"kind": "lane", "s": 12.0, "lateral": -1.0},
+}
+
+
+def asked_table(colours=("#c81e1e", "#1e50c8", "#f0f0f0", "#202020", "#e0c020")) -> list[dict]:
+    """Per class and light: the asked colour against the world's render, worst over `colours`."""
+    rows = []
+    none = {"moving_vehicles": 0, "parked_vehicles": 0, "pedestrians": 0, "cyclists": 0}
+    for cls, start in ASKED_CASES.items():
+        for tod, weather in (("day", "clear"), ("day", "overcast"), ("dusk", "clear"), ("night", "clear")):
+            env = {"time_of_day": tod, "weather": weather}
+            runs = [
+                asked_colour_in_world(
+                    Scenario.parse(
+                        {
+                            "seed": 3,
+                            "traffic": none,
+                            "environment": env,
+                            "agents": [{"id": "x", "class": cls, "start": start, "colour": c}],
+                        }
+                    ),
+                    "x",
+                )
+                for c in colours
+            ]
+            rows.append(
+                {
+                    "class": cls,
+                    "light": f"{tod} {weather}",
+                    "pixels": min(r["pixels"] for r in runs),
+                    "lit_error_max": max(r["lit_error"] for r in runs),
+                    "error_max": max(r["error"] for r in runs),
+                }
+            )
+    return rows
+
+
+def main() -> None:
+    print("| class | Gaussians | ms | IoU mean | IoU min | colour error mean | max |")
+    print("|---|---|---|---|---|---|---|")
+    for r in fit_table():
+        print(
+            f"| {r['class']} | {r['gaussians']} | {r['ms']:.0f} | {r['iou_mean']:.3f} | {r['iou_min']:.3f} | "
+            f"{r['colour_error_mean']:.3f} | {r['colour_error_max']:.3f} |"
+        )
+    print()
+    print("| class | light | paint pixels (min) | lit mean vs asked (max) | shown vs asked (max) |")
+    print("|---|---|---|---|---|")
+    for r in asked_table():
+        print(f"| {r['class']} | {r['light']} | {r['pixels']} | {r['lit_error_max']:.3f} | {r['error_max']:.3f} |")
+
+
+if __name__ == "__main__":
+    main()

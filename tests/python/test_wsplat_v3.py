@@ -138,3 +138,23 @@ def test_v3_a_stream_cut_inside_a_pose_chunk_is_incomplete_not_wrong():
     with pytest.raises(WsplatError) as e:
         dec.finish()
     assert e.value.kind == "truncated"
+
+
+@pytest.mark.parametrize("ext", [".ply", ".splat", ".wsplat"])
+def test_exports_bake_the_objects_per_frame(tmp_path, ext):
+    """PLY, .splat, .wsplat (and glTF, SPZ, SOG through the same frame path) write each frame with its objects posed
+    (`Scene4D.at_frame`), the one-frame .wsplat without object records."""
+    from worldsplat.gaussians import formats
+
+    scene = v3_scene(np.random.default_rng(12))
+    rows = formats.export_scene(scene, tmp_path / f"s{ext}", frames="all")
+    for t, (path, n, _) in enumerate(rows):
+        assert n == len(scene.at_frame(t))  # every Gaussian of the posed frame
+        if ext == ".wsplat":
+            one = wsplat.read(path)
+            assert not one.objects and len(one.static) == n
+        else:
+            g, _ = formats.read_gaussians(path)
+            got = np.sort(g.numpy()["means"][:, 0])
+            want = np.sort(scene.at_frame(t).numpy()["means"][:, 0])
+            assert len(got) == len(want) and np.abs(got - want).max() < 1e-3

@@ -102,12 +102,14 @@ def frame_path(out: Path, t: int) -> Path:
 
 def frame_scene(scene: Scene4D, t: int, static_only: bool = False) -> Scene4D:
     """Frame t as a one-frame scene: its Gaussians (static + that frame's dynamics, or the static base alone) all
-    static, in importance order (as .wsplat chunks want), at the frame's time and ego pose."""
+    static, in importance order (as .wsplat chunks want), at the frame's time and ego pose. Agent objects are posed
+    into it (`at_frame` bakes them), so the one-frame scene carries none."""
     g = scene.static if static_only else scene.at_frame(t)
     return dataclasses.replace(
         scene,
         static=importance_order(g),
         dynamic=[Gaussians.empty()],
+        objects=[],
         frame_times=scene.frame_times[t : t + 1],
         ego_to_world=scene.ego_to_world[t : t + 1],
     )

@@ -26,6 +26,7 @@ SECTIONS: dict[str, str] = {
     "stages": "stages",  # the paper's efficiency table for the small config
     "resolution": "resolution",  # model image size vs error ceiling vs time per window
     "downstream": "downstream",  # the judge's mIoU on each served mode vs exact labels
+    "scene_quality": "scene_quality",  # served scene vs exact images: density, PSNR, SSIM, agents seen, silhouettes
 }
 
 

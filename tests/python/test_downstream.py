@@ -10,7 +10,7 @@ import torch
 
 from worldsplat.evaluation import downstream
 from worldsplat.training.judge import augment, class_weights, judge_step_fn
-from worldsplat.world.classes import BUILDING, CAR, CLASS_NAMES, ROAD, SKY
+from worldsplat.world.classes import BUILDING, CAR, CLASS_NAMES, ROAD, SKY, VEHICLE_CLASSES
 from worldsplat_models.judge import Judge, JudgeConfig, features, load_judge, num_params, save_judge, segment
 from worldsplat_models.weights import weights_dir
 
@@ -129,3 +129,136 @@ def test_ordering_ground_truth_oracle_generate_on_the_shipped_judge():
     assert gt >= oracle - 0.02, (gt, oracle)
     assert oracle >= gen + 0.05, (oracle, gen)
     print(f"judge mIoU: ground truth {gt:.3f}, oracle {oracle:.3f}, generate {gen:.3f}")
+
+
+def test_bev_scores_of_a_known_case():
+    targets = np.zeros((1, 2, 4, 4), np.uint8)
+    targets[0, 0, :2] = 1  # drivable: the top half (8 cells)
+    logits = np.full((1, 2, 4, 4), -1.0)
+    logits[0, 0, :3] = 1.0  # 12 predicted: 8 right, 4 wrong
+    counts = downstream.bev_confusion(logits, targets)
+    assert counts.tolist() == [[8, 4, 0], [0, 0, 0]]
+    s = downstream.bev_summary(counts, ("drivable", "vehicle"))
+    # a layer in neither prediction nor target has no IoU and is left out of the mean
+    assert s["bev_iou"] == {"drivable": pytest.approx(8 / 12), "vehicle": None} and s["bev_miou"] == pytest.approx(
+        2 / 3
+    )
+    with pytest.raises(ValueError, match="differ in size"):
+        downstream.bev_confusion(logits[:, :1], targets)
+
+
+def _bev_cfg():
+    from worldsplat.world import build_world
+    from worldsplat.world.dataset import clip_scenario
+    from worldsplat_models.judge_bev import rig_config
+
+    world = build_world(clip_scenario("test", 0, frames=1))
+    return world, rig_config(world.rig, (112, 64), in_channels=1, heights=(0.0,))
+
+
+def test_bev_lift_puts_a_camera_pixel_on_the_ground_where_the_rig_sees_it():
+    """A cell 10 m ahead on the ground projects into CAM_FRONT's centre columns, below the horizon; a mark
+    there in the front camera's map lands in that cell's BEV neighbourhood, in front of the ego, and nowhere else."""
+    from worldsplat_models.judge_bev import JudgeBev, cell_centres, sampling_grid
+
+    world, cfg = _bev_cfg()
+    front = [c.name for c in world.rig].index("CAM_FRONT")
+    X, Y = cell_centres(cfg)
+    i, j = int(np.argmin(np.abs(X[:, 0] - 10.25))), int(np.argmin(np.abs(Y[0] - 0.25)))
+    grid, valid = sampling_grid(cfg)
+    u, v = (grid[front, 0, i, j].numpy() + 1) / 2 * np.array(cfg.image)
+    # the cell's centre is 0.25 m left of the axis: a few pixels left of the centre column
+    assert bool(valid[front, 0, i, j]) and cfg.image[0] / 2 - 4 < u < cfg.image[0] / 2
+    assert cfg.image[1] / 2 < v < cfg.image[1]
+    assert not bool(valid[front, 0, -1, j])  # 24 m behind the ego: not in the front camera
+    maps = torch.zeros(1, len(world.rig), 1, 64, 112)
+    maps[0, front, 0, int(v) - 1 : int(v) + 2, int(u) - 1 : int(u) + 2] = 1.0
+    lifted = JudgeBev(cfg).lift(maps)[0, 0]
+    assert lifted[i, j] > 0
+    hit_x = X[lifted.numpy() > 0]
+    assert hit_x.min() > 5 and hit_x.max() < 20, hit_x
+
+
+def test_bev_targets_are_the_world_raster_on_the_heads_grid():
+    from worldsplat.training.judge_bev import bev_targets
+
+    world, cfg = _bev_cfg()
+    t = bev_targets(world, 0.0, cfg)
+    assert t.shape == (1, 2, 96, 64) and t.dtype == np.uint8
+    drivable, vehicle = t[0, 0], t[0, 1]
+    # the ego stands on the road (the cells around the grid's centre), and every vehicle's footprint centre inside
+    # the grid is a vehicle cell: row from x forward (row 0 farthest ahead), column from y left (column 0 leftmost)
+    assert drivable[46:50, 30:34].all() and not vehicle[46:50, 30:34].any()
+    inv = np.linalg.inv(world.ego_to_world[0])
+    seen = 0
+    for a in world.agents:
+        x, y = (inv @ [*a.poses[0][:2], 0.0, 1.0])[:2]
+        if a.cls in VEHICLE_CLASSES and abs(x) < 23 and abs(y) < 15:
+            assert vehicle[int((24 - x) / 0.5), int((16 - y) / 0.5)] == 1, (x, y)
+            seen += 1
+    assert seen > 0
+    # the track shifted 4 m left sees the road 4 m further right
+    moved = bev_targets(world, 4.0, cfg)[0, 0]
+    assert moved[:, 40:].mean() > drivable[:, 40:].mean()
+
+
+def test_clip_features_average_frames_and_measure_their_change():
+    from worldsplat.evaluation.downstream_ablation import clip_features
+
+    f = np.arange(2 * 3 * 2, dtype=np.float64).reshape(2 * 3, 2)  # 2 frames x 3 cameras, frame-major
+    c = clip_features(f, frames=2, views=3)
+    assert c.shape == (3, 4)
+    # camera 0: frames (0, 1) and (6, 7): mean (3, 4), mean absolute change (6, 6)
+    assert c[0].tolist() == [3.0, 4.0, 6.0, 6.0]
+    assert np.all(clip_features(f[:3], frames=1, views=3)[:, 2:] == 0)
+
+
+def _shards(folder, clips: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True)
+    for i in range(clips):
+        semantic = np.zeros((1, 2, 64, 112), np.uint8)
+        semantic[..., 32:, :] = ROAD
+        semantic[..., :32, :] = SKY
+        rgb = np.where(semantic[..., None] == ROAD, 80, 190).astype(np.uint8).repeat(3, -1)
+        rgb = (rgb + rng.integers(0, 30, rgb.shape)).astype(np.uint8)
+        np.savez(folder / f"clip_{i:06d}.npz", rgb=rgb, semantic=semantic)
+
+
+def test_augmentation_trains_each_arm_per_seed_and_reports_the_gain(tmp_path):
+    from worldsplat.evaluation.downstream_augment import augmentation, augmentation_markdown
+
+    _shards(tmp_path / "world" / "train", 3, 0)
+    _shards(tmp_path / "world" / "test", 1, 1)
+    _shards(tmp_path / "gen" / "train", 2, 2)
+    r = augmentation(
+        tmp_path / "world",
+        tmp_path / "gen",
+        tmp_path / "out",
+        n=2,
+        m=2,
+        seeds=(0, 1),
+        steps=3,
+        batch=2,
+        width=8,
+        progress=False,
+    )
+    t = r["table"]
+    assert [t[a]["train_images"] for a in ("world", "world+generated", "generated")] == [4, 8, 4]
+    gain = np.array(t["world+generated"]["miou"]) - np.array(t["world"]["miou"])
+    assert r["gain"]["per_seed"] == pytest.approx(gain.tolist()) and len(t["world"]["miou"]) == 2
+    assert "Gain of world+generated over world" in augmentation_markdown(r)
+    # a second call finds every run done (its held-out figure) and trains nothing
+    again = augmentation(
+        tmp_path / "world",
+        tmp_path / "gen",
+        tmp_path / "out",
+        n=2,
+        m=2,
+        seeds=(0, 1),
+        steps=3,
+        batch=2,
+        width=8,
+        progress=False,
+    )
+    assert again["table"] == r["table"]

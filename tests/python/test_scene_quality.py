@@ -206,3 +206,18 @@ def test_summary_pools_agents_and_weights_silhouettes():
     assert s["agents_seen_share"] == pytest.approx(0.4)
     assert s["silhouette_iou"] == pytest.approx((0.9 * 3 + 0.4) / 4)
     assert "| oracle |" in sq.table({"oracle": s})
+
+
+def test_the_exported_files_measure_like_the_scene(small_oracle):
+    """PLY keeps the Gaussians (float32): the same figures; the served .wsplat quantises: within a fraction of a dB."""
+    world, scene = small_oracle
+    a = sq.measure_scene(world, scene)
+    p = sq.measure_scene(world, sq.on_the_wire(scene, "ply"))
+    assert p["gaussians_frame0"] == a["gaussians_frame0"]
+    assert p["static_psnr_db"] == pytest.approx(a["static_psnr_db"], abs=0.05)
+    assert p["agents_seen"] == a["agents_seen"]
+    w = sq.measure_scene(world, sq.on_the_wire(scene, "wsplat"))
+    assert w["static_psnr_db"] == pytest.approx(a["static_psnr_db"], abs=1.0)
+    assert abs(w["agents_seen"] - a["agents_seen"]) <= 1
+    with pytest.raises(ValueError):
+        sq.on_the_wire(scene, "jpeg")

@@ -23,12 +23,16 @@ renderer) at every rig camera on a canvas SCALE x the served image per side, aga
 - silhouette IoU: every frame (or `--iou-frames`), each such agent's rendered channel >= 0.5 against its exact
   instance mask, pooled over the cameras; the mean over (agent, frame).
 - scene seconds: wall time of `generate_scene` (models loaded before; the first window's caption encoder warm).
+
+`--wire wsplat` measures the scene after the bytes the playground sends (.wsplat, `wsplat.SERVED_VERSION`, quantised),
+`--wire ply` after each frame's exported PLY: the same figures through the files another renderer would read.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +44,7 @@ import torch.nn.functional as F
 from worldsplat.core.camera import Camera, rigid_inverse, yaw_pose
 from worldsplat.core.metrics import psnr, ssim_map
 from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians import ply, wsplat
 from worldsplat.gaussians.raster import rasterize
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.pipeline.scene import ALL_MODES, generate_scene, preload
@@ -264,17 +269,39 @@ def measure_scene(world, scene: Scene4D, iou_frames: list[int] | None = None, sc
     }
 
 
+WIRES = ("scene", "wsplat", "ply")
+
+
+def on_the_wire(scene: Scene4D, wire: str) -> Scene4D:
+    """The scene as built ("scene"), or read back from the served .wsplat bytes or from each frame's PLY file."""
+    if wire == "scene":
+        return scene
+    flat = scene.baked()
+    if wire == "wsplat":
+        return wsplat.decode(wsplat.encode(flat, version=wsplat.SERVED_VERSION))
+    if wire != "ply":
+        raise ValueError(f"wire must be one of {', '.join(WIRES)}, got {wire!r}")
+    with tempfile.TemporaryDirectory() as d:
+        frames = [ply.read_ply(ply.write_ply(flat.at_frame(t), Path(d) / f"{t}.ply")) for t in range(flat.num_frames)]
+    return Scene4D(Gaussians.empty(), frames, flat.frame_times, flat.rig, flat.ego_to_world, dict(flat.meta))
+
+
 def measure(
-    spec: str, mode: str, iou_frames: list[int] | None = None, scale: int = SCALE, served: dict = SERVED
+    spec: str,
+    mode: str,
+    iou_frames: list[int] | None = None,
+    scale: int = SCALE,
+    served: dict = SERVED,
+    wire: str = "scene",
 ) -> dict:
-    """Build the served scene of one scenario in one mode (timed) and measure it."""
+    """Build the served scene of one scenario in one mode (timed) and measure it (as built, or read back from `wire`)."""
     sc = scenario_of(spec, served)
     preload(mode)
     t0 = time.perf_counter()
     scene = generate_scene(sc, mode=mode)
     secs = time.perf_counter() - t0
-    row = {"scenario": spec, "mode": mode, "scene_s": secs}
-    row.update(measure_scene(build_world(sc), scene, iou_frames, scale))
+    row = {"scenario": spec, "mode": mode, "wire": wire, "scene_s": secs}
+    row.update(measure_scene(build_world(sc), on_the_wire(scene, wire), iou_frames, scale))
     return row
 
 
@@ -327,6 +354,7 @@ def main(argv=None) -> int:
     p.add_argument("--scenarios", default=DEFAULT_SCENARIOS, help="comma-separated test:INDEX or preset:NAME")
     p.add_argument("--iou-frames", default="all", help="frames of the silhouette IoU: all, or e.g. 0,4")
     p.add_argument("--scale", type=int, default=SCALE, help="canvas per side relative to the served image")
+    p.add_argument("--wire", default="scene", choices=WIRES, help="measure the scene as built or read back from a file")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=None, help="write every row and the summary here (JSON)")
     a = p.parse_args(argv)
@@ -335,7 +363,7 @@ def main(argv=None) -> int:
     rows = []
     for mode in a.modes.split(","):
         for spec in a.scenarios.split(","):
-            r = measure(spec, mode, frames, a.scale)
+            r = measure(spec, mode, frames, a.scale, wire=a.wire)
             rows.append(r)
             print(json.dumps({k: v for k, v in r.items() if k != "agents"}), flush=True)
     summ = summary(rows)

@@ -158,3 +158,16 @@ def test_exports_bake_the_objects_per_frame(tmp_path, ext):
             got = np.sort(g.numpy()["means"][:, 0])
             want = np.sort(scene.at_frame(t).numpy()["means"][:, 0])
             assert len(got) == len(want) and np.abs(got - want).max() < 1e-3
+
+
+def test_pose_bytes_per_agent_per_frame_within_the_target():
+    """Streamed as the server streams (a 1-frame window, then windows of 4): the POSE chunks cost <= 32 B per agent
+    per frame (16 B a pose, a present bit, 24 B per window's chunk); the baked v2 file pays for every Gaussian."""
+    from worldsplat.gaussians.wsplat.objects_bytes import measure
+
+    scene = v3_scene(np.random.default_rng(13))
+    r = measure(scene, window=4, first=1)
+    assert r["windows"] == 2 and r["v3"]["POSE"] == 2 * 24 + 4 * 1 + 16 * r["present_agent_frames"]
+    assert r["v3_pose_B_per_agent_frame"] <= 32
+    # the agents' share of v2's DYNA chunks (the scene's other dynamics and residuals are DYNA in both)
+    assert r["v2_baked"]["DYNA"] - r["v3"]["DYNA"] > 20 * r["v3"]["POSE"]

@@ -24,6 +24,7 @@ from worldsplat.core.scenario import Scenario
 from worldsplat.gaussians.agent_appearance import agent_gaussians, object_parts
 from worldsplat.gaussians.raster import render_view
 from worldsplat.gaussians.types import transform
+from worldsplat.world.agents import place_parts
 from worldsplat.world.colours import hex_rgb
 from worldsplat.world.layout import World, build_world
 from worldsplat.world.lighting import make_lighting
@@ -56,15 +57,6 @@ def colour_distance(a, b) -> float:
     return float(np.linalg.norm(np.asarray(a, np.float64) - np.asarray(b, np.float64)) / math.sqrt(3))
 
 
-def _placed(prims: Prims, pose: np.ndarray) -> Prims:
-    """Footprint-frame parts moved to a world pose (x, y, yaw on the ground)."""
-    x, y, yaw = pose
-    c, s = math.cos(yaw), math.sin(yaw)
-    lx, ly, lz = prims.center.T
-    center = np.stack([x + c * lx - s * ly, y + s * lx + c * ly, lz], -1)
-    return Prims(center, prims.yaw + yaw, *(getattr(prims, f) for f in list(Prims.__dataclass_fields__)[2:]))
-
-
 def world_albedo_view(prims: Prims, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     """The world's exact parts seen by a camera, unlit: (H,W) mask of their pixels and (H,W,3) albedo + emission."""
     hits, o, d = trace(cam, prims)
@@ -83,7 +75,7 @@ def fit(cls: str, seed: int, yaw_deg: float, size=None, colour=None, scale: int 
     size = size or DEFAULT_SIZES[cls]
     cam = front_camera(scale)
     pose = np.array([1.7 + DISTANCE[cls], 0.0, math.radians(yaw_deg)])  # ahead of the camera (1.7 m before the axle)
-    mask, albedo = world_albedo_view(_placed(object_parts(cls, size, seed, colour), pose), cam)
+    mask, albedo = world_albedo_view(place_parts(object_parts(cls, size, seed, colour), pose[None]), cam)
     box_to_world = yaw_pose(pose[0], pose[1], size[2] / 2, pose[2])
     view = render_view(transform(agent_gaussians(cls, size, seed, colour), box_to_world), cam)
     gmask = view.alpha >= 0.5

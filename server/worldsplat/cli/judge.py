@@ -231,5 +231,6 @@ def run_augment(args: argparse.Namespace) -> int:
     )
     (args.out / "augment.json").write_text(json.dumps(r, indent=1) + "\n")
     (args.out / "augment.md").write_text(aug.augmentation_markdown(r) + "\n")
+    aug.plot_augmentation(r, args.out / "augment.png")
     print(aug.augmentation_markdown(r))
     return 0

@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 from tqdm import tqdm
 
 from worldsplat.core.paths import runs_dir
@@ -33,6 +34,7 @@ from worldsplat.evaluation.nvs import load_enhancers, prepare_samples, run_versi
 from worldsplat.pipeline.inference import load_models
 from worldsplat.training.pairs import load_sample, sample_scenario, split_seeds
 from worldsplat.world import build_world, simulate
+from worldsplat.world.classes import PALETTE
 from worldsplat_models import conditions as caption_encoder
 from worldsplat_models.enhancer import enhance
 from worldsplat_models.judge import Judge, features, segment
@@ -94,6 +96,7 @@ def judge_ablation(
     frame_f = {r: {s: [] for s in shifts} for r in rows}
     clip_f = {r: {s: [] for s in shifts} for r in rows}
     conf = {r: np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64) for r in rows}
+    examples: dict[str, np.ndarray] = {}
     seeds = split_seeds(split, count)
     for seed in tqdm(seeds, desc="judge ablation", unit="clip", disable=not progress):
         world = build_world(sample_scenario(seed))
@@ -103,6 +106,9 @@ def judge_ablation(
             frames = {EXACT: sample["target"], **version_frames(models, sample, cap, steps, seed)}
             labels = simulate(world, s).semantic
             T, V = labels.shape[:2]
+            if not examples:  # the first sample's CAM_FRONT at its second frame: the figure
+                examples = {r: f[min(1, T - 1), 0] for r, f in frames.items() if r in rows}
+                examples["labels"] = labels[min(1, T - 1), 0]
             for r in rows:
                 if r not in frames:
                     continue
@@ -142,7 +148,22 @@ def judge_ablation(
         "floor": {"frame": _floor(ex_frames), "clip": _floor(ex_clips)},
         "wall_s": round(time.time() - t0, 1),
         "weights": getattr(judge, "meta", {}).get("provenance", {}),
+        "examples": examples,
+        "example_labels": {r: segment(judge, v) for r, v in examples.items() if r != "labels"},
     }
+
+
+def example_figure(examples: dict, example_labels: dict) -> np.ndarray:
+    """One view per version (columns: the exact view first), its image above the judge's labels of it, the exact
+    labels at the end of the lower row; uint8."""
+    names = [r for r in (EXACT, *VERSIONS) if r in examples]
+    gap = np.full((examples[EXACT].shape[0], 2, 3), 255, np.uint8)
+    top = [x for r in names for x in (examples[r], gap)]
+    bottom = [x for r in names for x in (PALETTE[example_labels[r]], gap)]
+    top += [np.zeros_like(examples[EXACT])]
+    bottom += [PALETTE[examples["labels"]]]
+    upper, lower = np.concatenate(top, 1), np.concatenate(bottom, 1)
+    return np.concatenate([upper, np.full((2, upper.shape[1], 3), 255, np.uint8), lower], 0)
 
 
 def _f(v) -> str:
@@ -176,8 +197,40 @@ def ablation_markdown(r: dict) -> str:
     return "\n".join(lines)
 
 
+def plot_ablation(r: dict, path: Path) -> Path:
+    import matplotlib  # noqa: PLC0415 - matplotlib, only for plots
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - matplotlib, only for plots
+
+    names = r["versions"]
+    x = np.arange(len(names))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.4))
+    a.bar(x - 0.2, [r["table"][v]["frame_fd"]["all"] for v in names], 0.4, label="per frame")
+    a.bar(x + 0.2, [r["table"][v]["clip_fd"]["all"] for v in names], 0.4, label="per camera sequence (clip)")
+    a.axhline(r["floor"]["frame"] or 0, color="k", lw=0.8, ls="--", label="floor, frame")
+    a.set_ylabel("judge Fréchet distance to the exact views")
+    b.bar(x, [r["table"][v]["miou"] for v in names], 0.6, color="#aa7744")
+    b.axhline(r["table"][EXACT]["miou"], color="k", lw=0.8, ls="--", label="exact views")
+    b.set_ylabel("judge mIoU vs exact labels")
+    for ax in (a, b):
+        ax.set_xticks(x, names, rotation=45, ha="right", fontsize=8)
+        ax.grid(alpha=0.3, axis="y")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"novel-view ablation at {', '.join(f'{s:+g}' for s in r['shifts'])} m, {len(r['seeds'])} clips")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def write_ablation(r: dict, out: Path) -> None:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "ablation.json").write_text(json.dumps(r, indent=1) + "\n")
+    keep = {k: v for k, v in r.items() if k not in ("examples", "example_labels")}
+    (out / "ablation.json").write_text(json.dumps(keep, indent=1) + "\n")
     (out / "ablation.md").write_text(ablation_markdown(r) + "\n")
+    plot_ablation(r, out / "ablation.png")
+    if r.get("examples"):
+        fig = example_figure(r["examples"], r["example_labels"])
+        Image.fromarray(fig.repeat(2, 0).repeat(2, 1)).save(out / "ablation_examples.png")

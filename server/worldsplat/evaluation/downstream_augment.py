@@ -153,3 +153,27 @@ def augmentation_markdown(r: dict) -> str:
         per = ", ".join(f"{v:+.3f}" for v in g["per_seed"])
         lines += ["", f"Gain of world+generated over world: {g['mean']:+.3f} (std {sd(g['std'])}; per seed {per})."]
     return "\n".join(lines)
+
+
+def plot_augmentation(r: dict, path: Path) -> Path:
+    """Held-out world mIoU per training set: each seed a dot, the mean a bar with the standard deviation."""
+    import matplotlib  # noqa: PLC0415 - matplotlib, only for plots
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - matplotlib, only for plots
+
+    arms = list(r["table"])
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for i, arm in enumerate(arms):
+        t = r["table"][arm]
+        ax.bar(i, t["mean"], 0.6, yerr=t["std"] or 0, capsize=4, color="#88aacc")
+        ax.plot([i] * len(t["miou"]), t["miou"], "o", color="k", ms=3)
+    labels = [f"{a}\n({r['table'][a]['train_images']} images)" for a in arms]
+    ax.set_xticks(range(len(arms)), labels, fontsize=8)
+    ax.set_ylabel("judge mIoU, held-out world clips")
+    ax.set_title(f"N = {r['n']} world clips, M = {r['m']} generated clips", fontsize=9)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

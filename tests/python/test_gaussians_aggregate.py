@@ -209,7 +209,8 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
     """A small version of `python -m worldsplat.gaussians.economy` (web/docs/gaussians.md; the 0.2 dB bar is
     measured there on 8 frames): on views that see sky, the economy stays within 0.2 dB of the naive union on ALL
     pixels of the exact ground truth at a shifted track, and the sky is rendered (a black sky scores ~4 dB).
-    Kept: <= 20 % of V*T*H*W already at 3 frames (more frames repeat more), the sky a small part of it."""
+    Kept: <= 50 % of V*T*H*W at 3 frames (each surface's finest pixel grid once, unmerged: 46 % measured; 23 % at
+    8 frames), the sky a small part of it."""
     from scipy import ndimage
 
     from worldsplat.core.metrics import psnr
@@ -224,7 +225,7 @@ def test_economy_models_the_sky_and_holds_psnr_on_all_pixels():
     args = (clip.frame_times, clip.rig, clip.ego_to_world)
     naive, _ = aggregate_4d(per_view, *args, economy=Economy(enabled=False), image_size=(H, W))
     eco, st = aggregate_4d(per_view, *args, economy=Economy(), image_size=(H, W))
-    assert 0 < st.sky_kept < 0.1 * st.kept and st.kept <= 0.2 * st.naive
+    assert 0 < st.sky_kept < 0.1 * st.kept and st.kept <= 0.5 * st.naive
     views = [0, 3]  # CAM_FRONT, CAM_BACK: both see sky
     gt = simulate(world, shift_m=-2.0, frames=[1], cameras=[clip.rig[v].name for v in views])
     d_all = []
@@ -249,11 +250,14 @@ def test_window_by_window_keeps_the_cells_of_one_union_and_never_changes_a_sent_
     rig = default_rig(32, 18, ("CAM_FRONT", "CAM_BACK"))
     per_view = _views(T, V, 400, 3, dynamic_frac=0.2)
     ego = np.stack([yaw_pose(t, 0, 0, 0) for t in range(T)])
-    whole, st = aggregate_4d(per_view, np.arange(T) * 0.1, rig, ego, image_size=(18, 32))
-    one = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32))
+    # the cells of the merge rule (decoded Gaussians of the learned modes; the oracle's sky shell); random points
+    # are no pixel grid for the finest rule (tested below on lifted views)
+    eco = Economy(static_rule="merge")
+    whole, st = aggregate_4d(per_view, np.arange(T) * 0.1, rig, ego, image_size=(18, 32), economy=eco)
+    one = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32), economy=eco)
     s1, d1 = one.add(list(range(T)), per_view)  # one window of every frame is aggregate_4d
     assert torch.equal(s1.means, whole.static.means) and one.stats.as_dict() == st.as_dict()
-    agg = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32))
+    agg = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32), economy=eco)
     a_static, a_dyn = agg.add([0, 1], per_view[:2])
     first = a_static.means.clone()
     b_static, b_dyn = agg.add([2, 3], per_view[2:])
@@ -269,7 +273,9 @@ def test_window_by_window_keeps_the_cells_of_one_union_and_never_changes_a_sent_
     from worldsplat.gaussians.aggregate import aggregate_windows, windows
 
     assert windows(T, 2) == [[0, 1], [2, 3]] and windows(5, 2) == [[0, 1], [2, 3], [4]]
-    via, vst = aggregate_windows(per_view, np.arange(T) * 0.1, rig, ego, windows(T, 2), image_size=(18, 32))
+    via, vst = aggregate_windows(
+        per_view, np.arange(T) * 0.1, rig, ego, windows(T, 2), image_size=(18, 32), economy=eco
+    )
     assert torch.equal(via.static.means, scene.static.means) and vst.as_dict() == agg.stats.as_dict()
     assert all(torch.equal(via.dynamic[t].means, scene.dynamic[t].means) for t in range(T))
 
@@ -282,3 +288,78 @@ def test_economy_command_window_settings_are_checked():
     for bad in ("all:2", "0", "4:1", ""):
         with pytest.raises(ValueError, match="--windows"):
             parse_windows(bad)
+
+
+def _wall(cam, depth, dynamic=None, seed=0):
+    """A view of a textured wall at camera z `depth`, lifted (no sky)."""
+    rng = np.random.default_rng(seed)
+    rgb = rng.integers(0, 256, (cam.height, cam.width, 3), dtype=np.uint8)
+    return lift(rgb, np.full((cam.height, cam.width), depth), dynamic, cam)
+
+
+def test_finest_observation_supersedes_coarser_copies_and_keeps_what_it_cannot_see():
+    """Two views of one wall: B from half the distance (half the footprint) sees the middle of what A sees. A's
+    observations B sees are dropped; A's outside B's image, and behind a moving agent in B's view (B's static set has
+    no surface there), stay; B keeps all of its own. Views at equal footprint keep each place once."""
+    from worldsplat.core.camera import translation
+    from worldsplat.gaussians.aggregate import finest_observations, split_dynamic
+
+    a = Camera(64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4))
+    b = Camera(64, 48, 50.0, 50.0, 32.0, 24.0, translation(0, 0, -5.0))  # 5 m nearer the wall at z = 10
+    agent = np.zeros((48, 64), bool)
+    agent[20:30, 40:50] = True  # wall x 0.8..1.8 m, y -0.4..0.6 m hidden from B by a moving agent
+    ga = _wall(a, 10.0, seed=1)
+    gb, _ = split_dynamic(_wall(b, 5.0, agent, seed=2))
+    pa, pb = (g.means.double().numpy() for g in (ga, gb))
+    (ka, kb), _ = finest_observations([pa, pb], [a, b], [])
+    assert kb.all()
+    x, y = pa[:, 0], pa[:, 1]
+    inside_b = (np.abs(x) < 3.0) & (np.abs(y) < 2.2)
+    behind_agent = (x > 0.86) & (x < 1.74) & (y > -0.34) & (y < 0.54)
+    outside_b = (np.abs(x) > 3.4) | (np.abs(y) > 2.6)
+    assert not ka[inside_b & ~behind_agent].any()
+    assert ka[outside_b].all() and ka[behind_agent].all()
+    # equal footprints (the same view twice, e.g. overlapping cameras at one distance): each place kept once
+    (k1, k2), _ = finest_observations([pa, pa.copy()], [a, a], [])
+    assert k1.all() and not k2.any()
+    # an earlier window's view that saw the wall: with `finer` = inf the later window adds nothing there, with 1.5
+    # it adds only what it sees at least 1.5x finer (B: 2x)
+    _, (va, _) = finest_observations([pa, pb], [a, b], [])
+    (kb_inf,), _ = finest_observations([pb], [b], [va])
+    (kb_15,), _ = finest_observations([pb], [b], [va], finer=1.5)
+    (ka_15,), _ = finest_observations([pa], [a], [va], finer=1.5)
+    assert not kb_inf.any() and kb_15.all() and not ka_15.any()
+
+
+@pytest.mark.slow
+def test_served_frame_renders_within_1db_of_its_own_lifting():
+    """Frame 0 of the oracle scene, window by window as served, against frame 0's own lifting (its six views and
+    nothing else), rendered at 2x the lifted image against the world's exact images there, static pixels: the finest
+    rule is within 1 dB (the window's other frames fill what frame 0 cannot see), the merge rule (every observation
+    of a cell averaged) more than 1 dB below (`python -m worldsplat.gaussians.economy --own`; gaussians.md)."""
+    from worldsplat.core.metrics import psnr
+    from worldsplat.core.scenario import load_preset
+    from worldsplat.gaussians.aggregate import aggregate_windows, windows
+    from worldsplat.gaussians.economy import lift_clip, static_mask
+    from worldsplat.world import build_world, simulate
+
+    sc = load_preset("urban_straight").with_updates(clip={"frames": 4}, image={"width": 100, "height": 56})
+    world = build_world(sc)
+    clip = simulate(world)
+    per_view = lift_clip(clip)
+    args = (clip.frame_times, clip.rig, clip.ego_to_world, windows(4, 4))
+    big = build_world(sc.with_updates(image={"width": 200, "height": 112}))
+    views = [0, 1, 3]  # CAM_FRONT, CAM_FRONT_LEFT, CAM_BACK
+    gt = simulate(big, frames=[0], cameras=[big.rig[v].name for v in views])
+    own = Gaussians.cat(per_view[0])
+    score = {}
+    for rule in ("finest", "merge"):
+        scene, _ = aggregate_windows(per_view, *args, economy=Economy(static_rule=rule), image_size=(56, 100))
+        for name, g in ((rule, scene.at_frame(0)), ("own", own)):
+            vals = []
+            for i, v in enumerate(views):
+                img = render_view(g, big.rig[v].at(clip.ego_to_world[0])).rgb
+                vals.append(psnr(img, gt.rgb[0, i], static_mask(gt.depth[0, i], gt.dynamic[0, i])))
+            score[name] = float(np.mean(vals))
+    assert score["finest"] >= score["own"] - 1.0, score
+    assert score["merge"] < score["own"] - 1.0, score

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from worldsplat.core.camera import RigCamera
+from worldsplat.core.camera import Camera, RigCamera
 from worldsplat.gaussians import constants as C
 from worldsplat.gaussians.lift import SKY_CHANNEL
 from worldsplat.gaussians.types import Gaussians, Scene4D, transform
@@ -64,6 +64,10 @@ class Economy:
     dynamic_cover: float = DYNAMIC_COVER
     opacity_merge: str = "mean"  # merged opacity: "mean" of the members or "union" 1 - prod(1 - o)
     static_budget: int | None = None  # cap on static Gaussians (most important kept)
+    # Static surfaces: "finest" keeps, for each surface place, the observations of the one frame-view that sees it
+    # finest, unmerged (`finest_observations`); "merge" averages every observation in its cell (the sky shell
+    # always merges in its cells). Decoded Gaussians (learned modes) merge: see `for_decoded`.
+    static_rule: str = "finest"
     dynamic_budget: int | None = None  # cap per frame
 
     @staticmethod
@@ -73,7 +77,7 @@ class Economy:
         keep the default cells."""
         if not (math.isfinite(model_px) and model_px > 0):
             raise ValueError(f"Economy.for_decoded: model_px must be a finite number > 0, got {model_px}")
-        return Economy(cell_factor=DECODED_CELL_MODEL_PX * model_px)
+        return Economy(cell_factor=DECODED_CELL_MODEL_PX * model_px, static_rule="merge")
 
 
 @dataclass
@@ -154,10 +158,12 @@ def merged_variance(total_var: np.ndarray, cover: float = 0.0) -> np.ndarray:
     return 12.0 * cover**2 * (total_var / 2.0)
 
 
-def _kept_rows(g: Gaussians, eco: Economy, camera_centres: np.ndarray, stats: AggregateStats):
+def _kept_rows(g: Gaussians, eco: Economy, camera_centres: np.ndarray, stats: AggregateStats, single: np.ndarray):
     """The rows `economize` works on, as float64 numpy: finite, opaque enough and (sky aside) within range of a
-    camera; with each row's distance to the nearest camera and its sky flag. Counts what it drops in `stats`."""
+    camera; with each row's distance to the nearest camera, its sky flag and its `single` flag (kept unmerged).
+    Counts what it drops in `stats`."""
     a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
+    a["single"] = np.asarray(single, np.float64)
     keep = _finite_rows(a)
     a["opacities"] = np.clip(np.nan_to_num(a["opacities"]), 0, 1)
     transparent = keep & (a["opacities"] < max(eco.min_opacity, C.ALPHA_MIN))
@@ -172,7 +178,8 @@ def _kept_rows(g: Gaussians, eco: Economy, camera_centres: np.ndarray, stats: Ag
     dist = nearest_distance(a["means"], camera_centres)
     far = (dist > eco.max_range) & ~sky
     stats.dropped_range += int(far.sum())
-    return {k: v[~far] for k, v in a.items()}, dist[~far], sky[~far]
+    a = {k: v[~far] for k, v in a.items()}
+    return a, dist[~far], sky[~far], a.pop("single") > 0.5
 
 
 def economize(
@@ -185,6 +192,7 @@ def economize(
     cell_factor: float | None = None,
     cover: float = 0.0,
     emitted: CellTable | None = None,
+    single: np.ndarray | None = None,
 ) -> Gaussians:
     """Drop, merge, order by importance, cap (see the module docstring). Works on detached numpy copies; the
     result is a new Gaussians (isotropic inputs stay isotropic; a merged cell takes the rotation of its most
@@ -192,11 +200,13 @@ def economize(
     `cover` > 0: a merged Gaussian stands for the surface patch its members tile, not for their centres
     (see `merged_variance`). `emitted`: the cells earlier windows emitted (`WindowAggregator`); a cell found there
     is emitted again only when this window sees it at least `FINER` times finer, else its members count as merged
-    away; the cells this call emits are added to it."""
+    away; the cells this call emits are added to it. `single` (bool per row): rows kept as they are, each its own
+    cell, never in `emitted` (the finest observations, `finest_observations`)."""
     stats = stats or AggregateStats()
     if len(g) == 0:
         return g.detach()
-    a, dist, sky = _kept_rows(g, eco, camera_centres, stats)
+    single = np.zeros(len(g), dtype=bool) if single is None else np.asarray(single, dtype=bool)
+    a, dist, sky, single = _kept_rows(g, eco, camera_centres, stats, single)
     n = len(a["means"])
     if n == 0:
         return Gaussians.empty(0 if g.extras is None else g.extras.shape[1])
@@ -206,9 +216,13 @@ def economize(
     cf = eco.cell_factor if cell_factor is None else cell_factor
     cell = np.where(sky, eco.sky_cell_factor, cf) * np.maximum(dist, 0.1) / focal
     level = np.round(np.log2(cell)).astype(np.int64)
-    keys = _cell_keys(a["means"], level, sky)
-    uniq, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    m = len(uniq)
+    keys = _cell_keys(a["means"][~single], level[~single], sky[~single])
+    uniq, inv_cells, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    inv = np.empty(n, dtype=np.int64)
+    inv[~single] = inv_cells.reshape(-1)
+    inv[single] = len(uniq) + np.arange(int(single.sum()))  # each single row its own cell, after the cells
+    counts = np.concatenate([counts, np.ones(int(single.sum()), dtype=counts.dtype)])
+    m = len(counts)
     stats.merged_away += n - m
     w = a["opacities"] / np.exp(2 * np.log(s).mean(1))  # finer observations weigh more
     wsum = np.bincount(inv, weights=w, minlength=m)
@@ -245,7 +259,9 @@ def economize(
     importance = opac * np.exp(2 * log_scale) * (1 + np.log(counts))
     idx = np.argsort(-importance, kind="stable")
     if emitted is not None and len(emitted.keys):
-        again = emitted.emit(uniq[idx], log_scale[idx])
+        cellular = idx < len(uniq)
+        again = np.ones(len(idx), dtype=bool)
+        again[cellular] = emitted.emit(uniq[idx[cellular]], log_scale[idx[cellular]])
         stats.merged_away += int((~again).sum())  # their members merged into the cell's earlier Gaussian
         idx = idx[again]
     if budget is not None:
@@ -260,9 +276,88 @@ def economize(
     if extras is not None:
         out["extras"] = extras[idx]
     if emitted is not None:
-        emitted.add(uniq[idx], log_scale[idx])
+        cellular = idx[idx < len(uniq)]
+        emitted.add(uniq[cellular], log_scale[cellular])
     dtype = torch.float64 if g.means.dtype == torch.float64 else torch.float32
     return Gaussians.from_numpy(**out, dtype=dtype)
+
+
+# ------------------------------------------------------------------------------------------- finest observation
+# A static surface observation is superseded where another frame-view sees the same surface point finer (smaller
+# pixel footprint depth / focal): the surface keeps one pixel grid, the sharpest, instead of every frame's copy
+# re-sampled at its own pose and averaged (gaussians.md, "Finest observation"). Where no finer view sees the point
+# (occluded there, outside its image), the observation stays: the window's other frames fill what one cannot see.
+FINEST_DEPTH_TOL = 0.02  # relative depth agreement of "the same surface point"
+FINEST_SMOOTH = 1.5  # a 2x2 pixel neighbourhood whose depths span less than this ratio is one continuous surface
+
+
+class SurfaceView:
+    """One frame-view's camera and the nearest static-surface depth at each of its pixels (a z-buffer of its own
+    observations' centres; +inf where it has none: sky, a moving agent, a hole)."""
+
+    def __init__(self, camera: Camera, points: np.ndarray):
+        self.camera = camera
+        self.focal = math.sqrt(camera.fx * camera.fy)
+        H, W = camera.height, camera.width
+        self.depth = np.full((H, W), np.inf)
+        uv, z = camera.project(points)
+        with np.errstate(invalid="ignore"):
+            ok = (z > C.NEAR) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        np.minimum.at(self.depth, (uv[ok, 1].astype(np.int64), uv[ok, 0].astype(np.int64)), z[ok])
+        self.footprint = np.where(ok, z, np.inf) / self.focal  # of `points`, as this view observed them
+
+    def sees(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which `points` this view observes (its surface depth there agrees with theirs: within the depth range
+        of the 2x2 pixel centres around them on a continuous surface, else at the nearest pixel) and the pixel
+        footprint it sees them at."""
+        H, W = self.depth.shape
+        uv, z = self.camera.project(points)
+        with np.errstate(invalid="ignore"):
+            ok = (z > C.NEAR) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        u, v = np.where(ok, uv[:, 0], 0.5), np.where(ok, uv[:, 1], 0.5)
+        x0 = np.clip(np.floor(u - 0.5).astype(np.int64), 0, max(W - 2, 0))
+        y0 = np.clip(np.floor(v - 0.5).astype(np.int64), 0, max(H - 2, 0))
+        x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
+        d = np.stack([self.depth[y0, x0], self.depth[y0, x1], self.depth[y1, x0], self.depth[y1, x1]], 1)
+        lo, hi = d.min(1), d.max(1)
+        near = self.depth[np.minimum(v.astype(np.int64), H - 1), np.minimum(u.astype(np.int64), W - 1)]
+        with np.errstate(invalid="ignore"):
+            smooth = np.isfinite(hi) & (hi < FINEST_SMOOTH * lo)
+            on_smooth = smooth & (z >= lo * (1 - FINEST_DEPTH_TOL)) & (z <= hi * (1 + FINEST_DEPTH_TOL))
+            at_edge = ~smooth & (np.abs(near - z) <= FINEST_DEPTH_TOL * z)
+        return ok & (on_smooth | at_edge), np.where(ok, z, np.inf) / self.focal
+
+
+def finest_observations(
+    points: list[np.ndarray], cameras: list[Camera], earlier: list[SurfaceView], finer: float = math.inf
+) -> tuple[list[np.ndarray], list[SurfaceView]]:
+    """`points[i]`: the static surface observations (centres) of frame-view i of a window, seen by `cameras[i]`.
+    Returns which of each to keep and the window's `SurfaceView`s. An observation is dropped where another view of
+    the window sees its point finer (equal footprints: the earlier view wins), or where a view of an earlier window
+    (`earlier`, whose Gaussians are sent) sees it at less than `finer` x its own footprint (inf: at all)."""
+    views = [SurfaceView(c, p) for c, p in zip(cameras, points, strict=True)]
+    keep = []
+    for i, (p, own) in enumerate(zip(points, views)):
+        k = np.ones(len(p), dtype=bool)
+        for j, other in enumerate(views + earlier):
+            if j == i or not k.any():
+                continue
+            rows = np.flatnonzero(k)
+            seen, fp = other.sees(p[rows])
+            mine = own.footprint[rows]
+            if j >= len(views):
+                drop = seen & (fp < finer * mine)
+            else:
+                drop = seen & ((fp < mine) | ((fp == mine) & (j < i)))
+            k[rows[drop]] = False
+        keep.append(k)
+    return keep, views
+
+
+def _sky_rows(g: Gaussians) -> np.ndarray:
+    if g.extras is None or g.extras.shape[1] <= SKY_CHANNEL:
+        return np.zeros(len(g), dtype=bool)
+    return (g.extras[:, SKY_CHANNEL] > 0.5).cpu().numpy()
 
 
 def importance_order(g: Gaussians) -> Gaussians:
@@ -337,7 +432,11 @@ class WindowAggregator:
         self.centres = np.array([[rc.at(e).position for rc in rig] for e in self.ego_to_world]).reshape(T, -1, 3)
         self.focal = float(np.median([np.sqrt(rc.fx * rc.fy) for rc in rig])) if rig else 1.0
         self.cells = CellTable(finer)
+        self.finer = finer
+        self.views: list[SurfaceView] = []  # every frame-view added so far (`finest_observations`)
         self.seen: set[int] = set()
+        if self.economy.static_rule not in ("finest", "merge"):
+            raise ValueError(f"Economy.static_rule must be 'finest' or 'merge', got {self.economy.static_rule!r}")
 
     def add(self, frames: list[int], per_view: list[list[Gaussians]]) -> tuple[Gaussians, dict[int, Gaussians]]:
         """`per_view[i][v]`: Gaussians of frame `frames[i]`, view v (see `aggregate_4d`). Each frame once."""
@@ -349,23 +448,29 @@ class WindowAggregator:
                 raise ValueError(f"aggregate: frame {t} out of range 0..{T - 1} or added twice")
         self.seen.update(frames)
         eco, st = self.economy, self.stats
-        statics, dynamics = [], {}
+        statics, dynamics, cameras = [], {}, []
         for t, views in zip(frames, per_view, strict=True):
             dyn_t = []
-            for g in views:
+            for v, g in enumerate(views):
                 st.lifted += len(g)
                 if self.in_ego_frame:
                     g = transform(g, self.ego_to_world[t])
                 s, d = split_dynamic(g)
                 statics.append(s)
+                cameras.append(self.rig[v].at(self.ego_to_world[t]) if v < len(self.rig) else None)
                 dyn_t.append(d)
             dynamics[t] = Gaussians.cat(dyn_t) if dyn_t else Gaussians.empty()
-        static = Gaussians.cat(statics) if statics else Gaussians.empty()
-        st.static_union += len(static)
+        st.static_union += sum(len(s) for s in statics)
         st.dynamic_union += sum(len(d) for d in dynamics.values())
+        single = None
+        if eco.enabled and eco.static_rule == "finest":
+            statics, single = self._finest(statics, cameras)
+        static = Gaussians.cat(statics) if statics else Gaussians.empty()
         if eco.enabled:
             budget = None if eco.static_budget is None else max(0, eco.static_budget - st.static_kept)
-            static = economize(static, eco, self.centres.reshape(-1, 3), self.focal, st, budget, emitted=self.cells)
+            static = economize(
+                static, eco, self.centres.reshape(-1, 3), self.focal, st, budget, emitted=self.cells, single=single
+            )
             dynamics = {
                 t: economize(
                     d,
@@ -389,6 +494,25 @@ class WindowAggregator:
             st.sky_kept += int((static.extras[:, SKY_CHANNEL] > 0.5).sum())
         st.dynamic_kept += sum(len(d) for d in dynamics.values())
         return static, dynamics
+
+    def _finest(self, statics: list[Gaussians], cameras: list[Camera | None]) -> tuple[list[Gaussians], np.ndarray]:
+        """Each frame-view's static set less the surface observations a finer view supersedes
+        (`finest_observations`; the sky shell stays, for the cells), and which rows remain as they are."""
+        sky = [_sky_rows(s) for s in statics]
+        known = [i for i, c in enumerate(cameras) if c is not None]
+        points = [statics[i].means.detach().double().cpu().numpy()[~sky[i]] for i in known]
+        keep, views = finest_observations(points, [cameras[i] for i in known], self.views, self.finer)
+        self.views += views
+        kept, single = [], []
+        for i, s in enumerate(statics):
+            rows = np.ones(len(s), dtype=bool)
+            if i in known:
+                rows[np.flatnonzero(~sky[i])[~keep[known.index(i)]]] = False
+            kept.append(s.subset(torch.as_tensor(rows)))
+            single.append(~sky[i][rows])
+        superseded = sum(len(s) for s in statics) - sum(len(s) for s in kept)
+        self.stats.extra["superseded"] = self.stats.extra.get("superseded", 0) + superseded
+        return kept, np.concatenate(single) if single else np.zeros(0, dtype=bool)
 
     def scene(self, statics: list[Gaussians], dynamics: dict[int, Gaussians], meta: dict | None = None) -> Scene4D:
         """The Scene4D of the windows added (their static parts in the order sent, every frame's dynamic set)."""

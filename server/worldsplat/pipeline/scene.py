@@ -37,8 +37,9 @@ from worldsplat.world import build_world, simulate
 
 ALL_MODES = ("oracle", "reconstruct", "generate")
 # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none). 3: aggregated window by window
-# (WindowAggregator; same cells, first window to see a cell makes its Gaussian).
-ORACLE_VERSION = "oracle-3"
+# (WindowAggregator; same cells, first window to see a cell makes its Gaussian). 4: the finest observation of each
+# static surface point wins, unmerged (gaussians.aggregate.finest_observations).
+ORACLE_VERSION = "oracle-4"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's

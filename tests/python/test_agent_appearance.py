@@ -209,6 +209,8 @@ def test_a_generated_object_matches_the_worlds_agent_from_the_same_camera(cls, i
         assert r["pixels"] > 1000
         assert r["iou"] >= iou, (yaw, r)
         assert r["colour_error"] <= 0.08, (yaw, r)
+    asked = fit(cls, 5, 60.0, colour="#1e50c8")
+    assert asked["paint_pixels"] > 300 and asked["asked_error"] <= TARGET, asked
 
 
 def test_the_generator_is_seeded_and_a_colour_changes_only_the_colour():

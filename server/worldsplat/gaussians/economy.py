@@ -3,11 +3,13 @@ the world's exact ground truth at lateral shifts (paper eq. 3 + "model only what
 
     python -m worldsplat.gaussians.economy --preset urban_straight [--shifts 0,1,-1,2,-2,4,-4] [--frames 0,4,7]
     python -m worldsplat.gaussians.economy --windows all,4,4:2,4:1.5 --frames 0,3,4,7 --shifts 0,2
+    python -m worldsplat.gaussians.economy --own urban_straight,night_rain,suburban_curve --frames 0,4 --scales 1,2
 
 Prints a markdown table (the ones in web/docs/gaussians.md; `--windows`: one union over all frames vs window by
 window, `SIZE:FINER` = windows of SIZE frames re-emitting a cell seen FINER times finer). Renders use the reference rasterizer; PSNR is over all
 pixels of the 8-bit renders (sky included: the oracle lifts the sky onto a far shell of static Gaussians) and over
-non-sky pixels.
+non-sky pixels. `--own`: frame t of the served scene against frame t's own lifting (static-pixel PSNR, SSIM of
+luma on non-sky pixels, Gaussians in view per served pixel) at multiples of the served image.
 """
 
 from __future__ import annotations
@@ -337,6 +339,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dynamic-cover", type=float, default=Economy.dynamic_cover)
     p.add_argument("--opacity-merge", default=Economy.opacity_merge, choices=["mean", "union"])
     p.add_argument(
+        "--static-rule",
+        default=Economy.static_rule,
+        choices=["finest", "merge"],
+        help="static surfaces: the finest observation of each place, unmerged, or every observation of a cell merged",
+    )
+    p.add_argument(
         "--windows",
         default=None,
         help="compare aggregations instead: comma-separated `all` (one union over all frames), SIZE (windows of SIZE "
@@ -358,6 +366,7 @@ def main(argv: list[str] | None = None) -> int:
         opacity_merge=a.opacity_merge,
         dynamic_cell_factor=a.dynamic_cell_factor,
         dynamic_cover=a.dynamic_cover,
+        static_rule=a.static_rule,
     )
     frames = None if a.frames is None else [int(x) for x in a.frames.split(",")]
     shifts = [float(x) for x in a.shifts.split(",")]

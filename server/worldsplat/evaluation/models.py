@@ -183,7 +183,7 @@ def eval_cells(
         dec = reconstruct(clip, models)
         T, V = base["rgb"].shape[:2]
         for f in factors:
-            eco = Economy(enabled=False) if f == 0 else Economy(cell_factor=f)
+            eco = Economy(enabled=False) if f == 0 else Economy(cell_factor=f, static_rule="merge")
             for name, sc, shs in (
                 ("", to_scene4d(dec, economy=eco), shifts),
                 ("oracle_", oracle_scene(clip, economy=eco), (0.0,)),

@@ -63,7 +63,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--out", type=Path, required=True, help="the .jsonl to write")
     u = sub.add_parser("augment", help="the judge trained on world, world + generated and generated clips, over seeds")
     u.add_argument("--world", type=Path, required=True, help="dataset folder with train/ and test/ (world clips)")
-    u.add_argument("--batch", type=Path, required=True, help="a `worldsplat batch` folder of generated scenes")
+    u.add_argument(
+        "--batch", type=Path, nargs="+", required=True, help="`worldsplat batch` folder(s) of generated scenes"
+    )
     u.add_argument("--out", type=Path, required=True, help="runs, augment.json, augment.md")
     u.add_argument("--n", type=int, default=20, help="world clips (default 20)")
     u.add_argument("--m", type=int, default=200, help="generated clips (default 200)")

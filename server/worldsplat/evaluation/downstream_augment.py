@@ -31,7 +31,7 @@ from worldsplat_models.judge import load_judge
 ARMS = ("world", "world+generated", "generated")
 
 
-def write_scenarios(path: Path, split: str = "train", start: int = 300, count: int = 260, frames: int = 4) -> Path:
+def write_scenarios(path: Path, split: str = "train", start: int = 300, count: int = 260, frames: int = 2) -> Path:
     """The scenario list of `worldsplat batch` for the generated clips: clips start..start+count-1 of `split` (the
     dataset's scenarios, disjoint from the world clips 0..start-1 the judge trains on)."""
     path = Path(path)
@@ -43,16 +43,17 @@ def write_scenarios(path: Path, split: str = "train", start: int = 300, count: i
     return path
 
 
-def generated_shards(batch_dir: Path, out: Path, progress: bool = True) -> list[Path]:
-    """OUT/train/clip_NNNNNN.npz (rgb: the scene rendered on its track, semantic: the world's exact classes) for
-    every scene of a `worldsplat batch` folder; existing shards are kept."""
-    scenes = sorted((Path(batch_dir) / "scenes").glob("*.wsplat"))
+def generated_shards(batch_dirs: list[Path], out: Path, progress: bool = True) -> list[Path]:
+    """OUT/train/clip_<batch folder>_<line>.npz (rgb: the scene rendered on its track, semantic: the world's exact
+    classes) for every scene of `worldsplat batch` folders (several batches can run side by side on parts of a
+    scenario list); existing shards are kept."""
+    scenes = [f for d in batch_dirs for f in sorted((Path(d) / "scenes").glob("*.wsplat"))]
     if not scenes:
-        raise FileNotFoundError(f"no scenes in {Path(batch_dir) / 'scenes'}; make them with `worldsplat batch`")
+        raise FileNotFoundError(f"no scenes in {batch_dirs}; make them with `worldsplat batch`")
     (Path(out) / "train").mkdir(parents=True, exist_ok=True)
     paths = []
     for f in tqdm(scenes, desc="generated shards", unit="clip", disable=not progress):
-        path = Path(out) / "train" / f"clip_{int(f.name.split('_')[0]):06d}.npz"
+        path = Path(out) / "train" / f"clip_{f.parent.parent.name}_{f.name.split('_')[0]}.npz"
         if not path.exists():
             scene = wsplat.read(f)
             truth = simulate(build_world(scenario_of(scene)), 0.0)

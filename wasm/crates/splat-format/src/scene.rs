@@ -1,7 +1,10 @@
 //! A loaded 4D scene: the static base plus per-frame dynamic Gaussians (packed for the GPU), frame times, rig and
 //! ego poses. Built progressively from .wsplat events, or at once from a PLY / raster-vector JSON. A v3 file's agent
-//! objects are baked on the CPU: each POSE chunk poses the objects into its frames' dynamic sets (`bake_objects`), so
-//! every draw path draws and sorts them as any dynamic Gaussians.
+//! objects stay canonical (box frame) with their poses per frame; `dynamic_at(frame)` bakes them on the CPU when the
+//! frame is drawn (`bake_objects`), so every draw path draws and sorts them as any dynamic Gaussians, and new poses
+//! (an agent moved) need no new decode.
+
+use std::borrow::Cow;
 
 use crate::camera::{Mat4, RigCamera, IDENTITY};
 use crate::gaussians::{Gaussian, PackedSplat};
@@ -49,8 +52,25 @@ impl Scene {
         self.ego_to_world.get(frame.min(self.ego_to_world.len().saturating_sub(1))).copied().unwrap_or(IDENTITY)
     }
 
-    pub fn dynamic_at(&self, frame: usize) -> &[PackedSplat] {
-        self.dynamic.get(frame).map_or(&[], |d| d.as_slice())
+    /// Frame `frame`'s dynamic set: its DYNA records, then its present agent objects posed (baked on the CPU).
+    pub fn dynamic_at(&self, frame: usize) -> Cow<'_, [PackedSplat]> {
+        let base = self.dynamic.get(frame).map_or(&[][..], |d| d.as_slice());
+        let poses = self.object_poses.get(frame).map_or(&[][..], |p| p.as_slice());
+        if poses.iter().all(Option::is_none) {
+            return Cow::Borrowed(base);
+        }
+        let mut out = base.to_vec();
+        out.extend(bake_objects(&self.objects, poses).iter().filter_map(Gaussian::pack));
+        Cow::Owned(out)
+    }
+
+    /// What `dynamic_at(frame)` holds, as a key that changes when it does (a new DYNA or POSE chunk of the frame).
+    pub fn dynamic_key(&self, frame: usize) -> (usize, usize) {
+        let posed = self
+            .object_poses
+            .get(frame)
+            .map_or(0, |p| p.iter().zip(&self.objects).filter(|(p, _)| p.is_some()).map(|(_, o)| o.gaussians.len()).sum());
+        (self.dynamic.get(frame).map_or(0, Vec::len), posed)
     }
 
     fn add_static(&mut self, gs: &[Gaussian]) {
@@ -95,12 +115,9 @@ impl Scene {
                 Event::Object(o) => self.objects.push(o),
                 Event::Poses(p) => {
                     for (f, row) in p.frames.into_iter().enumerate() {
-                        let frame = p.first + f;
-                        let posed = bake_objects(&self.objects, &row);
-                        self.add_dynamic(frame, &posed);
-                        self.object_poses[frame] = row;
-                        added = true;
+                        self.object_poses[p.first + f] = row;
                     }
+                    added = true;
                 }
                 Event::End => {}
             }

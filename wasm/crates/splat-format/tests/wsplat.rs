@@ -402,7 +402,7 @@ fn check_objects(name: &str, bytes: &[u8], expect: &serde_json::Value) {
         let mut frame = dyna[f].clone();
         frame.extend(bake_objects(&s.objects, &s.object_poses[f]));
         assert_eq!(frame.len() as u64, expect["baked_num_dynamic"][f].as_u64().unwrap(), "{name}: baked frame {f}");
-        assert_eq!(s.dynamic[f].len(), frame.iter().filter_map(Gaussian::pack).count(), "{name}: the scene's baked frame {f}");
+        assert_eq!(s.dynamic_at(f).len(), frame.iter().filter_map(Gaussian::pack).count(), "{name}: the scene's baked frame {f}");
         let mut sum = [0f64; 3];
         frame.iter().for_each(|g| (0..3).for_each(|k| sum[k] += g.mean[k] as f64));
         for (a, b) in sum.iter().zip(f64s(want_sum)) {
@@ -631,7 +631,9 @@ fn v3_object_and_pose_payload_mutations_never_panic_and_streaming_agrees() {
         let mut s = StreamingScene::default();
         let streamed = s.push(&b[..b.len() / 2]).and_then(|_| s.push(&b[b.len() / 2..])).and_then(|_| s.finish());
         match (&whole, &streamed) {
-            (Ok(w), Ok(_)) => assert_eq!((w.objects.len(), &w.dynamic), (s.scene.objects.len(), &s.scene.dynamic)),
+            (Ok(w), Ok(_)) => {
+                assert_eq!((&w.objects, &w.object_poses, &w.dynamic), (&s.scene.objects, &s.scene.object_poses, &s.scene.dynamic))
+            }
             (Err(a), Err(b2)) => assert_eq!((a.kind, a.offset), (b2.kind, b2.offset), "round {round}"),
             _ => panic!("round {round}: whole {:?} vs streamed {:?}", whole.as_ref().err(), streamed.err()),
         }

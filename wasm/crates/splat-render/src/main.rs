@@ -133,7 +133,7 @@ fn render(a: &Args) -> Result<(), String> {
     };
     let gpu = headless::gpu(parse_path(a)?)?;
     let mut renderer = Renderer::new(&gpu);
-    renderer.update(&scene.statics, scene.dynamic_at(state.frame));
+    renderer.update(&scene.statics, &scene.dynamic_at(state.frame));
     let (rgba, _) = headless::render_rgba(&mut renderer, &views, size)?;
     image::RgbaImage::from_raw(size[0], size[1], rgba).unwrap().save(out).map_err(|e| format!("{out}: {e}"))?;
     eprintln!(

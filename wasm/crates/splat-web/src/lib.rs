@@ -78,7 +78,7 @@ struct Inner {
     adapter_name: String,
     scene: Scene,
     stream: Option<StreamingScene>,
-    uploaded: Option<(usize, usize)>, // (static count, frame) resident on the GPU
+    uploaded: Option<(usize, usize, (usize, usize))>, // (static count, frame, its dynamic key) resident on the GPU
     state: ViewState,
     stats: Stats,
     input: Input,
@@ -164,9 +164,9 @@ impl Inner {
     fn sync_gpu(&mut self) {
         let frame = self.state.frame;
         let scene = self.stream.as_ref().map_or(&self.scene, |s| &s.scene);
-        let key = (scene.statics.len(), frame);
+        let key = (scene.statics.len(), frame, scene.dynamic_key(frame));
         if self.uploaded != Some(key) {
-            self.renderer.update(&scene.statics, scene.dynamic_at(frame));
+            self.renderer.update(&scene.statics, &scene.dynamic_at(frame));
             self.uploaded = Some(key);
         }
     }

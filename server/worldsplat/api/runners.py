@@ -170,14 +170,21 @@ class StreamSink:
     the cache's live writer as windows arrive: the preamble + HEAD with the first window (its Gaussians fix the
     layouts), then each window's STAT chunks (importance order) and its frames' DYNA chunks, flushed one by one; `end`
     writes END! with the totals and the meta known only at the end. The live file is opened with the first byte, so a
-    job that fails before its first window leaves no file at all."""
+    job that fails before its first window leaves no file at all.
 
-    def __init__(self, open_live, ctx: JobContext, pause: float = 0.0):
+    Agent objects (web/docs/agents.md): a v1/v2 file gets each frame's dynamics with the objects built so far posed
+    in (the pipeline bakes them for a sink without `takes_objects`). From v3 the sink takes the objects: each window's
+    new canonical Gaussians of an agent go out as one more OBJC object of that agent (an object grows window by
+    window and never changes what was sent), then one POSE chunk of the window's frames for every object sent."""
+
+    def __init__(self, open_live, ctx: JobContext, pause: float = 0.0, version: int = WSPLAT_VERSION):
         from worldsplat.gaussians import wsplat  # noqa: PLC0415 - heavy (torch), imported on first use
 
-        self.wsplat, self.open_live, self.ctx, self.pause = wsplat, open_live, ctx, pause
+        self.wsplat, self.open_live, self.ctx, self.pause, self.version = wsplat, open_live, ctx, pause, version
+        self.takes_objects = version >= 3
         self.live = self.writer = self.skeleton = None
         self.head_meta: set[str] = set()
+        self.objects_sent: list = []  # AgentObject per OBJC chunk written, in order
 
     def _put(self, piece: bytes) -> None:
         self.ctx.check()
@@ -190,17 +197,34 @@ class StreamSink:
     def begin(self, skeleton) -> None:
         self.skeleton, self.head_meta = skeleton, set(skeleton.meta)
 
-    def window(self, frames: list[int], static, dynamic: dict) -> None:
+    def window(self, frames: list[int], static, dynamic: dict, objects: dict | None = None) -> None:
+        parts = self._object_parts(objects or {})
         if self.writer is None:
             self.writer = self.wsplat.StreamWriter.for_window(
-                self.skeleton, static, list(dynamic.values()), version=WSPLAT_VERSION
+                self.skeleton, static, list(dynamic.values()), version=self.version
             )
+            if self.takes_objects:
+                self.writer.ol = self.wsplat.object_layout_for(parts)
             self._put(self.writer.head())
         for piece in self.writer.static(static):
             self._put(piece)
+        if parts:
+            for piece in self.writer.objects(parts):
+                self._put(piece)
+            self.objects_sent += parts
+        if self.objects_sent:
+            self._put(self.writer.poses(frames, self.objects_sent))
         for t in frames:
             for piece in self.writer.dynamic(t, dynamic[t]):
                 self._put(piece)
+
+    def _object_parts(self, added: dict) -> list:
+        """The window's new canonical Gaussians per agent id as AgentObjects with the agent's track (skeleton)."""
+        from worldsplat.gaussians.types import AgentObject  # noqa: PLC0415 - heavy (torch), imported on first use
+
+        tracks = {o.agent_id: o for o in self.skeleton.objects}
+        return [AgentObject(a, tracks[a].cls, tracks[a].size, g, tracks[a].poses, tracks[a].present)
+                for a, g in added.items()]  # fmt: skip
 
     def end(self, scene) -> None:
         if self.writer is None:  # no window at all (cannot happen: a clip has >= 1 frame)

@@ -33,6 +33,15 @@ from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D, transfor
 # snapping in generate mode uses the same margin (pipeline.inference.AGENT_BOX_MARGIN_M).
 AGENT_MARGIN_M = 0.3
 AGENT_MODES = ("objects", "per_frame")  # an agent as one posed object, or re-drawn per frame (the paper's dynamics)
+# An object is drawn at every frame, also where the agent is nearer than when a place of it was seen: a Gaussian
+# lifted from far is then a blurred blob over the near agent's silhouette (test:0, a car driving away: frame 0
+# contrast 0.66 -> 0.09 of the exact one). So the finest observation of a place wins: a Gaussian is left out where
+# at least FINER_COUNT Gaussians FINER_FACTOR or more times finer lie within FINER_REACH of its std.
+FINER_FACTOR = math.sqrt(2)
+FINER_COUNT = 2
+FINER_REACH = 2.0
+OBJECT_CELL_FACTOR = 2.0  # merge cells of an object, in pixel footprints from the nearest camera of the clip
+OBJECT_COVER = 0.0  # > 0: a merged Gaussian covers its members' patch (aggregate.merged_variance)
 
 ObjectSource = Callable[[int, np.ndarray, int, "np.ndarray | None"], Gaussians]  # (cls, size, seed, colour) -> box
 
@@ -98,17 +107,50 @@ def assign_to_boxes(means: np.ndarray, tracks: list[AgentTrack], t: int, margin:
     return best
 
 
+def _voxel_keys(p: np.ndarray, size: float) -> np.ndarray:
+    ijk = np.floor(p / size).astype(np.int64) & 0x1FFFFF
+    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+
+def finest_observations(g: Gaussians, reference: list[Gaussians] = ()) -> np.ndarray:
+    """Keep mask over `g` (box frame): False where at least FINER_COUNT Gaussians of `g` or of `reference` (an
+    object's parts sent before) at least FINER_FACTOR times finer (geometric-mean std) lie in the Gaussian's voxel of
+    FINER_REACH x its std. Scales in half-octave levels; a place seen only coarsely keeps its coarse Gaussians."""
+
+    def log_std(x: Gaussians) -> np.ndarray:
+        return np.log2(np.clip(x.scales.detach().double().cpu().numpy(), 1e-6, None)).mean(1)
+
+    p = g.means.detach().double().cpu().numpy()
+    level = np.floor(log_std(g) / math.log2(FINER_FACTOR)).astype(np.int64)
+    ref = [r for r in reference if len(r)]
+    all_p = np.concatenate([p] + [r.means.detach().double().cpu().numpy() for r in ref])
+    all_level = np.concatenate([level] + [np.floor(log_std(r) / math.log2(FINER_FACTOR)).astype(np.int64) for r in ref])
+    keep = np.ones(len(p), bool)
+    for lv in np.unique(level):
+        finer = all_level <= lv - 2  # at least one whole FINER_FACTOR below this level's range
+        if not finer.any():
+            continue
+        size = FINER_REACH * FINER_FACTOR ** (lv + 1)
+        keys, counts = np.unique(_voxel_keys(all_p[finer], size), return_counts=True)
+        cand = np.flatnonzero(level == lv)
+        k = _voxel_keys(p[cand], size)
+        i = np.minimum(np.searchsorted(keys, k), len(keys) - 1)
+        keep[cand] = ~((keys[i] == k) & (counts[i] >= FINER_COUNT))
+    return keep
+
+
 @dataclass
 class ObjectStats:
     agents: int = 0  # objects with Gaussians
     gaussians: int = 0  # canonical Gaussians over all objects
     absorbed: int = 0  # per-frame dynamic Gaussians that went into an object
     left_per_frame: int = 0  # per-frame dynamic Gaussians in no box
+    coarse_dropped: int = 0  # observations left out where finer ones of the same place exist
     aggregate: AggregateStats = field(default_factory=AggregateStats)  # the objects' merging
 
     def as_dict(self) -> dict:
         return {"agents": self.agents, "gaussians": self.gaussians, "absorbed": self.absorbed,
-                "left_per_frame": self.left_per_frame, "merged_away": self.aggregate.merged_away}  # fmt: skip
+                "left_per_frame": self.left_per_frame, "coarse_dropped": self.coarse_dropped, "merged_away": self.aggregate.merged_away}  # fmt: skip
 
 
 class ObjectBuilder:
@@ -197,8 +239,11 @@ class ObjectBuilder:
         eco = self.economy
         if not eco.enabled:
             return g.detach()
-        return economize(g, eco, self.centres[i], self.focal, self.stats.aggregate, cell_factor=eco.dynamic_cell_factor,
-                         cover=eco.dynamic_cover, emitted=self.cells[i])  # fmt: skip
+        keep = finest_observations(g, self.parts[i])
+        self.stats.coarse_dropped += int((~keep).sum())
+        g = g.subset(torch.from_numpy(keep))
+        return economize(g, eco, self.centres[i], self.focal, self.stats.aggregate, cell_factor=OBJECT_CELL_FACTOR,
+                         cover=OBJECT_COVER, emitted=self.cells[i])  # fmt: skip
 
     def objects(self) -> list[AgentObject]:
         """The objects so far: agents with at least one canonical Gaussian, in track order."""

@@ -212,7 +212,7 @@ def generate_scene(
     }
     _check(cancelled)
     if object_source is None and mode == "generate":
-        object_source = generated_object_source()
+        object_source = generated_object_source(world)
     objects = (
         None if agents == "per_frame" else _Objects(world, object_source, int(scenario.seed if seed is None else seed))
     )
@@ -227,10 +227,10 @@ def generate_scene(
     return scene
 
 
-def generated_object_source() -> ObjectSource | None:
+def generated_object_source(world) -> ObjectSource | None:
     """Where generate mode's agent objects come from when the caller gives no `object_source`: a generator of an
-    agent's canonical Gaussians from (class, size, seed, colour), box frame. None: generate's agents are the decoded
-    Gaussians in their boxes, made objects like the other modes'."""
+    agent's canonical Gaussians from (class, size, seed, colour), box frame, lit by the `world`'s lighting. None:
+    generate's agents are the decoded Gaussians in their boxes, made objects like the other modes'."""
     return None
 
 

@@ -8,8 +8,12 @@ their dynamic mask into a static union over all frames and views, plus each fram
 The naive union repeats every surface once per frame and view that sees it. The economy then
 1. drops Gaussians that cannot show (transparent: opacity < `min_opacity`; out of range: farther than `max_range`
    from every camera position, except the sky shell flagged in extras[:, SKY_CHANNEL]; non-finite);
-2. merges repeats with one resolution per place: a voxel hash whose cell is `cell_factor` x the pixel footprint
-   seen from the nearest camera of the track (distance / focal), rounded to a power of two. Every observation of a
+2. keeps one observation per place. Static surfaces (`Economy.static_rule` "finest", the default): the finest
+   observation of each point, unmerged (`finest_observations`: an observation is dropped where another frame-view
+   sees its point with a smaller pixel footprint), so the surface keeps one sharp pixel grid. "merge" (decoded
+   grids, `Economy.for_decoded`; the sky shell always) merges repeats: a voxel hash whose cell is `cell_factor` x
+   the pixel footprint seen from the nearest camera of the track (distance / focal), rounded to a power of two.
+   Every observation of a
    surface (any frame, view or depth) lands in the same cell; the members of a cell become one Gaussian (mean and
    colour averaged with finer observations weighing more, scale grown to cover the members' spread). The sky shell
    merges in its own cells (`sky_cell_factor` x its footprint), never with a surface, into Gaussians that cover
@@ -405,8 +409,9 @@ class WindowAggregator:
     The cell of a static place is the same as `aggregate_4d`'s (its footprint from the nearest camera of the whole
     track: the track is known before any frame is generated). What differs from one union over all frames: a cell
     already emitted by an earlier window is not merged with a later window's members (those bytes are sent); a later
-    window emits it again only when it sees it `finer` times finer (see `CellTable`). One window with every frame is
-    exactly `aggregate_4d`."""
+    window emits it again only when it sees it `finer` times finer (see `CellTable`). Under the finest rule a later
+    window's surface observation is dropped where a view of an earlier window saw its point (at less than `finer` x
+    its footprint; `finest_observations`). One window with every frame is exactly `aggregate_4d`."""
 
     def __init__(
         self,

@@ -189,3 +189,22 @@ def test_unknown_agents_option_is_refused():
 
     with pytest.raises(ValueError, match="unknown agents"):
         generate_scene(load_preset("urban_straight").with_updates(**TINY), mode="oracle", agents="blobs")
+
+
+def test_generate_draws_its_agents_with_the_appearance_generator():
+    from worldsplat.gaussians.agent_appearance import agent_gaussians
+    from worldsplat.pipeline import scene as pipeline
+    from worldsplat.world import build_world
+
+    if "generate" not in pipeline.available_modes():
+        pytest.skip("generate weights are not shipped here")
+    sc = load_preset("urban_straight").with_updates(clip={"frames": 2}, image={"width": 64, "height": 36})
+    scene = pipeline.generate_scene(sc, mode="generate", steps=1)
+    world = build_world(sc)
+    tracks = agent_tracks(world, scene.ego_to_world)
+    assert [o.agent_id for o in scene.objects] == [tr.agent_id for tr in tracks] != []
+    for o, tr in zip(scene.objects, tracks):
+        want = agent_gaussians(tr.cls, tr.size, sc.seed * 1000 + tr.agent_id, tr.colour, lighting=world.lighting)
+        assert torch.equal(o.gaussians.means, want.means) and torch.equal(o.gaussians.colors, want.colors)
+    for t in range(scene.num_frames):  # the decoded Gaussians in the agents' boxes gave way to the objects
+        assert (assign_to_boxes(scene.dynamic[t].means.double().numpy(), tracks, t) < 0).all()

@@ -29,6 +29,7 @@ import numpy as np
 
 from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
+from worldsplat.gaussians.agent_appearance import agent_gaussians
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.objects import AGENT_MODES, ObjectBuilder, ObjectSource, agent_tracks, with_objects
@@ -228,10 +229,11 @@ def generate_scene(
 
 
 def generated_object_source(world) -> ObjectSource | None:
-    """Where generate mode's agent objects come from when the caller gives no `object_source`: a generator of an
-    agent's canonical Gaussians from (class, size, seed, colour), box frame, lit by the `world`'s lighting. None:
-    generate's agents are the decoded Gaussians in their boxes, made objects like the other modes'."""
-    return None
+    """Where generate mode's agent objects come from when the caller gives no `object_source`: the agent appearance
+    generator (`gaussians.agent_appearance.agent_gaussians`: class, size, seed, colour -> Gaussians in the box
+    frame), lit by the `world`'s lighting. On test:0 it beat the decoded agents made objects (agents seen 0.50 vs
+    0.125, silhouette IoU 0.76 vs 0.55; the decoded per-frame agents 0.375 / 0.61: web/docs/agents.md)."""
+    return lambda cls, size, seed, colour: agent_gaussians(cls, size, seed, colour, lighting=world.lighting)
 
 
 class _Objects:

@@ -21,13 +21,12 @@ import numpy as np
 
 from worldsplat.core.camera import Camera, default_rig, yaw_pose
 from worldsplat.core.scenario import Scenario
-from worldsplat.gaussians.agent_appearance import agent_gaussians, object_parts
+from worldsplat.gaussians.agent_appearance import DAYLIGHT, agent_gaussians, object_parts
 from worldsplat.gaussians.raster import render_view
 from worldsplat.gaussians.types import transform
 from worldsplat.world.agents import place_parts
 from worldsplat.world.colours import hex_rgb
 from worldsplat.world.layout import World, build_world
-from worldsplat.world.lighting import make_lighting
 from worldsplat.world.prims import Prims
 from worldsplat.world.render import trace
 from worldsplat.world.simulate import render_views
@@ -66,7 +65,7 @@ def world_albedo_view(prims: Prims, cam: Camera) -> tuple[np.ndarray, np.ndarray
     if mask.any():
         p = o + hits.t[mask][:, None] * d[mask]
         ph = prim_hits(prims, hits.pid[mask], p)
-        shade_prims(ph, prims, p, make_lighting("day", "clear", np.random.Generator(np.random.PCG64(0))))
+        shade_prims(ph, prims, p, DAYLIGHT)
         rgb[mask] = np.clip(ph.col + ph.em, 0.0, 1.0)
     return mask, rgb
 

@@ -35,6 +35,8 @@ SURFEL_THICKNESS = 0.01  # m, std across the face
 OPACITY = 0.98
 _PALETTES = {CAR: VEHICLE_COLOURS, BUS: BUS_COLOURS, TRUCK: TRUCK_COLOURS}
 _HEADINGS = 16  # sun headings averaged over when lighting an object that turns
+# The light albedo textures are made under (only the glazing's sky reflection reads it; lamps are off by day).
+DAYLIGHT = make_lighting("day", "clear", np.random.Generator(np.random.PCG64(0)))
 
 
 def agent_gaussians(
@@ -49,21 +51,20 @@ def agent_gaussians(
 
     cls       world class id (`worldsplat.world.classes`, as `AgentObject.cls`) or scenario class name ("car")
     size      (length, width, height) in m
-    seed      the appearance code: the same seed gives the same object (bit for bit)
+    seed      the appearance code (>= 0): the same seed gives the same object (bit for bit)
     colour    "#rrggbb" or RGB in [0, 1]: the body colour of a vehicle, the clothing of a person or cyclist (the
               paint's albedo, as `agents[i].colour`); None: drawn from the class palette by the seed
     lighting  None: colours are albedo (plus lamp emission); a scene's `Lighting`: lit by its sky and by its sun
               averaged over headings (the object turns with its track), and lamps glowing at dusk and night, as the
               world shades a surface (no shadows, no fog: those depend on where the object is)."""
     prims = object_parts(cls, size, seed, colour)
-    length, width, height = (float(v) for v in size)
+    height = float(size[2])
     cls_id = CLASS_IDS[cls] if isinstance(cls, str) else int(cls)
     area = _surface_area(prims)
     spacing = float(np.clip(math.sqrt(area / GAUSSIANS_PER_CLASS[cls_id]), *SPACING_RANGE))
     pts, frames, cell, k = _surfels(prims, spacing)
-    reference = make_lighting("day", "clear", np.random.Generator(np.random.PCG64(0)))
     ph = prim_hits(prims, k, pts)
-    shade_prims(ph, prims, pts, lighting or reference)
+    shade_prims(ph, prims, pts, lighting or DAYLIGHT)
     rgb = (ph.col if lighting is None else ph.col * _light(lighting, ph.normal)) + ph.em
     means = pts - [0.0, 0.0, height / 2]  # footprint frame (z = 0 on the ground) -> box frame
     scales = np.concatenate([SURFEL_SPREAD * cell, np.full((len(pts), 1), SURFEL_THICKNESS)], 1)

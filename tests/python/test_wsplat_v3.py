@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from worldsplat.gaussians import wsplat
+from worldsplat.gaussians import Scene4D, wsplat
+from worldsplat.gaussians.types import AgentObject
 from worldsplat.gaussians.wsplat import ProgressiveDecoder, WsplatError
 
 VECTORS = Path(__file__).resolve().parents[1] / "vectors" / "wsplat"
@@ -171,3 +172,29 @@ def test_pose_bytes_per_agent_per_frame_within_the_target():
     assert r["v3_pose_B_per_agent_frame"] <= 32
     # the agents' share of v2's DYNA chunks (the scene's other dynamics and residuals are DYNA in both)
     assert r["v2_baked"]["DYNA"] - r["v3"]["DYNA"] > 20 * r["v3"]["POSE"]
+
+
+def test_a_later_part_of_an_agent_grows_its_object_and_keeps_one_pose_per_frame():
+    """The server streams an agent's canonical Gaussians window by window: a later part is appended to the agent's
+    object (OBJC with its index), so the POSE chunks still carry one pose per agent per frame."""
+    scene = v3_scene(np.random.default_rng(14))
+    first = scene.objects[0]
+    part = AgentObject(first.agent_id, first.cls, first.size, v3_scene(np.random.default_rng(15)).objects[2].gaussians,
+                       first.poses, first.present)  # fmt: skip
+    w = wsplat.StreamWriter(scene, *wsplat.layouts_for(scene.static, scene.dynamic, 3), version=3)
+    data = w.head() + b"".join(w.static(scene.static))
+    data += b"".join(w.objects(scene.objects)) + w.poses([0, 1], scene.objects)
+    data += b"".join(w.objects([part])) + w.poses([2, 3], [*scene.objects, part])
+    for t, d in enumerate(wsplat.frame_dynamics(scene)):  # the frame's dynamics and its objects' residuals
+        data += b"".join(w.dynamic(t, d))
+    data += w.end()
+    back = wsplat.decode(data)
+    assert len(back.objects) == len(scene.objects) and back.meta.get("num_objects") is None
+    assert len(back.objects[0].gaussians) == len(first.gaussians) + len(part.gaussians)
+    assert data.count(b"POSE") == 2 and w.num_objects == len(scene.objects)
+    with_part = Scene4D(scene.static, scene.dynamic, scene.frame_times, scene.rig, scene.ego_to_world, scene.meta,
+                        [*scene.objects, part])  # fmt: skip
+    for t in range(scene.num_frames):
+        assert len(back.dynamic_at(t)) == len(with_part.dynamic_at(t))
+    with pytest.raises(ValueError):
+        w.poses([0], scene.objects[:1])  # every object written must be posed

@@ -45,6 +45,29 @@ def v3_scene(rng, streamed_residual: bool = True):
     )
 
 
+def streamed_with_a_later_part(scene, version=3, **_):
+    """A streamed v3 file whose first agent's object comes in two parts (the second window appends to it)."""
+    from worldsplat.gaussians import wsplat
+    from worldsplat.gaussians.types import AgentObject
+
+    first = scene.objects[0]
+    part = AgentObject(first.agent_id, first.cls, first.size, scene.objects[1].gaussians.subset(np.arange(40)),
+                       first.poses, first.present)  # fmt: skip
+    w = wsplat.StreamWriter(scene, *wsplat.layouts_for(scene.static, scene.dynamic, version), block_size=64,
+                            version=version)  # fmt: skip
+    dyn = wsplat.frame_dynamics(scene)
+    out = (
+        w.head()
+        + b"".join(w.static(scene.static))
+        + b"".join(w.objects(scene.objects))
+        + w.poses([0, 1], scene.objects)
+    )
+    out += b"".join(w.dynamic(0, dyn[0]) + w.dynamic(1, dyn[1]))
+    out += b"".join(w.objects([part])) + w.poses([2, 3], [*scene.objects, part])
+    out += b"".join(w.dynamic(2, dyn[2]) + w.dynamic(3, dyn[3]))
+    return out + w.end()
+
+
 def _expect_objects(path, data: bytes) -> None:
     """Add the decoded objects, poses and baked frames to a valid vector's JSON."""
     from worldsplat.gaussians import wsplat
@@ -82,6 +105,7 @@ def write_v3(out_dir, valid, bad, split_chunks, join_chunks, chunk_offset) -> No
     base = valid3("valid_v3_objects", v3_scene(rng), block_size=64)
     valid3("valid_v3_streamed", v3_scene(rng), encoder=wsplat.encode_streamed, parts=[[0, 1], [2, 3]],
            static_split=[300], block_size=64)  # fmt: skip
+    app = valid3("valid_v3_appended", v3_scene(rng), encoder=streamed_with_a_later_part)
     plain = v3_scene(rng)
     plain.objects = []
     valid3("valid_v3_no_objects", plain)
@@ -157,6 +181,13 @@ def write_v3(out_dir, valid, bad, split_chunks, join_chunks, chunk_offset) -> No
     bad("bad_v3_header_object_layout", with_payload(0, json.dumps(h).encode()), "bad_header", 20,
         "HEAD.object_layout")  # fmt: skip
     bad("bad_v3_header_num_objects", with_head(num_objects="4")[0], "bad_header", 20, "HEAD.num_objects")
+    ach = split_chunks(app)
+    later = [i for i, (t, p) in enumerate(ach) if t == b"OBJC" and struct.unpack_from("<I", p)[0] == 0][1]
+    p0 = ach[later][1]
+    c = list(ach)
+    c[later] = (b"OBJC", p0[:4] + struct.pack("<I", 99) + p0[8:])
+    bad("bad_v3_objc_append_other_agent", join_chunks(c, v3), "bad_payload", chunk_offset(c, later) + 12,
+        "OBJC.agent_id")  # fmt: skip
     v2 = split_chunks(wsplat.encode(v3_scene(rng).baked(), version=2))
     v2 = v2[:2] + [ch[objc[0]]] + v2[2:]
     bad("bad_v3_objc_in_v2_file", join_chunks(v2, b"WSPLAT\r\n" + struct.pack("<I", 2)), "bad_tag",

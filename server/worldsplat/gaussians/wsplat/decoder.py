@@ -232,12 +232,13 @@ class ProgressiveDecoder:
         h, T = self.header, len(self.header["frame_times"])
         if tag == b"OBJC":
             limit = None if h["streamed"] else h["num_objects"]
-            i, agent_id, cls, size, a = decode_objc(
-                payload, pbase, len(self.objects), limit, h["object_layout"], h["block_size"]
-            )
-            obj = AgentObject(
-                agent_id, cls, size, Gaussians.from_numpy(**a), np.tile(np.eye(4), (T, 1, 1)), np.zeros(T)
-            )
+            known = [(o.agent_id, o.cls, tuple(np.float32(o.size).tolist())) for o in self.objects]
+            i, agent_id, cls, size, a = decode_objc(payload, pbase, known, limit, h["object_layout"], h["block_size"])
+            g = Gaussians.from_numpy(**a)
+            if i < len(self.objects):  # more Gaussians of an object defined before (a later window's part)
+                self.objects[i].gaussians = Gaussians.cat([self.objects[i].gaussians, g])
+                return ("object", (i, self.objects[i]))
+            obj = AgentObject(agent_id, cls, size, g, np.tile(np.eye(4), (T, 1, 1)), np.zeros(T))
             self.objects.append(obj)
             return ("object", (i, obj))
         if not h["streamed"]:

@@ -170,16 +170,26 @@ def frame_dynamics(scene: Scene4D) -> list[Gaussians]:
 
 
 def _object_chunks(
-    objects: list[AgentObject], start: int, ol: Layout, block_size: int, zstd: tuple = (), pos_precision=None
+    objects: list[AgentObject], ids: dict[int, int], ol: Layout, block_size: int, zstd: tuple = (), pos_precision=None
 ) -> list[bytes]:
-    """OBJC chunks of objects numbered from `start`."""
+    """OBJC chunks of objects: an agent already in `ids` (agent id -> object index) gets its Gaussians appended to
+    its object, a new agent the next index (added to `ids`)."""
     return [
-        _chunk(b"OBJC", encode_objc(start + i, o, ol, block_size, pos_precision, zstd)) for i, o in enumerate(objects)
+        _chunk(b"OBJC", encode_objc(ids.setdefault(o.agent_id, len(ids)), o, ol, block_size, pos_precision, zstd))
+        for o in objects
     ]
 
 
+def distinct_objects(objects: list[AgentObject]) -> list[AgentObject]:
+    """One object per agent, in order of first appearance (the parts of an agent share its track)."""
+    seen: dict[int, AgentObject] = {}
+    for o in objects:
+        seen.setdefault(o.agent_id, o)
+    return list(seen.values())
+
+
 def _pose_chunk(objects: list[AgentObject], frames: list[int]) -> bytes:
-    """One POSE chunk of consecutive frames (every object defined so far)."""
+    """One POSE chunk of consecutive frames: the pose of every object (one per agent, in index order)."""
     present = np.stack([o.present[frames] for o in objects], 1) if objects else np.zeros((len(frames), 0), bool)
     poses = np.stack([o.poses[frames] for o in objects], 1) if objects else np.zeros((len(frames), 0, 4, 4))
     return _chunk(b"POSE", encode_pose(frames[0], present, poses))
@@ -226,15 +236,16 @@ def encode(
     out = bytearray(MAGIC + struct.pack("<I", version))
     nd = [int(len(d["means"])) for d in dyn]
     ol = object_layout_for(scene.objects)
-    objs = (ol, len(scene.objects)) if version >= 3 else None
+    agents = distinct_objects(scene.objects)
+    objs = (ol, len(agents)) if version >= 3 else None
     out += _head(scene, sl, dl, block_size, int(len(st["means"])), nd, bounds, version, dynamic_codec, objs)
     pp = _pos_precision(pos_precision, version, sl)
     for c in _stat_chunks(st, sl, block_size, FIRST_CHUNK, version, zstd, pp)[0]:
         out += c
     if version >= 3 and scene.objects:
-        for c in _object_chunks(scene.objects, 0, ol, block_size, zstd, pos_precision_for(ol)):
+        for c in _object_chunks(scene.objects, {}, ol, block_size, zstd, pos_precision_for(ol)):
             out += c
-        out += _pose_chunk(scene.objects, list(range(scene.num_frames)))
+        out += _pose_chunk(agents, list(range(scene.num_frames)))
     dp = _pos_precision(dynamic_pos_precision, version, dl, dynamic=True)
     models = context_coder.Models(dl.fields) if dynamic_codec == "range" else None
     for t, d in enumerate(dyn):

@@ -67,19 +67,24 @@ def encode_objc(index: int, obj: AgentObject, layout: Layout, block_size: int, p
     return head + encode_blocks_v2(a, layout, block_size, level[0], level[1], pos_precision)
 
 
-def decode_objc(payload: memoryview, base: int, defined: int, limit: int | None, layout: Layout, block_size: int):
-    """An OBJC payload -> (index, agent_id, cls, size (3,), float64 Gaussians dict). `defined`: the objects before
-    it; `limit`: a whole file's HEAD.num_objects (None in a streamed file)."""
+def decode_objc(payload: memoryview, base: int, known: list[tuple], limit: int | None, layout: Layout, block_size: int):
+    """An OBJC payload -> (index, agent_id, cls, size (3,), float64 Gaussians dict). `known`: (agent_id, cls, size)
+    of each object defined before it (an index among them appends Gaussians to that object; the next index defines
+    a new one); `limit`: a whole file's HEAD.num_objects (None in a streamed file)."""
     if len(payload) < OBJC_HEADER:
         raise WsplatError("bad_payload", base, "OBJC.count", f"payload shorter than its {OBJC_HEADER}-byte header")
     index, agent_id, cls, sx, sy, sz, count = struct.unpack_from("<III3fI", payload, 0)
-    if index != defined:
-        raise WsplatError("bad_payload", base, "OBJC.index", f"index {index}, {defined} objects defined before it")
-    if limit is not None and index >= limit:
+    if index > len(known):
+        raise WsplatError("bad_payload", base, "OBJC.index", f"index {index}, {len(known)} objects defined before it")
+    if limit is not None and index == len(known) and index >= limit:
         raise WsplatError("count_mismatch", base, "OBJC.index", f"more objects than HEAD.num_objects ({limit})")
     size = np.array([sx, sy, sz], dtype=np.float64)
     if not np.isfinite(size).all() or (size < 0).any():
         raise WsplatError("bad_payload", base + 12, "OBJC.size", "size must be finite and >= 0")
+    if index < len(known) and known[index] != (agent_id, cls, (sx, sy, sz)):
+        raise WsplatError(
+            "bad_payload", base + 4, "OBJC.agent_id", f"object {index}: agent, class or size not the object's"
+        )
     if count == 0:
         if len(payload) != OBJC_HEADER:
             raise WsplatError("bad_payload", base + OBJC_HEADER, "OBJC.length", "bytes after an empty object")

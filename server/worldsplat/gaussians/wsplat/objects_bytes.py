@@ -24,6 +24,7 @@ from worldsplat.gaussians.agent_appearance import agent_gaussians
 from worldsplat.gaussians.objects import agent_tracks
 from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D
 from worldsplat.gaussians.wsplat.decoder import read
+from worldsplat.gaussians.wsplat.encoder import distinct_objects
 from worldsplat.gaussians.wsplat.stream import encode_streamed
 from worldsplat.world import build_world
 
@@ -66,12 +67,12 @@ def windows(T: int, window: int, first: int) -> list[list[int]]:
 
 
 def measure(scene: Scene4D, window: int, first: int = 1) -> dict:
-    T, A = scene.num_frames, len(scene.objects)
+    T, A = scene.num_frames, len({o.agent_id for o in scene.objects})
     parts = windows(T, window, first)
     split = [round(len(scene.static) * (i + 1) / len(parts)) for i in range(len(parts) - 1)]
     v3 = chunk_bytes(encode_streamed(scene, parts, static_split=split, version=3))
     v2 = chunk_bytes(encode_streamed(scene, parts, static_split=split, version=2))
-    present = int(sum(o.present.sum() for o in scene.objects))
+    present = int(sum(o.present.sum() for o in distinct_objects(scene.objects)))
     dyn3 = v3.get("POSE", 0) + v3.get("DYNA", 0)
     return {
         "agents": A,

@@ -20,6 +20,7 @@ from worldsplat.gaussians.wsplat.encoder import (
     _pos_precision,
     _pose_chunk,
     _stat_chunks,
+    distinct_objects,
     frame_dynamics,
     layouts_for,
     object_layout_for,
@@ -66,7 +67,7 @@ class StreamWriter:
     ):
         self.version = version or DEFAULT_VERSION
         self.ol = object_layout or Layout(tuple(map(tuple, V2_STATIC_ANISO)))
-        self.num_objects = 0
+        self.object_ids: dict[int, int] = {}  # agent id -> its object's index
         self.pos_precision = _pos_precision(pos_precision, self.version, static_layout)
         self.dynamic_pos_precision = _pos_precision(dynamic_pos_precision, self.version, dynamic_layout, dynamic=True)
         if self.version not in VERSIONS:
@@ -130,20 +131,25 @@ class StreamWriter:
                             models=self.models)  # fmt: skip
 
     def objects(self, objects: list[AgentObject]) -> list[bytes]:
-        """v3: OBJC chunks of new agent objects (numbered after the ones written before)."""
+        """v3: OBJC chunks of agent objects: a new agent's object (numbered after the ones written before), or more
+        Gaussians of an agent's object written before (a later window's part: appended to it, posed as one)."""
         if self.version < 3:
             raise ValueError("wsplat: agent objects need version 3 (older versions write Scene4D.baked())")
-        out = _object_chunks(objects, self.num_objects, self.ol, self.block_size, (), pos_precision_for(self.ol))
-        self.num_objects += len(objects)
-        return out
+        return _object_chunks(objects, self.object_ids, self.ol, self.block_size, (), pos_precision_for(self.ol))
+
+    @property
+    def num_objects(self) -> int:
+        return len(self.object_ids)
 
     def poses(self, frames: list[int], objects: list[AgentObject]) -> bytes:
-        """v3: one POSE chunk of consecutive `frames`; `objects`: every object written so far, in order."""
-        if len(objects) != self.num_objects:
-            raise ValueError(f"wsplat: {len(objects)} objects posed, {self.num_objects} written")
+        """v3: one POSE chunk of consecutive `frames`; `objects`: the objects written so far (any parts of one agent
+        share its track: the first one's poses are taken)."""
+        agents = distinct_objects(objects)
+        if [o.agent_id for o in agents] != list(self.object_ids):
+            raise ValueError(f"wsplat: agents {[o.agent_id for o in agents]} posed, {list(self.object_ids)} written")
         if list(frames) != list(range(frames[0], frames[0] + len(frames))):
             raise ValueError("wsplat: a POSE chunk holds consecutive frames")
-        return _pose_chunk(objects, list(frames))
+        return _pose_chunk(agents, list(frames))
 
     def end(self, meta: dict | None = None) -> bytes:
         """END! with the totals, the bounds and `meta` (extra fields, ignored by readers)."""

@@ -112,7 +112,10 @@ impl Scene {
                     self.add_dynamic(frame, &gaussians);
                     added = true;
                 }
-                Event::Object(o) => self.objects.push(o),
+                Event::Object(o) => match self.objects.get_mut(o.index) {
+                    Some(known) => known.gaussians.extend(o.gaussians), // a later part of the object
+                    None => self.objects.push(o),
+                },
                 Event::Poses(p) => {
                     for (f, row) in p.frames.into_iter().enumerate() {
                         self.object_poses[p.first + f] = row;

@@ -19,7 +19,7 @@ pub enum Event {
         frame: usize,
         gaussians: Vec<Gaussian>,
     },
-    /// v3: an agent object's canonical Gaussians (box frame).
+    /// v3: an agent object's canonical Gaussians (box frame); an index defined before: more Gaussians of that object.
     Object(AgentObject),
     /// v3: a run of frames' poses of the objects defined so far.
     Poses(Poses),
@@ -59,8 +59,8 @@ pub struct Decoder {
     version: u32,
     /// A range-coded file's models, carried from one DYNA chunk to the next (created with its HEAD).
     models: Option<dyna_range::Models>,
-    /// v3: the objects defined so far, and the frames a POSE chunk posed.
-    objects: usize,
+    /// v3: (agent_id, cls, size) of the objects defined so far, and the frames a POSE chunk posed.
+    objects: Vec<(u32, u32, [f32; 3])>,
     posed: Vec<bool>,
 }
 
@@ -82,7 +82,7 @@ impl Decoder {
             failed: None,
             version: 0,
             models: None,
-            objects: 0,
+            objects: Vec::new(),
             posed: Vec::new(),
         }
     }
@@ -264,12 +264,14 @@ impl Decoder {
                     let h = self.header.as_ref().unwrap();
                     let limit = (!h.streamed).then_some(h.num_objects);
                     let layout = h.object_layout.as_ref().unwrap();
-                    let o = decode_objc(payload, payload_off, self.objects, limit, layout, h.block_size)?;
-                    self.objects += 1;
+                    let o = decode_objc(payload, payload_off, &self.objects, limit, layout, h.block_size)?;
+                    if o.index == self.objects.len() {
+                        self.objects.push((o.agent_id, o.cls, o.size));
+                    }
                     events.push(Event::Object(o));
                 }
                 (b"POSE", Stage::Static | Stage::Dynamic | Stage::Stream) => {
-                    let poses = decode_pose(payload, payload_off, &mut self.posed, self.objects)?;
+                    let poses = decode_pose(payload, payload_off, &mut self.posed, self.objects.len())?;
                     if self.stage == Stage::Static {
                         self.stage = Stage::Dynamic;
                     }
@@ -317,11 +319,11 @@ impl Decoder {
                             ),
                         );
                     }
-                    if h.version >= 3 && self.objects as u64 != h.num_objects {
+                    if h.version >= 3 && self.objects.len() as u64 != h.num_objects {
                         return err(
                             ErrorKind::CountMismatch,
                             off,
-                            format!("END!: {} objects, {src}.num_objects says {}", self.objects, h.num_objects),
+                            format!("END!: {} objects, {src}.num_objects says {}", self.objects.len(), h.num_objects),
                         );
                     }
                     self.stage = Stage::Done;

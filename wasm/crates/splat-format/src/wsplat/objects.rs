@@ -12,7 +12,8 @@ pub const OBJC_HEADER: usize = 28;
 pub const POSE_HEADER: usize = 12;
 pub const POSE_BYTES: usize = 16;
 
-/// One agent object: its canonical Gaussians in its box frame (x forward, y left, z up; origin at the box centre).
+/// One agent object: its canonical Gaussians in its box frame (x forward, y left, z up; origin at the box centre). An
+/// OBJC chunk whose index names an object defined before carries more Gaussians of it (appended).
 #[derive(Clone, Debug, PartialEq)]
 pub struct AgentObject {
     pub index: usize,
@@ -70,11 +71,13 @@ pub fn code_quat(code: u32) -> [f64; 4] {
     q.map(|x| x / n)
 }
 
-/// An OBJC payload: `defined` objects came before it; `limit` is a whole file's HEAD.num_objects (None: streamed).
+/// An OBJC payload. `known`: (agent_id, cls, size) of each object defined before it (an index among them appends
+/// Gaussians to that object, the next index defines a new one); `limit`: a whole file's HEAD.num_objects (None:
+/// streamed).
 pub(super) fn decode_objc(
     payload: &[u8],
     payload_off: u64,
-    defined: usize,
+    known: &[(u32, u32, [f32; 3])],
     limit: Option<u64>,
     layout: &Layout,
     block_size: usize,
@@ -83,18 +86,22 @@ pub(super) fn decode_objc(
         return err(ErrorKind::BadPayload, payload_off, format!("OBJC.count: payload shorter than its {OBJC_HEADER}-byte header"));
     }
     let index = u32_at(payload, 0) as usize;
-    if index != defined {
-        return err(ErrorKind::BadPayload, payload_off, format!("OBJC.index: {index}, {defined} objects defined before it"));
+    if index > known.len() {
+        return err(ErrorKind::BadPayload, payload_off, format!("OBJC.index: {index}, {} objects defined before it", known.len()));
     }
-    if limit.is_some_and(|n| index as u64 >= n) {
+    if index == known.len() && limit.is_some_and(|n| index as u64 >= n) {
         return err(ErrorKind::CountMismatch, payload_off, format!("OBJC.index: more objects than HEAD.num_objects ({})", limit.unwrap()));
     }
     let size = [f32_at(payload, 12), f32_at(payload, 16), f32_at(payload, 20)];
     if !size.iter().all(|s| s.is_finite() && *s >= 0.0) {
         return err(ErrorKind::BadPayload, payload_off + 12, "OBJC.size: must be finite and >= 0");
     }
+    let (agent_id, cls) = (u32_at(payload, 4), u32_at(payload, 8));
+    if known.get(index).is_some_and(|k| *k != (agent_id, cls, size)) {
+        return err(ErrorKind::BadPayload, payload_off + 4, format!("OBJC.agent_id: object {index}: agent, class or size not the object's"));
+    }
     let count = u32_at(payload, 24) as usize;
-    let object = |gaussians| AgentObject { index, agent_id: u32_at(payload, 4), cls: u32_at(payload, 8), size, gaussians };
+    let object = |gaussians| AgentObject { index, agent_id, cls, size, gaussians };
     if count == 0 {
         if payload.len() != OBJC_HEADER {
             return err(ErrorKind::BadPayload, payload_off + OBJC_HEADER as u64, "OBJC.length: bytes after an empty object");

@@ -262,3 +262,23 @@ def test_augmentation_trains_each_arm_per_seed_and_reports_the_gain(tmp_path):
         progress=False,
     )
     assert again["table"] == r["table"]
+
+
+def test_shipped_bev_head_reads_the_drivable_area_of_a_held_out_clip():
+    """The shipped BEV head through the shipped judge, on the world's six cameras of one held-out frame: it finds the
+    drivable area around the ego (held-out IoU 0.90 over 16 clips; the floor leaves room for one frame's spread)."""
+    from worldsplat.training.judge_bev import bev_logits, bev_targets
+    from worldsplat.world import build_world, simulate
+    from worldsplat.world.dataset import clip_scenario
+    from worldsplat_models.judge_bev import load_bev
+
+    judge = load_judge(weights_dir() / "judge_small.safetensors")
+    head = load_bev(weights_dir() / "judge_bev_small.safetensors")
+    world = build_world(clip_scenario("test", 1, frames=1))
+    images = simulate(world, 0.0).rgb
+    logits = bev_logits(judge, head, images).detach().numpy()
+    s = downstream.bev_summary(downstream.bev_confusion(logits, bev_targets(world, 0.0, head.cfg)), head.cfg.layers)
+    assert s["bev_iou"]["drivable"] > 0.7, s
+    # black cameras carry no road: the head must not draw the drivable area from its prior alone
+    dark = downstream.bev_confusion(bev_logits(judge, head, np.zeros_like(images)).detach().numpy(), 0 * logits)
+    assert dark[0, 1] < 0.5 * (logits[0, 0] > 0).sum(), dark

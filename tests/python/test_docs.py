@@ -220,7 +220,8 @@ LABEL = re.compile("|".join(f"(?:{p})" for p in LABEL_PATTERNS), re.IGNORECASE)
 # "the v2 VAE", "v2/v3 stack", "v11 weights", "the v1 set"; not on a line about the .wsplat format ("v1 + v2 decoder")
 ROUND_NOUN = re.compile(rf"\bv\d+(?:/v\d+)*(?:'s)? (?:{ROUND_NOUNS})\b", re.IGNORECASE)
 WSPLAT_LINE = re.compile(r"wsplat", re.IGNORECASE)
-# v3 / v4 name training rounds too, but also Niantic SPZ's format versions: flagged on lines that are not about SPZ.
+# v3 / v4 name training rounds too, but also format versions (Niantic SPZ's, .wsplat v3): flagged on lines that are
+# not about SPZ or .wsplat, outside the files of those formats.
 ROUND_V34 = re.compile(r"\bv[34]\b")
 SPZ_LINE = re.compile(r"spz|ngsp", re.IGNORECASE)
 # A file named by round: test_models_v2.py, campaign_v4_test0.png (not format versions: wsplat-v2.md, bad_v2_*.wsplat).
@@ -235,7 +236,8 @@ def label_hits(line: str, path: str = "") -> list[str]:
     hits = [m.group(0) for m in LABEL.finditer(line)]
     if not WSPLAT_LINE.search(line):
         hits += [m.group(0) for m in ROUND_NOUN.finditer(line)]
-    if not SPZ_LINE.search(line) and not SPZ_LINE.search(Path(path).name):
+    formats = (SPZ_LINE, WSPLAT_LINE)
+    if not any(f.search(line) or f.search(path) for f in formats):
         hits += [m.group(0) for m in ROUND_V34.finditer(line)]
     return hits
 
@@ -286,6 +288,12 @@ def test_label_lint_passes_format_versions(text):
 def test_label_lint_reads_an_spz_files_versions_as_formats():
     assert not label_hits("the gzip stream of a v2/v3 file", "server/worldsplat/gaussians/spz.py")
     assert label_hits("the gzip stream of a v2/v3 file", "server/worldsplat/pipeline/inference.py")
+
+
+def test_label_lint_reads_wsplat_v3_as_a_format():
+    assert not label_hits("a .wsplat v3 file's agent objects")
+    assert not label_hits("v3: an OBJC chunk", "server/worldsplat/gaussians/wsplat/decoder.py")
+    assert label_hits("v3: the prior", "server/worldsplat/pipeline/inference.py")
 
 
 # CHANGELOG.md is where history is named; this file holds the lint's own examples of what it flags.

@@ -43,6 +43,18 @@ pub fn quat_to_matrix(q: [f64; 4]) -> [[f64; 3]; 3] {
     ]
 }
 
+/// Hamilton product a * b of quaternions (w, x, y, z): the rotation b, then a.
+pub fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    let [aw, ax, ay, az] = a;
+    let [bw, bx, by, bz] = b;
+    [
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ]
+}
+
 impl Gaussian {
     /// The spec's sanitizing: `None` if the Gaussian is dropped (non-finite input or opacity < 1/255),
     /// otherwise unit quaternion (identity if |q| < QUAT_EPS), clamped scale, opacity and colour.

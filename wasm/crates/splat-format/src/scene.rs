@@ -25,7 +25,7 @@ pub struct Scene {
     pub bounds: Option<([f64; 3], [f64; 3])>,
     /// Gaussians the spec's sanitizing dropped while loading.
     pub dropped: u64,
-    /// v3: the agent objects (canonical Gaussians, box frame) and, per frame, each object's pose where present (a
+    /// .wsplat v3: the agent objects (canonical Gaussians, box frame) and, per frame, each object's pose where present (a
     /// frame no POSE chunk covered yet, or an object defined after it, is absent there).
     pub objects: Vec<AgentObject>,
     pub object_poses: Vec<Vec<Option<Pose>>>,

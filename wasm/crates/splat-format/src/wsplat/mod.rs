@@ -1,4 +1,4 @@
-//! Progressive .wsplat v1 + v2 + v3 decoder (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md: v3's agent objects,
+//! Progressive .wsplat v1 + v2 + v3 decoder (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md; the agent objects,
 //! OBJC and POSE chunks, in `objects`). Feed bytes as they arrive
 //! (`push`); each complete chunk becomes an `Event`. v2 chunks hold zstd-coded byte planes (ruzstd), each
 //! decompressed into exactly the size its count implies, after the count was bounded by the chunk's bytes; a v2 file

@@ -6,7 +6,7 @@ use super::layout::Layout;
 use super::v2::{decode_records_v2, Chunk};
 use super::{err, f32_at, u32_at, ErrorKind, WsplatError, BLOCK_HEADER, MAX_RATIO};
 use crate::camera::Mat4;
-use crate::gaussians::{quat_to_matrix, Gaussian};
+use crate::gaussians::{quat_mul, quat_to_matrix, Gaussian};
 
 pub const OBJC_HEADER: usize = 28;
 pub const POSE_HEADER: usize = 12;
@@ -170,17 +170,6 @@ pub(super) fn decode_pose(payload: &[u8], payload_off: u64, posed: &mut [bool], 
     }
     posed[first..first + frames].iter_mut().for_each(|p| *p = true);
     Ok(Poses { first, frames: out })
-}
-
-fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
-    let [aw, ax, ay, az] = a;
-    let [bw, bx, by, bz] = b;
-    [
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ]
 }
 
 /// The object's canonical Gaussians posed by `pose` (mean R mu + t, rotation q * q_mu; scale, opacity, colour kept).

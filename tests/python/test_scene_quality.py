@@ -164,6 +164,22 @@ def test_oracle_scene_measured_and_an_agent_removed_is_not_seen(small_oracle):
     assert r2["agents_seen"] == r["agents_seen"] - 1
 
 
+def test_silhouettes_from_the_agents_boxes_only_equal_the_full_render(small_oracle):
+    world, scene = small_oracle
+    full = sq.measure_frame(world, scene, 0)
+    assert sq.silhouette_frame(world, scene, 0) == pytest.approx(full["iou"], abs=1e-6)
+    cams, exact = sq.canvas_cameras(world, scene, 0, sq.SCALE)
+    truth = sq.ground_truth(world, 0, exact)
+    agents = sq.candidates(world, 0, truth)
+    g = scene.at_frame(0)
+    member = sq.agent_membership(world, scene, 0, g.means, agents)
+    _, chans = sq.render_frame(g, member, cams[:2])
+    for v in range(2):
+        near = sq.render_channels_near(g, member, cams[v], truth.instance[v], agents)
+        assert np.abs(near - chans[v]).max() < 1e-5
+        assert chans[v].max() > 0.5 or not (truth.instance[v] >= 0).any()
+
+
 def test_a_scene_in_its_own_frame_measures_the_same(small_oracle):
     """The learned modes may place a scene in their own frame: Gaussians and ego poses moved together change nothing."""
     world, scene = small_oracle

@@ -31,6 +31,7 @@ renderer) at every rig camera on a canvas SCALE x the served image per side, aga
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 import time
@@ -45,7 +46,8 @@ from worldsplat.core.camera import Camera, rigid_inverse, yaw_pose
 from worldsplat.core.metrics import psnr, ssim_map
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians import ply, wsplat
-from worldsplat.gaussians.raster import rasterize
+from worldsplat.gaussians.project import Projected, project
+from worldsplat.gaussians.raster import composite_pairs, rasterize
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.pipeline.scene import ALL_MODES, generate_scene, preload
 from worldsplat.world import build_world
@@ -211,6 +213,45 @@ def render_frame(g: Gaussians, membership: torch.Tensor, cams: list[Camera]) -> 
     return np.stack(rgbs), np.stack(chans)
 
 
+def agent_rects(proj: Projected, membership: torch.Tensor, instance: np.ndarray, agents: list[int]) -> list[tuple]:
+    """Per agent, the pixel box (x0, y0, x1, y1) holding its exact pixels in this view and the support of its
+    Gaussians: every pixel its silhouette IoU reads."""
+    rects = []
+    for j, k in enumerate(agents):
+        boxes = []
+        ys, xs = np.nonzero(instance == k)
+        if len(xs):
+            boxes.append((xs.min(), ys.min(), xs.max() + 1, ys.max() + 1))
+        mine = membership[proj.index, j] > 0
+        if bool(mine.any()):
+            lo, hi = (proj.uv[mine] - proj.extent[mine]).amin(0), (proj.uv[mine] + proj.extent[mine]).amax(0)
+            boxes.append((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])))
+        if boxes:
+            b = np.array(boxes, np.float64)
+            rects.append((*b[:, :2].min(0), *b[:, 2:].max(0)))
+    return rects
+
+
+def render_channels_near(
+    g: Gaussians, membership: torch.Tensor, cam: Camera, instance: np.ndarray, agents
+) -> np.ndarray:
+    """(H,W,K) membership channels of one view, compositing only the Gaussians whose support meets an agent's box
+    (`agent_rects`): exact there (every Gaussian that touches those pixels is kept) and 0 elsewhere, as in the full
+    render (an agent's Gaussians touch no pixel outside its box)."""
+    K = membership.shape[1]
+    g = Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, membership.to(g.means.dtype))
+    with torch.no_grad():
+        proj = project(g, cam)
+        rects = agent_rects(proj, membership, instance, agents)
+        keep = torch.zeros(len(proj), dtype=torch.bool)
+        lo, hi = proj.uv - proj.extent, proj.uv + proj.extent
+        for x0, y0, x1, y1 in rects:
+            keep |= (hi[:, 0] >= x0) & (lo[:, 0] <= x1 + 1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1 + 1)
+        sub = Projected(**{f.name: getattr(proj, f.name)[keep] for f in dataclasses.fields(Projected)})
+        feats, _, _ = composite_pairs(sub, cam.width, cam.height)
+    return feats[:, 3:].reshape(cam.height, cam.width, K).float().numpy()
+
+
 def candidates(world, t: int, truth: Truth, scale: int = SCALE) -> list[int]:
     """Agents within AGENT_RANGE_M of the ego at frame t covering >= MIN_SERVED_PX served pixels of the views."""
     ego = world.ego_to_world[t][:2, 3]
@@ -243,6 +284,19 @@ def measure_frame(world, scene: Scene4D, t: int, scale: int = SCALE) -> dict:
     return {"rgb": rgb, "truth": truth, "agents": views, "iou": ious, "gaussians": len(g)}
 
 
+def silhouette_frame(world, scene: Scene4D, t: int, scale: int = SCALE) -> list[float]:
+    """Frame t's silhouette IoUs (one per eligible agent), from the exact instance masks and the agents' channels."""
+    rend_cams, exact_cams = canvas_cameras(world, scene, t, scale)
+    inst = np.stack([instance_mask(world, t, c) for c in exact_cams])
+    agents = candidates(world, t, Truth(None, None, inst), scale)
+    if not agents:
+        return []
+    g = scene.at_frame(t)
+    member = agent_membership(world, scene, t, g.means, agents)
+    chans = np.stack([render_channels_near(g, member, c, i, agents) for c, i in zip(rend_cams, inst)])
+    return [silhouette_iou(chans[..., j], Truth(None, None, inst), k) for j, k in enumerate(agents)]
+
+
 def measure_scene(world, scene: Scene4D, iou_frames: list[int] | None = None, scale: int = SCALE) -> dict:
     """Every figure of one built scene (frame 0 for the images and agents seen; `iou_frames`, default all, for the
     silhouettes)."""
@@ -252,7 +306,7 @@ def measure_scene(world, scene: Scene4D, iou_frames: list[int] | None = None, sc
     ious = list(f0["iou"]) if 0 in frames else []
     for t in frames:
         if t != 0:
-            ious += measure_frame(world, scene, t, scale)["iou"]
+            ious += silhouette_frame(world, scene, t, scale)
     ious = [i for i in ious if np.isfinite(i)]
     seen = sum(a["seen"] for a in f0["agents"])
     return {

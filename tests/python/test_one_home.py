@@ -169,7 +169,7 @@ def test_the_weights_folder_is_spelled_once(monkeypatch, tmp_path):
 
 def test_rotation_and_ray_math_has_one_home():
     """worldsplat_models.geometry holds the quaternion, rotation-matrix and ray math; the decoder network, the
-    rasterizer, lifting, aggregation, the .wsplat encoder and the file formats use its functions, none its own."""
+    rasterizer, lifting, the rigid transform of aggregation and agent objects (gaussians.types), the .wsplat encoder and the file formats use its functions, none its own."""
     import importlib
 
     geometry = importlib.import_module("worldsplat_models.geometry")
@@ -177,7 +177,7 @@ def test_rotation_and_ray_math_has_one_home():
         name: importlib.import_module(name)
         for name in (
             "worldsplat_models.gs_decoder",
-            "worldsplat.gaussians.aggregate",
+            "worldsplat.gaussians.types",
             "worldsplat.gaussians.fileformat",
             "worldsplat.gaussians.lift",
             "worldsplat.gaussians.project",
@@ -188,12 +188,12 @@ def test_rotation_and_ray_math_has_one_home():
     shared = {
         "quaternion_multiply": (
             "worldsplat_models.gs_decoder",
-            "worldsplat.gaussians.aggregate",
+            "worldsplat.gaussians.types",
             "worldsplat.gaussians.wsplat.quantise",
         ),
         "matrix_to_quaternion": (
             "worldsplat_models.gs_decoder",
-            "worldsplat.gaussians.aggregate",
+            "worldsplat.gaussians.types",
             "worldsplat.gaussians.lift",
             "worldsplat.scale.nuscenes",
         ),

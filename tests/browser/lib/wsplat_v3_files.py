@@ -6,7 +6,9 @@ window) and, as the reference, the same scene with the objects posed in Python: 
 baked (`Scene4D.baked()`) beside the original statics, written as v2 with the object layout as its dynamic layout
 (so the posed objects are quantised as finely as v3's), and the scene without its objects.
 
-    .venv/bin/python tests/browser/lib/wsplat_v3_files.py OUT_DIR"""
+    .venv/bin/python tests/browser/lib/wsplat_v3_files.py OUT_DIR [SCENE.wsplat]
+
+SCENE.wsplat (a v3 file with agent objects, e.g. the playground's generated scene) adds that scene's set."""
 
 from __future__ import annotations
 
@@ -52,34 +54,46 @@ def scene_with_objects():
     return scene
 
 
-def main(argv: list[str]) -> int:
-    out = Path(argv[0])
-    out.mkdir(parents=True, exist_ok=True)
-    torch.set_num_threads(1)
-    scene = scene_with_objects()
+# The reference's dynamic layout: finer than any v3 layout (rotations, scales, opacity; positions in boxes of 0.05 x the
+# Gaussians' size), so the reference's own quantisation stays well below the difference the test bounds.
+FINE = [["px", 13], ["py", 13], ["pz", 13], ["qx", 9], ["qy", 9], ["qz", 9], ["sx", 8], ["sy", 8], ["sz", 8],
+        ["o", 8], ["r", 8], ["g", 8], ["b", 8]]  # fmt: skip
+
+
+def write_set(out: Path, name: str, scene: Scene4D) -> dict:
+    """NAME_v3, NAME_v3_streamed (two windows), NAME_v2_baked (the reference) and NAME_v3_no_objects."""
     T = scene.num_frames
     parts = [list(range(0, T // 2)), list(range(T // 2, T))]
     files = {
         "v3": wsplat.encode(scene, version=3),
         "v3_streamed": wsplat.encode_streamed(scene, parts, static_split=[len(scene.static) // 2], version=3),
     }
-    # the reference: the original statics (quantised as v3 quantises them: the same layout and boxes), and every
-    # frame's dynamics as the v3 file decodes them with its objects posed in Python, in a v2 dynamic layout as fine
-    # as v3's object layout
+    # the reference: the same statics (quantised as v3 quantises them: the same layout and boxes), and every frame's
+    # dynamics as the v3 file decodes them with its objects posed in Python, in a v2 dynamic layout finer than v3's
     back = wsplat.decode(files["v3"])
     sl = wsplat.layouts_for(scene.static, scene.dynamic, version=3)[0]
-    ol = wsplat.object_layout_for(scene.objects)
     ref = Scene4D(scene.static, back.baked().dynamic, scene.frame_times, scene.rig, scene.ego_to_world, scene.meta)
-    same = {"static_layout": [list(f) for f in sl.fields], "dynamic_layout": ol.to_json(), "dynamic_codec": "zstd"}
+    same = {"static_layout": [list(f) for f in sl.fields], "dynamic_layout": FINE, "dynamic_codec": "zstd",
+            "dynamic_pos_precision": 0.05}  # fmt: skip
     files["v2_baked"] = wsplat.encode(ref, version=2, **same)
     files["v3_no_objects"] = wsplat.encode(Scene4D(scene.static, scene.dynamic, scene.frame_times, scene.rig,
                                                    scene.ego_to_world, scene.meta), version=3)  # fmt: skip
-    info = {"frames": T, "files": {}}
+    info = {"frames": T, "objects": len(scene.objects), "files": {}}
     for k, data in files.items():
-        (out / f"objects_{k}.wsplat").write_bytes(data)
-        info["files"][k] = {"file": f"objects_{k}.wsplat", "bytes": len(data)}
-    (out / "files.json").write_text(json.dumps(info, indent=1) + "\n")
-    print(json.dumps(info))
+        (out / f"{name}_{k}.wsplat").write_bytes(data)
+        info["files"][k] = {"file": f"{name}_{k}.wsplat", "bytes": len(data)}
+    return info
+
+
+def main(argv: list[str]) -> int:
+    out = Path(argv[0])
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(1)
+    sets = {"fixture": write_set(out, "fixture", scene_with_objects())}
+    if len(argv) > 1:  # a real scene with agent objects (a .wsplat v3, e.g. the playground's generated scene)
+        sets["scene"] = write_set(out, "scene", wsplat.read(argv[1])) | {"source": argv[1]}
+    (out / "files.json").write_text(json.dumps(sets, indent=1) + "\n")
+    print(json.dumps(sets))
     return 0
 
 

@@ -79,6 +79,8 @@ def test_ring_is_the_band_around_the_mask():
     m[0, 8:12, 8:12] = True
     r = sq.ring(m, 2)
     assert int(r.sum()) == 8 * 8 - 4 * 4 and not (r & m).any()
+    band = sq.ring(m, 3, gap=1)
+    assert int(band.sum()) == 10 * 10 - 6 * 6 and not (band & sq.ring(m, 1)).any()
 
 
 def test_agent_seen_needs_coverage_and_contrast():
@@ -92,7 +94,7 @@ def test_agent_seen_needs_coverage_and_contrast():
     gone[mine] = (128, 128, 128)  # removed: the wall behind shows, nothing of the agent is drawn
     assert not sq.agent_view(gone, np.zeros_like(full), t, 0, scale=1)["seen"]
     # drawn where it is, but in its surround's colour: covered, does not stand out
-    around = sq.ring(mine, sq.RING_PX)
+    around = sq.ring(mine, sq.RING_PX, sq.RING_GAP_PX)
     flat = t.rgb.copy()
     flat[mine] = t.rgb[around].mean(0).round().astype(np.uint8)
     v = sq.agent_view(flat, full, t, 0, scale=1)

@@ -18,8 +18,8 @@ renderer) at every rig camera on a canvas SCALE x the served image per side, aga
   by BOX_MARGIN_M; the bottom BOX_FLOOR_M left out so the road under it is not counted), static or dynamic alike
   (parked agents are static in the scene and still agents). Each agent's membership is an extra channel composited
   like colour, so occlusion counts: a pixel is covered where the channel is >= 0.5. Seen: covered on >= COVER_MIN of
-  its exact pixels AND |mean colour of its pixels - mean colour of a RING_PX ring around them| in the render is at
-  least CONTRAST_SHARE of that in the exact image (RGB distance in [0, 1] units).
+  its exact pixels AND |mean colour of its pixels - mean colour of the ring RING_GAP_PX..RING_PX served pixels around
+  them| in the render is at least CONTRAST_SHARE of that in the exact image (RGB distance in [0, 1] units).
 - silhouette IoU: every frame (or `--iou-frames`), each such agent's rendered channel >= 0.5 against its exact
   instance mask, pooled over the cameras; the mean over (agent, frame).
 - scene seconds: wall time of `generate_scene` (models loaded before; the first window's caption encoder warm).
@@ -73,7 +73,10 @@ MIN_SERVED_PX = 40
 COVER_MIN = 0.8
 CONTRAST_SHARE = 0.5
 COVER_THRESHOLD = 0.5  # rendered membership channel at which a pixel counts as the agent's
-RING_PX = 3  # ring around an agent, in served pixels (SCALE x that on the canvas)
+# the surround an agent stands out from: the ring RING_GAP_PX..RING_PX served pixels (SCALE x that on the canvas)
+# around its exact pixels; the gap leaves out the boundary band, which any resampling of the edge smears
+RING_GAP_PX = 1
+RING_PX = 4
 BOX_MARGIN_M = 0.25
 BOX_FLOOR_M = 0.08
 LUMA = (0.299, 0.587, 0.114)
@@ -134,11 +137,17 @@ def luma_ssim(render: np.ndarray, truth: Truth) -> float:
     return float(m[keep].mean()) if keep.any() else float("nan")
 
 
-def ring(mask: np.ndarray, width: int) -> np.ndarray:
-    """(V,H,W) bool -> the pixels within `width` (square) of the mask, the mask itself left out."""
+def grown(mask: np.ndarray, width: int) -> np.ndarray:
+    """(V,H,W) bool -> the pixels within `width` (square) of the mask, the mask included."""
+    if width <= 0:
+        return np.asarray(mask, bool)
     m = torch.as_tensor(mask).float()[:, None]
-    grown = F.max_pool2d(m, 2 * width + 1, stride=1, padding=width)[:, 0].numpy() > 0
-    return grown & ~mask
+    return F.max_pool2d(m, 2 * width + 1, stride=1, padding=width)[:, 0].numpy() > 0
+
+
+def ring(mask: np.ndarray, width: int, gap: int = 0) -> np.ndarray:
+    """(V,H,W) bool -> the pixels more than `gap` and at most `width` (square) away from the mask."""
+    return grown(mask, width) & ~grown(mask, gap)
 
 
 def contrast(rgb: np.ndarray, inside: np.ndarray, around: np.ndarray) -> float:
@@ -153,7 +162,7 @@ def agent_view(render: np.ndarray, channel: np.ndarray, truth: Truth, k: int, sc
     """One agent on every view of a frame: its exact pixels, the share the render covers, contrast render vs exact."""
     mine = truth.instance == k
     px = int(mine.sum())
-    around = ring(mine, RING_PX * scale)
+    around = ring(mine, RING_PX * scale, RING_GAP_PX * scale)
     covered = float((channel[mine] >= COVER_THRESHOLD).mean()) if px else 0.0
     c_gt, c_render = contrast(truth.rgb, mine, around), contrast(render, mine, around)
     return {

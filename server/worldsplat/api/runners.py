@@ -173,7 +173,7 @@ class StreamSink:
     job that fails before its first window leaves no file at all.
 
     Agent objects (web/docs/agents.md): a v1/v2 file gets each frame's dynamics with the objects built so far posed
-    in (the pipeline bakes them for a sink without `takes_objects`). From v3 the sink takes the objects: each window's
+    in (the pipeline bakes them for a sink without `takes_objects`). From .wsplat v3 the sink takes the objects: each window's
     new canonical Gaussians of an agent go out as one more OBJC object of that agent (an object grows window by
     window and never changes what was sent), then one POSE chunk of the window's frames for every object sent."""
 

@@ -137,7 +137,9 @@ class AgentObject:
         if len(self.present) != len(self.poses):
             raise ValueError(f"AgentObject {self.agent_id}: {len(self.poses)} poses but {len(self.present)} flags")
         if self.residuals is not None and len(self.residuals) != len(self.poses):
-            raise ValueError(f"AgentObject {self.agent_id}: {len(self.poses)} poses but {len(self.residuals)} residuals")
+            raise ValueError(
+                f"AgentObject {self.agent_id}: {len(self.poses)} poses but {len(self.residuals)} residuals"
+            )
 
     def at_frame(self, t: int) -> Gaussians:
         """The object posed at frame t (plus its residual there); empty where the agent is absent."""

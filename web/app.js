@@ -6,6 +6,7 @@
 import { SHIFT_MAX_M } from "./limits.js";
 import { decodeShare, RIG_CAMERAS, shareUrl } from "./share.js";
 import { initEditor } from "./editor.js";
+import { createLiveDrag } from "./live-drag.js";
 
 const $ = (id) => document.getElementById(id);
 const CAMERAS = RIG_CAMERAS;
@@ -176,6 +177,7 @@ async function generate(scenario, mode, view = null) {
   clearError();
   $("generate-btn").disabled = true;
   setReadyScene(null);
+  state.live.sceneReady(null);
   state.timing = { t0: performance.now() };
   try {
     const { body } = await apiJson("/api/scenes", {
@@ -207,6 +209,8 @@ async function generate(scenario, mode, view = null) {
     if (view) applyView(view);
     $("gen-progress").hidden = true;
     setReadyScene(body.scene_id);
+    await state.live.sceneReady(state.scenario);  // its agent objects move live as the editor moves their agents
+    state.editor.draw();
     return body.scene_id;
   } catch (e) {
     $("gen-progress").hidden = true;
@@ -291,6 +295,7 @@ function setFrame(t) {
   $("timeline").value = String(state.frame);
   $("frame-label").textContent = `${state.frame + 1} / ${state.frames}`;
   if (state.viewer && state.loaded) state.viewer.set_frame(state.frame);
+  if (state.editor) state.editor.setTime(state.frame / (state.fps || 4));
   state.dirty = true;
 }
 
@@ -580,7 +585,8 @@ function openDropped(files) {
 
 // ---- share links ---------------------------------------------------------------------------------------------------
 function share() {
-  const url = shareUrl(location.href, { scenario: state.scenario, mode: state.sceneMode, view: currentView() });
+  const scenario = state.live.edited() ? readForm() : state.scenario;  // agents moved live: the edited scenario
+  const url = shareUrl(location.href, { scenario, mode: state.sceneMode, view: currentView() });
   $("share-url").value = url;
   $("share-copied").textContent = "";
   if (navigator.clipboard) {
@@ -629,8 +635,10 @@ function openDownload() {
 
 // ---- wiring ----------------------------------------------------------------------------------------------------------
 function wire() {
+  state.live = createLiveDrag({ getViewer: () => state.viewer, redraw: () => { state.dirty = true; } });
   state.editor = initEditor({ host: $("scenario-editor"), getBase: () => state.base, getForm: readForm, selectPreset,
-    presetNames: () => state.presets.map((p) => p.name), setField, onRoad: showRoad });
+    presetNames: () => state.presets.map((p) => p.name), setField, onRoad: showRoad,
+    onMotion: (v, motion) => state.live.onMotion(v, motion), isLive: (a, i) => state.live.isLive(a, i) });
   document.querySelector('[data-field="road.kind"]').addEventListener("input", syncJunction);
   $("error-close").onclick = clearError;
   $("preset").onchange = (e) => selectPreset(e.target.value);

@@ -92,7 +92,7 @@ export function poseAt(times, poses, t) {
 
 // ---- the editor ----------------------------------------------------------------------------------------------------
 export function initEditor({ host, getBase, getForm, selectPreset, presetNames, setField = () => {},
-  onRoad = () => {} }) {
+  onRoad = () => {}, onMotion = () => {}, isLive = () => null }) {
   host.innerHTML = `
     <fieldset class="editor"><legend>Agents &amp; paths</legend>
       <div class="ed-tools">
@@ -102,6 +102,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
         <button type="button" id="ed-rot-l" class="btn small" title="rotate left 15°">⟲</button>
         <button type="button" id="ed-rot-r" class="btn small" title="rotate right 15°">⟳</button>
         <button type="button" id="ed-del" class="btn small" title="delete the selected agent (Delete)">✕</button>
+        <button type="button" id="ed-big" class="btn small" aria-pressed="false" title="edit in a large view under the scene">⤢ large</button>
       </div>
       <canvas id="ed-canvas" width="560" height="240" tabindex="0" aria-label="bird's-eye scenario editor"></canvas>
       <p id="ed-junction" class="small muted ed-junction" aria-live="polite" hidden></p>
@@ -136,7 +137,8 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
         ${CORNER_CASES.map((n) => `<button type="button" class="link-btn" data-corner="${n}">${n.replaceAll("_", " ")}</button>`).join(" ")}
       </div>
     </fieldset>`;
-  const $ = (id) => host.querySelector(`#${id}`);
+  const root = host.firstElementChild;  // the editor: in the scenario panel, or in the large view (#editor-stage)
+  const $ = (id) => root.querySelector(`#${id}`);
   const canvas = $("ed-canvas"), ctx = canvas.getContext("2d");
   // pathSpeed: the speed a path's waypoints are timed with (the agent's speed when its first waypoint was set)
   // road: the server's latest answer (POST /api/road) {roadKey, motionKey, layout | null, motion | null, error};
@@ -184,6 +186,7 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
       if (seq !== roadSeq) return;  // a newer question is on its way
       ui.road = { roadKey: roadKey(v), motionKey: key, layout, motion, error };
       if (layout) ui.known = ui.road;
+      if (motion && !error) onMotion(v, motion);  // a scene on screen moves its agents live (web/live-drag.js)
       roadAsked = null;
       const waiting = roadWaiters;  // the answer is for the scenario as it is now (a newer question would be pending)
       roadWaiters = [];
@@ -364,7 +367,9 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
     }
     s.agents.forEach((a, i) => {
       const pose = agentPoseAt(v, i, t), [l, w] = dims(v, i);
+      ctx.globalAlpha = isLive(a, i) === false ? 0.35 : 1;  // greyed: only Generate moves it in the scene
       if (pose) box(pose[0], pose[1], pose[2], l, w, COLOUR[a.class] || "#888", ui.selected === i ? "#fff" : "#111");
+      ctx.globalAlpha = 1;
     });
     $("ed-time-label").textContent = `t = ${t.toFixed(2)} s`;
   }
@@ -399,7 +404,8 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   function select(i) {
     ui.selected = i;
     const s = scenario(), a = typeof i === "number" ? s.agents[i] : null;
-    $("ed-sel").textContent = i === "ego" ? "ego" : a ? `${a.id} (${a.class})` : "nothing selected";
+    const still = a && isLive(a, i) === false ? " · moves in the scene on Generate" : "";  // greyed: not an object
+    $("ed-sel").textContent = i === "ego" ? "ego" : a ? `${a.id} (${a.class})${still}` : "nothing selected";
     $("ed-speed").disabled = !a;
     $("ed-speed").value = a ? String(a.motion && a.motion.keyframes ? "" : (a.motion?.speed ?? 0)) : "";
     $("ed-reclass").disabled = !a;
@@ -738,6 +744,14 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   $("ed-add").onclick = () => setMode("add");
   $("ed-path").onclick = () => setMode("path");
   $("ed-del").onclick = del;
+  $("ed-big").onclick = () => {  // the large view: the editor under the scene and its timeline, full width
+    const big = $("ed-big").getAttribute("aria-pressed") !== "true", stage = document.getElementById("editor-stage");
+    if (!stage) return;
+    (big ? stage : host).appendChild(root);
+    stage.hidden = !big;
+    $("ed-big").setAttribute("aria-pressed", String(big));
+    draw();
+  };
   $("ed-rot-l").onclick = () => { rotate(scenario().agents[ui.selected], 15); draw(); };
   $("ed-rot-r").onclick = () => { rotate(scenario().agents[ui.selected], -15); draw(); };
   $("ed-reclass").onchange = (e) => {
@@ -774,7 +788,13 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   }
   const form = host.closest("form");
   if (form) form.addEventListener("input", (e) => { if (!host.contains(e.target)) draw(); });
-  const api = { draw, refresh, toWorld, toPixel, select, ui, geometry: () => geometry(), moveJunction };
+  function setTime(t) {  // preview time t (s), e.g. the viewer's frame: the boxes drawn where the agents are then
+    const d = duration();
+    ui.time = Math.max(0, Math.min(d, t));
+    $("ed-time").value = String(d ? ui.time / d : 0);
+    draw();
+  }
+  const api = { draw, refresh, toWorld, toPixel, select, setTime, ui, geometry: () => geometry(), moveJunction };
   window.scenarioEditor = api;   // console and test hook
   return api;
 }

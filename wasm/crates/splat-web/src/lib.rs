@@ -4,6 +4,7 @@
 #![cfg(target_arch = "wasm32")]
 
 use splat_format::ply::{is_ply, read_ply};
+mod live_poses;
 mod sort_worker;
 
 use sort_worker::{SortWorker, WorkerMessage};

@@ -20,5 +20,7 @@ def test_the_cell_follows_the_model_image_on_the_served_image():
     from worldsplat.pipeline.inference import decoded_economy
 
     # the models' 112-pixel-wide image: one model pixel is 1 pixel of a 112-wide render, 200/112 of the playground's
-    assert decoded_economy(112, 112).cell_factor == pytest.approx(DECODED_CELL_MODEL_PX)
-    assert decoded_economy(112, 200).cell_factor == pytest.approx(200 / 112 * DECODED_CELL_MODEL_PX)
+    assert decoded_economy(112, 112, "decoder").cell_factor == pytest.approx(DECODED_CELL_MODEL_PX)
+    assert decoded_economy(112, 200, "decoder").cell_factor == pytest.approx(200 / 112 * DECODED_CELL_MODEL_PX)
+    # Gaussians lifted per pixel of the served image are the oracle's kind: the oracle's economy
+    assert decoded_economy(112, 200, "pixels") == Economy()

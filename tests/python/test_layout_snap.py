@@ -8,8 +8,8 @@ import torch
 
 from worldsplat.core.camera import default_rig
 from worldsplat.gaussians import Gaussians
-from worldsplat.pipeline.inference import (
-    DecodedFrames,
+from worldsplat.pipeline.inference import DecodedFrames
+from worldsplat.pipeline.snaps import (
     _agent_cells,
     _camera_ray_depth,
     _inside_boxes,

@@ -59,7 +59,7 @@ def tiny_clip(T=3, seed=0):
 
 def test_reconstruct_windows_and_scene(models):
     clip, _ = tiny_clip(T=3)  # 3 frames with 2-frame windows: the last window is padded
-    dec = inf.reconstruct(clip, models)
+    dec = inf.reconstruct(clip, models, gaussians="decoder")  # the latent decoder's grid (pixels: test_pipeline_pixels)
     d = CFG.data
     gh, gw = d.height // 8 * CFG.decoder.upsample, d.width // 8 * CFG.decoder.upsample
     assert len(dec.gaussians) == 3 and len(dec.gaussians[0]) == d.views

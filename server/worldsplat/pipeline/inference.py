@@ -4,9 +4,10 @@ Contract
 --------
     models = load_models(weights_dir=None)           # worldsplat_models.weights.weights_dir() by default; cached
     available_modes(weights_dir=None) -> ["reconstruct", "generate"] subset whose weights exist
-    dec = reconstruct(clip, models=None)              # clip: worldsplat.world.simulate(...) output (rgb, depth,
-                                                      #   dynamic, rig, ego_to_world, frame_times, caption)
-    dec = generate(conditions, steps=8, seed=0, models=None, rig=None, frame_times=None, progress=None)
+    dec = reconstruct(clip, models=None, gaussians=None)  # clip: worldsplat.world.simulate(...) output (rgb,
+                                                      #   depth, dynamic, rig, ego_to_world, frame_times, caption)
+    dec = generate(conditions, steps=8, seed=0, models=None, rig=None, frame_times=None, progress=None,
+                   gaussians=None)
                                                       # conditions: world.conditions() (sketch, boxes, ego_traj,
                                                       #   caption); rig: list[RigCamera] (default: default_rig)
     scene = to_scene4d(dec, meta=None)                # paper eq. 3 as served, window by window (aggregate_windows)
@@ -14,6 +15,8 @@ Weights: `<role>_small.safetensors` for role in vae | decoder | dit | prior, and
 per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`).
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
+`gaussians` says how L becomes Gaussians: "pixels" (served, GAUSSIANS): the VAE's decoding of L lifted one opaque
+Gaussian per pixel of the rig's image (`pipeline.pixels`); "decoder": the latent Gaussian decoder's grid.
 
 The models run at their trained geometry (DataConfig: 64x112 per view, 6 views, 4-frame windows): inputs of other
 sizes are resampled to it (the Gaussians live in world metres, so they render at any resolution), and longer clips
@@ -36,9 +39,11 @@ import torch.nn.functional as F
 from worldsplat.core.camera import CAMERA_NAMES, default_rig
 from worldsplat.gaussians import Gaussians, Scene4D
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_windows
+from worldsplat.pipeline import pixels
 from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
 from worldsplat.pipeline.onnx import ensure_exported, use_onnx
-from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_depth_m, take_layout
+from worldsplat.pipeline.snaps import LAYOUT_SNAP_LOG_TOL, snap_agents_to_layout, snap_to_layout, snap_to_map
+from worldsplat.world.layout_maps import take_layout
 from worldsplat_models import rflow
 from worldsplat_models.conditions import encode_captions
 from worldsplat_models.configs import DataConfig, get_config
@@ -48,6 +53,12 @@ from worldsplat_models.weights import load_weights, read_metadata
 from worldsplat_models.weights import weights_dir as default_weights_dir
 
 SIZE = "small"
+# How latents become Gaussians in reconstruct and generate: "pixels" lifts the VAE's decoded colour, depth and mask
+# per pixel of the rig's image (as many Gaussians per served pixel as the oracle, tiling at any display size);
+# "decoder" is the latent Gaussian decoder (one translucent Gaussian per 2x2 model pixels). Measured side by side in
+# web/docs/models.md ("Gaussians per pixel").
+GAUSSIANS = "pixels"
+GAUSSIAN_SOURCES = ("pixels", "decoder")
 
 
 @dataclass
@@ -94,6 +105,7 @@ class DecodedFrames:
     meta: dict = field(default_factory=dict)
     model_width: int | None = None  # the models' image width (the decoded economy's unit); None: the rig's
     windows: list[list[int]] | None = None  # the frame windows decoded together (None: one window of every frame)
+    source: str = "decoder"  # how the Gaussians were made: "pixels" (lifted per rig pixel) or "decoder" (GAUSSIANS)
 
     def frame(self, t: int):
         return Gaussians.cat(self.gaussians[t])
@@ -232,6 +244,14 @@ def scale_floor(scales: torch.Tensor, depth: torch.Tensor, fx_model: float) -> t
     return torch.sqrt(scales**2 + floor[:, None] ** 2)
 
 
+def gaussian_source(gaussians: str | None) -> str:
+    """`gaussians` checked ("pixels" | "decoder"; None: the served GAUSSIANS)."""
+    g = GAUSSIANS if gaussians is None else gaussians
+    if g not in GAUSSIAN_SOURCES:
+        raise ValueError(f"gaussians must be one of {', '.join(GAUSSIAN_SOURCES)}, got {gaussians!r}")
+    return g
+
+
 def decode_gaussians(
     models: Models,
     L: torch.Tensor,
@@ -241,15 +261,41 @@ def decode_gaussians(
     meta: dict,
     pad: bool = True,
     decoder: torch.nn.Module | None = None,
+    gaussians: str | None = None,
 ) -> DecodedFrames:
-    """L (T,V,C,h,w) normalised -> DecodedFrames (window by window; `pad`: see `_windows`). `decoder`: which
-    Gaussian decoder (default: the one for meta["mode"], `Models.decoder_for`)."""
+    """L (T,V,C,h,w) normalised -> DecodedFrames (window by window; `pad`: see `_windows`). `gaussians`: "pixels"
+    (`_lift_pixels`) or "decoder" (None: GAUSSIANS); `decoder`: which Gaussian decoder (default: the one for
+    meta["mode"], `Models.decoder_for`)."""
     d = models.data
-    decoder = decoder or models.decoder_for(meta.get("mode", "generate"))
     T = L.shape[0]
+    wins = _windows(T, d.frames, pad)
+    source = "decoder" if decoder is not None else gaussian_source(gaussians)
+    if source == "pixels":
+        gs, logits = _lift_pixels(models, L, rig, ego_to_world, wins)
+    else:
+        gs, logits = _decode_grid(
+            models, L, rig, ego_to_world, wins, decoder or models.decoder_for(meta.get("mode", "generate"))
+        )
+    return DecodedFrames(
+        gs,
+        logits,
+        np.asarray(frame_times, np.float64),
+        list(rig),
+        np.asarray(ego_to_world, np.float64),
+        L,
+        meta,
+        model_width=d.width,
+        windows=[sorted(set(w)) for w in wins],
+        source=source,
+    )
+
+
+def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder) -> tuple[list[list], list[list]]:
+    """The latent Gaussian decoder's Gaussians [t][v] and dynamic logits of L, window by window."""
+    d = models.data
     intr, c2w = rig_tensors(rig, ego_to_world, (d.height, d.width))
-    gs, logits = [[None] * len(rig) for _ in range(T)], [[None] * len(rig) for _ in range(T)]
-    for win in _windows(T, d.frames, pad):
+    gs, logits = [[None] * len(rig) for _ in range(L.shape[0])], [[None] * len(rig) for _ in range(L.shape[0])]
+    for win in wins:
         guide = pixel_guide(models, L[win])[None] if decoder.cfg.guide_channels else None
         args = (L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
         out = decoder(*args) if guide is None else decoder(*args, guide=guide)
@@ -263,236 +309,26 @@ def decode_gaussians(
                 scales = scale_floor(f["scales"], f["depth"], float(intr[t, v, 0]))
                 gs[t][v] = Gaussians(f["means"], f["quats"], scales, f["opacities"], f["colors"], p[:, None])
                 logits[t][v] = f["dynamic_logit"]
-    return DecodedFrames(
-        gs,
-        logits,
-        np.asarray(frame_times, np.float64),
-        list(rig),
-        np.asarray(ego_to_world, np.float64),
-        L,
-        meta,
-        model_width=d.width,
-        windows=[sorted(set(w)) for w in _windows(T, d.frames, pad)],
-    )
+    return gs, logits
 
 
-def _grid_pitch(who: str, n: int, H: int, W: int) -> int:
-    """The decoder's grid pitch in model pixels (1 or 2) of n Gaussians per view on an H x W layout."""
-    f = round((H * W / n) ** 0.5)
-    if f < 1 or (H // f) * (W // f) != n:
-        raise ValueError(f"{who}: {n} Gaussians per view is not a grid of the {H}x{W} layout")
-    return f
-
-
-def _views(dec: DecodedFrames, control: torch.Tensor, who: str):
-    """Each view of each frame: (t, v, its Gaussians, their grid pitch `_grid_pitch`, its layout maps as float)."""
-    T, V, _, H, W = control.shape
-    for t in range(T):
-        for v in range(V):
-            g = dec.gaussians[t][v]
-            yield t, v, g, _grid_pitch(who, len(g), H, W), control[t, v].float()
-
-
-def _camera_ray_depth(dec: DecodedFrames, t: int, v: int, means: torch.Tensor):
-    """(origin, camera-z depth of each mean) of view v at frame t: a mean moves along its ray as o + (m - o) r."""
-    cam = dec.rig[v].at(dec.ego_to_world[t])
-    c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=means.dtype)
-    o = c2w[:3, 3]
-    return o, (means - o) @ c2w[:3, 2]
-
-
-# Generated ground Gaussians within this log-depth ratio (x/ 1.8) of the plane the layout states are put onto it
-# (snap_to_layout). Swept on test clips 0-2 (CHANGELOG.md, the ground snap): 0.15 / 0.3 / 0.6 / 1.0 -> road AbsRel
-# 0.122 / 0.078 / 0.028 / 0.022, all-pixel 0.258 / 0.242 / 0.229 / 0.229; beyond 0.6 nothing more is gained and
-# more of what stands on the road (trees, walls the layout does not know) would be flattened onto it.
-LAYOUT_SNAP_LOG_TOL = 0.6
-
-
-@torch.no_grad()
-def snap_to_layout(dec: DecodedFrames, control: torch.Tensor, log_tol: float = LAYOUT_SNAP_LOG_TOL) -> float:
-    """Put generated Gaussians that the layout maps call ground (drivable area or sidewalk, no box) onto the ground
-    plane those maps state: the scenario's road is exact geometry, the generator's depth there scatters around it
-    (measured in web/docs/models.md). control (T,V,7,H,W): the layout maps at the model resolution. A Gaussian moves
-    along its own camera ray (mean and scales by the depth ratio) only where every pixel of its grid cell is ground,
-    its dynamic probability is <= 0.5 and its depth is within exp(+-log_tol) of the plane's (so a tree or wall
-    the layout does not know about keeps its place). In place; returns the fraction of Gaussians moved."""
-    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
-    moved = total = 0
-    for t, v, g, f, c in _views(dec, control, "snap_to_layout"):
-        ground = ((c[ch["drivable"]] + c[ch["sidewalk"]]) > 0.5) & (c[ch["vehicle"]] + c[ch["vulnerable"]] < 0.5)
-        ground &= c[ch["depth"]] < 0.999  # the plane is in range
-        cell_ground = -F.max_pool2d(-ground[None, None].float(), f)[0, 0] > 0.5
-        # a plane's inverse depth is linear in the image: its cell mean is the value at the cell's centre ray
-        z_plane = 1.0 / F.avg_pool2d(1.0 / layout_depth_m(c[ch["depth"]])[None, None], f)[0, 0]
-        o, z = _camera_ray_depth(dec, t, v, g.means)
-        ratio = z_plane.reshape(-1) / z.clamp_min(1e-3)
-        ok = cell_ground.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 0)
-        if g.extras is not None:
-            ok &= g.extras[:, 0] <= 0.5
-        r = torch.where(ok, ratio, torch.ones_like(ratio))[:, None]
-        g.means = o + (g.means - o) * r
-        g.scales = g.scales * r
-        moved, total = moved + int(ok.sum()), total + len(g)
-    return moved / max(total, 1)
-
-
-# A generated Gaussian within this distance of a moving agent's box (metres) moves with that agent: the layout's box
-# surface, onto which the box cells' Gaussians are put, is exact; the margin takes the cell's footprint.
-AGENT_BOX_MARGIN_M = 0.3
-AGENT_MIN_OPACITY = 0.95  # box cells' Gaussians at least this opaque (`solid`)
-
-
-def _cell_surface(mask: torch.Tensor, depth_m: torch.Tensor, f: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(H,W) mask in [0,1] and depth in metres -> per f x f grid cell: the mask's cover and the harmonic mean depth of
-    its pixels (exact for a plane seen through the cell, as inverse depth is linear in the image)."""
-    cover = F.avg_pool2d(mask[None, None], f)[0, 0]
-    inv_z = F.avg_pool2d((mask / depth_m)[None, None], f)[0, 0]
-    return cover, cover / inv_z.clamp_min(1e-9)
-
-
-# Generated Gaussians in cells the map layer covers move onto its surface when within this log-depth ratio of it
-# (x/ 3: a facade the generator put at half or twice its distance still lands on it; a wall behind a tree, which the
-# generator drew as a tree, farther off, keeps its place). Measured: CHANGELOG.md, the map layer.
-MAP_SNAP_LOG_TOL = 1.1
-MAP_MIN_OPACITY = 0.95  # building cells' Gaussians at least this opaque (a facade is not see-through)
-
-
-@torch.no_grad()
-def snap_to_map(
-    dec: DecodedFrames,
-    control: torch.Tensor,
-    log_tol: float = MAP_SNAP_LOG_TOL,
-    solid: bool = True,
-    classes: tuple[str, ...] = ("building", "vegetation", "furniture"),
-) -> float:
-    """Generated Gaussians where the layout's map layer (buildings, trees, poles; `world/layout_maps.py`) is the
-    nearest surface onto that surface: a grid cell mostly covered (> 0.5) by the map layer and no agent box, with
-    the Gaussian static (p_dynamic <= 0.5) and within exp(+-log_tol) of the surface's depth, moves along its camera
-    ray (mean and scales by the depth ratio) to the harmonic mean of the cell's map depth; with `solid` building cells
-    become opaque (opacity >= MAP_MIN_OPACITY). `classes`: the map channels snapped. Maps without the map layer (7 channels) leave the scene unchanged. In place;
-    returns the fraction of Gaussians moved."""
-    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
-    if control.shape[2] < len(LAYOUT_CHANNELS):
-        return 0.0
-    moved = total = 0
-    for t, v, g, f, c in _views(dec, control, "snap_to_map"):
-        depth = layout_depth_m(c[ch["map_depth"]])
-        structure = sum(c[ch[k]] for k in classes).clamp(0, 1)
-        cover, z_map = _cell_surface(structure, depth, f)
-        building, _ = _cell_surface(c[ch["building"]], depth, f)
-        agent = F.max_pool2d((c[ch["vehicle"]] + c[ch["vulnerable"]])[None, None], f)[0, 0] > 0.5
-        o, z = _camera_ray_depth(dec, t, v, g.means)
-        ratio = z_map.reshape(-1) / z.clamp_min(1e-3)
-        ok = (cover.reshape(-1) > 0.5) & ~agent.reshape(-1) & (ratio.log().abs() < log_tol) & (z > 1e-3)
-        if g.extras is not None:
-            ok &= g.extras[:, 0] <= 0.5
-        r = ratio[:, None]
-        g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
-        g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
-        if solid:
-            firm = ok & (building.reshape(-1) > 0.5)
-            g.opacities = torch.where(firm, g.opacities.clamp_min(MAP_MIN_OPACITY), g.opacities)
-        moved, total = moved + int(ok.sum()), total + len(g)
-    return moved / max(total, 1)
-
-
-# A cell at least this much box that covers more than any neighbour holds an agent smaller than a cell (a pedestrian
-# at 40 m is ~1.5 model pixels wide: straddling two cells, neither is half box, and the agent got no Gaussian).
-AGENT_MIN_PEAK_COVER = 0.2
-
-
-def _agent_cells(cover: torch.Tensor, *class_covers: torch.Tensor) -> torch.Tensor:
-    """(h,w) box cover per cell -> cells whose Gaussians go onto the box: mostly box (> 0.5), or, in any of
-    `class_covers` (the vehicle and the vulnerable channels' own cover, so a pedestrian beside a car is still a peak),
-    a local peak of cover >= AGENT_MIN_PEAK_COVER (a sub-cell agent's best cell; a large agent's edge cells are not
-    peaks, so its silhouette does not grow)."""
-    out = cover > 0.5
-    for c in class_covers or (cover,):
-        peak = F.max_pool2d(c[None, None], 3, stride=1, padding=1)[0, 0]
-        out |= (c >= AGENT_MIN_PEAK_COVER) & (c >= peak)
-    return out
-
-
-def _box_centre_points(dec: DecodedFrames, t: int, v: int, box, cover, z_box, f: int) -> torch.Tensor:
-    """(cells, 3) world points at camera depth z_box on the ray through the centroid of each f x f cell's box pixels
-    (box (H,W) at the model resolution; the rig camera's intrinsics scaled to it)."""
-    H, W = box.shape
-    cam = dec.rig[v].at(dec.ego_to_world[t])
-    sx, sy = W / cam.width, H / cam.height
-    u = (torch.arange(W, dtype=torch.float32) + 0.5)[None].expand(H, W)
-    w = (torch.arange(H, dtype=torch.float32) + 0.5)[:, None].expand(H, W)
-    pool = lambda x: F.avg_pool2d(x[None, None], f)[0, 0]  # noqa: E731
-    cu = pool(box * u) / cover.clamp_min(1e-9)
-    cv = pool(box * w) / cover.clamp_min(1e-9)
-    ray = torch.stack([(cu - cam.cx * sx) / (cam.fx * sx), (cv - cam.cy * sy) / (cam.fy * sy), torch.ones_like(cu)], -1)
-    c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=torch.float32)
-    return c2w[:3, 3] + (ray.reshape(-1, 3) * z_box.reshape(-1, 1)) @ c2w[:3, :3].T
-
-
-def _inside_boxes(points: torch.Tensor, corners: torch.Tensor, margin: float) -> torch.Tensor:
-    """(N,3) points, (K,8,3) box corners (`Agent.box_corners` order: bottom face counter-clockwise from rear-right,
-    then the top face) in the same frame -> (N,) True where a point lies inside any box grown by `margin` metres."""
-    if corners.shape[0] == 0:
-        return torch.zeros(points.shape[0], dtype=torch.bool)
-    o = corners[:, 0]  # (K,3) rear-right bottom
-    axes = torch.stack([corners[:, 1] - o, corners[:, 3] - o, corners[:, 4] - o], 1)  # (K,3,3) length, width, height
-    size = axes.norm(dim=-1).clamp_min(1e-6)  # (K,3)
-    local = torch.einsum("nkc,kac->nka", points[:, None] - o[None], axes / size[..., None])  # (N,K,3) metres
-    inside = (local > -margin) & (local < size[None] + margin)
-    return inside.all(-1).any(-1)
-
-
-@torch.no_grad()
-def snap_agents_to_layout(
-    dec: DecodedFrames, control: torch.Tensor, cond: dict, margin: float = AGENT_BOX_MARGIN_M, solid: bool = True
-):
-    """Generated Gaussians where the layout maps state an agent onto that agent's box, and the agents' motion from
-    the scenario. The layout's box channels and their depth are exact (a box per agent, `world/layout_maps.py`);
-    the generator's latents at 1/4 resolution lose far and small agents (0-51 dynamic Gaussians per frame on imported
-    files, web/docs/world.md), so the scene did not hold them where the scenario put them. Two steps, in place:
-    1. every Gaussian whose grid cell is mostly box (vehicle or vulnerable channel > 0.5 on average), or is the peak
-       cell of an agent smaller than a cell (`_agent_cells`), moves along its camera ray onto the box surface (the harmonic mean of the cell's box-pixel depths; mean and scales by the ratio,
-       so the image from its own camera barely changes);
-    2. a Gaussian inside a moving agent's box at its frame (`cond` box_corners, box_moving: the conditions' boxes in
-       each frame's ego frame) becomes dynamic, one inside a standing agent's box static; elsewhere the decoder's
-       dynamic probability is kept.
-    Returns {"agent_snap_fraction", "agent_dynamic_fraction"} over all Gaussians."""
-    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
-    T, V, _, H, W = control.shape
-    moved = dynamic = total = 0
-    for t in range(T):
-        known = cond["box_mask"][t].bool()
-        corners = cond["box_corners"][t].double()
-        mov, stand = corners[known & cond["box_moving"][t].bool()], corners[known & ~cond["box_moving"][t].bool()]
-        w2e = torch.as_tensor(np.linalg.inv(dec.ego_to_world[t]), dtype=torch.float64)
-        for v in range(V):
-            g = dec.gaussians[t][v]
-            n = len(g)
-            f = _grid_pitch("snap_agents_to_layout", n, H, W)
-            c = control[t, v].float()
-            box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1)
-            cover, z_box = _cell_surface(box, layout_depth_m(c[ch["depth"]]), f)
-            o, z = _camera_ray_depth(dec, t, v, g.means)
-            by_class = [F.avg_pool2d(c[ch[k]][None, None], f)[0, 0] for k in ("vehicle", "vulnerable")]
-            ok = _agent_cells(cover, *by_class).reshape(-1) & (z > 1e-3)
-            r = (z_box.reshape(-1) / z.clamp_min(1e-3))[:, None]
-            g.means = torch.where(ok[:, None], o + (g.means - o) * r, g.means)
-            g.scales = torch.where(ok[:, None], g.scales * r, g.scales)
-            # a sub-cell agent's cell: onto the ray through its box pixels' centre (at 40 m the decoder's offset
-            # within the cell alone puts the Gaussian half a metre beside a pedestrian)
-            small = ok & (cover.reshape(-1) <= 0.5)
-            if small.any():
-                target = _box_centre_points(dec, t, v, box, cover, z_box, f)
-                g.means = torch.where(small[:, None], target.to(g.means.dtype), g.means)
-            if solid:  # an agent is solid where the layout states it , whatever colour it got
-                g.opacities = torch.where(ok, g.opacities.clamp_min(AGENT_MIN_OPACITY), g.opacities)
-            ego = g.means.double() @ w2e[:3, :3].T + w2e[:3, 3]
-            in_moving, in_standing = _inside_boxes(ego, mov, margin), _inside_boxes(ego, stand, margin)
-            p = g.extras[:, 0] if g.extras is not None else torch.zeros(n)
-            p = torch.where(in_moving, torch.ones_like(p), torch.where(in_standing, torch.zeros_like(p), p))
-            g.extras = p[:, None] if g.extras is None else torch.cat([p[:, None], g.extras[:, 1:]], 1)
-            moved, dynamic, total = moved + int(ok.sum()), dynamic + int(in_moving.sum()), total + n
-    return {"agent_snap_fraction": moved / max(total, 1), "agent_dynamic_fraction": dynamic / max(total, 1)}
+def _lift_pixels(models: Models, L, rig, ego_to_world, wins) -> tuple[list[list], list[list]]:
+    """The VAE's decoding of L, up-sampled to the rig's image and lifted per pixel (`pipeline.pixels`): Gaussians
+    [t][v] (H*W each, row-major) and dynamic logits (+-15 from the lifted mask), window by window."""
+    d, V = models.data, len(rig)
+    size = (rig[0].height, rig[0].width)
+    gs, logits = [[None] * V for _ in range(L.shape[0])], [[None] * V for _ in range(L.shape[0])]
+    for win in wins:
+        frames = sorted(set(win))
+        guide = pixel_guide(models, L[frames])
+        rgb, depth, dyn = pixels.served_maps(guide.reshape(-1, *guide.shape[2:]), size, d.depth_near, d.depth_far)
+        cams = [rig[v].at(ego_to_world[t]) for t in frames for v in range(V)]
+        views = pixels.lift_views(rgb, depth, dyn, cams)
+        for i, t in enumerate(frames):
+            for v in range(V):
+                g = views[i * V + v]
+                gs[t][v], logits[t][v] = g, (g.extras[:, 0] * 30.0 - 15.0)
+    return gs, logits
 
 
 # --- modes -----------------------------------------------------------------------------------------------------------
@@ -515,9 +351,10 @@ def encode_clip(models: Models, rgb, depth, dynamic) -> torch.Tensor:
 
 
 @torch.no_grad()
-def reconstruct(clip, models: Models | None = None) -> DecodedFrames:
-    """Reconstruct mode (paper §3.5): multi-view video + depth + dynamic masks -> VAE encoder -> Gaussian decoder,
-    bypassing diffusion. The world supplies exact depth and masks where the paper used Metric3D and SegFormer."""
+def reconstruct(clip, models: Models | None = None, gaussians: str | None = None) -> DecodedFrames:
+    """Reconstruct mode (paper §3.5): multi-view video + depth + dynamic masks -> VAE encoder -> Gaussians
+    (`gaussians`: "pixels" or "decoder", see `decode_gaussians`), bypassing diffusion. The world supplies exact depth
+    and masks where the paper used Metric3D and SegFormer."""
     models = _require(models, "reconstruct")
     for k in ("rgb", "depth", "dynamic", "rig", "ego_to_world"):
         if getattr(clip, k, None) is None:
@@ -533,6 +370,7 @@ def reconstruct(clip, models: Models | None = None) -> DecodedFrames:
         clip.ego_to_world,
         clip.frame_times,
         {"mode": "reconstruct", "model_version": models.version, "caption": getattr(clip, "caption", "")},
+        gaussians=gaussians,
     )
     dec.meta["timing_s"] = {"vae_encode": t1 - t0, "gs_decoder": time.perf_counter() - t1}
     return dec
@@ -640,20 +478,29 @@ def decode_generated(
     snap_log_tol: float = LAYOUT_SNAP_LOG_TOL,
     snap_agents: bool = True,
     snap_map: bool = True,
+    gaussians: str | None = None,
 ) -> DecodedFrames:
     """Generated latents -> DecodedFrames as generate mode serves them (the evaluation scores exactly this):
     decode, then, where the models read layout maps, `snap_to_layout` (the road onto its plane) and
     `snap_to_map` (facades, trees and poles onto the map layer's surfaces) and `snap_agents_to_layout` (the agents onto
-    their boxes, moving with them); snap=False skips all three, snap_map=False / snap_agents=False one of them."""
-    dec = decode_gaussians(models, L, rig, ego_to_world, frame_times, meta, pad=pad)
+    their boxes, moving with them); snap=False skips all three, snap_map=False / snap_agents=False one of them.
+    Lifted pixels snap per pixel against the layout maps up-sampled to the rig's image (`pixels.upsample_layout`)."""
+    dec = decode_gaussians(models, L, rig, ego_to_world, frame_times, meta, pad=pad, gaussians=gaussians)
     if snap and layout_size(models) is not None:
         control = cond["control"][: L.shape[0]]
+        if dec.source == "pixels":
+            size = (rig[0].height, rig[0].width)
+            control = pixels.upsample_layout(control.reshape(-1, *control.shape[2:]), size)
+            control = control.reshape(L.shape[0], len(rig), *control.shape[1:])
         dec.meta["layout_snap_fraction"] = snap_to_layout(dec, control, snap_log_tol)
         if snap_map:
             dec.meta["map_snap_fraction"] = snap_to_map(dec, control)
         if snap_agents:
             boxes = {k: cond[k][: L.shape[0]] for k in ("box_corners", "box_moving", "box_mask")}
             dec.meta.update(snap_agents_to_layout(dec, control, boxes))
+        if dec.source == "pixels":
+            for t, row in enumerate(dec.gaussians):
+                row[:] = [pixels.settle_sky(g, dec.rig[v].at(dec.ego_to_world[t])) for v, g in enumerate(row)]
     return dec
 
 
@@ -670,10 +517,11 @@ def generate(
     caption_embedding: torch.Tensor | None = None,
     pad: bool = True,
     snap: bool = True,
+    gaussians: str | None = None,
 ) -> DecodedFrames:
-    """Generate mode: conditions -> DiT (rectified flow, `steps` Euler steps) -> Gaussian decoder -> road Gaussians
-    onto the layout's ground plane (`snap`, `snap_to_layout`). `pad` False: a clip shorter than the models' window
-    is sampled and decoded at its own length (the streamed first window)."""
+    """Generate mode: conditions -> DiT (rectified flow, `steps` Euler steps) -> Gaussians (`gaussians`: "pixels" or
+    "decoder", `decode_gaussians`) -> snapped onto the layout (`snap`, `decode_generated`). `pad` False: a clip
+    shorter than the models' window is sampled and decoded at its own length (the streamed first window)."""
     models = _require(models, "generate")
     if not isinstance(steps, int) or not 1 <= steps <= 256:
         raise ValueError(f"generate: steps must be an integer in 1..256, got {steps!r}")
@@ -699,7 +547,7 @@ def generate(
         "model_version": models.version,
         "caption": str(conditions["caption"]),
     }
-    dec = decode_generated(models, L, cond, rig, ego, ft, meta, pad=pad, snap=snap)
+    dec = decode_generated(models, L, cond, rig, ego, ft, meta, pad=pad, snap=snap, gaussians=gaussians)
     # stage times for the benchmark's efficiency table (conditions incl. caption encoding, diffusion, decoder)
     dec.meta["timing_s"] = {"conditions": t1 - t0, "diffusion": t2 - t1, "gs_decoder": time.perf_counter() - t2}
     return dec
@@ -711,9 +559,11 @@ def gaussian_grid(models: Models, mode: str = "generate") -> tuple[int, int]:
     return tuple(n // ds // cfg.patch * cfg.upsample for n in (models.data.height, models.data.width))
 
 
-def decoded_economy(model_width: int, image_width: int) -> Economy:
-    """The economy of decoded Gaussians (`Economy.for_decoded`) on an image_width image of scenes decoded at the
-    models' model_width."""
+def decoded_economy(model_width: int, image_width: int, gaussians: str | None = None) -> Economy:
+    """The economy of decoded Gaussians on an image_width image of scenes decoded at the models' model_width:
+    lifted pixels ("pixels") the oracle's (`Economy()`), the decoder's grid `Economy.for_decoded`."""
+    if gaussian_source(gaussians) == "pixels":
+        return Economy()
     return Economy.for_decoded(image_width / model_width)
 
 
@@ -728,7 +578,7 @@ def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tup
         dec.rig,
         dec.ego_to_world,
         dec.windows or [list(range(len(dec.gaussians)))],
-        economy=decoded_economy(dec.model_width or W, W) if economy is None else economy,
+        economy=decoded_economy(dec.model_width or W, W, dec.source) if economy is None else economy,
         meta=dict(dec.meta),
         image_size=(H, W),
     )

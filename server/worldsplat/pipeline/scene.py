@@ -44,10 +44,12 @@ ORACLE_VERSION = "oracle-4"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's
-# plane (`inference.snap_to_layout`); w5 decoded scales floored at 0.3 model pixels (`inference.scale_floor`); w6
-# generate's agents onto their layout boxes, moving with them (`inference.snap_agents_to_layout`); w7 those box cells
-# solid (opacity floor); w8 facades, trees and poles onto the layout's map layer (`inference.snap_to_map`)
-STREAM_VERSION = "w8"
+# plane (`snaps.snap_to_layout`); w5 decoded scales floored at 0.3 model pixels (`inference.scale_floor`); w6
+# generate's agents onto their layout boxes, moving with them (`snaps.snap_agents_to_layout`); w7 those box cells
+# solid (opacity floor); w8 facades, trees and poles onto the layout's map layer (`snaps.snap_to_map`); w9 the VAE's
+# decoding lifted one opaque Gaussian per pixel of the served image (`pipeline.pixels`, inference.GAUSSIANS), with the
+# oracle's economy
+STREAM_VERSION = "w9"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
 # sampling and decoding instead of a whole window's (the bound on the finished scene: playground.md)

@@ -397,7 +397,7 @@ class CellTable:
 
 # A later window re-emits a static cell it sees at least this many times finer. Measured (gaussians.md, "Window by
 # window"): never re-emitting keeps exactly the cells of one union over all frames and rendered as well; 2 and 1.5
-# added 1-4% Gaussians for no gain.
+# added 1-4% Gaussians for no gain. Under the finest rule, re-emitting points seen 2x finer: +0.06 dB for +9 %.
 WINDOW_FINER = math.inf
 
 

@@ -504,13 +504,18 @@ def plot_domain_gap(r: dict, path: Path) -> Path:
     shifts = sorted(r["shifts"])
     groups = [g for g in GROUPS if g != "sky"]
     fig, axes = plt.subplots(1, 1 + len(groups), figsize=(3.2 * (1 + len(groups)), 3.2), sharey=True)
+    # a colour per mode, a line style per blend (raw solid), the ground truth black and dashed
+    blend_style = {"none": ":", "holes": "-.", "mix": (0, (5, 1))}
     for row in _rows(r):
         t = r["table"][row]
-        style = "--" if row == GROUND_TRUTH else (":" if " refined " in row else "-")
-        axes[0].plot(shifts, [t[str(s)]["miou"] for s in shifts], style, marker="o", label=row)
+        mode, _, blend = row.partition(" refined ")
+        kw = dict(color="k", ls="--") if row == GROUND_TRUTH else {}
+        if row != GROUND_TRUTH:
+            kw = dict(color=f"C{r['modes'].index(mode) + 1}", ls=blend_style.get(blend, "-"))
+        axes[0].plot(shifts, [t[str(s)]["miou"] for s in shifts], marker="o", ms=3, label=row, **kw)
         for ax, g in zip(axes[1:], groups):
             ys = [t[str(s)]["groups"][g] for s in shifts]
-            ax.plot(shifts, [np.nan if y is None else y for y in ys], style, marker="o", label=row)
+            ax.plot(shifts, [np.nan if y is None else y for y in ys], marker="o", ms=3, label=row, **kw)
     axes[0].set_title("mIoU, all classes")
     for ax, g in zip(axes[1:], groups):
         ax.set_title(f"mIoU, {g}")
@@ -518,7 +523,7 @@ def plot_domain_gap(r: dict, path: Path) -> Path:
         ax.set_xlabel("lateral shift (m)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("judge mIoU vs exact labels")
-    axes[0].legend(fontsize=8)
+    axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

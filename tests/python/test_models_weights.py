@@ -23,8 +23,11 @@ DECODED_CELLS_GAIN_MIN = 1.0  # dB
 RECON_DEPTH_ABSREL_MAX = 0.35  # rendered depth vs GT depth
 # generate on this clip, 4 steps, road AbsRel / dynamic IoU: the shipped set 0.077 / 0.77, with the snap onto the
 # layout's ground plane 0.025 (the same sample); the first, sketch-control set (grey blur) 0.145 / 0.04
-GEN_ROAD_DEPTH_ABSREL_MAX = 0.06  # rendered depth on the road surface (the layout states it)
-GEN_SNAP_ROAD_GAIN_MIN = 0.02  # the snap's gain on road AbsRel
+# Per source of Gaussians: (rendered road depth AbsRel max, the snap's gain on it min). The latent decoder's flat
+# Gaussians: 0.025 after the snap. Lifted pixels (served): 0.146 raw -> 0.071 snapped, every road Gaussian on the
+# plane; what is left is the isotropic splats' depth at grazing angles, as the oracle's lifting renders this road
+# (0.050 on this clip).
+GEN_ROAD = {"decoder": (0.06, 0.02), "pixels": (0.09, 0.05)}
 GEN_DYNAMIC_IOU_MIN = 0.5  # rendered dynamic mask vs the exact one
 
 pytestmark = pytest.mark.skipif(
@@ -94,7 +97,7 @@ def test_decoded_cells_keep_the_decoders_detail(held_out):
     from worldsplat.gaussians.aggregate import Economy
 
     _, clip = held_out
-    dec = inf.reconstruct(clip)
+    dec = inf.reconstruct(clip, gaussians="decoder")
 
     def rig_psnr(scene):
         ps = []
@@ -113,7 +116,8 @@ def test_decoded_cells_keep_the_decoders_detail(held_out):
 
 
 @pytest.mark.skipif("generate" not in inf.available_modes(), reason="no shipped DiT weights")
-def test_generate_mode_follows_the_layout(held_out):
+@pytest.mark.parametrize("gaussians", sorted(GEN_ROAD))
+def test_generate_mode_follows_the_layout(held_out, gaussians):
     """The generated scene stands where the scenario says: road-surface depth and the moving agents' mask, rendered
     at every rig camera of frame 1, against the exact ground truth (pooled over the views)."""
     from worldsplat.evaluation.models import ROAD_CLASSES
@@ -122,7 +126,7 @@ def test_generate_mode_follows_the_layout(held_out):
     world, clip = held_out
     m = inf.load_models()
     cond = world.conditions(layout_size=inf.layout_size(m))
-    raw = inf.generate(cond, steps=4, seed=0, rig=clip.rig, snap=False)
+    raw = inf.generate(cond, steps=4, seed=0, rig=clip.rig, snap=False, gaussians=gaussians)
     dec = copy.deepcopy(raw)  # the served scene: the same sample with its ground snapped onto the layout's plane
     control = inf.condition_tensors(m, cond, np.asarray(cond["ego_traj"]))["control"]
     assert inf.snap_to_layout(dec, control) > 0.1
@@ -144,6 +148,7 @@ def test_generate_mode_follows_the_layout(held_out):
         return float(np.nanmean(road)), inter / union
 
     (road_raw, _), (road, iou) = scores(raw), scores(dec)
-    assert road <= GEN_ROAD_DEPTH_ABSREL_MAX, road
-    assert road <= road_raw - GEN_SNAP_ROAD_GAIN_MIN, (road, road_raw)
+    road_max, gain_min = GEN_ROAD[gaussians]
+    assert road <= road_max, road
+    assert road <= road_raw - gain_min, (road, road_raw)
     assert iou >= GEN_DYNAMIC_IOU_MIN, iou

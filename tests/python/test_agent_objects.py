@@ -208,3 +208,34 @@ def test_generate_draws_its_agents_with_the_appearance_generator():
         assert torch.equal(o.gaussians.means, want.means) and torch.equal(o.gaussians.colors, want.colors)
     for t in range(scene.num_frames):  # the decoded Gaussians in the agents' boxes gave way to the objects
         assert (assign_to_boxes(scene.dynamic[t].means.double().numpy(), tracks, t) < 0).all()
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_servers_stream_sink_writes_the_objects(version):
+    """v3: each window's parts go out as OBJC chunks (appended to the agent's object), so the streamed file decodes
+    to the scene's objects; v2: every frame carries the objects built up to its window, posed."""
+    import io
+
+    from worldsplat.api.runners import StreamSink
+    from worldsplat.gaussians import wsplat
+    from worldsplat.pipeline.scene import generate_scene
+
+    class Ctx:
+        def check(self):
+            pass
+
+    buf = io.BytesIO()
+    sink = StreamSink(lambda: buf, Ctx(), version=version)
+    sc = load_preset("urban_straight").with_updates(**TINY)
+    scene = generate_scene(sc, mode="oracle", sink=sink)
+    sink.end(scene)
+    back = wsplat.decode(buf.getvalue())
+    counts = [len(scene.dynamic_at(t)) for t in range(scene.num_frames)]
+    if version == 3:
+        assert [(o.agent_id, len(o.gaussians)) for o in back.objects] == [
+            (o.agent_id, len(o.gaussians)) for o in scene.objects
+        ]
+        assert [len(back.dynamic_at(t)) for t in range(scene.num_frames)] == counts
+    else:
+        assert back.objects == [] and len(back.dynamic[-1]) == counts[-1]  # the last window: the final objects
+        assert all(len(d) <= n for d, n in zip(back.dynamic, counts))

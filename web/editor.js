@@ -746,11 +746,11 @@ export function initEditor({ host, getBase, getForm, selectPreset, presetNames, 
   $("ed-del").onclick = del;
   $("ed-big").onclick = () => {  // the large view: the editor under the scene and its timeline, full width
     const big = $("ed-big").getAttribute("aria-pressed") !== "true", stage = document.getElementById("editor-stage");
-    if (!stage) return;
     (big ? stage : host).appendChild(root);
     stage.hidden = !big;
     $("ed-big").setAttribute("aria-pressed", String(big));
     draw();
+    (big ? stage : $("ed-big")).scrollIntoView({ block: "nearest" });
   };
   $("ed-rot-l").onclick = () => { rotate(scenario().agents[ui.selected], 15); draw(); };
   $("ed-rot-r").onclick = () => { rotate(scenario().agents[ui.selected], -15); draw(); };

@@ -18,6 +18,7 @@ import { join } from "node:path";
 import { ROOT, PYTHON, freePort } from "./lib/playground-server.mjs";
 import { ARTIFACTS, launch } from "./lib/viewer-harness.mjs";
 import { decodeShare, shareUrl } from "../../web/share.js";
+import { quatYaw, reposed } from "../../web/live-drag.js";
 
 const T = { timeout: 900_000 };
 const SANITY_MS = 5000;        // drag -> frame drawn; the target is 1 s on 2 cores (printed, not asserted)
@@ -78,6 +79,25 @@ async function startV3Server() {
   await stop();
   throw new Error(`server not ready:\n${log}`);
 }
+
+describe("reposed (plain node)", () => {
+  it("carries a footprint's change into a scene frame turned against the world's, keeping height and tilt", () => {
+    // the scene's frame is the world's turned by +90 degrees (a generate scene: the first frame's ego frame)
+    const h = Math.PI / 4, rows = new Float32Array([1, 5, 7, 0.8, Math.cos(h), 0, 0, Math.sin(h), 0, 0, 0, 0, 0, 0, 0, 0]);
+    const from = [[10, 0, 0], [11, 0, 0]], to = [[11, 2, Math.PI / 6], [11, 0, 0]];
+    const { poses, present } = reposed(rows, from, to);
+    assert.deepEqual(Array.from(present), [1, 0]);  // frame 1 had no pose: it stays absent
+    const [x, y, z, w, qx, qy, qz] = poses.subarray(0, 7);
+    const near = (a, b, what) => assert.ok(Math.abs(a - b) < 1e-5, `${what}: ${a} vs ${b}`);
+    near(x, 5 - 2, "x (world +y is scene -x)");
+    near(y, 7 + 1, "y (world +x is scene +y)");
+    near(z, 0.8, "height kept");
+    near(quatYaw(w, qx, qy, qz), Math.PI / 2 + Math.PI / 6, "heading turned by the footprint's");
+    near(Math.hypot(w, qx, qy, qz), 1, "unit quaternion");
+    const same = reposed(rows, from, from).poses;
+    Array.from(rows.subarray(1, 8)).forEach((v, k) => near(same[k], v, `unchanged footprint, component ${k}`));
+  });
+});
 
 before(async () => { server = await startV3Server(); }, T);
 after(async () => { await server?.stop(); });
@@ -162,9 +182,10 @@ for (const backend of ["webgl2", "webgpu"]) {
     it("drags a car a lane left: the frame shows the scene generated with it there, drawn within the bound", T,
       async () => {
         assert.equal(await page.evaluate(() => window.playground.state.viewer.backend()), backend);
+        await page.click("#ed-big");  // the editor's large view, under the scene (which makes room for it)
+        await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
         for (const t of FRAMES) await keep(page, `old${t}`, t);
         await page.evaluate(() => window.playground.setFrame(0));
-        await page.click("#ed-big");  // the editor's large view, under the scene
         await page.locator("#editor-stage #ed-canvas").scrollIntoViewIfNeeded();
         const box = await page.locator("#editor-stage #ed-canvas").boundingBox();
         assert.ok(box && box.width > 600, `the large editor is ${box && box.width} px wide`);

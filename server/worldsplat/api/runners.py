@@ -24,10 +24,10 @@ from .cache import ArtifactCache
 from .jobs import JobContext, JobError
 
 VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
-# The .wsplat version the server writes: `wsplat.SERVED_VERSION` (v2, tests/browser/wsplat-v2.test.mjs), repeated
+# The .wsplat version the server writes: `wsplat.SERVED_VERSION` (v3, tests/browser/wsplat-v3.test.mjs), repeated
 # here so that the API starts without importing torch; tests/python/test_one_home.py pins the two equal. v1 files
 # (older caches, dropped files) are still read everywhere.
-WSPLAT_VERSION = 2
+WSPLAT_VERSION = 3
 
 
 class Pipeline:

@@ -173,9 +173,10 @@ class StreamSink:
     job that fails before its first window leaves no file at all.
 
     Agent objects (web/docs/agents.md): a v1/v2 file gets each frame's dynamics with the objects built so far posed
-    in (the pipeline bakes them for a sink without `takes_objects`). From .wsplat v3 the sink takes the objects: each window's
-    new canonical Gaussians of an agent go out as one more OBJC object of that agent (an object grows window by
-    window and never changes what was sent), then one POSE chunk of the window's frames for every object sent."""
+    in (the pipeline bakes them for a sink without `takes_objects`). From .wsplat v3 the sink takes the objects: each
+    window's new canonical Gaussians of an agent go out as an OBJC chunk (a new agent's object, or appended to the
+    agent's object sent before: an object grows window by window and never changes what was sent), then one POSE
+    chunk of the window's frames, one pose per agent."""
 
     def __init__(self, open_live, ctx: JobContext, pause: float = 0.0, version: int = WSPLAT_VERSION):
         from worldsplat.gaussians import wsplat  # noqa: PLC0415 - heavy (torch), imported on first use
@@ -184,7 +185,7 @@ class StreamSink:
         self.takes_objects = version >= 3
         self.live = self.writer = self.skeleton = None
         self.head_meta: set[str] = set()
-        self.objects_sent: list = []  # AgentObject per OBJC chunk written, in order
+        self.objects_sent: list = []  # an AgentObject per OBJC chunk written (an agent's parts share its track)
 
     def _put(self, piece: bytes) -> None:
         self.ctx.check()

@@ -212,7 +212,7 @@ def test_generate_draws_its_agents_with_the_appearance_generator():
 
 @pytest.mark.parametrize("version", [2, 3])
 def test_the_servers_stream_sink_writes_the_objects(version):
-    """v3: each window's parts go out as OBJC chunks (appended to the agent's object), so the streamed file decodes
+    """.wsplat v3: each window's parts go out as OBJC chunks (appended to the agent's object), so the streamed file decodes
     to the scene's objects; v2: every frame carries the objects built up to its window, posed."""
     import io
 

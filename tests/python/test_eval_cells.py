@@ -27,10 +27,11 @@ def test_cells_at_the_served_cell_score_the_served_scene(one_clip):
     from worldsplat.evaluation.models import eval_cells, eval_reconstruct
 
     models, ds = one_clip
-    rows = eval_cells(models, ds, 1, factors=(0.0, 1.0, 3.0), frames=(1,))
-    served = eval_reconstruct(models, ds, 1, frames=(1,), shifts=(0.0, 2.0), oracle=True)
+    # the cells of the latent decoder's Gaussians (lifted pixels take the oracle's economy, `decoded_economy`)
+    rows = eval_cells(models, ds, 1, factors=(0.0, 1.0, 3.0), frames=(1,), gaussians="decoder")
+    served = eval_reconstruct(models, ds, 1, frames=(1,), shifts=(0.0, 2.0), oracle=True, gaussians="decoder")
     by_cell = {r["cell"]: r for r in rows}
-    # one model pixel at the models' own image size is the served decoded economy (`decoded_economy`)
+    # one model pixel at the models' own image size is the decoder's economy (`decoded_economy`)
     assert by_cell[1.0]["psnr_0"] == pytest.approx(served["0.0"]["model_psnr"], abs=1e-9)
     assert by_cell[1.0]["psnr_2"] == pytest.approx(served["2.0"]["model_psnr"], abs=1e-9)
     assert by_cell[3.0]["oracle_psnr_0"] == pytest.approx(served["0.0"]["oracle_psnr"], abs=1e-9)  # oracle's cells: 3

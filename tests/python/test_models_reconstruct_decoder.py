@@ -52,7 +52,8 @@ def test_each_mode_decodes_with_its_decoder(models):
     clip, s = tiny_clip(T=2)
     assert models.decoder_for("reconstruct") is models.decoder_reconstruct
     assert models.decoder_for("generate") is models.decoder
-    assert _per_view(inf.reconstruct(clip, models)) == d.height * d.width
+    # the latent decoders (the served lifted pixels: test_pipeline_pixels.py)
+    assert _per_view(inf.reconstruct(clip, models, gaussians="decoder")) == d.height * d.width
     assert inf.gaussian_grid(models, "reconstruct") == (d.height, d.width)
     assert inf.gaussian_grid(models) == (d.height // 2, d.width // 2)
     boxes = [[{"corners": s["box_corners"][t, 0], "cls": 12, "moving": True}] for t in range(2)]
@@ -64,11 +65,11 @@ def test_each_mode_decodes_with_its_decoder(models):
         "layout": np.zeros((2, d.views, d.height, d.width, 7), np.float32),
     }
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
-    gen = inf.generate(cond, steps=1, models=models, rig=clip.rig, caption_embedding=emb)
+    gen = inf.generate(cond, steps=1, models=models, rig=clip.rig, caption_embedding=emb, gaussians="decoder")
     assert _per_view(gen) == d.height * d.width // 4
     # without its own decoder, reconstruct falls back to the generate one
     plain = dataclasses.replace(models, decoder_reconstruct=None)
-    assert _per_view(inf.reconstruct(clip, plain)) == d.height * d.width // 4
+    assert _per_view(inf.reconstruct(clip, plain, gaussians="decoder")) == d.height * d.width // 4
 
 
 def test_the_weights_folder_ships_it_and_the_version_follows(models, tmp_path):

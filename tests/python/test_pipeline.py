@@ -82,7 +82,9 @@ def test_reconstructed_scene_of_a_clip_is_the_served_reconstruct_scene():
     assert [len(d) for d in served.dynamic] == [len(d) for d in scored.dynamic]
     u = np.round(inf.to_scene4d(dataclasses.replace(dec, windows=None)).static.means.double().numpy(), 2)
     u = u[np.lexsort(u.T)]
-    assert (np.abs(u - a).max(1) > 0.02).mean() > 0.1  # measured 0.76: one union of all frames is another scene
+    # one union of all frames is another scene: other Gaussians (the latent decoder's: 0.76 of them moved), or as
+    # with lifted pixels, another number of them
+    assert len(u) != len(a) or (np.abs(u - a).max(1) > 0.02).mean() > 0.1
 
 
 def test_modes_and_errors():

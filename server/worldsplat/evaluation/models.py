@@ -128,8 +128,10 @@ def eval_reconstruct(
     shifts=SHIFTS,
     oracle: bool = True,
     model: bool = True,
+    gaussians: str | None = None,
 ) -> dict:
-    """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips."""
+    """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips. `gaussians`: "pixels" or
+    "decoder" (None: served, `inference.GAUSSIANS`)."""
     res = {s: {"model_psnr": [], "model_ssim": [], "oracle_psnr": [], "oracle_ssim": []} for s in shifts}
     for i in range(min(n, len(ds))):
         base = ds[i]
@@ -137,7 +139,7 @@ def eval_reconstruct(
         for s in ds.shifted(i):
             by_shift[float(s["shift_m"])] = s
         rig = rig_of(base)
-        scenes = {"model": to_scene4d(reconstruct(clip_view(base, rig), models))} if model else {}
+        scenes = {"model": to_scene4d(reconstruct(clip_view(base, rig), models, gaussians))} if model else {}
         if oracle:
             scenes["oracle"] = oracle_scene(clip_view(base, rig))
         T, V = base["rgb"].shape[:2]
@@ -167,10 +169,11 @@ def eval_cells(
     factors: tuple[float, ...] = (0.0, 1.0, 1.5, 2.0, 3.0),
     frames: tuple[int, ...] | None = None,
     shifts: tuple[float, ...] = (0.0, 2.0),
+    gaussians: str | None = None,
 ) -> list[dict]:
     """The static economy's cell (image-pixel footprints; 0 = no economy) on reconstructed scenes (the served
-    `to_scene4d`) and on the oracle's (`oracle_scene`, at 0 m): mean PSNR per shift over n test clips and the
-    static Gaussians a clip keeps (its union over all its frames), per cell."""
+    `to_scene4d`; `gaussians` as in `eval_reconstruct`) and on the oracle's (`oracle_scene`, at 0 m): mean PSNR per
+    shift over n test clips and the static Gaussians a clip keeps (its union over all its frames), per cell."""
     rows = {f: {"cell": f, "static": [], "oracle_static": [], "oracle_psnr_0": []} for f in factors}
     for i in range(min(n, len(ds))):
         base = ds[i]
@@ -180,7 +183,7 @@ def eval_cells(
             raise ValueError(f"cells: clip {i} has no ground truth at shift(s) {missing} (dataset --shifts)")
         rig = rig_of(base)
         clip = clip_view(base, rig)
-        dec = reconstruct(clip, models)
+        dec = reconstruct(clip, models, gaussians)
         T, V = base["rgb"].shape[:2]
         for f in factors:
             eco = Economy(enabled=False) if f == 0 else Economy(cell_factor=f, static_rule="merge")
@@ -337,6 +340,7 @@ def eval_generate(
     snap_log_tol: float | None = None,
     snap_agents: bool = True,
     snap_map: bool = True,
+    gaussians: str | None = None,
 ) -> dict:
     """Layout fidelity of generated scenes, decoded as generate mode serves them (`decode_generated`; `snap` False
     leaves out its snaps onto the layout: road Gaussians onto its plane, agents' onto their boxes; `snap_agents` False
@@ -373,6 +377,7 @@ def eval_generate(
             snap=snap,
             snap_agents=snap_agents,
             snap_map=snap_map,
+            gaussians=gaussians,
             **tol,
         )
         scene = to_scene4d(dec)
@@ -537,6 +542,9 @@ def main(argv=None) -> int:
     )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
+        "--gaussians", default=None, help="reconstruct / generate / cells: pixels or decoder (default: served)"
+    )
+    p.add_argument(
         "--snap-log-tol", type=float, default=None, help="generate: the ground snap's tolerance (default: served)"
     )
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
@@ -559,29 +567,47 @@ def main(argv=None) -> int:
         out["vae"] = eval_vae(models, ds, a.clips)
         print("vae", out["vae"], flush=True)
     if "reconstruct" in parts or "oracle" in parts:
-        r = eval_reconstruct(models, ds, a.clips, frames=frames, model="reconstruct" in parts, oracle="oracle" in parts)
+        r = eval_reconstruct(
+            models,
+            ds,
+            a.clips,
+            frames=frames,
+            model="reconstruct" in parts,
+            oracle="oracle" in parts,
+            gaussians=a.gaussians,
+        )
         prev = out.get("reconstruct", {})
         for sh, row in r.items():  # merge, so the oracle and the model can run separately
             prev.setdefault(sh, {}).update({k: v for k, v in row.items() if v is not None})
         out["reconstruct"] = prev
         print("reconstruct", out["reconstruct"], flush=True)
     if "generate" in parts and "generate" in models.modes:
-        out["generate"] = eval_generate(models, ds, a.clips, frames=frames, snap_log_tol=a.snap_log_tol)
+        out["generate"] = eval_generate(
+            models, ds, a.clips, frames=frames, snap_log_tol=a.snap_log_tol, gaussians=a.gaussians
+        )
         print("generate", out["generate"], flush=True)
     if "nosnap" in parts and "generate" in models.modes:
-        out["generate_no_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap=False)
+        out["generate_no_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap=False, gaussians=a.gaussians)
         print("generate_no_snap", out["generate_no_snap"], flush=True)
     if "noagentsnap" in parts and "generate" in models.modes:
-        out["generate_no_agent_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap_agents=False)
+        out["generate_no_agent_snap"] = eval_generate(
+            models, ds, a.clips, frames=frames, snap_agents=False, gaussians=a.gaussians
+        )
         print("generate_no_agent_snap", out["generate_no_agent_snap"], flush=True)
     if "nomapsnap" in parts and "generate" in models.modes:
-        out["generate_no_map_snap"] = eval_generate(models, ds, a.clips, frames=frames, snap_map=False)
+        out["generate_no_map_snap"] = eval_generate(
+            models, ds, a.clips, frames=frames, snap_map=False, gaussians=a.gaussians
+        )
         print("generate_no_map_snap", out["generate_no_map_snap"], flush=True)
     if "ceiling" in parts:
-        out["generate_ceiling"] = eval_generate(models, ds, a.clips, frames=frames, latents="encode")
+        out["generate_ceiling"] = eval_generate(
+            models, ds, a.clips, frames=frames, latents="encode", gaussians=a.gaussians
+        )
         print("generate_ceiling", out["generate_ceiling"], flush=True)
     if "prior" in parts:
-        out["generate_prior_only"] = eval_generate(models, ds, a.clips, frames=frames, latents="prior")
+        out["generate_prior_only"] = eval_generate(
+            models, ds, a.clips, frames=frames, latents="prior", gaussians=a.gaussians
+        )
         print("generate_prior_only", out["generate_prior_only"], flush=True)
     if "steps" in parts and "generate" in models.modes:
         out["steps_vs_error"] = steps_vs_error(models, ds, max(1, min(2, a.clips)))
@@ -594,7 +620,7 @@ def main(argv=None) -> int:
             print("steps by shift", out["steps_vs_error_by_shift"], flush=True)
     if "cells" in parts:
         cells = tuple(float(x) for x in a.cells.split(","))
-        out["cells"] = eval_cells(models, ds, a.clips, factors=cells, frames=frames)
+        out["cells"] = eval_cells(models, ds, a.clips, factors=cells, frames=frames, gaussians=a.gaussians)
         print("cells", out["cells"], flush=True)
     if a.figure is not None:
         figure(models, ds, 0, a.figure)

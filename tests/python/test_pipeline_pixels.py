@@ -126,8 +126,8 @@ def test_reconstruct_lifts_one_gaussian_per_rig_pixel_and_keeps_the_decoder_opti
     d = cfg.data
     W, H = d.width * 2, d.height * 2  # a served image larger than the model image
     clip = _tiny_clip(cfg, W, H)
-    dec = inf.reconstruct(clip, models)
-    assert inf.GAUSSIANS == "pixels" and dec.source == "pixels"
+    dec = inf.reconstruct(clip, models, gaussians="pixels")
+    assert dec.source == "pixels"
     for row in dec.gaussians:
         for g in row:
             assert len(g) == W * H
@@ -143,9 +143,9 @@ def test_reconstruct_lifts_one_gaussian_per_rig_pixel_and_keeps_the_decoder_opti
 
 
 @pytest.mark.skipif("reconstruct" not in inf.available_modes(), reason="no shipped weights in models/weights")
-def test_served_learned_scene_is_at_least_as_dense_as_the_oracle():
+def test_pixel_lifted_learned_scene_is_at_least_as_dense_as_the_oracle():
     """Gaussians per served pixel at frame 0 of a small held-out world: reconstruct lifted per pixel >= the oracle
-    (the latent decoder's grid had about a third of them)."""
+    (the latent decoder's grid has about a third of them)."""
     from worldsplat.core.scenario import random_scenario
     from worldsplat.pipeline.scene import oracle_scene
     from worldsplat.world import build_world, simulate
@@ -154,10 +154,10 @@ def test_served_learned_scene_is_at_least_as_dense_as_the_oracle():
     clip = simulate(world)
     served_px = len(clip.rig) * 100 * 56
     oracle = len(oracle_scene(clip).at_frame(0)) / served_px
-    dec = inf.reconstruct(clip)
+    dec = inf.reconstruct(clip, gaussians="pixels")
     pixel = inf.to_scene4d(dec).at_frame(0)
     grid = inf.to_scene4d(inf.reconstruct(clip, gaussians="decoder")).at_frame(0)
     assert torch.isfinite(pixel.means).all() and torch.isfinite(pixel.colors).all()
     assert len(pixel) / served_px >= oracle, (len(pixel) / served_px, oracle)
-    assert len(pixel) > len(grid)  # the latent decoder's grid it replaces
+    assert len(pixel) > len(grid)  # the latent decoder's grid
     assert not math.isnan(float(pixel.opacities.mean())) and float(pixel.opacities.median()) > 0.9  # opaque

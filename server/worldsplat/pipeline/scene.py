@@ -48,8 +48,8 @@ ORACLE_VERSION = "oracle-4"
 # generate's agents onto their layout boxes, moving with them (`snaps.snap_agents_to_layout`); w7 those box cells
 # solid (opacity floor); w8 facades, trees and poles onto the layout's map layer (`snaps.snap_to_map`); w9 the VAE's
 # decoding lifted one opaque Gaussian per pixel of the served image (`pipeline.pixels`, inference.GAUSSIANS), with the
-# oracle's economy
-STREAM_VERSION = "w9"
+# oracle's economy; w10 the latent decoder's grid served again (`inference.GAUSSIANS`; pixels measured worse on generate)
+STREAM_VERSION = "w10"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
 # sampling and decoding instead of a whole window's (the bound on the finished scene: playground.md)

@@ -34,7 +34,8 @@ def test_cells_at_the_served_cell_score_the_served_scene(one_clip):
     # one model pixel at the models' own image size is the decoder's economy (`decoded_economy`)
     assert by_cell[1.0]["psnr_0"] == pytest.approx(served["0.0"]["model_psnr"], abs=1e-9)
     assert by_cell[1.0]["psnr_2"] == pytest.approx(served["2.0"]["model_psnr"], abs=1e-9)
-    assert by_cell[3.0]["oracle_psnr_0"] == pytest.approx(served["0.0"]["oracle_psnr"], abs=1e-9)  # oracle's cells: 3
+    # the served oracle keeps each place's finest observation (no cells): above the cells of 3 it merged before
+    assert served["0.0"]["oracle_psnr"] > by_cell[3.0]["oracle_psnr_0"]
     assert by_cell[0.0]["static"] > by_cell[1.0]["static"] > by_cell[3.0]["static"] > 0
     assert by_cell[0.0]["oracle_static"] > by_cell[1.0]["oracle_static"] > by_cell[3.0]["oracle_static"] > 0
     with pytest.raises(ValueError, match=r"no ground truth at shift\(s\) \[4.0\]"):

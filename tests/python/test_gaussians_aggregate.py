@@ -152,11 +152,11 @@ def test_scenario_without_moving_agents_has_no_dynamic_gaussians():
 
     s = load_preset("empty_road").with_updates(clip={"frames": 2}, image={"width": 64, "height": 36})
     scene = generate_scene(s, mode="oracle")
-    assert scene.num_frames == 2 and all(len(d) == 0 for d in scene.dynamic)
+    assert scene.num_frames == 2 and all(len(scene.dynamic_at(t)) == 0 for t in range(2)) and not scene.objects
     assert len(scene.static) > 1000
     moving = load_preset("urban_straight").with_updates(clip={"frames": 2}, image={"width": 64, "height": 36})
     scene2 = generate_scene(moving, mode="oracle")
-    assert sum(len(d) for d in scene2.dynamic) > 0
+    assert sum(len(scene2.dynamic_at(t)) for t in range(2)) > 0 and scene2.objects
 
 
 def test_opacity_merge_modes():

@@ -474,7 +474,7 @@ def test_imported_files_generate_with_every_agent_where_the_file_put_it(tmp_path
     static, street = _above_ground(scene.static), None
     for a in explicit:
         if a.moving:
-            near = [_inside_footprint(scene.dynamic[t].means.numpy(), a.poses[t], a.size) for t in range(T)]
+            near = [_inside_footprint(scene.dynamic_at(t).means.numpy(), a.poses[t], a.size) for t in range(T)]
             assert sum(n > 0 for n in near) >= 3 * T // 4, f"{a.agent_id}: dynamic Gaussians per frame {near}"
         else:
             if street is None:
@@ -515,7 +515,7 @@ def test_imported_files_generate_in_generate_mode(tmp_path, kind):
     street = None
     for a in (a for a in w.agents if a.agent_id):
         if a.moving:
-            near = [_inside_footprint(scene.dynamic[t].means.numpy(), a.poses[t], a.size) for t in range(T)]
+            near = [_inside_footprint(scene.dynamic_at(t).means.numpy(), a.poses[t], a.size) for t in range(T)]
             assert sum(n > 0 for n in near) >= 3 * T // 4, f"{a.agent_id}: dynamic Gaussians per frame {near}"
         else:
             # Above the ground, against the same street generated without the file's agents: a count over the whole

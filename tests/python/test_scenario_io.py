@@ -493,7 +493,7 @@ def test_imported_files_generate_in_generate_mode(tmp_path, kind):
     layout boxes (`inference.snap_agents_to_layout`): cut-in car 4-22 / 24-78, truck at 60 m 0-9 / 6-38, pedestrian
     0-1 / 1-46 (before it, only the near car was held, within 1 m). The CommonRoad file's pedestrian at 42 m, under
     one decoder cell, had none in 6 of its 21 frames until sub-cell agents got their peak cell
-    (`inference._agent_cells`)."""
+    (`snaps._agent_cells`)."""
     from worldsplat.pipeline.scene import available_modes, generate_scene
     from worldsplat.world.layout import build_world
     from worldsplat.world.scenario_io import import_scenario

@@ -30,7 +30,7 @@ from worldsplat.gaussians.aggregate import WINDOW_FINER, AggregateStats, CellTab
 from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D, transform
 
 # Gaussians this far outside a box still belong to it (lifted silhouette pixels, merged means); the agents'
-# snapping in generate mode uses the same margin (pipeline.inference.AGENT_BOX_MARGIN_M).
+# snapping in generate mode uses the same margin (pipeline.snaps.AGENT_BOX_MARGIN_M).
 AGENT_MARGIN_M = 0.3
 AGENT_MODES = ("objects", "per_frame")  # an agent as one posed object, or re-drawn per frame (the paper's dynamics)
 # An object is drawn at every frame, also where the agent is nearer than when a place of it was seen: a Gaussian

@@ -20,7 +20,6 @@ network of the package.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,9 +27,8 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-from safetensors import safe_open
 
-from .weights import write_safetensors
+from .weights import read_tagged, save_tagged
 
 KIND = "judge"
 
@@ -142,23 +140,12 @@ def features(model: Judge, images: np.ndarray, batch: int = 64) -> np.ndarray:
 
 def save_judge(model: Judge, path: str | Path, meta: dict | None = None) -> Path:
     """Atomic write: the weights (float32) with {kind: judge, config, **meta} in the metadata."""
-    state = {k: v.detach().float().contiguous().clone() for k, v in model.state_dict().items()}
-    md = {"kind": KIND, "config": json.dumps(dataclasses.asdict(model.cfg))}
-    md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
-    return write_safetensors(state, path, md)
+    return save_tagged(model, path, KIND, meta)
 
 
 def load_judge(path: str | Path) -> Judge:
     """A judge weight file -> the model in eval mode, its metadata in `.meta`."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"judge weights {path} not found; train them with `worldsplat judge train`")
-    with safe_open(str(path), framework="pt") as f:
-        md = dict(f.metadata() or {})
-        tensors = {k: f.get_tensor(k) for k in f.keys()}
-    if md.get("kind") != KIND:
-        raise ValueError(f"{path}: holds a {md.get('kind')!r} model, expected {KIND!r}")
-    meta = {k: json.loads(v) for k, v in md.items() if k != "kind"}
+    tensors, meta = read_tagged(path, KIND, "train them with `worldsplat judge train`")
     fields = {f.name for f in dataclasses.fields(JudgeConfig)}
     model = Judge(JudgeConfig(**{k: v for k, v in meta["config"].items() if k in fields}))
     model.load_state_dict({k: v.float() for k, v in tensors.items()})

@@ -15,8 +15,6 @@ once from the rig the head was trained for and kept in the weight file, so it re
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,10 +22,9 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-from safetensors import safe_open
 
 from .judge import Judge
-from .weights import write_safetensors
+from .weights import read_tagged, save_tagged
 
 KIND = "judge_bev"
 LAYERS = ("drivable", "vehicle")
@@ -143,22 +140,11 @@ def rig_config(rig, image: tuple[int, int], **kw) -> BevConfig:
 
 
 def save_bev(model: JudgeBev, path: str | Path, meta: dict | None = None) -> Path:
-    state = {k: v.detach().float().contiguous().clone() for k, v in model.state_dict().items()}
-    md = {"kind": KIND, "config": json.dumps(dataclasses.asdict(model.cfg))}
-    md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
-    return write_safetensors(state, path, md)
+    return save_tagged(model, path, KIND, meta)
 
 
 def load_bev(path: str | Path) -> JudgeBev:
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"BEV head weights {path} not found; train them with `worldsplat judge train-bev`")
-    with safe_open(str(path), framework="pt") as f:
-        md = dict(f.metadata() or {})
-        tensors = {k: f.get_tensor(k) for k in f.keys()}
-    if md.get("kind") != KIND:
-        raise ValueError(f"{path}: holds a {md.get('kind')!r} model, expected {KIND!r}")
-    meta = {k: json.loads(v) for k, v in md.items() if k != "kind"}
+    tensors, meta = read_tagged(path, KIND, "train them with `worldsplat judge train-bev`")
     c = meta["config"]
     for k in ("x_range", "y_range", "heights", "layers", "image"):
         c[k] = tuple(c[k])

@@ -77,6 +77,29 @@ def write_safetensors(state: dict, path: str | Path, metadata: dict) -> Path:
     return path
 
 
+def save_tagged(model: torch.nn.Module, path: str | Path, kind: str, meta: dict | None = None) -> Path:
+    """Atomic write of a small model outside the generation stack (the judge, its BEV head): float32 weights with
+    {kind, config (the model's `cfg` dataclass), **meta} as JSON in the metadata."""
+    state = {k: v.detach().float().contiguous().clone() for k, v in model.state_dict().items()}
+    md = {"kind": kind, "config": json.dumps(dataclasses.asdict(model.cfg))}
+    md.update({k: json.dumps(v) for k, v in (meta or {}).items()})
+    return write_safetensors(state, path, md)
+
+
+def read_tagged(path: str | Path, kind: str, missing: str) -> tuple[dict, dict]:
+    """(tensors, meta) of a file written by `save_tagged`; FileNotFoundError saying `missing` (how to make it) when
+    there is none, ValueError when it holds another kind of model."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path} not found; {missing}")
+    with safe_open(str(path), framework="pt") as f:
+        md = dict(f.metadata() or {})
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    if md.get("kind") != kind:
+        raise ValueError(f"{path}: holds a {md.get('kind')!r} model, expected {kind!r}")
+    return tensors, {k: json.loads(v) for k, v in md.items() if k != "kind"}
+
+
 def read_metadata(path: str | Path) -> dict:
     with safe_open(str(path), framework="pt") as f:
         md = dict(f.metadata() or {})

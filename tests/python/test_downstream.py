@@ -39,6 +39,26 @@ def test_summary_averages_present_classes_and_groups():
     assert wrong_car["per_class"]["sky"] == 0.0 and wrong_car["per_class"]["car"] is None
 
 
+def test_gap_by_group_splits_the_miou_gap_into_parts_that_sum_to_it():
+    gt = np.array([ROAD] * 4 + [BUILDING] * 4 + [SKY] * 2)
+    ref = downstream.summary(downstream.confusion(gt, gt))
+    # road read as building: road IoU 0, building 4/8; sky right
+    row = downstream.summary(downstream.confusion(np.where(gt == ROAD, BUILDING, gt), gt))
+    parts = downstream.gap_by_group(ref, row)
+    assert parts["road"] == pytest.approx(1 / 3) and parts["structure"] == pytest.approx(0.5 / 3)
+    assert parts["sky"] == 0.0 and parts["agents"] == 0.0
+    assert sum(parts.values()) == pytest.approx(ref["miou"] - row["miou"])
+
+
+def test_group_confusion_says_what_each_groups_pixels_are_read_as():
+    gt = np.array([ROAD] * 4 + [BUILDING] * 4 + [SKY] * 2)
+    pred = np.array([ROAD, ROAD, ROAD, BUILDING] + [BUILDING] * 2 + [SKY] * 2 + [SKY] * 2)
+    gc = downstream.group_confusion(downstream.confusion(pred, gt))
+    assert gc["road"]["road"] == 0.75 and gc["road"]["structure"] == 0.25
+    assert gc["structure"]["structure"] == 0.5 and gc["structure"]["sky"] == 0.5
+    assert gc["sky"]["sky"] == 1.0 and gc["agents"] is None
+
+
 def test_frechet_distance_of_identical_shifted_and_scaled_gaussians():
     rng = np.random.default_rng(0)
     a = rng.normal(size=(400, 8))

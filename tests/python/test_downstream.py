@@ -4,6 +4,8 @@ the oracle scene's render >= the generated scene's render)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -282,6 +284,27 @@ def test_augmentation_trains_each_arm_per_seed_and_reports_the_gain(tmp_path):
         progress=False,
     )
     assert again["table"] == r["table"]
+    assert t["world"]["per_class"]["road"] is not None and t["world"]["per_class"]["car"] is None
+    assert "| world+generated |" in augmentation_markdown(r).split("Gain")[1]  # the per-group table
+    # a run scored before per class was kept is scored again from its weights, not trained again
+    run = next((tmp_path / "out").glob("world_n2_*seed0"))
+    done, weights = run / "heldout.json", run / "judge_small.safetensors"
+    old = json.loads(done.read_text())
+    done.write_text(json.dumps({k: v for k, v in old.items() if k != "per_class"}))
+    stamp = weights.stat().st_mtime_ns
+    augmentation(
+        tmp_path / "world",
+        tmp_path / "gen",
+        tmp_path / "out",
+        n=2,
+        m=2,
+        seeds=(0, 1),
+        steps=3,
+        batch=2,
+        width=8,
+        progress=False,
+    )
+    assert json.loads(done.read_text()) == old and weights.stat().st_mtime_ns == stamp
 
 
 def test_shipped_bev_head_reads_the_drivable_area_of_a_held_out_clip():

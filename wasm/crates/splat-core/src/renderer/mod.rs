@@ -7,16 +7,23 @@
 //!
 //! Both draw `QUAD_BATCH` Gaussians per instance through one index buffer (`quads`).
 //!
-//! Beside it: `device` (adapter -> device, draw path), `shaders` (the WGSL registry), `view` (the per-view
+//! Its parts: `pipeline` (the splat pipeline and its pass), `storage` (the compute path's frame), `instanced` (the
+//! WebGL2 path's frame and the worker-sort API), `blit` (the copy to the output). Beside it: `device` (adapter -> device, draw path), `shaders` (the WGSL registry), `view` (the per-view
 //! uniform), `external_sort` (the worker-sort protocol), `readback` (offscreen target + buffer map), `quads` (the
 //! index buffer), `budget` (the frame budget's prefix while the camera moves).
+
+mod blit;
+mod instanced;
+mod pipeline;
+mod storage;
 
 use crate::budget::FrameBudget;
 use crate::cpu_sort::{CpuSortJob, CpuSorter, SortKey};
 use crate::external_sort::ExternalSort;
 use crate::gpu_sort::{GpuSort, SortBindings};
-use crate::quads::{quad_index_buffer, INDICES_PER_INSTANCE};
+use crate::quads::quad_index_buffer;
 use crate::records::RecordTextures;
+use blit::Blit;
 use splat_format::gaussians::{PackedSplat, PACKED_SPLAT_BYTES};
 
 pub use crate::device::Gpu;
@@ -63,14 +70,11 @@ pub struct Renderer {
     pub queue: wgpu::Queue,
     pub path: DrawPath,
     accum_format: wgpu::TextureFormat,
-    blit_module: wgpu::ShaderModule,
-    blit_layout: wgpu::PipelineLayout,
-    blit_pipelines: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
+    blit: Blit,
     splat_pipeline: wgpu::RenderPipeline,
     /// `QUAD_BATCH` quads of indices, every splat draw's index buffer.
     quad_index: wgpu::Buffer,
     splat_bgl: wgpu::BindGroupLayout,
-    blit_bgl: wgpu::BindGroupLayout,
     view_buf: wgpu::Buffer,
     /// Storage path: the records (24 B each). Instanced path: the draw order (a u32 record index per instance).
     splat_buf: wgpu::Buffer,
@@ -84,7 +88,6 @@ pub struct Renderer {
     // Bind groups, made once and again only when what they bind is replaced.
     splat_bind: Option<wgpu::BindGroup>,
     sort_bind: Option<SortBindings>,
-    blit_bind: Option<wgpu::BindGroup>,
     // Instanced path: the records (static then dynamic) as the CPU sorts them.
     cpu_records: Vec<PackedSplat>,
     cpu_sorter: CpuSorter,
@@ -129,105 +132,10 @@ fn std_clock() -> f64 {
     0.0
 }
 
-/// Instanced path: upload a draw order into the order texture; returns the number of Gaussians it draws.
-fn write_order(queue: &wgpu::Queue, records: &Option<RecordTextures>, order: &[u32]) -> u32 {
-    records.as_ref().expect("instanced path").write_order(queue, order)
-}
-
 impl Renderer {
     pub fn new(gpu: &Gpu) -> Renderer {
         let device = &gpu.device;
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("splat.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(splat_shader_source(gpu.path).into()),
-        });
-        let uniform_entry = wgpu::BindGroupLayoutEntry {
-            binding: 0,
-            visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: true,
-                min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
-            },
-            count: None,
-        };
-        let storage_entry = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::VERTEX,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: true },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let record_entry = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::VERTEX,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Uint,
-                view_dimension: wgpu::TextureViewDimension::D2,
-                multisampled: false,
-            },
-            count: None,
-        };
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = match gpu.path {
-            DrawPath::Storage => vec![uniform_entry, storage_entry(1), storage_entry(2)],
-            DrawPath::Instanced => vec![uniform_entry, record_entry(1), record_entry(2), record_entry(3)],
-        };
-        let splat_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("splat bgl"), entries: &entries });
-        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("splat layout"),
-            bind_group_layouts: &[Some(&splat_bgl)],
-            immediate_size: 0,
-        });
-        // Both paths: indexed triangle lists, QUAD_BATCH quads per instance (quads.rs says why).
-        let topology = wgpu::PrimitiveTopology::TriangleList;
-        let front_to_back = wgpu::BlendComponent {
-            src_factor: wgpu::BlendFactor::OneMinusDstAlpha,
-            dst_factor: wgpu::BlendFactor::One,
-            operation: wgpu::BlendOperation::Add,
-        };
-        let splat_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("splat pipeline"),
-            layout: Some(&layout),
-            vertex: wgpu::VertexState { module: &module, entry_point: Some("vs_main"), compilation_options: Default::default(), buffers: &[] },
-            primitive: wgpu::PrimitiveState { topology, ..Default::default() },
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: gpu.accum_format,
-                    blend: Some(wgpu::BlendState { color: front_to_back, alpha: front_to_back }),
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        let blit_module = device
-            .create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("blit.wgsl"), source: wgpu::ShaderSource::Wgsl(SHADER_BLIT.into()) });
-        let blit_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("blit bgl"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::FRAGMENT,
-                ty: wgpu::BindingType::Texture {
-                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                    view_dimension: wgpu::TextureViewDimension::D2,
-                    multisampled: false,
-                },
-                count: None,
-            }],
-        });
-        let blit_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("blit layout"),
-            bind_group_layouts: &[Some(&blit_bgl)],
-            immediate_size: 0,
-        });
+        let (splat_pipeline, splat_bgl) = pipeline::splat_pipeline(device, gpu.path, gpu.accum_format);
         let view_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("view uniforms"),
             size: UNIFORM_STRIDE * MAX_VIEWS as u64,
@@ -239,13 +147,10 @@ impl Renderer {
             queue: gpu.queue.clone(),
             path: gpu.path,
             accum_format: gpu.accum_format,
-            blit_module,
-            blit_layout,
-            blit_pipelines: Vec::new(),
+            blit: Blit::new(device),
             splat_pipeline,
             quad_index: quad_index_buffer(&gpu.device),
             splat_bgl,
-            blit_bgl,
             view_buf,
             splat_buf: Self::make_splat_buffer(&gpu.device, gpu.path, 1),
             capacity: 1,
@@ -256,7 +161,6 @@ impl Renderer {
             records_valid: 0,
             splat_bind: None,
             sort_bind: None,
-            blit_bind: None,
             cpu_records: Vec::new(),
             cpu_sorter: CpuSorter::default(),
             order_scratch: Vec::new(),
@@ -299,34 +203,6 @@ impl Renderer {
         })
     }
 
-    fn blit_pipeline(&mut self, format: wgpu::TextureFormat) -> wgpu::RenderPipeline {
-        if let Some((_, p)) = self.blit_pipelines.iter().find(|(f, _)| *f == format) {
-            return p.clone();
-        }
-        let p = self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("blit pipeline"),
-            layout: Some(&self.blit_layout),
-            vertex: wgpu::VertexState {
-                module: &self.blit_module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: Default::default(),
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &self.blit_module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        self.blit_pipelines.push((format, p.clone()));
-        p
-    }
     pub fn accum_format(&self) -> wgpu::TextureFormat {
         self.accum_format
     }
@@ -373,57 +249,9 @@ impl Renderer {
         self.data_version
     }
 
-    /// Means of the resident Gaussians as x, y, z triples (what an external sorter needs; instanced path only).
-    pub fn positions(&self) -> Vec<f32> {
-        debug_assert!(self.path == DrawPath::Instanced);
-        self.cpu_records.iter().flat_map(|r| r.mean).collect()
-    }
-
     /// Sort keys of `views` for the resident data (what an exact frame needs).
     pub fn sort_keys(&self, views: &[ViewRect]) -> Vec<SortKey> {
         views.iter().map(|v| SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2)).collect()
-    }
-
-    /// External sort: true when the orders in hand are exactly those of `views` on the resident data.
-    pub fn orders_ready(&self, views: &[ViewRect]) -> bool {
-        self.external.orders_ready(&self.sort_keys(views))
-    }
-
-    /// External sort: ask for the orders of `views` (the next `take_sort_request` sends it unless they are in hand).
-    pub fn want_orders(&mut self, views: &[ViewRect]) {
-        let keys = self.sort_keys(views);
-        self.external.want(keys);
-    }
-
-    /// External sort: the request to send now, if the last render wanted an order that is neither in hand nor
-    /// in flight. At most one request is in flight.
-    pub fn take_sort_request(&mut self) -> Option<SortRequest> {
-        self.external.take_request(self.data_version)
-    }
-
-    /// External sort: the sorter answered request `seq` with one order per view (visible indices, nearest first).
-    /// Returns false (and counts a drop) for an answer that is not the request in flight or whose data has
-    /// since been replaced; an order with an index out of range is an error (a broken sorter).
-    pub fn accept_sort_result(&mut self, seq: u64, orders: Vec<Vec<u32>>) -> Result<bool, String> {
-        self.external.accept(seq, orders, self.index_epoch, self.count)
-    }
-
-    pub fn cpu_sort_source(&self) -> CpuSortSource {
-        self.cpu_sort_source
-    }
-
-    /// Switch where the instanced path's order comes from (forgets what the other source sorted).
-    pub fn set_cpu_sort_source(&mut self, source: CpuSortSource) {
-        self.cpu_sort_source = source;
-        self.last_sort = None;
-        self.cpu_job = None;
-        self.uploaded_order = None;
-        self.external.reset();
-    }
-
-    /// External sort: drop the request in flight (the sorter died); the next render asks again.
-    pub fn cancel_sort_request(&mut self) {
-        self.external.cancel();
     }
 
     /// Make the resident set `statics ++ dynamic`. `statics` may only have grown since the last call (streaming
@@ -479,16 +307,6 @@ impl Renderer {
         }
     }
 
-    /// Instanced path: bring the record textures up to `cpu_records` (only the records that changed).
-    fn flush_records(&mut self) {
-        if let Some(t) = self.records.as_mut() {
-            if self.records_valid < self.cpu_records.len() {
-                t.write(&self.queue, self.records_valid, &self.cpu_records[self.records_valid..]);
-            }
-        }
-        self.records_valid = self.cpu_records.len();
-    }
-
     fn ensure_accum(&mut self, size: [u32; 2]) {
         if self.accum.as_ref().is_some_and(|a| a.2 == size) {
             return;
@@ -505,7 +323,7 @@ impl Renderer {
         });
         let view = tex.create_view(&Default::default());
         self.accum = Some((tex, view, size));
-        self.blit_bind = None;
+        self.blit.bind = None;
     }
 
     /// The splat draw's bind group (uniforms + records, + order on the storage path), made when first needed.
@@ -543,60 +361,6 @@ impl Renderer {
         let b = self.gpu_sort.as_ref().expect("storage path").bind_groups(&self.device, &self.view_buf, &self.splat_buf);
         self.sort_bind = Some(b.clone());
         b
-    }
-
-    fn blit_bind(&mut self) -> wgpu::BindGroup {
-        if let Some(b) = &self.blit_bind {
-            return b.clone();
-        }
-        let accum = &self.accum.as_ref().expect("accumulation target").1;
-        let b = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("blit bind"),
-            layout: &self.blit_bgl,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(accum) }],
-        });
-        self.blit_bind = Some(b.clone());
-        b
-    }
-
-    fn splat_pass(&self, encoder: &mut wgpu::CommandEncoder, accum: &wgpu::TextureView, clear: bool) -> wgpu::RenderPass<'static> {
-        encoder
-            .begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("splats"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: accum,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: if clear { wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT) } else { wgpu::LoadOp::Load },
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            })
-            .forget_lifetime()
-    }
-
-    /// The splat pass of view `slot` (`v`), state set for its draw: viewport and scissor on its rectangle, the
-    /// splat pipeline, its uniform offset, the quad index buffer (both draw paths).
-    fn view_pass(
-        &self,
-        encoder: &mut wgpu::CommandEncoder,
-        accum: &wgpu::TextureView,
-        slot: usize,
-        v: &ViewRect,
-        bind: &wgpu::BindGroup,
-    ) -> wgpu::RenderPass<'static> {
-        let mut pass = self.splat_pass(encoder, accum, slot == 0);
-        pass.set_viewport(v.origin[0] as f32, v.origin[1] as f32, v.camera.width as f32, v.camera.height as f32, 0.0, 1.0);
-        pass.set_scissor_rect(v.origin[0], v.origin[1], v.camera.width, v.camera.height);
-        pass.set_pipeline(&self.splat_pipeline);
-        pass.set_bind_group(0, bind, &[(slot as u64 * UNIFORM_STRIDE) as u32]);
-        pass.set_index_buffer(self.quad_index.slice(..), wgpu::IndexFormat::Uint16);
-        pass
     }
 
     /// Milliseconds since `t0`, after waiting for the GPU when profiling (`stage_sync`).
@@ -639,8 +403,8 @@ impl Renderer {
             self.queue.write_buffer(&self.view_buf, i as u64 * UNIFORM_STRIDE, bytemuck::bytes_of(&u));
         }
         let mut stats = RenderStats { gaussians: self.count, resident_bytes: self.resident_bytes(), ..Default::default() };
-        let blit = self.blit_pipeline(format);
-        let blit_bind = self.blit_bind();
+        let blit = self.blit.pipeline(&self.device, format);
+        let blit_bind = self.blit.bind(&self.device, &self.accum.as_ref().expect("accumulation target").1);
         let bind = self.splat_bind();
         let encoder = match self.path {
             DrawPath::Storage => self.encode_storage(views, &keys, &bind, &mut stats),
@@ -654,191 +418,10 @@ impl Renderer {
             e
         });
         let t = (self.clock)();
-        self.blit(&mut encoder, &blit, &blit_bind, target);
+        Blit::encode(&mut encoder, &blit, &blit_bind, target);
         self.queue.submit([encoder.finish()]);
         stats.blit_ms = self.stage_end(t);
         Ok(stats)
-    }
-
-    /// Storage path: per view the GPU sort (unless a single held view reuses it) and the indirect draw, in one
-    /// encoder (returned unsubmitted, for the blit).
-    fn encode_storage(
-        &mut self,
-        views: &[ViewRect],
-        keys: &[SortKey],
-        bind: &wgpu::BindGroup,
-        stats: &mut RenderStats,
-    ) -> Option<wgpu::CommandEncoder> {
-        let sort_bind = self.sort_bind();
-        let accum = self.accum.as_ref().unwrap().1.clone();
-        let single_key = (views.len() == 1).then(|| keys[0]);
-        stats.sort_reused = single_key.is_some() && single_key == self.last_sort;
-        stats.prefix = keys.first().is_some_and(|k| k.is_prefix());
-        let sort = self.gpu_sort.as_ref().unwrap();
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        for (i, v) in views.iter().enumerate() {
-            let offset = (i as u64 * UNIFORM_STRIDE) as u32;
-            if self.count > 0 && !stats.sort_reused {
-                let t = (self.clock)();
-                sort.encode(&mut encoder, &sort_bind, offset, self.count);
-                if self.stage_sync.is_some() {
-                    self.queue.submit([std::mem::replace(&mut encoder, self.device.create_command_encoder(&Default::default())).finish()]);
-                }
-                stats.gpu_sort_ms += self.stage_end(t);
-            }
-            let t = (self.clock)();
-            {
-                let mut pass = self.view_pass(&mut encoder, &accum, i, v, bind);
-                if self.count > 0 && !self.skip_splats {
-                    pass.draw_indexed_indirect(sort.draw_args(), 0);
-                }
-            }
-            if self.stage_sync.is_some() {
-                self.queue.submit([std::mem::replace(&mut encoder, self.device.create_command_encoder(&Default::default())).finish()]);
-            }
-            stats.draw_ms += self.stage_end(t);
-        }
-        self.last_sort = single_key;
-        (!views.is_empty()).then_some(encoder)
-    }
-
-    /// Instanced path: per view choose the order (sort here, or the worker's), upload it (indices only; the
-    /// records are resident), draw. The last view's encoder is returned unsubmitted, for the blit.
-    fn encode_instanced(
-        &mut self,
-        views: &[ViewRect],
-        keys: &[SortKey],
-        bind: &wgpu::BindGroup,
-        stats: &mut RenderStats,
-    ) -> Option<wgpu::CommandEncoder> {
-        let accum = self.accum.as_ref().unwrap().1.clone();
-        if self.cpu_sort_source == CpuSortSource::InThread {
-            let t = (self.clock)();
-            self.flush_records();
-            stats.gather_ms += (self.clock)() - t;
-        }
-        if self.first_order_in_thread
-            && self.cpu_sort_source == CpuSortSource::External
-            && self.external.orders.is_empty()
-            && self.uploaded_visible == 0
-            && self.count > 0
-        {
-            // Nothing to draw at all (the first scene's first frame): waiting for the worker would leave the canvas
-            // blank for a round trip, so this one sort runs here (100k: a few ms); the worker takes every later
-            // view. The order is the same either way (one implementation, `CpuSorter`).
-            let t0 = (self.clock)();
-            for key in keys {
-                let order = self.cpu_sorter.sort_for(&self.cpu_records, key).to_vec();
-                self.external.orders.push((*key, order));
-            }
-            stats.cpu_sort_ms += (self.clock)() - t0;
-        }
-        let mut last = None;
-        for (i, v) in views.iter().enumerate() {
-            let t0 = (self.clock)();
-            let key = keys[i];
-            if self.cpu_sort_source == CpuSortSource::External {
-                self.draw_external_order(i, key, views.len(), stats);
-            } else if views.len() > 1 {
-                let order = self.cpu_sorter.sort_for(&self.cpu_records, &key);
-                let tg = (self.clock)();
-                self.uploaded_visible = write_order(&self.queue, &self.records, order);
-                self.uploaded_prefix = key.is_prefix();
-                stats.records_uploaded += self.uploaded_visible as u64;
-                stats.gather_ms += (self.clock)() - tg;
-                self.last_sort = None;
-            } else if self.last_sort == Some(key) {
-                stats.sort_reused = true;
-            } else {
-                if self.cpu_job.as_ref().is_none_or(|j| j.key != key) {
-                    match self.cpu_job.as_mut() {
-                        Some(job) => job.restart(key), // reuses its buffers
-                        None => self.cpu_job = Some(CpuSortJob::new(key)),
-                    }
-                }
-                // Slice only when just the view moved and an order exists to draw meanwhile.
-                let stale_ok = self.last_sort.is_some_and(|k| k.data_version == self.data_version);
-                let budget = if stale_ok { self.cpu_sort_budget_ms } else { None };
-                let job = self.cpu_job.as_mut().unwrap();
-                if job.step(&self.cpu_records, budget, self.clock) {
-                    let tg = (self.clock)();
-                    self.uploaded_visible = write_order(&self.queue, &self.records, job.order());
-                    self.uploaded_prefix = key.is_prefix();
-                    stats.records_uploaded += self.uploaded_visible as u64;
-                    stats.gather_ms += (self.clock)() - tg;
-                    self.last_sort = Some(key);
-                } else {
-                    stats.sort_pending = true;
-                }
-            }
-            stats.cpu_sort_ms += (self.clock)() - t0;
-            let t = (self.clock)();
-            let visible = self.uploaded_visible;
-            stats.drawn = visible;
-            stats.prefix = self.uploaded_prefix;
-            // The shader culls the last instance's quads past the order's end.
-            let drawn_at = i as u64 * UNIFORM_STRIDE + std::mem::offset_of!(ViewUniform, drawn) as u64;
-            self.queue.write_buffer(&self.view_buf, drawn_at, bytemuck::bytes_of(&visible));
-            let mut encoder = self.device.create_command_encoder(&Default::default());
-            {
-                let mut pass = self.view_pass(&mut encoder, &accum, i, v, bind);
-                if visible > 0 && !self.skip_splats {
-                    pass.draw_indexed(0..INDICES_PER_INSTANCE, 0, 0..visible.div_ceil(QUAD_BATCH));
-                }
-            }
-            // The next view writes its order into the same buffer: submit this one first.
-            if i + 1 < views.len() || self.stage_sync.is_some() {
-                self.queue.submit([encoder.finish()]);
-                encoder = self.device.create_command_encoder(&Default::default());
-            }
-            stats.draw_ms += self.stage_end(t);
-            last = Some(encoder);
-        }
-        if stats.sort_pending && self.cpu_sort_source == CpuSortSource::External {
-            self.external.wanted = Some(keys.to_vec());
-        }
-        stats.sorts_dropped = self.external.dropped;
-        last
-    }
-
-    /// External sort, view `slot` wanting `key`: upload the order in hand for this slot. Until the exact order
-    /// arrives the last one draws: for a single view the order texture as uploaded over the records it was
-    /// sorted for (after a frame change: the previous frame, whole and in order; the record textures take the new
-    /// frame with the first order made for it), for the mosaic the slot's last order over the current records.
-    fn draw_external_order(&mut self, slot: usize, key: SortKey, views: usize, stats: &mut RenderStats) {
-        let Some((have, _)) = self.external.orders.get(slot) else {
-            stats.sort_pending = true;
-            if views > 1 {
-                self.uploaded_visible = 0;
-            }
-            return;
-        };
-        let have = *have;
-        let exact = have == key;
-        stats.sort_pending |= !exact;
-        if views == 1 && self.uploaded_order == Some((have, self.data_version)) {
-            stats.sort_reused = exact; // the order texture already holds this order: nothing to upload
-            return;
-        }
-        if views == 1 && have.data_version < self.index_epoch {
-            return; // keep drawing the previous frame
-        }
-        let tg = (self.clock)();
-        self.flush_records();
-        let count = self.cpu_records.len() as u32;
-        let order = &self.external.orders[slot].1;
-        let order: &[u32] = if order.iter().all(|&i| i < count) {
-            order
-        } else {
-            self.order_scratch.clear();
-            self.order_scratch.extend(order.iter().copied().filter(|&i| i < count));
-            &self.order_scratch
-        };
-        self.uploaded_visible = write_order(&self.queue, &self.records, order);
-        self.uploaded_prefix = have.is_prefix();
-        self.uploaded_order = (views == 1).then_some((have, self.data_version));
-        stats.records_uploaded += self.uploaded_visible as u64;
-        stats.gather_ms += (self.clock)() - tg;
     }
 
     /// Only the depth sort for one view (benchmarks): the GPU sort is submitted (poll to wait), the CPU sort
@@ -864,24 +447,5 @@ impl Renderer {
                 (self.clock)() - t0
             }
         }
-    }
-
-    fn blit(&self, encoder: &mut wgpu::CommandEncoder, pipeline: &wgpu::RenderPipeline, bind: &wgpu::BindGroup, target: &wgpu::TextureView) {
-        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("blit"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: target,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, bind, &[]);
-        pass.draw(0..3, 0..1);
     }
 }

@@ -58,8 +58,9 @@ ORACLE_VERSION = "oracle-5"
 # solid (opacity floor); w8 facades, trees and poles onto the layout's map layer (`snaps.snap_to_map`); w9 the VAE's
 # decoding lifted one opaque Gaussian per pixel of the served image (`pipeline.pixels`, inference.GAUSSIANS), with the
 # oracle's economy; w10 the latent decoder's grid served again (`inference.GAUSSIANS`; pixels measured worse on generate);
-# w11 every agent an object (parked ones too), reconstruct's from the observed pixels, no dynamics in no box
-STREAM_VERSION = "w11"
+# w11 every agent an object (parked ones too), reconstruct's from the observed pixels, no dynamics in no box; w12
+# reconstruct serves the VAE's decoding lifted per pixel (`inference.GAUSSIANS` per mode, `Economy.for_lifted_decoding`)
+STREAM_VERSION = "w12"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
 # sampling and decoding instead of a whole window's (the bound on the finished scene: playground.md)
@@ -338,7 +339,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     else:
         ego_to_world = world.ego_to_world
     H, W = world.rig[0].height, world.rig[0].width
-    eco = inf.decoded_economy(models.data.width, W) if economy is None else economy
+    eco = inf.decoded_economy(models.data.width, W, mode=mode) if economy is None else economy
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
     out = _Collect(agg, meta, sink, objects)
     timing: dict[str, float] = {}

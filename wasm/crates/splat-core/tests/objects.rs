@@ -185,10 +185,15 @@ fn a_new_pose_uploads_the_pose_table_only_and_the_worker_keeps_its_positions() {
     r.set_cpu_sort_source(CpuSortSource::External);
     let (mut up, mut eu) = (SceneUpload::default(), SceneUpload::default());
     let mut versions = Vec::new();
-    for frame in [0, 2, 0] {
+    for (k, frame) in [0, 2, 0].into_iter().enumerate() {
+        let before = r.uploaded_bytes();
         up.show(&mut r, &s, frame, Posing::Gpu).unwrap();
         eu.show(&mut exact, &s, frame, Posing::Gpu).unwrap();
         render(&mut r);
+        if k > 0 {
+            // The old order draws over the same records until the new one arrives: nothing but the poses goes up.
+            assert_eq!(r.uploaded_bytes() - before, pose_table, "frame {frame}: a pose change before its order arrives");
+        }
         let req = r.take_sort_request().expect("a request for the new poses");
         versions.push(req.records_version);
         let orders = worker_sort(&r.positions(), &req);

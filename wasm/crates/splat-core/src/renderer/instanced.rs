@@ -196,7 +196,7 @@ impl Renderer {
         let have = *have;
         let exact = have == key;
         stats.sort_pending |= !exact;
-        if views == 1 && self.uploaded_order == Some((have, self.data_version)) {
+        if views == 1 && self.uploaded_order == Some((have, self.records_version)) {
             stats.sort_reused = exact; // the order texture already holds this order: nothing to upload
             return;
         }
@@ -216,7 +216,7 @@ impl Renderer {
         };
         self.uploaded_visible = write_order(&self.queue, &self.records, order, &mut self.uploaded_bytes);
         self.uploaded_prefix = have.is_prefix();
-        self.uploaded_order = (views == 1).then_some((have, self.data_version));
+        self.uploaded_order = (views == 1).then_some((have, self.records_version));
         stats.records_uploaded += self.uploaded_visible as u64;
         stats.gather_ms += (self.clock)() - tg;
     }

@@ -117,7 +117,8 @@ pub struct Renderer {
     /// Instanced path: sort in `render` or take orders from outside (a Web Worker).
     cpu_sort_source: CpuSortSource,
     external: ExternalSort,
-    /// External sort, single view: (order key, data version) of the order in the order texture.
+    /// External sort, single view: (order key, records version) of the order in the order texture (a new pose keeps
+    /// it: the same records, the old order drawn until the new one arrives).
     uploaded_order: Option<(SortKey, u64)>,
     /// Instanced path: the order in the order texture leaves Gaussians out (a budget prefix).
     uploaded_prefix: bool,

@@ -2,7 +2,7 @@
 image) up-sampled to the rig's image and lifted one opaque Gaussian per pixel by the oracle's lifting
 (`gaussians.lift`, the sky on its far shell), so a learned scene holds as many Gaussians per served pixel as the
 oracle's and its footprints tile the surface at any display size (the latent decoder's 2x2-model-pixel grid of
-translucent Gaussians shows as a cell grid; web/docs/models.md, "Gaussians per pixel").
+translucent Gaussians shows as a cell grid; web/docs/models.md, "Served Gaussians per mode").
 
     rgb, depth, dynamic = served_maps(guide, (H, W), near, far)   # guide: inference.pixel_guide, (N, 5, h, w)
     depth = snap_to_ground(depth, dynamic, cameras)               # the road where the frames' decodings agree

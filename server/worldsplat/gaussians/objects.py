@@ -185,6 +185,44 @@ def box_depths(camera, tracks: list[AgentTrack], t: int) -> tuple[np.ndarray, np
     return owner.reshape(H, W), near.reshape(H, W), far.reshape(H, W)
 
 
+def box_rays(cameras: list, tracks: list[AgentTrack], t: int) -> list[tuple]:
+    """(camera, `box_depths` owner, leaving depth) of each camera that sees one of the boxes at frame t."""
+    out = []
+    for camera in cameras:
+        owner, _, far = box_depths(camera, tracks, t)
+        if (owner >= 0).any():
+            out.append((camera, owner, np.where(owner >= 0, far, -np.inf)))
+    return out
+
+
+def claim_along_rays(g: Gaussians, rays: list[tuple], tol_m: float = 1.0, tol_share: float = 0.1) -> Gaussians:
+    """A learned mode's Gaussians (scene frame) with those made dynamic that a camera of `rays` (`box_rays`) sees on
+    a ray through an agent's box, before it or within tol_m (or tol_share of the depth, if more) behind where the
+    ray leaves it. A decoded depth is blurred over an agent's edge and often far off on a small agent, so the
+    model's agent lies before and behind its box (and, seen from another camera, before the box); left in the
+    scene, it covers the object. Road before a box is never on a ray through it."""
+    if not len(g) or not rays:
+        return g
+    p = g.means.detach().double().cpu().numpy()
+    take = np.zeros(len(p), bool)
+    for camera, owner, far in rays:
+        w2c = camera.world_to_camera
+        pc = p @ w2c[:3, :3].T + w2c[:3, 3]
+        z = pc[:, 2]
+        rows = np.flatnonzero(z > 1e-3)
+        u = np.floor(pc[rows, 0] / z[rows] * camera.fx + camera.cx).astype(np.int64)
+        v = np.floor(pc[rows, 1] / z[rows] * camera.fy + camera.cy).astype(np.int64)
+        inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+        rows, u, v = rows[inside], u[inside], v[inside]
+        hi = far[v, u]
+        take[rows[z[rows] < hi + np.maximum(tol_m, tol_share * hi)]] = True
+    if not take.any():
+        return g
+    extras = torch.zeros(len(g), 1, dtype=g.means.dtype) if g.extras is None else g.extras.clone()
+    extras[torch.from_numpy(take), 0] = 1.0
+    return Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
+
+
 def lift_in_boxes(
     rgb: np.ndarray,
     depth: np.ndarray,
@@ -273,13 +311,19 @@ class ObjectBuilder:
         keep_unboxed: bool = True,
         claim_moving: bool = False,
         claim_margin: float = CLAIM_MARGIN_M,
+        claim_rays: bool = False,
     ):
         self.tracks, self.economy, self.margin, self.source = list(tracks), economy or Economy(), margin, source
         self.keep_unboxed = keep_unboxed
         self.claimed = [tr for tr in self.tracks if tr.standing or claim_moving]
-        self.claim_margin = claim_margin
+        self.claim_margin, self.claim_rays = claim_margin, claim_rays
         ego = np.asarray(ego_to_scene, np.float64)
         self.T = len(ego)
+        # a standing agent's box is drawn from every frame's cameras: claimed along all their rays (`claim_along_rays`)
+        standing = [tr for tr in self.claimed if tr.standing]
+        cams = [rc.at(e) for e in ego for rc in rig]
+        self.standing_rays = box_rays(cams, standing, 0) if claim_rays and standing else []
+        self.rig, self.ego, self._rays, self._rays_frame = list(rig), ego, [], -1
         for tr in self.tracks:
             if len(tr.poses) != self.T:
                 raise ValueError(f"objects: agent {tr.agent_id} has {len(tr.poses)} poses, the clip {self.T} frames")
@@ -313,8 +357,17 @@ class ObjectBuilder:
     def claim(self, t: int, g: Gaussians) -> Gaussians:
         """Frame t's Gaussians before the aggregation, those in a standing agent's box (with `claim_moving`, any
         agent's) made dynamic (`claim_in_boxes`), so its static pixels go to its object, or, where the object comes
-        from elsewhere (`source`, `observed`), give way to it."""
-        return claim_in_boxes(g, self.claimed, t, self.claim_margin)
+        from elsewhere (`source`, `observed`), give way to it; with `claim_rays`, those on the rays through a box,
+        before it or near it, too (`claim_along_rays`: a moving agent's as frame t's cameras see it, a standing
+        agent's as every frame's do)."""
+        g = claim_in_boxes(g, self.claimed, t, self.claim_margin)
+        if not self.claim_rays:
+            return g
+        if self._rays_frame != t:  # the moving agents' boxes as frame t's cameras see them
+            moving = [tr for tr in self.claimed if not tr.standing]
+            self._rays = box_rays([rc.at(self.ego[t]) for rc in self.rig], moving, t) + self.standing_rays
+            self._rays_frame = t
+        return claim_along_rays(g, self._rays)
 
     def add(
         self, frames: list[int], dynamic: dict[int, Gaussians], observed: dict[int, Gaussians] | None = None

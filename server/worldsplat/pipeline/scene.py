@@ -266,7 +266,7 @@ class _Objects:
 
     def builder(self, agg: WindowAggregator) -> ObjectBuilder:
         tracks = agent_tracks(self.world, agg.ego_to_world)
-        claims = {} if self.exact else {"claim_moving": True, "claim_margin": AGENT_MARGIN_M}
+        claims = {} if self.exact else {"claim_moving": True, "claim_margin": AGENT_MARGIN_M, "claim_rays": True}
         return ObjectBuilder(tracks, agg.rig, agg.ego_to_world, economy=agg.economy, source=self.source,
                              seed=self.seed, keep_unboxed=self.exact, **claims)  # fmt: skip
 

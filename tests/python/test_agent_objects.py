@@ -15,7 +15,9 @@ from worldsplat.gaussians.objects import (
     agent_tracks,
     assign_to_boxes,
     box_depths,
+    box_rays,
     box_to_world,
+    claim_along_rays,
     claim_in_boxes,
     lift_in_boxes,
 )
@@ -146,6 +148,22 @@ def test_an_objects_gaussian_is_no_wider_than_a_footprint_from_the_nearest_camer
     footprint = np.min(dist, axis=0) / focal  # per Gaussian, from the camera nearest to it over the clip
     assert (obj.gaussians.scales.max(1).values.double().numpy() <= OBJECT_SCALE_CAP * footprint + 1e-6).all()
     assert obj.gaussians.scales.max() < 0.2  # 10 m from the cameras: a footprint is a few centimetres, not 0.5 m
+
+
+def test_a_learned_modes_blurred_agent_before_its_box_gives_way_and_the_road_before_it_stays():
+    """A decoded agent's Gaussians lie before and behind its box along the camera's rays; they are claimed (dropped
+    where the object comes from elsewhere). Road before the box and a wall well behind it are not on its rays there."""
+    tr = _track()
+    cam = default_rig(160, 90)[0].at(np.eye(4))
+    owner, near, far = box_depths(cam, [tr], 0)
+    j, i = np.argwhere(owner == 0)[len(np.argwhere(owner == 0)) // 2]  # a pixel on the car
+    _, dirs = cam.pixel_rays()
+    ray = dirs[j, i]
+    pts = [cam.position + ray * (near[j, i] - 3.0), cam.position + ray * (far[j, i] + 0.5),
+           cam.position + ray * (far[j, i] + 8.0), [6.0, 0.0, 0.0]]  # fmt: skip
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 4, [[0.05] * 3] * 4, [0.9] * 4, [[0.5] * 3] * 4, [[0.0]] * 4)
+    claimed = claim_along_rays(g, box_rays([cam], [tr], 0)).extras[:, 0].tolist()
+    assert claimed == [1.0, 1.0, 0.0, 0.0]  # before it, just behind it: the agent's; far behind, the road: not
 
 
 def test_dynamic_gaussians_in_no_box_are_dropped_without_keep_unboxed():

@@ -66,7 +66,8 @@ def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
     monkeypatch.setattr(cond, "encode_captions", lambda caps: torch.zeros(len(caps), 384))
     sc = default_scenario().with_updates(image={"width": 112, "height": 64}, clip={"frames": 4})
     world = build_world(sc)
-    scene = to_scene4d(reconstruct(simulate(world, 0.0), load_models()), {"scenario": sc.model_dump(mode="json")})
+    dec = reconstruct(simulate(world, 0.0), load_models(), gaussians="decoder")  # the decoder's scene, by name
+    scene = to_scene4d(dec, {"scenario": sc.model_dump(mode="json")})
     raw = render_scene_track(scene, 4.0)
     out = refine_track(scene, 4.0, render=raw)  # the served blend
     full = refine_track(scene, 4.0, blend="none", render=raw)

@@ -5,7 +5,7 @@ objects baked into every frame (range-coded dynamics, what the server wrote befo
     python -m worldsplat.gaussians.wsplat.objects_bytes [SCENE.wsplat] [--preset urban_straight] [--window 4]
                                                         [--first-window 1]
 
-SCENE: a .wsplat with agent objects (v3). Without it: the preset's moving agents as the pipeline tracks them
+SCENE: a .wsplat with agent objects (v3). Without it: the preset's agents as the pipeline tracks them
 (`gaussians.objects.agent_tracks` of the preset's world: the default scene's agents, frames and poses), each drawn
 by the generate mode's object source (`agent_appearance.agent_gaussians`), beside a small static set."""
 
@@ -30,7 +30,7 @@ from worldsplat.world import build_world
 
 
 def preset_scene(name: str) -> Scene4D:
-    """The preset's moving agents as objects (generate mode's appearance), a small static set, no other dynamics."""
+    """The preset's agents as objects (generate mode's appearance), a small static set, no other dynamics."""
     world = build_world(load_preset(name))
     tracks = agent_tracks(world, world.ego_to_world)
     objs = []

@@ -323,7 +323,7 @@ class ObjectBuilder:
         standing = [tr for tr in self.claimed if tr.standing]
         cams = [rc.at(e) for e in ego for rc in rig]
         self.standing_rays = box_rays(cams, standing, 0) if claim_rays and standing else []
-        self.rig, self.ego, self._rays, self._rays_frame = list(rig), ego, [], -1
+        self.rig, self.ego, self._rays = list(rig), ego, None
         for tr in self.tracks:
             if len(tr.poses) != self.T:
                 raise ValueError(f"objects: agent {tr.agent_id} has {len(tr.poses)} poses, the clip {self.T} frames")
@@ -358,15 +358,15 @@ class ObjectBuilder:
         """Frame t's Gaussians before the aggregation, those in a standing agent's box (with `claim_moving`, any
         agent's) made dynamic (`claim_in_boxes`), so its static pixels go to its object, or, where the object comes
         from elsewhere (`source`, `observed`), give way to it; with `claim_rays`, those on the rays through a box,
-        before it or near it, too (`claim_along_rays`: a moving agent's as frame t's cameras see it, a standing
-        agent's as every frame's do)."""
+        before it or near it, too (`claim_along_rays`: each agent's box at every frame as that frame's cameras
+        see it, whatever frame the Gaussians were lifted at: the static scene is drawn at every frame)."""
         g = claim_in_boxes(g, self.claimed, t, self.claim_margin)
         if not self.claim_rays:
             return g
-        if self._rays_frame != t:  # the moving agents' boxes as frame t's cameras see them
+        if self._rays is None:  # every agent's box as every frame's cameras see it
             moving = [tr for tr in self.claimed if not tr.standing]
-            self._rays = box_rays([rc.at(self.ego[t]) for rc in self.rig], moving, t) + self.standing_rays
-            self._rays_frame = t
+            cams = [[rc.at(e) for rc in self.rig] for e in self.ego]
+            self._rays = [r for f in range(self.T) for r in box_rays(cams[f], moving, f)] + self.standing_rays
         return claim_along_rays(g, self._rays)
 
     def add(

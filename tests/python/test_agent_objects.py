@@ -9,7 +9,16 @@ import torch
 
 from worldsplat.core.camera import default_rig
 from worldsplat.core.scenario import load_preset
-from worldsplat.gaussians.objects import AgentTrack, ObjectBuilder, agent_tracks, assign_to_boxes, box_to_world
+from worldsplat.gaussians.objects import (
+    AgentTrack,
+    ObjectBuilder,
+    agent_tracks,
+    assign_to_boxes,
+    box_depths,
+    box_to_world,
+    claim_in_boxes,
+    lift_in_boxes,
+)
 from worldsplat.gaussians.types import Gaussians
 
 T = 4
@@ -110,6 +119,45 @@ def test_windows_append_to_the_object_and_an_object_source_replaces_the_decoded_
     assert b.add([1], {1: _side(tr, 1, -1, (1, 0, 0))})[1] == {}  # absorbed, never merged into the drawn object
 
 
+def test_a_gaussian_in_a_standing_box_is_claimed_and_the_road_under_it_is_not():
+    tr = _track()
+    centre = tr.poses[0][:3, 3]
+    pts = np.array([centre + [1.0, 0.5, 0.2], centre + [0.5, 0, -SIZE[2] / 2 + 0.01], centre + [8.0, 0, 0]])
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 3, [[0.05] * 3] * 3, [0.9] * 3, [[0.5] * 3] * 3, [[0.0]] * 3)
+    assert claim_in_boxes(g, [tr], 0).extras[:, 0].tolist() == [1.0, 0.0, 0.0]  # body claimed; road, far point not
+
+
+def test_dynamic_gaussians_in_no_box_are_dropped_without_keep_unboxed():
+    tr = _track()
+    far = Gaussians.from_numpy([[30.0, 8.0, 1.0]], [[1, 0, 0, 0]], [[0.1] * 3], [0.9], [[0, 1, 0]], [[1.0]])
+    leftover, added = _builder(tr, keep_unboxed=False).add([1], {1: Gaussians.cat([_side(tr, 1, +1, (1, 0, 0)), far])})
+    assert len(leftover[1]) == 0 and len(added[7]) > 0
+
+
+def test_observed_pixels_in_a_box_become_the_object_on_the_box_with_their_colour():
+    """reconstruct: an observed view of a car (red) before a wall (grey, 30 m), its depth blurred over the car's
+    edge, lifted in the box and made the object; the decoded in-box Gaussians give way to it."""
+    tr = _track()
+    ego = np.stack([np.eye(4)] * T)
+    cam = default_rig(160, 90)[0].at(ego[0])
+    owner, near, far = box_depths(cam, [tr], 0)
+    assert (owner == 0).sum() > 100  # the car fills part of the front view
+    car = owner == 0
+    depth = np.where(car, near + 0.3, 30.0)  # the car's surface just behind the box face, the wall far behind
+    depth[car & (np.arange(160)[None, :] % 7 == 0)] = 30.0  # pixels that see past the car (a window onto the wall)
+    rgb = np.where(car[..., None], [0.9, 0.1, 0.1], [0.5, 0.5, 0.5])
+    seen = lift_in_boxes(rgb, depth, cam, [tr], 0)
+    assert len(seen) == int((car & (depth < 29)).sum())
+    decoded = _side(tr, 0, -1, (0.1, 0.1, 0.9))  # the decoder's blue blob in the box
+    b = ObjectBuilder([tr], default_rig(160, 90), ego)
+    leftover, added = b.add([0], {0: decoded}, observed={0: seen})
+    (obj,) = b.objects()
+    local = obj.gaussians.means.double().numpy()
+    assert (np.abs(local) <= SIZE / 2 + 1e-6).all()  # on the box, clamped to the ray's way through it
+    assert (obj.gaussians.colors[:, 0] > 0.8).all() and (obj.gaussians.colors[:, 2] < 0.2).all()  # the observed red
+    assert len(leftover[0]) == 0
+
+
 TINY = {"clip": {"frames": 5}, "image": {"width": 96, "height": 54}}
 
 
@@ -150,9 +198,29 @@ def test_oracle_scene_agents_are_objects_inside_their_boxes(oracle_objects):
         for t in range(scene.num_frames):
             local = _local(tr, t, o.at_frame(t).means.double().numpy())
             assert (np.abs(local) <= tr.size / 2 + 0.3 + 1e-6).all()
-    # fewer Gaussians than the per-frame copies, and nothing else of the scene changes
-    assert sum(len(o.gaussians) for o in scene.objects) < sum(len(d) for d in per_frame.dynamic)
-    assert torch.equal(scene.static.means, per_frame.static.means)
+    # the static scene lost what lay in the standing agents' boxes (now their objects); a moving agent's box sweeps
+    # over road that other frames see, which stays
+    assert len(scene.static) < len(per_frame.static)
+    standing = [tracks[a.track_id] for a in world.agents if not a.moving and a.track_id in tracks]
+    assert standing
+    for g in (scene.static, per_frame.static):
+        claimed = claim_in_boxes(g, standing, 0).extras[:, 0] > 0.5
+        assert claimed.any() == (g is per_frame.static)
+
+
+def test_a_parked_agent_is_an_object_with_gaussians(oracle_objects):
+    from worldsplat.world import build_world
+
+    sc, scene, _, _, per_frame = oracle_objects
+    world = build_world(sc)
+    parked = {a.track_id for a in world.agents if not a.moving}
+    objs = {o.agent_id: o for o in scene.objects}
+    assert parked & set(objs), "no parked agent became an object"
+    assert max(len(objs[k].gaussians) for k in parked & set(objs)) > 50  # the nearest one is seen whole
+    for k in parked & set(objs):
+        assert np.allclose(objs[k].poses[0], objs[k].poses[-1])  # it stands: the same pose every frame
+    # per-frame: the parked agents are static scenery, not objects
+    assert per_frame.objects == []
 
 
 def test_baked_scene_equals_the_objects_posed_and_the_stream_hands_both_over(oracle_objects):
@@ -235,7 +303,9 @@ def test_the_servers_stream_sink_writes_the_objects(version):
         assert [(o.agent_id, len(o.gaussians)) for o in back.objects] == [
             (o.agent_id, len(o.gaussians)) for o in scene.objects
         ]
-        assert [len(back.dynamic_at(t)) for t in range(scene.num_frames)] == counts
+        # a frame before an agent's first part (an agent first seen in a later window) is streamed without it
+        got = [len(back.dynamic_at(t)) for t in range(scene.num_frames)]
+        assert got[-1] == counts[-1] and all(g <= c for g, c in zip(got, counts))
     else:
         assert back.objects == [] and len(back.dynamic[-1]) == counts[-1]  # the last window: the final objects
         assert all(len(d) <= n for d, n in zip(back.dynamic, counts))

@@ -4,6 +4,8 @@ the oracle scene's render >= the generated scene's render)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -37,6 +39,26 @@ def test_summary_averages_present_classes_and_groups():
     assert s["groups"]["structure"] == 0.0 and s["pixel_acc"] == pytest.approx(0.4)
     wrong_car = downstream.summary(downstream.confusion(np.where(gt == SKY, CAR, gt), gt))
     assert wrong_car["per_class"]["sky"] == 0.0 and wrong_car["per_class"]["car"] is None
+
+
+def test_gap_by_group_splits_the_miou_gap_into_parts_that_sum_to_it():
+    gt = np.array([ROAD] * 4 + [BUILDING] * 4 + [SKY] * 2)
+    ref = downstream.summary(downstream.confusion(gt, gt))
+    # road read as building: road IoU 0, building 4/8; sky right
+    row = downstream.summary(downstream.confusion(np.where(gt == ROAD, BUILDING, gt), gt))
+    parts = downstream.gap_by_group(ref, row)
+    assert parts["road"] == pytest.approx(1 / 3) and parts["structure"] == pytest.approx(0.5 / 3)
+    assert parts["sky"] == 0.0 and parts["agents"] == 0.0
+    assert sum(parts.values()) == pytest.approx(ref["miou"] - row["miou"])
+
+
+def test_group_confusion_says_what_each_groups_pixels_are_read_as():
+    gt = np.array([ROAD] * 4 + [BUILDING] * 4 + [SKY] * 2)
+    pred = np.array([ROAD, ROAD, ROAD, BUILDING] + [BUILDING] * 2 + [SKY] * 2 + [SKY] * 2)
+    gc = downstream.group_confusion(downstream.confusion(pred, gt))
+    assert gc["road"]["road"] == 0.75 and gc["road"]["structure"] == 0.25
+    assert gc["structure"]["structure"] == 0.5 and gc["structure"]["sky"] == 0.5
+    assert gc["sky"]["sky"] == 1.0 and gc["agents"] is None
 
 
 def test_frechet_distance_of_identical_shifted_and_scaled_gaussians():
@@ -262,6 +284,27 @@ def test_augmentation_trains_each_arm_per_seed_and_reports_the_gain(tmp_path):
         progress=False,
     )
     assert again["table"] == r["table"]
+    assert t["world"]["per_class"]["road"] is not None and t["world"]["per_class"]["car"] is None
+    assert "| world+generated |" in augmentation_markdown(r).split("Gain")[1]  # the per-group table
+    # a run scored before per class was kept is scored again from its weights, not trained again
+    run = next((tmp_path / "out").glob("world_n2_*seed0"))
+    done, weights = run / "heldout.json", run / "judge_small.safetensors"
+    old = json.loads(done.read_text())
+    done.write_text(json.dumps({k: v for k, v in old.items() if k != "per_class"}))
+    stamp = weights.stat().st_mtime_ns
+    augmentation(
+        tmp_path / "world",
+        tmp_path / "gen",
+        tmp_path / "out",
+        n=2,
+        m=2,
+        seeds=(0, 1),
+        steps=3,
+        batch=2,
+        width=8,
+        progress=False,
+    )
+    assert json.loads(done.read_text()) == old and weights.stat().st_mtime_ns == stamp
 
 
 def test_shipped_bev_head_reads_the_drivable_area_of_a_held_out_clip():

@@ -105,6 +105,30 @@ def summary(conf: np.ndarray) -> dict:
     }
 
 
+def gap_by_group(ref: dict, row: dict) -> dict[str, float]:
+    """The mIoU gap ref - row of two `summary`s of the same labels, split into the class groups' parts: mIoU is the
+    mean over the present classes, so each class adds (its IoU in ref - in row) / classes present, and the parts
+    sum to the gap."""
+    present = [i for i, n in enumerate(CLASS_NAMES) if ref["per_class"][n] is not None]
+    part = {
+        i: (ref["per_class"][CLASS_NAMES[i]] - (row["per_class"][CLASS_NAMES[i]] or 0.0)) / len(present)
+        for i in present
+    }
+    return {g: float(sum(part.get(i, 0.0) for i in idx)) for g, idx in GROUPS.items()}
+
+
+def group_confusion(conf: np.ndarray) -> dict[str, dict[str, float] | None]:
+    """Per true class group, the fraction of its pixels the judge labels as each group (None for a group absent
+    from the labels): what a group is read as."""
+    conf = np.asarray(conf, np.int64)
+    out: dict[str, dict[str, float] | None] = {}
+    for g, idx in GROUPS.items():
+        rows = conf[list(idx)].sum(0)
+        total = rows.sum()
+        out[g] = {h: float(rows[list(jdx)].sum() / total) for h, jdx in GROUPS.items()} if total else None
+    return out
+
+
 def gaussian_fit(feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     f = np.asarray(feats, np.float64)
     if f.ndim != 2 or len(f) < 2:
@@ -300,7 +324,8 @@ class _Scores:
     def table(self, rows, shifts, layers) -> dict:
         table = {r: {str(s): summary(self.conf[r][s]) for s in shifts} for r in rows}
         for r in rows:
-            table[r]["all"] = summary(sum(self.conf[r].values()))
+            pooled = sum(self.conf[r].values())
+            table[r]["all"] = {**summary(pooled), "confusion": pooled.tolist()}
             if self.bev is not None:
                 for s in shifts:
                     table[r][str(s)].update(bev_summary(self.bev[r][s], layers))
@@ -458,6 +483,41 @@ def _bev_lines(r: dict, shifts: list[str]) -> list[str]:
     return lines
 
 
+def _gap_lines(r: dict, rows: list[str], groups: list[str]) -> list[str]:
+    """Each row's mIoU gap to the ground truth split by class group (`gap_by_group`), and, where the pooled
+    confusion is kept, what the judge reads each group's pixels as in the ground truth and each raw mode."""
+    ref = r["table"][GROUND_TRUTH]["all"]
+    lines = [
+        "",
+        "Where the gap to the ground truth is (all tracks): each group's part of the mIoU gap; the parts sum to it:",
+        "",
+        "| row | mIoU gap | " + " | ".join(groups) + " |",
+        "|" + "---|" * (len(groups) + 2),
+    ]
+    for row in rows[1:]:
+        parts = gap_by_group(ref, r["table"][row]["all"])
+        lines.append(
+            f"| {row} | {ref['miou'] - r['table'][row]['all']['miou']:.3f} | "
+            + " | ".join(f"{parts[g]:.3f}" for g in groups)
+            + " |"
+        )
+    if "confusion" not in ref:
+        return lines
+    lines += [
+        "",
+        "What the judge reads each group's pixels as (all tracks; fraction of the group's pixels per predicted group):",
+        "",
+        "| row: true group | " + " | ".join(f"as {g}" for g in groups) + " |",
+        "|" + "---|" * (len(groups) + 1),
+    ]
+    for row in [GROUND_TRUTH, *r["modes"]]:
+        gc = group_confusion(np.array(r["table"][row]["all"]["confusion"]))
+        for g in groups:
+            if gc[g] is not None:
+                lines.append(f"| {row}: {g} | " + " | ".join(f"{gc[g][h]:.2f}" for h in groups) + " |")
+    return lines
+
+
 def domain_gap_markdown(r: dict) -> str:
     shifts = [str(s) for s in r["shifts"]]
     rows = _rows(r)
@@ -483,6 +543,7 @@ def domain_gap_markdown(r: dict) -> str:
     for row in rows:
         g = r["table"][row]["all"]["groups"]
         lines.append(f"| {row} | " + " | ".join(_fmt(g[k]) for k in groups) + " |")
+    lines += _gap_lines(r, rows, groups)
     lines += ["", "Judge Fréchet distance to the world images of the same clips and tracks (lower is closer):", ""]
     lines += ["| row | " + " | ".join(f"{s} m" for s in shifts) + " | all |", "|" + "---|" * (len(shifts) + 2)]
     for m in rows[1:]:

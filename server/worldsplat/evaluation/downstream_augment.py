@@ -71,6 +71,11 @@ def _arm_data(world: Path, generated: Path, arm: str, n: int, m: int) -> tuple[n
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
+def _seed_means(per_seed: list[dict]) -> dict[str, float | None]:
+    """Mean over seeds of each named score (a group's or class's IoU); None where the held-out labels lack it."""
+    return {k: (None if per_seed[0][k] is None else float(np.mean([d[k] for d in per_seed]))) for k in per_seed[0]}
+
+
 def augmentation(
     world: Path,
     generated: Path,
@@ -99,11 +104,13 @@ def augmentation(
             run = Path(out) / f"{arm.replace('+', '_')}_{sizes}_w{width}_s{steps}_seed{seed}"
             done = run / "heldout.json"
             if not done.exists():
-                path = train_judge_on(
+                train_judge_on(
                     images, labels, run, src, steps, batch, width, seed=seed, threads=threads, progress=progress
                 )
-                r = heldout(load_judge(path), world, "test")
-                done.write_text(json.dumps({k: r[k] for k in ("miou", "groups", "pixel_acc", "images")}) + "\n")
+            if not done.exists() or "per_class" not in json.loads(done.read_text()):  # scored before per class was kept
+                r = heldout(load_judge(run / "judge_small.safetensors"), world, "test")
+                keep = ("miou", "groups", "per_class", "pixel_acc", "images")
+                done.write_text(json.dumps({k: r[k] for k in keep}) + "\n")
             runs[arm][seed] = {**json.loads(done.read_text()), "train_images": int(len(images))}
     table = {}
     for arm in arms:
@@ -113,10 +120,8 @@ def augmentation(
             "mean": float(v.mean()),
             "std": float(v.std(ddof=1)) if len(v) > 1 else None,
             "train_images": runs[arm][seeds[0]]["train_images"],
-            "groups": {
-                g: float(np.mean([runs[arm][s]["groups"][g] or 0 for s in seeds]))
-                for g in runs[arm][seeds[0]]["groups"]
-            },
+            "groups": _seed_means([runs[arm][s]["groups"] for s in seeds]),
+            "per_class": _seed_means([runs[arm][s]["per_class"] for s in seeds]),
         }
     gain = None
     if "world" in arms and "world+generated" in arms:
@@ -153,7 +158,26 @@ def augmentation_markdown(r: dict) -> str:
         g = r["gain"]
         per = ", ".join(f"{v:+.3f}" for v in g["per_seed"])
         lines += ["", f"Gain of world+generated over world: {g['mean']:+.3f} (std {sd(g['std'])}; per seed {per})."]
-    return "\n".join(lines)
+    return "\n".join(lines + _group_lines(r))
+
+
+def _group_lines(r: dict) -> list[str]:
+    """Per arm the seeds' mean IoU per class group, and the classes world+generated moves most against world."""
+    t = r["table"]
+    groups = list(next(iter(t.values()))["groups"])
+    lines = ["", "| training data | " + " | ".join(groups) + " |", "|" + "---|" * (len(groups) + 1)]
+    for arm, row in t.items():
+        lines.append(
+            f"| {arm} | "
+            + " | ".join("-" if row["groups"][g] is None else f"{row['groups'][g]:.3f}" for g in groups)
+            + " |"
+        )
+    if "world" in t and "world+generated" in t:
+        a, b = t["world"]["per_class"], t["world+generated"]["per_class"]
+        change = sorted(((b[c] - a[c], c) for c in a if a[c] is not None), key=lambda x: -abs(x[0]))
+        moved = ", ".join(f"{c} {a[c]:.2f} -> {b[c]:.2f}" for d, c in change if abs(d) >= 0.02)
+        lines += ["", f"Classes world+generated moves by 0.02 or more against world (seed means): {moved or 'none'}."]
+    return lines
 
 
 def plot_augmentation(r: dict, path: Path) -> Path:

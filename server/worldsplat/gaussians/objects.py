@@ -12,8 +12,13 @@ footprint from the camera nearest to the place over the whole clip (`Economy.dyn
 per-frame sets' own): the tracks and the ego are known before any frame is, so every window puts an observation of
 the same place in the same cell, and the agent seen from several sides and frames becomes one complete object.
 
+Every agent in the clip is an object, parked and standing ones too: before the aggregation, the Gaussians in an
+agent's box are made dynamic (`ObjectBuilder.claim`), so a standing agent's static pixels become its object.
 `source` (generate mode): a function (class, size, seed, colour) -> Gaussians in the box frame draws an agent's
-canonical set instead; its in-box dynamic Gaussians are then absorbed. Box frame: x forward, y left, z up, metres,
+canonical set instead; its in-box dynamic Gaussians are then absorbed. `add(..., observed=)` (reconstruct mode):
+the agents are built from other Gaussians than the frames' (the observed pixels in the boxes, `lift_in_boxes`),
+the frames' in-box Gaussians absorbed. `keep_unboxed=False` drops the dynamic Gaussians in no box (a learned mode's
+spurious dynamics where the scenario states no agent). Box frame: x forward, y left, z up, metres,
 origin at the box centre (the world's footprint centre lifted by half the height)."""
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ import torch
 
 from worldsplat.core.camera import RigCamera, rigid_inverse
 from worldsplat.gaussians.aggregate import WINDOW_FINER, AggregateStats, CellTable, Economy, economize
-from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D, transform
+from worldsplat.gaussians.lift import lift
+from worldsplat.gaussians.types import AgentObject, Gaussians, transform
 
 # Gaussians this far outside a box still belong to it (lifted silhouette pixels, merged means); the agents'
 # snapping in generate mode uses the same margin (pipeline.snaps.AGENT_BOX_MARGIN_M).
@@ -42,6 +48,14 @@ FINER_COUNT = 2
 FINER_REACH = 2.0
 OBJECT_CELL_FACTOR = 2.0  # merge cells of an object, in pixel footprints from the nearest camera of the clip
 OBJECT_COVER = 0.0  # > 0: a merged Gaussian covers its members' patch (aggregate.merged_variance)
+# A standing agent's pixels are static: Gaussians in its box are claimed for its object before the aggregation
+# (`ObjectBuilder.claim`), all but the bottom CLAIM_FLOOR_M of the box, where the road under and around it lies.
+CLAIM_FLOOR_M = 0.08
+# Observed pixels (`lift_in_boxes`) are an agent's where their depth lies on the ray's way through its box, up to
+# this much nearer or farther (metres, or this share of the depth if more): a decoded depth is blurred over an
+# agent's edge; a pixel whose depth is well behind the box sees past the agent.
+OBSERVED_DEPTH_TOL_M = 1.0
+OBSERVED_DEPTH_TOL_SHARE = 0.1
 
 ObjectSource = Callable[[int, np.ndarray, int, "np.ndarray | None"], Gaussians]  # (cls, size, seed, colour) -> box
 
@@ -69,10 +83,10 @@ def box_to_world(x: float, y: float, yaw: float, height: float) -> np.ndarray:
     return m
 
 
-def agent_tracks(world, ego_to_scene: np.ndarray, moving_only: bool = True) -> list[AgentTrack]:
-    """The world's agents as tracks in the scene's frame: box_to_scene[t] = ego_to_scene[t] @ world_to_ego[t] @
-    box_to_world[t]. `moving_only`: the moving agents (the ones whose pixels are dynamic; a standing agent is
-    part of the static scene)."""
+def agent_tracks(world, ego_to_scene: np.ndarray, moving_only: bool = False) -> list[AgentTrack]:
+    """The world's agents present in the clip as tracks in the scene's frame: box_to_scene[t] = ego_to_scene[t] @
+    world_to_ego[t] @ box_to_world[t]. Parked and standing agents too (as static scenery they were blurred by the
+    learned modes); `moving_only`: the moving agents alone (the ones whose pixels are dynamic)."""
     ego_to_scene = np.asarray(ego_to_scene, np.float64)
     scene_from_world = np.stack([e @ rigid_inverse(w) for e, w in zip(ego_to_scene, world.ego_to_world, strict=True)])
     out = []
@@ -81,6 +95,8 @@ def agent_tracks(world, ego_to_scene: np.ndarray, moving_only: bool = True) -> l
             continue
         p = np.asarray(a.poses, np.float64)
         present = np.isfinite(p).all(1)
+        if not present.any():
+            continue
         poses = np.stack(
             [scene_from_world[t] @ box_to_world(*p[t], a.size[2]) if present[t] else np.eye(4) for t in range(len(p))]
         )
@@ -105,6 +121,71 @@ def assign_to_boxes(means: np.ndarray, tracks: list[AgentTrack], t: int, margin:
         take = inside & (rel < score)
         best[take], score[take] = i, rel[take]
     return best
+
+
+def _box_local(means: np.ndarray, tr: AgentTrack, t: int) -> np.ndarray:
+    inv = rigid_inverse(tr.poses[t])
+    return means @ inv[:3, :3].T + inv[:3, 3]
+
+
+def claim_in_boxes(
+    g: Gaussians, tracks: list[AgentTrack], t: int, margin: float = AGENT_MARGIN_M, floor: float = CLAIM_FLOOR_M
+) -> Gaussians:
+    """Frame t's Gaussians (scene frame, extras[:, 0] the dynamic probability) with those inside an agent's box
+    (within `margin`, above its bottom `floor`) made dynamic, so the aggregation hands them to the objects."""
+    if not len(g) or not tracks:
+        return g
+    means = g.means.detach().double().cpu().numpy()
+    owner = assign_to_boxes(means, tracks, t, margin)
+    take = owner >= 0
+    for i in np.unique(owner[take]):
+        rows = np.flatnonzero(owner == i)
+        z = _box_local(means[rows], tracks[i], t)[:, 2]
+        take[rows[z < -tracks[i].size[2] / 2 + floor]] = False
+    if not take.any():
+        return g
+    n = len(g)
+    extras = torch.zeros(n, 1, dtype=g.means.dtype) if g.extras is None else g.extras.clone()
+    extras[torch.from_numpy(take), 0] = 1.0
+    return Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
+
+
+def box_depths(camera, tracks: list[AgentTrack], t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel of `camera` (scene frame): (the nearest box its ray enters at frame t, or -1; the camera depth where
+    it enters; where it leaves) (H,W) each."""
+    origin, dirs = camera.pixel_rays()
+    H, W = dirs.shape[:2]
+    dirs = dirs.reshape(-1, 3)
+    owner = np.full(H * W, -1, np.int64)
+    near, far = np.full(H * W, np.inf), np.full(H * W, np.inf)
+    for i, tr in enumerate(tracks):
+        if not tr.present[t]:
+            continue
+        inv = rigid_inverse(tr.poses[t])
+        o, d = inv[:3, :3] @ origin + inv[:3, 3], dirs @ inv[:3, :3].T
+        half = tr.size / 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a, b = (-half - o) / d, (half - o) / d
+        lo = np.nan_to_num(np.minimum(a, b), nan=-np.inf).max(1)
+        hi = np.nan_to_num(np.maximum(a, b), nan=np.inf).min(1)
+        hit = (lo < hi) & (hi > 0) & (np.maximum(lo, 0) < near)
+        owner[hit], near[hit], far[hit] = i, np.maximum(lo[hit], 0), hi[hit]
+    return owner.reshape(H, W), near.reshape(H, W), far.reshape(H, W)
+
+
+def lift_in_boxes(rgb: np.ndarray, depth: np.ndarray, camera, tracks: list[AgentTrack], t: int) -> Gaussians:
+    """An observed view's agent pixels lifted (`gaussians.lift`, dynamic): rgb (H,W,3) in [0,1], depth (H,W) camera
+    z (sky +inf) at `camera`'s size, both the observation's. A pixel is an agent's where its ray passes through the
+    agent's box and its depth lies on that passage (within OBSERVED_DEPTH_TOL_*); it is lifted at its depth clamped
+    to the passage, so an observation blurred over an edge still lands on the box, not in the air before or behind."""
+    owner, near, far = box_depths(camera, tracks, t)
+    z = np.asarray(depth, np.float64)
+    near, far = np.where(owner >= 0, near, 0.0), np.where(owner >= 0, far, 0.0)
+    tol_near = np.maximum(OBSERVED_DEPTH_TOL_M, OBSERVED_DEPTH_TOL_SHARE * near)
+    tol_far = np.maximum(OBSERVED_DEPTH_TOL_M, OBSERVED_DEPTH_TOL_SHARE * far)
+    ok = (owner >= 0) & np.isfinite(z) & (z > near - tol_near) & (z < far + tol_far)
+    clamped = np.where(ok, np.clip(z, near, far), np.nan)
+    return lift(rgb, clamped, np.ones(z.shape, bool), camera, sky=False)
 
 
 def _voxel_keys(p: np.ndarray, size: float) -> np.ndarray:
@@ -144,13 +225,14 @@ class ObjectStats:
     agents: int = 0  # objects with Gaussians
     gaussians: int = 0  # canonical Gaussians over all objects
     absorbed: int = 0  # per-frame dynamic Gaussians that went into an object
-    left_per_frame: int = 0  # per-frame dynamic Gaussians in no box
+    left_per_frame: int = 0  # per-frame dynamic Gaussians in no box, kept
+    unboxed_dropped: int = 0  # per-frame dynamic Gaussians in no box, dropped (`keep_unboxed` False)
     coarse_dropped: int = 0  # observations left out where finer ones of the same place exist
     aggregate: AggregateStats = field(default_factory=AggregateStats)  # the objects' merging
 
     def as_dict(self) -> dict:
         return {"agents": self.agents, "gaussians": self.gaussians, "absorbed": self.absorbed,
-                "left_per_frame": self.left_per_frame, "coarse_dropped": self.coarse_dropped, "merged_away": self.aggregate.merged_away}  # fmt: skip
+                "left_per_frame": self.left_per_frame, "unboxed_dropped": self.unboxed_dropped, "coarse_dropped": self.coarse_dropped, "merged_away": self.aggregate.merged_away}  # fmt: skip
 
 
 class ObjectBuilder:
@@ -169,8 +251,10 @@ class ObjectBuilder:
         finer: float = WINDOW_FINER,
         source: ObjectSource | None = None,
         seed: int = 0,
+        keep_unboxed: bool = True,
     ):
         self.tracks, self.economy, self.margin, self.source = list(tracks), economy or Economy(), margin, source
+        self.keep_unboxed = keep_unboxed
         ego = np.asarray(ego_to_scene, np.float64)
         self.T = len(ego)
         for tr in self.tracks:
@@ -203,23 +287,36 @@ class ObjectBuilder:
             AgentObject(tr.agent_id, tr.cls, tr.size, Gaussians.empty(), tr.poses, tr.present) for tr in self.tracks
         ]
 
+    def claim(self, t: int, g: Gaussians) -> Gaussians:
+        """Frame t's Gaussians before the aggregation, those in an agent's box made dynamic (`claim_in_boxes`):
+        a standing agent's static pixels go to its object too."""
+        return claim_in_boxes(g, self.tracks, t, self.margin)
+
     def add(
-        self, frames: list[int], dynamic: dict[int, Gaussians]
+        self, frames: list[int], dynamic: dict[int, Gaussians], observed: dict[int, Gaussians] | None = None
     ) -> tuple[dict[int, Gaussians], dict[int, Gaussians]]:
         """A window's per-frame dynamic sets -> (the per-frame Gaussians in no box, {agent_id: the canonical
-        Gaussians this window adds, box frame}); both final."""
+        Gaussians this window adds, box frame}); both final. `observed` (per frame, scene frame): where the
+        agents' Gaussians come from instead of the dynamic sets (whose in-box Gaussians are then absorbed), e.g.
+        the observed pixels `lift_in_boxes` lifts. Without `keep_unboxed` the Gaussians in no box are dropped."""
         mine: list[list[Gaussians]] = [[] for _ in self.tracks]
         leftover = {}
         for t in frames:
             d = dynamic[t]
             owner = assign_to_boxes(d.means.detach().double().cpu().numpy(), self.tracks, t, self.margin)
-            for i in np.unique(owner[owner >= 0]):
-                part = d.subset(torch.from_numpy(owner == i))
+            src, src_owner = d, owner
+            if observed is not None:
+                src = observed[t]
+                src_owner = assign_to_boxes(src.means.detach().double().cpu().numpy(), self.tracks, t, self.margin)
+            for i in np.unique(src_owner[src_owner >= 0]):
                 if i not in self.sourced:
+                    part = src.subset(torch.from_numpy(src_owner == i))
                     mine[i].append(transform(part, rigid_inverse(self.tracks[i].poses[t])))
-            leftover[t] = d.subset(torch.from_numpy(owner < 0))
+            unboxed = owner < 0 if self.keep_unboxed else np.zeros(len(owner), bool)
+            leftover[t] = d.subset(torch.from_numpy(unboxed))
             self.stats.absorbed += int((owner >= 0).sum())
             self.stats.left_per_frame += len(leftover[t])
+            self.stats.unboxed_dropped += int((owner < 0).sum()) - len(leftover[t])
         added = {}
         for i, tr in enumerate(self.tracks):
             if i in self.unsent:  # the source's Gaussians go out with the first window
@@ -263,24 +360,3 @@ class ObjectBuilder:
     def names(self) -> dict[str, str]:
         """{track id: the scenario's agent id} of the explicit agents among the tracks (for the scene's meta)."""
         return {str(tr.agent_id): tr.name for tr in self.tracks if tr.name}
-
-
-def with_objects(
-    scene: Scene4D,
-    tracks: list[AgentTrack],
-    frame_windows: list[list[int]],
-    economy: Economy | None = None,
-    source: ObjectSource | None = None,
-    seed: int = 0,
-) -> Scene4D:
-    """A per-frame scene (its dynamics as `aggregate_windows` built them) with its agents made objects, window by
-    window in `frame_windows` exactly as `pipeline.scene.generate_scene` builds them while it streams."""
-    b = ObjectBuilder(tracks, scene.rig, scene.ego_to_world, economy=economy, source=source, seed=seed)
-    dyn = {}
-    for frames in frame_windows:
-        leftover, _ = b.add(frames, {t: scene.dynamic[t] for t in frames})
-        dyn.update(leftover)
-    objs = b.objects()
-    meta = {**scene.meta, "agents": "objects", "agent_objects": {**b.stats.as_dict(), "names": b.names()}}
-    return Scene4D(scene.static, [dyn[t] for t in range(scene.num_frames)], scene.frame_times, scene.rig,
-                   scene.ego_to_world, meta, objs)  # fmt: skip

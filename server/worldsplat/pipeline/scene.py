@@ -28,22 +28,33 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
+import numpy as np
+import torch
+
 from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
-from worldsplat.gaussians.objects import AGENT_MODES, ObjectBuilder, ObjectSource, agent_tracks, with_objects
+from worldsplat.gaussians.objects import (
+    AGENT_MODES,
+    ObjectBuilder,
+    ObjectSource,
+    agent_tracks,
+    lift_in_boxes,
+)
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.pipeline.frame_plan import FIRST_WINDOW, KEYFRAME_STEP_M, KeyWindow, keyframe_plan
+from worldsplat.pipeline.pixels import served_maps
 from worldsplat.world import build_world, simulate
 from worldsplat.world.conditions import ego_trajectory
 
 ALL_MODES = ("oracle", "reconstruct", "generate")
 # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none). 3: aggregated window by window
 # (WindowAggregator; same cells, first window to see a cell makes its Gaussian). 4: the finest observation of each
-# static surface point wins, unmerged (gaussians.aggregate.finest_observations).
-ORACLE_VERSION = "oracle-4"
+# static surface point wins, unmerged (gaussians.aggregate.finest_observations). 5: every agent in the clip an
+# object, parked ones too (their static pixels claimed for it).
+ORACLE_VERSION = "oracle-5"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's
@@ -51,9 +62,10 @@ ORACLE_VERSION = "oracle-4"
 # generate's agents onto their layout boxes, moving with them (`snaps.snap_agents_to_layout`); w7 those box cells
 # solid (opacity floor); w8 facades, trees and poles onto the layout's map layer (`snaps.snap_to_map`); w9 the VAE's
 # decoding lifted one opaque Gaussian per pixel of the served image (`pipeline.pixels`, inference.GAUSSIANS), with the
-# oracle's economy; w10 the latent decoder's grid served again (`inference.GAUSSIANS`; pixels measured worse on
-# generate); w11 generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: all)
-STREAM_VERSION = "w11"
+# oracle's economy; w10 the latent decoder's grid served again (`inference.GAUSSIANS`; pixels measured worse on generate);
+# w11 every agent an object (parked ones too), reconstruct's from the observed pixels, no dynamics in no box; w12
+# generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame)
+STREAM_VERSION = "w12"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -201,7 +213,9 @@ def generate_scene(
     if object_source is None and mode == "generate":
         object_source = generated_object_source(world)
     objects = (
-        None if agents == "per_frame" else _Objects(world, object_source, int(scenario.seed if seed is None else seed))
+        None
+        if agents == "per_frame"
+        else _Objects(world, object_source, int(scenario.seed if seed is None else seed), mode == "oracle")
     )
     if keyframe_step_m is None:
         keyframe_step_m = KEYFRAME_STEP_M if mode == "generate" and objects is not None else 0.0
@@ -229,14 +243,17 @@ def generated_object_source(world) -> ObjectSource | None:
 
 
 class _Objects:
-    """What `_Collect` needs to make agents objects: the world (its agents' boxes), the source and its seed."""
+    """What `_Collect` needs to make agents objects: the world (its agents' boxes, every agent in the clip, parked
+    ones too), the source and its seed, and whether dynamic Gaussians in no box are kept: the oracle's are exact,
+    a learned mode's are the models' spurious dynamics where the scenario states no agent (dropped)."""
 
-    def __init__(self, world, source: ObjectSource | None, seed: int):
-        self.world, self.source, self.seed = world, source, seed
+    def __init__(self, world, source: ObjectSource | None, seed: int, keep_unboxed: bool = True):
+        self.world, self.source, self.seed, self.keep_unboxed = world, source, seed, keep_unboxed
 
     def builder(self, agg: WindowAggregator) -> ObjectBuilder:
         tracks = agent_tracks(self.world, agg.ego_to_world)
-        return ObjectBuilder(tracks, agg.rig, agg.ego_to_world, economy=agg.economy, source=self.source, seed=self.seed)
+        return ObjectBuilder(tracks, agg.rig, agg.ego_to_world, economy=agg.economy, source=self.source,
+                             seed=self.seed, keep_unboxed=self.keep_unboxed)  # fmt: skip
 
 
 class _Collect:
@@ -252,12 +269,23 @@ class _Collect:
         if sink is not None:
             sink.begin(self.skeleton)
 
-    def window(self, frames: list[int], per_view: list[list[Gaussians]], timing: dict | None = None) -> None:
+    def window(
+        self,
+        frames: list[int],
+        per_view: list[list[Gaussians]],
+        timing: dict | None = None,
+        observed: Callable[[ObjectBuilder], dict[int, Gaussians]] | None = None,
+    ) -> None:
+        """A window's frames [i][v] (scene frame). `observed(builder)`: where the agents' objects come from
+        instead of the frames' in-box Gaussians (`ObjectBuilder.add`), e.g. reconstruct's observed pixels."""
         t0 = time.perf_counter()
+        if self.objects is not None:
+            per_view = [[self.objects.claim(t, g) for g in views] for t, views in zip(frames, per_view, strict=True)]
         static, dynamic = self.agg.add(frames, per_view)
         added = None
         if self.objects is not None:
-            dynamic, added = self.objects.add(frames, dynamic)
+            obs = None if observed is None else observed(self.objects)
+            dynamic, added = self.objects.add(frames, dynamic, obs)
         t1 = time.perf_counter()
         self.statics.append(static)
         self.dynamic.update(dynamic)
@@ -331,11 +359,13 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
             _check(cancelled)
             prog("reconstruct", wi / len(wins))
             dec = inf.reconstruct(clip, models=models)
+            observed = lambda b, dec=dec, w=w, clip=clip: _observed_agents(inf, models, dec, clip, w, b)  # noqa: E731
         for k, v in dec.meta.get("timing_s", {}).items():
             timing[k] = timing.get(k, 0.0) + float(v)
         _check(cancelled)
         prog("aggregate", (wi + 1) / len(wins))
-        out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})))
+        out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
+                   observed if mode == "reconstruct" else None)  # fmt: skip
     return out.scene(timing)
 
 
@@ -350,6 +380,35 @@ def _per_frame(w: KeyWindow, keyed: list[list[Gaussians]]) -> list[list[Gaussian
     """Per frame of the window, its views' Gaussians: the models' for a keyframe, none for the frames between."""
     drawn = dict(zip(w.keys, keyed, strict=False))
     return [drawn.get(t, []) for t in w.frames]
+
+
+# Where reconstruct's agents come from: "input", the observed frames' pixels and depth (reconstruct's own input, at
+# the served image); "vae", the VAE's decoding of them (`inference.pixel_guide`, up-sampled). On test:0 (frames 0, 3,
+# 7) agents seen / silhouette IoU: input 7/8 / 0.73, vae 3/8 / 0.60, the latent decoder's Gaussians 2/8 / 0.50: the
+# model image (64x112) loses the small and far agents' shape and contrast.
+OBSERVED_AGENTS = "input"
+
+
+@torch.no_grad()
+def _observed_agents(inf, models, dec, clip, w: KeyWindow, builder: ObjectBuilder) -> dict[int, Gaussians]:
+    """reconstruct's agents from the observations (OBSERVED_AGENTS) at the served image: the pixels in an agent's
+    box lifted onto the box (`objects.lift_in_boxes`). Frame i of the clip is `w.keys[i]`; the window's frames
+    between keyframes observe nothing."""
+    rig, frames = dec.rig, w.keys
+    if OBSERVED_AGENTS == "vae":
+        guide = inf.pixel_guide(models, dec.latents[: len(frames)])
+        rgb, depth, _ = served_maps(guide.reshape(-1, *guide.shape[2:]), (rig[0].height, rig[0].width),
+                                    models.data.depth_near, models.data.depth_far)  # fmt: skip
+    else:
+        rgb = np.asarray(clip.rgb, np.float32).reshape(-1, *clip.rgb.shape[2:]) / 255.0
+        depth = np.asarray(clip.depth, np.float64).reshape(-1, *clip.depth.shape[2:])
+    V = len(rig)
+    out = {t: Gaussians.empty() for t in w.frames}
+    for i, t in enumerate(frames):
+        views = [lift_in_boxes(rgb[i * V + v], depth[i * V + v], rig[v].at(dec.ego_to_world[i]), builder.tracks, t)
+                 for v in range(V)]  # fmt: skip
+        out[t] = Gaussians.cat(views)
+    return out
 
 
 def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None, sink, objects, wins):
@@ -399,15 +458,20 @@ def _aggregate_clip(clip, economy: Economy | None) -> tuple[Scene4D, AggregateSt
 def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None, world=None) -> Scene4D:
     """The oracle scene of a simulated clip (exact RGB + depth + dynamic masks, lifted), aggregated exactly as the
     playground serves it (paper eq. 3 + economy, `aggregate_4d`): the reference the learned models, the refinement
-    pairs and the evaluation are measured on. With the clip's `world` (the agents' boxes), its moving agents are
-    objects as `generate_scene` serves them; without it, per-frame dynamics (a clip alone does not know its boxes)."""
-    scene, stats = _aggregate_clip(clip, economy)
-    if world is not None:
-        tracks = agent_tracks(world, world.ego_to_world)
+    pairs and the evaluation are measured on. With the clip's `world` (the agents' boxes), its agents are objects
+    as `generate_scene` serves them; without it, per-frame dynamics (a clip alone does not know its boxes)."""
+    if world is None:
+        scene, stats = _aggregate_clip(clip, economy)
+    else:
         if clip.frame_indices and tuple(clip.frame_indices) != tuple(range(world.num_frames)):
             raise ValueError("oracle_scene: with `world`, the clip must hold every frame of it")
-        frame_windows = windows(clip.depth.shape[0], ORACLE_WINDOW)
-        scene = with_objects(scene, tracks, frame_windows, economy)
+        T, V, H, W = clip.depth.shape
+        agg = WindowAggregator(clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
+        out = _Collect(agg, {"agents": "objects"}, None, _Objects(world, None, 0))
+        per_view = _lift_clip(clip, lambda f: None, None)
+        for frames in windows(T, ORACLE_WINDOW):
+            out.window(frames, [per_view[t] for t in frames])
+        scene, stats = out.scene()
     scene.meta.update(
         {
             "mode": "oracle",

@@ -152,3 +152,21 @@ def test_generate_draws_the_keyframes_and_poses_the_agents_between():
     _check_objects_keep_identity(scene, sink)
     assert len(scene.objects) == len(sink.ids)  # every moving agent drawn by the appearance generator
     assert all(len(scene.dynamic[t]) == 0 for t in range(24) if t % 3)
+
+
+def test_the_long_clip_bench_reads_the_streamed_file_back():
+    from worldsplat.bench.long_clip import summary
+
+    sc = load_preset("urban_straight").with_updates(
+        clip={"frames": 12, "fps": 10.0}, image={"width": 32, "height": 32}, rig={"cameras": ["CAM_FRONT"]}
+    )
+    scene = pipeline.generate_scene(sc, mode="oracle", keyframe_step_m=KEYFRAME_STEP_M)
+    data = wsplat.encode(scene, version=3)
+    row = summary({"first_static_s": 1.234, "data": data})
+    assert row["first_static_s"] == 1.23 and row["frames"] == 12 and row["keyframes"] == 4
+    assert row["bytes"] == len(data) == 12 + sum(row["chunk_bytes"].values())  # the preamble, then chunks
+    assert row["bytes_per_frame"] == round(len(data) / 12)
+    agents = len({o.agent_id for o in scene.objects})
+    assert row["agent_objects"] == agents > 0
+    dyn = sum(row["chunk_bytes"].get(k, 0) for k in ("OBJC", "POSE", "DYNA"))
+    assert row["dynamic_bytes_per_agent_frame"] == round(dyn / (agents * 12), 1)

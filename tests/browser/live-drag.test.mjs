@@ -7,7 +7,8 @@
 // (far closer to the new scene than the old frame was); where the old scene drew the car, the live frame changed (the
 // car left; the static scene has no Gaussians behind it, a hole, since no camera saw that place); everywhere else
 // the live frame is the old one (the static scene untouched). The time from the last pointer move to the frame drawn
-// is printed (a sanity bound only). Screenshots: tests/artifacts/live-drag-*.png, browser/live-drag-*-f*.png.
+// is printed (a sanity bound only). A pose change writes the viewer's pose table only (its objects are posed on the
+// GPU: stats().uploaded_bytes). Screenshots: tests/artifacts/live-drag-*.png, browser/live-drag-*-f*.png.
 // The server serves .wsplat v3 here whatever its default (the launcher below sets the served version to 3).
 import { describe, it, before, after } from "node:test";
 import assert from "node:assert/strict";
@@ -115,8 +116,11 @@ async function keep(page, name, t) {
       poses.set(rows.subarray(k * 8 + 1, k * 8 + 8), k * 7);
       present[k] = rows[k * 8];
     }
+    const before = JSON.parse(v.stats()).uploaded_bytes;
     v.set_object_poses(car, poses, new Uint8Array(frames));
     pg.render();
+    const st = JSON.parse(v.stats());  // hiding the car wrote what to the GPU (the frame drawn, before any new order)
+    (window.__uploads ||= []).push({ bytes: st.uploaded_bytes - before, posing: st.posing, objects: v.object_ids().length });
     window.__px[`${n}-bare`] = await v.read_pixels();
     v.set_object_poses(car, poses, present);  // as it was
     pg.render();
@@ -227,6 +231,12 @@ for (const backend of ["webgl2", "webgpu"]) {
         assert.ok(timing.drawn < SANITY_MS, `drag -> frame drawn ${timing.drawn} ms`);
         assert.equal(await page.evaluate(() => window.playground.state.sceneId), gen.scene, "no new generation");
         for (const t of FRAMES) await keep(page, `live${t}`, t);
+        // The objects are posed on the GPU: a moved (here: hidden) car writes the pose table, 64 B per object and a
+        // 16 B header, and no Gaussian (posed on the CPU the frame's objects would go up again, 24 B each).
+        for (const u of await page.evaluate(() => window.__uploads.splice(0))) {
+          assert.equal(u.posing, "gpu");
+          assert.ok(u.bytes > 0 && u.bytes <= 16 + 64 * u.objects, `${backend}: a pose change uploaded ${u.bytes} B`);
+        }
         await page.evaluate(() => window.playground.setFrame(0));
         // the share link carries the edited scenario
         const shared = await page.evaluate(() => { window.playground.share(); return document.querySelector("#share-url").value; });

@@ -127,6 +127,27 @@ def test_a_gaussian_in_a_standing_box_is_claimed_and_the_road_under_it_is_not():
     assert claim_in_boxes(g, [tr], 0).extras[:, 0].tolist() == [1.0, 0.0, 0.0]  # body claimed; road, far point not
 
 
+def test_an_objects_gaussian_is_no_wider_than_a_footprint_from_the_nearest_camera():
+    """A place seen only from far (a wide Gaussian) would blur the agent's silhouette when drawn near."""
+    from worldsplat.gaussians.objects import OBJECT_SCALE_CAP
+
+    tr = _track()
+    wide = _side(tr, 0, +1, (1, 0, 0))
+    wide.scales = torch.full_like(wide.scales, 0.5)
+    b = _builder(tr)
+    b.add([0], {0: wide})
+    (obj,) = b.objects()
+    rig = default_rig(160, 90)
+    focal = float(np.median([np.sqrt(rc.fx * rc.fy) for rc in rig]))
+    cams = np.array([rc.at(np.eye(4)).position for rc in rig])  # the standing ego's cameras
+    dist = [
+        np.linalg.norm(obj.at_frame(t).means.double().numpy()[:, None] - cams[None], axis=-1).min(1) for t in range(T)
+    ]
+    footprint = np.min(dist, axis=0) / focal  # per Gaussian, from the camera nearest to it over the clip
+    assert (obj.gaussians.scales.max(1).values.double().numpy() <= OBJECT_SCALE_CAP * footprint + 1e-6).all()
+    assert obj.gaussians.scales.max() < 0.2  # 10 m from the cameras: a footprint is a few centimetres, not 0.5 m
+
+
 def test_dynamic_gaussians_in_no_box_are_dropped_without_keep_unboxed():
     tr = _track()
     far = Gaussians.from_numpy([[30.0, 8.0, 1.0]], [[1, 0, 0, 0]], [[0.1] * 3], [0.9], [[0, 1, 0]], [[1.0]])
@@ -143,7 +164,7 @@ def test_observed_pixels_in_a_box_become_the_object_on_the_box_with_their_colour
     owner, near, far = box_depths(cam, [tr], 0)
     assert (owner == 0).sum() > 100  # the car fills part of the front view
     car = owner == 0
-    depth = np.where(car, near + 0.3, 30.0)  # the car's surface just behind the box face, the wall far behind
+    depth = np.where(car, (near + far) / 2, 30.0)  # the car on its ray's way through the box, the wall far behind
     depth[car & (np.arange(160)[None, :] % 7 == 0)] = 30.0  # pixels that see past the car (a window onto the wall)
     rgb = np.where(car[..., None], [0.9, 0.1, 0.1], [0.5, 0.5, 0.5])
     seen = lift_in_boxes(rgb, depth, cam, [tr], 0)

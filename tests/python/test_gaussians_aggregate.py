@@ -331,6 +331,32 @@ def test_finest_observation_supersedes_coarser_copies_and_keeps_what_it_cannot_s
     assert not kb_inf.any() and kb_15.all() and not ka_15.any()
 
 
+def test_decoded_depth_tolerance_and_carving_drop_disagreeing_copies_and_keep_what_is_hidden():
+    """A wall seen by view A and, 5 % nearer, by view B from the same place (two frames' decoded depths of one
+    surface). At the exact depths' tolerance B's copy stays beside A's; at the decoded tolerance A's view sees it.
+    Carving (an earlier window's view A saw through the space in front of its wall): B's copy 30 % in front is
+    dropped, a copy 30 % behind (A cannot see there) stays, and so does one in front of A's sky (no surface)."""
+    from worldsplat.gaussians.aggregate import FINEST_DEPTH_TOL, LIFTED_DECODED_DEPTH_TOL, finest_observations
+
+    a = Camera(64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4))
+    pa = _wall(a, 10.0, seed=1).means.double().numpy()
+    near5, front, back = (_wall(a, z, seed=2).means.double().numpy() for z in (9.5, 7.0, 13.0))
+    _, (va,) = finest_observations([pa], [a], [])
+    (k,), _ = finest_observations([near5], [a], [va], tol=FINEST_DEPTH_TOL)
+    assert k.all()
+    (k,), _ = finest_observations([near5], [a], [va], tol=LIFTED_DECODED_DEPTH_TOL)
+    assert not k.any()
+    tol = LIFTED_DECODED_DEPTH_TOL
+    (kf, kb), _ = finest_observations([front, back], [a, a], [va], tol=tol, carve=False)
+    assert kf.all() and kb.all()
+    (kf, kb), _ = finest_observations([front, back], [a, a], [va], tol=tol, carve=True)
+    assert not kf.any() and kb.all()
+    sky = lift(np.zeros((48, 64, 3), np.uint8), np.full((48, 64), np.inf), None, a).means.double().numpy()
+    _, (vs,) = finest_observations([sky[:0]], [a], [])
+    (kf,), _ = finest_observations([front], [a], [vs], tol=tol, carve=True)
+    assert kf.all()
+
+
 @pytest.mark.slow
 def test_served_frame_renders_within_1db_of_its_own_lifting():
     """Frame 0 of the oracle scene, window by window as served, against frame 0's own lifting (its six views and

@@ -22,5 +22,23 @@ def test_the_cell_follows_the_model_image_on_the_served_image():
     # the models' 112-pixel-wide image: one model pixel is 1 pixel of a 112-wide render, 200/112 of the playground's
     assert decoded_economy(112, 112, "decoder").cell_factor == pytest.approx(DECODED_CELL_MODEL_PX)
     assert decoded_economy(112, 200, "decoder").cell_factor == pytest.approx(200 / 112 * DECODED_CELL_MODEL_PX)
-    # Gaussians lifted per pixel of the served image are the oracle's kind: the oracle's economy
-    assert decoded_economy(112, 200, "pixels") == Economy()
+    # Gaussians lifted per pixel of the served image: the oracle's economy with the decoded depths' tolerance
+    assert decoded_economy(112, 200, "pixels") == Economy.for_lifted_decoding()
+    assert decoded_economy(112, 200, "pixels").cell_factor == Economy().cell_factor
+
+
+def test_each_mode_serves_its_source_and_economy():
+    """reconstruct lifts the VAE's decoding per pixel (finest rule, decoded tolerance, carving); generate keeps the
+    latent decoder's grid (merged cells); an explicit source overrides the mode's."""
+    from worldsplat.gaussians.aggregate import FINEST_DEPTH_TOL, LIFTED_DECODED_DEPTH_TOL
+    from worldsplat.pipeline.inference import decoded_economy, gaussian_source
+
+    assert gaussian_source(None, "reconstruct") == "pixels"
+    assert gaussian_source(None, "generate") == "decoder"
+    assert gaussian_source("decoder", "reconstruct") == "decoder"
+    rec, gen = decoded_economy(112, 200, mode="reconstruct"), decoded_economy(112, 200, mode="generate")
+    assert rec.static_rule == "finest" and rec.carve and rec.finest_depth_tol == LIFTED_DECODED_DEPTH_TOL
+    assert LIFTED_DECODED_DEPTH_TOL > FINEST_DEPTH_TOL and not Economy().carve
+    assert gen.static_rule == "merge" and gen == decoded_economy(112, 200, "decoder")
+    with pytest.raises(ValueError, match="gaussians"):
+        gaussian_source("grid", "generate")

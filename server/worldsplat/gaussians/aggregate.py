@@ -49,6 +49,11 @@ DYNAMIC_COVER = 0.0  # > 0: merged dynamic std = this x the patch width (see mer
 # 1.5 grid pitches of the 2x2 decoder at 64x112 and averaged neighbours into blobs: reconstruct 0 m 19.32 dB vs
 # 21.51 at one model pixel; measured best for both strides (gaussians.md, "decoded cells").
 DECODED_CELL_MODEL_PX = 1.0
+FINEST_DEPTH_TOL = 0.02  # relative depth agreement of "the same surface point" (finest rule, exact depths)
+# The same for depths the VAE decodes per frame (reconstruct's lifted pixels): a window's frames put the same surface
+# a few per cent apart, and under 0.02 the finest rule kept several frames' copies side by side (a blotched road;
+# default preset 3.40 Gaussians per served px, 20.63 dB). Measured 0.02 / 0.06 / 0.12 / 0.25 in web/docs/models.md.
+LIFTED_DECODED_DEPTH_TOL = 0.12
 
 
 @dataclass
@@ -72,6 +77,12 @@ class Economy:
     # finest, unmerged (`finest_observations`); "merge" averages every observation in its cell (the sky shell
     # always merges in its cells). Decoded Gaussians (learned modes) merge: see `for_decoded`.
     static_rule: str = "finest"
+    # Relative depth within which two observations are "the same surface point" (finest rule): exact depths agree
+    # to FINEST_DEPTH_TOL; depths decoded per frame disagree by a few per cent (`for_lifted_decoding`).
+    finest_depth_tol: float = FINEST_DEPTH_TOL
+    # Decoded depths: an observation in front of what an earlier window's view showed is a copy the frames disagree
+    # on (that view saw through it), not a surface the earlier window could not see (`finest_observations`).
+    carve: bool = False
     dynamic_budget: int | None = None  # cap per frame
 
     @staticmethod
@@ -82,6 +93,13 @@ class Economy:
         if not (math.isfinite(model_px) and model_px > 0):
             raise ValueError(f"Economy.for_decoded: model_px must be a finite number > 0, got {model_px}")
         return Economy(cell_factor=DECODED_CELL_MODEL_PX * model_px, static_rule="merge")
+
+    @staticmethod
+    def for_lifted_decoding() -> Economy:
+        """The served economy of decoded colour and depth lifted per pixel (`pipeline.pixels`): the oracle's, with
+        the decoded depths' agreement (`LIFTED_DECODED_DEPTH_TOL`) and earlier windows carving what they saw
+        through (`carve`)."""
+        return Economy(finest_depth_tol=LIFTED_DECODED_DEPTH_TOL, carve=True)
 
 
 @dataclass
@@ -291,7 +309,6 @@ def economize(
 # pixel footprint depth / focal): the surface keeps one pixel grid, the sharpest, instead of every frame's copy
 # re-sampled at its own pose and averaged (gaussians.md, "Finest observation"). Where no finer view sees the point
 # (occluded there, outside its image), the observation stays: the window's other frames fill what one cannot see.
-FINEST_DEPTH_TOL = 0.02  # relative depth agreement of "the same surface point"
 FINEST_SMOOTH = 1.5  # a 2x2 pixel neighbourhood whose depths span less than this ratio is one continuous surface
 
 
@@ -310,10 +327,11 @@ class SurfaceView:
         np.minimum.at(self.depth, (uv[ok, 1].astype(np.int64), uv[ok, 0].astype(np.int64)), z[ok])
         self.footprint = np.where(ok, z, np.inf) / self.focal  # of `points`, as this view observed them
 
-    def sees(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Which `points` this view observes (its surface depth there agrees with theirs: within the depth range
-        of the 2x2 pixel centres around them on a continuous surface, else at the nearest pixel) and the pixel
-        footprint it sees them at."""
+    def looks(self, points: np.ndarray, tol: float = FINEST_DEPTH_TOL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For each of `points`: whether this view observes it (its surface depth there agrees within `tol`: within
+        the depth range of the 2x2 pixel centres around it on a continuous surface, else at the nearest pixel), the
+        pixel footprint it sees it at, and whether it lies in the free space this view saw through (more than `tol`
+        in front of the surface at all four pixel centres, all four a surface: a silhouette or sky never carves)."""
         H, W = self.depth.shape
         uv, z = self.camera.project(points)
         with np.errstate(invalid="ignore"):
@@ -327,18 +345,26 @@ class SurfaceView:
         near = self.depth[np.minimum(v.astype(np.int64), H - 1), np.minimum(u.astype(np.int64), W - 1)]
         with np.errstate(invalid="ignore"):
             smooth = np.isfinite(hi) & (hi < FINEST_SMOOTH * lo)
-            on_smooth = smooth & (z >= lo * (1 - FINEST_DEPTH_TOL)) & (z <= hi * (1 + FINEST_DEPTH_TOL))
-            at_edge = ~smooth & (np.abs(near - z) <= FINEST_DEPTH_TOL * z)
-        return ok & (on_smooth | at_edge), np.where(ok, z, np.inf) / self.focal
+            on_smooth = smooth & (z >= lo * (1 - tol)) & (z <= hi * (1 + tol))
+            at_edge = ~smooth & (np.abs(near - z) <= tol * z)
+            past = ok & np.isfinite(hi) & (z < lo * (1 - tol))
+        return ok & (on_smooth | at_edge), np.where(ok, z, np.inf) / self.focal, past
 
 
 def finest_observations(
-    points: list[np.ndarray], cameras: list[Camera], earlier: list[SurfaceView], finer: float = math.inf
+    points: list[np.ndarray],
+    cameras: list[Camera],
+    earlier: list[SurfaceView],
+    finer: float = math.inf,
+    tol: float = FINEST_DEPTH_TOL,
+    carve: bool = False,
 ) -> tuple[list[np.ndarray], list[SurfaceView]]:
     """`points[i]`: the static surface observations (centres) of frame-view i of a window, seen by `cameras[i]`.
     Returns which of each to keep and the window's `SurfaceView`s. An observation is dropped where another view of
     the window sees its point finer (equal footprints: the earlier view wins), or where a view of an earlier window
-    (`earlier`, whose Gaussians are sent) sees it at less than `finer` x its own footprint (inf: at all)."""
+    (`earlier`, whose Gaussians are sent) sees it at less than `finer` x its own footprint (inf: at all). `tol`: the
+    relative depth agreement of the same point (`SurfaceView.looks`). `carve`: also drop an observation in the free
+    space an earlier window's view saw through (`SurfaceView.looks`: in front of what that view shows)."""
     views = [SurfaceView(c, p) for c, p in zip(cameras, points, strict=True)]
     keep = []
     for i, (p, own) in enumerate(zip(points, views)):
@@ -347,10 +373,12 @@ def finest_observations(
             if j == i or not k.any():
                 continue
             rows = np.flatnonzero(k)
-            seen, fp = other.sees(p[rows])
+            seen, fp, past = other.looks(p[rows], tol)
             mine = own.footprint[rows]
             if j >= len(views):
                 drop = seen & (fp < finer * mine)
+                if carve:
+                    drop |= past
             else:
                 drop = seen & ((fp < mine) | ((fp == mine) & (j < i)))
             k[rows[drop]] = False
@@ -506,7 +534,9 @@ class WindowAggregator:
         sky = [_sky_rows(s) for s in statics]
         known = [i for i, c in enumerate(cameras) if c is not None]
         points = [statics[i].means.detach().double().cpu().numpy()[~sky[i]] for i in known]
-        keep, views = finest_observations(points, [cameras[i] for i in known], self.views, self.finer)
+        cams = [cameras[i] for i in known]
+        eco = self.economy
+        keep, views = finest_observations(points, cams, self.views, self.finer, eco.finest_depth_tol, eco.carve)
         self.views += views
         kept, single = [], []
         for i, s in enumerate(statics):

@@ -15,8 +15,9 @@ Weights: `<role>_small.safetensors` for role in vae | decoder | dit | prior, and
 per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`).
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
-`gaussians` says how L becomes Gaussians: "decoder" (served, GAUSSIANS): the latent Gaussian decoder's grid;
-"pixels": the VAE's decoding of L lifted one opaque Gaussian per pixel of the rig's image (`pipeline.pixels`).
+`gaussians` says how L becomes Gaussians (None: the mode's served source, GAUSSIANS): "decoder": the latent Gaussian
+decoder's grid (served in generate); "pixels": the VAE's decoding of L lifted one opaque Gaussian per pixel of the
+rig's image (`pipeline.pixels`; served in reconstruct).
 
 The models run at their trained geometry (DataConfig: 64x112 per view, 6 views, 4-frame windows): inputs of other
 sizes are resampled to it (the Gaussians live in world metres, so they render at any resolution), and longer clips
@@ -53,13 +54,14 @@ from worldsplat_models.weights import load_weights, read_metadata
 from worldsplat_models.weights import weights_dir as default_weights_dir
 
 SIZE = "small"
-# How latents become Gaussians in reconstruct and generate: "pixels" lifts the VAE's decoded colour, depth and mask
-# per pixel of the rig's image (as many Gaussians per served pixel as the oracle, tiling at any display size);
-# "decoder" is the latent Gaussian decoder (one translucent Gaussian per 2x2 model pixels). Measured side by side in
-# web/docs/models.md ("Gaussians per pixel"): pixels is the denser, without a cell grid, but the frames' decoded depths
-# disagree by a few per cent, so their copies of the road stay side by side as blotches; generate scores 13.9 dB /
-# SSIM 0.48 against the decoder's 15.1 / 0.53 on the default preset, and looks worse: the decoder stays served.
-GAUSSIANS = "decoder"
+# How latents become Gaussians, per mode: "pixels" lifts the VAE's decoded colour, depth and mask per pixel of the
+# rig's image (as many Gaussians per served pixel as the oracle, tiling at any display size); "decoder" is the latent
+# Gaussian decoder (one translucent Gaussian per 2x2 model pixels, a cell grid at 2x). Measured side by side in
+# web/docs/models.md ("Served Gaussians per mode"): reconstruct's pixels (with the lifted decoding's economy,
+# `Economy.for_lifted_decoding`) are denser, sharper and score above the decoder in PSNR and SSIM; generate's VAE
+# decoding of sampled latents is blotched (the first window's 4 steps worst), which the decoder smooths over: it
+# scores 15.1 dB / SSIM 0.53 against pixels' 13.7 / 0.48 on the default preset, so generate keeps the decoder.
+GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder"}
 GAUSSIAN_SOURCES = ("pixels", "decoder")
 
 
@@ -107,7 +109,7 @@ class DecodedFrames:
     meta: dict = field(default_factory=dict)
     model_width: int | None = None  # the models' image width (the decoded economy's unit); None: the rig's
     windows: list[list[int]] | None = None  # the frame windows decoded together (None: one window of every frame)
-    source: str = "decoder"  # how the Gaussians were made: "pixels" (lifted per rig pixel) or "decoder" (GAUSSIANS)
+    source: str = "decoder"  # how the Gaussians were made: "pixels" (lifted per rig pixel) or "decoder" (grid)
 
     def frame(self, t: int):
         return Gaussians.cat(self.gaussians[t])
@@ -246,9 +248,9 @@ def scale_floor(scales: torch.Tensor, depth: torch.Tensor, fx_model: float) -> t
     return torch.sqrt(scales**2 + floor[:, None] ** 2)
 
 
-def gaussian_source(gaussians: str | None) -> str:
-    """`gaussians` checked ("pixels" | "decoder"; None: the served GAUSSIANS)."""
-    g = GAUSSIANS if gaussians is None else gaussians
+def gaussian_source(gaussians: str | None, mode: str = "generate") -> str:
+    """`gaussians` checked ("pixels" | "decoder"; None: the source `mode` serves, GAUSSIANS)."""
+    g = GAUSSIANS[mode] if gaussians is None else gaussians
     if g not in GAUSSIAN_SOURCES:
         raise ValueError(f"gaussians must be one of {', '.join(GAUSSIAN_SOURCES)}, got {gaussians!r}")
     return g
@@ -266,18 +268,17 @@ def decode_gaussians(
     gaussians: str | None = None,
 ) -> DecodedFrames:
     """L (T,V,C,h,w) normalised -> DecodedFrames (window by window; `pad`: see `_windows`). `gaussians`: "pixels"
-    (`_lift_pixels`) or "decoder" (None: GAUSSIANS); `decoder`: which Gaussian decoder (default: the one for
-    meta["mode"], `Models.decoder_for`)."""
+    (`_lift_pixels`) or "decoder" (None: the one meta["mode"] serves, GAUSSIANS); `decoder`: which Gaussian decoder
+    (default: the one for meta["mode"], `Models.decoder_for`)."""
     d = models.data
     T = L.shape[0]
     wins = _windows(T, d.frames, pad)
-    source = "decoder" if decoder is not None else gaussian_source(gaussians)
+    mode = meta.get("mode", "generate")
+    source = "decoder" if decoder is not None else gaussian_source(gaussians, mode)
     if source == "pixels":
         gs, logits = _lift_pixels(models, L, rig, ego_to_world, wins)
     else:
-        gs, logits = _decode_grid(
-            models, L, rig, ego_to_world, wins, decoder or models.decoder_for(meta.get("mode", "generate"))
-        )
+        gs, logits = _decode_grid(models, L, rig, ego_to_world, wins, decoder or models.decoder_for(mode))
     return DecodedFrames(
         gs,
         logits,
@@ -561,11 +562,14 @@ def gaussian_grid(models: Models, mode: str = "generate") -> tuple[int, int]:
     return tuple(n // ds // cfg.patch * cfg.upsample for n in (models.data.height, models.data.width))
 
 
-def decoded_economy(model_width: int, image_width: int, gaussians: str | None = None) -> Economy:
+def decoded_economy(
+    model_width: int, image_width: int, gaussians: str | None = None, mode: str = "generate"
+) -> Economy:
     """The economy of decoded Gaussians on an image_width image of scenes decoded at the models' model_width:
-    lifted pixels ("pixels") the oracle's (`Economy()`), the decoder's grid `Economy.for_decoded`."""
-    if gaussian_source(gaussians) == "pixels":
-        return Economy()
+    lifted pixels ("pixels") `Economy.for_lifted_decoding`, the decoder's grid `Economy.for_decoded` (None: the
+    source `mode` serves)."""
+    if gaussian_source(gaussians, mode) == "pixels":
+        return Economy.for_lifted_decoding()
     return Economy.for_decoded(image_width / model_width)
 
 

@@ -37,7 +37,10 @@ from worldsplat.gaussians.agent_appearance import agent_gaussians
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.objects import (
+    AGENT_MARGIN_M,
     AGENT_MODES,
+    OBSERVED_DEPTH_TOL_M,
+    OBSERVED_DEPTH_TOL_SHARE,
     ObjectBuilder,
     ObjectSource,
     agent_tracks,
@@ -64,8 +67,9 @@ ORACLE_VERSION = "oracle-5"
 # decoding lifted one opaque Gaussian per pixel of the served image (`pipeline.pixels`, inference.GAUSSIANS), with the
 # oracle's economy; w10 the latent decoder's grid served again (`inference.GAUSSIANS`; pixels measured worse on generate);
 # w11 every agent an object (parked ones too), reconstruct's from the observed pixels, no dynamics in no box; w12
-# generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame)
-STREAM_VERSION = "w12"
+# reconstruct serves the VAE's decoding lifted per pixel (`inference.GAUSSIANS` per mode, `Economy.for_lifted_decoding`);
+# w13 generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame)
+STREAM_VERSION = "w13"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -244,16 +248,19 @@ def generated_object_source(world) -> ObjectSource | None:
 
 class _Objects:
     """What `_Collect` needs to make agents objects: the world (its agents' boxes, every agent in the clip, parked
-    ones too), the source and its seed, and whether dynamic Gaussians in no box are kept: the oracle's are exact,
-    a learned mode's are the models' spurious dynamics where the scenario states no agent (dropped)."""
+    ones too), the source and its seed, and whether the frames are `exact` (the oracle's): a learned mode's agents
+    come from elsewhere (generate: `source`; reconstruct: the observed pixels), so every agent's box is claimed
+    and what the model drew there dropped, as are its dynamics in no box (spurious where the scenario states no
+    agent); the oracle's standing agents alone are claimed (their exact static pixels become the object)."""
 
-    def __init__(self, world, source: ObjectSource | None, seed: int, keep_unboxed: bool = True):
-        self.world, self.source, self.seed, self.keep_unboxed = world, source, seed, keep_unboxed
+    def __init__(self, world, source: ObjectSource | None, seed: int, exact: bool = True):
+        self.world, self.source, self.seed, self.exact = world, source, seed, exact
 
     def builder(self, agg: WindowAggregator) -> ObjectBuilder:
         tracks = agent_tracks(self.world, agg.ego_to_world)
+        claims = {} if self.exact else {"claim_moving": True, "claim_margin": AGENT_MARGIN_M}
         return ObjectBuilder(tracks, agg.rig, agg.ego_to_world, economy=agg.economy, source=self.source,
-                             seed=self.seed, keep_unboxed=self.keep_unboxed)  # fmt: skip
+                             seed=self.seed, keep_unboxed=self.exact, **claims)  # fmt: skip
 
 
 class _Collect:
@@ -330,7 +337,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     else:
         ego_to_world = world.ego_to_world
     H, W = world.rig[0].height, world.rig[0].width
-    eco = inf.decoded_economy(models.data.width, W) if economy is None else economy
+    eco = inf.decoded_economy(models.data.width, W, mode=mode) if economy is None else economy
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
     out = _Collect(agg, meta, sink, objects)
     timing: dict[str, float] = {}
@@ -399,15 +406,17 @@ def _observed_agents(inf, models, dec, clip, w: KeyWindow, builder: ObjectBuilde
         guide = inf.pixel_guide(models, dec.latents[: len(frames)])
         rgb, depth, _ = served_maps(guide.reshape(-1, *guide.shape[2:]), (rig[0].height, rig[0].width),
                                     models.data.depth_near, models.data.depth_far)  # fmt: skip
+        tol = (1.0, 0.1)  # the decoded depth is blurred over an agent's edge
     else:
         rgb = np.asarray(clip.rgb, np.float32).reshape(-1, *clip.rgb.shape[2:]) / 255.0
         depth = np.asarray(clip.depth, np.float64).reshape(-1, *clip.depth.shape[2:])
+        tol = (OBSERVED_DEPTH_TOL_M, OBSERVED_DEPTH_TOL_SHARE)
     V = len(rig)
     out = {t: Gaussians.empty() for t in w.frames}
     for i, t in enumerate(frames):
-        views = [lift_in_boxes(rgb[i * V + v], depth[i * V + v], rig[v].at(dec.ego_to_world[i]), builder.tracks, t)
-                 for v in range(V)]  # fmt: skip
-        out[t] = Gaussians.cat(views)
+        cams = [rig[v].at(dec.ego_to_world[i]) for v in range(V)]
+        out[t] = Gaussians.cat([lift_in_boxes(rgb[i * V + v], depth[i * V + v], cams[v], builder.tracks, t, *tol)
+                                for v in range(V)])  # fmt: skip
     return out
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from worldsplat.bench.report import Pareto, Section
 from worldsplat.core.paths import runs_dir
-from worldsplat.evaluation.downstream import GROUND_TRUTH, domain_gap, refined_row
+from worldsplat.evaluation.downstream import GROUND_TRUTH, domain_gap, gap_by_group, refined_row
 from worldsplat.pipeline.refine import refine_available
 from worldsplat.pipeline.scene import available_modes
 from worldsplat_models.judge import load_judge
@@ -29,6 +29,19 @@ def _seconds(r: dict, row: str) -> float:
     t = r["timing_s"][mode]
     refine = t.get("refine_s", 0.0) / max(1, len(r["blends"])) if row != mode else 0.0
     return (t["scene_s"] + t["render_s"] + refine) / len(r["clips"])
+
+
+def _gap_notes(r: dict) -> list[str]:
+    """Each raw mode's mIoU gap to the ground truth split by class group (the parts sum to the gap)."""
+    ref = r["table"][GROUND_TRUTH]["all"]
+    notes = []
+    for m in r["modes"]:
+        parts = gap_by_group(ref, r["table"][m]["all"])
+        notes.append(
+            f"{m}: mIoU gap {ref['miou'] - r['table'][m]['all']['miou']:.3f} to the ground truth, by class group "
+            + ", ".join(f"{g} {v:.3f}" for g, v in parts.items())
+        )
+    return notes
 
 
 def run(quick: bool) -> Section:
@@ -86,6 +99,7 @@ def run(quick: bool) -> Section:
         "the world's own images (the reference).",
         pareto=Pareto("seconds per clip (scene + renders + refinement)", "judge mIoU vs exact labels", points, default),
         notes=[f"judge Fréchet distance floor (world images, two random halves): {floor}"]
+        + _gap_notes(r)
         + ([f"BEV mIoU: mean IoU of {', '.join(r['bev_layers'])} on the BEV head's grid"] if bev else []),
         data={"miou": {row[0]: row[len(shifts) + 1] for row in rows}, "frechet": r["frechet"]},
     )

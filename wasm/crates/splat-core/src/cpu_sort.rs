@@ -1,6 +1,7 @@
 //! CPU depth sort for the path without compute shaders (WebGL2): stable LSD radix sort of the visible
 //! Gaussians by camera z (ascending; ties keep input order), 8-bit digits, passes whose digit is constant skipped.
 
+use crate::poses::PosedRange;
 use splat_format::constants::NEAR;
 use splat_format::gaussians::PackedSplat;
 
@@ -19,12 +20,30 @@ pub fn camera_z(row2: &[f32; 4], mean: &[f32; 3]) -> f32 {
 
 /// Append the depth key (z bits: positive floats order like their bits) and index of every mean in front of the
 /// near plane, except indices in `skip` (`skip[0]..skip[1]`: the frame budget's left-out records); indices count
-/// from `first`.
-fn push_keys(means: impl Iterator<Item = [f32; 3]>, first: usize, row2: &[f32; 4], skip: [u32; 2], keys: &mut Vec<u32>, order: &mut Vec<u32>) {
+/// from `first`. Records in a `posed` range (agent objects posed on the GPU; sorted by start, disjoint) take its
+/// depth row, so they sort by their posed depths.
+fn push_keys(
+    means: impl Iterator<Item = [f32; 3]>,
+    first: usize,
+    row2: &[f32; 4],
+    skip: [u32; 2],
+    posed: &[PosedRange],
+    keys: &mut Vec<u32>,
+    order: &mut Vec<u32>,
+) {
     let skip = skip[0] as usize..skip[1] as usize;
+    let mut seg = 0;
     for (i, m) in means.enumerate() {
-        let z = camera_z(row2, &m);
-        if z > NEAR && !skip.contains(&(first + i)) {
+        let index = first + i;
+        while seg < posed.len() && index >= posed[seg].end as usize {
+            seg += 1;
+        }
+        let row = match posed.get(seg) {
+            Some(p) if index >= p.start as usize => &p.row2,
+            _ => row2,
+        };
+        let z = camera_z(row, &m);
+        if z > NEAR && !skip.contains(&index) {
             keys.push(z.to_bits());
             order.push((first + i) as u32);
         }
@@ -66,19 +85,19 @@ const PASSES: u32 = 4;
 impl CpuSorter {
     /// Indices of the Gaussians in front of the near plane, nearest first.
     pub fn sort(&mut self, records: &[PackedSplat], row2: [f32; 4]) -> &[u32] {
-        self.sort_means(records.iter().map(|r| r.mean), row2, [0, 0])
+        self.sort_means(records.iter().map(|r| r.mean), row2, [0, 0], &[])
     }
 
-    /// The sort `key` asks for (its depth row, leaving out its skipped range).
-    pub fn sort_for(&mut self, records: &[PackedSplat], key: &SortKey) -> &[u32] {
-        self.sort_means(records.iter().map(|r| r.mean), key.row2(), key.skip)
+    /// The sort `key` asks for (its depth row, leaving out its skipped range), objects in `posed` by their poses.
+    pub fn sort_for(&mut self, records: &[PackedSplat], key: &SortKey, posed: &[PosedRange]) -> &[u32] {
+        self.sort_means(records.iter().map(|r| r.mean), key.row2(), key.skip, posed)
     }
 
     /// The same sort over bare means (the Web Worker holds only positions), leaving out the indices in `skip`.
-    pub fn sort_means(&mut self, means: impl Iterator<Item = [f32; 3]>, row2: [f32; 4], skip: [u32; 2]) -> &[u32] {
+    pub fn sort_means(&mut self, means: impl Iterator<Item = [f32; 3]>, row2: [f32; 4], skip: [u32; 2], posed: &[PosedRange]) -> &[u32] {
         self.keys.clear();
         self.order.clear();
-        push_keys(means, 0, &row2, skip, &mut self.keys, &mut self.order);
+        push_keys(means, 0, &row2, skip, posed, &mut self.keys, &mut self.order);
         for p in 0..PASSES {
             radix_pass(8 * p, &mut self.keys, &mut self.order, &mut self.tmp_keys, &mut self.tmp_order);
         }
@@ -118,6 +137,8 @@ mod tests {
 /// clock has passed, then returns; the caller keeps drawing the previous order meanwhile (WebGL2 path).
 pub struct CpuSortJob {
     pub key: SortKey,
+    /// The objects' posed depth rows for `key` (set with the key).
+    pub posed: Vec<PosedRange>,
     phase: Phase,
     keys: Vec<u32>,
     order: Vec<u32>,
@@ -163,7 +184,16 @@ const SLICE: usize = 1 << 16;
 
 impl CpuSortJob {
     pub fn new(key: SortKey) -> CpuSortJob {
-        CpuSortJob { key, phase: Phase::Keys, keys: Vec::new(), order: Vec::new(), tmp_keys: Vec::new(), tmp_order: Vec::new(), cursor: 0 }
+        CpuSortJob {
+            key,
+            posed: Vec::new(),
+            phase: Phase::Keys,
+            keys: Vec::new(),
+            order: Vec::new(),
+            tmp_keys: Vec::new(),
+            tmp_order: Vec::new(),
+            cursor: 0,
+        }
     }
 
     /// Start over for `key`, keeping the buffers of the previous sort (no allocation once they are big enough).
@@ -194,7 +224,7 @@ impl CpuSortJob {
                 Phase::Keys => {
                     let end = (self.cursor + SLICE).min(records.len());
                     let means = records[self.cursor..end].iter().map(|r| r.mean);
-                    push_keys(means, self.cursor, &row2, self.key.skip, &mut self.keys, &mut self.order);
+                    push_keys(means, self.cursor, &row2, self.key.skip, &self.posed, &mut self.keys, &mut self.order);
                     self.cursor = end;
                     if end == records.len() {
                         self.phase = Phase::Pass(0);

@@ -3,6 +3,7 @@
 //! flight or whose indices no longer name the same Gaussians are dropped (web/docs/viewer.md).
 
 use crate::cpu_sort::SortKey;
+use crate::poses::PosedRange;
 
 /// Where the instanced path's depth order comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -14,11 +15,15 @@ pub enum CpuSortSource {
     External,
 }
 
-/// A depth sort for an external sorter: the positions of `data_version` (`positions()`), one depth row per view.
+/// A depth sort for an external sorter: the positions of `records_version` (`positions()`), one depth row per view
+/// and, per view, the agent objects' posed depth rows (their records sort by those; a new pose changes the rows,
+/// not the positions).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SortRequest {
     pub seq: u64,
     pub keys: Vec<SortKey>,
+    pub records_version: u64,
+    pub posed: Vec<Vec<PosedRange>>,
 }
 
 impl SortRequest {
@@ -67,7 +72,8 @@ impl ExternalSort {
         }
         self.seq += 1;
         self.in_flight = Some((self.seq, keys.clone()));
-        Some(SortRequest { seq: self.seq, keys })
+        Some(SortRequest { seq: self.seq, keys, records_version: 0, posed: Vec::new() })
+        // the renderer fills the rest
     }
 
     /// An answer to request `seq`: applied (true), dropped (false: not the request in flight, or its indices

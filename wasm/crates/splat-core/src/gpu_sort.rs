@@ -71,6 +71,7 @@ impl GpuSort {
                 buffer_entry(4, rw, false),
                 buffer_entry(5, rw, false),
                 buffer_entry(6, wgpu::BufferBindingType::Uniform, true),
+                buffer_entry(7, wgpu::BufferBindingType::Uniform, false),
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -161,7 +162,9 @@ impl GpuSort {
         &self.draw_args
     }
 
-    pub fn bind_groups(&self, device: &wgpu::Device, view_buf: &wgpu::Buffer, splats: &wgpu::Buffer) -> SortBindings {
+    /// The sort's bind groups over the view uniforms, the records and the pose table (`poses`: objects sort by
+    /// their posed depths).
+    pub fn bind_groups(&self, device: &wgpu::Device, view_buf: &wgpu::Buffer, splats: &wgpu::Buffer, poses: &wgpu::Buffer) -> SortBindings {
         let make = |src: &wgpu::Buffer, dst: &wgpu::Buffer| {
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("sort bind"),
@@ -188,6 +191,7 @@ impl GpuSort {
                             size: wgpu::BufferSize::new(16),
                         }),
                     },
+                    wgpu::BindGroupEntry { binding: 7, resource: poses.as_entire_binding() },
                 ],
             })
         };

@@ -102,7 +102,7 @@ fn external_sort(r: &Renderer, req: &splat_core::renderer::SortRequest) -> Vec<V
     let pos = r.positions();
     let means: Vec<[f32; 3]> = pos.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let mut sorter = CpuSorter::default();
-    req.keys.iter().map(|k| sorter.sort_means(means.iter().copied(), k.row2(), k.skip).to_vec()).collect()
+    req.keys.iter().zip(&req.posed).map(|(k, posed)| sorter.sort_means(means.iter().copied(), k.row2(), k.skip, posed).to_vec()).collect()
 }
 
 #[test]

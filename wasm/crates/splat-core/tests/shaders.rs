@@ -57,3 +57,20 @@ fn record_texture_width_mirrors_rust() {
     let line = format!("const RECORD_TEX_WIDTH: u32 = {}u;", splat_core::records::RECORD_TEX_WIDTH);
     assert!(splat_core::renderer::SHADER_SPLAT_INSTANCED.contains(&line), "splat_instanced.wgsl declares {line:?}");
 }
+
+#[test]
+fn pose_table_mirrors_rust() {
+    use splat_core::poses::{ObjectPoseRow, MAX_GPU_OBJECTS, POSE_TABLE_BYTES};
+    let line = format!("const MAX_OBJECTS: u32 = {MAX_GPU_OBJECTS}u;");
+    assert!(splat_core::shaders::SHADER_POSES.contains(&line), "poses.wgsl declares {line:?}");
+    // The uniform's layout as naga lays it out equals the bytes `PoseTable::gpu_bytes` writes.
+    let module = validate("splat (storage path)", &splat_shader_source(DrawPath::Storage));
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).unwrap();
+    let size = |name: &str| {
+        let (h, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("no struct {name}"));
+        layouter[h].size as u64
+    };
+    assert_eq!(size("ObjectPose"), std::mem::size_of::<ObjectPoseRow>() as u64);
+    assert_eq!(size("PoseTable"), POSE_TABLE_BYTES);
+}

@@ -64,6 +64,44 @@ impl Scene {
         Cow::Owned(out)
     }
 
+    /// Frame `frame`'s DYNA records alone (its objects are posed elsewhere: on the GPU, `splat_core::scene_upload`).
+    pub fn frame_dynamic(&self, frame: usize) -> &[PackedSplat] {
+        self.dynamic.get(frame).map_or(&[][..], |d| d.as_slice())
+    }
+
+    /// The objects' canonical Gaussians packed, object after object, and each object's record count.
+    pub fn object_records(&self) -> (Vec<PackedSplat>, Vec<u32>) {
+        let mut records = Vec::new();
+        let counts = self
+            .objects
+            .iter()
+            .map(|o| {
+                let before = records.len();
+                records.extend(o.gaussians.iter().filter_map(Gaussian::pack));
+                (records.len() - before) as u32
+            })
+            .collect();
+        (records, counts)
+    }
+
+    /// What `object_records` holds, as a key that changes when it does (objects only grow: new ones, appended parts).
+    pub fn objects_key(&self) -> (usize, usize) {
+        (self.objects.len(), self.objects.iter().map(|o| o.gaussians.len()).sum())
+    }
+
+    /// Each object's pose in frame `frame` as the rows of `[R | t]` (box -> scene), None where absent.
+    pub fn object_pose_matrices(&self, frame: usize) -> Vec<Option<[[f32; 4]; 3]>> {
+        let poses = self.object_poses.get(frame).map_or(&[][..], |p| p.as_slice());
+        (0..self.objects.len())
+            .map(|k| {
+                poses.get(k).copied().flatten().map(|p| {
+                    let m = p.matrix();
+                    [0, 1, 2].map(|i| m[i].map(|x| x as f32))
+                })
+            })
+            .collect()
+    }
+
     /// What `dynamic_at(frame)` holds, as a key that changes when it does (a new DYNA or POSE chunk of the frame).
     pub fn dynamic_key(&self, frame: usize) -> (usize, usize) {
         let posed = self

@@ -2,8 +2,11 @@
 //! to PNG, at a rig camera / the mosaic / BEV at a frame and lateral shift, or at any camera JSON
 //! (the same file `worldsplat render --camera-json` takes). `splat-render bench` measures frame and sort time.
 
+mod bench_posing;
+
 use splat_core::headless;
 use splat_core::renderer::{DrawPath, Renderer, ViewRect};
+use splat_core::scene_upload::{Posing, SceneUpload};
 use splat_core::view_state::ViewState;
 use splat_format::camera::{rigid_inverse, Camera};
 use splat_format::gaussians::{gaussians_from_json, Gaussian};
@@ -20,6 +23,10 @@ const USAGE: &str = "usage:
                 DIR gets each scene as PLY, the last camera as JSON and both renders, for a torch reference)
   splat-render bench --stages [--counts ..] [--size ..] [--frames ..] [--accum f16|unorm8]
                (both paths, every stage waited for: sort, upload, draw, blit, readback ms; draw with square quads)
+  splat-render bench --posing [SCENE.wsplat] [--frames 3] [--size 640x360] [--statics 100000] [--objects 30]
+               [--object-gaussians 2000]
+               (a frame change with agent objects posed on the CPU vs on the GPU, both paths: bytes uploaded, upload
+                and frame ms per frame, ratios; without SCENE a synthetic street with moving objects)
   splat-render psnr A.png B.png                          (RGB PSNR in dB of two renders of one size)
   splat-render synth --count N --out FILE.ply           (the benchmark's synthetic street cloud)
   splat-render fixture4d VECTOR.json --out FILE.wsplat [--frames 4] [--chunk 500]
@@ -40,7 +47,7 @@ impl Args {
                 if name == "help" {
                     return Err(USAGE.into());
                 }
-                if name == "compare-paths" || name == "stages" {
+                if name == "compare-paths" || name == "stages" || name == "posing" {
                     flags.push((name.to_string(), String::new())); // a switch
                     continue;
                 }
@@ -133,7 +140,7 @@ fn render(a: &Args) -> Result<(), String> {
     };
     let gpu = headless::gpu(parse_path(a)?)?;
     let mut renderer = Renderer::new(&gpu);
-    renderer.update(&scene.statics, &scene.dynamic_at(state.frame));
+    SceneUpload::default().show(&mut renderer, &scene, state.frame, Posing::for_scene(&scene))?;
     let (rgba, _) = headless::render_rgba(&mut renderer, &views, size)?;
     image::RgbaImage::from_raw(size[0], size[1], rgba).unwrap().save(out).map_err(|e| format!("{out}: {e}"))?;
     eprintln!(
@@ -194,7 +201,24 @@ fn bench_sizes(a: &Args) -> Result<(Vec<usize>, [u32; 2], usize), String> {
 }
 
 fn bench(a: &Args) -> Result<(), String> {
-    a.check_known(&["counts", "size", "frames", "path", "compare-paths", "stages", "out-dir", "sort-items", "accum"])?;
+    a.check_known(&[
+        "counts",
+        "size",
+        "frames",
+        "path",
+        "compare-paths",
+        "stages",
+        "out-dir",
+        "sort-items",
+        "accum",
+        "posing",
+        "statics",
+        "objects",
+        "object-gaussians",
+    ])?;
+    if a.get("posing").is_some() {
+        return bench_posing::bench_posing(a);
+    }
     if a.get("compare-paths").is_some() {
         return bench_paths(a);
     }

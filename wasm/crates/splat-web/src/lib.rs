@@ -5,10 +5,12 @@
 
 use splat_format::ply::{is_ply, read_ply};
 mod live_poses;
+mod profiling;
 mod sort_worker;
 
 use sort_worker::{SortWorker, WorkerMessage};
 use splat_core::renderer::{CpuSortSource, DrawPath, Gpu, Offscreen, Renderer};
+use splat_core::scene_upload::{Posing, SceneUpload};
 use splat_core::view_state::{rig_of, CameraMode, ViewState};
 use splat_format::scene::{read_wsplat, Scene, StreamingScene};
 use std::cell::RefCell;
@@ -79,7 +81,10 @@ struct Inner {
     adapter_name: String,
     scene: Scene,
     stream: Option<StreamingScene>,
-    uploaded: Option<(usize, usize, (usize, usize))>, // (static count, frame, its dynamic key) resident on the GPU
+    /// What of the scene is resident on the GPU (objects posed on the GPU unless `cpu_posing`).
+    upload: SceneUpload,
+    /// Profiling: bake the agent objects into each frame on the CPU (the comparison's "before").
+    cpu_posing: bool,
     state: ViewState,
     stats: Stats,
     input: Input,
@@ -156,7 +161,7 @@ impl Inner {
 
     fn reset_scene(&mut self) {
         self.renderer.clear();
-        self.uploaded = None;
+        self.upload.reset();
         self.playing = false;
         self.play_clock = 0.0;
         self.state.frame = 0;
@@ -165,10 +170,9 @@ impl Inner {
     fn sync_gpu(&mut self) {
         let frame = self.state.frame;
         let scene = self.stream.as_ref().map_or(&self.scene, |s| &s.scene);
-        let key = (scene.statics.len(), frame, scene.dynamic_key(frame));
-        if self.uploaded != Some(key) {
-            self.renderer.update(&scene.statics, &scene.dynamic_at(frame));
-            self.uploaded = Some(key);
+        let posing = if self.cpu_posing { Posing::Cpu } else { Posing::for_scene(scene) };
+        if let Err(e) = self.upload.show(&mut self.renderer, scene, frame, posing) {
+            web_sys::console::error_1(&format!("viewer: {e}").into());
         }
     }
 
@@ -404,7 +408,8 @@ impl Viewer {
             adapter_name: format!("{} ({:?}, {:?} path, {:?} device)", gpu.info.name, gpu.info.backend, gpu.path, gpu.info.device_type),
             scene: Scene::default(),
             stream: None,
-            uploaded: None,
+            upload: SceneUpload::default(),
+            cpu_posing: false,
             state: ViewState::default(),
             stats: Stats::default(),
             input: Input::default(),
@@ -611,61 +616,6 @@ impl Viewer {
         let mut i = self.inner.borrow_mut();
         i.drain_inbox();
         i.order_arrived
-    }
-
-    /// `{gaussians, bytes, fps, frame_ms, sort_ms, backend, path, sort_thread, ...}` as JSON.
-    pub fn stats(&self) -> String {
-        let i = self.inner.borrow();
-        serde_json::json!({
-            "gaussians": i.renderer.count(), "bytes": i.renderer.resident_bytes(), "fps": i.stats.fps,
-            "frame_ms": i.stats.frame_ms, "sort_ms": i.stats.sort_ms, "backend": i.backend,
-            "path": if i.renderer.path == DrawPath::Storage { "gpu-sort" } else { "cpu-sort" },
-            "dropped": i.scene().dropped, "sort_pending": i.stats.sort_pending,
-            "sort_thread": i.sort_thread, "sort_note": i.sort_note, "sort_main_ms": i.stats.sort_main_ms, "gather_ms": i.stats.gather_ms,
-            "upload_ms": i.stats.gather_ms, "draw_ms": i.stats.draw_ms, "blit_ms": i.stats.blit_ms,
-            "skip_splats": i.renderer.skip_splats, "square_quads": i.renderer.square_quads,
-            "accumulate": format!("{:?}", i.renderer.accum_format()),
-            "sort_latency_ms": i.stats.sort_latency_ms, "sorts_dropped": i.stats.sorts_dropped,
-            "sort_worker_ready": i.sort_worker.as_ref().is_some_and(|w| w.ready),
-            "prefix": i.stats.prefix, "drawn": i.stats.drawn, "moving_splats": i.renderer.budget.moving_splats,
-        })
-        .to_string()
-    }
-
-    /// Profiling knobs (not for pages): `{"skip_splats": bool}` sorts and uploads as usual but draws no splat (the
-    /// frame without its splat draw); `{"square_quads": bool}` draws the spec's full square per Gaussian instead
-    /// of the tight rectangle (same image, more fragments: the before/after of the tight quad in one build).
-    pub fn set_profile(&self, options: JsValue) -> Result<(), JsError> {
-        let mut i = self.inner.borrow_mut();
-        for key in ["skip_splats", "square_quads"] {
-            let v = js_sys::Reflect::get(&options, &key.into()).map_err(|_| js_err("set_profile: expected an object"))?;
-            if v.is_undefined() {
-                continue;
-            }
-            let on = v.as_bool().ok_or_else(|| js_err(format!("set_profile: {key} must be a boolean")))?;
-            match key {
-                "skip_splats" => i.renderer.skip_splats = on,
-                _ => i.renderer.square_quads = on,
-            }
-        }
-        Ok(())
-    }
-
-    /// Frame budget for large scenes: `{moving_splats: N}` draws at most the first N static Gaussians (a .wsplat
-    /// stores them in importance order) while the camera moves, and the whole scene once it holds (the page
-    /// renders again while `stats().prefix` or `needs_redraw()`); `{moving_splats: null}` (or 0) turns it off.
-    /// `read_pixels` always shows the whole scene.
-    pub fn set_frame_budget(&self, options: JsValue) -> Result<(), JsError> {
-        let v = js_sys::Reflect::get(&options, &"moving_splats".into()).map_err(|_| js_err("set_frame_budget: expected an object"))?;
-        let n = if v.is_null() || v.is_undefined() {
-            None
-        } else {
-            let n = v.as_f64().filter(|n| n.fract() == 0.0 && (0.0..=4e9).contains(n));
-            let n = n.ok_or_else(|| js_err(format!("set_frame_budget: moving_splats must be a whole number >= 0, got {v:?}")))?;
-            (n > 0.0).then_some(n as u32)
-        };
-        self.inner.borrow_mut().renderer.budget.moving_splats = n;
-        Ok(())
     }
 
     /// Render the current view offscreen and read it back through a mapped wgpu buffer: RGBA8, rows top-down.

@@ -1,6 +1,6 @@
 //! Agents moved live (web/docs/playground.md, the editor): the page reads an agent object's poses and hands the
-//! viewer new ones for every frame; the object's canonical Gaussians and the static scene stay as loaded, and the
-//! frame on screen is uploaded again (its objects are baked from the poses when a frame is uploaded).
+//! viewer new ones for every frame; the object's canonical Gaussians and the static scene stay as loaded (resident
+//! on the GPU), and the next render writes only the pose table (`splat_core::scene_upload`).
 
 use super::{js_err, Inner, Viewer};
 use splat_format::scene::Scene;
@@ -51,7 +51,7 @@ impl Viewer {
 
     /// Replace an agent object's poses: `poses` frames x 7 (translation x, y, z; quaternion w, x, y, z, box -> scene),
     /// `present` one byte per frame (0: not drawn in that frame). Frames past the arrays keep their poses. The frame on
-    /// screen is uploaded again at the next render; nothing else of the scene changes.
+    /// screen draws them at the next render (the pose table only); nothing else of the scene changes.
     pub fn set_object_poses(&self, agent_id: u32, poses: &[f32], present: &[u8]) -> Result<(), JsError> {
         if poses.len() != present.len() * WRITE_STRIDE {
             return Err(js_err(format!("{} pose floats for {} frames (7 per frame)", poses.len(), present.len())));
@@ -83,7 +83,7 @@ impl Viewer {
             }
             frame[k] = row;
         }
-        i.uploaded = None; // the dynamic key counts Gaussians, not poses: force the frame's upload
+        i.upload.pose_edits += 1; // CPU posing (more objects than the pose table holds) bakes the frame again
         Ok(())
     }
 }

@@ -2,14 +2,18 @@
 //! wasm module (the compiled `WebAssembly.Module` is posted to it, so nothing is fetched or compiled twice) and
 //! sorting with `DepthSorter` = `splat_core::cpu_sort::CpuSorter`, the one CPU sort implementation.
 //!
-//! Protocol (main -> worker): `init {module}`, `positions {version, positions: Float32Array}` once per data
-//! change (transferred), `sort {seq, version, rows: Float32Array(4 per view), skips: Uint32Array(2 per view)}` when
-//! the view changes (`skips`: the record range the frame budget leaves out, empty `[0, 0]` for the whole scene).
+//! Protocol (main -> worker): `init {module}`, `positions {version, positions: Float32Array}` once per records
+//! change (transferred; agent objects' records are canonical, so new poses send none), `sort {seq, version, rows:
+//! Float32Array(4 per view), skips: Uint32Array(2 per view), ranges: Uint32Array(2 per object), posed:
+//! Float32Array(4 per object per view)}` when the view or a pose changes (`skips`: the record range the frame budget
+//! leaves out, empty `[0, 0]` for the whole scene; `ranges`/`posed`: each agent object's records and its depth row,
+//! the camera's row times its pose, NaN where absent).
 //! Worker -> main: `ready`, `sorted {seq, version, orders: [Uint32Array per view], ms}` (transferred),
 //! `error {message}`. The renderer keeps one request in flight and drops answers that a newer request or new
 //! data superseded (`Renderer::accept_sort_result`).
 
 use splat_core::cpu_sort::CpuSorter;
+use splat_core::poses::PosedRange;
 use wasm_bindgen::prelude::*;
 
 // The worker's code is a module Blob; it imports this bundle's JS glue by URL. Inline snippets are emitted at
@@ -39,7 +43,9 @@ self.onmessage = async (e) => {
       const t0 = performance.now();
       const orders = [];
       for (let v = 0; 4 * v < m.rows.length; v++) {
-        orders.push(sorter.sort(m.rows.subarray(4 * v, 4 * v + 4), m.skips[2 * v], m.skips[2 * v + 1]));
+        const n = m.ranges.length / 2;
+        orders.push(sorter.sort(m.rows.subarray(4 * v, 4 * v + 4), m.skips[2 * v], m.skips[2 * v + 1],
+                                m.ranges, m.posed.subarray(4 * n * v, 4 * n * (v + 1))));
       }
       self.postMessage({ type: "sorted", seq: m.seq, version: m.version, orders, ms: performance.now() - t0 },
                        orders.map((o) => o.buffer));
@@ -63,8 +69,9 @@ export function spawn_sort_worker(module, onMessage) {
 export function post_positions(worker, version, positions) {
   worker.postMessage({ type: "positions", version, positions }, [positions.buffer]);
 }
-export function post_sort(worker, seq, version, rows, skips) {
-  worker.postMessage({ type: "sort", seq, version, rows, skips }, [rows.buffer, skips.buffer]);
+export function post_sort(worker, seq, version, rows, skips, ranges, posed) {
+  worker.postMessage({ type: "sort", seq, version, rows, skips, ranges, posed },
+                     [rows.buffer, skips.buffer, ranges.buffer, posed.buffer]);
 }
 export function terminate_worker(worker) {
   worker.terminate();
@@ -74,7 +81,15 @@ extern "C" {
     #[wasm_bindgen(catch)]
     fn spawn_sort_worker(module: &JsValue, on_message: &js_sys::Function) -> Result<JsValue, JsValue>;
     fn post_positions(worker: &JsValue, version: f64, positions: js_sys::Float32Array);
-    fn post_sort(worker: &JsValue, seq: f64, version: f64, rows: js_sys::Float32Array, skips: js_sys::Uint32Array);
+    fn post_sort(
+        worker: &JsValue,
+        seq: f64,
+        version: f64,
+        rows: js_sys::Float32Array,
+        skips: js_sys::Uint32Array,
+        ranges: js_sys::Uint32Array,
+        posed: js_sys::Float32Array,
+    );
     fn terminate_worker(worker: &JsValue);
 }
 
@@ -103,10 +118,19 @@ impl DepthSorter {
     }
 
     /// Visible indices nearest first for the camera's depth row (world_to_camera row 2), leaving out the indices
-    /// `skip_from..skip_to` (the frame budget; equal bounds leave none out).
-    pub fn sort(&mut self, row2: &[f32], skip_from: u32, skip_to: u32) -> Result<Vec<u32>, JsError> {
+    /// `skip_from..skip_to` (the frame budget; equal bounds leave none out); the agent objects' records
+    /// (`ranges`: start, end per object) sort by their own depth rows (`posed`: 4 floats per object).
+    pub fn sort(&mut self, row2: &[f32], skip_from: u32, skip_to: u32, ranges: &[u32], posed: &[f32]) -> Result<Vec<u32>, JsError> {
         let row: [f32; 4] = row2.try_into().map_err(|_| JsError::new(&format!("sort: a depth row has 4 floats, got {}", row2.len())))?;
-        Ok(self.sorter.sort_means(self.means.iter().copied(), row, [skip_from, skip_to]).to_vec())
+        if ranges.len() % 2 != 0 || posed.len() != 2 * ranges.len() {
+            return Err(JsError::new(&format!("sort: {} range bounds and {} posed floats (2 and 4 per object)", ranges.len(), posed.len())));
+        }
+        let posed: Vec<PosedRange> = ranges
+            .chunks_exact(2)
+            .zip(posed.chunks_exact(4))
+            .map(|(r, p)| PosedRange { start: r[0], end: r[1], row2: [p[0], p[1], p[2], p[3]] })
+            .collect();
+        Ok(self.sorter.sort_means(self.means.iter().copied(), row, [skip_from, skip_to], &posed).to_vec())
     }
 }
 
@@ -153,16 +177,27 @@ impl SortWorker {
         Ok(SortWorker { worker, positions_version: None, requested_at: 0.0, ready: false, _on_message: on_message })
     }
 
-    /// Send a request (and the positions first if the worker does not hold that data version).
+    /// Send a request (and the positions first if the worker does not hold that records version).
     pub fn send(&mut self, req: &splat_core::renderer::SortRequest, positions: impl FnOnce() -> Vec<f32>, now: f64) {
-        let version = req.data_version();
+        let version = req.records_version;
         if self.positions_version != Some(version) {
             post_positions(&self.worker, version as f64, js_sys::Float32Array::from(&positions()[..]));
             self.positions_version = Some(version);
         }
         let rows: Vec<f32> = req.keys.iter().flat_map(|k| k.row2()).collect();
         let skips: Vec<u32> = req.keys.iter().flat_map(|k| k.skip).collect();
-        post_sort(&self.worker, req.seq as f64, version as f64, js_sys::Float32Array::from(&rows[..]), js_sys::Uint32Array::from(&skips[..]));
+        // The objects' ranges are the same for every view; their depth rows are per view.
+        let ranges: Vec<u32> = req.posed.first().map_or(Vec::new(), |p| p.iter().flat_map(|r| [r.start, r.end]).collect());
+        let posed: Vec<f32> = req.posed.iter().flatten().flat_map(|r| r.row2).collect();
+        post_sort(
+            &self.worker,
+            req.seq as f64,
+            version as f64,
+            js_sys::Float32Array::from(&rows[..]),
+            js_sys::Uint32Array::from(&skips[..]),
+            js_sys::Uint32Array::from(&ranges[..]),
+            js_sys::Float32Array::from(&posed[..]),
+        );
         self.requested_at = now;
     }
 }

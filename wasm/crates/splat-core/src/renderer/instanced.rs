@@ -8,10 +8,13 @@ use crate::external_sort::{CpuSortSource, SortRequest};
 use crate::quads::INDICES_PER_INSTANCE;
 use crate::records::RecordTextures;
 use crate::view::{DrawPath, ViewRect, ViewUniform, QUAD_BATCH};
+use splat_format::gaussians::PACKED_SPLAT_BYTES;
 
 /// Instanced path: upload a draw order into the order texture; returns the number of Gaussians it draws.
-fn write_order(queue: &wgpu::Queue, records: &Option<RecordTextures>, order: &[u32]) -> u32 {
-    records.as_ref().expect("instanced path").write_order(queue, order)
+fn write_order(queue: &wgpu::Queue, records: &Option<RecordTextures>, order: &[u32], uploaded_bytes: &mut u64) -> u32 {
+    let drawn = records.as_ref().expect("instanced path").write_order(queue, order);
+    *uploaded_bytes += 4 * drawn as u64;
+    drawn
 }
 
 impl Renderer {
@@ -35,7 +38,10 @@ impl Renderer {
     /// External sort: the request to send now, if the last render wanted an order that is neither in hand nor
     /// in flight. At most one request is in flight.
     pub fn take_sort_request(&mut self) -> Option<SortRequest> {
-        self.external.take_request(self.data_version)
+        let mut req = self.external.take_request(self.data_version)?;
+        req.records_version = self.records_version;
+        req.posed = req.keys.iter().map(|k| self.posed_ranges(k.row2())).collect();
+        Some(req)
     }
 
     /// External sort: the sorter answered request `seq` with one order per view (visible indices, nearest first).
@@ -68,6 +74,7 @@ impl Renderer {
         if let Some(t) = self.records.as_mut() {
             if self.records_valid < self.cpu_records.len() {
                 t.write(&self.queue, self.records_valid, &self.cpu_records[self.records_valid..]);
+                self.uploaded_bytes += ((self.cpu_records.len() - self.records_valid) * PACKED_SPLAT_BYTES) as u64;
             }
         }
         self.records_valid = self.cpu_records.len();
@@ -99,7 +106,8 @@ impl Renderer {
             // view. The order is the same either way (one implementation, `CpuSorter`).
             let t0 = (self.clock)();
             for key in keys {
-                let order = self.cpu_sorter.sort_for(&self.cpu_records, key).to_vec();
+                let posed = self.posed_ranges(key.row2());
+                let order = self.cpu_sorter.sort_for(&self.cpu_records, key, &posed).to_vec();
                 self.external.orders.push((*key, order));
             }
             stats.cpu_sort_ms += (self.clock)() - t0;
@@ -111,9 +119,10 @@ impl Renderer {
             if self.cpu_sort_source == CpuSortSource::External {
                 self.draw_external_order(i, key, views.len(), stats);
             } else if views.len() > 1 {
-                let order = self.cpu_sorter.sort_for(&self.cpu_records, &key);
+                let posed = self.posed_ranges(key.row2());
+                let order = self.cpu_sorter.sort_for(&self.cpu_records, &key, &posed);
                 let tg = (self.clock)();
-                self.uploaded_visible = write_order(&self.queue, &self.records, order);
+                self.uploaded_visible = write_order(&self.queue, &self.records, order, &mut self.uploaded_bytes);
                 self.uploaded_prefix = key.is_prefix();
                 stats.records_uploaded += self.uploaded_visible as u64;
                 stats.gather_ms += (self.clock)() - tg;
@@ -122,10 +131,10 @@ impl Renderer {
                 stats.sort_reused = true;
             } else {
                 if self.cpu_job.as_ref().is_none_or(|j| j.key != key) {
-                    match self.cpu_job.as_mut() {
-                        Some(job) => job.restart(key), // reuses its buffers
-                        None => self.cpu_job = Some(CpuSortJob::new(key)),
-                    }
+                    let posed = self.posed_ranges(key.row2());
+                    let job = self.cpu_job.get_or_insert_with(|| CpuSortJob::new(key));
+                    job.restart(key); // reuses its buffers
+                    job.posed = posed;
                 }
                 // Slice only when just the view moved and an order exists to draw meanwhile.
                 let stale_ok = self.last_sort.is_some_and(|k| k.data_version == self.data_version);
@@ -133,7 +142,7 @@ impl Renderer {
                 let job = self.cpu_job.as_mut().unwrap();
                 if job.step(&self.cpu_records, budget, self.clock) {
                     let tg = (self.clock)();
-                    self.uploaded_visible = write_order(&self.queue, &self.records, job.order());
+                    self.uploaded_visible = write_order(&self.queue, &self.records, job.order(), &mut self.uploaded_bytes);
                     self.uploaded_prefix = key.is_prefix();
                     stats.records_uploaded += self.uploaded_visible as u64;
                     stats.gather_ms += (self.clock)() - tg;
@@ -187,7 +196,7 @@ impl Renderer {
         let have = *have;
         let exact = have == key;
         stats.sort_pending |= !exact;
-        if views == 1 && self.uploaded_order == Some((have, self.data_version)) {
+        if views == 1 && self.uploaded_order == Some((have, self.records_version)) {
             stats.sort_reused = exact; // the order texture already holds this order: nothing to upload
             return;
         }
@@ -205,9 +214,9 @@ impl Renderer {
             self.order_scratch.extend(order.iter().copied().filter(|&i| i < count));
             &self.order_scratch
         };
-        self.uploaded_visible = write_order(&self.queue, &self.records, order);
+        self.uploaded_visible = write_order(&self.queue, &self.records, order, &mut self.uploaded_bytes);
         self.uploaded_prefix = have.is_prefix();
-        self.uploaded_order = (views == 1).then_some((have, self.data_version));
+        self.uploaded_order = (views == 1).then_some((have, self.records_version));
         stats.records_uploaded += self.uploaded_visible as u64;
         stats.gather_ms += (self.clock)() - tg;
     }

@@ -14,6 +14,7 @@
 
 mod blit;
 mod instanced;
+mod objects;
 mod pipeline;
 mod storage;
 
@@ -21,6 +22,7 @@ use crate::budget::FrameBudget;
 use crate::cpu_sort::{CpuSortJob, CpuSorter, SortKey};
 use crate::external_sort::ExternalSort;
 use crate::gpu_sort::{GpuSort, SortBindings};
+use crate::poses::{PoseTable, POSE_TABLE_BYTES};
 use crate::quads::quad_index_buffer;
 use crate::records::RecordTextures;
 use blit::Blit;
@@ -88,6 +90,17 @@ pub struct Renderer {
     // Bind groups, made once and again only when what they bind is replaced.
     splat_bind: Option<wgpu::BindGroup>,
     sort_bind: Option<SortBindings>,
+    /// Agent objects posed on the GPU (`objects.rs`): their canonical records, resident right after the statics,
+    /// the pose table (CPU side) and its uniform buffer (what was last written to it, to write only changes).
+    objects: Vec<PackedSplat>,
+    objects_placed: bool,
+    pose_table: PoseTable,
+    pose_buf: wgpu::Buffer,
+    pose_written: Vec<u8>,
+    /// Bumped when the resident records change (not when only poses do): the positions an external sorter holds.
+    records_version: u64,
+    /// Bytes written to the GPU so far (records, draw orders, pose tables): what a frame uploads, for benchmarks.
+    uploaded_bytes: u64,
     // Instanced path: the records (static then dynamic) as the CPU sorts them.
     cpu_records: Vec<PackedSplat>,
     cpu_sorter: CpuSorter,
@@ -104,7 +117,8 @@ pub struct Renderer {
     /// Instanced path: sort in `render` or take orders from outside (a Web Worker).
     cpu_sort_source: CpuSortSource,
     external: ExternalSort,
-    /// External sort, single view: (order key, data version) of the order in the order texture.
+    /// External sort, single view: (order key, records version) of the order in the order texture (a new pose keeps
+    /// it: the same records, the old order drawn until the new one arrives).
     uploaded_order: Option<(SortKey, u64)>,
     /// Instanced path: the order in the order texture leaves Gaussians out (a budget prefix).
     uploaded_prefix: bool,
@@ -161,6 +175,18 @@ impl Renderer {
             records_valid: 0,
             splat_bind: None,
             sort_bind: None,
+            objects: Vec::new(),
+            objects_placed: true,
+            pose_table: PoseTable::default(),
+            pose_buf: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("pose table"),
+                size: POSE_TABLE_BYTES,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false, // zeros: no objects
+            }),
+            pose_written: Vec::new(),
+            records_version: 0,
+            uploaded_bytes: 0,
             cpu_records: Vec::new(),
             cpu_sorter: CpuSorter::default(),
             order_scratch: Vec::new(),
@@ -212,7 +238,10 @@ impl Renderer {
 
     /// GPU bytes held per scene: records + draw order (+ sort scratch on the compute path).
     pub fn resident_bytes(&self) -> u64 {
-        self.splat_buf.size() + self.gpu_sort.as_ref().map_or(0, |s| s.bytes()) + self.records.as_ref().map_or(0, |t| t.bytes())
+        self.splat_buf.size()
+            + self.gpu_sort.as_ref().map_or(0, |s| s.bytes())
+            + self.records.as_ref().map_or(0, |t| t.bytes())
+            + self.pose_buf.size()
     }
 
     /// The GPU radix sort (storage path).
@@ -229,8 +258,18 @@ impl Renderer {
         u
     }
 
-    /// Forget the scene.
+    /// Forget the scene (its objects too).
     pub fn clear(&mut self) {
+        self.forget_resident();
+        self.objects.clear();
+        self.pose_table = PoseTable::default();
+        self.write_pose_table();
+    }
+
+    /// Forget the resident records; objects set by `set_objects` stay, to be placed by the next `update`.
+    fn forget_resident(&mut self) {
+        self.objects_placed = false;
+        self.records_version += 1;
         self.data_version += 1;
         self.num_static = 0;
         self.count = 0;
@@ -254,16 +293,18 @@ impl Renderer {
         views.iter().map(|v| SortKey::new(self.data_version, ViewUniform::new(&v.camera, v.origin, self.count).row2)).collect()
     }
 
-    /// Make the resident set `statics ++ dynamic`. `statics` may only have grown since the last call (streaming
-    /// appends); only the new static tail and the dynamic set are uploaded.
+    /// Make the resident set `statics ++ objects ++ dynamic` (objects: `set_objects`, posed per frame by
+    /// `set_poses`). `statics` may only have grown since the last call (streaming appends); only the new static
+    /// tail, the objects where they or the statics changed, and the dynamic set are uploaded.
     pub fn update(&mut self, statics: &[PackedSplat], dynamic: &[PackedSplat]) {
         if (statics.len() as u32) < self.num_static {
-            self.clear();
+            self.forget_resident();
         }
-        let total = (statics.len() + dynamic.len()) as u32;
+        let total = (statics.len() + self.objects.len() + dynamic.len()) as u32;
         let mut from = self.num_static as usize;
+        let mut place_objects = !self.objects_placed || statics.len() != self.num_static as usize;
         // Streaming appends statics with no dynamic set: earlier indices keep naming the same Gaussians.
-        let append_only = dynamic.is_empty() && self.count == self.num_static;
+        let append_only = dynamic.is_empty() && self.count == self.num_static && self.objects.is_empty();
         if total > self.capacity {
             let capacity = total.max(self.capacity.saturating_mul(3) / 2).max(1024);
             self.splat_buf = Self::make_splat_buffer(&self.device, self.path, capacity);
@@ -273,6 +314,7 @@ impl Renderer {
             self.splat_bind = None;
             self.sort_bind = None;
             from = 0;
+            place_objects = true;
             if let Some(s) = self.gpu_sort.as_mut() {
                 s.ensure_capacity(&self.device, capacity);
             }
@@ -281,30 +323,43 @@ impl Renderer {
                 self.records_valid = 0;
             }
         }
+        let dynamic_at = statics.len() + self.objects.len();
         match self.path {
             DrawPath::Storage => {
-                if from < statics.len() {
-                    self.queue.write_buffer(&self.splat_buf, (from * PACKED_SPLAT_BYTES) as u64, bytemuck::cast_slice(&statics[from..]));
+                let mut write = |at: usize, records: &[PackedSplat]| {
+                    if !records.is_empty() {
+                        self.queue.write_buffer(&self.splat_buf, (at * PACKED_SPLAT_BYTES) as u64, bytemuck::cast_slice(records));
+                        self.uploaded_bytes += (records.len() * PACKED_SPLAT_BYTES) as u64;
+                    }
+                };
+                write(from, &statics[from.min(statics.len())..]);
+                if place_objects {
+                    write(statics.len(), &self.objects);
                 }
-                if !dynamic.is_empty() {
-                    self.queue.write_buffer(&self.splat_buf, (statics.len() * PACKED_SPLAT_BYTES) as u64, bytemuck::cast_slice(dynamic));
-                }
+                write(dynamic_at, dynamic);
             }
             DrawPath::Instanced => {
                 // The textures take the change when an order for it draws (`flush_records`): until then they
                 // keep the records the order in the order texture names.
-                self.cpu_records.truncate(self.num_static as usize);
-                self.cpu_records.extend_from_slice(&statics[self.num_static as usize..]);
+                let keep = if place_objects { self.num_static as usize } else { dynamic_at };
+                self.cpu_records.truncate(keep);
+                if place_objects {
+                    self.cpu_records.extend_from_slice(&statics[self.num_static as usize..]);
+                    self.cpu_records.extend_from_slice(&self.objects);
+                }
                 self.cpu_records.extend_from_slice(dynamic);
-                self.records_valid = self.records_valid.min(self.num_static as usize);
+                self.records_valid = self.records_valid.min(keep);
             }
         }
+        self.objects_placed = true;
         self.num_static = statics.len() as u32;
         self.count = total;
         self.data_version += 1;
+        self.records_version += 1;
         if !append_only {
             self.index_epoch = self.data_version;
         }
+        self.write_pose_table(); // the objects' first record follows the statics
     }
 
     fn ensure_accum(&mut self, size: [u32; 2]) {
@@ -337,14 +392,18 @@ impl Renderer {
             size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
         });
         let entry = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+        let poses = self.pose_buf.as_entire_binding();
         let entries = match (&self.gpu_sort, &self.records) {
-            (Some(sort), _) => vec![entry(0, view), entry(1, self.splat_buf.as_entire_binding()), entry(2, sort.order().as_entire_binding())],
+            (Some(sort), _) => {
+                vec![entry(0, view), entry(1, self.splat_buf.as_entire_binding()), entry(2, sort.order().as_entire_binding()), entry(3, poses)]
+            }
             (None, Some(t)) => {
                 vec![
                     entry(0, view),
                     entry(1, wgpu::BindingResource::TextureView(&t.view_a)),
                     entry(2, wgpu::BindingResource::TextureView(&t.view_b)),
                     entry(3, wgpu::BindingResource::TextureView(&t.view_order)),
+                    entry(4, poses),
                 ]
             }
             (None, None) => unreachable!("a renderer has a GPU sort or record textures"),
@@ -358,7 +417,7 @@ impl Renderer {
         if let Some(b) = &self.sort_bind {
             return b.clone();
         }
-        let b = self.gpu_sort.as_ref().expect("storage path").bind_groups(&self.device, &self.view_buf, &self.splat_buf);
+        let b = self.gpu_sort.as_ref().expect("storage path").bind_groups(&self.device, &self.view_buf, &self.splat_buf, &self.pose_buf);
         self.sort_bind = Some(b.clone());
         b
     }
@@ -443,7 +502,8 @@ impl Renderer {
             }
             DrawPath::Instanced => {
                 let t0 = (self.clock)();
-                self.cpu_sorter.sort(&self.cpu_records, u.row2);
+                let posed = self.posed_ranges(u.row2);
+                self.cpu_sorter.sort_means(self.cpu_records.iter().map(|r| r.mean), u.row2, [0, 0], &posed);
                 (self.clock)() - t0
             }
         }

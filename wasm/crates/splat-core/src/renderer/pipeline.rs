@@ -3,6 +3,7 @@
 //! per-view render pass.
 
 use super::{Renderer, UNIFORM_STRIDE};
+use crate::poses::POSE_TABLE_BYTES;
 use crate::shaders::splat_shader_source;
 use crate::view::{DrawPath, ViewRect, ViewUniform};
 
@@ -32,6 +33,17 @@ pub(super) fn splat_pipeline(
         ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only: true }, has_dynamic_offset: false, min_binding_size: None },
         count: None,
     };
+    // The agent objects' pose table (poses.rs), a plain uniform on both paths (WebGL2 has no storage buffers).
+    let pose_entry = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::VERTEX,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: wgpu::BufferSize::new(POSE_TABLE_BYTES),
+        },
+        count: None,
+    };
     let record_entry = |binding| wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::VERTEX,
@@ -43,8 +55,8 @@ pub(super) fn splat_pipeline(
         count: None,
     };
     let entries: Vec<wgpu::BindGroupLayoutEntry> = match path {
-        DrawPath::Storage => vec![uniform_entry, storage_entry(1), storage_entry(2)],
-        DrawPath::Instanced => vec![uniform_entry, record_entry(1), record_entry(2), record_entry(3)],
+        DrawPath::Storage => vec![uniform_entry, storage_entry(1), storage_entry(2), pose_entry(3)],
+        DrawPath::Instanced => vec![uniform_entry, record_entry(1), record_entry(2), record_entry(3), pose_entry(4)],
     };
     let splat_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("splat bgl"), entries: &entries });
     let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {

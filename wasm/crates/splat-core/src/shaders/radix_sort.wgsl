@@ -1,4 +1,4 @@
-// GPU LSD radix sort of the draw order by camera depth (prepended: constants.wgsl, view.wgsl).
+// GPU LSD radix sort of the draw order by camera depth (prepended: constants.wgsl, view.wgsl, poses.wgsl).
 // Classic reduce-then-scan, 8 passes of 4 bits: histogram per block -> one exclusive scan -> stable scatter.
 // No decoupled look-back / onesweep: no workgroup ever waits on another (those hang some GPUs).
 // Keys are never stored: every pass recomputes the depth key of an index from the splat buffer, so the sort
@@ -21,14 +21,16 @@ struct Pass { shift: u32, p0: u32, p1: u32, p2: u32 }
 // QUAD_BATCH)), first_index, base_vertex, first_instance; then the visible count itself.
 @group(0) @binding(5) var<storage, read_write> draw_args: array<atomic<u32>, 8>;
 @group(0) @binding(6) var<uniform> pass_info: Pass;
+@group(0) @binding(7) var<uniform> pose_table: PoseTable;
 
 // Visible depths are positive floats, whose bit patterns order like the values; culled ones (behind the near plane,
 // or left out by the frame budget) sort last.
 fn depth_key(index: u32) -> u32 {
     if skipped(view, index) { return 0xffffffffu; }
     let s = splats[index];
-    let z = camera_z(view, vec3<f32>(s.mx, s.my, s.mz));
-    if z > NEAR { return bitcast<u32>(z); }
+    let m = placed_mean(index, vec3<f32>(s.mx, s.my, s.mz)); // an object's posed mean (poses.wgsl)
+    let z = camera_z(view, m.xyz);
+    if m.w != 0.0 && z > NEAR { return bitcast<u32>(z); }
     return 0xffffffffu;
 }
 

@@ -1,4 +1,4 @@
-// Gaussian splat quads (web/docs/splatting-math.md). Prepended: constants.wgsl, view.wgsl. Appended: one of
+// Gaussian splat quads (web/docs/splatting-math.md). Prepended: constants.wgsl, view.wgsl, poses.wgsl. Appended: one of
 // splat_storage.wgsl (WebGPU/Vulkan: sorted index into a storage buffer) or splat_instanced.wgsl (WebGL2:
 // the records themselves arrive sorted as instance attributes).
 
@@ -45,8 +45,9 @@ fn unpack_shape(shape0: u32, shape1: u32) -> mat3x3<f32> {
         vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)) * s.z);
 }
 
-// Project one Gaussian and emit corner `corner` (0..3, triangle strip) of its screen-space square.
-fn splat_vertex(mean: vec3<f32>, shape0: u32, shape1: u32, rgba: u32, corner: u32) -> VsOut {
+// Project one Gaussian (mean and covariance factor in the scene, `place`) and emit corner `corner` (0..3, triangle
+// strip) of its screen-space quad.
+fn splat_vertex(mean: vec3<f32>, factor: mat3x3<f32>, rgba: u32, corner: u32) -> VsOut {
     let w = mat3x3<f32>(
         vec3<f32>(view.row0.x, view.row1.x, view.row2.x),
         vec3<f32>(view.row0.y, view.row1.y, view.row2.y),
@@ -56,7 +57,7 @@ fn splat_vertex(mean: vec3<f32>, shape0: u32, shape1: u32, rgba: u32, corner: u3
     let fx = view.intrinsics.x; let fy = view.intrinsics.y;
     let width = view.size.x; let height = view.size.y;
 
-    let wm = w * unpack_shape(shape0, shape1); // camera-space factor: Sigma_c = wm wm^T
+    let wm = w * factor; // camera-space factor: Sigma_c = wm wm^T
     let lim_x = CLAMP * 0.5 * width / fx;
     let lim_y = CLAMP * 0.5 * height / fy;
     let tx = p.z * clamp(p.x / p.z, -lim_x, lim_x);

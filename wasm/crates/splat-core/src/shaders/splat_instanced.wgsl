@@ -6,6 +6,7 @@ const RECORD_TEX_WIDTH: u32 = 2048u;
 @group(0) @binding(1) var records_a: texture_2d<u32>; // mean x, y, z (f32 bits), rgba
 @group(0) @binding(2) var records_b: texture_2d<u32>; // shape0, shape1
 @group(0) @binding(3) var draw_order: texture_2d<u32>; // texel k: the record drawn k-th
+@group(0) @binding(4) var<uniform> pose_table: PoseTable;
 
 fn texel_of(i: u32) -> vec2<i32> {
     return vec2<i32>(i32(i % RECORD_TEX_WIDTH), i32(i / RECORD_TEX_WIDTH));
@@ -21,5 +22,7 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     let index = textureLoad(draw_order, texel_of(slot), 0).x;
     let a = textureLoad(records_a, texel_of(index), 0);
     let b = textureLoad(records_b, texel_of(index), 0);
-    return splat_vertex(bitcast<vec3<f32>>(a.xyz), b.x, b.y, a.w, vi % 4u);
+    let g = place(index, bitcast<vec3<f32>>(a.xyz), unpack_shape(b.x, b.y));
+    if !g.present { return culled(); }
+    return splat_vertex(g.mean, g.factor, a.w, vi % 4u);
 }

@@ -2,6 +2,7 @@
 // draw (ceil(visible / QUAD_BATCH) instances of QUAD_BATCH quads, view.wgsl).
 @group(0) @binding(1) var<storage, read> splats: array<Splat>;
 @group(0) @binding(2) var<storage, read> order: array<u32>;
+@group(0) @binding(3) var<uniform> pose_table: PoseTable;
 
 @vertex
 fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
@@ -12,5 +13,7 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     let index = order[slot];
     if skipped(view, index) { return culled(); }
     let s = splats[index];
-    return splat_vertex(vec3<f32>(s.mx, s.my, s.mz), s.shape0, s.shape1, s.rgba, vi % 4u);
+    let g = place(index, vec3<f32>(s.mx, s.my, s.mz), unpack_shape(s.shape0, s.shape1));
+    if !g.present { return culled(); }
+    return splat_vertex(g.mean, g.factor, s.rgba, vi % 4u);
 }

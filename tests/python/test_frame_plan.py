@@ -170,3 +170,15 @@ def test_the_long_clip_bench_reads_the_streamed_file_back():
     assert row["agent_objects"] == agents > 0
     dyn = sum(row["chunk_bytes"].get(k, 0) for k in ("OBJC", "POSE", "DYNA"))
     assert row["dynamic_bytes_per_agent_frame"] == round(dyn / (agents * 12), 1)
+
+
+def test_the_nearest_camera_distance_is_exact_over_a_long_clips_cameras():
+    from worldsplat.gaussians.aggregate import nearest_distance
+
+    rng = np.random.default_rng(3)
+    centres = np.cumsum(rng.normal(0, 0.5, (1200, 3)), 0)  # 200 frames x 6 cameras along a track
+    p = rng.uniform(-60, 60, (4000, 3)) + centres[rng.integers(0, 1200, 4000)]
+    brute = np.sqrt(((p[:, None, :] - centres[None]) ** 2).sum(2)).min(1)
+    np.testing.assert_array_equal(nearest_distance(p, centres), brute)  # the same numbers, not close ones
+    assert nearest_distance(np.zeros((0, 3)), centres).shape == (0,)
+    assert np.isinf(nearest_distance(p[:3], np.zeros((0, 3)))).all()

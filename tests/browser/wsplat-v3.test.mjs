@@ -1,7 +1,8 @@
 // .wsplat v3 in the browser (web/docs/wsplat-v3.md): the wasm bundle in web/pkg decodes a file with agent objects
 // (OBJC: canonical Gaussians once; POSE: a pose per object per frame), whole and streamed, and draws the objects
-// posed in every frame, through WebGL2 and WebGPU (the scene bakes the posed objects into the frame's dynamic set on
-// the CPU when the frame is drawn, so both paths draw and sort them as dynamic Gaussians).
+// posed in every frame, through WebGL2 and WebGPU (the objects are posed on the GPU: resident once, a pose table per
+// frame read by the projection and the sort; WebGPU runs twice: the CPU sort in the worker, the page's default on
+// SwiftShader, and the GPU radix sort, `sort: "gpu"`, whose depth keys pose the objects on the GPU).
 // Files: tests/browser/lib/wsplat_v3_files.py: the v2 test's 4D fixture with two cars as objects (one absent in
 // frame 2) as v3, v3 streamed (two windows), the reference (the v3 file's dynamics with its objects posed in Python,
 // beside the same statics, as v2), and v3 without the objects; WSPLAT_V3_SCENE=SCENE.wsplat (a v3 file with agent
@@ -70,12 +71,12 @@ function diff(a, b) {
   return { max: m, px };
 }
 
-for (const path of ["webgl2", "webgpu"]) {
-  describe(`.wsplat v3 (agent objects) in headless Chromium via ${path}`, () => {
+for (const [path, sort] of [["webgl2"], ["webgpu"], ["webgpu", "gpu"]]) {
+  describe(`.wsplat v3 (agent objects) in headless Chromium via ${path}${sort ? ` (${sort} sort)` : ""}`, () => {
     let browser, page, info;
     before(async () => {
       browser = await launch(path);
-      ({ page, info } = await openHarness(browser.context, server.url, path, [320, 180], { accumulate: "f16" }));
+      ({ page, info } = await openHarness(browser.context, server.url, path, [320, 180], { accumulate: "f16", ...(sort ? { sort } : {}) }));
       console.log(`# ${path}: ${info.unavailable ? "UNAVAILABLE in this Chromium" : `${info.backend} on ${info.adapter}`}`);
     });
     after(async () => { await browser?.close(); });
@@ -98,13 +99,15 @@ for (const path of ["webgl2", "webgpu"]) {
           `${name} v3_streamed: drew from a static prefix before the stream ended`);
         got.v3_streamed = await views(page);
         assert.equal(got.v3.stats.gaussians, got.v2_baked.stats.gaussians, `${name} v3: Gaussians resident at frame 0`);
+        assert.equal(got.v3.stats.posing, "gpu", `${name} v3: the objects are posed on the GPU`);
+        if (sort) assert.equal(got.v3.stats.sort_thread, "gpu", `${name}: the GPU radix sort ran`);
         for (let i = 0; i < VIEWS.length; i++) {
           const ref = got.v2_baked.views[i], cur = got.v3.views[i];
           const db = await page.evaluate(([x, y]) => window.harness.psnrBetween(x, y), [ref.pixels, cur.pixels]);
           const d = diff(ref.pixels, cur.pixels);
           const objs = diff(cur.pixels, got.v3_no_objects.views[i].pixels);
           const sobjs = diff(got.v3_streamed.views[i].pixels, got.v3_no_objects.views[i].pixels);
-          console.log(`# ${path} ${name} ${cur.view}: v3 vs reference ${db >= 999 ? "identical" : `${db.toFixed(2)} dB, max |diff| ${d.max}, ${d.px} px > 32`}; ` +
+          console.log(`# ${path}${sort ? `/${sort}-sort` : ""} ${name} ${cur.view}: v3 vs reference ${db >= 999 ? "identical" : `${db.toFixed(2)} dB, max |diff| ${d.max}, ${d.px} px > 32`}; ` +
             `objects cover ${objs.px} px (streamed ${sobjs.px}); ${cur.lit} lit px; ${files.files.v3.bytes} vs ${files.files.v2_baked.bytes} bytes`);
           assert.ok(cur.lit > 500, `${name} ${cur.view}: the view shows the scene`);
           const share = d.px / (Buffer.from(cur.pixels, "base64").length / 4);

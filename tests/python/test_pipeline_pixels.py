@@ -71,6 +71,30 @@ def test_served_maps_lift_sky_onto_the_shell_and_every_pixel_once():
     assert sky[:3].all() and not sky[5:].any()
 
 
+def test_ground_snap_puts_the_decoded_road_on_its_plane_and_leaves_walls_and_agents():
+    """A camera 1.5 m above the plane z = 0, level: below the horizon the ray meets the ground at 1.5 / y camera z.
+    Decoded depths 6 % off the plane land on it; a wall (depth far from the plane's), a moving agent's pixels and
+    the sky (+inf, above the horizon) keep theirs."""
+    from worldsplat.core.camera import Camera
+
+    # OpenCV axes (x right, y down, z forward) in a z-up world: camera x = world -y, y = -z, z = +x, 1.5 m up
+    c2w = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.5], [0, 0, 0, 1]], float)
+    cam = Camera(16, 12, 10.0, 10.0, 8.0, 6.0, np.linalg.inv(c2w))
+    g = pixels.ground_depth(cam)
+    y = (np.arange(12) + 0.5 - 6.0) / 10.0
+    assert np.allclose(g[6:], (1.5 / y[6:])[:, None] * np.ones(16)) and np.isinf(g[:6]).all()
+    decoded = np.where(np.isfinite(g), g * 1.06, np.inf)[None].copy()
+    decoded[0, 10, :4] = g[10, :4] * 0.5  # a wall in front of the ground
+    dyn = np.zeros((1, 12, 16), bool)
+    dyn[0, 8, 8:] = True
+    out = pixels.snap_to_ground(decoded, dyn, [cam])[0]
+    ground = np.isfinite(g) & ~dyn[0]
+    ground[10, :4] = False
+    assert np.allclose(out[ground], g[ground])
+    assert np.allclose(out[10, :4], g[10, :4] * 0.5) and np.allclose(out[8, 8:], g[8, 8:] * 1.06)
+    assert np.isinf(out[:6]).all()
+
+
 def test_layout_maps_upsample_with_their_depths_edge_aware():
     h, w, H, W = 8, 14, 14, 24
     c = torch.zeros(1, len(LAYOUT_CHANNELS), h, w)
@@ -144,8 +168,8 @@ def test_reconstruct_lifts_one_gaussian_per_rig_pixel_and_keeps_the_decoder_opti
 
 @pytest.mark.skipif("reconstruct" not in inf.available_modes(), reason="no shipped weights in models/weights")
 def test_pixel_lifted_learned_scene_is_at_least_as_dense_as_the_oracle():
-    """Gaussians per served pixel at frame 0 of a small held-out world: reconstruct lifted per pixel >= the oracle
-    (the latent decoder's grid has about a third of them)."""
+    """Gaussians per served pixel at frame 0 of a small held-out world: reconstruct as served (lifted per pixel,
+    `inference.GAUSSIANS`) >= the oracle (the latent decoder's grid has about a third of them)."""
     from worldsplat.core.scenario import random_scenario
     from worldsplat.pipeline.scene import oracle_scene
     from worldsplat.world import build_world, simulate
@@ -154,7 +178,8 @@ def test_pixel_lifted_learned_scene_is_at_least_as_dense_as_the_oracle():
     clip = simulate(world)
     served_px = len(clip.rig) * 100 * 56
     oracle = len(oracle_scene(clip).at_frame(0)) / served_px
-    dec = inf.reconstruct(clip, gaussians="pixels")
+    dec = inf.reconstruct(clip)
+    assert dec.source == "pixels"
     pixel = inf.to_scene4d(dec).at_frame(0)
     grid = inf.to_scene4d(inf.reconstruct(clip, gaussians="decoder")).at_frame(0)
     assert torch.isfinite(pixel.means).all() and torch.isfinite(pixel.colors).all()

@@ -316,8 +316,9 @@ def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder) -> tuple[l
 
 
 def _lift_pixels(models: Models, L, rig, ego_to_world, wins) -> tuple[list[list], list[list]]:
-    """The VAE's decoding of L, up-sampled to the rig's image and lifted per pixel (`pipeline.pixels`): Gaussians
-    [t][v] (H*W each, row-major) and dynamic logits (+-15 from the lifted mask), window by window."""
+    """The VAE's decoding of L, up-sampled to the rig's image, its ground onto the plane (`pixels.snap_to_ground`)
+    and lifted per pixel (`pipeline.pixels`): Gaussians [t][v] (H*W each, row-major) and dynamic logits (+-15 from
+    the lifted mask), window by window."""
     d, V = models.data, len(rig)
     size = (rig[0].height, rig[0].width)
     gs, logits = [[None] * V for _ in range(L.shape[0])], [[None] * V for _ in range(L.shape[0])]
@@ -326,6 +327,7 @@ def _lift_pixels(models: Models, L, rig, ego_to_world, wins) -> tuple[list[list]
         guide = pixel_guide(models, L[frames])
         rgb, depth, dyn = pixels.served_maps(guide.reshape(-1, *guide.shape[2:]), size, d.depth_near, d.depth_far)
         cams = [rig[v].at(ego_to_world[t]) for t in frames for v in range(V)]
+        depth = pixels.snap_to_ground(depth, dyn, cams)
         views = pixels.lift_views(rgb, depth, dyn, cams)
         for i, t in enumerate(frames):
             for v in range(V):

@@ -2,9 +2,10 @@
 image) up-sampled to the rig's image and lifted one opaque Gaussian per pixel by the oracle's lifting
 (`gaussians.lift`, the sky on its far shell), so a learned scene holds as many Gaussians per served pixel as the
 oracle's and its footprints tile the surface at any display size (the latent decoder's 2x2-model-pixel grid of
-translucent Gaussians shows as a cell grid; web/docs/models.md, "Gaussians per pixel").
+translucent Gaussians shows as a cell grid; web/docs/models.md, "Served Gaussians per mode").
 
     rgb, depth, dynamic = served_maps(guide, (H, W), near, far)   # guide: inference.pixel_guide, (N, 5, h, w)
+    depth = snap_to_ground(depth, dynamic, cameras)               # the road where the frames' decodings agree
     views = lift_views(rgb, depth, dynamic, cameras)              # one Gaussians per map, H * W each
     control = upsample_layout(control, (H, W))                    # the layout maps at the same grid, for the snaps
 
@@ -101,6 +102,33 @@ def served_maps(
     depth = torch.where(depth >= SKY_DEPTH_M, torch.full_like(depth, math.inf), depth)
     dyn = F.interpolate(guide[:, 4:5], size=size, mode="bilinear", align_corners=False)[:, 0] > 0.5
     return rgb.permute(0, 2, 3, 1).numpy(), depth.numpy(), dyn.numpy()
+
+
+# The worlds' ground (road, markings, kerbs, sidewalks, terrain) is the plane z = 0 of the scene frame. A decoded depth
+# within this log ratio of the plane's along its ray is ground and takes the plane's depth: each frame's decoding puts
+# the road a few per cent off, differently, and the frames' copies of it then leave seams where they meet (the finest
+# rule keeps each where it is finest). A vertical surface's pixels within it are its bottom 0.14 m (camera 1.5 m up).
+GROUND_LOG_TOL = 0.1
+
+
+def ground_depth(camera: Camera) -> np.ndarray:
+    """(H, W) camera z at which each pixel's ray meets the plane z = 0 (+inf where it never does)."""
+    origin, dirs = camera.pixel_rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = -origin[2] / dirs[..., 2]
+    return np.where(np.isfinite(z) & (z > 0), z, np.inf)
+
+
+def snap_to_ground(depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera], tol: float = GROUND_LOG_TOL):
+    """Depth maps (N, H, W) of N views -> the same with each static pixel within exp(+-tol) of the ground plane's
+    depth (`ground_depth`) on the plane."""
+    out = depth.copy()
+    for i, cam in enumerate(cameras):
+        g = ground_depth(cam)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            on = np.isfinite(g) & np.isfinite(depth[i]) & (np.abs(np.log(depth[i] / g)) < tol) & ~dynamic[i]
+        out[i] = np.where(on, g, depth[i])
+    return out
 
 
 def lift_views(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera]) -> list[Gaussians]:

@@ -131,6 +131,34 @@ mod tests {
         want.sort_by(|&a, &b| records[a as usize].mean[2].partial_cmp(&records[b as usize].mean[2]).unwrap());
         assert_eq!(got, want);
     }
+
+    #[test]
+    fn posed_ranges_sort_as_the_posed_means() {
+        use crate::poses::PoseTable;
+        // 300 records: 100 statics, then two objects of 100 (one absent); the object's depth row equals posing its means.
+        let means: Vec<[f32; 3]> = (0..300u32).map(|i| [(i % 7) as f32 - 3.0, (i % 5) as f32, ((i * 37) % 101) as f32 * 0.1]).collect();
+        let mut table = PoseTable::from_counts(&[100, 100]);
+        let m = [[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 4.0]];
+        table.poses = vec![Some(m), None];
+        let row2 = [0.1, 0.2, 0.97, 0.5];
+        let posed_means: Vec<[f32; 3]> = means
+            .iter()
+            .enumerate()
+            .map(|(i, p)| if (100..200).contains(&i) { [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3]) } else { *p })
+            .collect();
+        let mut sorter = CpuSorter::default();
+        let got = sorter.sort_means(means.iter().copied(), row2, [0, 0], &table.posed_ranges(row2, 100)).to_vec();
+        // The same records as sorting the posed means (the absent object's left out), nearest first; equal depths
+        // may meet in either order (the posed row rounds differently from posing the mean).
+        let mut want: Vec<u32> = CpuSorter::default().sort_means(posed_means.iter().copied(), row2, [0, 0], &[]).to_vec();
+        want.retain(|&i| i < 200);
+        let (mut a, mut b) = (got.clone(), want);
+        a.sort();
+        b.sort();
+        assert_eq!(a, b);
+        let z = |i: u32| camera_z(&row2, &posed_means[i as usize]);
+        assert!(got.windows(2).all(|w| z(w[0]) <= z(w[1]) + 1e-5), "nearest first by the posed depths");
+    }
 }
 
 /// The same sort cut into slices so a browser main thread never stalls: `step` works until `budget_ms` of the

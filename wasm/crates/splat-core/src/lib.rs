@@ -4,7 +4,8 @@
 //! the WebGL2 path's resident records (`records`), GPU radix sort (`gpu_sort`), CPU sort for WebGL2 (`cpu_sort`),
 //! worker-sort protocol (`external_sort`) and readback (`readback`), the splat draw's quad batches (`quads`) and the
 //! frame budget (`budget`), the agent objects' pose table (`poses`); `scene_upload` puts a scene's frame on a renderer
-//! (objects posed on the GPU or baked on the CPU). Imports go one way: renderer -> the others; none of them imports the renderer.
+//! (objects posed on the GPU or baked on the CPU). Imports go one way: scene_upload -> renderer -> the others; none of
+//! them imports the renderer.
 
 pub mod budget;
 pub mod camera;

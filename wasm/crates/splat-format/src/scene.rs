@@ -1,8 +1,9 @@
 //! A loaded 4D scene: the static base plus per-frame dynamic Gaussians (packed for the GPU), frame times, rig and
 //! ego poses. Built progressively from .wsplat events, or at once from a PLY / raster-vector JSON. A v3 file's agent
-//! objects stay canonical (box frame) with their poses per frame; `dynamic_at(frame)` bakes them on the CPU when the
-//! frame is drawn (`bake_objects`), so every draw path draws and sorts them as any dynamic Gaussians, and new poses
-//! (an agent moved) need no new decode.
+//! objects stay canonical (box frame) with their poses per frame: the viewer poses them on the GPU
+//! (`object_records` once, `object_pose_matrices` per frame; `splat_core::scene_upload`), and `dynamic_at(frame)`
+//! bakes them on the CPU (`bake_objects`: the reference, and scenes with more objects than the GPU pose table holds).
+//! New poses (an agent moved) need no new decode.
 
 use std::borrow::Cow;
 

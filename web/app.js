@@ -3,7 +3,7 @@
 // `worldsplat export` writes, the scenario as JSON), scenario files in and out (import: the file picker or drag and
 // drop, to the form; export: OpenSCENARIO + OpenDRIVE, CommonRoad, JSON), drag-and-drop of scenes to the viewer, stats.
 // No build step: an ES module using the viewer bundle at /pkg (built by wasm/build.sh). See web/docs/playground.md.
-import { SHIFT_MAX_M } from "./limits.js";
+import { CLIP_FRAMES_MAX, SHIFT_MAX_M } from "./limits.js";
 import { decodeShare, RIG_CAMERAS, shareUrl } from "./share.js";
 import { initEditor } from "./editor.js";
 import { createLiveDrag } from "./live-drag.js";
@@ -653,6 +653,7 @@ function wire() {
   $("camera").onchange = (e) => setCamera(e.target.value);
   $("shift").min = String(-SHIFT_MAX_M); // the slider's bounds come from the one JS definition of the limit
   $("shift").max = String(SHIFT_MAX_M);
+  document.querySelector('[data-field="clip.frames"]').max = String(CLIP_FRAMES_MAX);
   $("shift").oninput = (e) => setShift(e.target.value);
   document.querySelectorAll("#shift-quick button").forEach((b) => { b.onclick = () => setShift(b.dataset.shift); });
   $("video-btn").onclick = () => requestVideos();

@@ -56,6 +56,7 @@ def test_presets_and_schema(client):
     [
         ({"traffic": {"pedestrians": 99}}, "scenario.traffic.pedestrians"),
         ({"clip": {"frames": 0}}, "scenario.clip.frames"),
+        ({"clip": {"frames": 201}}, "scenario.clip.frames"),
         ({"weather": "sunny"}, "scenario.weather"),
         ({"seed": -1}, "scenario.seed"),
         ({"environment": {"weather": "snow"}}, "scenario.environment.weather"),

@@ -7,7 +7,8 @@ import torch
 
 from worldsplat.core.scenario import load_preset
 from worldsplat.pipeline import scene as pipeline
-from worldsplat.pipeline.scene import FIRST_WINDOW, stream_windows, windows
+from worldsplat.pipeline.frame_plan import FIRST_WINDOW, stream_windows
+from worldsplat.pipeline.scene import windows
 
 
 def test_stream_windows_plan():
@@ -38,7 +39,7 @@ def test_short_window_runs_at_its_own_length():
     sc = load_preset("urban_straight").with_updates(clip={"frames": 4}, image={"width": 64, "height": 36})
     world = build_world(sc)
     cond = world.conditions(layout_size=inf.layout_size(models))
-    one = pipeline.frames_of(cond, [0], 4)
+    one = world.conditions(layout_size=inf.layout_size(models), frames=[0])
     calls = []
     forward = models.dit.forward
 

@@ -1,9 +1,12 @@
 """The scenario schema: bounds, unknown fields, cross-field rules, presets, canonical form and exported schema."""
 
 import json
+import re
 
 import pytest
 
+from worldsplat.core.limits import MAX_CLIP_FRAMES
+from worldsplat.core.paths import source_root
 from worldsplat.core.scenario import (
     Scenario,
     ScenarioError,
@@ -41,7 +44,7 @@ OUT_OF_RANGE = [
     (("ego", "start_lane"), 4),
     (("ego", "manoeuvre"), "u_turn"),
     (("clip", "frames"), 0),
-    (("clip", "frames"), 33),
+    (("clip", "frames"), 201),
     (("clip", "fps"), 0.5),
     (("clip", "fps"), 31.0),
     (("image", "width"), 16),
@@ -153,3 +156,13 @@ def test_committed_schema_matches_generated():
     schema = json.loads(schema_text())
     assert schema["additionalProperties"] is False
     assert schema["$defs"]["Traffic"]["properties"]["pedestrians"]["maximum"] == 24
+
+
+def test_the_clip_limit_is_one_number_for_the_server_and_the_page():
+    long = Scenario.parse({"clip": {"frames": MAX_CLIP_FRAMES, "fps": 10.0}})
+    assert long.clip.frames == MAX_CLIP_FRAMES == 200  # a nuScenes scene: 20 s at 10 fps
+    assert json.loads(schema_text())["$defs"]["Clip"]["properties"]["frames"]["maximum"] == MAX_CLIP_FRAMES
+    web = source_root() / "web"
+    js = re.search(r"export const CLIP_FRAMES_MAX = (\d+);", (web / "limits.js").read_text())
+    html = re.search(r'data-field="clip.frames" min="1" max="(\d+)"', (web / "index.html").read_text())
+    assert int(js.group(1)) == int(html.group(1)) == MAX_CLIP_FRAMES

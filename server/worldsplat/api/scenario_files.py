@@ -13,6 +13,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
+from worldsplat.core.limits import MAX_CLIP_FRAMES
 from worldsplat.world.scenario_io import SCENARIO_SUFFIXES, ImportRefused, load_scenario_file
 
 from .schemas import OverlapOut
@@ -78,7 +79,9 @@ class ImportRequest(BaseModel):
     fps: float | None = Field(
         None, ge=1.0, le=30.0, allow_inf_nan=False, description="clip frame rate (default: 4, CommonRoad: its dt)"
     )
-    frames: int | None = Field(None, ge=1, le=32, description="clip frames (default: the file's duration, <= 32)")
+    frames: int | None = Field(
+        None, ge=1, le=MAX_CLIP_FRAMES, description="clip frames (default: the file's duration, <= 32)"
+    )
     strict: StrictBool = Field(
         False,
         description="refuse agents that overlap (a 422 naming them and when); default: import them as they are and "

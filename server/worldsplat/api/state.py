@@ -16,9 +16,10 @@ from .cache import ArtifactCache, InvalidId, validate_id
 from .errors import ApiError
 from .jobs import ACTIVE, Job, JobManager, QueueFull
 
-# frames x cameras x width x height a scene may have: the scenario allows 1600x900 x 32 x 6 (276M pixels), far more
-# than 2 CPU cores can lift, render or hold; 16M is 15x the default preset (8 x 6 x 200x112).
-MAX_SCENE_PIXELS = 16_000_000
+# frames x cameras x width x height a scene may have: the scenario allows 1600x900 x 200 x 6 (1.7G pixels), far more
+# than 2 CPU cores can lift, render or hold; 32M is 30x the default preset (8 x 6 x 200x112) and takes a 20 s clip at
+# 10 fps at the served size (200 x 6 x 200x112 = 26.9M; generate models only its keyframes).
+MAX_SCENE_PIXELS = 32_000_000
 
 
 def checked_id(value: str, what: str) -> str:

@@ -29,8 +29,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-scene-mpix",
         type=float,
-        default=16.0,
-        help="largest scene accepted, in million pixels (frames x cameras x width x height)",
+        default=None,
+        help="largest scene accepted, in million pixels (frames x cameras x width x height; default 32: "
+        "api.state.MAX_SCENE_PIXELS)",
     )
     parser.add_argument("--no-warm", action="store_true", help="do not generate the default scene at start-up")
     parser.add_argument(
@@ -44,6 +45,9 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn  # noqa: PLC0415
 
     from worldsplat.api.app import create_app  # noqa: PLC0415
+    from worldsplat.api.state import MAX_SCENE_PIXELS  # noqa: PLC0415
+
+    mpix = MAX_SCENE_PIXELS / 1e6 if args.max_scene_mpix is None else args.max_scene_mpix
 
     # torch's OpenMP threads spin while they wait: on a 2-core machine shared with other work (training, the
     # browser, other servers) a spinning thread starves its sibling, and one DiT window took 24-30 s instead of
@@ -51,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     if not 1 <= args.port <= 65535:
         raise ValueError(f"--port must be in 1..65535, got {args.port}")
-    if args.cache_max_mb <= 0 or args.max_queued <= 0 or not args.max_scene_mpix > 0:
+    if args.cache_max_mb <= 0 or args.max_queued <= 0 or not mpix > 0:
         raise ValueError("--cache-max-mb, --max-queued and --max-scene-mpix must be positive")
     app = create_app(
         args.cache_dir,
@@ -59,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         max_cache_bytes=args.cache_max_mb << 20,
         max_queued=args.max_queued,
         warm=not args.no_warm,
-        max_scene_pixels=int(args.max_scene_mpix * 1e6),
+        max_scene_pixels=int(mpix * 1e6),
         preload=not args.no_preload,
     )
     print(f"worldsplat serve: http://{args.host}:{args.port}/ (API docs at /docs, cache {args.cache_dir})", flush=True)

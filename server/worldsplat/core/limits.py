@@ -5,6 +5,10 @@ from __future__ import annotations
 import math
 
 MAX_SHIFT_M = 8.0  # lateral track shift, metres either side (web/docs/conventions.md)
+# Longest clip a scenario may ask for (`Scenario.clip.frames`; the page's Frames field, web/limits.js
+# CLIP_FRAMES_MAX): a nuScenes scene, 20 s at 10 fps. The .wsplat format takes up to 1024 frames; generate mode
+# models only the keyframes of a long clip (pipeline.keyframes), its agents are posed objects in every frame.
+MAX_CLIP_FRAMES = 200
 
 
 def check_shift(shift_m: float, what: str = "shift_m") -> float:

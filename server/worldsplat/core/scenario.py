@@ -33,6 +33,7 @@ from pydantic import (
 )
 
 from worldsplat.core.camera import CAMERA_NAMES
+from worldsplat.core.limits import MAX_CLIP_FRAMES
 from worldsplat.core.paths import docs_dir
 
 SCENARIO_VERSION = 2
@@ -345,7 +346,7 @@ class AgentSpec(_Strict):
 
 
 class Clip(_Strict):
-    frames: int = Field(8, ge=1, le=32, description="number of frames")
+    frames: int = Field(8, ge=1, le=MAX_CLIP_FRAMES, description="number of frames")
     fps: float = Field(4.0, ge=1.0, le=30.0, description="frames per second")
 
 

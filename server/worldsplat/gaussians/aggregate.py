@@ -153,13 +153,15 @@ def _cell_keys(p: np.ndarray, level: np.ndarray, sky: np.ndarray) -> np.ndarray:
     return (lv << 48) | (ijk[:, 0] << 32) | (ijk[:, 1] << 16) | ijk[:, 2]
 
 
-def nearest_distance(p: np.ndarray, centres: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
-    out = np.full(len(p), np.inf)
-    for s in range(0, len(p), chunk):
-        q = p[s : s + chunk]
-        for c in centres:
-            out[s : s + chunk] = np.minimum(out[s : s + chunk], np.sqrt(((q - c) ** 2).sum(1)))
-    return out
+def nearest_distance(p: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Distance from each (finite) point to the nearest of `centres`, exact: a k-d tree over the centres (a 200-frame
+    clip has 1,200 camera positions; a loop over them was 29 s of 300k points against the tree's 2.7 s)."""
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - heavy (0.7 s), needed by the aggregation only
+
+    centres = np.asarray(centres, np.float64).reshape(-1, 3)
+    if not len(centres):
+        return np.full(len(p), np.inf)
+    return cKDTree(centres).query(np.asarray(p, np.float64).reshape(-1, 3), workers=1)[0]
 
 
 def merged_variance(total_var: np.ndarray, cover: float = 0.0) -> np.ndarray:

@@ -17,6 +17,9 @@ window is generated, decoded and aggregated (`gaussians.aggregate.WindowAggregat
 frames' dynamic sets are final once it is done), and handed to `sink` (`SceneSink`: `begin(skeleton)` once, with the
 frames, rig, poses and the meta known before generation, then `window(frames, static, dynamic)` per window), so the
 playground can stream the scene while the next window is generated (api.runners.run_scene).
+With agents as objects, generate mode's models draw only the clip's keyframes (`pipeline.frame_plan`: a keyframe
+each time the ego has moved as far as between the served default's frames); a window hands over its keyframes and
+the frames up to the next window's, which draw the static Gaussians so far and the objects posed by their tracks.
 """
 
 from __future__ import annotations
@@ -44,8 +47,10 @@ from worldsplat.gaussians.objects import (
     lift_in_boxes,
 )
 from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.pipeline.frame_plan import FIRST_WINDOW, KEYFRAME_STEP_M, KeyWindow, keyframe_plan
 from worldsplat.pipeline.pixels import served_maps
 from worldsplat.world import build_world, simulate
+from worldsplat.world.conditions import ego_trajectory
 
 ALL_MODES = ("oracle", "reconstruct", "generate")
 # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none). 3: aggregated window by window
@@ -62,12 +67,10 @@ ORACLE_VERSION = "oracle-5"
 # decoding lifted one opaque Gaussian per pixel of the served image (`pipeline.pixels`, inference.GAUSSIANS), with the
 # oracle's economy; w10 the latent decoder's grid served again (`inference.GAUSSIANS`; pixels measured worse on generate);
 # w11 every agent an object (parked ones too), reconstruct's from the observed pixels, no dynamics in no box; w12
-# reconstruct serves the VAE's decoding lifted per pixel (`inference.GAUSSIANS` per mode, `Economy.for_lifted_decoding`)
-STREAM_VERSION = "w12"
+# reconstruct serves the VAE's decoding lifted per pixel (`inference.GAUSSIANS` per mode, `Economy.for_lifted_decoding`);
+# w13 generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame)
+STREAM_VERSION = "w13"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
-# generate mode: the first window has this many frames, so the first static chunk is streamed after one frame's
-# sampling and decoding instead of a whole window's (the bound on the finished scene: playground.md)
-FIRST_WINDOW = 1
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
 )
@@ -161,31 +164,10 @@ def model_version(mode: str) -> str:
     return f"{mode}-{inf.load_models().version}-{STREAM_VERSION}"
 
 
-def stream_windows(T: int, size: int, first: int = FIRST_WINDOW) -> list[list[int]]:
-    """generate mode's windows: a first window of `first` frames, then consecutive windows of `size` from there (the
-    last may be shorter); `first` 0 (or >= size) gives `windows(T, size)`."""
-    if not 0 < first < size or T <= first:
-        return windows(T, size)
-    return [list(range(first))] + [[first + f for f in w] for w in windows(T - first, size)]
-
-
 def window_seed(seed: int, index: int) -> int:
     """The sampler seed of window `index` (each window is sampled by its own `generate` call): window 0 keeps the
     scene's seed, so it draws the same noise as one call over the whole clip; later windows draw their own."""
     return int(seed) if index == 0 else int(seed) * 1000 + index
-
-
-def frames_of(conditions: dict, frames: list[int], T: int) -> dict:
-    """The conditions of a window: every per-frame array (first axis T) and per-frame list indexed by `frames`."""
-    out = {}
-    for k, v in conditions.items():
-        if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == T:
-            out[k] = v[frames]
-        elif isinstance(v, list) and len(v) == T:
-            out[k] = [v[i] for i in frames]
-        else:
-            out[k] = v
-    return out
 
 
 def generate_scene(
@@ -201,6 +183,7 @@ def generate_scene(
     first_steps: int | None = None,
     agents: str = "objects",
     object_source: ObjectSource | None = None,
+    keyframe_step_m: float | None = None,
 ) -> Scene4D:
     """Build the 4D Gaussian scene of a scenario, window by window (handed to `sink` as they are done). `meta`
     records scenario_id, mode, model_version, caption, fps and the aggregation statistics. `mode` None is
@@ -208,7 +191,10 @@ def generate_scene(
     sampled with `first_steps` Euler steps (None: min(steps, FIRST_STEPS)). `agents`: "objects" (each moving
     agent one set of Gaussians in its box frame, posed by its track: `gaussians.objects`) or "per_frame" (the
     paper's dynamics, re-drawn every frame). `object_source` draws an agent's object from (class, size, seed,
-    colour) instead (None: generate mode's `generated_object_source()`, the other modes none)."""
+    colour) instead (None: generate mode's `generated_object_source()`, the other modes none). `keyframe_step_m`:
+    the models draw a keyframe each time the ego has moved this far (`frame_plan.keyframes`; 0: every frame; None:
+    KEYFRAME_STEP_M in generate mode with agents as objects, else every frame: the oracle and reconstruct read
+    every frame's ground truth, and per-frame agents exist only where drawn)."""
     mode = default_mode() if mode is None else mode
     if mode not in ALL_MODES:
         raise ValueError(f"unknown mode {mode!r}; modes are {', '.join(ALL_MODES)}")
@@ -235,11 +221,17 @@ def generate_scene(
         if agents == "per_frame"
         else _Objects(world, object_source, int(scenario.seed if seed is None else seed), mode == "oracle")
     )
+    if keyframe_step_m is None:
+        keyframe_step_m = KEYFRAME_STEP_M if mode == "generate" and objects is not None else 0.0
+    elif keyframe_step_m and objects is None:
+        raise ValueError("keyframes need agents as objects (per-frame agents exist only in the frames drawn)")
     if mode == "oracle":
         meta["model_version"] = ORACLE_VERSION
-        scene, stats = _oracle(world, meta, prog, cancelled, economy, sink, objects)
+        plan = keyframe_plan(world.ego_to_world, world.frame_times, ORACLE_WINDOW, 0, keyframe_step_m)
+        scene, stats = _oracle(world, meta, prog, cancelled, economy, sink, objects, plan)
     else:
-        plan = (int(first_window), int(min(steps, FIRST_STEPS) if first_steps is None else first_steps))
+        first = int(min(steps, FIRST_STEPS) if first_steps is None else first_steps)
+        plan = (int(first_window), first, float(keyframe_step_m))
         scene, stats = _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy, sink, plan, objects)
     scene.meta["aggregate"] = stats.as_dict()
     prog("done", 1.0)
@@ -334,14 +326,14 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
         )
     models = inf.load_models()
     meta["model_version"] = str(models.version)
-    T, wins = len(world.frame_times), windows(len(world.frame_times), models.data.frames)
+    T = len(world.frame_times)
+    first = plan[0] if mode == "generate" else 0
+    wins = keyframe_plan(world.ego_to_world, world.frame_times, models.data.frames, first, plan[2])
+    _note_keyframes(meta, wins, T)
     if mode == "generate":
         seed = int(scenario.seed if seed is None else seed)
-        wins = stream_windows(T, models.data.frames, plan[0])
-        meta.update(steps=int(steps), seed=seed, first_steps=int(plan[1]), windows=[len(w) for w in wins])
-        prog("conditions", 0.0)
-        cond = world.conditions(layout_size=inf.layout_size(models))
-        ego_to_world = np.asarray(cond["ego_traj"], np.float64)  # generated Gaussians live in the first frame's ego
+        meta.update(steps=int(steps), seed=seed, first_steps=int(plan[1]), windows=[len(w.keys) for w in wins])
+        ego_to_world = ego_trajectory(world)  # generated Gaussians live in the first frame's ego
     else:
         ego_to_world = world.ego_to_world
     H, W = world.rig[0].height, world.rig[0].width
@@ -349,34 +341,52 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
     out = _Collect(agg, meta, sink, objects)
     timing: dict[str, float] = {}
-    for wi, frames in enumerate(wins):
+    for wi, w in enumerate(wins):
         _check(cancelled)
         if mode == "generate":
+            prog("conditions", wi / len(wins))
+            t0 = time.perf_counter()  # a window's conditions only: a long clip's first window waits for no other's
+            cond = world.conditions(layout_size=inf.layout_size(models), frames=w.keys)
+            cond_s = time.perf_counter() - t0
             prog("generate", wi / len(wins))
             dec = inf.generate(
-                frames_of(cond, frames, T),
+                cond,
                 steps=int(plan[1]) if wi == 0 else steps,
                 seed=window_seed(seed, wi),
                 pad=False,
                 models=models,
                 rig=world.rig,
-                frame_times=world.frame_times[frames],
+                frame_times=world.frame_times[w.keys],
                 progress=lambda f, wi=wi: prog("generate", (wi + float(f)) / len(wins)),
             )
+            dec.meta["timing_s"] = {"world_conditions": cond_s, **dec.meta.get("timing_s", {})}
         else:
             prog("simulate", wi / len(wins))
-            clip = simulate(world, frames=frames)
+            clip = simulate(world, frames=w.keys)
             _check(cancelled)
             prog("reconstruct", wi / len(wins))
             dec = inf.reconstruct(clip, models=models)
-            observed = lambda b, dec=dec, frames=frames, clip=clip: _observed_agents(inf, models, dec, clip, frames, b)  # noqa: E731
+            observed = lambda b, dec=dec, w=w, clip=clip: _observed_agents(inf, models, dec, clip, w, b)  # noqa: E731
         for k, v in dec.meta.get("timing_s", {}).items():
             timing[k] = timing.get(k, 0.0) + float(v)
         _check(cancelled)
         prog("aggregate", (wi + 1) / len(wins))
-        out.window(frames, dec.gaussians[: len(frames)], dict(dec.meta.get("timing_s", {})),
+        out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
                    observed if mode == "reconstruct" else None)  # fmt: skip
     return out.scene(timing)
+
+
+def _note_keyframes(meta: dict, wins: list[KeyWindow], T: int) -> None:
+    """meta["keyframes"]: the frames the models drew, where not every frame (the others pose the objects)."""
+    keys = [k for w in wins for k in w.keys]
+    if len(keys) < T:
+        meta["keyframes"] = keys
+
+
+def _per_frame(w: KeyWindow, keyed: list[list[Gaussians]]) -> list[list[Gaussians]]:
+    """Per frame of the window, its views' Gaussians: the models' for a keyframe, none for the frames between."""
+    drawn = dict(zip(w.keys, keyed, strict=False))
+    return [drawn.get(t, []) for t in w.frames]
 
 
 # Where reconstruct's agents come from: "input", the observed frames' pixels and depth (reconstruct's own input, at
@@ -387,10 +397,11 @@ OBSERVED_AGENTS = "input"
 
 
 @torch.no_grad()
-def _observed_agents(inf, models, dec, clip, frames: list[int], builder: ObjectBuilder) -> dict[int, Gaussians]:
+def _observed_agents(inf, models, dec, clip, w: KeyWindow, builder: ObjectBuilder) -> dict[int, Gaussians]:
     """reconstruct's agents from the observations (OBSERVED_AGENTS) at the served image: the pixels in an agent's
-    box lifted onto the box (`objects.lift_in_boxes`). Frame i of the window is `frames[i]`."""
-    rig = dec.rig
+    box lifted onto the box (`objects.lift_in_boxes`). Frame i of the clip is `w.keys[i]`; the window's frames
+    between keyframes observe nothing."""
+    rig, frames = dec.rig, w.keys
     if OBSERVED_AGENTS == "vae":
         guide = inf.pixel_guide(models, dec.latents[: len(frames)])
         rgb, depth, _ = served_maps(guide.reshape(-1, *guide.shape[2:]), (rig[0].height, rig[0].width),
@@ -401,7 +412,7 @@ def _observed_agents(inf, models, dec, clip, frames: list[int], builder: ObjectB
         depth = np.asarray(clip.depth, np.float64).reshape(-1, *clip.depth.shape[2:])
         tol = (OBSERVED_DEPTH_TOL_M, OBSERVED_DEPTH_TOL_SHARE)
     V = len(rig)
-    out = {}
+    out = {t: Gaussians.empty() for t in w.frames}
     for i, t in enumerate(frames):
         cams = [rig[v].at(dec.ego_to_world[i]) for v in range(V)]
         out[t] = Gaussians.cat([lift_in_boxes(rgb[i * V + v], depth[i * V + v], cams[v], builder.tracks, t, *tol)
@@ -409,20 +420,20 @@ def _observed_agents(inf, models, dec, clip, frames: list[int], builder: ObjectB
     return out
 
 
-def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None, sink, objects=None):
+def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy: Economy | None, sink, objects, wins):
     H, W = world.rig[0].height, world.rig[0].width
     agg = WindowAggregator(world.frame_times, world.rig, world.ego_to_world, economy=economy, image_size=(H, W))
+    _note_keyframes(meta, wins, len(world.frame_times))
     out = _Collect(agg, meta, sink, objects)
-    wins = windows(len(world.frame_times), ORACLE_WINDOW)
-    for wi, frames in enumerate(wins):
+    for wi, w in enumerate(wins):
         _check(cancelled)
         prog("simulate", wi / len(wins))
         t0 = time.perf_counter()
-        clip = simulate(world, frames=frames)
+        clip = simulate(world, frames=w.keys)
         _check(cancelled)
         t1 = time.perf_counter()
         per_view = _lift_clip(clip, lambda f, wi=wi: prog("lift", (wi + f) / len(wins)), cancelled)
-        out.window(frames, per_view, {"simulate": t1 - t0, "lift": time.perf_counter() - t1})
+        out.window(w.frames, _per_frame(w, per_view), {"simulate": t1 - t0, "lift": time.perf_counter() - t1})
     return out.scene()
 
 

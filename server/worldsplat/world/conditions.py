@@ -194,26 +194,37 @@ def sketch(world: World, t: int, cams: list[Camera], seg: tuple[np.ndarray, np.n
 
 
 def world_conditions(
-    world: World, shift_m: float = 0.0, cameras: list[str] | None = None, layout_size: tuple[int, int] | None = None
+    world: World,
+    shift_m: float = 0.0,
+    cameras: list[str] | None = None,
+    layout_size: tuple[int, int] | None = None,
+    frames: list[int] | None = None,
 ) -> dict:
     """The models' conditions; with layout_size = (W, H) also the per-camera layout maps at that size
-    (`layout`, (T,V,H,W,7), see world.layout_maps), which the DiT reads as its layout control."""
+    (`layout`, (T,V,H,W,7), see world.layout_maps), which the DiT reads as its layout control. `frames`: only these
+    frames (every per-frame entry in their order; `ego_traj` still relative to frame 0), None every frame."""
+    frames = list(range(world.num_frames)) if frames is None else [int(t) for t in frames]
     with single_threaded_blas():
-        out = _world_conditions(world, shift_m, cameras)
+        out = _world_conditions(world, shift_m, cameras, frames)
         if layout_size is not None:
-            out["layout"] = layout_maps(world, shift_m, cameras, size=tuple(layout_size))
+            out["layout"] = layout_maps(world, shift_m, cameras, size=tuple(layout_size), frames=frames)
             out["layout_channels"] = LAYOUT_CHANNELS
         return out
 
 
-def _world_conditions(world: World, shift_m: float, cameras: list[str] | None) -> dict:
+def ego_trajectory(world: World, shift_m: float = 0.0) -> np.ndarray:
+    """(T,4,4) each frame's (shifted) ego pose in the first frame's ego frame: the conditions' `ego_traj`."""
+    poses = shifted_ego(world.ego_to_world, shift_m)
+    inv0 = rigid_inverse(poses[0])
+    return np.stack([inv0 @ p for p in poses])
+
+
+def _world_conditions(world: World, shift_m: float, cameras: list[str] | None, frames: list[int]) -> dict:
     rig = world.rig if cameras is None else [world.rig_camera(n) for n in cameras]
     poses = shifted_ego(world.ego_to_world, shift_m)
     seg = lane_segments(world)
-    T = world.num_frames
-    bev = np.stack([bev_raster(world, t, poses[t], seg) for t in range(T)])
-    sk = np.stack([sketch(world, t, [rc.at(world.ego_to_world[t], shift_m) for rc in rig], seg) for t in range(T)])
-    inv0 = rigid_inverse(poses[0])
+    bev = np.stack([bev_raster(world, t, poses[t], seg) for t in frames])
+    sk = np.stack([sketch(world, t, [rc.at(world.ego_to_world[t], shift_m) for rc in rig], seg) for t in frames])
     return {
         "bev": bev,
         "bev_channels": BEV_CHANNELS,
@@ -221,8 +232,8 @@ def _world_conditions(world: World, shift_m: float, cameras: list[str] | None) -
         "sketch": sk,
         "sketch_channels": SKETCH_CHANNELS,
         "cameras": [c.name for c in rig],
-        "boxes": [boxes_at(world, t) for t in range(T)],
-        "ego_traj": np.stack([inv0 @ poses[t] for t in range(T)]),
+        "boxes": [boxes_at(world, t) for t in frames],
+        "ego_traj": ego_trajectory(world, shift_m)[frames],
         "caption": world.caption,
         "shift_m": float(shift_m),
     }

@@ -88,9 +88,13 @@ class World:
         return self.rig_camera(name).at(self.ego_to_world[t], shift_m)
 
     def conditions(
-        self, shift_m: float = 0.0, cameras: list[str] | None = None, layout_size: tuple[int, int] | None = None
+        self,
+        shift_m: float = 0.0,
+        cameras: list[str] | None = None,
+        layout_size: tuple[int, int] | None = None,
+        frames: list[int] | None = None,
     ) -> dict:
-        return world_conditions(self, shift_m, cameras, layout_size)
+        return world_conditions(self, shift_m, cameras, layout_size, frames)
 
     def add_static(self, prims: Prims) -> None:
         """Add primitives to the static world (tests place markers at known points)."""

@@ -178,10 +178,16 @@ def resized(cam, size: tuple[int, int] | None):
 
 
 def layout_maps(
-    world, shift_m: float = 0.0, cameras=None, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR, size=None
+    world,
+    shift_m: float = 0.0,
+    cameras=None,
+    near: float = LAYOUT_NEAR,
+    far: float = LAYOUT_FAR,
+    size=None,
+    frames=None,
 ) -> np.ndarray:
-    """(T, V, H, W, 11) layout maps of every frame and rig camera, at the rig's resolution or at size = (W, H)
-    (the models' own, so the cast costs what the model reads)."""
+    """(T, V, H, W, 11) layout maps of every frame (or of `frames`, in their order) and rig camera, at the rig's
+    resolution or at size = (W, H) (the models' own, so the cast costs what the model reads)."""
     rig = world.rig if cameras is None else [world.rig_camera(n) for n in cameras]
     structure = map_layer(world)
     return np.stack(
@@ -192,6 +198,6 @@ def layout_maps(
                     for rc in rig
                 ]
             )
-            for t in range(world.num_frames)
+            for t in (range(world.num_frames) if frames is None else frames)
         ]
     )

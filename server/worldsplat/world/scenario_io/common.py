@@ -60,7 +60,8 @@ def wrap(a: float) -> float:
 
 
 def fit_clip(duration: float, fps: float = 4.0, frames: int | None = None) -> dict:
-    """The clip for a scenario that lasts `duration` seconds: at most 32 frames."""
+    """The clip for a scenario that lasts `duration` seconds: at most 32 frames unless `frames` says (a short clip by
+    default; a scenario takes up to core.limits.MAX_CLIP_FRAMES)."""
     if frames is None:
         frames = int(max(1, min(32, math.floor(duration * fps + 1e-6) + 1)))
     return {"frames": int(frames), "fps": float(fps)}

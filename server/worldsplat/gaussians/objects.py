@@ -311,7 +311,7 @@ class ObjectBuilder:
         keep_unboxed: bool = True,
         claim_moving: bool = False,
         claim_margin: float = CLAIM_MARGIN_M,
-        claim_rays: bool = False,
+        claim_rays: str | None = None,
     ):
         self.tracks, self.economy, self.margin, self.source = list(tracks), economy or Economy(), margin, source
         self.keep_unboxed = keep_unboxed
@@ -323,7 +323,7 @@ class ObjectBuilder:
         standing = [tr for tr in self.claimed if tr.standing]
         cams = [rc.at(e) for e in ego for rc in rig]
         self.standing_rays = box_rays(cams, standing, 0) if claim_rays and standing else []
-        self.rig, self.ego, self._rays = list(rig), ego, None
+        self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
         for tr in self.tracks:
             if len(tr.poses) != self.T:
                 raise ValueError(f"objects: agent {tr.agent_id} has {len(tr.poses)} poses, the clip {self.T} frames")
@@ -358,15 +358,20 @@ class ObjectBuilder:
         """Frame t's Gaussians before the aggregation, those in a standing agent's box (with `claim_moving`, any
         agent's) made dynamic (`claim_in_boxes`), so its static pixels go to its object, or, where the object comes
         from elsewhere (`source`, `observed`), give way to it; with `claim_rays`, those on the rays through a box,
-        before it or near it, too (`claim_along_rays`: each agent's box at every frame as that frame's cameras
-        see it, whatever frame the Gaussians were lifted at: the static scene is drawn at every frame)."""
+        before it or near it, too (`claim_along_rays`): "frame", a moving agent's box at frame t as frame t's
+        cameras see it; "clip", each agent's box at every frame as that frame's cameras see it, whatever frame the
+        Gaussians were lifted at (the static scene is drawn at every frame). A standing agent's box always as every
+        frame's cameras see it."""
         g = claim_in_boxes(g, self.claimed, t, self.claim_margin)
         if not self.claim_rays:
             return g
-        if self._rays is None:  # every agent's box as every frame's cameras see it
+        key = -1 if self.claim_rays == "clip" else t
+        if self._rays_key != key:  # the boxes as every frame's (or frame t's) cameras see them
             moving = [tr for tr in self.claimed if not tr.standing]
-            cams = [[rc.at(e) for rc in self.rig] for e in self.ego]
-            self._rays = [r for f in range(self.T) for r in box_rays(cams[f], moving, f)] + self.standing_rays
+            frames = range(self.T) if key == -1 else [t]
+            self._rays = [r for f in frames for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)]
+            self._rays += self.standing_rays
+            self._rays_key = key
         return claim_along_rays(g, self._rays)
 
     def add(

@@ -97,10 +97,10 @@ def test_onnx_serves_the_reconstruct_decoder(models, tmp_path):
 
 
 def test_decoded_scales_are_floored_at_the_model_sampling_rate(models):
-    """Every decoded Gaussian is at least the served 0.3 model pixels wide at its depth (so a display larger than the
+    """Every decoded Gaussian is at least the served floor (inf.DECODED_SCALE_FLOOR_MODEL_PX model pixels) wide at its depth (so a display larger than the
     model image shows no gaps between them; models.md, "Scale floor at display sizes"), and the floor adds in quadrature."""
     clip, _ = tiny_clip(T=2)
-    dec = inf.reconstruct(clip, models)
+    dec = inf.reconstruct(clip, models, gaussians="decoder")
     d = CFG.data
     for v in range(d.views):
         g = dec.gaussians[1][v]
@@ -108,6 +108,8 @@ def test_decoded_scales_are_floored_at_the_model_sampling_rate(models):
         c2w = torch.as_tensor(np.linalg.inv(cam.world_to_camera), dtype=torch.float32)
         depth = (g.means - c2w[:3, 3]) @ c2w[:3, 2]
         pixel_m = depth / (cam.fx * d.width / cam.width)  # one model pixel at that depth (offsets move means <= 0.5 m)
-        assert (g.scales.min(dim=1).values >= 0.95 * 0.3 * pixel_m).all()
+        assert (g.scales.min(dim=1).values >= 0.95 * inf.DECODED_SCALE_FLOOR_MODEL_PX * pixel_m).all()
     s = torch.tensor([[0.0, 0.3, 4.0]])
-    assert torch.allclose(inf.scale_floor(s, torch.tensor([10.0]), 10.0), torch.sqrt(s**2 + 0.3**2))
+    assert torch.allclose(
+        inf.scale_floor(s, torch.tensor([10.0]), 10.0), torch.sqrt(s**2 + inf.DECODED_SCALE_FLOOR_MODEL_PX**2)
+    )

@@ -68,8 +68,9 @@ ORACLE_VERSION = "oracle-5"
 # oracle's economy; w10 the latent decoder's grid served again (`inference.GAUSSIANS`; pixels measured worse on generate);
 # w11 every agent an object (parked ones too), reconstruct's from the observed pixels, no dynamics in no box; w12
 # reconstruct serves the VAE's decoding lifted per pixel (`inference.GAUSSIANS` per mode, `Economy.for_lifted_decoding`);
-# w13 generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame)
-STREAM_VERSION = "w13"
+# w13 generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame); w14
+# decoded scales floored at 1.0 model pixel (`inference.DECODED_SCALE_FLOOR_MODEL_PX`: no grid at display sizes)
+STREAM_VERSION = "w14"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)

@@ -56,8 +56,9 @@ ALL_MODES = ("oracle", "reconstruct", "generate")
 # 2: the sky is lifted as a far static shell (cached oracle scenes of 1 have none). 3: aggregated window by window
 # (WindowAggregator; same cells, first window to see a cell makes its Gaussian). 4: the finest observation of each
 # static surface point wins, unmerged (gaussians.aggregate.finest_observations). 5: every agent in the clip an
-# object, parked ones too (their static pixels claimed for it).
-ORACLE_VERSION = "oracle-5"
+# object, parked ones too (their static pixels claimed for it). 6: an object's Gaussians no wider than a pixel
+# footprint (objects.OBJECT_SCALE_CAP), only the standing agents' boxes claimed.
+ORACLE_VERSION = "oracle-6"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's

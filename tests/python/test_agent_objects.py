@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from worldsplat.core.camera import default_rig
+from worldsplat.core.camera import default_rig, yaw_pose
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians.objects import (
     AgentTrack,
@@ -19,6 +19,7 @@ from worldsplat.gaussians.objects import (
     box_to_world,
     claim_along_rays,
     claim_in_boxes,
+    claim_reach,
     lift_in_boxes,
 )
 from worldsplat.gaussians.types import Gaussians
@@ -164,6 +165,28 @@ def test_a_learned_modes_blurred_agent_before_its_box_gives_way_and_the_road_bef
     g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 4, [[0.05] * 3] * 4, [0.9] * 4, [[0.5] * 3] * 4, [[0.0]] * 4)
     claimed = claim_along_rays(g, box_rays([cam], [tr], 0)).extras[:, 0].tolist()
     assert claimed == [1.0, 1.0, 0.0, 0.0]  # before it, just behind it: the agent's; far behind, the road: not
+
+
+def test_a_camera_whose_reach_misses_the_gaussians_is_skipped_without_changing_the_claim():
+    """claim_along_rays skips a camera whose claim reach (`claim_reach`) does not come near the Gaussians' bounds:
+    every Gaussian a camera claims lies within that reach, so the skip changes nothing; a camera 1 km away claims
+    nothing either way."""
+    tr = _track()
+    cam = default_rig(160, 90)[0].at(np.eye(4))
+    rays = box_rays([cam], [tr], 0)
+    rng = np.random.default_rng(0)
+    pts = cam.position + rng.uniform(-1, 1, (4000, 3)) * [40.0, 20.0, 5.0] + [20.0, 0.0, 0.0]
+    n = len(pts)
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * n, [[0.05] * 3] * n, [0.9] * n, [[0.5] * 3] * n, [[0.0]] * n)
+    claimed = claim_along_rays(g, rays).extras[:, 0].numpy() > 0
+    assert 0 < claimed.sum() < n
+    reach = claim_reach(cam, rays[0][2], 1.0, 0.1)
+    assert np.linalg.norm(pts[claimed] - cam.position, axis=1).max() <= reach
+    far_cam = default_rig(160, 90)[0].at(yaw_pose(1000.0, 0.0, 0.0, 0.0))
+    far_tr = _track()
+    far_tr.poses = np.stack([yaw_pose(1000.0, 0.0, 0.0, 0.0) @ p for p in far_tr.poses])
+    both = claim_along_rays(g, rays + box_rays([far_cam], [far_tr], 0)).extras[:, 0].numpy() > 0
+    assert (both == claimed).all()
 
 
 def test_dynamic_gaussians_in_no_box_are_dropped_without_keep_unboxed():

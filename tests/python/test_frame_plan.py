@@ -1,6 +1,8 @@
 """Long clips: the keyframe plan (pipeline.frame_plan), the world's conditions of some frames, and a 200-frame clip
 built window by window whose agents stay one object each (one id, one canonical set, posed in every frame)."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -37,14 +39,16 @@ def test_keyframes_follow_the_egos_travel():
     assert keyframes(*_straight(200, 0.8)) == list(range(0, 200, 3))  # 8 m/s at 10 fps: 2.4 m between keyframes
     assert keyframes(*_straight(20, 1.0)) == list(range(0, 20, 2))  # 10 m/s: 2.0 m
     assert keyframes(*_straight(10, 3.0)) == list(range(10))  # faster than the step: every frame
-    assert keyframes(*_straight(200, 0.0)) == list(range(0, 200, round(10 * MAX_KEYFRAME_GAP_S)))  # standing
+    gap = math.ceil(10 * MAX_KEYFRAME_GAP_S - 1e-9)  # frames at 10 fps
+    assert keyframes(*_straight(200, 0.0)) == list(range(0, 200, gap))  # standing
     assert keyframes(*_straight(7, 0.8), step_m=0) == list(range(7))
+    assert keyframes(*_straight(8, 0.3, fps=4.0)) == list(range(8))  # the models' frame rate: every frame, however slow
     # a stop in the middle: keyframes by distance while moving, by time while standing
     ego, times = _straight(40, 1.0)
     ego[10:30, 0, 3] = 10.0
     ego[30:, 0, 3] = 10.0 + np.arange(1, 11)
     keys = keyframes(ego, times)
-    assert keys[:6] == [0, 2, 4, 6, 8, 10] and 20 in keys and 30 in keys and keys[-1] == 38
+    assert keys[:6] == [0, 2, 4, 6, 8, 10] and keys[6:12] == list(range(10 + gap, 30, gap))[:6] and keys[-1] == 39
     with pytest.raises(ValueError, match="frame times"):
         keyframes(ego, times[:-1])
     with pytest.raises(ValueError, match="step_m"):

@@ -195,6 +195,16 @@ def box_rays(cameras: list, tracks: list[AgentTrack], t: int) -> list[tuple]:
     return out
 
 
+def claim_reach(camera, far: np.ndarray, tol_m: float, tol_share: float) -> float:
+    """The farthest a Gaussian claimed by `claim_along_rays` on this camera's rays can be from its centre: the
+    largest leaving depth plus its tolerance, times the largest ratio of distance to camera depth in the image."""
+    hi = float(far.max())
+    zmax = hi + max(tol_m, tol_share * hi)
+    tx = max(camera.cx, camera.width - camera.cx) / camera.fx
+    ty = max(camera.cy, camera.height - camera.cy) / camera.fy
+    return zmax * math.sqrt(1.0 + tx * tx + ty * ty)
+
+
 def claim_along_rays(g: Gaussians, rays: list[tuple], tol_m: float = 1.0, tol_share: float = 0.1) -> Gaussians:
     """A learned mode's Gaussians (scene frame) with those made dynamic that a camera of `rays` (`box_rays`) sees on
     a ray through an agent's box, before it or within tol_m (or tol_share of the depth, if more) behind where the
@@ -205,7 +215,15 @@ def claim_along_rays(g: Gaussians, rays: list[tuple], tol_m: float = 1.0, tol_sh
         return g
     p = g.means.detach().double().cpu().numpy()
     take = np.zeros(len(p), bool)
+    p_lo, p_hi = p.min(0), p.max(0)
     for camera, owner, far in rays:
+        # a camera whose claimed reach does not come near the Gaussians' bounds claims none of them (a long clip's
+        # far frames): skipped before projecting every Gaussian
+        centre = camera.position
+        if np.linalg.norm(np.maximum(np.maximum(p_lo - centre, centre - p_hi), 0.0)) > claim_reach(
+            camera, far, tol_m, tol_share
+        ):
+            continue
         w2c = camera.world_to_camera
         pc = p @ w2c[:3, :3].T + w2c[:3, 3]
         z = pc[:, 2]
@@ -312,6 +330,7 @@ class ObjectBuilder:
         claim_moving: bool = False,
         claim_margin: float = CLAIM_MARGIN_M,
         claim_rays: str | None = None,
+        ray_frames: list[int] | None = None,
     ):
         self.tracks, self.economy, self.margin, self.source = list(tracks), economy or Economy(), margin, source
         self.keep_unboxed = keep_unboxed
@@ -319,9 +338,12 @@ class ObjectBuilder:
         self.claim_margin, self.claim_rays = claim_margin, claim_rays
         ego = np.asarray(ego_to_scene, np.float64)
         self.T = len(ego)
-        # a standing agent's box is drawn from every frame's cameras: claimed along all their rays (`claim_along_rays`)
+        # a standing agent's box is drawn from every frame's cameras: claimed along all their rays (`claim_along_rays`);
+        # `ray_frames`: the frames whose cameras claim (None: all; a keyframed clip's keyframes, whose cameras the
+        # frames between them are within a keyframe step of)
+        self.ray_frames = list(range(self.T)) if ray_frames is None else sorted({int(f) for f in ray_frames})
         standing = [tr for tr in self.claimed if tr.standing]
-        cams = [rc.at(e) for e in ego for rc in rig]
+        cams = [rc.at(ego[f]) for f in self.ray_frames for rc in rig]
         self.standing_rays = box_rays(cams, standing, 0) if claim_rays and standing else []
         self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
         for tr in self.tracks:
@@ -368,7 +390,7 @@ class ObjectBuilder:
         key = -1 if self.claim_rays == "clip" else t
         if self._rays_key != key:  # the boxes as every frame's (or frame t's) cameras see them
             moving = [tr for tr in self.claimed if not tr.standing]
-            frames = range(self.T) if key == -1 else [t]
+            frames = self.ray_frames if key == -1 else [t]
             self._rays = [r for f in frames for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)]
             self._rays += self.standing_rays
             self._rays_key = key

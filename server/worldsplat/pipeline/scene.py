@@ -265,10 +265,12 @@ class _Objects:
     def __init__(self, world, source: ObjectSource | None, seed: int, mode: str = "oracle"):
         self.world, self.source, self.seed, self.exact = world, source, seed, mode == "oracle"
         self.rays = CLAIM_RAYS.get(mode)
+        self.ray_frames: list[int] | None = None  # the frames the models draw (a keyframed clip's keyframes)
 
     def builder(self, agg: WindowAggregator) -> ObjectBuilder:
         tracks = agent_tracks(self.world, agg.ego_to_world)
-        claims = {} if self.exact else {"claim_moving": True, "claim_margin": AGENT_MARGIN_M, "claim_rays": self.rays}
+        claims = {} if self.exact else {"claim_moving": True, "claim_margin": AGENT_MARGIN_M, "claim_rays": self.rays,
+                                        "ray_frames": self.ray_frames}  # fmt: skip
         return ObjectBuilder(tracks, agg.rig, agg.ego_to_world, economy=agg.economy, source=self.source,
                              seed=self.seed, keep_unboxed=self.exact, **claims)  # fmt: skip
 
@@ -340,6 +342,8 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     first = plan[0] if mode == "generate" else 0
     wins = keyframe_plan(world.ego_to_world, world.frame_times, models.data.frames, first, plan[2])
     _note_keyframes(meta, wins, T)
+    if objects is not None:
+        objects.ray_frames = [k for w in wins for k in w.keys]
     if mode == "generate":
         seed = int(scenario.seed if seed is None else seed)
         meta.update(steps=int(steps), seed=seed, first_steps=int(plan[1]), windows=[len(w.keys) for w in wins])

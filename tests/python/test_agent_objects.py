@@ -180,7 +180,7 @@ def test_a_camera_whose_reach_misses_the_gaussians_is_skipped_without_changing_t
     g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * n, [[0.05] * 3] * n, [0.9] * n, [[0.5] * 3] * n, [[0.0]] * n)
     claimed = claim_along_rays(g, rays).extras[:, 0].numpy() > 0
     assert 0 < claimed.sum() < n
-    reach = claim_reach(cam, rays[0][2], 1.0, 0.1)
+    reach = claim_reach(cam, float(rays[0][2].max()))
     assert np.linalg.norm(pts[claimed] - cam.position, axis=1).max() <= reach
     far_cam = default_rig(160, 90)[0].at(yaw_pose(1000.0, 0.0, 0.0, 0.0))
     far_tr = _track()
@@ -371,3 +371,36 @@ def test_the_servers_stream_sink_writes_the_objects(version):
     else:
         assert back.objects == [] and len(back.dynamic[-1]) == counts[-1]  # the last window: the final objects
         assert all(len(d) <= n for d, n in zip(back.dynamic, counts))
+
+
+def test_box_depths_over_the_boxes_pixels_equal_every_pixels_slab_test():
+    """box_depths tests each box only on the pixels its corners project to; the result equals the slab test over
+    every pixel, for boxes before, beside, across and behind the cameras."""
+    from worldsplat.core.camera import rigid_inverse
+
+    def every_pixel(camera, tracks):
+        origin, dirs = camera.pixel_rays()
+        shape, dirs = dirs.shape[:2], dirs.reshape(-1, 3)
+        owner, near, far = np.full(len(dirs), -1), np.full(len(dirs), np.inf), np.full(len(dirs), np.inf)
+        for i, tr in enumerate(tracks):
+            inv = rigid_inverse(tr.poses[0])
+            o, d = inv[:3, :3] @ origin + inv[:3, 3], dirs @ inv[:3, :3].T
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a, b = (-tr.size / 2 - o) / d, (tr.size / 2 - o) / d
+            lo = np.nan_to_num(np.minimum(a, b), nan=-np.inf).max(1)
+            hi = np.nan_to_num(np.maximum(a, b), nan=np.inf).min(1)
+            hit = (lo < hi) & (hi > 0) & (np.maximum(lo, 0) < near)
+            owner[hit], near[hit], far[hit] = i, np.maximum(lo[hit], 0), hi[hit]
+        return owner.reshape(shape), near.reshape(shape), far.reshape(shape)
+
+    rng = np.random.default_rng(1)
+    for _ in range(8):
+        tracks = [
+            AgentTrack(j, 1, rng.uniform([0.5, 0.5, 1], [5, 2.5, 3]),
+                       np.stack([box_to_world(*rng.uniform([-30, -30, -3], [40, 30, 3]), 1.5)]), np.ones(1, bool))
+            for j in range(8)
+        ]  # fmt: skip
+        for rc in default_rig(120, 68):
+            cam = rc.at(yaw_pose(*rng.uniform(-3, 3, 2), 0.0, rng.uniform(-3, 3)))
+            for x, y in zip(box_depths(cam, tracks, 0), every_pixel(cam, tracks), strict=True):
+                assert np.array_equal(x, y)

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from worldsplat.core.camera import RigCamera, rigid_inverse
 from worldsplat.gaussians.aggregate import WINDOW_FINER, AggregateStats, CellTable, Economy, economize
@@ -46,6 +47,10 @@ AGENT_MODES = ("objects", "per_frame")  # an agent as one posed object, or re-dr
 FINER_FACTOR = math.sqrt(2)
 FINER_COUNT = 2
 FINER_REACH = 2.0
+# A Gaussian on a camera's ray through a box is claimed up to this far behind where the ray leaves it (metres, or
+# this share of that depth if more): a decoded depth is blurred over an agent's edge.
+CLAIM_RAY_TOL_M = 1.0
+CLAIM_RAY_TOL_SHARE = 0.1
 OBJECT_CELL_FACTOR = 2.0  # merge cells of an object, in pixel footprints from the nearest camera of the clip
 OBJECT_COVER = 0.0  # > 0: a merged Gaussian covers its members' patch (aggregate.merged_variance)
 # An object is drawn at every frame, also from nearer than some of its places were seen: a Gaussian lifted from far
@@ -162,27 +167,52 @@ def claim_in_boxes(
     return Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
 
 
+def _box_pixels(camera, pose: np.ndarray, size: np.ndarray) -> tuple[slice, slice] | None:
+    """The rows and columns of `camera`'s pixels whose rays can hit the box (`pose` box_to_scene, `size`): the
+    bounds of its corners' projections (a box wholly before the camera projects inside its corners' hull), the
+    whole image where it reaches behind the camera, None where it lies wholly behind it."""
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+    m = camera.world_to_camera @ pose
+    pc = (signs * size / 2) @ m[:3, :3].T + m[:3, 3]
+    if (pc[:, 2] <= 0).all():
+        return None
+    if (pc[:, 2] <= 1e-6).any():
+        return slice(0, camera.height), slice(0, camera.width)
+    u = pc[:, 0] / pc[:, 2] * camera.fx + camera.cx
+    v = pc[:, 1] / pc[:, 2] * camera.fy + camera.cy
+    c0, c1 = max(0, math.floor(u.min() - 0.5)), min(camera.width, math.ceil(u.max() - 0.5) + 1)
+    r0, r1 = max(0, math.floor(v.min() - 0.5)), min(camera.height, math.ceil(v.max() - 0.5) + 1)
+    return (slice(r0, r1), slice(c0, c1)) if r0 < r1 and c0 < c1 else None
+
+
 def box_depths(camera, tracks: list[AgentTrack], t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per pixel of `camera` (scene frame): (the nearest box its ray enters at frame t, or -1; the camera depth where
-    it enters; where it leaves) (H,W) each."""
+    it enters; where it leaves) (H,W) each. Each box's rays are only those of the pixels its corners project to."""
     origin, dirs = camera.pixel_rays()
     H, W = dirs.shape[:2]
-    dirs = dirs.reshape(-1, 3)
-    owner = np.full(H * W, -1, np.int64)
-    near, far = np.full(H * W, np.inf), np.full(H * W, np.inf)
+    owner = np.full((H, W), -1, np.int64)
+    near, far = np.full((H, W), np.inf), np.full((H, W), np.inf)
     for i, tr in enumerate(tracks):
         if not tr.present[t]:
             continue
+        rect = _box_pixels(camera, tr.poses[t], tr.size)
+        if rect is None:
+            continue
         inv = rigid_inverse(tr.poses[t])
-        o, d = inv[:3, :3] @ origin + inv[:3, 3], dirs @ inv[:3, :3].T
+        d = dirs[rect].reshape(-1, 3)
+        o, d = inv[:3, :3] @ origin + inv[:3, 3], d @ inv[:3, :3].T
         half = tr.size / 2
         with np.errstate(divide="ignore", invalid="ignore"):
             a, b = (-half - o) / d, (half - o) / d
         lo = np.nan_to_num(np.minimum(a, b), nan=-np.inf).max(1)
         hi = np.nan_to_num(np.maximum(a, b), nan=np.inf).min(1)
-        hit = (lo < hi) & (hi > 0) & (np.maximum(lo, 0) < near)
-        owner[hit], near[hit], far[hit] = i, np.maximum(lo[hit], 0), hi[hit]
-    return owner.reshape(H, W), near.reshape(H, W), far.reshape(H, W)
+        sub_owner, sub_near, sub_far = owner[rect], near[rect], far[rect]  # views into the whole image
+        shape = sub_owner.shape
+        hit = ((lo < hi) & (hi > 0) & (np.maximum(lo, 0) < sub_near.ravel())).reshape(shape)
+        sub_owner[hit] = i
+        sub_near[hit] = np.maximum(lo.reshape(shape)[hit], 0)
+        sub_far[hit] = hi.reshape(shape)[hit]
+    return owner, near, far
 
 
 def box_rays(cameras: list, tracks: list[AgentTrack], t: int) -> list[tuple]:
@@ -195,17 +225,36 @@ def box_rays(cameras: list, tracks: list[AgentTrack], t: int) -> list[tuple]:
     return out
 
 
-def claim_reach(camera, far: np.ndarray, tol_m: float, tol_share: float) -> float:
-    """The farthest a Gaussian claimed by `claim_along_rays` on this camera's rays can be from its centre: the
-    largest leaving depth plus its tolerance, times the largest ratio of distance to camera depth in the image."""
-    hi = float(far.max())
-    zmax = hi + max(tol_m, tol_share * hi)
+def _farthest_corner(point: np.ndarray, tracks: list[AgentTrack]) -> float:
+    """The largest distance from `point` to a corner of the standing `tracks`' boxes (at their first pose)."""
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+    best = 0.0
+    for tr in tracks:
+        pose = tr.poses[int(np.argmax(tr.present))]
+        corners = (signs * tr.size / 2) @ pose[:3, :3].T + pose[:3, 3]
+        best = max(best, float(np.linalg.norm(corners - point, axis=1).max()))
+    return best
+
+
+def claim_reach(
+    camera, far_max: float, tol_m: float = CLAIM_RAY_TOL_M, tol_share: float = CLAIM_RAY_TOL_SHARE
+) -> float:
+    """The farthest a Gaussian claimed by `claim_along_rays` on this camera's rays can be from its centre, where a
+    ray leaves a box at camera depth `far_max` at most: that depth plus its tolerance, times the largest ratio of
+    distance to camera depth in the image."""
+    zmax = far_max + max(tol_m, tol_share * far_max)
     tx = max(camera.cx, camera.width - camera.cx) / camera.fx
     ty = max(camera.cy, camera.height - camera.cy) / camera.fy
     return zmax * math.sqrt(1.0 + tx * tx + ty * ty)
 
 
-def claim_along_rays(g: Gaussians, rays: list[tuple], tol_m: float = 1.0, tol_share: float = 0.1) -> Gaussians:
+def claim_along_rays(
+    g: Gaussians,
+    rays: list[tuple],
+    tol_m: float = CLAIM_RAY_TOL_M,
+    tol_share: float = CLAIM_RAY_TOL_SHARE,
+    tree: cKDTree | None = None,
+) -> Gaussians:
     """A learned mode's Gaussians (scene frame) with those made dynamic that a camera of `rays` (`box_rays`) sees on
     a ray through an agent's box, before it or within tol_m (or tol_share of the depth, if more) behind where the
     ray leaves it. A decoded depth is blurred over an agent's edge and often far off on a small agent, so the
@@ -215,14 +264,12 @@ def claim_along_rays(g: Gaussians, rays: list[tuple], tol_m: float = 1.0, tol_sh
         return g
     p = g.means.detach().double().cpu().numpy()
     take = np.zeros(len(p), bool)
-    p_lo, p_hi = p.min(0), p.max(0)
+    tree = cKDTree(p) if tree is None else tree  # `tree`: the caller's of the same means
     for camera, owner, far in rays:
-        # a camera whose claimed reach does not come near the Gaussians' bounds claims none of them (a long clip's
-        # far frames): skipped before projecting every Gaussian
-        centre = camera.position
-        if np.linalg.norm(np.maximum(np.maximum(p_lo - centre, centre - p_hi), 0.0)) > claim_reach(
-            camera, far, tol_m, tol_share
-        ):
+        # a camera with no Gaussian within its claim reach claims none (a long clip's far frames): skipped before
+        # projecting every Gaussian
+        reach = claim_reach(camera, float(far.max()), tol_m, tol_share)
+        if not np.isfinite(tree.query(camera.position, distance_upper_bound=reach)[0]):
             continue
         w2c = camera.world_to_camera
         pc = p @ w2c[:3, :3].T + w2c[:3, 3]
@@ -344,7 +391,12 @@ class ObjectBuilder:
         self.ray_frames = list(range(self.T)) if ray_frames is None else sorted({int(f) for f in ray_frames})
         standing = [tr for tr in self.claimed if tr.standing]
         cams = [rc.at(ego[f]) for f in self.ray_frames for rc in rig]
-        self.standing_rays = box_rays(cams, standing, 0) if claim_rays and standing else []
+        # their rays are computed per camera when first needed (`_standing_rays`): a long clip's first window then
+        # waits only for the cameras that can reach its Gaussians
+        self.standing = standing
+        self.standing_cams = cams if claim_rays and standing else []
+        self.standing_far = np.array([_farthest_corner(c.position, standing) for c in self.standing_cams])
+        self._standing_cache: dict[int, tuple | None] = {}
         self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
         for tr in self.tracks:
             if len(tr.poses) != self.T:
@@ -392,9 +444,28 @@ class ObjectBuilder:
             moving = [tr for tr in self.claimed if not tr.standing]
             frames = self.ray_frames if key == -1 else [t]
             self._rays = [r for f in frames for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)]
-            self._rays += self.standing_rays
             self._rays_key = key
-        return claim_along_rays(g, self._rays)
+        if not len(g):
+            return g
+        tree = cKDTree(g.means.detach().double().cpu().numpy())
+        return claim_along_rays(g, self._rays + self._standing_rays(tree), tree=tree)
+
+    def _standing_rays(self, tree: cKDTree) -> list[tuple]:
+        """The standing boxes' rays (`box_rays`) of the cameras that may claim one of the Gaussians in `tree`: those
+        with a Gaussian within `claim_reach` of the boxes' farthest corner (a ray leaves a box before it), each
+        camera's rays computed once."""
+        out = []
+        for i, cam in enumerate(self.standing_cams):
+            if not np.isfinite(
+                tree.query(cam.position, distance_upper_bound=claim_reach(cam, self.standing_far[i]))[0]
+            ):
+                continue
+            if i not in self._standing_cache:
+                r = box_rays([cam], self.standing, 0)
+                self._standing_cache[i] = r[0] if r else None
+            if self._standing_cache[i] is not None:
+                out.append(self._standing_cache[i])
+        return out
 
     def add(
         self, frames: list[int], dynamic: dict[int, Gaussians], observed: dict[int, Gaussians] | None = None

@@ -207,8 +207,9 @@ def test_oracle_scene_puts_the_explicit_agents_where_the_world_has_them(name):
         if a.moving:  # its object posed at each frame (Scene4D.dynamic_at), inside its footprint at that frame
             near = [_inside_footprint(scene.dynamic_at(t).means.numpy(), a.poses[t], a.size) for t in range(T)]
             assert sum(n > 0 for n in near) >= 3 * T // 4, f"{a.agent_id}: dynamic Gaussians per frame {near}"
-        else:  # a standing agent is static scenery
-            assert _inside_footprint(static, a.poses[0], a.size) > 100, a.agent_id
+        else:  # a standing agent is an object too (standing still): its Gaussians at frame 0 and any static ones
+            here = np.concatenate([static, scene.dynamic_at(0).means.numpy()])
+            assert _inside_footprint(here, a.poses[0], a.size) > 100, a.agent_id
 
 
 @pytest.mark.slow

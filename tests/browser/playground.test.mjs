@@ -234,7 +234,7 @@ test("a local .ply dropped on the viewer renders with the free camera", T, async
 
 test("a bad scenario shows its error naming the field", T, async () => {
   await page.keyboard.press("Escape");
-  await page.locator('[data-field="clip.frames"]').fill("99");
+  await page.locator('[data-field="clip.frames"]').fill("201"); // over the 200-frame cap (web/limits.js)
   await page.click("#generate-btn");
   await page.waitForSelector("#error:not([hidden])");
   const text = await page.textContent("#error-text");

@@ -234,3 +234,27 @@ def test_lit_objects_follow_the_scenes_light():
     assert night.colors.mean() < 0.5 * day.colors.mean()
     assert day.colors.mean() < albedo.colors.mean()
     assert (night.colors.max(1).values > 0.95).sum() > 10  # the lamps still glow at night
+
+
+def test_at_night_the_headlights_light_an_object_ahead_as_the_world_lights_its_agent():
+    """Without the lamps a generated truck 19 m ahead at night was black (0.03) where the world draws it grey (0.54):
+    the ego's headlights light its rear, less from farther, and the world's lights are off by day."""
+    from types import SimpleNamespace
+
+    from worldsplat.gaussians.agent_appearance import clip_lamps
+
+    rng = lambda: np.random.Generator(np.random.PCG64(1))  # noqa: E731
+    night = make_lighting("night", "clear", rng())
+    world = SimpleNamespace(lighting=night, lamps=np.zeros((0, 3)), ego_to_world=np.stack([np.eye(4)] * 2))
+
+    def rear(ahead: float | None) -> float:
+        lamps = None if ahead is None else clip_lamps(world, np.array([[ahead, 0.0, 0.0], [ahead, 0.0, 0.0]]))
+        g = agent_gaussians(CAR, SIZES[CAR], 2, "#c8c8c8", lighting=night, lamps=lamps)
+        back = g.means[:, 0] < -SIZES[CAR][0] / 2 + 0.02  # the rear face, towards the ego
+        return float(g.colors[back].mean())
+
+    assert rear(10.0) > 4 * rear(None) and rear(10.0) > 1.5 * rear(30.0) > 1.5 * rear(None)
+    day = SimpleNamespace(
+        lighting=make_lighting("day", "clear", rng()), lamps=np.zeros((0, 3)), ego_to_world=world.ego_to_world
+    )
+    assert clip_lamps(day, np.zeros((2, 3))) is None

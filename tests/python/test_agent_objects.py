@@ -112,8 +112,8 @@ def test_windows_append_to_the_object_and_an_object_source_replaces_the_decoded_
     drawn = Gaussians.from_numpy([[0, 0, 0]], [[1, 0, 0, 0]], [[1, 0.5, 0.4]], [1.0], [[0.2, 0.2, 0.2]], [[1.0]])
     calls = []
 
-    def source(cls, size, seed, colour):
-        calls.append((cls, tuple(size), seed))
+    def source(track, seed):
+        calls.append((track.cls, tuple(track.size), seed))
         return drawn
 
     b = _builder(tr, source=source, seed=3)

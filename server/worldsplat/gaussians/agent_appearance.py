@@ -15,6 +15,7 @@ frame. How close it comes to the world's agent (silhouette IoU, colour error, an
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -24,6 +25,7 @@ from worldsplat.world.classes import BUS, CAR, CYCLIST, PEDESTRIAN, TRUCK
 from worldsplat.world.colours import BUS_COLOURS, CLOTHES, TRUCK_COLOURS, VEHICLE_COLOURS, colour_word, hex_rgb
 from worldsplat.world.lighting import Lighting, make_lighting
 from worldsplat.world.prims import BOX, Prims
+from worldsplat.world.render import artificial_light
 from worldsplat.world.surfaces import prim_hits, shade_prims
 from worldsplat_models.geometry import matrix_to_quaternion
 
@@ -37,6 +39,10 @@ _PALETTES = {CAR: VEHICLE_COLOURS, BUS: BUS_COLOURS, TRUCK: TRUCK_COLOURS}
 _HEADINGS = 16  # sun headings averaged over when lighting an object that turns
 # The light albedo textures are made under (only the glazing's sky reflection reads it; lamps are off by day).
 DAYLIGHT = make_lighting("day", "clear", np.random.Generator(np.random.PCG64(0)))
+# (points, normals) (n,3) in the agent's footprint frame -> the light (n,3) they get beside the sky and the sun
+Lamps = Callable[[np.ndarray, np.ndarray], np.ndarray]
+# Frames of the clip the street lights and headlights on an object are averaged over (evenly spaced where more)
+LAMP_FRAMES = 8
 
 
 def agent_gaussians(
@@ -46,6 +52,7 @@ def agent_gaussians(
     colour: str | tuple[float, float, float] | None = None,
     *,
     lighting: Lighting | None = None,
+    lamps: Lamps | None = None,
 ) -> Gaussians:
     """The agent's canonical Gaussians in its box frame.
 
@@ -56,7 +63,9 @@ def agent_gaussians(
               paint's albedo, as `agents[i].colour`); None: drawn from the class palette by the seed
     lighting  None: colours are albedo (plus lamp emission); a scene's `Lighting`: lit by its sky and by its sun
               averaged over headings (the object turns with its track), and lamps glowing at dusk and night, as the
-              world shades a surface (no shadows, no fog: those depend on where the object is)."""
+              world shades a surface (no shadows, no fog: those depend on where the object is)
+    lamps     with `lighting`: the street lights and headlights where the object is (`clip_lamps`); at night
+              they are most of an agent's light (test:1, a truck 19 m ahead: exact 0.54 grey, unlit 0.03)"""
     prims = object_parts(cls, size, seed, colour)
     height = float(size[2])
     cls_id = CLASS_IDS[cls] if isinstance(cls, str) else int(cls)
@@ -65,7 +74,10 @@ def agent_gaussians(
     pts, frames, cell, k = _surfels(prims, spacing)
     ph = prim_hits(prims, k, pts)
     shade_prims(ph, prims, pts, lighting or DAYLIGHT)
-    rgb = (ph.col if lighting is None else ph.col * _light(lighting, ph.normal)) + ph.em
+    light = 1.0 if lighting is None else _light(lighting, ph.normal)
+    if lighting is not None and lamps is not None:
+        light = light + lamps(pts, ph.normal)
+    rgb = ph.col * light + ph.em
     means = pts - [0.0, 0.0, height / 2]  # footprint frame (z = 0 on the ground) -> box frame
     scales = np.concatenate([SURFEL_SPREAD * cell, np.full((len(pts), 1), SURFEL_THICKNESS)], 1)
     return Gaussians.from_numpy(
@@ -188,3 +200,28 @@ def _light(L: Lighting, normal: np.ndarray) -> np.ndarray:
     suns = np.stack([horiz * np.cos(az), horiz * np.sin(az), np.full(_HEADINGS, up)], -1)
     lambert = np.clip(normal @ suns.T, 0.0, None).mean(1)
     return L.ambient[None] * (0.75 + 0.25 * normal[:, 2:3]) + lambert[:, None] * L.sun_color[None]
+
+
+def clip_lamps(world, poses: np.ndarray, frames: int = LAMP_FRAMES) -> Lamps | None:
+    """The world's street lights and the ego's headlights (`world.render.artificial_light`) on an agent whose
+    footprint is at `poses` (T,3) x, y, yaw in the world (nan where absent), averaged over up to `frames` of its
+    frames evenly spaced: one canonical object is drawn at every frame, so it gets the clip's mean light. None
+    where the world's lights are off."""
+    if not world.lighting.lights_on:
+        return None
+    p = np.asarray(poses, np.float64)
+    present = np.flatnonzero(np.isfinite(p).all(1))
+    if not len(present):
+        return None
+    pick = present[np.unique(np.round(np.linspace(0, len(present) - 1, min(frames, len(present)))).astype(int))]
+
+    def lamps(pts: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(pts), 3))
+        for t in pick:
+            x, y, yaw = p[t]
+            c, s = math.cos(yaw), math.sin(yaw)
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            out += artificial_light(world, pts @ rot.T + [x, y, 0.0], normals @ rot.T, world.ego_to_world[t])
+        return out / len(pick)
+
+    return lamps

@@ -14,7 +14,7 @@ the same place in the same cell, and the agent seen from several sides and frame
 
 Every agent in the clip is an object, parked and standing ones too: before the aggregation, the Gaussians in a
 standing agent's box are made dynamic (`ObjectBuilder.claim`), so its static pixels become its object.
-`source` (generate mode): a function (class, size, seed, colour) -> Gaussians in the box frame draws an agent's
+`source` (generate mode): a function (the agent's track, appearance seed) -> Gaussians in the box frame draws an agent's
 canonical set instead; its in-box dynamic Gaussians are then absorbed. `add(..., observed=)` (reconstruct mode):
 the agents are built from other Gaussians than the frames' (the observed pixels in the boxes, `lift_in_boxes`),
 the frames' in-box Gaussians absorbed. `keep_unboxed=False` drops the dynamic Gaussians in no box (a learned mode's
@@ -73,8 +73,6 @@ CLAIM_FLOOR_M = 0.08
 OBSERVED_DEPTH_TOL_M = 0.1
 OBSERVED_DEPTH_TOL_SHARE = 0.0
 
-ObjectSource = Callable[[int, np.ndarray, int, "np.ndarray | None"], Gaussians]  # (cls, size, seed, colour) -> box
-
 
 @dataclass
 class AgentTrack:
@@ -89,6 +87,10 @@ class AgentTrack:
     name: str | None = None  # the scenario's agents[i].id for an explicit agent
     colour: np.ndarray | None = None  # (3,) RGB in [0, 1]: the world's body / clothing colour
     standing: bool = False  # a parked or standing agent (its pixels are static)
+
+
+# (the agent's track: class, size, colour, poses; its appearance seed) -> its canonical Gaussians in the box frame
+ObjectSource = Callable[[AgentTrack, int], Gaussians]
 
 
 def box_to_world(x: float, y: float, yaw: float, height: float) -> np.ndarray:
@@ -412,7 +414,7 @@ class ObjectBuilder:
         self.sourced: set[int] = set()
         if source is not None:
             for i, tr in enumerate(self.tracks):
-                self.parts[i].append(source(tr.cls, tr.size.copy(), int(seed) * 1000 + tr.agent_id, tr.colour))
+                self.parts[i].append(source(tr, int(seed) * 1000 + tr.agent_id))
                 self.sourced.add(i)
         self.unsent = set(self.sourced)
 

@@ -33,7 +33,7 @@ import torch
 
 from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
-from worldsplat.gaussians.agent_appearance import agent_gaussians
+from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.objects import (
@@ -41,6 +41,7 @@ from worldsplat.gaussians.objects import (
     AGENT_MODES,
     OBSERVED_DEPTH_TOL_M,
     OBSERVED_DEPTH_TOL_SHARE,
+    AgentTrack,
     ObjectBuilder,
     ObjectSource,
     agent_tracks,
@@ -192,8 +193,8 @@ def generate_scene(
     `default_mode()`. generate mode: the first window has `first_window` frames (0: the models' own windows) and is
     sampled with `first_steps` Euler steps (None: min(steps, FIRST_STEPS)). `agents`: "objects" (each moving
     agent one set of Gaussians in its box frame, posed by its track: `gaussians.objects`) or "per_frame" (the
-    paper's dynamics, re-drawn every frame). `object_source` draws an agent's object from (class, size, seed,
-    colour) instead (None: generate mode's `generated_object_source()`, the other modes none). `keyframe_step_m`:
+    paper's dynamics, re-drawn every frame). `object_source` draws an agent's object from (its track, seed)
+    instead (None: generate mode's `generated_object_source()`, the other modes none). `keyframe_step_m`:
     the models draw a keyframe each time the ego has moved this far (`frame_plan.keyframes`; 0: every frame; None:
     KEYFRAME_STEP_M in generate mode with agents as objects, else every frame: the oracle and reconstruct read
     every frame's ground truth, and per-frame agents exist only where drawn)."""
@@ -243,9 +244,16 @@ def generate_scene(
 def generated_object_source(world) -> ObjectSource | None:
     """Where generate mode's agent objects come from when the caller gives no `object_source`: the agent appearance
     generator (`gaussians.agent_appearance.agent_gaussians`: class, size, seed, colour -> Gaussians in the box
-    frame), lit by the `world`'s lighting. On test:0 it beat the decoded agents made objects (agents seen 0.50 vs
-    0.125, silhouette IoU 0.76 vs 0.55; the decoded per-frame agents 0.375 / 0.61: web/docs/agents.md)."""
-    return lambda cls, size, seed, colour: agent_gaussians(cls, size, seed, colour, lighting=world.lighting)
+    frame), lit by the `world`'s lighting and, where its lights are on, by the street lights and headlights on the
+    agent over the clip (`agent_appearance.clip_lamps`). On test:0 it beat the decoded agents made objects (agents
+    seen 0.50 vs 0.125, silhouette IoU 0.76 vs 0.55; the decoded per-frame agents 0.375 / 0.61: web/docs/agents.md)."""
+    poses = {int(a.track_id): a.poses for a in world.agents}
+
+    def draw(track: AgentTrack, seed: int) -> Gaussians:
+        lamps = clip_lamps(world, poses[track.agent_id])
+        return agent_gaussians(track.cls, track.size, seed, track.colour, lighting=world.lighting, lamps=lamps)
+
+    return draw
 
 
 # Which cameras' rays through the agents' boxes claim a learned mode's Gaussians (`ObjectBuilder.claim`). Test:0-2,

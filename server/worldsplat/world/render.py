@@ -289,7 +289,7 @@ def _light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.ndarray, smap
         + lambert[:, None] * L.sun_color.astype(np.float32)[None]
     )
     if L.lights_on:
-        light = light + _artificial_light(world, p, nrm, ego_to_world)
+        light = light + artificial_light(world, p, nrm, ego_to_world)
     return light
 
 
@@ -302,7 +302,7 @@ def _fog(L: Lighting, rgb: np.ndarray, t: np.ndarray, hi: np.ndarray, sk: np.nda
         rgb[sk] = rgb[sk] * 0.15 + L.fog_color.astype(np.float32)[None] * 0.85
 
 
-def _artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.ndarray) -> np.ndarray:
+def artificial_light(world, p: np.ndarray, nrm: np.ndarray, ego_to_world: np.ndarray) -> np.ndarray:
     """Street lights (warm pools under lamps) and the ego's headlights."""
     out = np.zeros((p.shape[0], 3), np.float32)
     lamps = world.lamps

@@ -131,6 +131,36 @@ def test_augment_flips_images_and_labels_together():
     assert torch.equal(ya[flipped], y[flipped].flip(-1)) and torch.equal(ya[~flipped], y[~flipped])
 
 
+def test_degrade_blurs_and_casts_some_images_within_range():
+    from worldsplat.training.judge import degrade
+
+    x = torch.zeros(16, 3, 16, 16)
+    x[..., 8:] = 1.0  # a sharp vertical edge
+    xd = degrade(x, torch.Generator().manual_seed(0))
+    assert xd.shape == x.shape and xd.min() >= 0 and xd.max() <= 1
+    assert torch.equal(xd, degrade(x, torch.Generator().manual_seed(0)))  # the step's generator decides
+    # blurred images have the edge spread over columns 6-9; the others keep it sharp (noise aside)
+    edge = (xd[:, :, :, 7] - x[:, :, :, 7]).abs().mean(dim=(1, 2))
+    blurred = edge > 0.1
+    assert 0 < int(blurred.sum()) < 16, edge
+    assert float((xd - x).abs().mean()) < 0.2
+
+
+def test_cached_renders_reuses_an_earlier_runs_file_only_when_asked(tmp_path):
+    key = {"split": "test", "clip": 3, "modes": {"oracle": "old"}}
+    made = downstream._cached_renders(tmp_path, key, lambda: {"gt_0.0": np.ones(2)})
+    assert made["gt_0.0"].sum() == 2
+    newer = {**key, "modes": {"oracle": "new"}}
+    assert downstream._cached_renders(tmp_path, newer, lambda: {"gt_0.0": np.zeros(2)})["gt_0.0"].sum() == 0
+    assert len(list(tmp_path.glob("renders_test_000003_*.npz"))) == 2
+    with pytest.raises(FileNotFoundError, match="one file"):  # two kept files: which one is not guessed
+        downstream._cached_renders(tmp_path, {**key, "modes": {"oracle": "x"}}, lambda: {}, reuse=True)
+    other = tmp_path / "other"
+    downstream._cached_renders(other, key, lambda: {"gt_0.0": np.full(2, 3.0)})
+    reused = downstream._cached_renders(other, newer, lambda: {"gt_0.0": np.zeros(2)}, reuse=True)
+    assert reused["gt_0.0"].sum() == 6.0
+
+
 def test_ordering_ground_truth_oracle_generate_on_the_shipped_judge():
     """The physics promise on one held-out clip (one frame, the three front cameras, the rig's track): the judge
     scores the world's own images at least as well as the oracle scene's render (exact colour and depth lifted,

@@ -4,7 +4,8 @@ trained on world ground truth (web/docs/downstream.md).
     worldsplat judge train --data DATA --out DIR [--steps N] [--minutes M]     weights + held-out figures + card
     worldsplat judge heldout --data DATA [--weights W] --out DIR               mIoU on DATA/test (world images)
     worldsplat judge eval --count N --shifts 0,2,-2,4,-4 --out DIR             domain gap per mode and shift,
-                                                                               judge Fréchet distances, BEV IoU
+                                                                               judge Fréchet distances, BEV IoU,
+                                                                               vehicle box AP
     worldsplat judge train-bev --data DATA --out DIR                           the BEV head
     worldsplat judge ablation --count N --shifts 2,-2 --out DIR                novel-view versions A-E ranked
     worldsplat judge augment --world DATA --batch DIR --out DIR                world vs world+generated clips
@@ -46,6 +47,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--clips", type=int, default=None, help="use the first N training clips (default all)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    t.add_argument(
+        "--degrade", action="store_true", help="also blur, colour-cast and add noise to training images (a 2nd judge)"
+    )
     b = sub.add_parser("train-bev", help="train the BEV head (drivable area, vehicles) through the frozen judge")
     b.add_argument("--data", type=Path, required=True, help="dataset folder with train/ (and test/ for the figures)")
     b.add_argument("--out", type=Path, required=True, help="checkpoints, log, judge_bev_small.safetensors, figures")
@@ -96,6 +100,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--refine", default="", help="also each mode refined on the track with these blends, e.g. none,holes,mix"
     )
     e.add_argument("--bev", type=Path, default=None, help="BEV head weights (default the shipped ones, when present)")
+    e.add_argument(
+        "--no-bev", action="store_true", help="no BEV or box scores (a judge the BEV head was not trained through)"
+    )
+    e.add_argument(
+        "--reuse-renders",
+        action="store_true",
+        help="judge each clip's one image file in --cache even if made by other served models (an earlier run)",
+    )
     e.add_argument("--threads", type=int, default=2)
     e.add_argument("--out", type=Path, required=True, help="output directory (downstream.json/.md/.png)")
     a = sub.add_parser("ablation", help="the novel-view ablation versions A-E: judge Fréchet distances and mIoU")
@@ -158,7 +170,8 @@ def run(args: argparse.Namespace) -> int:
         clip_frames=args.clip_frames,
         cache=args.cache or runs_dir() / "judge_renders",
         blends=tuple(b for b in args.refine.split(",") if b.strip()),
-        bev_head=_bev_head(args.bev),
+        bev_head=None if args.no_bev else _bev_head(args.bev),
+        reuse_renders=args.reuse_renders,
     )
     downstream.write_domain_gap(result, args.out)
     print(downstream.domain_gap_markdown(result))
@@ -182,6 +195,7 @@ def run_train(args: argparse.Namespace) -> int:
         seed=args.seed,
         threads=args.threads,
         clips=args.clips,
+        degraded=args.degrade,
     )
     print(f"wrote {path}")
     if (Path(args.data) / "test").is_dir():
@@ -208,7 +222,7 @@ def run_train_bev(args: argparse.Namespace) -> int:
     if (Path(args.data) / "test").is_dir():
         result = downstream.heldout_bev(judge, load_bev(path), args.data, "test")
         (Path(args.out) / "heldout_bev.json").write_text(json.dumps(result, indent=1) + "\n")
-        print(json.dumps({k: result[k] for k in ("samples", "bev_miou", "bev_iou")}))
+        print(json.dumps({k: result.get(k) for k in ("samples", "bev_miou", "bev_iou", "box_map", "box_ap")}))
     return 0
 
 

@@ -28,11 +28,12 @@ from PIL import Image
 from tqdm import tqdm
 
 from worldsplat.core.io import write_npz_atomic
+from worldsplat.evaluation.downstream_boxes import box_summary, shard_centres, true_centres, vehicle_centres
 from worldsplat.pipeline.refine import WEIGHTS as ENHANCER_WEIGHTS
 from worldsplat.pipeline.refine import load_refiner, refine_track
 from worldsplat.pipeline.render import render_scene_track
 from worldsplat.pipeline.scene import generate_scene, model_version
-from worldsplat.training.judge import load_images
+from worldsplat.training.judge import load_images, shard_files
 from worldsplat.training.judge_bev import bev_logits, bev_targets, load_bev_data
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import (
@@ -193,18 +194,28 @@ def heldout(judge: Judge, data: Path, split: str = "test", limit: int | None = N
 
 
 def heldout_bev(judge: Judge, head, data: Path, split: str = "test", limit: int | None = None) -> dict:
-    """The BEV head (through the judge) on every frame of DATA/SPLIT's clips against the world's exact raster."""
+    """The BEV head (through the judge) on every frame of DATA/SPLIT's clips against the world's exact raster, and
+    its vehicle centres against the clips' vehicles (`downstream_boxes`)."""
     t0 = time.time()
     images, targets = load_bev_data(data, split, head.cfg, limit)
+    truth = []
+    for f in shard_files(data, split, limit):
+        with np.load(f, allow_pickle=False) as z:
+            truth += shard_centres(z, head.cfg)
     counts = np.zeros((len(head.cfg.layers), 3), np.int64)
+    dets = []
     with torch.no_grad():
         for i in range(0, len(images), 8):
-            counts += bev_confusion(bev_logits(judge, head, images[i : i + 8]).numpy(), targets[i : i + 8])
+            logits = bev_logits(judge, head, images[i : i + 8]).numpy()
+            counts += bev_confusion(logits, targets[i : i + 8])
+            dets += vehicle_centres(logits, head.cfg) if "vehicle" in head.cfg.layers else []
+    boxes = box_summary(list(zip(dets, truth))) if dets else {}
     return {
         "split": split,
         "samples": int(len(images)),
         "grid": {"x_m": list(head.cfg.x_range), "y_m": list(head.cfg.y_range), "cell_m": head.cfg.cell},
         **bev_summary(counts, head.cfg.layers),
+        **boxes,
         "counts": counts.tolist(),
         "wall_s": round(time.time() - t0, 1),
         "weights": getattr(head, "meta", {}).get("provenance", {}),
@@ -286,13 +297,19 @@ def _clip_renders(scenario, modes, shifts, frames, cameras, steps, blends=()) ->
     return out
 
 
-def _cached_renders(cache: Path | None, key: dict, make) -> dict[str, np.ndarray]:
+def _cached_renders(cache: Path | None, key: dict, make, reuse: bool = False) -> dict[str, np.ndarray]:
     """`make()`'s arrays, kept in CACHE under a name hashed from `key` (the clip, the served models' versions and
-    everything that changes the images), so re-judging with other judge weights does not re-render."""
+    everything that changes the images), so re-judging with other judge weights does not re-render. With `reuse`,
+    the clip's one file in CACHE is taken whatever its key: the images of an earlier run, judged again."""
     if cache is None:
         return make()
     name = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
     path = Path(cache) / f"renders_{key['split']}_{key['clip']:06d}_{name}.npz"
+    if reuse and not path.exists():
+        kept = sorted(Path(cache).glob(f"renders_{key['split']}_{key['clip']:06d}_*.npz"))
+        if len(kept) != 1:
+            raise FileNotFoundError(f"reusing renders needs one file of clip {key['clip']} in {cache}: {len(kept)}")
+        path = kept[0]
     if path.exists():
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
@@ -313,13 +330,18 @@ class _Scores:
         self.conf = {r: {s: np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64) for s in shifts} for r in rows}
         self.feats = {r: {s: [] for s in shifts} for r in rows}
         self.bev = {r: {s: np.zeros((len(layers), 3), np.int64) for s in shifts} for r in rows} if layers else None
+        # per row and shift, per frame (vehicle detections, true vehicle centres): the box scores
+        self.boxes = {r: {s: [] for s in shifts} for r in rows} if "vehicle" in layers else None
 
-    def add(self, judge, head, row, s, images, labels, bev_targets_=None) -> None:
+    def add(self, judge, head, row, s, images, labels, bev_targets_=None, centres=None) -> None:
         self.conf[row][s] += confusion(segment(judge, images), labels)
         self.feats[row][s].append(features(judge, images))
         if self.bev is not None:
             with torch.no_grad():
-                self.bev[row][s] += bev_confusion(bev_logits(judge, head, images).numpy(), bev_targets_)
+                logits = bev_logits(judge, head, images).numpy()
+            self.bev[row][s] += bev_confusion(logits, bev_targets_)
+            if self.boxes is not None:
+                self.boxes[row][s] += list(zip(vehicle_centres(logits, head.cfg), centres))
 
     def table(self, rows, shifts, layers) -> dict:
         table = {r: {str(s): summary(self.conf[r][s]) for s in shifts} for r in rows}
@@ -330,6 +352,10 @@ class _Scores:
                 for s in shifts:
                     table[r][str(s)].update(bev_summary(self.bev[r][s], layers))
                 table[r]["all"].update(bev_summary(sum(self.bev[r].values()), layers))
+            if self.boxes is not None:
+                for s in shifts:
+                    table[r][str(s)].update(box_summary(self.boxes[r][s]))
+                table[r]["all"].update(box_summary([f for s in shifts for f in self.boxes[r][s]]))
         return table
 
     def frechet(self, rows, shifts) -> tuple[dict, float | None, np.ndarray]:
@@ -364,6 +390,7 @@ def domain_gap(
     progress: bool = True,
     blends: tuple[str, ...] = (),
     bev_head=None,
+    reuse_renders: bool = False,
 ) -> dict:
     """The judge on world images (ground truth row) and on renders of each mode's served scene, clips
     start..start+count-1 of `split` (the dataset's scenarios at the model image, `clip_frames` frames), at each
@@ -371,7 +398,8 @@ def domain_gap(
     blend (rows `refined_row(mode, blend)`); with `bev_head` (and every camera), the BEV head's IoU against the
     world's exact BEV raster. Returns per row and shift the `summary` (+ `bev_summary`), per row the judge Fréchet
     distance to the world images of the same clips and tracks, and the sampling floor of that distance (the world
-    images split in two halves). With `cache`, each clip's images are kept there and reused."""
+    images split in two halves). With `cache`, each clip's images are kept there and reused; with `reuse_renders`,
+    the clip's images in `cache` are judged whatever the served models' versions they were made with."""
     shifts, modes, blends = tuple(float(s) for s in shifts), tuple(modes), tuple(blends)
     rows = (GROUND_TRUTH, *modes, *(refined_row(m, b) for m in modes for b in blends))
     layers = tuple(bev_head.cfg.layers) if bev_head is not None and cameras is None else ()
@@ -394,15 +422,19 @@ def domain_gap(
             **({"refine": {"blends": list(blends), "enhancer": _enhancer_version()}} if blends else {}),
         }
         make = lambda sc=sc: _clip_renders(sc, modes, shifts, frames, cameras, steps, blends)  # noqa: E731
-        imgs = _cached_renders(cache, key, make)
+        imgs = _cached_renders(cache, key, make, reuse_renders)
+        missing = [f"{r}_{s}" for r in rows[1:] for s in shifts if f"{r}_{s}" not in imgs]
+        if missing:
+            raise KeyError(f"clip {i}'s images lack {', '.join(missing[:4])}: made for other rows or tracks")
         if not examples:  # the first clip's first judged frame and camera: the figure's images
             examples.update({k: v[0, 0] for k, v in imgs.items() if v.ndim >= 4})
         world = build_world(sc) if layers else None
         for s in shifts:
             targets = bev_targets(world, s, bev_head.cfg, frames) if layers else None
+            centres = true_centres(world, s, bev_head.cfg, frames) if layers else None
             for row in rows:
                 k = f"gt_{s}" if row == GROUND_TRUTH else f"{row}_{s}"
-                scores.add(judge, bev_head, row, s, imgs[k], imgs[f"labels_{s}"], targets)
+                scores.add(judge, bev_head, row, s, imgs[k], imgs[f"labels_{s}"], targets, centres)
         for m in modes:
             for k in timing[m]:
                 timing[m][k] += float(imgs.get(f"{m}_{k}", 0.0))
@@ -455,30 +487,49 @@ def _rows(r: dict) -> list[str]:
     return r.get("rows") or [GROUND_TRUTH, *r["modes"]]
 
 
+# the BEV and box scores of a row (`bev_summary`, `downstream_boxes.box_summary`): column title -> its value
+def _bev_scores(t: dict) -> dict[str, float | None]:
+    iou = t.get("bev_iou") or {}
+    out = {f"BEV {x} IoU": v for x, v in iou.items()}
+    if "box_map" in t:
+        out["vehicle box mAP"] = t["box_map"]
+    return out
+
+
 def _bev_lines(r: dict, shifts: list[str]) -> list[str]:
-    layers = r.get("bev_layers") or []
-    if not layers:
+    """Per BEV score (each layer's IoU, the vehicle box mAP) a table of rows by track, then the box AP per distance
+    threshold over all tracks."""
+    if not r.get("bev_layers"):
         return []
     lines = [
         "",
-        "BEV head (through the judge) against the world's exact BEV raster: mean IoU of "
-        f"{', '.join(layers)} per track, and each layer's IoU over all tracks:",
+        "BEV head (through the judge) against the world's exact BEV raster (IoU per layer) and its vehicle centres "
+        "against the world's vehicles (nuScenes' centre-distance AP, mean over 0.5/1/2/4 m; `downstream_boxes`), "
+        "per track:",
+    ]
+    for name in _bev_scores(r["table"][GROUND_TRUTH]["all"]):
+        lines += ["", f"| {name} | " + " | ".join(f"{s} m" for s in shifts) + " | all |"]
+        lines.append("|" + "---|" * (len(shifts) + 2))
+        for row in _rows(r):
+            t = r["table"][row]
+            lines.append(f"| {row} | " + " | ".join(_fmt(_bev_scores(t[s])[name]) for s in shifts + ["all"]) + " |")
+    ref = r["table"][GROUND_TRUTH]["all"]
+    if "box_ap" not in ref:
+        return lines
+    dists = list(ref["box_ap"])
+    lines += [
         "",
-        "| row | "
-        + " | ".join(f"BEV mIoU {s} m" for s in shifts)
-        + " | BEV mIoU all | "
-        + " | ".join(f"{x} IoU" for x in layers)
-        + " |",
-        "|" + "---|" * (len(shifts) + 2 + len(layers)),
+        "Vehicle box AP per centre-distance threshold, all tracks "
+        f"({ref['box_true']} true vehicle centres on the grid):",
+        "",
+        "| row | " + " | ".join(f"AP {d} m" for d in dists) + " | mAP | detections |",
+        "|" + "---|" * (len(dists) + 3),
     ]
     for row in _rows(r):
-        t = r["table"][row]
+        t = r["table"][row]["all"]
         lines.append(
-            f"| {row} | "
-            + " | ".join(_fmt(t[s]["bev_miou"]) for s in shifts)
-            + f" | {_fmt(t['all']['bev_miou'])} | "
-            + " | ".join(_fmt(t["all"]["bev_iou"][x]) for x in layers)
-            + " |"
+            f"| {row} | " + " | ".join(_fmt(t["box_ap"][d]) for d in dists) + f" | {_fmt(t['box_map'])} | "
+            f"{t['box_detections']} |"
         )
     return lines
 
@@ -537,12 +588,14 @@ def domain_gap_markdown(r: dict) -> str:
             f"| {row} | " + " | ".join(_fmt(t[s]["miou"]) for s in shifts) + f" | {_fmt(t['all']['miou'])} | "
             f"{ratio:.2f} |"
         )
-    lines += ["", "Per class group, all tracks together:", ""]
+    lines += ["", "Per class group, all tracks together (and the BEV and box scores, when scored):", ""]
     groups = list(GROUPS)
-    lines += ["| row | " + " | ".join(groups) + " |", "|" + "---|" * (len(groups) + 1)]
+    bev = list(_bev_scores(r["table"][GROUND_TRUTH]["all"]))  # beside the groups: the BEV and box scores
+    lines += ["| row | " + " | ".join(groups + bev) + " |", "|" + "---|" * (len(groups) + len(bev) + 1)]
     for row in rows:
-        g = r["table"][row]["all"]["groups"]
-        lines.append(f"| {row} | " + " | ".join(_fmt(g[k]) for k in groups) + " |")
+        t = r["table"][row]["all"]
+        scores = [t["groups"][k] for k in groups] + [_bev_scores(t)[k] for k in bev]
+        lines.append(f"| {row} | " + " | ".join(_fmt(v) for v in scores) + " |")
     lines += _gap_lines(r, rows, groups)
     lines += ["", "Judge Fréchet distance to the world images of the same clips and tracks (lower is closer):", ""]
     lines += ["| row | " + " | ".join(f"{s} m" for s in shifts) + " | all |", "|" + "---|" * (len(shifts) + 2)]

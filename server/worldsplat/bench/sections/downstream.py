@@ -70,7 +70,7 @@ def run(quick: bool) -> Section:
         t = r["table"][row]
         secs = _seconds(r, row)
         fd = r["frechet"][row]["all"] if row != GROUND_TRUTH else 0.0
-        extra = [t["all"]["bev_miou"]] if bev else []
+        extra = [t["all"]["bev_miou"], t["all"].get("box_map")] if bev else []
         rows.append([row, *(t[s]["miou"] for s in shifts), t["all"]["miou"], t["all"]["miou"] / gt, fd, *extra, secs])
         if row != GROUND_TRUTH:
             points.append((row, secs, t["all"]["miou"]))
@@ -88,7 +88,7 @@ def run(quick: bool) -> Section:
             "mIoU all",
             "/ ground truth",
             "judge FD",
-            *(["BEV mIoU"] if bev else []),
+            *(["BEV mIoU", "vehicle box mAP"] if bev else []),
             "s / clip",
         ],
         rows=rows,

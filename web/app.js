@@ -17,9 +17,10 @@ const state = {
   viewer: null, backend: null, loaded: false, source: null,
   frames: 0, fps: 4, frame: 0, playing: false, shift: 0, camera: "CAM_FRONT",
   dirty: true, events: [], errors: [], lastError: null, genJobId: null, videoJobId: null,
-  videos: {}, streamBytes: 0,
+  videos: {}, streamBytes: 0, draws: 0,  // draws: the viewer's renders so far (the benches count them)
   readyScene: null,  // the scene id whose generation finished (the cache holds it whole): what Download exports
-  timing: null,  // the last generate: ms from its POST to firstByte, firstStatic, firstDraw, whole (stream_latency)
+  timing: null,  // the last generate: ms from its POST to firstByte, firstStatic, firstDraw (the static scene),
+  // frame0 (its agents arrived), frame0Draw (frame 0 whole, drawn), whole (bench stream_latency, long-clip.mjs)
 };
 
 // ---- errors -----------------------------------------------------------------------------------------------------
@@ -235,7 +236,7 @@ async function streamScene(url) {
   }
   const total = Number(resp.headers.get("x-content-length")) || 0;
   const reader = resp.body.getReader();
-  let got = 0, shownStatic = 0;
+  let got = 0, shownStatic = 0, shownFrames = 0;
   state.loaded = false;
   v.begin_stream();
   for (;;) {
@@ -245,6 +246,7 @@ async function streamScene(url) {
     const p = parseJson(v.push_bytes(value));
     mark("firstByte");
     if (p && p.static_loaded > 0) mark("firstStatic");
+    if (p && p.frames_arrived > 0) mark("frame0");  // frame 0's agents (its POSE row or DYNA records) arrived
     $("load-state").textContent = `streaming ${fmtBytes(got)}${total ? ` / ${fmtBytes(total)}` : ""}` +
       (p && p.static_loaded != null ? ` · ${p.static_loaded} static` : "");
     if (!state.loaded && v.num_frames() > 0) onSceneReady(false);
@@ -253,6 +255,8 @@ async function streamScene(url) {
       shownStatic = p.static_loaded;
       drawSoon();
     }
+    if (p && p.frames_arrived > state.frame && state.frame >= shownFrames) drawSoon();  // the frame on screen's agents
+    if (p) shownFrames = Math.max(shownFrames, p.frames_arrived || 0);
   }
   v.end_stream();
   mark("whole");
@@ -338,8 +342,10 @@ function currentView() {
 function render() {
   if (!state.viewer || !state.loaded) return;
   state.viewer.render();
+  state.draws++;
   state.dirty = false;
   if (state.timing && state.timing.firstStatic != null) mark("firstDraw");
+  if (state.timing && state.timing.frame0 != null && state.frame === 0) mark("frame0Draw");  // frame 0 whole, drawn
 }
 
 /** Draw a pending view soon, whatever requestAnimationFrame does: on an idle page headless Chromium runs it only now

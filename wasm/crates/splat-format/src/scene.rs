@@ -103,6 +103,11 @@ impl Scene {
             .collect()
     }
 
+    /// Frames whose agents arrived (a POSE row or DYNA records): a streamed clip's frames fill window by window.
+    pub fn frames_arrived(&self) -> usize {
+        self.dynamic.iter().zip(&self.object_poses).filter(|(d, p)| !d.is_empty() || !p.is_empty()).count()
+    }
+
     /// What `dynamic_at(frame)` holds, as a key that changes when it does (a new DYNA or POSE chunk of the frame).
     pub fn dynamic_key(&self, frame: usize) -> (usize, usize) {
         let posed = self

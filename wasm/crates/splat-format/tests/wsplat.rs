@@ -640,3 +640,25 @@ fn v3_object_and_pose_payload_mutations_never_panic_and_streaming_agrees() {
     }
     assert!(errors > 300, "mutations must be caught ({errors} errors)");
 }
+
+#[test]
+fn v3_streamed_frames_arrive_in_order_as_their_pose_chunks_do() {
+    let bytes = vector("valid_v3_streamed");
+    let whole = read_wsplat(&bytes).unwrap();
+    assert_eq!(whole.frames_arrived(), whole.num_frames(), "every frame of the whole file has its agents");
+    let mut s = StreamingScene::default();
+    let mut seen = vec![0];
+    for piece in bytes.chunks(7) {
+        s.push(piece).unwrap();
+        let n = s.scene.frames_arrived();
+        assert!(n >= *seen.last().unwrap(), "frames_arrived went back: {seen:?} then {n}");
+        // the frames that arrived are the first n: a later frame never has its agents before an earlier one
+        for t in 0..n {
+            assert!(!s.scene.object_poses[t].is_empty() || !s.scene.dynamic[t].is_empty(), "frame {t} of {n}");
+        }
+        seen.push(n);
+    }
+    s.finish().unwrap();
+    assert_eq!(s.scene.frames_arrived(), whole.num_frames());
+    assert!(seen.iter().any(|&n| n > 0 && n < whole.num_frames()), "a prefix of the stream has some frames: {seen:?}");
+}

@@ -304,10 +304,12 @@ impl Inner {
     }
 }
 
-fn progress_json(p: &splat_format::wsplat::Progress, frames: usize) -> String {
+/// `frames_arrived`: the frames whose agents (poses or per-frame Gaussians) arrived so far, of `frames`.
+fn progress_json(p: &splat_format::wsplat::Progress, scene: &Scene) -> String {
     serde_json::json!({
         "bytes": p.bytes, "static_loaded": p.static_decoded, "static_total": p.static_total,
-        "dynamic_loaded": p.dynamic_decoded, "dynamic_total": p.dynamic_total, "frames": frames, "done": p.done,
+        "dynamic_loaded": p.dynamic_decoded, "dynamic_total": p.dynamic_total, "frames": scene.num_frames(),
+        "frames_arrived": scene.frames_arrived(), "done": p.done,
     })
     .to_string()
 }
@@ -460,8 +462,7 @@ impl Viewer {
         let mut i = self.inner.borrow_mut();
         let stream = i.stream.as_mut().ok_or_else(|| js_err("push_bytes: call begin_stream() first"))?;
         let p = stream.push(bytes).map_err(js_err)?;
-        let frames = stream.scene.num_frames();
-        Ok(progress_json(&p, frames))
+        Ok(progress_json(&p, &stream.scene))
     }
 
     /// The stream ended: throws if it stopped before the END! chunk (what arrived stays viewable).
@@ -470,9 +471,8 @@ impl Viewer {
         let mut stream = i.stream.take().ok_or_else(|| js_err("end_stream: no stream in progress"))?;
         let result = stream.finish();
         i.scene = std::mem::take(&mut stream.scene);
-        let frames = i.scene.num_frames();
         let p = result.map_err(js_err)?;
-        Ok(progress_json(&p, frames))
+        Ok(progress_json(&p, &i.scene))
     }
 
     /// Load a whole .wsplat or .ply.

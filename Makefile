@@ -54,7 +54,7 @@ bench: setup
 	$(ROOT)/.venv/bin/worldsplat bench --out web/docs/bench
 
 lock:
-	$(ROOT)/.venv/bin/pip freeze --exclude-editable --exclude commonroad-io --exclude nuscenes-devkit > package-config/requirements.lock
+	$(ROOT)/.venv/bin/pip freeze --all --exclude pip --exclude-editable --exclude commonroad-io --exclude nuscenes-devkit > package-config/requirements.lock
 
 clean:
 	rm -rf wasm/target .venv package-config/node_modules

@@ -22,14 +22,41 @@ setup_apt() {
   fi
 }
 
+# Free space the Python step needs at its peak (installed ~5.8 GB, most of it torch's CUDA libraries, which PyPI's
+# Linux torch needs at import even on a CPU, plus the largest wheel being unpacked).
+PYTHON_DISK_GB=7
+
+check_free_disk() {  # DIR GB WHAT: fail early, naming the need, rather than half-way through an install
+  local free_kb; free_kb=$(df -Pk "$1" | awk 'NR==2 {print $4}')
+  if ((free_kb < $2 * 1024 * 1024)); then
+    log "not enough disk for $3: needs about $2 GB free in $(df -P "$1" | awk 'NR==2 {print $6}'), has $((free_kb / 1024)) MB"
+    exit 1
+  fi
+}
+
+# requirements.lock is a whole `pip freeze`, so it installs with --no-deps: pip resolves nothing, and a package only
+# a GPU uses (triton, torch.compile's CUDA back end) is left out where no NVIDIA driver is. No pip cache (it would
+# keep a second copy of every wheel), and the large wheels one pip call each, so at most one is unpacked at a time.
+install_locked() {
+  local pip="$1" big=() rest=() line
+  while read -r line; do
+    [[ -z "$line" || "$line" == \#* ]] && continue
+    [[ "$line" == triton==* ]] && ! command -v nvidia-smi >/dev/null && continue
+    case "$line" in nvidia-*|torch==*|triton==*|ray==*) big+=("$line") ;; *) rest+=("$line") ;; esac
+  done < "$HERE/requirements.lock"
+  for line in "${big[@]}"; do "$pip" install -q --no-cache-dir --no-deps "$line"; done
+  "$pip" install -q --no-cache-dir --no-deps "${rest[@]}"
+}
+
 setup_python() {
   local venv="$ROOT/.venv" stamp="$ROOT/.venv/.lock-stamp"
   [[ -x "$venv/bin/python" ]] || { log "python: creating .venv"; python3 -m venv "$venv"; }
   if ! cmp -s "$HERE/requirements.lock" "$stamp" 2>/dev/null; then
     log "python: installing pinned dependencies"
-    "$venv/bin/pip" install -q --upgrade pip
-    "$venv/bin/pip" install -q -r "$HERE/requirements.lock"
-    "$venv/bin/pip" install -q --no-deps -r "$HERE/requirements-nodeps.lock"
+    check_free_disk "$ROOT" "$PYTHON_DISK_GB" "the Python dependencies (.venv)"
+    "$venv/bin/pip" install -q --no-cache-dir --upgrade pip
+    install_locked "$venv/bin/pip"
+    "$venv/bin/pip" install -q --no-cache-dir --no-deps -r "$HERE/requirements-nodeps.lock"
     cp "$HERE/requirements.lock" "$stamp"
   fi
   # The project itself, editable, so `worldsplat` runs the working tree.

@@ -24,7 +24,7 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     vae = out / "vae.safetensors"
     # decoder-only fine-tune: the encoder (hence every cached latent) is untouched, the decoder moves
     ft = tmp_path / "vae_ft"
-    c.train_vae_decoder(data, vae, ft, clips=2, steps=2, ckpt_every=1, test_clips=1)
+    c.train_vae_decoder(data, vae, ft, clips=2, steps=2, ckpt_every=1, test_clips=1, detail_weight=1.0)
     before, after = load_weights(vae, "vae").state_dict(), load_weights(ft / "vae.safetensors", "vae").state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before if k.startswith("encoder.") or "latent_" in k)
     assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith("decoder."))

@@ -19,7 +19,12 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=int, default=0, help="cache: first shard (a part; join parts with --merge)")
     p.add_argument("--merge", action="store_true", help="cache: join the parts written with --start")
     p.add_argument("--steps", type=int, default=1000)
-    p.add_argument("--batch", type=int, default=None, help="dit: clips per step (2); prior: images per step (16)")
+    p.add_argument(
+        "--batch",
+        type=int,
+        default=None,
+        help="dit: clips per step (2); prior: images per step (16); vae-decoder: images per step (4)",
+    )
     p.add_argument("--prior", type=Path, help="dit: generate the residual of this frozen layout prior")
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--threads", type=int, default=1)
@@ -31,6 +36,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         "--render-down", type=int, default=2, help="decoder: render the loss views at image/N (1: the full image)"
     )
     p.add_argument("--ckpt-every", type=int, default=None)
+    p.add_argument(
+        "--detail-weight",
+        type=float,
+        default=0.0,
+        help="vae-decoder: weight of the edge + luma-SSIM term, brightness-normalised (training.loop.detail_loss)",
+    )
     p.add_argument(
         "--layout-channels",
         type=int,
@@ -66,7 +77,17 @@ def run(a: argparse.Namespace) -> int:
         c.train_vae(a.data, a.out, clips=a.clips or 1500, steps=a.steps, threads=a.threads, **kw)
     elif a.stage == "vae-decoder":
         need("data", "vae")
-        c.train_vae_decoder(a.data, a.vae, a.out, clips=a.clips or 300, steps=a.steps, threads=a.threads, **kw)
+        c.train_vae_decoder(
+            a.data,
+            a.vae,
+            a.out,
+            clips=a.clips or 300,
+            steps=a.steps,
+            threads=a.threads,
+            detail_weight=a.detail_weight,
+            images=a.batch or 4,
+            **kw,
+        )
     elif a.stage == "cache":
         if a.merge:
             print(c.merge_cache(a.out, a.split))

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from worldsplat.core.io import atomic_path
-from worldsplat.core.metrics import depth_abs_rel, iou_counts, pooled_iou, psnr
+from worldsplat.core.metrics import depth_abs_rel, iou_counts, pooled_iou, psnr, ssim_map
 from worldsplat.training.data import collate, sample_from_shard, vae_inputs
 from worldsplat.training.loop import (
     COND_KEYS,
@@ -148,17 +148,21 @@ def load_images(files) -> list[dict]:
 
 @torch.no_grad()
 def vae_heldout(vae, samples: list[dict], dcfg: DataConfig = DCFG) -> dict:
-    """RGB PSNR, 8x8-pooled RGB PSNR (colour), depth AbsRel (0.5 < GT < 80 m), pooled dynamic-mask IoU."""
+    """RGB PSNR (mean and per clip), 8x8-pooled RGB PSNR (colour), luma SSIM, depth AbsRel (0.5 < GT < 80 m),
+    pooled dynamic-mask IoU."""
     was = vae.training
     vae.eval()
     dev = next(vae.parameters()).device  # the CPU, or a GPU (training.recipe)
-    ps, pp, rel, iou = [], [], [], []
+    ps, pp, rel, iou, lum, per_clip = [], [], [], [], [], []
     for s in samples:
         rgb, depth, mask, _ = vae_inputs(collate([s]), dcfg)
         rgb, depth, mask = rgb.to(dev), depth.to(dev), mask.to(dev)
         r, d, m = vae.decode_joint(vae.encode_joint(rgb, depth, mask))
         a, b = (r + 1) / 2, (rgb + 1) / 2
         ps += [psnr(a[i], b[i]) for i in range(len(a))]
+        per_clip.append(round(float(np.mean(ps[-len(a) :])), 2))
+        lw = torch.tensor([0.299, 0.587, 0.114], device=dev).view(1, 3, 1, 1)
+        lum.append(float(ssim_map((a * lw).sum(1, keepdim=True), (b * lw).sum(1, keepdim=True)).mean()))
         ap, bp = F.avg_pool2d(a, 8), F.avg_pool2d(b, 8)
         pp += [psnr(ap[i], bp[i]) for i in range(len(ap))]
         gt = torch.from_numpy(s["depth"]).reshape(-1, 1, *s["depth"].shape[-2:]).to(dev)
@@ -169,8 +173,10 @@ def vae_heldout(vae, samples: list[dict], dcfg: DataConfig = DCFG) -> dict:
     return {
         "rgb_psnr": float(np.mean(ps)),
         "rgb_psnr_pool8": float(np.mean(pp)),
+        "luma_ssim": float(np.mean(lum)),
         "depth_absrel": float(np.mean(rel)),
         "mask_iou": pooled_iou(iou),
+        "rgb_psnr_per_clip": per_clip,
     }
 
 
@@ -229,9 +235,11 @@ def train_vae_decoder(
     threads: int = 1,
     ckpt_every: int = 100,
     test_clips: int = 4,
+    detail_weight: float = 0.0,
 ) -> None:
-    """Fine-tune the decoder of the VAE at `vae_path` (encoder, latent statistics frozen; see vae_decoder_step_fn);
-    held-out figures per checkpoint incl. mean saturation (max - min channel) of decoded vs true RGB."""
+    """Fine-tune the decoder of the VAE at `vae_path` (encoder, latent statistics frozen; see vae_decoder_step_fn,
+    `detail_weight` its edge and luma-SSIM term); held-out figures per checkpoint incl. mean saturation (max - min
+    channel) of decoded vs true RGB."""
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
     samples = load_images(shard_files(data, "train", clips))
@@ -255,7 +263,9 @@ def train_vae_decoder(
     train_loop(
         "vae_decoder",
         vae,
-        vae_decoder_step_fn(samples, DCFG, images_per_step=images, chroma_weight=chroma_weight),
+        vae_decoder_step_fn(
+            samples, DCFG, images_per_step=images, chroma_weight=chroma_weight, detail_weight=detail_weight
+        ),
         tcfg,
         out,
         progress=False,

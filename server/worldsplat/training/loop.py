@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from worldsplat.core.camera import Camera, rigid_inverse
 from worldsplat.core.io import atomic_path
-from worldsplat.core.metrics import ssim
+from worldsplat.core.metrics import ssim, ssim_map
 from worldsplat.gaussians import Gaussians, rasterize
 from worldsplat.training.data import collate, vae_inputs
 from worldsplat_models import rflow
@@ -218,12 +218,21 @@ def vae_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4,
     return step
 
 
-def vae_decoder_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: int = 4, chroma_weight: float = 4.0):
+def vae_decoder_step_fn(
+    samples: list[dict],
+    dcfg: DataConfig,
+    images_per_step: int = 4,
+    chroma_weight: float = 4.0,
+    detail_weight: float = 0.0,
+):
     """Decoder-only fine-tune (the encoder and the latent statistics stay frozen, so every latent already cached,
     and every model trained on them, stays valid; as Stability's ft-MSE decoder for the SD VAE). Whole images,
     decoded from the posterior mean (what inference decodes), vae_loss with the chroma term: the served VAE decoded
     every scene nearly grey (mean saturation 0.03 where the ground truth has 0.19 on a sunny clip) because most
-    world scenes are dim, so plain L1 + SSIM paid little for colour."""
+    world scenes are dim, so plain L1 + SSIM paid little for colour. `detail_weight` adds `detail_loss` (edges and
+    luma SSIM, brightness-normalised), the terms that pay for sharpness at dusk and at night, and as much again of
+    the depth images' L1: the decoder is shared by the modalities, and the RGB terms alone pull the decoded depth off
+    (held-out AbsRel 0.042 -> 0.047 in 40 steps without it)."""
 
     def step(vae, step_i, gen):
         model = unwrap(vae)
@@ -239,9 +248,36 @@ def vae_decoder_step_fn(samples: list[dict], dcfg: DataConfig, images_per_step: 
         x = torch.cat(xs)
         with torch.no_grad():
             z = model.encode(x)
-        return vae_loss(model.decode(z), x, torch.zeros(()), 0.0, images_per_step, chroma_weight)
+        recon = model.decode(z)
+        loss, logs = vae_loss(recon, x, torch.zeros(()), 0.0, images_per_step, chroma_weight)
+        if detail_weight:
+            detail, dlogs = detail_loss(recon[0::3], x[0::3])
+            depth_l1 = (recon[1::3].float() - x[1::3]).abs().mean()
+            loss = loss + detail_weight * (detail + depth_l1)
+            logs |= dlogs
+        return loss, logs
 
     return step
+
+
+# A dim image's errors are small in absolute terms, so L1 barely pays for its detail although luma SSIM (which
+# normalises contrast) and the eye see it: detail_loss divides each image's terms by its mean brightness, capped.
+DETAIL_REF_BRIGHTNESS = 0.35
+DETAIL_MAX_GAIN = 4.0
+
+
+def detail_loss(recon: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict]:
+    """RGB images (N,3,H,W) in [-1,1] -> (L1 of the horizontal and vertical differences + (1 - luma SSIM)), each
+    image weighted by DETAIL_REF_BRIGHTNESS / its mean brightness (between 1 and DETAIL_MAX_GAIN), and logs.
+    Edges and local contrast, not the mean: an L2 or L1 objective alone is minimised by a blur."""
+    r, t = (recon.float() + 1) * 0.5, (x.float() + 1) * 0.5
+    gain = (DETAIL_REF_BRIGHTNESS / t.mean(dim=(1, 2, 3)).clamp_min(1e-3)).clamp(1.0, DETAIL_MAX_GAIN)
+    dx = ((r[..., 1:] - r[..., :-1]) - (t[..., 1:] - t[..., :-1])).abs().mean(dim=(1, 2, 3))
+    dy = ((r[..., 1:, :] - r[..., :-1, :]) - (t[..., 1:, :] - t[..., :-1, :])).abs().mean(dim=(1, 2, 3))
+    lw = torch.tensor([0.299, 0.587, 0.114], dtype=r.dtype).view(1, 3, 1, 1)
+    s = ssim_map((r * lw).sum(1, keepdim=True), (t * lw).sum(1, keepdim=True)).mean(dim=(1, 2, 3))
+    per = gain * (dx + dy + (1 - s))
+    return per.mean(), {"edge": float((dx + dy).mean().detach()), "luma_ssim": float(s.mean().detach())}
 
 
 def vae_loss(

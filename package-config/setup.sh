@@ -50,10 +50,12 @@ install_locked() {
 
 setup_python() {
   local venv="$ROOT/.venv" stamp="$ROOT/.venv/.lock-stamp"
-  [[ -x "$venv/bin/python" ]] || { log "python: creating .venv"; python3 -m venv "$venv"; }
+  if [[ ! -x "$venv/bin/python" ]]; then
+    check_free_disk "$ROOT" "$PYTHON_DISK_GB" "the Python dependencies (.venv)"
+    log "python: creating .venv"; python3 -m venv "$venv"
+  fi
   if ! cmp -s "$HERE/requirements.lock" "$stamp" 2>/dev/null; then
     log "python: installing pinned dependencies"
-    check_free_disk "$ROOT" "$PYTHON_DISK_GB" "the Python dependencies (.venv)"
     "$venv/bin/pip" install -q --no-cache-dir --upgrade pip
     install_locked "$venv/bin/pip"
     "$venv/bin/pip" install -q --no-cache-dir --no-deps -r "$HERE/requirements-nodeps.lock"

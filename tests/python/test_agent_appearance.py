@@ -258,3 +258,22 @@ def test_at_night_the_headlights_light_an_object_ahead_as_the_world_lights_its_a
         lighting=make_lighting("day", "clear", rng()), lamps=np.zeros((0, 3)), ego_to_world=world.ego_to_world
     )
     assert clip_lamps(day, np.zeros((2, 3))) is None
+
+
+def test_the_sun_lights_the_side_of_an_object_it_lights_at_the_agents_own_heading():
+    """A bus whose shaded side faced the camera was drawn lit by the sun averaged over every heading (0.28 where the
+    world drew 0.16): with the agent's headings, the face turned to the sun is the lit one."""
+    light = make_lighting("day", "clear", np.random.Generator(np.random.PCG64(3)))
+    to_left = math.atan2(light.sun_dir[1], light.sun_dir[0]) - math.pi / 2  # the yaw that turns the left side sunwards
+    w = SIZES[CAR][1]
+
+    def sides(headings) -> tuple[float, float]:
+        g = agent_gaussians(CAR, SIZES[CAR], 2, "#c8c8c8", lighting=light, headings=headings)
+        y = g.means[:, 1]
+        return float(g.colors[y > w / 2 - 0.02].mean()), float(g.colors[y < -w / 2 + 0.02].mean())
+
+    left, right = sides(np.array([to_left]))
+    flipped = sides(np.array([to_left + math.pi]))
+    every = sides(None)
+    assert left > 1.5 * right and flipped[1] > 1.5 * flipped[0]
+    assert right < every[1] < left and abs(every[0] - every[1]) < 0.1 * every[0]

@@ -41,8 +41,8 @@ _HEADINGS = 16  # sun headings averaged over when lighting an object that turns
 DAYLIGHT = make_lighting("day", "clear", np.random.Generator(np.random.PCG64(0)))
 # (points, normals) (n,3) in the agent's footprint frame -> the light (n,3) they get beside the sky and the sun
 Lamps = Callable[[np.ndarray, np.ndarray], np.ndarray]
-# Frames of the clip the street lights and headlights on an object are averaged over (evenly spaced where more)
-LAMP_FRAMES = 8
+# Frames of the clip an object is lit at (its headings, the street lights and headlights on it), evenly spaced
+LIGHT_FRAMES = 8
 
 
 def agent_gaussians(
@@ -53,6 +53,7 @@ def agent_gaussians(
     *,
     lighting: Lighting | None = None,
     lamps: Lamps | None = None,
+    headings: np.ndarray | None = None,
 ) -> Gaussians:
     """The agent's canonical Gaussians in its box frame.
 
@@ -65,7 +66,9 @@ def agent_gaussians(
               averaged over headings (the object turns with its track), and lamps glowing at dusk and night, as the
               world shades a surface (no shadows, no fog: those depend on where the object is)
     lamps     with `lighting`: the street lights and headlights where the object is (`clip_lamps`); at night
-              they are most of an agent's light (test:1, a truck 19 m ahead: exact 0.54 grey, unlit 0.03)"""
+              they are most of an agent's light (test:1, a truck 19 m ahead: exact 0.54 grey, unlit 0.03)
+    headings  with `lighting`: the agent's yaws in the world over the clip (`clip_headings`): the sun lights the
+              faces it lights there, averaged over them; None: averaged over every heading"""
     prims = object_parts(cls, size, seed, colour)
     height = float(size[2])
     cls_id = CLASS_IDS[cls] if isinstance(cls, str) else int(cls)
@@ -74,7 +77,7 @@ def agent_gaussians(
     pts, frames, cell, k = _surfels(prims, spacing)
     ph = prim_hits(prims, k, pts)
     shade_prims(ph, prims, pts, lighting or DAYLIGHT)
-    light = 1.0 if lighting is None else _light(lighting, ph.normal)
+    light = 1.0 if lighting is None else _light(lighting, ph.normal, headings)
     if lighting is not None and lamps is not None:
         light = light + lamps(pts, ph.normal)
     rgb = ph.col * light + ph.em
@@ -191,29 +194,46 @@ def _inside_other(prims: Prims, k: int, p: np.ndarray) -> np.ndarray:
     return out
 
 
-def _light(L: Lighting, normal: np.ndarray) -> np.ndarray:
+def _light(L: Lighting, normal: np.ndarray, headings: np.ndarray | None = None) -> np.ndarray:
     """The world's surface light (`world.render`: sky ambient by the normal's tilt plus Lambert sun) with the sun
-    averaged over headings; street lights and headlights are left out (they depend on where the object is)."""
-    az = 2 * math.pi * np.arange(_HEADINGS) / _HEADINGS
+    averaged over the object's `headings` (yaws in the world; None: _HEADINGS evenly spaced); street lights and
+    headlights come from `lamps`, shadows are left out (they depend on where the object is)."""
     sun = L.sun_dir
-    horiz, up = math.hypot(sun[0], sun[1]), sun[2]
-    suns = np.stack([horiz * np.cos(az), horiz * np.sin(az), np.full(_HEADINGS, up)], -1)
+    if headings is None:
+        headings = 2 * math.pi * np.arange(_HEADINGS) / _HEADINGS
+    yaw = np.asarray(headings, np.float64)
+    # the sun in the box frame of an object turned by yaw: the world's sun turned by -yaw
+    c, s = np.cos(yaw), np.sin(yaw)
+    suns = np.stack([c * sun[0] + s * sun[1], -s * sun[0] + c * sun[1], np.full(len(yaw), sun[2])], -1)
     lambert = np.clip(normal @ suns.T, 0.0, None).mean(1)
     return L.ambient[None] * (0.75 + 0.25 * normal[:, 2:3]) + lambert[:, None] * L.sun_color[None]
 
 
-def clip_lamps(world, poses: np.ndarray, frames: int = LAMP_FRAMES) -> Lamps | None:
-    """The world's street lights and the ego's headlights (`world.render.artificial_light`) on an agent whose
-    footprint is at `poses` (T,3) x, y, yaw in the world (nan where absent), averaged over up to `frames` of its
-    frames evenly spaced: one canonical object is drawn at every frame, so it gets the clip's mean light. None
-    where the world's lights are off."""
-    if not world.lighting.lights_on:
-        return None
+def clip_frames(poses: np.ndarray, frames: int = LIGHT_FRAMES) -> np.ndarray:
+    """Up to `frames` of the frames where an agent (poses (T,3) x, y, yaw in the world, nan where absent) is
+    present, evenly spaced: the frames its one canonical object is lit at (it is drawn at every frame)."""
     p = np.asarray(poses, np.float64)
     present = np.flatnonzero(np.isfinite(p).all(1))
     if not len(present):
+        return present
+    return present[np.unique(np.round(np.linspace(0, len(present) - 1, min(frames, len(present)))).astype(int))]
+
+
+def clip_headings(poses: np.ndarray) -> np.ndarray | None:
+    """The agent's yaws in the world at its `clip_frames` (None where it is never present)."""
+    pick = clip_frames(poses)
+    return np.asarray(poses, np.float64)[pick, 2] if len(pick) else None
+
+
+def clip_lamps(world, poses: np.ndarray) -> Lamps | None:
+    """The world's street lights and the ego's headlights (`world.render.artificial_light`) on an agent whose
+    footprint is at `poses` (T,3) x, y, yaw in the world (nan where absent), averaged over its `clip_frames`: one
+    canonical object is drawn at every frame, so it gets the clip's mean light. None where the world's lights are
+    off."""
+    pick = clip_frames(poses)
+    if not world.lighting.lights_on or not len(pick):
         return None
-    pick = present[np.unique(np.round(np.linspace(0, len(present) - 1, min(frames, len(present)))).astype(int))]
+    p = np.asarray(poses, np.float64)
 
     def lamps(pts: np.ndarray, normals: np.ndarray) -> np.ndarray:
         out = np.zeros((len(pts), 3))

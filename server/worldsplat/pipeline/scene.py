@@ -33,7 +33,7 @@ import torch
 
 from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
-from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_lamps
+from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.objects import (
@@ -46,6 +46,7 @@ from worldsplat.gaussians.objects import (
     ObjectSource,
     agent_tracks,
     lift_in_boxes,
+    occluder_pixels,
 )
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.pipeline.frame_plan import FIRST_WINDOW, KEYFRAME_STEP_M, KeyWindow, keyframe_plan
@@ -71,8 +72,10 @@ ORACLE_VERSION = "oracle-6"
 # w11 every agent an object (parked ones too), reconstruct's from the observed pixels, no dynamics in no box; w12
 # reconstruct serves the VAE's decoding lifted per pixel (`inference.GAUSSIANS` per mode, `Economy.for_lifted_decoding`);
 # w13 generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame); w14
-# decoded scales floored at 1.0 model pixel (`inference.DECODED_SCALE_FLOOR_MODEL_PX`: no grid at display sizes)
-STREAM_VERSION = "w14"
+# decoded scales floored at 1.0 model pixel (`inference.DECODED_SCALE_FLOOR_MODEL_PX`: no grid at display sizes);
+# w15 reconstruct keeps what its observation shows before an agent (`objects.occluder_pixels`), generate's objects
+# lit by the sun at their own headings and by the street lights and headlights on them
+STREAM_VERSION = "w15"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -244,14 +247,16 @@ def generate_scene(
 def generated_object_source(world) -> ObjectSource | None:
     """Where generate mode's agent objects come from when the caller gives no `object_source`: the agent appearance
     generator (`gaussians.agent_appearance.agent_gaussians`: class, size, seed, colour -> Gaussians in the box
-    frame), lit by the `world`'s lighting and, where its lights are on, by the street lights and headlights on the
-    agent over the clip (`agent_appearance.clip_lamps`). On test:0 it beat the decoded agents made objects (agents
+    frame), lit by the `world`'s lighting with the sun at the agent's own headings over the clip
+    (`agent_appearance.clip_headings`) and, where its lights are on, by the street lights and headlights on it
+    (`clip_lamps`). On test:0 it beat the decoded agents made objects (agents
     seen 0.50 vs 0.125, silhouette IoU 0.76 vs 0.55; the decoded per-frame agents 0.375 / 0.61: web/docs/agents.md)."""
     poses = {int(a.track_id): a.poses for a in world.agents}
 
     def draw(track: AgentTrack, seed: int) -> Gaussians:
-        lamps = clip_lamps(world, poses[track.agent_id])
-        return agent_gaussians(track.cls, track.size, seed, track.colour, lighting=world.lighting, lamps=lamps)
+        p = poses[track.agent_id]
+        return agent_gaussians(track.cls, track.size, seed, track.colour, lighting=world.lighting,
+                               lamps=clip_lamps(world, p), headings=clip_headings(p))  # fmt: skip
 
     return draw
 
@@ -302,12 +307,19 @@ class _Collect:
         per_view: list[list[Gaussians]],
         timing: dict | None = None,
         observed: Callable[[ObjectBuilder], dict[int, Gaussians]] | None = None,
+        shields: Callable[[ObjectBuilder], dict[int, list]] | None = None,
     ) -> None:
         """A window's frames [i][v] (scene frame). `observed(builder)`: where the agents' objects come from
-        instead of the frames' in-box Gaussians (`ObjectBuilder.add`), e.g. reconstruct's observed pixels."""
+        instead of the frames' in-box Gaussians (`ObjectBuilder.add`), e.g. reconstruct's observed pixels.
+        `shields(builder)`: per frame, per view, (camera, the pixels that show an occluder before an agent,
+        `objects.occluder_pixels`) whose Gaussians are not claimed along the rays through the boxes."""
         t0 = time.perf_counter()
         if self.objects is not None:
-            per_view = [[self.objects.claim(t, g) for g in views] for t, views in zip(frames, per_view, strict=True)]
+            sh = {} if shields is None else shields(self.objects)
+            per_view = [
+                [self.objects.claim(t, g, sh[t][v] if t in sh else None) for v, g in enumerate(views)]
+                for t, views in zip(frames, per_view, strict=True)
+            ]
         static, dynamic = self.agg.add(frames, per_view)
         added = None
         if self.objects is not None:
@@ -389,12 +401,14 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
             prog("reconstruct", wi / len(wins))
             dec = inf.reconstruct(clip, models=models)
             observed = lambda b, dec=dec, w=w, clip=clip: _observed_agents(inf, models, dec, clip, w, b)  # noqa: E731
+            shields = lambda b, dec=dec, w=w, clip=clip: _occluders(dec, clip, w, b)  # noqa: E731
         for k, v in dec.meta.get("timing_s", {}).items():
             timing[k] = timing.get(k, 0.0) + float(v)
         _check(cancelled)
         prog("aggregate", (wi + 1) / len(wins))
+        observes = mode == "reconstruct"
         out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
-                   observed if mode == "reconstruct" else None)  # fmt: skip
+                   observed if observes else None, shields if observes else None)  # fmt: skip
     return out.scene(timing)
 
 
@@ -439,6 +453,18 @@ def _observed_agents(inf, models, dec, clip, w: KeyWindow, builder: ObjectBuilde
         cams = [rig[v].at(dec.ego_to_world[i]) for v in range(V)]
         out[t] = Gaussians.cat([lift_in_boxes(rgb[i * V + v], depth[i * V + v], cams[v], builder.tracks, t, *tol)
                                 for v in range(V)])  # fmt: skip
+    return out
+
+
+def _occluders(dec, clip, w: KeyWindow, builder: ObjectBuilder) -> dict[int, list]:
+    """reconstruct: per observed frame, per view, (camera, the pixels its observed depth shows to be no agent's,
+    `objects.occluder_pixels`): the barrier before a car is kept, not claimed for the car."""
+    V = len(dec.rig)
+    depth = np.asarray(clip.depth, np.float64)
+    out = {}
+    for i, t in enumerate(w.keys):
+        cams = [dec.rig[v].at(dec.ego_to_world[i]) for v in range(V)]
+        out[t] = [(cams[v], occluder_pixels(depth[i, v], cams[v], builder.tracks, t)) for v in range(V)]
     return out
 
 

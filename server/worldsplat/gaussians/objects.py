@@ -187,13 +187,11 @@ def _box_pixels(camera, pose: np.ndarray, size: np.ndarray) -> tuple[slice, slic
     return (slice(r0, r1), slice(c0, c1)) if r0 < r1 and c0 < c1 else None
 
 
-def box_depths(camera, tracks: list[AgentTrack], t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per pixel of `camera` (scene frame): (the nearest box its ray enters at frame t, or -1; the camera depth where
-    it enters; where it leaves) (H,W) each. Each box's rays are only those of the pixels its corners project to."""
+def _passages(camera, tracks: list[AgentTrack], t: int):
+    """Per box present at frame t whose corners project into `camera`: (its index, the pixel rect (`_box_pixels`),
+    the camera depth where each of the rect's rays enters the box and where it leaves, both (h,w); a ray that misses
+    it leaves before it enters)."""
     origin, dirs = camera.pixel_rays()
-    H, W = dirs.shape[:2]
-    owner = np.full((H, W), -1, np.int64)
-    near, far = np.full((H, W), np.inf), np.full((H, W), np.inf)
     for i, tr in enumerate(tracks):
         if not tr.present[t]:
             continue
@@ -201,19 +199,29 @@ def box_depths(camera, tracks: list[AgentTrack], t: int) -> tuple[np.ndarray, np
         if rect is None:
             continue
         inv = rigid_inverse(tr.poses[t])
-        d = dirs[rect].reshape(-1, 3)
-        o, d = inv[:3, :3] @ origin + inv[:3, 3], d @ inv[:3, :3].T
+        d = dirs[rect]
+        shape = d.shape[:2]
+        o, d = inv[:3, :3] @ origin + inv[:3, 3], d.reshape(-1, 3) @ inv[:3, :3].T
         half = tr.size / 2
         with np.errstate(divide="ignore", invalid="ignore"):
             a, b = (-half - o) / d, (half - o) / d
         lo = np.nan_to_num(np.minimum(a, b), nan=-np.inf).max(1)
         hi = np.nan_to_num(np.maximum(a, b), nan=np.inf).min(1)
+        yield i, rect, lo.reshape(shape), hi.reshape(shape)
+
+
+def box_depths(camera, tracks: list[AgentTrack], t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel of `camera` (scene frame): (the nearest box its ray enters at frame t, or -1; the camera depth where
+    it enters; where it leaves) (H,W) each. Each box's rays are only those of the pixels its corners project to."""
+    H, W = camera.height, camera.width
+    owner = np.full((H, W), -1, np.int64)
+    near, far = np.full((H, W), np.inf), np.full((H, W), np.inf)
+    for i, rect, lo, hi in _passages(camera, tracks, t):
         sub_owner, sub_near, sub_far = owner[rect], near[rect], far[rect]  # views into the whole image
-        shape = sub_owner.shape
-        hit = ((lo < hi) & (hi > 0) & (np.maximum(lo, 0) < sub_near.ravel())).reshape(shape)
+        hit = (lo < hi) & (hi > 0) & (np.maximum(lo, 0) < sub_near)
         sub_owner[hit] = i
-        sub_near[hit] = np.maximum(lo.reshape(shape)[hit], 0)
-        sub_far[hit] = hi.reshape(shape)[hit]
+        sub_near[hit] = np.maximum(lo[hit], 0)
+        sub_far[hit] = hi[hit]
     return owner, near, far
 
 
@@ -303,12 +311,20 @@ def lift_in_boxes(
     z (sky +inf) at `camera`'s size, both the observation's. A pixel is an agent's where its ray passes through the
     agent's box and its depth lies on that passage (within tol_m, or tol_share of the depth if more); it is lifted at its depth clamped
     to the passage, so an observation blurred over an edge still lands on the box, not in the air before or behind."""
-    owner, near, far = box_depths(camera, tracks, t)
     z = np.asarray(depth, np.float64)
-    near, far = np.where(owner >= 0, near, 0.0), np.where(owner >= 0, far, 0.0)
-    tol_near, tol_far = np.maximum(tol_m, tol_share * near), np.maximum(tol_m, tol_share * far)
-    ok = (owner >= 0) & np.isfinite(z) & (z > near - tol_near) & (z < far + tol_far)
-    clamped = np.where(ok, np.clip(z, near, far), np.nan)
+    H, W = z.shape
+    near, far = np.full((H, W), np.inf), np.zeros((H, W))
+    for _, rect, lo, hi in _passages(camera, tracks, t):
+        # the nearest box whose passage holds the depth: a ray may pass through a nearer box where the agent in it
+        # does not fill it (above a car's bonnet) and see the agent behind (reconstruct, urban_straight: a parked
+        # car's side past a passing car's box was lifted by neither, and the road behind showed through it)
+        lo = np.maximum(lo, 0)
+        zr, sub_near, sub_far = z[rect], near[rect], far[rect]  # views into the whole image
+        on = (lo < hi) & (hi > 0) & np.isfinite(zr) & (lo < sub_near)
+        on &= (zr > lo - np.maximum(tol_m, tol_share * lo)) & (zr < hi + np.maximum(tol_m, tol_share * hi))
+        sub_near[on], sub_far[on] = lo[on], hi[on]
+    ok = np.isfinite(near)
+    clamped = np.where(ok, np.clip(z, np.where(ok, near, 0.0), far), np.nan)
     return lift(rgb, clamped, np.ones(z.shape, bool), camera, sky=False)
 
 

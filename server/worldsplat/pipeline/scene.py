@@ -73,8 +73,9 @@ ORACLE_VERSION = "oracle-6"
 # reconstruct serves the VAE's decoding lifted per pixel (`inference.GAUSSIANS` per mode, `Economy.for_lifted_decoding`);
 # w13 generate's models draw only the keyframes (`frame_plan.keyframe_plan`; the served default: every frame); w14
 # decoded scales floored at 1.0 model pixel (`inference.DECODED_SCALE_FLOOR_MODEL_PX`: no grid at display sizes);
-# w15 reconstruct keeps what its observation shows before an agent (`objects.occluder_pixels`), generate's objects
-# lit by the sun at their own headings and by the street lights and headlights on them
+# w15 reconstruct keeps what its observation shows before an agent (`objects.occluder_pixels`) and lifts an agent
+# seen past a nearer box onto its own (`objects.lift_in_boxes`), generate's objects lit by the sun at their own
+# headings and by the street lights and headlights on them
 STREAM_VERSION = "w15"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (

@@ -62,6 +62,7 @@ for (const backend of ["webgl2", "webgpu"]) {
     before(async () => {
       browser = await launch(backend);
       page = await browser.context.newPage();
+      await page.setViewportSize({ width: 960, height: 680 });  // a smaller canvas: each draw is rasterised in software
       page.on("pageerror", (e) => errors.push(String(e)));
       page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
       cdp = await browser.context.newCDPSession(page);

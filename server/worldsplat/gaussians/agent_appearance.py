@@ -199,12 +199,14 @@ def _light(L: Lighting, normal: np.ndarray, headings: np.ndarray | None = None) 
     averaged over the object's `headings` (yaws in the world; None: _HEADINGS evenly spaced); street lights and
     headlights come from `lamps`, shadows are left out (they depend on where the object is)."""
     sun = L.sun_dir
-    if headings is None:
-        headings = 2 * math.pi * np.arange(_HEADINGS) / _HEADINGS
-    yaw = np.asarray(headings, np.float64)
-    # the sun in the box frame of an object turned by yaw: the world's sun turned by -yaw
-    c, s = np.cos(yaw), np.sin(yaw)
-    suns = np.stack([c * sun[0] + s * sun[1], -s * sun[0] + c * sun[1], np.full(len(yaw), sun[2])], -1)
+    if headings is None:  # the sun at _HEADINGS azimuths evenly spaced
+        az = 2 * math.pi * np.arange(_HEADINGS) / _HEADINGS
+        horiz = math.hypot(sun[0], sun[1])
+        suns = np.stack([horiz * np.cos(az), horiz * np.sin(az), np.full(_HEADINGS, sun[2])], -1)
+    else:  # the sun in the box frame of an object turned by yaw: the world's sun turned by -yaw
+        yaw = np.asarray(headings, np.float64)
+        c, s = np.cos(yaw), np.sin(yaw)
+        suns = np.stack([c * sun[0] + s * sun[1], -s * sun[0] + c * sun[1], np.full(len(yaw), sun[2])], -1)
     lambert = np.clip(normal @ suns.T, 0.0, None).mean(1)
     return L.ambient[None] * (0.75 + 0.25 * normal[:, 2:3]) + lambert[:, None] * L.sun_color[None]
 

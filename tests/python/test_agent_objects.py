@@ -10,6 +10,7 @@ import torch
 from worldsplat.core.camera import default_rig, yaw_pose
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians.objects import (
+    SPILL_SIGMAS,
     AgentTrack,
     ObjectBuilder,
     agent_tracks,
@@ -450,3 +451,31 @@ def test_an_observed_agent_seen_past_a_nearer_box_is_lifted_onto_its_own_box():
     g = lift_in_boxes(rgb, depth, cam, [near_car, far_car], 0)
     assert len(g) == int(past.sum())
     assert (assign_to_boxes(g.means.double().numpy(), [near_car, far_car], 0, margin=0.05) == 1).all()
+
+
+def test_road_before_where_a_moving_agent_is_at_another_frame_is_narrowed_off_its_pixels():
+    """generate: decoded road before a pedestrian spreads over its legs, and the static scene is drawn at every
+    frame, so a static Gaussian lifted at frame 3 that reaches into the box's pixels as frame 0's cameras see it is
+    narrowed until its footprint (SPILL_SIGMAS std) stops at their edge; road far from every box, and the claimed
+    (dynamic) Gaussians, keep their size."""
+    size = np.array([0.6, 0.6, 1.8])
+    poses = np.stack([box_to_world(10.0, -3.0 + 2.0 * t, 0.0, size[2]) for t in range(T)])  # crossing the road
+    tr = AgentTrack(3, 15, size, poses, np.ones(T, bool))
+    pts = [[8.5, -3.0, 0.02], [8.5, 6.0, 0.02], [10.0, 3.0, 0.9]]  # before frame 0's box; far off; in frame 3's box
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 3, [[0.3] * 3] * 3, [0.5] * 3, [[0.4] * 3] * 3, [[0.0]] * 3)
+    kw = {"claim_moving": True, "claim_rays": "frame", "keep_unboxed": False}
+    plain = _builder(tr, **kw).claim(3, g)
+    assert torch.equal(plain.scales, g.scales)
+    only_frame_3 = _builder(tr, narrow_spill=True, ray_frames=[3], **kw).claim(3, g)
+    assert torch.equal(only_frame_3.scales, g.scales)  # where the agent is at frame 3 nothing spills over it
+    out = _builder(tr, narrow_spill=True, **kw).claim(3, g)
+    s = out.scales[:, 0].double().numpy()
+    assert s[0] < 0.15 and s[1] == pytest.approx(0.3) and s[2] == pytest.approx(0.3)
+    assert out.extras[:, 0].tolist() == plain.extras[:, 0].tolist() == [0.0, 0.0, 1.0]
+    cam = default_rig(160, 90)[0].at(np.eye(4))
+    owner, _, _ = box_depths(cam, [tr], 0)
+    pc = cam.world_to_camera[:3, :3] @ np.array(pts[0]) + cam.world_to_camera[:3, 3]
+    uv = pc[:2] / pc[2] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
+    gap = np.hypot(*(np.argwhere(owner == 0)[:, ::-1] + 0.5 - uv).T).min()  # to the nearest box pixel's centre
+    assert 0 < SPILL_SIGMAS * s[0] * cam.fx / pc[2] <= gap
+    assert SPILL_SIGMAS * 0.3 * cam.fx / pc[2] > gap + 1  # it did reach in before

@@ -29,10 +29,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from worldsplat.core.camera import RigCamera, rigid_inverse
-from worldsplat.gaussians.aggregate import WINDOW_FINER, AggregateStats, CellTable, Economy, economize
+from worldsplat.gaussians.aggregate import (
+    DYNAMIC_THRESHOLD,
+    WINDOW_FINER,
+    AggregateStats,
+    CellTable,
+    Economy,
+    economize,
+)
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.types import AgentObject, Gaussians, transform
 
@@ -298,6 +306,82 @@ def claim_along_rays(
     return Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
 
 
+# A learned mode's static Gaussian before a moving agent's box whose footprint (SPILL_SIGMAS std) reaches past the
+# box's pixels' edge in a camera that draws the agent is narrowed to stop at that edge: decoded road 0.6-3 m before a
+# pedestrian (std 0.15-0.35 m) spread over its legs (generate, urban: covered 0.30). The static scene is drawn at every
+# frame and the agent moves, so every drawn frame's box as that frame's cameras see it (the road before the
+# pedestrian at frame 0 was mostly decoded at other frames; frame t's cameras alone: covered 0.64).
+SPILL_SIGMAS = 2.5
+
+
+def _rotations(quats: np.ndarray) -> np.ndarray:
+    """(N,3,3) rotations of (N,4) wxyz quaternions (normalised here)."""
+    q = quats / np.maximum(np.linalg.norm(quats, axis=1, keepdims=True), 1e-12)
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], 1)  # fmt: skip
+
+
+def box_edges(owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel of a `box_depths` owner image: its distance to the nearest pixel of a box (0 on one) and that
+    pixel's (row, column) (2,H,W)."""
+    return distance_transform_edt(owner < 0, return_indices=True)
+
+
+def narrow_before_boxes(g: Gaussians, rays: list[tuple], sigmas: float = SPILL_SIGMAS) -> Gaussians:
+    """A learned mode's Gaussians (scene frame) with each static one (extras[:, 0] <= DYNAMIC_THRESHOLD) that lies
+    before a box a camera of `rays` (`box_rays`, each optionally with its `box_edges` appended) sees, outside the
+    box's pixels, and whose projected footprint reaches `sigmas` std into them, shrunk (all its scales alike) until
+    that reach ends at their edge. Those on a box's pixels are `claim_along_rays`' to take or leave."""
+    if not len(g) or not rays:
+        return g
+    p = g.means.detach().double().cpu().numpy()
+    scales = g.scales.detach().double().cpu().numpy()
+    static = np.ones(len(p), bool) if g.extras is None else g.extras[:, 0].detach().cpu().numpy() <= DYNAMIC_THRESHOLD
+    factor = np.ones(len(p))
+    widest = scales.max(1)
+    for camera, owner, far, *edges in rays:
+        dist, (ir, ic) = edges[0] if edges else box_edges(owner)
+        w2c = camera.world_to_camera
+        pc = p @ w2c[:3, :3].T + w2c[:3, 3]
+        z = pc[:, 2]
+        f = max(camera.fx, camera.fy)
+        reach = sigmas * widest * f / np.maximum(z, 1e-3)  # pixels, an upper bound of the footprint's reach
+        rows = np.flatnonzero(static & (z > 1e-3) & (reach >= 1.0))
+        u = pc[rows, 0] / z[rows] * camera.fx + camera.cx
+        v = pc[rows, 1] / z[rows] * camera.fy + camera.cy
+        ui, vi = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        inside = (ui >= 0) & (ui < camera.width) & (vi >= 0) & (vi < camera.height)
+        rows, u, v, ui, vi = rows[inside], u[inside], v[inside], ui[inside], vi[inside]
+        d = dist[vi, ui]
+        near_r, near_c = ir[vi, ui], ic[vi, ui]
+        # outside the box's pixels, before where the nearest box pixel's ray leaves it, within reach of it
+        cand = (d >= 1.0) & (z[rows] < far[near_r, near_c]) & (reach[rows] > d - 0.5)
+        rows, u, v, d, near_r, near_c = rows[cand], u[cand], v[cand], d[cand], near_r[cand], near_c[cand]
+        if not len(rows):
+            continue
+        # the footprint's std towards the nearest box pixel (its edge half a pixel nearer)
+        zr = z[rows]
+        jac = np.zeros((len(rows), 2, 3))
+        jac[:, 0, 0], jac[:, 1, 1] = camera.fx / zr, camera.fy / zr
+        jac[:, 0, 2], jac[:, 1, 2] = -pc[rows, 0] * camera.fx / zr**2, -pc[rows, 1] * camera.fy / zr**2
+        rot = w2c[:3, :3] @ _rotations(g.quats.detach().double().cpu().numpy()[rows])
+        m = jac @ rot * scales[rows][:, None, :]  # (n,2,3): J R S
+        towards = np.stack([near_c + 0.5 - u, near_r + 0.5 - v], 1)
+        towards /= np.maximum(np.linalg.norm(towards, axis=1, keepdims=True), 1e-9)
+        std = np.linalg.norm(np.einsum("ni,nij->nj", towards, m), axis=1)
+        edge = np.maximum(d - 0.5, 0.5)
+        over = sigmas * std > edge
+        np.minimum.at(factor, rows[over], edge[over] / (sigmas * std[over]))
+    if (factor >= 1.0).all():
+        return g
+    narrowed = g.scales * torch.from_numpy(factor).to(g.scales.dtype)[:, None]
+    return Gaussians(g.means, g.quats, narrowed, g.opacities, g.colors, g.extras)
+
+
 def lift_in_boxes(
     rgb: np.ndarray,
     depth: np.ndarray,
@@ -441,6 +525,7 @@ class ObjectBuilder:
         claim_margin: float = CLAIM_MARGIN_M,
         claim_rays: str | None = None,
         ray_frames: list[int] | None = None,
+        narrow_spill: bool = False,
     ):
         self.tracks, self.economy, self.margin, self.source = list(tracks), economy or Economy(), margin, source
         self.keep_unboxed = keep_unboxed
@@ -460,6 +545,11 @@ class ObjectBuilder:
         self.standing_cams = cams if claim_rays and standing else []
         self.standing_far = np.array([_farthest_corner(c.position, standing) for c in self.standing_cams])
         self._standing_cache: dict[int, tuple | None] = {}
+        # `narrow_spill`: static Gaussians before a moving box narrowed (`narrow_before_boxes`) as every drawn
+        # frame's cameras see that frame's boxes; each camera's rays computed when first needed
+        self.narrow_spill = narrow_spill
+        self._spill_cams: tuple | None = None
+        self._spill_cache: dict[int, tuple | None] = {}
         self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
         for tr in self.tracks:
             if len(tr.poses) != self.T:
@@ -504,14 +594,16 @@ class ObjectBuilder:
         if not self.claim_rays:
             return g
         claimed = self._claim_rays(t, g)
-        if shield is None or claimed is g:
-            return claimed
-        keep = torch.from_numpy(pixels_of(g, *shield))
-        if not bool(keep.any()):
-            return claimed
-        extras = claimed.extras.clone()
-        extras[keep] = g.extras[keep] if g.extras is not None else 0.0
-        return Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
+        if shield is not None and claimed is not g:
+            keep = torch.from_numpy(pixels_of(g, *shield))
+            if bool(keep.any()):
+                extras = claimed.extras.clone()
+                extras[keep] = g.extras[keep] if g.extras is not None else 0.0
+                claimed = Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
+        if self.narrow_spill and len(claimed):
+            tree = cKDTree(claimed.means.detach().double().cpu().numpy())
+            claimed = narrow_before_boxes(claimed, self._spill_rays(tree))
+        return claimed
 
     def _claim_rays(self, t: int, g: Gaussians) -> Gaussians:
         key = -1 if self.claim_rays == "clip" else t
@@ -524,6 +616,45 @@ class ObjectBuilder:
             return g
         tree = cKDTree(g.means.detach().double().cpu().numpy())
         return claim_along_rays(g, self._rays + self._standing_rays(tree), tree=tree)
+
+    def _spill_rays(self, tree: cKDTree) -> list[tuple]:
+        """The moving boxes' rays (`box_rays`, with `box_edges`) of every drawn frame's cameras that have a Gaussian
+        of `tree` nearer than the farthest corner of that frame's boxes (a Gaussian narrowed lies before a box)."""
+        if self._spill_cams is None:
+            self._spill_cams = self._spill_cameras()
+        frames, cams, reach = self._spill_cams
+        if not cams or not tree.n:
+            return []
+        nearest = tree.query(np.array([c.position for c in cams]))[0]
+        moving = [tr for tr in self.claimed if not tr.standing]
+        out = []
+        for i in np.flatnonzero(nearest < reach):
+            if i not in self._spill_cache:
+                r = box_rays([cams[i]], moving, frames[i])
+                self._spill_cache[i] = (*r[0], box_edges(r[0][1])) if r else None
+            if self._spill_cache[i] is not None:
+                out.append(self._spill_cache[i])
+        return out
+
+    def _spill_cameras(self) -> tuple[list[int], list, np.ndarray]:
+        """Every drawn frame's cameras where a moving box is present: (their frames, the cameras, each one's
+        distance to the farthest corner of that frame's boxes)."""
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+        moving = [tr for tr in self.claimed if not tr.standing]
+        frames, cams, reach = [], [], []
+        for f in self.ray_frames:
+            boxes = [
+                (signs * tr.size / 2) @ tr.poses[f][:3, :3].T + tr.poses[f][:3, 3] for tr in moving if tr.present[f]
+            ]
+            if not boxes:
+                continue
+            corners = np.concatenate(boxes)
+            for rc in self.rig:
+                cam = rc.at(self.ego[f])
+                frames.append(f)
+                cams.append(cam)
+                reach.append(float(np.linalg.norm(corners - cam.position, axis=1).max()))
+        return frames, cams, np.array(reach)
 
     def _standing_rays(self, tree: cKDTree) -> list[tuple]:
         """The standing boxes' rays (`box_rays`) of the cameras that may claim one of the Gaussians in `tree`: those

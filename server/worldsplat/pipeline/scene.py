@@ -75,8 +75,9 @@ ORACLE_VERSION = "oracle-6"
 # decoded scales floored at 1.0 model pixel (`inference.DECODED_SCALE_FLOOR_MODEL_PX`: no grid at display sizes);
 # w15 reconstruct keeps what its observation shows before an agent (`objects.occluder_pixels`) and lifts an agent
 # seen past a nearer box onto its own (`objects.lift_in_boxes`), generate's objects lit by the sun at their own
-# headings and by the street lights and headlights on them
-STREAM_VERSION = "w15"
+# headings and by the street lights and headlights on them; w16 generate's static Gaussians before a moving agent
+# narrowed off its pixels as every drawn frame's cameras see it (`objects.narrow_before_boxes`)
+STREAM_VERSION = "w16"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -267,6 +268,8 @@ def generated_object_source(world) -> ObjectSource | None:
 # 21.61 dB (its lifted decoding of later frames covered a following car at frame 0); generate "frame" 21/26 / 0.839
 # / 17.41 dB, "clip" 20/26 / 0.833 / 17.25 dB.
 CLAIM_RAYS = {"reconstruct": "clip", "generate": "frame"}
+# The modes whose static Gaussians before a moving agent are narrowed off its pixels (`objects.narrow_before_boxes`).
+NARROW_SPILL = {"generate"}
 
 
 class _Objects:
@@ -278,13 +281,13 @@ class _Objects:
 
     def __init__(self, world, source: ObjectSource | None, seed: int, mode: str = "oracle"):
         self.world, self.source, self.seed, self.exact = world, source, seed, mode == "oracle"
-        self.rays = CLAIM_RAYS.get(mode)
+        self.rays, self.narrow = CLAIM_RAYS.get(mode), mode in NARROW_SPILL
         self.ray_frames: list[int] | None = None  # the frames the models draw (a keyframed clip's keyframes)
 
     def builder(self, agg: WindowAggregator) -> ObjectBuilder:
         tracks = agent_tracks(self.world, agg.ego_to_world)
         claims = {} if self.exact else {"claim_moving": True, "claim_margin": AGENT_MARGIN_M, "claim_rays": self.rays,
-                                        "ray_frames": self.ray_frames}  # fmt: skip
+                                        "ray_frames": self.ray_frames, "narrow_spill": self.narrow}  # fmt: skip
         return ObjectBuilder(tracks, agg.rig, agg.ego_to_world, economy=agg.economy, source=self.source,
                              seed=self.seed, keep_unboxed=self.exact, **claims)  # fmt: skip
 

@@ -43,6 +43,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="vae-decoder: weight of the edge + luma-SSIM term, brightness-normalised (training.loop.detail_loss)",
     )
     p.add_argument(
+        "--chroma-weight",
+        type=float,
+        default=4.0,
+        help="vae-decoder: weight of the chroma term (training.loop.vae_loss)",
+    )
+    p.add_argument(
         "--layout-channels",
         type=int,
         default=None,
@@ -85,6 +91,7 @@ def run(a: argparse.Namespace) -> int:
             steps=a.steps,
             threads=a.threads,
             detail_weight=a.detail_weight,
+            chroma_weight=a.chroma_weight,
             images=a.batch or 4,
             **kw,
         )

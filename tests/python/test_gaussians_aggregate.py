@@ -392,3 +392,44 @@ def test_served_frame_renders_within_1db_of_its_own_lifting():
             score[name] = float(np.mean(vals))
     assert score["finest"] >= score["own"] - 1.0, score
     assert score["merge"] < score["own"] - 1.0, score
+
+
+def _points(xyz):
+    n = len(xyz)
+    return Gaussians(
+        torch.tensor(xyz, dtype=torch.float32),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.05),
+        torch.full((n,), 0.9),
+        torch.full((n, 3), 0.5),
+        torch.zeros(n, 1),
+    )
+
+
+def test_a_place_another_frame_sees_nearer_is_left_to_it_in_either_direction():
+    from worldsplat.gaussians.aggregate import DEFER_MIN_M, WindowAggregator
+
+    T = 30  # the ego drives 1 m a frame along +x; a front and a back camera
+    rig = default_rig(32, 18, ("CAM_FRONT", "CAM_BACK"))
+    ego = np.stack([yaw_pose(float(t), 0, 0, 0) for t in range(T)])
+    h = float(rig[0].at(ego[0]).position[2])
+    ahead = [[20.0, 0, h], [DEFER_MIN_M - 2, 0, h], [20.0, 30.0, h]]  # a later frame sees 1 nearer; 2 near; 3 none
+    behind = [[5.0, 0, h]]  # seen by frame 29's back camera at 24 m, by frame 0..3's front cameras nearer
+    empty = [_points(np.zeros((0, 3))), _points(np.zeros((0, 3)))]
+
+    def run(eco):
+        agg = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32), economy=eco)
+        first, _ = agg.add([0], [[_points(ahead), _points(np.zeros((0, 3)))]])
+        mid, _ = agg.add(list(range(1, T - 1)), [empty] * (T - 2))
+        last, _ = agg.add([T - 1], [[_points(np.zeros((0, 3))), _points(behind)]])
+        return first, last, agg.stats.extra.get("deferred", 0)
+
+    eco = Economy(static_rule="merge")
+    first, last, deferred = run(eco)  # off: every place stays where it was seen
+    assert len(first) == 3 and len(last) == 1 and deferred == 0
+    eco.defer_nearer = 1.5
+    first, last, deferred = run(eco)
+    kept = sorted(first.means[:, 0].tolist())
+    assert kept == pytest.approx([DEFER_MIN_M - 2, 20.0]) and first.means[:, 1].abs().max() > 29  # 20 m ahead left
+    assert len(last) == 0 and deferred == 2  # the back camera's far copy gives way to the front cameras' nearer view
+    assert Economy.for_decoded(2.0).defer_nearer == 1.5 and Economy().defer_nearer is None

@@ -49,6 +49,13 @@ DYNAMIC_COVER = 0.0  # > 0: merged dynamic std = this x the patch width (see mer
 # 1.5 grid pitches of the 2x2 decoder at 64x112 and averaged neighbours into blobs: reconstruct 0 m 19.32 dB vs
 # 21.51 at one model pixel; measured best for both strides (gaussians.md, "decoded cells").
 DECODED_CELL_MODEL_PX = 1.0
+# Decoded depths are coarse far away: a window's static Gaussian seen at distance d that a later frame of the track
+# will see from d / DEFER_NEARER or nearer is left to that frame (`Economy.defer_nearer`). Kept, the far windows'
+# Gaussians at the wrong depth became a fog the ego drove into (a 200-frame generate clip: grey from frame ~60 on;
+# within 5 m of frame 100's front camera lay 9k of them). Places nearer than DEFER_MIN_M, and places no later
+# camera sees in its image, stay. Later frames are sampled each DEFER_SAMPLE_M of ego travel.
+DEFER_MIN_M = 8.0
+DEFER_SAMPLE_M = 2.0
 FINEST_DEPTH_TOL = 0.02  # relative depth agreement of "the same surface point" (finest rule, exact depths)
 # The same for depths the VAE decodes per frame (reconstruct's lifted pixels): a window's frames put the same surface
 # a few per cent apart, and under 0.02 the finest rule kept several frames' copies side by side (a blotched road;
@@ -83,6 +90,9 @@ class Economy:
     # Decoded depths: an observation in front of what an earlier window's view showed is a copy the frames disagree
     # on (that view saw through it), not a surface the earlier window could not see (`finest_observations`).
     carve: bool = False
+    # > 1: a static observation a later frame's camera will see this many times nearer is left to it (see
+    # DEFER_MIN_M); None keeps every observation (exact depths: the oracle).
+    defer_nearer: float | None = None
     dynamic_budget: int | None = None  # cap per frame
 
     @staticmethod
@@ -92,7 +102,7 @@ class Economy:
         keep the default cells."""
         if not (math.isfinite(model_px) and model_px > 0):
             raise ValueError(f"Economy.for_decoded: model_px must be a finite number > 0, got {model_px}")
-        return Economy(cell_factor=DECODED_CELL_MODEL_PX * model_px, static_rule="merge")
+        return Economy(cell_factor=DECODED_CELL_MODEL_PX * model_px, static_rule="merge", defer_nearer=1.5)
 
     @staticmethod
     def for_lifted_decoding() -> Economy:
@@ -497,6 +507,8 @@ class WindowAggregator:
             dynamics[t] = Gaussians.cat(dyn_t) if dyn_t else Gaussians.empty()
         st.static_union += sum(len(s) for s in statics)
         st.dynamic_union += sum(len(d) for d in dynamics.values())
+        if eco.enabled and eco.defer_nearer:
+            statics = self._defer_to_nearer(frames, statics, cameras, eco.defer_nearer)
         single = None
         if eco.enabled and eco.static_rule == "finest":
             statics, single = self._finest(statics, cameras)
@@ -529,6 +541,60 @@ class WindowAggregator:
             st.sky_kept += int((static.extras[:, SKY_CHANNEL] > 0.5).sum())
         st.dynamic_kept += sum(len(d) for d in dynamics.values())
         return static, dynamics
+
+    def _other_cameras(self, frames: list[int]) -> tuple[list[list[Camera]], np.ndarray]:
+        """The rig's cameras at the clip's frames outside `frames` (earlier and later), one frame each
+        DEFER_SAMPLE_M of ego travel on either side, and those frames' ego positions."""
+        own = set(frames)
+        picked = []
+        for side in ([t for t in range(len(self.ego_to_world)) if t < min(own)][::-1],
+                     [t for t in range(len(self.ego_to_world)) if t > max(own)]):  # fmt: skip
+            last = None
+            for t in side:
+                pos = self.ego_to_world[t][:3, 3]
+                if last is None or np.linalg.norm(pos - last) >= DEFER_SAMPLE_M:
+                    picked.append(t)
+                    last = pos
+        cams = [[rc.at(self.ego_to_world[t]) for rc in self.rig] for t in picked]
+        return cams, np.array([self.ego_to_world[t][:3, 3] for t in picked]).reshape(-1, 3)
+
+    def _defer_to_nearer(
+        self, frames: list[int], statics: list[Gaussians], cameras: list[Camera | None], factor: float
+    ) -> list[Gaussians]:
+        """Each frame-view's static set less what another frame's camera (earlier or later) sees `factor` times
+        nearer (`Economy.defer_nearer`; the sky shell stays)."""
+        from scipy.spatial import cKDTree  # noqa: PLC0415 - heavy, as in nearest_distance
+
+        later, ego = self._other_cameras(frames)
+        if not later:
+            return statics
+        tree = cKDTree(ego)
+        reach = max(float(np.linalg.norm(rc.camera_to_ego[:3, 3])) for rc in self.rig) if self.rig else 0.0
+        out = []
+        for s, cam in zip(statics, cameras, strict=True):
+            if cam is None or not len(s):
+                out.append(s)
+                continue
+            p = s.means.detach().double().cpu().numpy()
+            near = np.linalg.norm(p - cam.position, axis=1) / factor
+            rows = np.flatnonzero(~_sky_rows(s) & (near * factor >= DEFER_MIN_M))
+            drop = np.zeros(len(s), dtype=bool)
+            hits = tree.query_ball_point(p[rows], near[rows] + reach)
+            counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
+            if counts.sum():
+                pr = np.repeat(rows, counts)  # (point, later frame) pairs within reach
+                pf = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if h])
+                for f in np.unique(pf):
+                    pts = pr[pf == f]
+                    for c in later[f]:
+                        uv, z = c.project(p[pts])
+                        with np.errstate(invalid="ignore"):
+                            seen = (z > C.NEAR) & (uv[:, 0] >= 0) & (uv[:, 0] < c.width) & (uv[:, 1] >= 0)
+                            seen &= (uv[:, 1] < c.height) & (np.linalg.norm(p[pts] - c.position, axis=1) <= near[pts])
+                        drop[pts[seen]] = True
+            self.stats.extra["deferred"] = self.stats.extra.get("deferred", 0) + int(drop.sum())
+            out.append(s.subset(torch.as_tensor(~drop)) if drop.any() else s)
+        return out
 
     def _finest(self, statics: list[Gaussians], cameras: list[Camera | None]) -> tuple[list[Gaussians], np.ndarray]:
         """Each frame-view's static set less the surface observations a finer view supersedes

@@ -43,6 +43,7 @@ from worldsplat.gaussians.aggregate import (
 )
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.types import AgentObject, Gaussians, transform
+from worldsplat_models.geometry import quaternion_to_matrix
 
 # Gaussians this far outside a box still belong to it (lifted silhouette pixels, merged means); the agents'
 # snapping in generate mode uses the same margin (pipeline.snaps.AGENT_BOX_MARGIN_M).
@@ -324,12 +325,7 @@ SPILL_SIDE_M = 3.0
 def _rotations(quats: np.ndarray) -> np.ndarray:
     """(N,3,3) rotations of (N,4) wxyz quaternions (normalised here)."""
     q = quats / np.maximum(np.linalg.norm(quats, axis=1, keepdims=True), 1e-12)
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], 1)  # fmt: skip
+    return quaternion_to_matrix(q)
 
 
 def box_edges(owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

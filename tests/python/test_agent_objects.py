@@ -10,9 +10,13 @@ import torch
 from worldsplat.core.camera import default_rig, yaw_pose
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians.objects import (
+    SPILL_BEFORE_M,
     SPILL_SIGMAS,
     AgentTrack,
     ObjectBuilder,
+    _box_pixels,
+    _box_rects,
+    _near_rects,
     agent_tracks,
     assign_to_boxes,
     box_depths,
@@ -22,6 +26,7 @@ from worldsplat.gaussians.objects import (
     claim_in_boxes,
     claim_reach,
     lift_in_boxes,
+    narrow_before_boxes,
 )
 from worldsplat.gaussians.types import Gaussians
 
@@ -479,3 +484,62 @@ def test_road_before_where_a_moving_agent_is_at_another_frame_is_narrowed_off_it
     gap = np.hypot(*(np.argwhere(owner == 0)[:, ::-1] + 0.5 - uv).T).min()  # to the nearest box pixel's centre
     assert 0 < SPILL_SIGMAS * s[0] * cam.fx / pc[2] <= gap
     assert SPILL_SIGMAS * 0.3 * cam.fx / pc[2] > gap + 1  # it did reach in before
+
+
+def test_box_rects_are_the_box_pixels_of_every_box_at_once():
+    """`_box_rects` (all boxes in one pass, with their depth spans) gives each box's `_box_pixels` rect: boxes
+    ahead, beside, straddling the camera plane and behind."""
+    tracks = [AgentTrack(i, 12, SIZE, np.stack([box_to_world(x, y, 0.3 * i, SIZE[2])] * T), np.ones(T, bool))
+              for i, (x, y) in enumerate([(10, 0), (4, 6), (0.5, 0), (-12, 1), (30, -8)])]  # fmt: skip
+    for rc in default_rig(160, 90):
+        cam = rc.at(np.eye(4))
+        rects = _box_rects(cam, tracks, 0)
+        ref = [r for r in (_box_pixels(cam, tr.poses[0], tr.size) for tr in tracks) if r is not None]
+        assert [tuple(int(x) for x in r[:4]) for r in rects] == [(a.start, a.stop, b.start, b.stop) for a, b in ref]
+        assert (rects[:, 4] <= rects[:, 5]).all() and (rects[:, 4] >= 0).all()
+
+
+def test_a_camera_the_rect_test_rules_out_claims_and_narrows_nothing():
+    """The object builder renders a camera's boxes (`box_rays`) only where `_near_rects` says a Gaussian could be
+    claimed or narrowed; where it says none, the claim and the narrowing with that camera change nothing. Random
+    Gaussians around a car and a pedestrian, cameras all round them: the test must rule out some cameras and every
+    camera it rules out must be one that changes nothing."""
+    rng = np.random.default_rng(1)
+    car = _track()
+    walker = AgentTrack(3, 15, np.array([0.6, 0.6, 1.8]), np.stack([box_to_world(14.0, 4.0, 0.0, 1.8)] * T),
+                        np.ones(T, bool))  # fmt: skip
+    pts = rng.uniform([-30, -20, 0], [50, 20, 6], (3000, 3))
+    n = len(pts)
+    scales = rng.uniform(0.02, 0.6, (n, 1)).repeat(3, 1)
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * n, scales, [0.9] * n, [[0.5] * 3] * n, [[0.0]] * n)
+    ruled_out, claimed_somewhere = 0, False
+    for x in np.linspace(-60, 80, 8):
+        for y in (-25.0, 0.0, 25.0):
+            for rc in default_rig(160, 90):
+                cam = rc.at(yaw_pose(x, y, 0.0, 0.0))
+                rays = box_rays([cam], [car, walker], 0)
+                rects = _box_rects(cam, [car, walker], 0)
+                claims = _near_rects(cam, pts, rects, np.inf, lambda z: np.maximum(1.0, 0.1 * z))
+                spills = _near_rects(cam, pts, rects, SPILL_BEFORE_M, 0.0, SPILL_SIGMAS * scales[:, 0])
+                took = bool((claim_along_rays(g, rays).extras[:, 0] > 0).any())
+                assert claims or not took
+                claimed_somewhere |= took
+                if not spills:
+                    assert torch.equal(narrow_before_boxes(g, rays).scales, g.scales)
+                ruled_out += (not claims) + (not spills)
+    assert 0 < ruled_out < 2 * 8 * 3 * 6 and claimed_somewhere
+
+
+def test_the_sky_shell_is_never_claimed_for_an_agent():
+    """A sky Gaussian (extras[:, 1]) on a camera's ray just behind a box, within the claim's tolerance, stays
+    static, while a surface Gaussian there is claimed: the shell is a backdrop at infinity, never an agent's."""
+    tr = _track()
+    cam = default_rig(160, 90)[0].at(np.eye(4))
+    owner, _, far = box_depths(cam, [tr], 0)
+    j, i = np.argwhere(owner == 0)[len(np.argwhere(owner == 0)) // 2]
+    _, dirs = cam.pixel_rays()
+    pts = [cam.position + dirs[j, i] * (far[j, i] + 0.9)] * 2  # out of the box, within the tolerance (1 m)
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 2, [[0.05] * 3] * 2, [0.9] * 2, [[0.5] * 3] * 2,
+                             [[0.0, 0.0], [0.0, 1.0]])  # fmt: skip
+    out = _builder(tr, claim_moving=True, claim_rays="frame", keep_unboxed=False).claim(0, g)
+    assert out.extras[:, 0].tolist() == [1.0, 0.0] and out.extras[:, 1].tolist() == [0.0, 1.0]

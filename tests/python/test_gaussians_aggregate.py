@@ -433,3 +433,29 @@ def test_a_place_another_frame_sees_nearer_is_left_to_it_in_either_direction():
     assert kept == pytest.approx([DEFER_MIN_M - 2, 20.0]) and first.means[:, 1].abs().max() > 29  # 20 m ahead left
     assert len(last) == 0 and deferred == 2  # the back camera's far copy gives way to the front cameras' nearer view
     assert Economy.for_decoded(2.0).defer_nearer == 1.5 and Economy().defer_nearer is None
+
+
+def test_deferring_first_then_adding_is_adding():
+    """`WindowAggregator.defer` (run before the object claims) drops the static Gaussians `add` would defer and
+    keeps the dynamic ones; `add(..., deferred=True)` after it gives `add`'s own result."""
+    from worldsplat.gaussians.aggregate import WindowAggregator
+
+    T = 30
+    rig = default_rig(32, 18, ("CAM_FRONT", "CAM_BACK"))
+    ego = np.stack([yaw_pose(float(t), 0, 0, 0) for t in range(T)])
+    h = float(rig[0].at(ego[0]).position[2])
+    front = _points([[20.0, 0, h], [4.0, 0, h], [20.0, 30.0, h], [25.0, 1.0, h]])
+    front.extras[3, 0] = 1.0  # a dynamic one 25 m ahead: never deferred
+    views = [[front, _points([[-15.0, 0, h]])]]
+    eco = Economy(static_rule="merge", defer_nearer=1.5)
+
+    def agg():
+        return WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32), economy=eco)
+
+    ref_static, ref_dyn = agg().add([0], views)
+    a = agg()
+    first = a.defer([0], views)
+    assert [len(g) for g in first[0]] == [3, 1] and first[0][0].extras[:, 0].tolist() == [0.0, 0.0, 1.0]
+    static, dyn = a.add([0], first, deferred=True)
+    assert torch.equal(static.means, ref_static.means) and torch.equal(dyn[0].means, ref_dyn[0].means)
+    assert len(ref_static) == 3 and len(ref_dyn[0]) == 1

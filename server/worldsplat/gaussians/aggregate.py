@@ -139,10 +139,8 @@ class AggregateStats:
 
 
 def split_dynamic(g: Gaussians, threshold: float = DYNAMIC_THRESHOLD) -> tuple[Gaussians, Gaussians]:
-    if g.extras is None or g.extras.shape[1] == 0:
-        return g, g.subset(torch.zeros(len(g), dtype=torch.bool))
-    dyn = g.extras[:, 0] > threshold
-    return g.subset(~dyn), g.subset(dyn)
+    static = torch.as_tensor(_static_rows(g, threshold))
+    return g.subset(static), g.subset(~static)
 
 
 # ---------------------------------------------------------------------------------------------- economy
@@ -398,7 +396,15 @@ def finest_observations(
     return keep, views
 
 
-def _sky_rows(g: Gaussians) -> np.ndarray:
+def _static_rows(g: Gaussians, threshold: float = DYNAMIC_THRESHOLD) -> np.ndarray:
+    """The rows `split_dynamic` calls static."""
+    if g.extras is None or g.extras.shape[1] == 0:
+        return np.ones(len(g), dtype=bool)
+    return ~(g.extras[:, 0] > threshold).detach().cpu().numpy()
+
+
+def sky_rows(g: Gaussians) -> np.ndarray:
+    """The rows of the sky shell (extras[:, SKY_CHANNEL], `lift`)."""
     if g.extras is None or g.extras.shape[1] <= SKY_CHANNEL:
         return np.zeros(len(g), dtype=bool)
     return (g.extras[:, SKY_CHANNEL] > 0.5).cpu().numpy()
@@ -483,8 +489,11 @@ class WindowAggregator:
         if self.economy.static_rule not in ("finest", "merge"):
             raise ValueError(f"Economy.static_rule must be 'finest' or 'merge', got {self.economy.static_rule!r}")
 
-    def add(self, frames: list[int], per_view: list[list[Gaussians]]) -> tuple[Gaussians, dict[int, Gaussians]]:
-        """`per_view[i][v]`: Gaussians of frame `frames[i]`, view v (see `aggregate_4d`). Each frame once."""
+    def add(
+        self, frames: list[int], per_view: list[list[Gaussians]], deferred: bool = False
+    ) -> tuple[Gaussians, dict[int, Gaussians]]:
+        """`per_view[i][v]`: Gaussians of frame `frames[i]`, view v (see `aggregate_4d`). Each frame once.
+        `deferred`: `per_view` is already `defer`'s output (the deferral is not run again)."""
         if len(frames) != len(per_view):
             raise ValueError(f"aggregate: {len(per_view)} frames of Gaussians for frames {frames}")
         T = len(self.ego_to_world)
@@ -507,7 +516,7 @@ class WindowAggregator:
             dynamics[t] = Gaussians.cat(dyn_t) if dyn_t else Gaussians.empty()
         st.static_union += sum(len(s) for s in statics)
         st.dynamic_union += sum(len(d) for d in dynamics.values())
-        if eco.enabled and eco.defer_nearer:
+        if eco.enabled and eco.defer_nearer and not deferred:
             statics = self._defer_to_nearer(frames, statics, cameras, eco.defer_nearer)
         single = None
         if eco.enabled and eco.static_rule == "finest":
@@ -542,6 +551,26 @@ class WindowAggregator:
         st.dynamic_kept += sum(len(d) for d in dynamics.values())
         return static, dynamics
 
+    def defer(self, frames: list[int], per_view: list[list[Gaussians]]) -> list[list[Gaussians]]:
+        """`per_view` less the static Gaussians `add` would leave to another frame (`Economy.defer_nearer`), the
+        dynamic ones kept. Each Gaussian is tested on its own, so `defer` then `add(..., deferred=True)` is `add`
+        alone; a caller runs it first where later work costs per Gaussian (the object claims: a long clip's first
+        window keeps a fraction of its far Gaussians)."""
+        eco = self.economy
+        if not (eco.enabled and eco.defer_nearer):
+            return per_view
+        sets, cameras = [], []
+        for t, views in zip(frames, per_view, strict=True):
+            for v, g in enumerate(views):
+                sets.append(transform(g, self.ego_to_world[t]) if self.in_ego_frame else g)
+                cameras.append(self.rig[v].at(self.ego_to_world[t]) if v < len(self.rig) else None)
+        drops = self._deferred(frames, sets, cameras, eco.defer_nearer)
+        gone = sum(int(d.sum()) for d in drops)
+        self.stats.lifted += gone  # `add` counts what it is given
+        self.stats.static_union += gone
+        drops = iter(drops)
+        return [[g.subset(torch.as_tensor(~d)) if (d := next(drops)).any() else g for g in views] for views in per_view]
+
     def _other_cameras(self, frames: list[int]) -> tuple[list[list[Camera]], np.ndarray]:
         """The rig's cameras at the clip's frames outside `frames` (earlier and later), one frame each
         DEFER_SAMPLE_M of ego travel on either side, and those frames' ego positions."""
@@ -563,22 +592,28 @@ class WindowAggregator:
     ) -> list[Gaussians]:
         """Each frame-view's static set less what another frame's camera (earlier or later) sees `factor` times
         nearer (`Economy.defer_nearer`; the sky shell stays)."""
+        drops = self._deferred(frames, statics, cameras, factor)
+        return [s.subset(torch.as_tensor(~d)) if d.any() else s for s, d in zip(statics, drops, strict=True)]
+
+    def _deferred(
+        self, frames: list[int], sets: list[Gaussians], cameras: list[Camera | None], factor: float
+    ) -> list[np.ndarray]:
+        """Per set (scene frame, seen by its camera), the static rows (not sky, DEFER_MIN_M or farther) whose place
+        a frame outside `frames` (`_other_cameras`) has in its image `factor` times nearer."""
         from scipy.spatial import cKDTree  # noqa: PLC0415 - heavy, as in nearest_distance
 
+        drops = [np.zeros(len(s), dtype=bool) for s in sets]
         later, ego = self._other_cameras(frames)
         if not later:
-            return statics
+            return drops
         tree = cKDTree(ego)
         reach = max(float(np.linalg.norm(rc.camera_to_ego[:3, 3])) for rc in self.rig) if self.rig else 0.0
-        out = []
-        for s, cam in zip(statics, cameras, strict=True):
+        for s, cam, drop in zip(sets, cameras, drops, strict=True):
             if cam is None or not len(s):
-                out.append(s)
                 continue
             p = s.means.detach().double().cpu().numpy()
             near = np.linalg.norm(p - cam.position, axis=1) / factor
-            rows = np.flatnonzero(~_sky_rows(s) & (near * factor >= DEFER_MIN_M))
-            drop = np.zeros(len(s), dtype=bool)
+            rows = np.flatnonzero(_static_rows(s) & ~sky_rows(s) & (near * factor >= DEFER_MIN_M))
             hits = tree.query_ball_point(p[rows], near[rows] + reach)
             counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
             if counts.sum():
@@ -593,13 +628,12 @@ class WindowAggregator:
                             seen &= (uv[:, 1] < c.height) & (np.linalg.norm(p[pts] - c.position, axis=1) <= near[pts])
                         drop[pts[seen]] = True
             self.stats.extra["deferred"] = self.stats.extra.get("deferred", 0) + int(drop.sum())
-            out.append(s.subset(torch.as_tensor(~drop)) if drop.any() else s)
-        return out
+        return drops
 
     def _finest(self, statics: list[Gaussians], cameras: list[Camera | None]) -> tuple[list[Gaussians], np.ndarray]:
         """Each frame-view's static set less the surface observations a finer view supersedes
         (`finest_observations`; the sky shell stays, for the cells), and which rows remain as they are."""
-        sky = [_sky_rows(s) for s in statics]
+        sky = [sky_rows(s) for s in statics]
         known = [i for i, c in enumerate(cameras) if c is not None]
         points = [statics[i].means.detach().double().cpu().numpy()[~sky[i]] for i in known]
         cams = [cameras[i] for i in known]

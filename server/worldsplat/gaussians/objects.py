@@ -40,6 +40,7 @@ from worldsplat.gaussians.aggregate import (
     CellTable,
     Economy,
     economize,
+    sky_rows,
 )
 from worldsplat.gaussians.lift import lift
 from worldsplat.gaussians.types import AgentObject, Gaussians, transform
@@ -196,6 +197,55 @@ def _box_pixels(camera, pose: np.ndarray, size: np.ndarray) -> tuple[slice, slic
     return (slice(r0, r1), slice(c0, c1)) if r0 < r1 and c0 < c1 else None
 
 
+def _box_rects(camera, tracks: list[AgentTrack], t: int) -> np.ndarray:
+    """(n, 6) per box present at frame t that `camera` can see: its pixel rect (`_box_pixels`' bounds, for all
+    boxes at once: row0, row1, col0, col1) and its corners' nearest (at least 0) and farthest camera depth."""
+    here = [tr for tr in tracks if tr.present[t]]
+    if not here:
+        return np.zeros((0, 6))
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+    m = camera.world_to_camera @ np.stack([tr.poses[t] for tr in here])  # (n,4,4) box -> camera
+    local = signs[None] * (np.stack([tr.size for tr in here]) / 2)[:, None, :]  # (n,8,3)
+    pc = np.einsum("nkj,nij->nki", local, m[:, :3, :3]) + m[:, None, :3, 3]
+    z = pc[..., 2]
+    seen = (z > 0).any(1)
+    whole = (z <= 1e-6).any(1)  # reaches behind the camera: the whole image
+    zs = np.where(z > 1e-6, z, 1.0)
+    u = pc[..., 0] / zs * camera.fx + camera.cx
+    v = pc[..., 1] / zs * camera.fy + camera.cy
+    c0 = np.where(whole, 0, np.maximum(0, np.floor(u.min(1) - 0.5)))
+    c1 = np.where(whole, camera.width, np.minimum(camera.width, np.ceil(u.max(1) - 0.5) + 1))
+    r0 = np.where(whole, 0, np.maximum(0, np.floor(v.min(1) - 0.5)))
+    r1 = np.where(whole, camera.height, np.minimum(camera.height, np.ceil(v.max(1) - 0.5) + 1))
+    keep = seen & (r0 < r1) & (c0 < c1)
+    return np.stack([r0, r1, c0, c1, np.maximum(z.min(1), 0.0), z.max(1)], 1)[keep]
+
+
+def _near_rects(camera, p: np.ndarray, rects: np.ndarray, before_m: float, after_m, reach_m=None) -> bool:
+    """Whether a point of `p` (N,3) projects (pixel floor) into one of `rects` (`_box_rects`), at a camera depth
+    from the rect's nearest corner depth less `before_m` to its farthest plus `after_m` (metres, or a function of
+    that depth); with `reach_m` (N,), a rect grown by each point's reach in pixels at its depth, plus one. A test
+    that costs a projection, where what it guards costs rendering the boxes (`box_depths`)."""
+    if not len(rects) or not len(p):
+        return False
+    w2c = camera.world_to_camera
+    z = p @ w2c[2, :3] + w2c[2, 3]
+    front = z > 1e-3
+    if not front.any():
+        return False
+    p, z = p[front], z[front]
+    pad = 0.0 if reach_m is None else np.asarray(reach_m)[front] * max(camera.fx, camera.fy) / z + 1.0
+    u = np.floor((p @ w2c[0, :3] + w2c[0, 3]) / z * camera.fx + camera.cx)
+    v = np.floor((p @ w2c[1, :3] + w2c[1, 3]) / z * camera.fy + camera.cy)
+    for r0, r1, c0, c1, zmin, zmax in rects:
+        hi = zmax + (after_m(zmax) if callable(after_m) else after_m)
+        ok = (z < hi) & (z > zmin - before_m)
+        ok &= (v >= r0 - pad) & (v < r1 + pad) & (u >= c0 - pad) & (u < c1 + pad)
+        if ok.any():
+            return True
+    return False
+
+
 def _passages(camera, tracks: list[AgentTrack], t: int):
     """Per box present at frame t whose corners project into `camera`: (its index, the pixel rect (`_box_pixels`),
     the camera depth where each of the rect's rays enters the box and where it leaves, both (h,w); a ray that misses
@@ -255,13 +305,18 @@ def _farthest_corner(point: np.ndarray, tracks: list[AgentTrack]) -> float:
     return best
 
 
+def claim_tolerance(depth, tol_m: float = CLAIM_RAY_TOL_M, tol_share: float = CLAIM_RAY_TOL_SHARE):
+    """How far behind where a ray leaves a box (camera depth `depth`) `claim_along_rays` still claims."""
+    return np.maximum(tol_m, tol_share * depth)
+
+
 def claim_reach(
     camera, far_max: float, tol_m: float = CLAIM_RAY_TOL_M, tol_share: float = CLAIM_RAY_TOL_SHARE
 ) -> float:
     """The farthest a Gaussian claimed by `claim_along_rays` on this camera's rays can be from its centre, where a
     ray leaves a box at camera depth `far_max` at most: that depth plus its tolerance, times the largest ratio of
     distance to camera depth in the image."""
-    zmax = far_max + max(tol_m, tol_share * far_max)
+    zmax = far_max + float(claim_tolerance(far_max, tol_m, tol_share))
     tx = max(camera.cx, camera.width - camera.cx) / camera.fx
     ty = max(camera.cy, camera.height - camera.cy) / camera.fy
     return zmax * math.sqrt(1.0 + tx * tx + ty * ty)
@@ -299,7 +354,7 @@ def claim_along_rays(
         inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
         rows, u, v = rows[inside], u[inside], v[inside]
         hi = far[v, u]
-        take[rows[z[rows] < hi + np.maximum(tol_m, tol_share * hi)]] = True
+        take[rows[z[rows] < hi + claim_tolerance(hi, tol_m, tol_share)]] = True
     if not take.any():
         return g
     extras = torch.zeros(len(g), 1, dtype=g.means.dtype) if g.extras is None else g.extras.clone()
@@ -510,6 +565,25 @@ class ObjectStats:
                 "left_per_frame": self.left_per_frame, "unboxed_dropped": self.unboxed_dropped, "coarse_dropped": self.coarse_dropped, "merged_away": self.aggregate.merged_away}  # fmt: skip
 
 
+def _with_rows(g: Gaussians, rows: np.ndarray, part: Gaussians) -> Gaussians:
+    """`g` with its `rows` (bool) replaced by `part` (as many Gaussians, same order; means unchanged), the row
+    order kept."""
+    idx = torch.from_numpy(np.flatnonzero(rows))
+    out = []
+    for whole, new in ((g.quats, part.quats), (g.scales, part.scales), (g.opacities, part.opacities),
+                       (g.colors, part.colors)):  # fmt: skip
+        whole = whole.clone()
+        whole[idx] = new
+        out.append(whole)
+    extras = None
+    if part.extras is not None:
+        extras = torch.zeros(len(g), part.extras.shape[1], dtype=part.extras.dtype)
+        if g.extras is not None:
+            extras[:, : g.extras.shape[1]] = g.extras
+        extras[idx] = part.extras
+    return Gaussians(g.means, *out, extras)
+
+
 class ObjectBuilder:
     """Agent objects built window by window (module docstring). `add` returns the window's per-frame leftovers and
     each agent's new canonical Gaussians; `objects()` the objects so far; `baked(frames, leftover)` the window's
@@ -551,11 +625,13 @@ class ObjectBuilder:
         self.standing_cams = cams if claim_rays and standing else []
         self.standing_far = np.array([_farthest_corner(c.position, standing) for c in self.standing_cams])
         self._standing_cache: dict[int, tuple | None] = {}
+        self._standing_rects: dict[int, np.ndarray] = {}  # each camera's `_box_rects`, once
         # `narrow_spill`: static Gaussians before a moving box narrowed (`narrow_before_boxes`) as every drawn
         # frame's cameras see that frame's boxes; each camera's rays computed when first needed
         self.narrow_spill = narrow_spill
         self._spill_cams: tuple | None = None
         self._spill_cache: dict[int, tuple | None] = {}
+        self._spill_rects: dict[int, np.ndarray] = {}
         self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
         for tr in self.tracks:
             if len(tr.poses) != self.T:
@@ -577,9 +653,12 @@ class ObjectBuilder:
 
     @staticmethod
     def _box_centres(tr: AgentTrack, centres: np.ndarray) -> np.ndarray:
-        out = [c @ rigid_inverse(tr.poses[t])[:3, :3].T + rigid_inverse(tr.poses[t])[:3, 3]
-               for t, c in enumerate(centres) if tr.present[t]]  # fmt: skip
-        return np.concatenate(out) if out else np.zeros((0, 3))
+        present = np.flatnonzero(tr.present)
+        if not len(present):
+            return np.zeros((0, 3))
+        rot, pos = tr.poses[present, :3, :3], tr.poses[present, :3, 3]
+        # x_box = R^T (x - t), for every present frame's cameras at once
+        return np.einsum("tvi,tij->tvj", centres[present] - pos[:, None, :], rot).reshape(-1, 3)
 
     def skeleton_objects(self) -> list[AgentObject]:
         """Every tracked agent with no Gaussians yet and all its poses (what a stream can announce up front)."""
@@ -599,6 +678,14 @@ class ObjectBuilder:
         g = claim_in_boxes(g, self.claimed, t, self.claim_margin)
         if not self.claim_rays:
             return g
+        # the sky shell is a backdrop, never before a box: left out, the far cameras of a long clip (whose reach
+        # only the shell's points were in) are not tried
+        sky = sky_rows(g)
+        if sky.any():
+            return _with_rows(g, ~sky, self._claim_rays_and_spill(t, g.subset(torch.from_numpy(~sky)), shield))
+        return self._claim_rays_and_spill(t, g, shield)
+
+    def _claim_rays_and_spill(self, t: int, g: Gaussians, shield: tuple | None) -> Gaussians:
         tree = cKDTree(g.means.detach().double().cpu().numpy()) if len(g) else None
         claimed = self._claim_rays(t, g, tree)
         if shield is not None and claimed is not g:
@@ -608,7 +695,7 @@ class ObjectBuilder:
                 extras[keep] = g.extras[keep] if g.extras is not None else 0.0
                 claimed = Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
         if self.narrow_spill and tree is not None:  # the same means as `g`'s
-            claimed = narrow_before_boxes(claimed, self._spill_rays(tree))
+            claimed = narrow_before_boxes(claimed, self._spill_rays(tree, claimed))
         return claimed
 
     def _claim_rays(self, t: int, g: Gaussians, tree: cKDTree | None) -> Gaussians:
@@ -622,21 +709,32 @@ class ObjectBuilder:
             return g
         return claim_along_rays(g, self._rays + self._standing_rays(tree), tree=tree)
 
-    def _spill_rays(self, tree: cKDTree) -> list[tuple]:
+    def _spill_rays(self, tree: cKDTree, g: Gaussians) -> list[tuple]:
         """The moving boxes' rays (`box_rays`, with `box_edges`) of every drawn frame's cameras that have a Gaussian
-        of `tree` nearer than the farthest corner of that frame's boxes (a Gaussian narrowed lies before a box) and
-        near one of those boxes (`_spill_cameras`)."""
+        of `tree` (`g`'s means) nearer than the farthest corner of that frame's boxes (a Gaussian narrowed lies
+        before a box) and near one of those boxes (`_spill_cameras`)."""
         if self._spill_cams is None:
             self._spill_cams = self._spill_cameras()
-        frames, cams, reach, centres = self._spill_cams
+        frames, cams, far, centres = self._spill_cams
         if not cams or not tree.n:
             return []
         nearest = tree.query(np.array([c.position for c in cams]))[0]
         near_box = {f: bool((tree.query(c)[0] < r).any()) for f, (c, r) in centres.items()}
         moving = [tr for tr in self.claimed if not tr.standing]
+        static = np.ones(len(g), bool) if g.extras is None else (g.extras[:, 0] <= DYNAMIC_THRESHOLD).cpu().numpy()
+        p = tree.data[static]
+        reach = SPILL_SIGMAS * g.scales.detach().double().cpu().numpy()[static].max(1, initial=0.0)
         out = []
-        for i in np.flatnonzero(nearest < reach):
+        for i in np.flatnonzero(nearest < far):
             if not near_box[frames[i]]:
+                continue
+            # a Gaussian `narrow_before_boxes` could narrow lies less than SPILL_BEFORE_M before a box, with its
+            # footprint's reach (pixels) from the box's pixel rect
+            if i not in self._spill_rects:
+                self._spill_rects[i] = _box_rects(cams[i], moving, frames[i])
+            if i not in self._spill_cache and not _near_rects(
+                cams[i], p, self._spill_rects[i], SPILL_BEFORE_M, 0.0, reach
+            ):
                 continue
             if i not in self._spill_cache:
                 r = box_rays([cams[i]], moving, frames[i])
@@ -675,6 +773,13 @@ class ObjectBuilder:
         for i, cam in enumerate(self.standing_cams):
             if not np.isfinite(
                 tree.query(cam.position, distance_upper_bound=claim_reach(cam, self.standing_far[i]))[0]
+            ):
+                continue
+            # a Gaussian `claim_along_rays` could take lies in a box's pixel rect, before its far side's tolerance
+            if i not in self._standing_rects:
+                self._standing_rects[i] = _box_rects(cam, self.standing, 0)
+            if i not in self._standing_cache and not _near_rects(
+                cam, tree.data, self._standing_rects[i], math.inf, claim_tolerance
             ):
                 continue
             if i not in self._standing_cache:

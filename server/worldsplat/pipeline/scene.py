@@ -319,13 +319,15 @@ class _Collect:
         `shields(builder)`: per frame, per view, (camera, the pixels that show an occluder before an agent,
         `objects.occluder_pixels`) whose Gaussians are not claimed along the rays through the boxes."""
         t0 = time.perf_counter()
+        # the deferral first: each Gaussian's own test, and the claims then look at what the window keeps
+        per_view = self.agg.defer(frames, per_view)
         if self.objects is not None:
             sh = {} if shields is None else shields(self.objects)
             per_view = [
                 [self.objects.claim(t, g, sh[t][v] if t in sh else None) for v, g in enumerate(views)]
                 for t, views in zip(frames, per_view, strict=True)
             ]
-        static, dynamic = self.agg.add(frames, per_view)
+        static, dynamic = self.agg.add(frames, per_view, deferred=True)
         added = None
         if self.objects is not None:
             obs = None if observed is None else observed(self.objects)

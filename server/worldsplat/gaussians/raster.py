@@ -67,6 +67,32 @@ def composite(
     return feats, depth, weight_sum  # alpha = 1 - T = sum of weights (telescoping)
 
 
+def _pair_boxes(proj: Projected, width: int, height: int):
+    """Depth order of `proj` and, in that order, each Gaussian's box of candidate pixels (a pixel is a candidate
+    when its centre i + 0.5 lies in [u - ex, u + ex], the support's box): x0, y0, nx, count and the cumulative
+    counts (no gradient)."""
+    dt = proj.uv.dtype
+    order = depth_order(proj)
+    uv, e = proj.uv.detach()[order], proj.extent[order].to(dt)
+    x0 = torch.ceil(uv[:, 0] - e[:, 0] - 0.5).clamp(0, width).to(torch.int64)
+    x1 = torch.floor(uv[:, 0] + e[:, 0] - 0.5).clamp(-1, width - 1).to(torch.int64)
+    y0 = torch.ceil(uv[:, 1] - e[:, 1] - 0.5).clamp(0, height).to(torch.int64)
+    y1 = torch.floor(uv[:, 1] + e[:, 1] - 0.5).clamp(-1, height - 1).to(torch.int64)
+    nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
+    counts = nx * ny
+    return order, x0, y0, nx, counts, torch.cumsum(counts, 0)
+
+
+def _batch_pairs(start: int, stop: int, base: int, x0, y0, nx, counts, ends):
+    """The (rank in depth order, pixel x, pixel y) pairs of the Gaussians start..stop-1 of `_pair_boxes`."""
+    dev = x0.device
+    sel = torch.arange(start, stop, device=dev)
+    c = counts[sel]
+    rank = torch.repeat_interleave(sel, c)
+    local = torch.arange(int(c.sum()), device=dev) - torch.repeat_interleave(ends[sel] - c - base, c)
+    return rank, x0[rank] + local % nx[rank], y0[rank] + local // nx[rank]
+
+
 def composite_pairs(
     proj: Projected, width: int, height: int, pair_budget: int = 1 << 22
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -83,16 +109,7 @@ def composite_pairs(
     if len(proj) == 0:
         return feats, depth, wsum
     with torch.no_grad():
-        order = depth_order(proj)
-        uv, e = proj.uv.detach()[order], proj.extent[order].to(dt)
-        # pixel i is a candidate when its centre i + 0.5 lies in [u - ex, u + ex] (the support's box)
-        x0 = torch.ceil(uv[:, 0] - e[:, 0] - 0.5).clamp(0, width).to(torch.int64)
-        x1 = torch.floor(uv[:, 0] + e[:, 0] - 0.5).clamp(-1, width - 1).to(torch.int64)
-        y0 = torch.ceil(uv[:, 1] - e[:, 1] - 0.5).clamp(0, height).to(torch.int64)
-        y1 = torch.floor(uv[:, 1] + e[:, 1] - 0.5).clamp(-1, height - 1).to(torch.int64)
-        nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
-        counts = nx * ny
-        ends = torch.cumsum(counts, 0)
+        order, x0, y0, nx, counts, ends = _pair_boxes(proj, width, height)
     support = C.EXTENT_SIGMA**2
     start = 0
     while start < len(order):
@@ -100,12 +117,7 @@ def composite_pairs(
             base = 0 if start == 0 else int(ends[start - 1])
             stop = int(torch.searchsorted(ends, base + pair_budget, right=True))
             stop = max(stop, start + 1)
-            sel = torch.arange(start, stop, device=dev)
-            c = counts[sel]
-            rank = torch.repeat_interleave(sel, c)
-            local = torch.arange(int(c.sum()), device=dev) - torch.repeat_interleave(ends[sel] - c - base, c)
-            px = x0[rank] + local % nx[rank]
-            py = y0[rank] + local // nx[rank]
+            rank, px, py = _batch_pairs(start, stop, base, x0, y0, nx, counts, ends)
             pix = py * width + px
             live = Tv.detach()[pix] >= C.T_MIN
             rank, pix, px, py = rank[live], pix[live], px[live], py[live]
@@ -142,6 +154,61 @@ def composite_pairs(
         wsum = wsum.index_add(0, pix_s, w)
         Tv = Tv * torch.exp(torch.zeros(P, dtype=torch.float64, device=dev).index_add(0, pix_s, la)).to(dt)
     return feats, depth, wsum
+
+
+def pair_weights(
+    g: Gaussians, camera: Camera, pair_budget: int = 1 << 22
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The compositing weights of `render_view` at `camera` as sparse triples (pixel = y * W + x, input row of `g`,
+    weight): the render's colour at a pixel is the sum of weight x colour over its triples (the "pairs" path's
+    alpha x transmittance, the same tests and stops), so the render is linear in the colours with this matrix
+    (`gaussians.lift.fit_colours`). float64 weights, no gradient."""
+    width, height = camera.width, camera.height
+    with torch.no_grad():
+        proj = project(g, camera)
+        dev = proj.uv.device
+        empty = torch.zeros(0, dtype=torch.int64, device=dev)
+        if len(proj) == 0:
+            return empty, empty, torch.zeros(0, dtype=torch.float64, device=dev)
+        order, x0, y0, nx, counts, ends = _pair_boxes(proj, width, height)
+        Tv = torch.ones(width * height, dtype=torch.float64, device=dev)
+        out_p, out_r, out_w = [], [], []
+        start = 0
+        while start < len(order):
+            base = 0 if start == 0 else int(ends[start - 1])
+            stop = max(int(torch.searchsorted(ends, base + pair_budget, right=True)), start + 1)
+            rank, px, py = _batch_pairs(start, stop, base, x0, y0, nx, counts, ends)
+            start = stop
+            pix = py * width + px
+            live = Tv[pix] >= C.T_MIN
+            rank, pix, px, py = rank[live], pix[live], px[live], py[live]
+            if rank.numel() == 0:
+                continue
+            k = order[rank]
+            dx = (px.to(proj.uv.dtype) + 0.5) - proj.uv[k, 0]
+            dy = (py.to(proj.uv.dtype) + 0.5) - proj.uv[k, 1]
+            con = proj.conic[k]
+            d = (con[:, 0] * dx + 2 * con[:, 1] * dy) * dx + con[:, 2] * dy * dy
+            alpha = torch.clamp_max(proj.opacity[k] * torch.exp(-0.5 * d), C.ALPHA_MAX)
+            hit = ((d <= C.EXTENT_SIGMA**2) & (alpha >= C.ALPHA_MIN)).nonzero().squeeze(1)
+            pix_h = pix[hit]
+            grouped = torch.sort(pix_h, stable=True).indices  # by pixel, depth order kept inside
+            idx, pix_s = hit[grouped], pix_h[grouped]
+            first = torch.ones_like(pix_s, dtype=torch.bool)
+            first[1:] = pix_s[1:] != pix_s[:-1]
+            seg_start = torch.cummax(torch.where(first, torch.arange(len(pix_s), device=dev), 0), 0).values
+            a = alpha[idx].to(torch.float64)
+            la = torch.log1p(-a)
+            cs = torch.cumsum(la, 0)
+            T_before = Tv[pix_s] * torch.exp(cs - la - (cs - la)[seg_start])
+            w = torch.where(T_before * (1 - a) >= C.T_MIN, a * T_before, torch.zeros_like(a))
+            out_p.append(pix_s)
+            out_r.append(proj.index[k[idx]])
+            out_w.append(w)
+            Tv = Tv * torch.exp(torch.zeros_like(Tv).index_add(0, pix_s, la))
+        if not out_p:
+            return empty, empty, torch.zeros(0, dtype=torch.float64, device=dev)
+        return torch.cat(out_p), torch.cat(out_r), torch.cat(out_w)
 
 
 def pixel_centres(x0: int, x1: int, y0: int, y1: int, dtype, device) -> torch.Tensor:

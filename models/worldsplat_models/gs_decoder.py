@@ -52,6 +52,11 @@ def _resize(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
     return F.adaptive_avg_pool2d(x, (h, w)) if x.shape[-2] > h else F.interpolate(x, size=(h, w), mode="nearest")
 
 
+def _bilinear(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """Bilinearly resample a pixel guide to a finer grid (the refined head's prior)."""
+    return F.interpolate(x, size=(h, w), mode="bilinear", align_corners=False)
+
+
 def _guide_prior(g: torch.Tensor, channels: int) -> torch.Tensor:
     """Raw-head base from the pixel guide: the colour, depth and dynamic pre-activations that reproduce the
     VAE-decoded rgb, depth and mask exactly, so the heads learn residuals (zeros elsewhere)."""
@@ -137,7 +142,7 @@ class GaussianDecoder(nn.Module):
         """L (B,T,V,C,h,w) normalised latents; intrinsics (B,T,V,4) fx,fy,cx,cy of the image_hw image;
         cam_to_world (B,T,V,4,4); guide (B,T,V,5,H',W') the VAE-decoded rgb [-1,1], normalised depth [-1,1] and
         mask [0,1] when `guide_channels` = 5 -> Gaussian fields, each (B,T,V,gh,gw,k) (k dropped when 1), in
-        world metres."""
+        world metres (`refine_fields`: the same on a finer grid)."""
         cfg = self.cfg
         B, T, V, C, h, w = L.shape
         if cfg.guide_channels and (guide is None or guide.shape[3] != cfg.guide_channels):
@@ -198,28 +203,95 @@ class GaussianDecoder(nn.Module):
             return self._activate(raw.float(), origins.float(), dirs.float(), fx_grid.float(), cam_to_world.float())
 
     def _activate(self, raw, origins, dirs, fx_grid, cam_to_world):
-        cfg = self.cfg
-        raw = torch.nan_to_num(raw.float(), nan=0.0, posinf=0.0, neginf=0.0)
-        parts = dict(zip(HEAD_CHANNELS, raw.split(list(HEAD_CHANNELS.values()), dim=-1)))
-        ln, lf = math.log(cfg.depth_near), math.log(cfg.depth_far)
-        depth = torch.exp(ln + torch.sigmoid(parts["depth"][..., 0]) * (lf - ln))
-        offset = cfg.max_offset * torch.tanh(parts["offset"])
-        means = origins[..., None, None, :] + depth[..., None] * dirs + offset
-        a, b = cfg.pixel_scale_range
-        footprint = depth / fx_grid[..., None, None]
-        scales = (footprint[..., None] * (a + (b - a) * torch.sigmoid(parts["scale"]))).clamp(
-            cfg.scale_min, cfg.scale_max
-        )
-        q_cam = safe_normalize_quaternion(parts["quat"])
-        q_c2w = matrix_to_quaternion(cam_to_world[..., :3, :3])[..., None, None, :].expand_as(q_cam)
-        quats = quaternion_multiply(q_c2w, q_cam)
-        quats = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-6)
-        return {
-            "means": means,
-            "quats": quats,
-            "scales": scales,
-            "opacities": torch.sigmoid(parts["opacity"][..., 0] + cfg.opacity_bias),
-            "colors": torch.sigmoid(parts["color"]),
-            "depth": depth,
-            "dynamic_logit": parts["dynamic"][..., 0].clamp(-15.0, 15.0),
-        }
+        return activate_fields(self.cfg, raw, origins, dirs, fx_grid, cam_to_world)
+
+
+def activate_fields(cfg: GSDecoderConfig, raw, origins, dirs, fx_grid, cam_to_world) -> dict[str, torch.Tensor]:
+    """The heads' activations (module docstring): raw (B,T,V,gh,gw,16), ray origins (B,T,V,3) and directions
+    (B,T,V,gh,gw,3), the grid's focal length fx_grid (B,T,V), cam_to_world (B,T,V,4,4) -> the Gaussian fields."""
+    raw = torch.nan_to_num(raw.float(), nan=0.0, posinf=0.0, neginf=0.0)
+    parts = dict(zip(HEAD_CHANNELS, raw.split(list(HEAD_CHANNELS.values()), dim=-1)))
+    ln, lf = math.log(cfg.depth_near), math.log(cfg.depth_far)
+    depth = torch.exp(ln + torch.sigmoid(parts["depth"][..., 0]) * (lf - ln))
+    offset = cfg.max_offset * torch.tanh(parts["offset"])
+    means = origins[..., None, None, :] + depth[..., None] * dirs + offset
+    a, b = cfg.pixel_scale_range
+    footprint = depth / fx_grid[..., None, None]
+    scales = (footprint[..., None] * (a + (b - a) * torch.sigmoid(parts["scale"]))).clamp(cfg.scale_min, cfg.scale_max)
+    q_cam = safe_normalize_quaternion(parts["quat"])
+    q_c2w = matrix_to_quaternion(cam_to_world[..., :3, :3])[..., None, None, :].expand_as(q_cam)
+    quats = quaternion_multiply(q_c2w, q_cam)
+    quats = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+    return {
+        "means": means,
+        "quats": quats,
+        "scales": scales,
+        "opacities": torch.sigmoid(parts["opacity"][..., 0] + cfg.opacity_bias),
+        "colors": torch.sigmoid(parts["color"]),
+        "depth": depth,
+        "dynamic_logit": parts["dynamic"][..., 0].clamp(-15.0, 15.0),
+    }
+
+
+def _logit(p: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    p = p.clamp(eps, 1.0 - eps)
+    return torch.log(p) - torch.log1p(-p)
+
+
+def raw_fields(cfg: GSDecoderConfig, fields: dict, origins, dirs, fx_grid, cam_to_world) -> torch.Tensor:
+    """The inverse of `activate_fields`: the decoder's fields (its outputs, ONNX's too) -> raw (B,T,V,gh,gw,16) that
+    activate to them (exactly, up to float rounding, where no bound clamps; a clamped value comes back at the bound,
+    the rotation with w >= 0)."""
+    ln, lf = math.log(cfg.depth_near), math.log(cfg.depth_far)
+    depth = fields["depth"].float()
+    r_depth = _logit((torch.log(depth) - ln) / (lf - ln))
+    offset = fields["means"].float() - origins[..., None, None, :] - depth[..., None] * dirs
+    r_offset = torch.atanh((offset / cfg.max_offset).clamp(-1 + 1e-6, 1 - 1e-6))
+    a, b = cfg.pixel_scale_range
+    footprint = depth / fx_grid[..., None, None]
+    r_scale = _logit((fields["scales"].float() / footprint[..., None] - a) / (b - a))
+    q_c2w = matrix_to_quaternion(cam_to_world[..., :3, :3].float())[..., None, None, :]
+    conj = q_c2w * torch.tensor([1.0, -1.0, -1.0, -1.0])
+    q_cam = quaternion_multiply(conj.expand_as(fields["quats"]), fields["quats"].float())
+    q_cam = torch.where(q_cam[..., :1] < 0, -q_cam, q_cam)
+    r_quat = q_cam - torch.tensor([1.0, 0.0, 0.0, 0.0])
+    r_opacity = _logit(fields["opacities"].float()) - cfg.opacity_bias
+    r_color = _logit(fields["colors"].float())
+    r_dyn = fields["dynamic_logit"].float()
+    parts = {"offset": r_offset, "quat": r_quat, "scale": r_scale, "opacity": r_opacity[..., None],
+             "color": r_color, "depth": r_depth[..., None], "dynamic": r_dyn[..., None]}  # fmt: skip
+    return torch.cat([parts[k] for k in HEAD_CHANNELS], dim=-1)
+
+
+@torch.no_grad()
+def refine_fields(
+    cfg: GSDecoderConfig,
+    fields: dict,
+    intrinsics: torch.Tensor,
+    cam_to_world: torch.Tensor,
+    image_hw: tuple[int, int],
+    r: int,
+    guide: torch.Tensor | None = None,
+) -> dict[str, torch.Tensor]:
+    """The decoder's fields (B,T,V,gh,gw,k) on an r x finer grid: their raw maps (`raw_fields`) up-sampled
+    bilinearly and activated on the finer grid's rays, so each cell becomes r x r Gaussians of 1/r its footprint on
+    the surface the decoder put there (scales in footprints of the finer grid). With a pixel guide (B,T,V,5,H',W')
+    the colour, depth and dynamic residuals over the guide's prior are up-sampled and the prior is read at the finer
+    grid (bilinearly): the VAE's decoding supplies the finer colours. Works on any backend's outputs (torch, ONNX)."""
+    if r == 1:
+        return fields
+    B, T, V, gh, gw = fields["depth"].shape
+    o, d = pixel_rays(intrinsics, cam_to_world, image_hw, (gh, gw))
+    fx = intrinsics[..., 0].float() * (gw / image_hw[1])
+    raw = raw_fields(cfg, fields, o, d, fx, cam_to_world).reshape(B * T * V, gh, gw, -1).permute(0, 3, 1, 2)
+    g = None if guide is None or not cfg.guide_channels else guide.reshape(B * T * V, *guide.shape[3:]).float()
+    if g is not None:
+        raw = raw - _guide_prior(_resize(g, gh, gw), raw.shape[1])
+    fh, fw = gh * r, gw * r
+    raw = F.interpolate(raw, size=(fh, fw), mode="bilinear", align_corners=False)
+    if g is not None:
+        raw = raw + _guide_prior(_resize(g, fh, fw) if g.shape[-2] >= fh else _bilinear(g, fh, fw), raw.shape[1])
+    raw = raw.reshape(B, T, V, -1, fh, fw).permute(0, 1, 2, 4, 5, 3)
+    o_f, d_f = pixel_rays(intrinsics, cam_to_world, image_hw, (fh, fw))
+    fx_f = intrinsics[..., 0].float() * (fw / image_hw[1])
+    return activate_fields(cfg, raw, o_f, d_f, fx_f, cam_to_world.float())

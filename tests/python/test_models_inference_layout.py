@@ -73,8 +73,9 @@ def test_generate_reads_layout_maps(layout_models):
     a = inf.generate(cond, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
     ds = layout_models.vae.cfg.downsample
     assert a.latents.shape[-2:] == (CFG.data.height // ds, CFG.data.width // ds)
-    # one Gaussian per pixel at the model resolution
-    assert a.gaussians[0][0].means.shape[0] == CFG.data.height * CFG.data.width
+    # the decoder's grid (one Gaussian per pixel at the model resolution) refined as generate serves it
+    r = inf.DECODER_REFINE[inf.GAUSSIANS["generate"]]
+    assert a.gaussians[0][0].means.shape[0] == CFG.data.height * CFG.data.width * r * r
     other = dict(cond, layout=np.zeros_like(cond["layout"]))
     b = inf.generate(other, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
     assert not torch.equal(a.latents, b.latents), "the layout maps must steer the sample"
@@ -123,3 +124,27 @@ def test_layout_models_onnx_match_torch(layout_models, tmp_path):
     b = inf.generate(cond, steps=2, seed=1, models=ort, rig=clip.rig, caption_embedding=emb)
     assert torch.allclose(a.latents, b.latents, atol=ox.PARITY_ATOL)
     assert torch.allclose(a.frame(1).means, b.frame(1).means, atol=1e-2)
+
+
+@pytest.mark.parametrize("source,r", [("decoder2x", 2), ("decoder4x", 4)])
+def test_generate_with_the_refined_decoder_grid_snaps_on_the_finer_layout(layout_models, source, r):
+    """gaussians="decoder2x" / "decoder4x": r x r Gaussians per decoder cell (finer than the layout maps: the snaps
+    read them up-sampled to the grid), finite, the scale floor shrunk with the cell."""
+    clip, s = tiny_clip(T=2)
+    emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
+    cond = _cond(clip, s)
+    base = inf.generate(cond, steps=1, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb,
+                        gaussians="decoder")  # fmt: skip
+    fine = inf.generate(cond, steps=1, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb,
+                        gaussians=source)  # fmt: skip
+    assert fine.source == source and torch.equal(fine.latents, base.latents)
+    for t in range(2):
+        for v in range(CFG.data.views):
+            g, g0 = fine.gaussians[t][v], base.gaussians[t][v]
+            assert len(g) == r * r * len(g0)
+            for x in (g.means, g.scales, g.colors, g.opacities):
+                assert torch.isfinite(x).all()
+    assert 0.0 <= fine.meta["layout_snap_fraction"] <= 1.0
+    # finer cells, smaller Gaussians: the median scale shrinks about r x
+    ratio = float(base.frame(0).scales.median() / fine.frame(0).scales.median())
+    assert r / 2 < ratio < r * 2, ratio

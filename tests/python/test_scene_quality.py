@@ -239,3 +239,20 @@ def test_the_exported_files_measure_like_the_scene(small_oracle):
     assert abs(w["agents_seen"] - a["agents_seen"]) <= 1
     with pytest.raises(ValueError):
         sq.on_the_wire(scene, "jpeg")
+
+
+def test_gaussians_option_swaps_the_learned_modes_source_for_the_block_only():
+    from worldsplat.pipeline import inference as inf
+
+    served = dict(inf.GAUSSIANS)
+    with sq.gaussians_from("generate", "decoder2x"):
+        assert inf.GAUSSIANS["generate"] == "decoder2x" and inf.GAUSSIANS["reconstruct"] == served["reconstruct"]
+    assert inf.GAUSSIANS == served
+    with pytest.raises(RuntimeError), sq.gaussians_from("reconstruct", "decoder"):
+        assert inf.GAUSSIANS["reconstruct"] == "decoder"
+        raise RuntimeError("restored even so")
+    assert inf.GAUSSIANS == served
+    with sq.gaussians_from("oracle", "decoder2x"), sq.gaussians_from("generate", None):
+        assert inf.GAUSSIANS == served  # the oracle lifts exact pixels; None is as served
+    with pytest.raises(ValueError, match="gaussians must be one of"), sq.gaussians_from("generate", "voxels"):
+        pass

@@ -24,6 +24,9 @@ renderer) at every rig camera on a canvas SCALE x the served image per side, aga
   instance mask, pooled over the cameras; the mean over (agent, frame).
 - scene seconds: wall time of `generate_scene` (models loaded before; the first window's caption encoder warm).
 
+`--gaussians SOURCE` builds the learned modes' scenes from that source of Gaussians instead of the one each serves
+(`pipeline.inference.GAUSSIANS`; "pixels", "decoder", "decoder2x", "decoder4x": `inference.GAUSSIAN_SOURCES`).
+
 `--wire wsplat` measures the scene after the bytes the playground sends (.wsplat, `wsplat.SERVED_VERSION`, quantised),
 `--wire ply` after each frame's exported PLY: the same figures through the files another renderer would read.
 """
@@ -31,6 +34,7 @@ renderer) at every rig camera on a canvas SCALE x the served image per side, aga
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import tempfile
@@ -349,6 +353,23 @@ def on_the_wire(scene: Scene4D, wire: str) -> Scene4D:
     return Scene4D(Gaussians.empty(), frames, flat.frame_times, flat.rig, flat.ego_to_world, dict(flat.meta))
 
 
+@contextlib.contextmanager
+def gaussians_from(mode: str, source: str | None):
+    """Within the block a learned `mode` builds its scenes from `source` (`inference.GAUSSIANS`; None: as served)."""
+    if source is None or mode == "oracle":
+        yield
+        return
+    from worldsplat.pipeline import inference  # noqa: PLC0415 - the models' glue, only for the learned modes
+
+    inference.gaussian_source(source, mode)  # checked
+    was = inference.GAUSSIANS[mode]
+    inference.GAUSSIANS[mode] = source
+    try:
+        yield
+    finally:
+        inference.GAUSSIANS[mode] = was
+
+
 def measure(
     spec: str,
     mode: str,
@@ -356,14 +377,19 @@ def measure(
     scale: int = SCALE,
     served: dict = SERVED,
     wire: str = "scene",
+    gaussians: str | None = None,
 ) -> dict:
-    """Build the served scene of one scenario in one mode (timed) and measure it (as built, or read back from `wire`)."""
+    """Build the served scene of one scenario in one mode (timed) and measure it (as built, or read back from `wire`);
+    `gaussians`: the learned modes' source of Gaussians (`gaussians_from`; None: the served one)."""
     sc = scenario_of(spec, served)
     preload(mode)
-    t0 = time.perf_counter()
-    scene = generate_scene(sc, mode=mode)
-    secs = time.perf_counter() - t0
+    with gaussians_from(mode, gaussians):
+        t0 = time.perf_counter()
+        scene = generate_scene(sc, mode=mode)
+        secs = time.perf_counter() - t0
     row = {"scenario": spec, "mode": mode, "wire": wire, "scene_s": secs}
+    if gaussians is not None and mode != "oracle":
+        row["gaussians"] = gaussians
     row.update(measure_scene(build_world(sc), on_the_wire(scene, wire), iou_frames, scale))
     return row
 
@@ -418,6 +444,7 @@ def main(argv=None) -> int:
     p.add_argument("--iou-frames", default="all", help="frames of the silhouette IoU: all, or e.g. 0,4")
     p.add_argument("--scale", type=int, default=SCALE, help="canvas per side relative to the served image")
     p.add_argument("--wire", default="scene", choices=WIRES, help="measure the scene as built or read back from a file")
+    p.add_argument("--gaussians", default=None, help="the learned modes' source of Gaussians (default: as served)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=None, help="write every row and the summary here (JSON)")
     a = p.parse_args(argv)
@@ -426,7 +453,7 @@ def main(argv=None) -> int:
     rows = []
     for mode in a.modes.split(","):
         for spec in a.scenarios.split(","):
-            r = measure(spec, mode, frames, a.scale, wire=a.wire)
+            r = measure(spec, mode, frames, a.scale, wire=a.wire, gaussians=a.gaussians)
             rows.append(r)
             print(json.dumps({k: v for k, v in r.items() if k != "agents"}), flush=True)
     summ = summary(rows)

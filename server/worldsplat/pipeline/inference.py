@@ -16,8 +16,9 @@ per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
 `gaussians` says how L becomes Gaussians (None: the mode's served source, GAUSSIANS): "decoder": the latent Gaussian
-decoder's grid (served in generate); "pixels": the VAE's decoding of L lifted one opaque Gaussian per pixel of the
-rig's image (`pipeline.pixels`; served in reconstruct).
+decoder's grid; "decoder2x" / "decoder4x": that grid refined (`gs_decoder.refine_fields`; "decoder2x" served in
+generate); "pixels": the VAE's decoding of L lifted one opaque Gaussian per pixel of the rig's image
+(`pipeline.pixels`; served in reconstruct); "pixels_decoder_depth": the same at the latent decoder's depth.
 
 The models run at their trained geometry (DataConfig: 64x112 per view, 6 views, 4-frame windows): inputs of other
 sizes are resampled to it (the Gaussians live in world metres, so they render at any resolution), and longer clips
@@ -49,6 +50,7 @@ from worldsplat_models import rflow
 from worldsplat_models.conditions import encode_captions
 from worldsplat_models.configs import DataConfig, get_config
 from worldsplat_models.dit import dropped
+from worldsplat_models.gs_decoder import refine_fields
 from worldsplat_models.vae import normalize_depth
 from worldsplat_models.weights import load_weights, read_metadata
 from worldsplat_models.weights import weights_dir as default_weights_dir
@@ -56,13 +58,22 @@ from worldsplat_models.weights import weights_dir as default_weights_dir
 SIZE = "small"
 # How latents become Gaussians, per mode: "pixels" lifts the VAE's decoded colour, depth and mask per pixel of the
 # rig's image (as many Gaussians per served pixel as the oracle, tiling at any display size); "decoder" is the latent
-# Gaussian decoder (one translucent Gaussian per 2x2 model pixels, a cell grid at 2x). Measured side by side in
-# web/docs/models.md ("Served Gaussians per mode"): reconstruct's pixels (with the lifted decoding's economy,
-# `Economy.for_lifted_decoding`) are denser, sharper and score above the decoder in PSNR and SSIM; generate's VAE
-# decoding of sampled latents is blotched (the first window's 4 steps worst), which the decoder smooths over: it
-# scores 15.1 dB / SSIM 0.53 against pixels' 13.7 / 0.48 on the default preset, so generate keeps the decoder.
-GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder"}
-GAUSSIAN_SOURCES = ("pixels", "decoder")
+# Gaussian decoder (one translucent Gaussian per 2x2 model pixels, a cell grid at 2x); "decoder2x" / "decoder4x" its
+# grid refined (`DECODER_REFINE`). Measured side by side in web/docs/models.md ("Served Gaussians per mode"):
+# reconstruct's pixels (with the lifted decoding's economy, `Economy.for_lifted_decoding`) are denser, sharper and
+# score above the decoder in PSNR and SSIM; generate's VAE decoding of sampled latents is blotched (the first window's
+# 4 steps worst), which the decoder smooths over (default preset: pixels 13.65 dB / SSIM 0.481, the VAE's colour at
+# the decoder's depth the same, the decoder 15.13 / 0.540); the decoder's grid refined 2x keeps its numbers (15.12 /
+# 0.551) at 2.6x the density (2.15 Gaussians per served px, above the oracle's 1.76) without the cell grid at 2x
+# and 4x, so generate serves "decoder2x".
+GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder2x"}
+GAUSSIAN_SOURCES = ("pixels", "decoder", "decoder2x", "decoder4x", "pixels_decoder_depth")
+# The latent decoder's grid refined r x (`GaussianDecoder.forward(refine=r)`): its raw maps up-sampled bilinearly, the
+# pixel guide read at the finer grid, each cell r x r Gaussians of 1/r the footprint on the decoder's surface.
+DECODER_REFINE = {"decoder": 1, "decoder2x": 2, "decoder4x": 4}
+# The sources lifted one opaque Gaussian per served pixel; "pixels_decoder_depth" lifts the VAE's colour at the
+# latent decoder's depth (its grid refined 2x: the model image), which the frames of a window agree on better.
+LIFTED = ("pixels", "pixels_decoder_depth")
 
 
 @dataclass
@@ -109,7 +120,7 @@ class DecodedFrames:
     meta: dict = field(default_factory=dict)
     model_width: int | None = None  # the models' image width (the decoded economy's unit); None: the rig's
     windows: list[list[int]] | None = None  # the frame windows decoded together (None: one window of every frame)
-    source: str = "decoder"  # how the Gaussians were made: "pixels" (lifted per rig pixel) or "decoder" (grid)
+    source: str = "decoder"  # how the Gaussians were made: GAUSSIAN_SOURCES (lifted per rig pixel, or a grid)
 
     def frame(self, t: int):
         return Gaussians.cat(self.gaussians[t])
@@ -242,15 +253,23 @@ def layout_size(models: Models) -> tuple[int, int] | None:
 DECODED_SCALE_FLOOR_MODEL_PX = 0.6
 
 
-def scale_floor(scales: torch.Tensor, depth: torch.Tensor, fx_model: float) -> torch.Tensor:
-    """scales (N,3) of Gaussians at camera depth (N,) -> widened by DECODED_SCALE_FLOOR_MODEL_PX model pixels
-    (fx_model: the camera's focal length in model-image pixels, so one model pixel spans depth / fx_model metres)."""
-    floor = DECODED_SCALE_FLOOR_MODEL_PX * depth / fx_model
+# The same floor for the decoder's grid refined r x (`DECODER_REFINE`), in model pixels. 2x on the default preset
+# (web/docs/models.md, "generate: the decoder's grid refined 2x"), floor 0.3 / 0.6 / 0.8: static PSNR 15.09 / 15.08 /
+# 15.12 dB, luma SSIM 0.511 / 0.541 / 0.551; at 4x the served image a dot lattice / fine vertical lines / faint ones.
+REFINED_SCALE_FLOOR_MODEL_PX = {1: DECODED_SCALE_FLOOR_MODEL_PX, 2: 0.8, 4: 0.6}
+
+
+def scale_floor(
+    scales: torch.Tensor, depth: torch.Tensor, fx_model: float, floor_px: float = DECODED_SCALE_FLOOR_MODEL_PX
+) -> torch.Tensor:
+    """scales (N,3) of Gaussians at camera depth (N,) -> widened by `floor_px` model pixels (fx_model: the camera's
+    focal length in model-image pixels, so one model pixel spans depth / fx_model metres)."""
+    floor = floor_px * depth / fx_model
     return torch.sqrt(scales**2 + floor[:, None] ** 2)
 
 
 def gaussian_source(gaussians: str | None, mode: str = "generate") -> str:
-    """`gaussians` checked ("pixels" | "decoder"; None: the source `mode` serves, GAUSSIANS)."""
+    """`gaussians` checked (one of GAUSSIAN_SOURCES; None: the source `mode` serves, GAUSSIANS)."""
     g = GAUSSIANS[mode] if gaussians is None else gaussians
     if g not in GAUSSIAN_SOURCES:
         raise ValueError(f"gaussians must be one of {', '.join(GAUSSIAN_SOURCES)}, got {gaussians!r}")
@@ -276,10 +295,12 @@ def decode_gaussians(
     wins = _windows(T, d.frames, pad)
     mode = meta.get("mode", "generate")
     source = "decoder" if decoder is not None else gaussian_source(gaussians, mode)
-    if source == "pixels":
-        gs, logits = _lift_pixels(models, L, rig, ego_to_world, wins)
+    if source in LIFTED:
+        dd = models.decoder_for(mode) if source == "pixels_decoder_depth" else None
+        gs, logits = _lift_pixels(models, L, rig, ego_to_world, wins, dd)
     else:
-        gs, logits = _decode_grid(models, L, rig, ego_to_world, wins, decoder or models.decoder_for(mode))
+        refine = DECODER_REFINE[source]
+        gs, logits = _decode_grid(models, L, rig, ego_to_world, wins, decoder or models.decoder_for(mode), refine)
     return DecodedFrames(
         gs,
         logits,
@@ -294,8 +315,9 @@ def decode_gaussians(
     )
 
 
-def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder) -> tuple[list[list], list[list]]:
-    """The latent Gaussian decoder's Gaussians [t][v] and dynamic logits of L, window by window."""
+def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder, refine: int = 1) -> tuple[list[list], list[list]]:
+    """The latent Gaussian decoder's Gaussians [t][v] and dynamic logits of L, window by window (`refine`: its grid
+    r x finer, `GaussianDecoder.forward`; the scale floor shrinks with the cell)."""
     d = models.data
     intr, c2w = rig_tensors(rig, ego_to_world, (d.height, d.width))
     gs, logits = [[None] * len(rig) for _ in range(L.shape[0])], [[None] * len(rig) for _ in range(L.shape[0])]
@@ -303,6 +325,7 @@ def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder) -> tuple[l
         guide = pixel_guide(models, L[win])[None] if decoder.cfg.guide_channels else None
         args = (L[win][None], intr[win][None], c2w[win][None], (d.height, d.width))
         out = decoder(*args) if guide is None else decoder(*args, guide=guide)
+        out = refine_fields(decoder.cfg, out, *args[1:], refine, guide)
         for i, t in enumerate(win):
             for v in range(len(rig)):
                 f = {
@@ -310,13 +333,15 @@ def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder) -> tuple[l
                     for k, x in out.items()
                 }
                 p = torch.sigmoid(f["dynamic_logit"])
-                scales = scale_floor(f["scales"], f["depth"], float(intr[t, v, 0]))
+                scales = scale_floor(
+                    f["scales"], f["depth"], float(intr[t, v, 0]), REFINED_SCALE_FLOOR_MODEL_PX[refine]
+                )
                 gs[t][v] = Gaussians(f["means"], f["quats"], scales, f["opacities"], f["colors"], p[:, None])
                 logits[t][v] = f["dynamic_logit"]
     return gs, logits
 
 
-def _lift_pixels(models: Models, L, rig, ego_to_world, wins) -> tuple[list[list], list[list]]:
+def _lift_pixels(models: Models, L, rig, ego_to_world, wins, depth_decoder=None) -> tuple[list[list], list[list]]:
     """The VAE's decoding of L, up-sampled to the rig's image, its ground onto the plane (`pixels.snap_to_ground`)
     and lifted per pixel (`pipeline.pixels`): Gaussians [t][v] (H*W each, row-major) and dynamic logits (+-15 from
     the lifted mask), window by window."""
@@ -327,6 +352,8 @@ def _lift_pixels(models: Models, L, rig, ego_to_world, wins) -> tuple[list[list]
         frames = sorted(set(win))
         guide = pixel_guide(models, L[frames])
         rgb, depth, dyn = pixels.served_maps(guide.reshape(-1, *guide.shape[2:]), size, d.depth_near, d.depth_far)
+        if depth_decoder is not None:
+            depth = _decoder_depth(models, L, rig, ego_to_world, frames, depth_decoder, guide, size)
         cams = [rig[v].at(ego_to_world[t]) for t in frames for v in range(V)]
         depth = pixels.snap_to_ground(depth, dyn, cams)
         views = pixels.lift_views(rgb, depth, dyn, cams)
@@ -335,6 +362,16 @@ def _lift_pixels(models: Models, L, rig, ego_to_world, wins) -> tuple[list[list]
                 g = views[i * V + v]
                 gs[t][v], logits[t][v] = g, (g.extras[:, 0] * 30.0 - 15.0)
     return gs, logits
+
+
+def _decoder_depth(models: Models, L, rig, ego_to_world, frames, decoder, guide, size) -> np.ndarray:
+    """The latent decoder's depth (grid refined 2x, camera z) of `frames`' views at the served grid (N, H, W)."""
+    d = models.data
+    intr, c2w = rig_tensors(rig, ego_to_world, (d.height, d.width))
+    args = (L[frames][None], intr[frames][None], c2w[frames][None], (d.height, d.width))
+    out = refine_fields(decoder.cfg, decoder(*args, guide=guide[None]), *args[1:], 2, guide[None])
+    z = out["depth"][0]
+    return pixels.depth_map(z.reshape(-1, 1, *z.shape[-2:]), size)
 
 
 # --- modes -----------------------------------------------------------------------------------------------------------
@@ -494,8 +531,8 @@ def decode_generated(
     dec = decode_gaussians(models, L, rig, ego_to_world, frame_times, meta, pad=pad, gaussians=gaussians)
     if snap and layout_size(models) is not None:
         control = cond["control"][: L.shape[0]]
-        if dec.source == "pixels":
-            size = (rig[0].height, rig[0].width)
+        size = _grid_size(dec, control.shape[-2:])
+        if size is not None:
             control = pixels.upsample_layout(control.reshape(-1, *control.shape[2:]), size)
             control = control.reshape(L.shape[0], len(rig), *control.shape[1:])
         dec.meta["layout_snap_fraction"] = snap_to_layout(dec, control, snap_log_tol)
@@ -504,10 +541,23 @@ def decode_generated(
         if snap_agents:
             boxes = {k: cond[k][: L.shape[0]] for k in ("box_corners", "box_moving", "box_mask")}
             dec.meta.update(snap_agents_to_layout(dec, control, boxes))
-        if dec.source == "pixels":
+        if dec.source in LIFTED:
             for t, row in enumerate(dec.gaussians):
                 row[:] = [pixels.settle_sky(g, dec.rig[v].at(dec.ego_to_world[t])) for v, g in enumerate(row)]
     return dec
+
+
+def _grid_size(dec: DecodedFrames, layout_hw) -> tuple[int, int] | None:
+    """The grid (H, W) the snaps read the layout maps at, where finer than the maps' `layout_hw`: the rig's image for
+    lifted pixels, a refined decoder's grid (None: the maps as they are)."""
+    if dec.source in LIFTED:
+        return (dec.rig[0].height, dec.rig[0].width)
+    n = len(dec.gaussians[0][0])
+    h, w = int(layout_hw[0]), int(layout_hw[1])
+    if n <= h * w:
+        return None
+    r = round((n / (h * w)) ** 0.5)
+    return (h * r, w * r)
 
 
 @torch.no_grad()
@@ -571,9 +621,10 @@ def decoded_economy(
     """The economy of decoded Gaussians on an image_width image of scenes decoded at the models' model_width:
     lifted pixels ("pixels") `Economy.for_lifted_decoding`, the decoder's grid `Economy.for_decoded` (None: the
     source `mode` serves)."""
-    if gaussian_source(gaussians, mode) == "pixels":
+    source = gaussian_source(gaussians, mode)
+    if source in LIFTED:
         return Economy.for_lifted_decoding()
-    return Economy.for_decoded(image_width / model_width)
+    return Economy.for_decoded(image_width / model_width / DECODER_REFINE[source])
 
 
 def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tuple[Scene4D, AggregateStats]:

@@ -98,10 +98,15 @@ def served_maps(
     rgb = ((rgb + 1.0) * 0.5).clamp(0.0, 1.0)
     n = guide[:, 3:4].clamp(-1.0, 1.0)
     depth = torch.exp(math.log(near) + (n + 1.0) * 0.5 * (math.log(far) - math.log(near)))
-    depth = upsample_depth(sharpen_depth_edges(depth), size)[:, 0]
-    depth = torch.where(depth >= SKY_DEPTH_M, torch.full_like(depth, math.inf), depth)
     dyn = F.interpolate(guide[:, 4:5], size=size, mode="bilinear", align_corners=False)[:, 0] > 0.5
-    return rgb.permute(0, 2, 3, 1).numpy(), depth.numpy(), dyn.numpy()
+    return rgb.permute(0, 2, 3, 1).numpy(), depth_map(depth, size), dyn.numpy()
+
+
+def depth_map(depth: torch.Tensor, size: tuple[int, int]) -> np.ndarray:
+    """Decoded depth (N,1,h,w) in metres -> (N,H,W) at the served grid `size`: blended edge pixels sharpened
+    (`sharpen_depth_edges`), up-sampled edge-aware (`upsample_depth`), the sky (beyond SKY_DEPTH_M) +inf."""
+    depth = upsample_depth(sharpen_depth_edges(depth.float()), size)[:, 0]
+    return torch.where(depth >= SKY_DEPTH_M, torch.full_like(depth, math.inf), depth).numpy()
 
 
 # The worlds' ground (road, markings, kerbs, sidewalks, terrain) is the plane z = 0 of the scene frame. A decoded depth

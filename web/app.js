@@ -18,6 +18,7 @@ const state = {
   frames: 0, fps: 4, frame: 0, playing: false, shift: 0, camera: "CAM_FRONT",
   dirty: true, events: [], errors: [], lastError: null, genJobId: null, videoJobId: null,
   videos: {}, streamBytes: 0, draws: 0,  // draws: the viewer's renders so far (the benches count them)
+  stream: null,  // the last stream's reads, reads that changed the view (asks for a draw) and draws while it arrived
   readyScene: null,  // the scene id whose generation finished (the cache holds it whole): what Download exports
   timing: null,  // the last generate: ms from its POST to firstByte, firstStatic, firstDraw (the static scene),
   // frame0 (its agents arrived), frame0Draw (frame 0 whole, drawn), whole (bench stream_latency, long-clip.mjs)
@@ -236,27 +237,31 @@ async function streamScene(url) {
   }
   const total = Number(resp.headers.get("x-content-length")) || 0;
   const reader = resp.body.getReader();
-  let got = 0, shownStatic = 0, shownFrames = 0;
+  let got = 0;
+  const seen = { statics: 0, arrived: 0, dynamics: 0, windowFrom: 0, posed: true };  // see changesView
+  const stream = state.stream = { reads: 0, asks: 0, draws: 0, arriving: true };
   state.loaded = false;
   v.begin_stream();
-  for (;;) {
-    const { done, value } = await reader.read();
-    if (done) break;
-    got += value.length;
-    const p = parseJson(v.push_bytes(value));
-    mark("firstByte");
-    if (p && p.static_loaded > 0) mark("firstStatic");
-    if (p && p.frames_arrived > 0) mark("frame0");  // frame 0's agents (its POSE row or DYNA records) arrived
-    $("load-state").textContent = `streaming ${fmtBytes(got)}${total ? ` / ${fmtBytes(total)}` : ""}` +
-      (p && p.static_loaded != null ? ` · ${p.static_loaded} static` : "");
-    if (!state.loaded && v.num_frames() > 0) onSceneReady(false);
-    state.dirty = true;
-    if (p && p.static_loaded > shownStatic) {  // a new part of the scene (a window of a live stream): show it
-      shownStatic = p.static_loaded;
-      drawSoon();
+  try {
+    for (;;) {
+      const { done, value } = await reader.read();
+      if (done) break;
+      got += value.length;
+      stream.reads++;
+      const p = parseJson(v.push_bytes(value));
+      mark("firstByte");
+      if (p && p.static_loaded > 0) mark("firstStatic");
+      if (p && p.frames_arrived > 0) mark("frame0");  // frame 0's agents (its POSE row or DYNA records) arrived
+      $("load-state").textContent = `streaming ${fmtBytes(got)}${total ? ` / ${fmtBytes(total)}` : ""}` +
+        (p && p.static_loaded != null ? ` · ${p.static_loaded} static` : "");
+      if (!state.loaded && v.num_frames() > 0) onSceneReady(false);
+      if (p && changesView(seen, p, v)) {
+        stream.asks++;
+        requestDraw();
+      }
     }
-    if (p && p.frames_arrived > state.frame && state.frame >= shownFrames) drawSoon();  // the frame on screen's agents
-    if (p) shownFrames = Math.max(shownFrames, p.frames_arrived || 0);
+  } finally {
+    stream.arriving = false;
   }
   v.end_stream();
   mark("whole");
@@ -264,6 +269,30 @@ async function streamScene(url) {
   $("load-state").textContent = "";
   onSceneReady(true);
   state.source = url;
+}
+
+/** Whether a read of a stream changed what the frame on screen shows; `p` is the viewer's progress after it, `seen`
+ * what the reads before it brought (updated here). A read changes the view with new static Gaussians (every frame
+ * draws them), with agents (POSE rows, DYNA records) of the frames from the current window's first on when the frame on
+ * screen is among them (windows come in frame order; a window's POSE chunk precedes its DYNA chunks), and, in a scene
+ * with agent objects, from a window's STAT chunks up to its first POSE row: its OBJC chunks lie between, and the
+ * progress does not count them. A read of later frames' agents, or of part of a chunk, changes nothing on screen. */
+function changesView(seen, p, v) {
+  let changed = false;
+  if (p.static_loaded > seen.statics) {
+    changed = true;
+    seen.statics = p.static_loaded;
+    seen.windowFrom = seen.arrived;  // this window's frames are the ones from here on
+    seen.posed = false;
+  }
+  const objects = !seen.posed && v.object_ids().length > 0;
+  if (p.frames_arrived !== seen.arrived || p.dynamic_loaded !== seen.dynamics) {
+    if (state.frame >= seen.windowFrom && state.frame < Math.max(p.frames_arrived, seen.windowFrom + 1)) changed = true;
+    seen.arrived = p.frames_arrived;
+    seen.dynamics = p.dynamic_loaded;
+    seen.posed = true;
+  }
+  return changed || objects;
 }
 
 function onSceneReady(complete) {
@@ -343,25 +372,35 @@ function render() {
   if (!state.viewer || !state.loaded) return;
   state.viewer.render();
   state.draws++;
+  if (state.stream && state.stream.arriving) state.stream.draws++;
+  frameClock.drawnTurn = frameClock.turn;
   state.dirty = false;
   if (state.timing && state.timing.firstStatic != null) mark("firstDraw");
   if (state.timing && state.timing.frame0 != null && state.frame === 0) mark("frame0Draw");  // frame 0 whole, drawn
 }
 
-/** Draw a pending view soon, whatever requestAnimationFrame does: on an idle page headless Chromium runs it only now
- * and then (seconds apart), so a window streamed in while the next is generated would wait there unseen. At most one
- * such draw per DRAW_SOON_MS; the render loop's own draws clear `dirty`, so nothing is drawn twice. */
-const DRAW_SOON_MS = 250;
-let drawSoonTimer = null, drawSoonLast = -Infinity;
-function drawSoon() {
-  if (drawSoonTimer !== null) return;
-  const wait = Math.max(0, drawSoonLast + DRAW_SOON_MS - performance.now());
-  drawSoonTimer = setTimeout(() => {
-    drawSoonTimer = null;
-    drawSoonLast = performance.now();
-    if (!state.loaded || !state.dirty) return;
-    try { render(); } catch (e) { showError(`render: ${e.message}`); state.loaded = false; }
-  }, wait);
+/** At most one draw per animation frame: the render loop (`tick`, one turn per requestAnimationFrame) draws a dirty
+ * view at its turn, and `requestDraw` (a streamed read that changed the view) draws at once only when the animation
+ * frame under way has no draw yet (so the first draw of a stream, and of frame 0, waits for nothing); else the next
+ * turn draws it, with every read that came in meanwhile. If no turn comes for DRAW_LATE_MS (requestAnimationFrame on an
+ * idle headless page can be seconds apart), the view is drawn then: a streamed window is never left unseen. */
+const DRAW_LATE_MS = 250;
+const frameClock = { turn: 0, at: -Infinity, drawnTurn: -1 };  // the render loop's turns and when the last one ran
+let drawTimer = null;
+function requestDraw() {
+  state.dirty = true;
+  if (drawTimer !== null) return;
+  drawTimer = setTimeout(drawRequested, frameClock.drawnTurn === frameClock.turn ? DRAW_LATE_MS : 0);
+}
+
+function drawRequested() {
+  drawTimer = null;
+  if (!state.loaded || !state.dirty) return;
+  if (frameClock.drawnTurn === frameClock.turn && performance.now() - frameClock.at < DRAW_LATE_MS) {
+    requestDraw();  // this animation frame has its draw and the loop turns: its next turn draws (or the timer again)
+    return;
+  }
+  try { render(); } catch (e) { showError(`render: ${e.message}`); state.loaded = false; }
 }
 
 /** Time of a milestone of the last generate, in ms since its POST (first time only). */
@@ -373,6 +412,8 @@ let lastTick = performance.now();
 let playClock = 0;
 let lastStats = 0;
 function tick(now) {
+  frameClock.turn++;
+  frameClock.at = performance.now();
   const dt = (now - lastTick) / 1000;
   lastTick = now;
   if (state.playing && state.loaded) {
@@ -748,7 +789,7 @@ async function main() {
 // Test and console hooks: the state, the viewer and a few actions (used by tests/browser/playground*.test.mjs).
 window.playground = {
   state, generate: (s, m, v) => generate(s, m, v), readForm, fillForm, setShift, setFrame, setCamera, share,
-  requestVideos, openLocalFile, importScenarioFiles, exportScenario, render, openDownload,
+  requestVideos, openLocalFile, importScenarioFiles, exportScenario, render, requestDraw, openDownload,
   ready: null,
 };
 window.playground.ready = main();

@@ -102,3 +102,66 @@ export function blockDiff(a, b) {
   for (let i = 0; i < a.blocks.length; i++) d += Math.abs(a.blocks[i] - b.blocks[i]);
   return d / a.blocks.length;
 }
+
+/** Put the page on `frame` (the timeline's setFrame) and draw until the viewer has that frame's depth order and
+ * nothing waits to be redrawn (`needs_redraw`: the WebGL2 sort worker's order arrived; `sort_pending`: it has not
+ * yet), drawing again every 50 ms for at most `timeoutMs`. Resolves true when it settled, false on the timeout
+ * (the frame then drew with the last order it had). Used by tests/browser/long-clip{,.test}.mjs before a shot. */
+export function showFrame(page, frame, timeoutMs = 10_000) {
+  return page.evaluate(async ([fr, ms]) => {
+    const pg = window.playground, v = pg.state.viewer;
+    const waiting = () => v.needs_redraw() || JSON.parse(v.stats()).sort_pending;
+    pg.setFrame(fr);
+    pg.render();
+    for (const end = performance.now() + ms; waiting() && performance.now() < end;) {
+      await new Promise((r) => setTimeout(r, 50));
+      pg.render();
+    }
+    return !waiting();
+  }, [frame, timeoutMs]);
+}
+
+/** Watch the page's draws from outside (before it loads: an init script), with nothing but `playground.state.draws`,
+ * so that it measures any version of the page: while a stream's body is read (from its first read to its end), or
+ * while `window.__drawWatch.watching` is set, the reads, and per turn of requestAnimationFrame the draws since the
+ * turn before (the watcher's callback is the first of each turn: the page's render loop draws after it).
+ * `drawWatch(page)` then says { reads, turns, multi: turns <= lateMs after the one before that saw more than one draw,
+ * most: the most draws between two turns }. Turns further apart than `lateMs` are not counted in `multi` (the page
+ * may draw without them then). A page whose draws starve the compositor gets few turns or none. */
+export async function watchDraws(page, lateMs = 250) {
+  await page.addInitScript((late) => {
+    const w = window.__drawWatch = { reads: 0, streaming: false, watching: false, turns: 0, multi: 0, most: 0 };
+    const read = ReadableStreamDefaultReader.prototype.read;
+    ReadableStreamDefaultReader.prototype.read = function () {
+      return read.call(this).then((r) => {
+        if (!r.done) { w.reads++; w.streaming = true; } else w.streaming = false;
+        return r;
+      });
+    };
+    let last = null, lastAt = 0;
+    const turn = () => {
+      const pg = window.playground, now = performance.now();
+      if ((w.streaming || w.watching) && pg && pg.state) {
+        const n = pg.state.draws;
+        if (last !== null) {
+          w.turns++;
+          w.most = Math.max(w.most, n - last);
+          if (n - last > 1 && now - lastAt <= late) w.multi++;
+        }
+        last = n;
+        lastAt = now;
+      } else last = null;
+      requestAnimationFrame(turn);
+    };
+    requestAnimationFrame(turn);
+  }, lateMs);
+}
+
+/** What watchDraws saw since the last reset (`reset`: start again from zero). */
+export function drawWatch(page, reset = false) {
+  return page.evaluate((r) => {
+    const w = window.__drawWatch, out = { reads: w.reads, turns: w.turns, multi: w.multi, most: w.most };
+    if (r) Object.assign(w, { reads: 0, turns: 0, multi: 0, most: 0 });
+    return out;
+  }, reset);
+}

@@ -1,9 +1,10 @@
 // The page with a long clip, in headless Chromium, on a warm server (a bench: prints, asserts nothing):
 //   NODE_PATH=package-config/node_modules node tests/browser/long-clip.mjs [--backend webgl2|webgpu] [--frames 200]
-//     [--fps 10] [--mode generate] [--scrub-step 1] [--shots DIR] [--url URL] [--no-drag]
+//     [--fps 10] [--mode generate] [--scrub-step 1] [--shots DIR] [--url URL] [--no-drag] [--no-car]
 // A fresh `worldsplat serve --no-warm` (models loaded before it says ready; or --url: a running one). The page opens
 // on a share link of a one-frame clip of the default preset (the warm-up), then generates the default preset at
-// --frames / --fps (another seed, so nothing is cached) with one explicit car ahead of the ego (`car1`, for the drag).
+// --frames / --fps (another seed, so nothing is cached) with one explicit car ahead of the ego (`car1`, for the drag;
+// --no-car: the preset's agents alone, no drag).
 // Prints one JSON line per step:
 //   "generate": the page's milestones in s since its POST (state.timing): first byte, first static chunk, first draw
 //     (the static scene), frame 0's agents arrived, frame 0 whole drawn (`frame0_draw_s`), the whole scene; Gaussians
@@ -11,7 +12,8 @@
 //     after a GC through the DevTools protocol, the wasm memory)
 //   "scrub": the timeline dragged over every --scrub-step-th frame (its input event, then a draw): ms per frame
 //     (mean, max), the frames whose image changed, the memory after each quarter of the clip and after a second pass
-//   "shots": frames 0, the middle and the last on screen (sorted, drawn), their mean level and lit share; with
+//   "shots": frames 0, the middle and the last on screen (sorted, drawn: lib/playground-browser.mjs showFrame;
+//     `settled` false where its order did not arrive within 10 s), their mean level and lit share; with
 //     --shots, long-clip-<backend>-f<frame>.png (the canvas) there
 //   "drag": car1 dragged a lane left by mouse in the editor's large view at frame 0: last pointer move -> poses set
 //     and -> frame drawn, ms (the target: 1 s), with no new generation
@@ -20,13 +22,14 @@ import { join } from "node:path";
 import { parseArgs } from "node:util";
 import { startServer } from "./lib/playground-server.mjs";
 import { launch } from "./lib/viewer-harness.mjs";
+import { showFrame } from "./lib/playground-browser.mjs";
 import { shareUrl } from "../../web/share.js";
 
 const { values: opt } = parseArgs({ options: {
   backend: { type: "string", default: "webgl2" }, frames: { type: "string", default: "200" },
   fps: { type: "string", default: "10" }, mode: { type: "string", default: "generate" },
   "scrub-step": { type: "string", default: "1" }, shots: { type: "string" }, url: { type: "string" },
-  "no-drag": { type: "boolean", default: false },
+  "no-drag": { type: "boolean", default: false }, "no-car": { type: "boolean", default: false },
 } });
 const FRAMES = Number(opt.frames), STEP = Math.max(1, Number(opt["scrub-step"]));
 const CAR = { id: "car1", class: "car", start: { kind: "pose", x: 14, y: 0, yaw_deg: 0 }, motion: { speed: 9 } };
@@ -67,7 +70,8 @@ try {
   await page.waitForFunction(() => window.playground.state.readyScene, null, { timeout: 600_000 });
   const before = await memory();
 
-  const long = { ...preset, seed: preset.seed + 2, clip: { frames: FRAMES, fps: Number(opt.fps) }, agents: [CAR] };
+  const long = { ...preset, seed: preset.seed + 2, clip: { frames: FRAMES, fps: Number(opt.fps) },
+    ...(opt["no-car"] ? {} : { agents: [CAR] }) };
   const gen = await page.evaluate(async ([s, m]) => {
     const pg = window.playground;
     pg.fillForm(s);  // the form (and the editor) show the scenario, as after a share link
@@ -122,15 +126,9 @@ try {
   if (opt.shots) mkdirSync(opt.shots, { recursive: true });
   const shots = [];
   for (const f of [0, Math.floor(FRAMES / 2), FRAMES - 1]) {
+    const settled = await showFrame(page, f);
     const sig = await page.evaluate(async (fr) => {
-      const pg = window.playground, v = pg.state.viewer;
-      pg.setFrame(fr);
-      pg.render();
-      for (let k = 0; k < 200 && (v.needs_redraw() || JSON.parse(v.stats()).sort_pending); k++) {
-        await new Promise((r) => setTimeout(r, 50));
-        pg.render();
-      }
-      const px = await v.read_pixels();
+      const pg = window.playground, px = await pg.state.viewer.read_pixels();
       let sum = 0, litPx = 0;
       for (let i = 0; i < px.length; i += 4) {
         const s = px[i] + px[i + 1] + px[i + 2];
@@ -140,6 +138,7 @@ try {
       pg.render();
       return { frame: fr, mean: Math.round((10 * sum) / (0.75 * px.length)) / 10, lit: Math.round((1000 * litPx) / (px.length / 4)) / 1000 };
     }, f);
+    sig.settled = settled;
     if (opt.shots) {
       sig.png = join(opt.shots, `long-clip-${opt.backend}-f${String(f).padStart(3, "0")}.png`);
       await page.locator("#canvas").screenshot({ path: sig.png });
@@ -148,7 +147,7 @@ try {
   }
   out({ step: "shots", shots });
 
-  if (!opt["no-drag"]) out({ step: "drag", ...(await dragCar(page)) });
+  if (!opt["no-drag"] && !opt["no-car"]) out({ step: "drag", ...(await dragCar(page)) });
   if (errors.length) out({ step: "errors", errors });
 } finally {
   await browser.close();

@@ -13,6 +13,7 @@ import assert from "node:assert/strict";
 import { join } from "node:path";
 import { startServer } from "./lib/playground-server.mjs";
 import { ARTIFACTS, launch } from "./lib/viewer-harness.mjs";
+import { showFrame } from "./lib/playground-browser.mjs";
 import { shareUrl } from "../../web/share.js";
 
 const T = { timeout: 900_000 };
@@ -138,15 +139,7 @@ for (const backend of ["webgl2", "webgpu"]) {
       assert.ok(m2.heap <= m1.heap + HEAP_MIB * 2 ** 20, `JS heap grew ${mib(m1.heap)} -> ${mib(m2.heap)} MiB`);
 
       for (const f of SHOTS) {
-        await page.evaluate(async (fr) => {
-          const pg = window.playground, v = pg.state.viewer;
-          pg.setFrame(fr);
-          pg.render();
-          for (let k = 0; k < 200 && (v.needs_redraw() || JSON.parse(v.stats()).sort_pending); k++) {
-            await new Promise((r) => setTimeout(r, 50));
-            pg.render();
-          }
-        }, f);
+        await showFrame(page, f);
         await page.locator("#canvas").screenshot({ path: join(ARTIFACTS, `long-clip-${backend}-f${String(f).padStart(3, "0")}.png`) });
       }
       assert.deepEqual(errors, []);

@@ -99,3 +99,19 @@ def test_the_sources_refine_the_grid_and_its_economy():
                         inf.decoded_economy(112, 200, "decoder").cell_factor)  # fmt: skip
     with pytest.raises(ValueError, match="gaussians must be one of"):
         inf.gaussian_source("decoder3x", "generate")
+
+
+def test_no_refined_gaussian_lands_between_two_surfaces():
+    """A near wall beside a far one: the refined cells keep one side's depth each (nearest across the edge), none in
+    mid-air between them; within each side the depth stays as decoded."""
+    intr, c2w = _cams()
+    raw = torch.zeros(1, 1, 2, 8, 12, sum(HEAD_CHANNELS.values()))
+    raw[..., :6, -2] = -2.0  # near
+    raw[..., 6:, -2] = 2.0  # far
+    fields, _ = _activate(raw, intr, c2w)
+    near, far = float(fields["depth"][..., 0].min()), float(fields["depth"][..., -1].max())
+    assert far > 4 * near
+    z = refine_fields(CFG, fields, intr, c2w, (H, W), 2)["depth"]
+    on_a_side = torch.isclose(z, torch.tensor(near), rtol=1e-3) | torch.isclose(z, torch.tensor(far), rtol=1e-3)
+    assert bool(on_a_side.all()), z[0, 0, 0, 0]
+    assert int(torch.isclose(z, torch.tensor(near), rtol=1e-3).sum()) == z.numel() // 2

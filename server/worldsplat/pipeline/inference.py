@@ -16,8 +16,8 @@ per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
 `gaussians` says how L becomes Gaussians (None: the mode's served source, GAUSSIANS): "decoder": the latent Gaussian
-decoder's grid; "decoder2x" / "decoder4x": that grid refined (`gs_decoder.refine_fields`; "decoder2x" served in
-generate); "pixels": the VAE's decoding of L lifted one opaque Gaussian per pixel of the rig's image
+decoder's grid (served in generate); "decoder2x" / "decoder4x": that grid refined (`gs_decoder.refine_fields`);
+"pixels": the VAE's decoding of L lifted one opaque Gaussian per pixel of the rig's image
 (`pipeline.pixels`; served in reconstruct); "pixels_decoder_depth": the same at the latent decoder's depth.
 
 The models run at their trained geometry (DataConfig: 64x112 per view, 6 views, 4-frame windows): inputs of other

@@ -486,17 +486,27 @@ def test_road_before_where_a_moving_agent_is_at_another_frame_is_narrowed_off_it
     assert SPILL_SIGMAS * 0.3 * cam.fx / pc[2] > gap + 1  # it did reach in before
 
 
-def test_box_rects_are_the_box_pixels_of_every_box_at_once():
-    """`_box_rects` (all boxes in one pass, with their depth spans) gives each box's `_box_pixels` rect: boxes
-    ahead, beside, straddling the camera plane and behind."""
+def test_a_box_rect_holds_every_pixel_and_depth_of_its_box():
+    """`_box_rects` (all boxes at once) bounds what `box_depths` rasterises: every pixel a box owns lies in its rect,
+    its entry and exit depths within the rect's depth span; a box wholly behind the camera has no rect. Boxes
+    ahead, beside, straddling the camera plane and behind, every rig camera."""
     tracks = [AgentTrack(i, 12, SIZE, np.stack([box_to_world(x, y, 0.3 * i, SIZE[2])] * T), np.ones(T, bool))
               for i, (x, y) in enumerate([(10, 0), (4, 6), (0.5, 0), (-12, 1), (30, -8)])]  # fmt: skip
+    owned = 0
     for rc in default_rig(160, 90):
         cam = rc.at(np.eye(4))
         rects = _box_rects(cam, tracks, 0)
-        ref = [r for r in (_box_pixels(cam, tr.poses[0], tr.size) for tr in tracks) if r is not None]
-        assert [tuple(int(x) for x in r[:4]) for r in rects] == [(a.start, a.stop, b.start, b.stop) for a, b in ref]
-        assert (rects[:, 4] <= rects[:, 5]).all() and (rects[:, 4] >= 0).all()
+        with_rect = [i for i, tr in enumerate(tracks) if _box_pixels(cam, tr.poses[0], tr.size) is not None]
+        assert len(rects) == len(with_rect)
+        for i, (r0, r1, c0, c1, zmin, zmax) in zip(with_rect, rects, strict=True):
+            owner, near, far = box_depths(cam, [tracks[i]], 0)
+            rows, cols = np.nonzero(owner == 0)
+            owned += len(rows)
+            assert ((rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)).all()
+            assert (near[rows, cols] >= zmin - 1e-6).all() and (far[rows, cols] <= zmax + 1e-6).all()
+        for i in set(range(len(tracks))) - set(with_rect):
+            assert not (box_depths(cam, [tracks[i]], 0)[0] == 0).any()
+    assert owned > 1000
 
 
 def test_a_camera_the_rect_test_rules_out_claims_and_narrows_nothing():

@@ -180,32 +180,31 @@ def claim_in_boxes(
 
 
 def _box_pixels(camera, pose: np.ndarray, size: np.ndarray) -> tuple[slice, slice] | None:
-    """The rows and columns of `camera`'s pixels whose rays can hit the box (`pose` box_to_scene, `size`): the
-    bounds of its corners' projections (a box wholly before the camera projects inside its corners' hull), the
-    whole image where it reaches behind the camera, None where it lies wholly behind it."""
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
-    m = camera.world_to_camera @ pose
-    pc = (signs * size / 2) @ m[:3, :3].T + m[:3, 3]
-    if (pc[:, 2] <= 0).all():
+    """The rows and columns of `camera`'s pixels whose rays can hit the box (`pose` box_to_scene, `size`), None
+    where it lies wholly behind the camera (`_rects`)."""
+    r = _rects(camera, pose[None], np.asarray(size, np.float64)[None])
+    if not len(r):
         return None
-    if (pc[:, 2] <= 1e-6).any():
-        return slice(0, camera.height), slice(0, camera.width)
-    u = pc[:, 0] / pc[:, 2] * camera.fx + camera.cx
-    v = pc[:, 1] / pc[:, 2] * camera.fy + camera.cy
-    c0, c1 = max(0, math.floor(u.min() - 0.5)), min(camera.width, math.ceil(u.max() - 0.5) + 1)
-    r0, r1 = max(0, math.floor(v.min() - 0.5)), min(camera.height, math.ceil(v.max() - 0.5) + 1)
-    return (slice(r0, r1), slice(c0, c1)) if r0 < r1 and c0 < c1 else None
+    r0, r1, c0, c1 = (int(x) for x in r[0, :4])
+    return slice(r0, r1), slice(c0, c1)
 
 
 def _box_rects(camera, tracks: list[AgentTrack], t: int) -> np.ndarray:
-    """(n, 6) per box present at frame t that `camera` can see: its pixel rect (`_box_pixels`' bounds, for all
-    boxes at once: row0, row1, col0, col1) and its corners' nearest (at least 0) and farthest camera depth."""
+    """`_rects` of the boxes present at frame t."""
     here = [tr for tr in tracks if tr.present[t]]
     if not here:
         return np.zeros((0, 6))
+    return _rects(camera, np.stack([tr.poses[t] for tr in here]), np.stack([tr.size for tr in here]))
+
+
+def _rects(camera, poses: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """(n, 6) per box (`poses` (n,4,4) box_to_scene, `sizes` (n,3)) that `camera` can see: the pixel rect its rays
+    can hit (row0, row1, col0, col1: the bounds of its corners' projections, as a box wholly before the camera
+    projects inside their hull; the whole image where it reaches behind the camera) and its corners' nearest (at
+    least 0) and farthest camera depth."""
     signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
-    m = camera.world_to_camera @ np.stack([tr.poses[t] for tr in here])  # (n,4,4) box -> camera
-    local = signs[None] * (np.stack([tr.size for tr in here]) / 2)[:, None, :]  # (n,8,3)
+    m = camera.world_to_camera @ poses  # (n,4,4) box -> camera
+    local = signs[None] * (sizes / 2)[:, None, :]  # (n,8,3)
     pc = np.einsum("nkj,nij->nki", local, m[:, :3, :3]) + m[:, None, :3, 3]
     z = pc[..., 2]
     seen = (z > 0).any(1)

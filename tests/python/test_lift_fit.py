@@ -1,15 +1,19 @@
 """The lifting's colour fit (`gaussians.lift.fit_colours`) and the render weights it solves with
-(`gaussians.raster.pair_weights`): the render is linear in the colours with those weights, and a fitted lifting
-renders its own image back sharper than the pixels' own colours do."""
+(`gaussians.raster.pair_weights`, computed for a lifted view on a stencil by `raster.aligned_weights`): the render is
+linear in the colours with those weights, the stencil's weights are the pairs path's, and a fitted lifting renders its
+own image back sharper than the pixels' own colours do."""
 
 import numpy as np
 import pytest
 import torch
+from scipy.sparse import csr_matrix
 
 from worldsplat.core.camera import Camera
-from worldsplat.gaussians import lift, rasterize
+from worldsplat.core.scenario import load_preset
+from worldsplat.gaussians import lift, raster, rasterize
 from worldsplat.gaussians.lift import FIT_ITERS, fit_colours
-from worldsplat.gaussians.raster import pair_weights, render_view
+from worldsplat.gaussians.raster import aligned_weights, pair_weights, render_view
+from worldsplat.world import build_world, simulate
 
 
 def _road(width=64, height=40, seed=0):
@@ -45,6 +49,59 @@ def test_pair_weights_are_the_render_linear_in_the_colours(budget):
     ref = rasterize(g, cam, method="pairs")
     assert torch.allclose(img, ref["rgb"].reshape(P, 3).double(), atol=1e-5)
     assert torch.allclose(alpha, ref["alpha"].reshape(P).double(), atol=1e-5)
+
+
+def _matrix(triples, P: int, n: int) -> csr_matrix:
+    pix, rows, w = (t.numpy() for t in triples)
+    return csr_matrix((w, (pix, rows)), shape=(P, n))
+
+
+@pytest.fixture(scope="module")
+def world_clip():
+    """A street at the models' image size with sky, facades and agents in front of the road (depth edges)."""
+    sc = load_preset("urban_straight").with_updates(image={"width": 112, "height": 64}, clip={"frames": 1})
+    return simulate(build_world(sc))
+
+
+def test_stencil_weights_are_the_pairs_weights_of_a_lifted_view(world_clip, monkeypatch):
+    """`aligned_weights` on each lifted view of a world frame at its own camera: the same non-zero pairs and weights
+    as `pair_weights` (which it must not fall back to), over sky, depth edges and off-axis (wider) splats."""
+    clip = world_clip
+    views, edges = [], 0
+    for v in range(clip.rgb.shape[1]):
+        cam, depth = clip.camera(0, v), clip.depth[0, v]
+        views.append((cam, lift(clip.rgb[0, v], depth, clip.dynamic[0, v], cam)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for ratio in (depth[:, 1:] / depth[:, :-1], depth[1:] / depth[:-1]):
+                edges += int((np.isfinite(ratio) & ((ratio > 2.0) | (ratio < 0.5))).sum())
+    assert edges > 20  # depth edges: a near surface beside one twice as far
+    assert any(np.isinf(clip.depth[0, v]).mean() > 0.05 for v in range(clip.rgb.shape[1]))  # sky in some views
+    expected = [_matrix(pair_weights(g, cam), cam.width * cam.height, len(g)) for cam, g in views]
+
+    def no_fallback(*a, **k):
+        raise AssertionError("aligned_weights fell back to pair_weights on a lifted view")
+
+    monkeypatch.setattr(raster, "pair_weights", no_fallback)
+    for (cam, g), want in zip(views, expected, strict=True):
+        got = _matrix(aligned_weights(g, cam), cam.width * cam.height, len(g))
+        assert ((got > 0) != (want > 0)).nnz == 0  # the same pixel x Gaussian pairs
+        assert abs(got - want).max() < 1e-9
+        assert got.nnz > 10 * cam.width * cam.height  # each pixel meets ~20 splats
+
+
+def test_stencil_weights_fall_back_to_pairs_off_the_lifting_camera():
+    """Seen from another camera a lifted view is not pixel-aligned: `aligned_weights` gives `pair_weights`."""
+    cam, rgb, depth = _road(32, 20)
+    g = lift(rgb, depth, None, cam)
+    pose = np.eye(4)
+    pose[0, 3] = 0.13  # the camera 13 cm to the side: splats off the pixel centres
+    other = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, pose)
+    P = cam.width * cam.height
+    want = _matrix(pair_weights(g, other), P, len(g))
+    assert abs(_matrix(aligned_weights(g, other), P, len(g)) - want).max() == 0.0
+    dup = type(g).cat([g, g])  # two Gaussians in each pixel
+    want = _matrix(pair_weights(dup, cam), P, len(dup))
+    assert abs(_matrix(aligned_weights(dup, cam), P, len(dup)) - want).max() == 0.0
 
 
 def test_fitted_lifting_renders_its_own_image_back_sharp():

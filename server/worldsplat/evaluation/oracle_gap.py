@@ -3,6 +3,7 @@
 views, against the world's exact labels.
 
     python -m worldsplat.evaluation.oracle_gap [--clips 0,1,2,3] [--frames 1,3] [--shifts 0,2] [--png PATH]
+    python -m worldsplat.evaluation.oracle_gap --fit-cost [--scenario default]
 
 Rows (test clips at the models' image, 112x64, 4 frames, as `worldsplat judge eval` makes them):
 - ground truth: the world's own images;
@@ -14,6 +15,10 @@ Rows (test clips at the models' image, 112x64, 4 frames, as `worldsplat judge ev
 Per row and track: mIoU over the present classes, each class group's, the share of road pixels read as an agent,
 lane-marking IoU, the share of curb pixels read as sidewalk, the render's mean alpha and the share of pixels with
 alpha < 0.9 (holes and partial cover, black behind), and per class the mean Rec. 601 luma (render vs world).
+
+`--fit-cost`: the fit's CPU time per view (time.process_time, one thread, back to back in one process) on frame 0's
+views of a scenario: the render weights by the generic pairs path (`raster.pair_weights`) and on the lifted view's
+stencil (`raster.aligned_weights`), the lifting with and without the fit, and the ratios.
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from pathlib import Path
 import numpy as np
 
 import worldsplat.pipeline.scene as scene_module
+from worldsplat.core.scenario import resolve_scenario
 from worldsplat.evaluation.downstream import GROUPS, NUM_CLASSES, confusion, summary
 from worldsplat.gaussians.lift import FIT_ITERS, lift
-from worldsplat.gaussians.raster import render_view
+from worldsplat.gaussians.raster import aligned_weights, pair_weights, render_view
 from worldsplat.gaussians.types import Gaussians
 from worldsplat.pipeline.render import render_scene_track
 from worldsplat.world import build_world, simulate
@@ -200,6 +206,31 @@ def markdown(r: dict) -> str:
     return "\n".join(out)
 
 
+def fit_cost(scenario: str = "default", repeats: int = 3) -> dict:
+    """CPU seconds per view (mean over frame 0's views, `repeats` rounds, each view's steps back to back)."""
+    sc = resolve_scenario(scenario)
+    clip = simulate(build_world(sc), 0.0, frames=[0])
+    steps = {
+        "pair_weights": lambda a: pair_weights(lift(*a), a[3]),
+        "aligned_weights": lambda a: aligned_weights(lift(*a), a[3]),
+        "lift": lambda a: lift(*a),
+        "lift fitted": lambda a: lift(*a, fit_iters=FIT_ITERS),
+    }
+    cpu = dict.fromkeys(steps, 0.0)
+    V = clip.rgb.shape[1]
+    views = [(clip.rgb[0, v], clip.depth[0, v], clip.dynamic[0, v], clip.camera(0, v)) for v in range(V)]
+    steps["lift fitted"](views[0])  # warm (scipy import)
+    for _ in range(repeats):
+        for a in views:
+            for k, f in steps.items():
+                t0 = time.process_time()
+                f(a)
+                cpu[k] += time.process_time() - t0
+    per = {k: v / (repeats * V) for k, v in cpu.items()}
+    H, W = clip.rgb.shape[2:4]
+    return {"scenario": scenario, "image": f"{W}x{H}", "views": V, "cpu_s_per_view": per}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--clips", default="0,1,2,3", help="test clips (the judge eval's)")
@@ -212,7 +243,17 @@ def main(argv=None) -> int:
         default=None,
         help="the first clip's first frame, CAM_FRONT, per track (rows) and row (columns: image, judge labels)",
     )
+    p.add_argument("--fit-cost", action="store_true", help="the fit's CPU time per view instead (see the docstring)")
+    p.add_argument("--scenario", default="default", help="--fit-cost: a preset name or scenario file")
     a = p.parse_args(argv)
+    if a.fit_cost:
+        r = fit_cost(a.scenario)
+        c = r["cpu_s_per_view"]
+        print(f"{r['scenario']} ({r['image']}, {r['views']} views), CPU s per view: "
+              + ", ".join(f"{k} {v:.4f}" for k, v in c.items()))  # fmt: skip
+        print(f"weights: pair_weights / aligned_weights = {c['pair_weights'] / c['aligned_weights']:.2f}x; "
+              f"lift fitted / lift = {c['lift fitted'] / c['lift']:.1f}x")  # fmt: skip
+        return 0
     ints = lambda x: [int(v) for v in x.split(",")]  # noqa: E731
     rows = (GROUND_TRUTH, *[x.strip() for x in a.rows.split(",") if x.strip()])
     unknown = [x for x in rows if x not in ROWS]

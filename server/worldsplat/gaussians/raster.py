@@ -67,17 +67,46 @@ def composite(
     return feats, depth, weight_sum  # alpha = 1 - T = sum of weights (telescoping)
 
 
-def _pair_boxes(proj: Projected, width: int, height: int):
-    """Depth order of `proj` and, in that order, each Gaussian's box of candidate pixels (a pixel is a candidate
-    when its centre i + 0.5 lies in [u - ex, u + ex], the support's box): x0, y0, nx, count and the cumulative
-    counts (no gradient)."""
+def _support_boxes(proj: Projected, width: int, height: int):
+    """Each projected Gaussian's candidate pixels for the pairs paths, in `proj`'s order: a pixel is a candidate
+    when its centre i + 0.5 lies in [u - ex, u + ex] (the support's box, `Projected.extent`), clamped to the image.
+    Returns x0, x1, y0, y1 (inclusive; empty when x1 < x0), no gradient."""
     dt = proj.uv.dtype
-    order = depth_order(proj)
-    uv, e = proj.uv.detach()[order], proj.extent[order].to(dt)
+    uv, e = proj.uv.detach(), proj.extent.to(dt)
     x0 = torch.ceil(uv[:, 0] - e[:, 0] - 0.5).clamp(0, width).to(torch.int64)
     x1 = torch.floor(uv[:, 0] + e[:, 0] - 0.5).clamp(-1, width - 1).to(torch.int64)
     y0 = torch.ceil(uv[:, 1] - e[:, 1] - 0.5).clamp(0, height).to(torch.int64)
     y1 = torch.floor(uv[:, 1] + e[:, 1] - 0.5).clamp(-1, height - 1).to(torch.int64)
+    return x0, x1, y0, y1
+
+
+def _pair_alpha(proj: Projected, k: torch.Tensor, px: torch.Tensor, py: torch.Tensor):
+    """The pairs paths' alpha of Gaussians `k` (rows of `proj`) at pixels (px, py) (integer tensors broadcasting
+    with `k`): the Mahalanobis distance d of the pixel centre, alpha = min(ALPHA_MAX, o exp(-d/2)) (differentiable)
+    and `hit` (no gradient): the pair counts when d is inside the support and alpha >= ALPHA_MIN."""
+    dt = proj.uv.dtype
+    dx = (px.to(dt) + 0.5) - proj.uv[k, 0]
+    dy = (py.to(dt) + 0.5) - proj.uv[k, 1]
+    con = proj.conic[k]
+    d = (con[..., 0] * dx + 2 * con[..., 1] * dy) * dx + con[..., 2] * dy * dy
+    alpha = torch.clamp_max(proj.opacity[k] * torch.exp(-0.5 * d), C.ALPHA_MAX)
+    with torch.no_grad():
+        hit = (d <= C.EXTENT_SIGMA**2) & (alpha >= C.ALPHA_MIN)
+    return d, alpha, hit
+
+
+def _stop_weights(a: torch.Tensor, T_before: torch.Tensor) -> torch.Tensor:
+    """Compositing weight a x T_before of a pair, zero from the first pair that would push the pixel's
+    transmittance below T_MIN (T never rises, so this is "stop before it")."""
+    return torch.where(T_before * (1 - a) >= C.T_MIN, a * T_before, torch.zeros_like(a))
+
+
+def _pair_boxes(proj: Projected, width: int, height: int):
+    """Depth order of `proj` and, in that order, each Gaussian's box of candidate pixels (a pixel is a candidate
+    when its centre i + 0.5 lies in [u - ex, u + ex], the support's box): x0, y0, nx, count and the cumulative
+    counts (no gradient)."""
+    order = depth_order(proj)
+    x0, x1, y0, y1 = (b[order] for b in _support_boxes(proj, width, height))
     nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
     counts = nx * ny
     return order, x0, y0, nx, counts, torch.cumsum(counts, 0)
@@ -110,7 +139,6 @@ def composite_pairs(
         return feats, depth, wsum
     with torch.no_grad():
         order, x0, y0, nx, counts, ends = _pair_boxes(proj, width, height)
-    support = C.EXTENT_SIGMA**2
     start = 0
     while start < len(order):
         with torch.no_grad():
@@ -125,13 +153,9 @@ def composite_pairs(
         if rank.numel() == 0:
             continue
         k = order[rank]
-        dx = (px.to(dt) + 0.5) - proj.uv[k, 0]
-        dy = (py.to(dt) + 0.5) - proj.uv[k, 1]
-        con = proj.conic[k]
-        d = (con[:, 0] * dx + 2 * con[:, 1] * dy) * dx + con[:, 2] * dy * dy
-        alpha = torch.clamp_max(proj.opacity[k] * torch.exp(-0.5 * d), C.ALPHA_MAX)
+        _, alpha, hit = _pair_alpha(proj, k, px, py)
         with torch.no_grad():
-            hit = ((d <= support) & (alpha >= C.ALPHA_MIN)).nonzero().squeeze(1)
+            hit = hit.nonzero().squeeze(1)
             pix_h = pix[hit]
             grouped = torch.sort(pix_h, stable=True).indices  # by pixel, depth order kept inside
             idx = hit[grouped]
@@ -144,10 +168,7 @@ def composite_pairs(
         cs = torch.cumsum(la, 0)
         excl = cs - la - (cs - la)[seg_start]  # sum of log(1 - alpha) before this pair, within its pixel
         T_before = Tv[pix_s] * torch.exp(excl).to(dt)
-        T_after = T_before * (1 - a)
-        with torch.no_grad():
-            included = T_after >= C.T_MIN
-        w = torch.where(included, a * T_before, torch.zeros_like(a))
+        w = _stop_weights(a, T_before)
         kk = k[idx]
         feats = feats.index_add(0, pix_s, w[:, None] * proj.features[kk])
         depth = depth.index_add(0, pix_s, w * proj.depth[kk])
@@ -185,12 +206,8 @@ def pair_weights(
             if rank.numel() == 0:
                 continue
             k = order[rank]
-            dx = (px.to(proj.uv.dtype) + 0.5) - proj.uv[k, 0]
-            dy = (py.to(proj.uv.dtype) + 0.5) - proj.uv[k, 1]
-            con = proj.conic[k]
-            d = (con[:, 0] * dx + 2 * con[:, 1] * dy) * dx + con[:, 2] * dy * dy
-            alpha = torch.clamp_max(proj.opacity[k] * torch.exp(-0.5 * d), C.ALPHA_MAX)
-            hit = ((d <= C.EXTENT_SIGMA**2) & (alpha >= C.ALPHA_MIN)).nonzero().squeeze(1)
+            _, alpha, hit = _pair_alpha(proj, k, px, py)
+            hit = hit.nonzero().squeeze(1)
             pix_h = pix[hit]
             grouped = torch.sort(pix_h, stable=True).indices  # by pixel, depth order kept inside
             idx, pix_s = hit[grouped], pix_h[grouped]
@@ -201,7 +218,7 @@ def pair_weights(
             la = torch.log1p(-a)
             cs = torch.cumsum(la, 0)
             T_before = Tv[pix_s] * torch.exp(cs - la - (cs - la)[seg_start])
-            w = torch.where(T_before * (1 - a) >= C.T_MIN, a * T_before, torch.zeros_like(a))
+            w = _stop_weights(a, T_before)
             out_p.append(pix_s)
             out_r.append(proj.index[k[idx]])
             out_w.append(w)
@@ -209,6 +226,89 @@ def pair_weights(
         if not out_p:
             return empty, empty, torch.zeros(0, dtype=torch.float64, device=dev)
         return torch.cat(out_p), torch.cat(out_r), torch.cat(out_w)
+
+
+# aligned_weights: the farthest pixel (in rows or columns) a pixel-aligned Gaussian's support box may reach from its
+# own pixel for the stencil; a set reaching farther (stretched splats) takes `pair_weights`
+STENCIL_REACH_MAX = 6
+
+
+def aligned_weights(
+    g: Gaussians, camera: Camera, reach_max: int = STENCIL_REACH_MAX
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`pair_weights` of a pixel-aligned set (a lifted view at its own lifting camera: at most one projected Gaussian
+    per pixel, its centre inside that pixel, every support box within `reach_max` pixels of it) computed on a
+    stencil: each pixel meets only the Gaussians of the pixels around it, one stencil offset at a time on the whole
+    image (the offset's pairs are the image's Gaussians shifted by it; offsets no pair hits are left out), ordered
+    by depth rank per pixel, with the pairs path's own box, alpha and transmittance rules (`_support_boxes`,
+    `_pair_alpha`, `_stop_weights`). The same weights as `pair_weights` (float64; zero weights left out), in pixel
+    order; a set that is not pixel-aligned gets `pair_weights` itself. No gradient."""
+    width, height = camera.width, camera.height
+    with torch.no_grad():
+        proj = project(g, camera)
+        dev = proj.uv.device
+        M = len(proj)
+        if M == 0:
+            return pair_weights(g, camera)
+        cell = torch.floor(proj.uv.detach()).to(torch.int64)
+        cx, cy = cell[:, 0], cell[:, 1]
+        if not bool(((cx >= 0) & (cx < width) & (cy >= 0) & (cy < height)).all()):
+            return pair_weights(g, camera)
+        P = width * height
+        at = torch.full((P,), -1, dtype=torch.int64, device=dev)  # the projected Gaussian in each pixel
+        at[cy * width + cx] = torch.arange(M, device=dev)
+        occupied = at >= 0
+        if int(occupied.sum()) != M:  # two Gaussians in one pixel
+            return pair_weights(g, camera)
+        x0, x1, y0, y1 = _support_boxes(proj, width, height)
+        some = (x1 >= x0) & (y1 >= y0)
+        reach = torch.stack([cx - x0, x1 - cx, cy - y0, y1 - cy], 1)[some]
+        R = max(int(reach.max()) if reach.numel() else 0, 0)
+        if R > reach_max:
+            return pair_weights(g, camera)
+        j = at.clamp_min(0)
+        none = proj.index[:0]
+        # the projected Gaussians laid out on the image (what `_pair_alpha` reads: uv, conic, opacity)
+        grid = Projected(none, proj.uv[j], proj.conic[j], none, none, none, proj.opacity[j], proj.features[:0])
+        rank = torch.empty(M, dtype=torch.int64, device=dev)
+        order = depth_order(proj)
+        rank[order] = torch.arange(M, device=dev)
+        # an offset o is inside no support when (|o| - the farthest centre from its pixel's centre)^2 / the largest
+        # covariance eigenvalue exceeds the support's d (d >= |pixel - uv|^2 x the conic's smallest eigenvalue)
+        A, B, Cc = (t.to(torch.float64) for t in proj.conic.unbind(1))
+        lam_min = max(float((0.5 * (A + Cc) - torch.sqrt(0.25 * (A - Cc) ** 2 + B * B)).min()), 0.0)
+        dev_max = float((proj.uv.detach() - (cell + 0.5)).abs().max()) * 2**0.5 + 1e-3
+        offsets = [
+            (ox, oy)
+            for oy in range(-R, R + 1)
+            for ox in range(-R, R + 1)
+            if max((ox * ox + oy * oy) ** 0.5 - dev_max, 0.0) ** 2 * lam_min <= C.EXTENT_SIGMA**2 + 1e-3
+        ]
+        ox = torch.tensor([o[0] for o in offsets], device=dev)[:, None]
+        oy = torch.tensor([o[1] for o in offsets], device=dev)[:, None]
+        gx = torch.arange(width, device=dev).repeat(height)
+        gy = torch.arange(height, device=dev).repeat_interleave(width)
+        px, py = gx + ox, gy + oy  # (offsets, P): the pixel each Gaussian meets at each offset
+        _, alpha, hit = _pair_alpha(grid, slice(None), px, py)
+        hit &= occupied & (px >= x0[j]) & (px <= x1[j]) & (py >= y0[j]) & (py <= y1[j])
+        a_src = torch.where(hit, alpha.to(torch.float64), 0.0).reshape(-1, height, width)
+        k_src = torch.where(hit, torch.where(occupied, rank[j], M).to(torch.int32), M).reshape(-1, height, width)
+        S = len(offsets)
+        a_at = torch.zeros(height, width, S, dtype=torch.float64, device=dev)  # per receiving pixel, per offset
+        k_at = torch.full((height, width, S), M, dtype=torch.int32, device=dev)
+        for s_, (ox_, oy_) in enumerate(offsets):
+            src = (slice(max(-oy_, 0), height - max(oy_, 0)), slice(max(-ox_, 0), width - max(ox_, 0)))
+            dst = (slice(max(oy_, 0), height + min(oy_, 0)), slice(max(ox_, 0), width + min(ox_, 0)))
+            a_at[dst + (s_,)] = a_src[s_][src]
+            k_at[dst + (s_,)] = k_src[s_][src]
+        keys_s, perm = torch.sort(k_at.reshape(P, S), dim=1)  # per pixel in depth order, misses last (alpha 0)
+        a = a_at.reshape(P, S).gather(1, perm)
+        T_before = torch.cumprod(torch.cat([torch.ones_like(a[:, :1]), 1 - a[:, :-1]], 1), 1)
+        w = _stop_weights(a, T_before)
+        keep = (keys_s < M) & (w > 0)
+        pix = torch.repeat_interleave(torch.arange(P, device=dev), keep.sum(1))
+        rows = proj.index[order][keys_s.masked_select(keep).to(torch.int64)]
+        return pix, rows, w.masked_select(keep)
 
 
 def pixel_centres(x0: int, x1: int, y0: int, y1: int, dtype, device) -> torch.Tensor:

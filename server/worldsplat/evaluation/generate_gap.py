@@ -1,0 +1,361 @@
+"""Where generate's judge mIoU is lost: the generated content or how it is represented and rendered
+(web/docs/downstream.md, "Generate's gap: content or representation"). The judge (`evaluation.downstream`) on the
+world's images and on generate's content at each stage of the served path, the same views, against the world's
+exact labels.
+
+    python -m worldsplat.evaluation.generate_gap [--clips 0,1,2,3] [--frames 1,3] [--shifts 0,2] [--png PATH]
+
+Rows (test clips at the models' image, 112x64, 4 frames, as `worldsplat judge eval` makes them; generate's scene
+is `pipeline.scene.generate_scene(mode="generate")` as served, its models' calls recorded on the way):
+- ground truth: the world's own images;
+- world through the VAE: the world's images encoded and decoded by the VAE (`inference.encode_clip`, `pixel_guide`):
+  what the latent space keeps of the world, the best a generator of latents could show (at the rig only);
+- generated images: the VAE's decoding of the generated latents (`inference.pixel_guide`, `pixels.served_maps`),
+  the generator's own pictures of each keyframe's six views: its content with no 3D (at the rig only);
+- served: the served scene rendered on the track (`pipeline.render.render_scene_track`);
+- lifted / lifted fitted: a frame's six generated images lifted per pixel at their decoded depth (the oracle's
+  lifting, `gaussians.lift.lift`, no aggregation, no objects), unfitted and fitted at the lifting camera
+  (`lift(fit_iters=FIT_ITERS)`), rendered at that frame's cameras on the track;
+- served fitted to generated: the served scene with its static Gaussians' colours fitted jointly to the generated
+  images at every keyframe's six cameras (`fit_static`: one colour per Gaussian, the objects untouched);
+- served fitted to world: the same fit to the world's images (what the served Gaussians could show with the
+  world's colours: the representation's ceiling).
+"ground truth" vs "generated images" is the content's loss, "generated images" vs "served" the representation's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+import worldsplat.pipeline.inference as inference
+import worldsplat.pipeline.scene as scene_module
+from worldsplat.evaluation.downstream import GROUPS, confusion, summary
+from worldsplat.gaussians.lift import FIT_ITERS, lift
+from worldsplat.gaussians.raster import pair_weights, render_view
+from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.pipeline import pixels
+from worldsplat.pipeline.render import render_scene_track
+from worldsplat.world import build_world, simulate
+from worldsplat.world.classes import PALETTE
+from worldsplat.world.dataset import clip_scenario
+from worldsplat_models.judge import load_judge, segment
+from worldsplat_models.weights import weights_dir
+
+GROUND_TRUTH = "ground truth"
+GENERATED = "generated images"
+VAE_WORLD = "world through the VAE"
+ROWS = (
+    GROUND_TRUTH,
+    VAE_WORLD,
+    GENERATED,
+    "served",
+    "lifted",
+    "lifted fitted",
+    "served fitted to generated",
+    "served fitted to world",
+)
+# FISTA steps of `fit_static` (the served scene's static colours fitted at every keyframe camera)
+STATIC_FIT_ITERS = 20
+EXACT = "exact labels"  # the figure's last line
+# rows with no 3D: judged at the rig (shift 0) only
+RIG_ONLY = (VAE_WORLD, GENERATED)
+
+
+def rows_at(shift: float, rows=ROWS) -> list[str]:
+    """The rows judged on the track shifted `shift` m: every row at the rig, the 2D rows nowhere else."""
+    return [r for r in rows if shift == 0 or r not in RIG_ONLY]
+
+
+@contextlib.contextmanager
+def recording():
+    """Within: every `inference.generate` call's DecodedFrames appended to the yielded list (the served scene is
+    built unchanged)."""
+    calls: list = []
+    served = inference.generate
+
+    def generate(*a, **k):
+        dec = served(*a, **k)
+        calls.append(dec)
+        return dec
+
+    inference.generate = generate
+    try:
+        yield calls
+    finally:
+        inference.generate = served
+
+
+def generated_views(models, decs, frame_times: np.ndarray, size: tuple[int, int]) -> dict[int, tuple]:
+    """Per scene frame drawn by the models: the VAE's decoding of its generated latents at the rig's image
+    (`pixels.served_maps`): rgb (V,H,W,3) float in [0,1], depth (V,H,W) camera z (sky +inf), dynamic (V,H,W), and
+    the frame's ego pose as the decoded Gaussians place it."""
+    d = models.data
+    out = {}
+    for dec in decs:
+        with torch.no_grad():
+            guide = inference.pixel_guide(models, dec.latents)
+        T, V = guide.shape[:2]
+        rgb, depth, dyn = pixels.served_maps(guide.reshape(-1, *guide.shape[2:]), size, d.depth_near, d.depth_far)
+        for i, ft in enumerate(dec.frame_times[:T]):
+            t = int(np.argmin(np.abs(np.asarray(frame_times) - ft)))
+            sl = slice(i * V, (i + 1) * V)
+            out[t] = (rgb[sl], depth[sl], dyn[sl], np.asarray(dec.ego_to_world[i]))
+    return out
+
+
+def vae_round_trip(models, clip) -> np.ndarray:
+    """The clip's images (T,V,H,W,3) uint8 encoded and decoded by the VAE, at the clip's image."""
+    T, V, H, W = clip.depth.shape
+    with torch.no_grad():
+        L = inference.encode_clip(models, clip.rgb, clip.depth, clip.dynamic)
+        guide = inference.pixel_guide(models, L)
+    d = models.data
+    rgb = pixels.served_maps(guide.reshape(-1, *guide.shape[2:]), (H, W), d.depth_near, d.depth_far)[0]
+    return to_uint8(rgb).reshape(T, V, H, W, 3)
+
+
+def lifted_frame(rig, ego: np.ndarray, rgb, depth, dyn, shift: float, fit_iters: int) -> tuple[np.ndarray, ...]:
+    """A frame's views lifted per pixel at their depth (nothing else), rendered at the frame's cameras shifted
+    `shift` m: rgb (V,H,W,3) uint8, alpha (V,H,W)."""
+    g = Gaussians.cat([lift(rgb[v], depth[v], dyn[v], rc.at(ego), fit_iters=fit_iters) for v, rc in enumerate(rig)])
+    views = [render_view(g, rc.at(ego, shift)) for rc in rig]
+    return np.stack([v.rgb for v in views]), np.stack([v.alpha for v in views])
+
+
+def fit_static(scene: Scene4D, targets: dict[int, np.ndarray], iters: int = STATIC_FIT_ITERS) -> Scene4D:
+    """`scene` with its static Gaussians' colours in [0, 1] fitted so that its renders at frame t's rig cameras are
+    nearest `targets[t]` (V,H,W,3 in [0,1]) in squared error, all frames and views at once (one colour per
+    Gaussian; `iters` FISTA steps as `lift.fit_colours`). Only the static Gaussians' weights are fitted, each pixel's target scaled
+    by their share of its weights (the dynamic set's and the objects' bleed left as it renders); a static Gaussian
+    that reaches no pixel keeps its colour. The dynamic sets and objects are the scene's own."""
+    from scipy.sparse import csr_matrix, vstack  # noqa: PLC0415 - heavy, needed by the fit only
+
+    n = len(scene.static)
+    blocks, rhs = [], []
+    for t, target in targets.items():
+        g = scene.at_frame(t)
+        for v in range(len(scene.rig)):
+            cam = scene.camera(t, v)
+            pix, rows, w = (x.cpu().numpy() for x in pair_weights(g, cam))
+            keep = rows < n
+            pix, rows, w = pix[keep], rows[keep], w[keep]
+            npix = cam.width * cam.height
+            blocks.append(csr_matrix((w, (pix, rows)), shape=(npix, n)))
+            share = np.bincount(pix, w, minlength=npix)[:, None]
+            rhs.append(np.asarray(target[v], np.float64).reshape(-1, 3) * share)
+    if not blocks or n == 0:
+        return scene
+    W = vstack(blocks).tocsr()
+    WT = W.T.tocsr()
+    b = np.concatenate(rhs)
+    # per-Gaussian step 1 / D_i, D = W^T W 1 (with W >= 0 a diagonal majorizer of W^T W, as `lift.fit_colours`)
+    D = WT @ (W @ np.ones(n))
+    step = np.where(D > 0, 1.0 / np.where(D > 0, D, 1.0), 0.0)[:, None]
+    c0 = scene.static.colors.detach().cpu().numpy().astype(np.float64)
+    x, y, tk = c0, c0, 1.0
+    for _ in range(iters):
+        xn = np.clip(y - step * (WT @ (W @ y - b)), 0.0, 1.0)
+        tn = (1 + (1 + 4 * tk * tk) ** 0.5) / 2
+        y = xn + ((tk - 1) / tn) * (xn - x)
+        x, tk = xn, tn
+    reached = np.asarray(W.getnnz(axis=0) > 0)
+    s = scene.static
+    colours = torch.as_tensor(np.where(reached[:, None], x, c0), dtype=s.colors.dtype, device=s.colors.device)
+    static = Gaussians(s.means, s.quats, s.scales, s.opacities, colours, s.extras)
+    return Scene4D(static, scene.dynamic, scene.frame_times, scene.rig, scene.ego_to_world, dict(scene.meta),
+                   scene.objects)  # fmt: skip
+
+
+def to_uint8(rgb: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(np.asarray(rgb) * 255.0), 0, 255).astype(np.uint8)
+
+
+class Scores:
+    """Per (row, shift): the judge's confusion against the exact labels, pooled and per clip."""
+
+    def __init__(self):
+        self.conf: dict = {}
+        self.per_clip: dict = {}
+
+    def add(self, key, pred: np.ndarray, labels: np.ndarray, clip: int = 0) -> None:
+        c = confusion(pred, labels)
+        self.conf[key] = self.conf.get(key, 0) + c
+        per = self.per_clip.setdefault(key, {})
+        per[clip] = per.get(clip, 0) + c
+
+    def table(self, rows, shifts) -> dict:
+        return {
+            row: {
+                str(s): {
+                    **summary(self.conf[(row, s)]),
+                    "clips": {str(k): summary(c)["miou"] for k, c in self.per_clip[(row, s)].items()},
+                }
+                for s in shifts
+                if (row, s) in self.conf
+            }
+            for row in rows
+        }
+
+
+def measure(clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None = None, progress=print) -> dict:
+    judge = load_judge(weights_dir() / "judge_small.safetensors")
+    models = inference.load_models()
+    scores, tiles, timing = Scores(), {}, {}
+    for ci in clips:
+        sc = clip_scenario("test", ci, frames=4)
+        world = build_world(sc)
+        H, W = world.rig[0].height, world.rig[0].width
+        t0 = time.perf_counter()
+        with recording() as decs:
+            scene = scene_module.generate_scene(sc, mode="generate", steps=steps)
+        gen = generated_views(models, decs, world.frame_times, (H, W))
+        missing = [t for t in frames if t not in gen]
+        if missing:
+            raise ValueError(f"clip {ci}: frames {missing} were not drawn by the models (keyframes {sorted(gen)})")
+        # the decoded Gaussians' frames are the scene's
+        pose_err = max(float(np.abs(gen[t][3] - scene.ego_to_world[t]).max()) for t in gen)
+        t1 = time.perf_counter()
+        fitted = {}
+        if "served fitted to generated" in rows:
+            fitted["served fitted to generated"] = fit_static(scene, {t: gen[t][0] for t in gen})
+        if "served fitted to world" in rows:
+            rig_clip = simulate(world, 0.0, frames=sorted(gen))
+            fitted["served fitted to world"] = fit_static(
+                scene, {t: rig_clip.rgb[i].astype(np.float64) / 255.0 for i, t in enumerate(sorted(gen))}
+            )
+        t2 = time.perf_counter()
+        for s in shifts:
+            clip = simulate(world, s, frames=list(frames))
+            first = {}
+            for row in rows_at(s, rows):
+                if row == GROUND_TRUTH:
+                    rgb = clip.rgb
+                elif row == VAE_WORLD:
+                    rgb = vae_round_trip(models, clip)
+                elif row == GENERATED:
+                    rgb = np.stack([to_uint8(gen[t][0]) for t in frames])
+                elif row == "served":
+                    rgb = render_scene_track(scene, s, frames=list(frames)).rgb
+                elif row in fitted:
+                    rgb = render_scene_track(fitted[row], s, frames=list(frames)).rgb
+                else:
+                    fit = FIT_ITERS if row == "lifted fitted" else 0
+                    rgb = np.stack([lifted_frame(world.rig, gen[t][3], *gen[t][:3], s, fit)[0] for t in frames])
+                pred = segment(judge, rgb)
+                scores.add((row, s), pred, clip.semantic, ci)
+                first[row] = (rgb[0, 0], pred[0, 0])
+            if png is not None and ci == clips[0]:
+                first[EXACT] = (PALETTE[clip.semantic[0, 0]], None)
+                tiles[s] = first
+        timing[ci] = {"scene_s": round(t1 - t0, 1), "fit_s": round(t2 - t1, 1),
+                      "judge_s": round(time.perf_counter() - t2, 1), "pose_err": pose_err}  # fmt: skip
+        progress(f"clip {ci}: {timing[ci]}")
+    if png is not None:
+        _figure(tiles, [*rows, EXACT], png)
+    return {
+        "clips": list(clips),
+        "frames": list(frames),
+        "shifts": list(shifts),
+        "rows": list(rows),
+        "steps": steps,
+        "table": scores.table(rows, shifts),
+        "timing": timing,
+    }
+
+
+def _figure(tiles: dict, rows: list[str], path: Path) -> None:
+    """One line per row (the exact labels last), per track its image and the judge's labels (white: not judged)."""
+    from PIL import Image  # noqa: PLC0415
+
+    gap = 2
+    some = next(iter(tiles.values()))[GROUND_TRUTH][0]
+    blank = np.full_like(some, 255)
+    sep = np.full((some.shape[0], gap, 3), 255, np.uint8)
+    lines = []
+    for row in rows:
+        ims = []
+        for first in tiles.values():
+            img, pred = first.get(row, (blank, None))
+            ims += [img, blank if pred is None else PALETTE[pred]]
+        lines.append(np.concatenate([x for im in ims for x in (im, sep)][:-1], 1))
+        lines.append(np.full((gap, lines[-1].shape[1], 3), 255, np.uint8))
+    fig = np.concatenate(lines[:-1], 0)
+    Image.fromarray(fig.repeat(2, 0).repeat(2, 1)).save(path)
+
+
+def markdown(r: dict) -> str:
+    groups = list(GROUPS)
+    shifts = [str(s) for s in r["shifts"]]
+    gt = r["table"][GROUND_TRUTH]
+    head = "| row | " + " | ".join(f"mIoU {s} m | / GT" for s in shifts) + " | " + " | ".join(groups) + " |"
+    out = [
+        f"test clips {r['clips']}, frames {r['frames']}, six cameras, {r['steps']} steps; judge mIoU against the "
+        f"world's exact labels; groups at {shifts[0]} m",
+        "",
+        head,
+        "|" + "---|" * (1 + 2 * len(shifts) + len(groups)),
+    ]
+    for row in r["rows"]:
+        t = r["table"][row]
+        cells = []
+        for s in shifts:
+            if s in t:
+                cells += [f"{t[s]['miou']:.3f}", f"{t[s]['miou'] / gt[s]['miou']:.2f}"]
+            else:
+                cells += ["-", "-"]
+        g0 = t.get(shifts[0], {}).get("groups", {})
+        gcells = ["-" if g0.get(k) is None else f"{g0[k]:.3f}" for k in groups]
+        out.append(f"| {row} | " + " | ".join(cells + gcells) + " |")
+    s0 = shifts[0]
+    clips = list(gt[s0].get("clips", {}))
+    if clips:
+        out += ["", f"per clip at {s0} m, mIoU / the ground truth's on the same clip:", ""]
+        out += ["| row | " + " | ".join(f"clip {k}" for k in clips) + " |", "|" + "---|" * (1 + len(clips))]
+        for row in r["rows"]:
+            per = r["table"][row].get(s0, {}).get("clips", {})
+            cells = [f"{per[k] / gt[s0]['clips'][k]:.2f}" if per.get(k) is not None else "-" for k in clips]
+            out.append(f"| {row} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--clips", default="0,1,2,3", help="test clips (the judge eval's)")
+    p.add_argument("--frames", default="1,3")
+    p.add_argument("--shifts", default="0,2", help="lateral track shifts (m)")
+    p.add_argument("--steps", type=int, default=8)
+    p.add_argument("--rows", default=",".join(ROWS[1:]), help="rows beside the ground truth")
+    p.add_argument("--out", type=Path, default=None, help="write the table (markdown) and the rows (json) here")
+    p.add_argument(
+        "--png",
+        type=Path,
+        default=None,
+        help="the first clip's first frame, CAM_FRONT: per row (lines) and track (columns: image, judge labels)",
+    )
+    a = p.parse_args(argv)
+    ints = lambda x: [int(v) for v in x.split(",")]  # noqa: E731
+    rows = (GROUND_TRUTH, *[x.strip() for x in a.rows.split(",") if x.strip()])
+    unknown = [x for x in rows if x not in ROWS]
+    if unknown:
+        p.error(f"unknown rows {unknown}; rows are {', '.join(ROWS[1:])}")
+    shifts = [float(v) for v in a.shifts.split(",")]
+    r = measure(ints(a.clips), ints(a.frames), shifts, rows, a.steps, a.png)
+    md = markdown(r)
+    print(md)
+    if a.out is not None:
+        import json  # noqa: PLC0415
+
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "generate_gap.md").write_text(md + "\n")
+        (a.out / "generate_gap.json").write_text(json.dumps(r, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -355,3 +355,13 @@ def test_shipped_bev_head_reads_the_drivable_area_of_a_held_out_clip():
     # black cameras carry no road: the head must not draw the drivable area from its prior alone
     dark = downstream.bev_confusion(bev_logits(judge, head, np.zeros_like(images)).detach().numpy(), 0 * logits)
     assert dark[0, 1] < 0.5 * (logits[0, 0] > 0).sum(), dark
+
+
+def test_tile_sheet_lays_tiles_with_white_gaps():
+    a = np.zeros((3, 4, 3), np.uint8)
+    b = np.full((3, 5, 3), 7, np.uint8)
+    sheet = downstream.tile_sheet([[a, b], [b, a]], gap=2)
+    assert sheet.shape == (3 + 2 + 3, 4 + 2 + 5, 3)
+    assert (sheet[:3, :4] == 0).all() and (sheet[:3, 6:] == 7).all()  # first row: a, gap, b
+    assert (sheet[:3, 4:6] == 255).all() and (sheet[3:5] == 255).all()  # the gaps are white
+    assert (sheet[5:, :5] == 7).all() and (sheet[5:, 7:] == 0).all()  # second row: b, gap, a

@@ -465,22 +465,34 @@ def domain_gap(
     }
 
 
+def tile_sheet(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
+    """The evaluation figures' sheet: rows of uint8 (H, W, 3) tiles (equal heights within a row, equal row widths)
+    laid side by side with `gap`-pixel white lines between tiles and between rows."""
+    lines = []
+    for tiles in rows:
+        sep = np.full((tiles[0].shape[0], gap, 3), 255, np.uint8)
+        lines.append(np.concatenate([x for t in tiles for x in (t, sep)][:-1], axis=1))
+        lines.append(np.full((gap, lines[-1].shape[1], 3), 255, np.uint8))
+    return np.concatenate(lines[:-1], axis=0)
+
+
+def save_sheet(sheet: np.ndarray, path: Path, scale: int = 2) -> None:
+    """Write a `tile_sheet` as a PNG, each pixel `scale` x `scale` (the model image's tiles are small to look at)."""
+    Image.fromarray(sheet.repeat(scale, 0).repeat(scale, 1)).save(path)
+
+
 def example_figure(r: dict) -> np.ndarray:
     """One view of the first clip per shift (rows): each row's image and the judge's labels on it, then the exact
     labels; uint8 (H', W', 3)."""
     ex, labs = r["examples"], r["example_labels"]
-    gap = 2
     rows = []
     for s in r["shifts"]:
         tiles = []
         for row in ("gt", *r["modes"]):
             tiles += [ex[f"{row}_{s}"], PALETTE[labs[f"{row}_{s}"]]]
         tiles.append(PALETTE[ex[f"labels_{s}"]])
-        H = tiles[0].shape[0]
-        sep = np.full((H, gap, 3), 255, np.uint8)
-        rows.append(np.concatenate([x for t in tiles for x in (t, sep)][:-1], axis=1))
-        rows.append(np.full((gap, rows[-1].shape[1], 3), 255, np.uint8))
-    return np.concatenate(rows[:-1], axis=0)
+        rows.append(tiles)
+    return tile_sheet(rows)
 
 
 def _rows(r: dict) -> list[str]:
@@ -653,5 +665,4 @@ def write_domain_gap(r: dict, out: Path) -> None:
     (out / "downstream.md").write_text(domain_gap_markdown(r) + "\n")
     plot_domain_gap(r, out / "downstream_miou.png")
     if r.get("examples"):
-        fig = example_figure(r)
-        Image.fromarray(fig.repeat(2, 0).repeat(2, 1)).save(out / "downstream_examples.png")
+        save_sheet(example_figure(r), out / "downstream_examples.png")

@@ -25,11 +25,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 from tqdm import tqdm
 
 from worldsplat.core.paths import runs_dir
-from worldsplat.evaluation.downstream import confusion, judge_frechet, summary
+from worldsplat.evaluation.downstream import confusion, judge_frechet, save_sheet, summary, tile_sheet
 from worldsplat.evaluation.nvs import load_enhancers, prepare_samples, run_versions
 from worldsplat.pipeline.inference import load_models
 from worldsplat.training.pairs import load_sample, sample_scenario, split_seeds
@@ -157,13 +156,9 @@ def example_figure(examples: dict, example_labels: dict) -> np.ndarray:
     """One view per version (columns: the exact view first), its image above the judge's labels of it, the exact
     labels at the end of the lower row; uint8."""
     names = [r for r in (EXACT, *VERSIONS) if r in examples]
-    gap = np.full((examples[EXACT].shape[0], 2, 3), 255, np.uint8)
-    top = [x for r in names for x in (examples[r], gap)]
-    bottom = [x for r in names for x in (PALETTE[example_labels[r]], gap)]
-    top += [np.zeros_like(examples[EXACT])]
-    bottom += [PALETTE[examples["labels"]]]
-    upper, lower = np.concatenate(top, 1), np.concatenate(bottom, 1)
-    return np.concatenate([upper, np.full((2, upper.shape[1], 3), 255, np.uint8), lower], 0)
+    top = [examples[r] for r in names] + [np.zeros_like(examples[EXACT])]
+    bottom = [PALETTE[example_labels[r]] for r in names] + [PALETTE[examples["labels"]]]
+    return tile_sheet([top, bottom])
 
 
 def _f(v) -> str:
@@ -232,5 +227,4 @@ def write_ablation(r: dict, out: Path) -> None:
     (out / "ablation.md").write_text(ablation_markdown(r) + "\n")
     plot_ablation(r, out / "ablation.png")
     if r.get("examples"):
-        fig = example_figure(r["examples"], r["example_labels"])
-        Image.fromarray(fig.repeat(2, 0).repeat(2, 1)).save(out / "ablation_examples.png")
+        save_sheet(example_figure(r["examples"], r["example_labels"]), out / "ablation_examples.png")

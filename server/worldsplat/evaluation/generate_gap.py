@@ -35,7 +35,7 @@ import torch
 
 import worldsplat.pipeline.inference as inference
 import worldsplat.pipeline.scene as scene_module
-from worldsplat.evaluation.downstream import GROUPS, confusion, summary
+from worldsplat.evaluation.downstream import GROUPS, confusion, save_sheet, summary, tile_sheet
 from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.raster import pair_weights, render_view
 from worldsplat.gaussians.types import Gaussians, Scene4D
@@ -271,22 +271,15 @@ def measure(clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None =
 
 def _figure(tiles: dict, rows: list[str], path: Path) -> None:
     """One line per row (the exact labels last), per track its image and the judge's labels (white: not judged)."""
-    from PIL import Image  # noqa: PLC0415
-
-    gap = 2
-    some = next(iter(tiles.values()))[GROUND_TRUTH][0]
-    blank = np.full_like(some, 255)
-    sep = np.full((some.shape[0], gap, 3), 255, np.uint8)
+    blank = np.full_like(next(iter(tiles.values()))[GROUND_TRUTH][0], 255)
     lines = []
     for row in rows:
         ims = []
         for first in tiles.values():
             img, pred = first.get(row, (blank, None))
             ims += [img, blank if pred is None else PALETTE[pred]]
-        lines.append(np.concatenate([x for im in ims for x in (im, sep)][:-1], 1))
-        lines.append(np.full((gap, lines[-1].shape[1], 3), 255, np.uint8))
-    fig = np.concatenate(lines[:-1], 0)
-    Image.fromarray(fig.repeat(2, 0).repeat(2, 1)).save(path)
+        lines.append(ims)
+    save_sheet(tile_sheet(lines), path)
 
 
 def markdown(r: dict) -> str:

@@ -107,16 +107,20 @@ def test_stencil_weights_fall_back_to_pairs_off_the_lifting_camera():
 def test_fitted_lifting_renders_its_own_image_back_sharp():
     """Unfitted, the one-pixel lines keep less than half their contrast (each splat is 0.89 px at its own view and
     the nearer rows' splats lie in front of it); fitted, the render at the lifting camera comes back towards the image
-    (measured: line contrast 0.43 -> 0.68 of the image's, PSNR 22.1 -> 26.1 dB)."""
+    (measured: line contrast 0.43 -> 0.56 of the image's, PSNR 22.1 -> 24.4 dB), and without the ridge's pull towards
+    the pixels' own colours closer still (0.69, 26.0 dB)."""
     cam, rgb, depth = _road()
     plain = render_view(lift(rgb, depth, None, cam), cam).rgb
     fitted_g = lift(rgb, depth, None, cam, fit_iters=FIT_ITERS)
     fitted = render_view(fitted_g, cam).rgb
+    exact = render_view(fit_colours(lift(rgb, depth, None, cam), cam, rgb / 255.0, ridge=0.0), cam).rgb
     lines = (rgb[..., 0] == 150) & (depth < 30.0)
     contrast = lambda im: im[lines].mean() - 40.0  # noqa: E731 - the lines over the road's grey
     assert contrast(plain) < 0.5 * contrast(rgb), contrast(plain)
-    assert contrast(fitted) > 0.6 * contrast(rgb), contrast(fitted)
-    assert _psnr(fitted, rgb) > _psnr(plain, rgb) + 3.0, (_psnr(plain, rgb), _psnr(fitted, rgb))
+    assert contrast(fitted) > 0.52 * contrast(rgb), contrast(fitted)
+    assert contrast(exact) > 0.65 * contrast(rgb), contrast(exact)
+    assert _psnr(fitted, rgb) > _psnr(plain, rgb) + 2.0, (_psnr(plain, rgb), _psnr(fitted, rgb))
+    assert _psnr(exact, rgb) > _psnr(fitted, rgb) + 1.0, (_psnr(fitted, rgb), _psnr(exact, rgb))
     c = fitted_g.colors
     assert float(c.min()) >= 0.0 and float(c.max()) <= 1.0
     # the geometry is the lifting's: only colours change

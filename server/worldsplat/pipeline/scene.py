@@ -2,7 +2,7 @@
 
     scene = generate_scene(scenario, mode="oracle" | "reconstruct" | "generate", steps=8, progress=cb, cancelled=fn)
 
-oracle      the world's exact RGB + depth + dynamic masks, lifted pixel-aligned (worldsplat.gaussians.lift) and
+oracle      the world's exact RGB + depth + dynamic masks, lifted pixel-aligned with fitted colours (gaussians.lift) and
             aggregated (paper eq. 3 + economy). Training-free; always available.
 reconstruct ground-truth multi-view video -> VAE encoder -> latent Gaussian decoder (paper §3.5), via
             `worldsplat.pipeline.inference`; needs shipped weights.
@@ -35,7 +35,7 @@ from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
-from worldsplat.gaussians.lift import lift
+from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.objects import (
     AGENT_MARGIN_M,
     AGENT_MODES,
@@ -59,8 +59,9 @@ ALL_MODES = ("oracle", "reconstruct", "generate")
 # (WindowAggregator; same cells, first window to see a cell makes its Gaussian). 4: the finest observation of each
 # static surface point wins, unmerged (gaussians.aggregate.finest_observations). 5: every agent in the clip an
 # object, parked ones too (their static pixels claimed for it). 6: an object's Gaussians no wider than a pixel
-# footprint (objects.OBJECT_SCALE_CAP), only the standing agents' boxes claimed.
-ORACLE_VERSION = "oracle-6"
+# footprint (objects.OBJECT_SCALE_CAP), only the standing agents' boxes claimed. 7: each view's colours fitted so
+# that it renders its own image back at its camera (`lift(fit_iters=FIT_ITERS)`, `gaussians.lift.fit_colours`).
+ORACLE_VERSION = "oracle-7"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's
@@ -498,7 +499,10 @@ def _lift_clip(clip, prog: Callable[[float], None], cancelled: CancelCheck | Non
     for t in range(T):
         prog(t / T)
         per_view.append(
-            [lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v)) for v in range(V)]
+            [
+                lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v), fit_iters=FIT_ITERS)
+                for v in range(V)
+            ]
         )
         _check(cancelled)
     return per_view

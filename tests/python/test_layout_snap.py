@@ -292,3 +292,35 @@ def test_a_sub_cell_pedestrian_beside_a_car_is_still_a_peak():
     assert cells[2, 4] and cells[1:4, 1:4].all()
     assert not cells[4, 1:4].any()
     assert not _agent_cells((cover_v + cover_p).clamp(0, 1))[2, 4], "one peak test over both classes misses it"
+
+
+# -- the refined grid's floor before an agent's edge (narrow_before_agent_edges) ------------------------------------
+def _floored(dec, z, floor_px, model_w=W):
+    """The Gaussians' scales as `inference.scale_floor` widens 0.01 m ones by floor_px model pixels at depth z."""
+    cam = dec.rig[0]
+    fl = floor_px * z / (cam.fx * model_w / cam.width)
+    return torch.sqrt(0.01**2 + fl**2)[:, None].repeat(1, 3).float()
+
+
+@pytest.mark.parametrize("z_wall", [5.0, 60.0])
+def test_a_surface_before_an_agent_keeps_only_the_edge_floor_beside_it(z_wall):
+    from worldsplat.pipeline.snaps import AGENT_EDGE_REACH, narrow_before_agent_edges
+
+    dec, control, _, o, hit = _box_case(1, True)
+    g = dec.gaussians[0][0]
+    o_t = torch.as_tensor(o, dtype=torch.float32)
+    g.means = o_t + (g.means - o_t) * (z_wall / 60.0)  # every Gaussian at z_wall on its ray (a wall, or the far side)
+    _, z = _camera_ray_depth(dec, 0, 0, g.means)
+    g.scales = _floored(dec, z, 0.6)
+    before = g.scales.clone()
+    frac = narrow_before_agent_edges(dec, control, 0.6, (H, W), edge_floor_px=0.3)
+    box = torch.from_numpy(hit).reshape(-1)
+    k = 2 * AGENT_EDGE_REACH + 1
+    beside = torch.nn.functional.max_pool2d(torch.from_numpy(hit).float()[None, None], k, 1, AGENT_EDGE_REACH)
+    beside = (beside[0, 0].reshape(-1) > 0) & ~box
+    if z_wall == 60.0:  # behind the box (10 m): nothing changes
+        assert frac == 0.0 and torch.equal(g.scales, before)
+        return
+    assert beside.sum() >= 4 and frac == pytest.approx(float(beside.float().mean()))
+    assert torch.allclose(g.scales[beside], _floored(dec, z, 0.3)[beside], rtol=1e-4), "re-floored at 0.3 px"
+    assert torch.equal(g.scales[~beside], before[~beside]), "the box's own cells and those farther off keep theirs"

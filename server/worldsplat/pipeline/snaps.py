@@ -244,3 +244,57 @@ def snap_agents_to_layout(
             g.extras = p[:, None] if g.extras is None else torch.cat([p[:, None], g.extras[:, 1:]], 1)
             moved, dynamic, total = moved + int(ok.sum()), dynamic + int(in_moving.sum()), total + n
     return {"agent_snap_fraction": moved / max(total, 1), "agent_dynamic_fraction": dynamic / max(total, 1)}
+
+
+# The decoder's grid refined (`inference.DECODER_REFINE`) widens every Gaussian to a scale floor of most of its
+# cell (`inference.REFINED_SCALE_FLOOR_MODEL_PX`) at the same opacity, four per coarse cell: where a surface stands
+# before an agent, their tails stack into a haze over the agent's pixels beside the edge (test:2's van behind a wall:
+# covered 0.64, the coarse grid 0.92; its Gaussians there 5-9 m before the van, 0.2-0.8 m up, std 0.1-0.2 m, opacity
+# ~0.5, five times the coarse grid's count). A static Gaussian within AGENT_EDGE_REACH grid cells of a cell the layout
+# calls agent, nearer than that box's depth by more than AGENT_EDGE_RATIO, keeps only AGENT_EDGE_FLOOR_MODEL_PX of
+# floor. Generate, decoder2x, test:0-2 + the default preset: the van seen (agents 35 -> 36 of 38), static PSNR and
+# SSIM unchanged to 0.005 dB (the layout's ground excluded, the van stayed covered 0.80: the wall stands on it).
+AGENT_EDGE_REACH = 2
+AGENT_EDGE_RATIO = 1.25
+AGENT_EDGE_FLOOR_MODEL_PX = 0.3
+
+
+@torch.no_grad()
+def narrow_before_agent_edges(
+    dec: DecodedFrames,
+    control: torch.Tensor,
+    floor_px: float,
+    model_hw: tuple[int, int],
+    edge_floor_px: float = AGENT_EDGE_FLOOR_MODEL_PX,
+    reach: int = AGENT_EDGE_REACH,
+    ratio: float = AGENT_EDGE_RATIO,
+) -> float:
+    """Gaussians of a grid of one per layout pixel (f = 1) whose scales carry a floor of `floor_px` model pixels
+    (`inference.scale_floor`, model image `model_hw`), beside an agent's cells (`_agent_cells`'s rule: box cover
+    > 0.5) and nearer than the box's layout depth by more than `ratio`, re-floored at `edge_floor_px` (their own
+    scale kept: s' = sqrt(s^2 - floor^2 + edge_floor^2)). In place; returns the fraction changed."""
+    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS)}
+    changed = total = 0
+    k = 2 * reach + 1
+    for t, v, g, f, c in _views(dec, control, "narrow_before_agent_edges"):
+        total += len(g)
+        if f != 1:
+            continue
+        box = (c[ch["vehicle"]] + c[ch["vulnerable"]]).clamp(0, 1) > 0.5
+        if not bool(box.any()):
+            continue
+        z_box = torch.where(box, layout_depth_m(c[ch["depth"]]), torch.zeros_like(box, dtype=torch.float32))
+        far = F.max_pool2d(z_box[None, None], k, stride=1, padding=reach)[0, 0].reshape(-1)
+        _, z = _camera_ray_depth(dec, t, v, g.means)
+        ok = ~box.reshape(-1) & (far > ratio * z) & (z > 1e-3)
+        if g.extras is not None:
+            ok &= g.extras[:, 0] <= 0.5
+        if not bool(ok.any()):
+            continue
+        cam = dec.rig[v]
+        fx_model = cam.fx * model_hw[1] / cam.width
+        big, small = (floor_px * z / fx_model) ** 2, (edge_floor_px * z / fx_model) ** 2
+        s2 = (g.scales**2 - big[:, None]).clamp_min(0) + small[:, None]
+        g.scales = torch.where(ok[:, None], s2.sqrt().to(g.scales.dtype), g.scales)
+        changed += int(ok.sum())
+    return changed / max(total, 1)

@@ -1,8 +1,9 @@
 """Pixel-aligned Gaussians of decoded latents: the VAE's decoding of L (colour, depth and dynamic mask at the model
 image) up-sampled to the rig's image and lifted one opaque Gaussian per pixel by the oracle's lifting
-(`gaussians.lift`, the sky on its far shell), so a learned scene holds as many Gaussians per served pixel as the
-oracle's and its footprints tile the surface at any display size (the latent decoder's 2x2-model-pixel grid of
-translucent Gaussians shows as a cell grid; web/docs/models.md, "Served Gaussians per mode").
+(`gaussians.lift`, the sky on its far shell, colours fitted to the decoded image), so a learned scene holds as many
+Gaussians per served pixel as the oracle's and its footprints tile the surface at any display size (the latent
+decoder's 2x2-model-pixel grid of translucent Gaussians shows as a cell grid; web/docs/models.md, "Served Gaussians
+per mode").
 
     rgb, depth, dynamic = served_maps(guide, (H, W), near, far)   # guide: inference.pixel_guide, (N, 5, h, w)
     depth = snap_to_ground(depth, dynamic, cameras)               # the road where the frames' decodings agree
@@ -23,7 +24,7 @@ import torch
 import torch.nn.functional as F
 
 from worldsplat.core.camera import Camera
-from worldsplat.gaussians.lift import MAX_DEPTH, SKY_CHANNEL, lift
+from worldsplat.gaussians.lift import FIT_ITERS, MAX_DEPTH, SKY_CHANNEL, lift
 from worldsplat.gaussians.types import Gaussians
 from worldsplat.world.layout_maps import LAYOUT_CHANNELS, LAYOUT_FAR, LAYOUT_NEAR, layout_depth_m
 
@@ -138,8 +139,9 @@ def snap_to_ground(depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera]
 
 def lift_views(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera]) -> list[Gaussians]:
     """`served_maps` of N views and their N world cameras (at the maps' size) -> one Gaussians per view, one per
-    pixel in row-major order (the oracle's lifting: extras[:, 0] dynamic, extras[:, 1] sky)."""
-    return [lift(rgb[i], depth[i], dynamic[i], cam) for i, cam in enumerate(cameras)]
+    pixel in row-major order (the oracle's lifting: extras[:, 0] dynamic, extras[:, 1] sky; its colours fitted so
+    that each view renders its decoded image back, `lift(fit_iters=FIT_ITERS)`)."""
+    return [lift(rgb[i], depth[i], dynamic[i], cam, fit_iters=FIT_ITERS) for i, cam in enumerate(cameras)]
 
 
 def settle_sky(g: Gaussians, camera: Camera) -> Gaussians:

@@ -16,8 +16,8 @@ colour, the rest is its neighbours' (a road pixel: the rows below it). Rendered 
 the image is smoothed: thin lane markings and curbs lose half their contrast, and the segmentation judge
 (`evaluation.downstream`) reads the oracle scene at 0.67 of the world's own images at the rig. With fitted colours
 the render at the lifting camera comes back towards the image, held near the pixels' own colours by FIT_RIDGE (an
-exact fit is a deconvolution of the 1x image that rings when drawn larger); the oracle serves it
-(`pipeline.scene`, FIT_ITERS; `evaluation.oracle_gap` and web/docs/gaussians.md measure it).
+exact fit is a deconvolution of the 1x image that rings when drawn larger); the oracle and reconstruct serve it
+(`pipeline.scene`, `pipeline.pixels`, FIT_ITERS; `evaluation.oracle_gap` and web/docs/gaussians.md measure it).
 
 `lift_surfels` is the same lifting with each surface splat flattened onto its surface (anisotropic, like a 3DGS
 capture's Gaussians): the world scene the .wsplat v2 / SOG size comparison is measured on (`worldsplat.bench.sog`).

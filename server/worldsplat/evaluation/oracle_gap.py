@@ -7,9 +7,9 @@ views, against the world's exact labels.
 
 Rows (test clips at the models' image, 112x64, 4 frames, as `worldsplat judge eval` makes them):
 - ground truth: the world's own images;
-- oracle served: `pipeline.scene.generate_scene(mode="oracle")` as the playground serves it;
+- oracle served: `pipeline.scene.generate_scene(mode="oracle")` as the playground serves it (its colours fitted);
 - oracle unfitted / oracle fitted: the same scene with the lifting's colours as the pixels' own (`lift(fit_iters=0)`)
-  and fitted at each lifting camera (`lift(fit_iters=FIT_ITERS)`, `gaussians.lift.fit_colours`);
+  and fitted at each lifting camera (`lift(fit_iters=FIT_ITERS)`, `gaussians.lift.fit_colours`: the served one);
 - frame alone (fitted): frame t's six views lifted and nothing else (no aggregation, no objects), rendered at frame
   t's cameras: the lifting and splatting alone.
 Per row and track: mIoU over the present classes, each class group's, the share of road pixels read as an agent,

@@ -36,7 +36,7 @@ import torch
 import worldsplat.pipeline.inference as inference
 import worldsplat.pipeline.scene as scene_module
 from worldsplat.evaluation.downstream import GROUPS, confusion, save_sheet, summary, tile_sheet
-from worldsplat.gaussians.lift import FIT_ITERS, lift
+from worldsplat.gaussians.lift import FIT_ITERS, lift, solve_colours
 from worldsplat.gaussians.raster import pair_weights, render_view
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.pipeline import pixels
@@ -152,21 +152,10 @@ def fit_static(scene: Scene4D, targets: dict[int, np.ndarray], iters: int = STAT
     if not blocks or n == 0:
         return scene
     W = vstack(blocks).tocsr()
-    WT = W.T.tocsr()
-    b = np.concatenate(rhs)
-    # per-Gaussian step 1 / D_i, D = W^T W 1 (with W >= 0 a diagonal majorizer of W^T W, as `lift.fit_colours`)
-    D = WT @ (W @ np.ones(n))
-    step = np.where(D > 0, 1.0 / np.where(D > 0, D, 1.0), 0.0)[:, None]
     c0 = scene.static.colors.detach().cpu().numpy().astype(np.float64)
-    x, y, tk = c0, c0, 1.0
-    for _ in range(iters):
-        xn = np.clip(y - step * (WT @ (W @ y - b)), 0.0, 1.0)
-        tn = (1 + (1 + 4 * tk * tk) ** 0.5) / 2
-        y = xn + ((tk - 1) / tn) * (xn - x)
-        x, tk = xn, tn
-    reached = np.asarray(W.getnnz(axis=0) > 0)
+    x, _ = solve_colours(W, np.concatenate(rhs), c0, iters)
     s = scene.static
-    colours = torch.as_tensor(np.where(reached[:, None], x, c0), dtype=s.colors.dtype, device=s.colors.device)
+    colours = torch.as_tensor(x, dtype=s.colors.dtype, device=s.colors.device)
     static = Gaussians(s.means, s.quats, s.scales, s.opacities, colours, s.extras)
     return Scene4D(static, scene.dynamic, scene.frame_times, scene.rig, scene.ego_to_world, dict(scene.meta),
                    scene.objects)  # fmt: skip

@@ -152,24 +152,34 @@ def fit_colours(
         W = csr_matrix((w, rows, indptr), shape=(P, n))
     else:
         W = csr_matrix((w, (pix, rows)), shape=(P, n))
-    WT = W.T.tocsr()
     target = np.asarray(target, np.float64).reshape(-1, 3)
     if fitted is not None:
         target = target * np.bincount(pix, w, minlength=len(target))[:, None]
+    c0 = g.colors.detach().cpu().numpy().astype(np.float64)
+    x, _ = solve_colours(W, target, c0, iters, ridge)
+    colours = torch.as_tensor(x, dtype=g.colors.dtype, device=g.colors.device)
+    return Gaussians(g.means, g.quats, g.scales, g.opacities, colours, g.extras)
+
+
+def solve_colours(
+    W, target: np.ndarray, c0: np.ndarray, iters: int, ridge: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The colour fit's solver: colours x (n, 3) in [0, 1] minimising |W x - target|^2 + ridge |x - c0|^2 for a
+    sparse non-negative W (pixels x Gaussians, the render's weights), `iters` FISTA steps from c0. Returns x and
+    `reached` (n,) bool: the Gaussians with a weight (the others keep c0)."""
+    WT = W.T.tocsr()
     # per-Gaussian step 1 / (D_i + ridge), D = W^T W 1: with W >= 0, diag(D) - W^T W is diagonally dominant, so D
     # majorizes the fit's curvature (a Gaussian that reaches few pixels takes long steps)
-    D = WT @ (W @ np.ones(n))
+    D = WT @ (W @ np.ones(W.shape[1]))
     reached = D > 0
     step = np.where(reached, 1.0 / (np.where(reached, D, 1.0) + ridge), 0.0)[:, None]
-    c0 = g.colors.detach().cpu().numpy().astype(np.float64)
     x, y, tk = c0, c0, 1.0
     for _ in range(iters):
         xn = np.clip(y - step * (WT @ (W @ y - target) + ridge * (y - c0)), 0.0, 1.0)
         tn = (1 + (1 + 4 * tk * tk) ** 0.5) / 2
         y = xn + ((tk - 1) / tn) * (xn - x)
         x, tk = xn, tn
-    colours = torch.as_tensor(np.where(reached[:, None], x, c0), dtype=g.colors.dtype, device=g.colors.device)
-    return Gaussians(g.means, g.quats, g.scales, g.opacities, colours, g.extras)
+    return np.where(reached[:, None], x, c0), reached
 
 
 def lift_surfels(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray | None, camera: Camera) -> Gaussians:

@@ -32,7 +32,7 @@ import numpy as np
 
 import worldsplat.pipeline.scene as scene_module
 from worldsplat.core.scenario import resolve_scenario
-from worldsplat.evaluation.downstream import GROUPS, NUM_CLASSES, confusion, summary
+from worldsplat.evaluation.downstream import GROUPS, NUM_CLASSES, confusion, save_sheet, summary, tile_sheet
 from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.raster import aligned_weights, pair_weights, render_view
 from worldsplat.gaussians.types import Gaussians
@@ -148,7 +148,7 @@ def measure(clips, frames, shifts, rows=ROWS, png: Path | None = None, progress=
                 )
         progress(f"clip {ci}: {time.perf_counter() - t0:.1f} s")
     if png is not None:
-        _figure(tiles, png)
+        save_sheet(tile_sheet(tiles), png)
     return {
         "clips": list(clips),
         "frames": list(frames),
@@ -156,19 +156,6 @@ def measure(clips, frames, shifts, rows=ROWS, png: Path | None = None, progress=
         "rows": list(rows),
         "table": {row: {str(s): sums.row((row, s)) for s in shifts} for row in rows},
     }
-
-
-def _figure(tiles: list[list[np.ndarray]], path: Path) -> None:
-    from PIL import Image  # noqa: PLC0415
-
-    gap = 2
-    lines = []
-    for t in tiles:
-        sep = np.full((t[0].shape[0], gap, 3), 255, np.uint8)
-        lines.append(np.concatenate([x for im in t for x in (im, sep)][:-1], 1))
-        lines.append(np.full((gap, lines[-1].shape[1], 3), 255, np.uint8))
-    fig = np.concatenate(lines[:-1], 0)
-    Image.fromarray(fig.repeat(2, 0).repeat(2, 1)).save(path)
 
 
 def markdown(r: dict) -> str:

@@ -600,13 +600,10 @@ class WindowAggregator:
     ) -> list[np.ndarray]:
         """Per set (scene frame, seen by its camera), the static rows (not sky, DEFER_MIN_M or farther) whose place
         a frame outside `frames` (`_other_cameras`) has in its image `factor` times nearer."""
-        from scipy.spatial import cKDTree  # noqa: PLC0415 - heavy, as in nearest_distance
-
         drops = [np.zeros(len(s), dtype=bool) for s in sets]
         later, ego = self._other_cameras(frames)
         if not later:
             return drops
-        tree = cKDTree(ego)
         reach = max(float(np.linalg.norm(rc.camera_to_ego[:3, 3])) for rc in self.rig) if self.rig else 0.0
         for s, cam, drop in zip(sets, cameras, drops, strict=True):
             if cam is None or not len(s):
@@ -614,13 +611,14 @@ class WindowAggregator:
             p = s.means.detach().double().cpu().numpy()
             near = np.linalg.norm(p - cam.position, axis=1) / factor
             rows = np.flatnonzero(_static_rows(s) & ~sky_rows(s) & (near * factor >= DEFER_MIN_M))
-            hits = tree.query_ball_point(p[rows], near[rows] + reach)
-            counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
-            if counts.sum():
-                pr = np.repeat(rows, counts)  # (point, later frame) pairs within reach
-                pf = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if h])
-                for f in np.unique(pf):
-                    pts = pr[pf == f]
+            if len(rows):
+                # (point, other frame) pairs whose ego lies within the point's reach, every frame at once (a frame
+                # view holds a few thousand points and the clip at most a few hundred sampled frames: a per-point
+                # ball query's Python lists cost more than the whole matrix)
+                r = near[rows] + reach
+                within = ((p[rows, None, :] - ego[None, :, :]) ** 2).sum(-1) <= (r * r)[:, None]
+                for f in np.flatnonzero(within.any(0)):
+                    pts = rows[within[:, f]]
                     for c in later[f]:
                         uv, z = c.project(p[pts])
                         with np.errstate(invalid="ignore"):

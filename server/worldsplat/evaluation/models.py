@@ -36,6 +36,7 @@ from worldsplat.pipeline.inference import (
     encode_clip,
     generate,
     load_models,
+    pixel_guide,
     prior_mean,
     reconstruct,
     sample_latents,
@@ -129,19 +130,34 @@ def eval_reconstruct(
     oracle: bool = True,
     model: bool = True,
     gaussians: str | None = None,
+    joint: bool = False,
 ) -> dict:
     """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips. `gaussians`: "pixels" or
-    "decoder" (None: served, `inference.GAUSSIANS`)."""
-    res = {s: {"model_psnr": [], "model_ssim": [], "oracle_psnr": [], "oracle_ssim": []} for s in shifts}
+    "decoder" (None: served, `inference.GAUSSIANS`). `joint`: also each scene with its static colours fitted jointly
+    to every frame's images it was made from (`generate_gap.fit_static`: the VAE's decoding for the model, the exact
+    images for the oracle), rows "model_joint" / "oracle_joint"."""
+    from worldsplat.evaluation.generate_gap import fit_static  # noqa: PLC0415 - the joint part only
+
+    names = ["model", "oracle", "model_joint", "oracle_joint"]
+    res = {s: {f"{n}_{m}": [] for n in names for m in ("psnr", "ssim")} for s in shifts}
     for i in range(min(n, len(ds))):
         base = ds[i]
         by_shift = {0.0: base}
         for s in ds.shifted(i):
             by_shift[float(s["shift_m"])] = s
         rig = rig_of(base)
-        scenes = {"model": to_scene4d(reconstruct(clip_view(base, rig), models, gaussians))} if model else {}
+        scenes = {}
+        if model:
+            dec = reconstruct(clip_view(base, rig), models, gaussians)
+            scenes["model"] = to_scene4d(dec)
+            if joint:
+                vae_rgb = (pixel_guide(models, dec.latents)[:, :, :3].detach().permute(0, 1, 3, 4, 2).double() + 1) / 2
+                scenes["model_joint"] = fit_static(scenes["model"], dict(enumerate(vae_rgb.clamp(0, 1).numpy())))
         if oracle:
             scenes["oracle"] = oracle_scene(clip_view(base, rig))
+            if joint:
+                exact = np.asarray(base["rgb"], np.float64) / 255.0
+                scenes["oracle_joint"] = fit_static(scenes["oracle"], dict(enumerate(exact)))
         T, V = base["rgb"].shape[:2]
         for sh in shifts:
             if sh not in by_shift:
@@ -531,7 +547,8 @@ def main(argv=None) -> int:
     p.add_argument(
         "--parts",
         default="vae,reconstruct,generate,steps",
-        help="comma list of vae, reconstruct, oracle (the lifting baseline alone), generate, ceiling "
+        help="comma list of vae, reconstruct, oracle (the lifting baseline alone), joint (with reconstruct / oracle: "
+        "also their static colours fitted jointly to every frame's images), generate, ceiling "
         "(generate's layout metrics on VAE-encoded ground truth), prior (on the layout prior's mean alone), nosnap "
         "(generate without the snaps onto the layout), noagentsnap (generate with the road snap, without the agents'), nomapsnap (without the map "
         "layer's snap), steps, "
@@ -574,6 +591,7 @@ def main(argv=None) -> int:
             frames=frames,
             model="reconstruct" in parts,
             oracle="oracle" in parts,
+            joint="joint" in parts,
             gaussians=a.gaussians,
         )
         prev = out.get("reconstruct", {})

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from scipy.spatial import cKDTree
 
 from worldsplat.core.camera import default_rig, yaw_pose
 from worldsplat.core.scenario import load_preset
@@ -14,6 +15,7 @@ from worldsplat.gaussians.objects import (
     SPILL_SIGMAS,
     AgentTrack,
     ObjectBuilder,
+    PointCells,
     _box_pixels,
     _box_rects,
     _near_rects,
@@ -27,6 +29,8 @@ from worldsplat.gaussians.objects import (
     claim_reach,
     lift_in_boxes,
     narrow_before_boxes,
+    ray_bounds,
+    within,
 )
 from worldsplat.gaussians.types import Gaussians
 
@@ -553,3 +557,32 @@ def test_the_sky_shell_is_never_claimed_for_an_agent():
                              [[0.0, 0.0], [0.0, 1.0]])  # fmt: skip
     out = _builder(tr, claim_moving=True, claim_rays="frame", keep_unboxed=False).claim(0, g)
     assert out.extras[:, 0].tolist() == [1.0, 0.0] and out.extras[:, 1].tolist() == [0.0, 1.0]
+
+
+def test_the_claims_pruned_by_point_cells_claim_exactly_what_projecting_every_gaussian_claims():
+    """`claim_along_rays` with `PointCells` (cubes out of a camera's box pixels or depth not projected) and
+    `within` (one tree query for every camera) take the same Gaussians, bit for bit, as the plain per-camera path,
+    on cameras around and far from a box with Gaussians all about; the cells do leave points out."""
+    tr = _track()
+    rng = np.random.default_rng(3)
+    cams = [rc.at(yaw_pose(x, y, 0.0, yaw)) for x, y, yaw in [(0, 0, 0), (-15, 4, 0.3), (60, 0, 3.1), (5, -30, 1.5)]
+            for rc in default_rig(160, 90)]  # fmt: skip
+    rays = box_rays(cams, [tr], 0)
+    assert len(rays) >= 3
+    pts = rng.uniform(-1, 1, (6000, 3)) * [80.0, 60.0, 6.0] + [10.0, 0.0, 2.0]
+    n = len(pts)
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * n, [[0.05] * 3] * n, [0.9] * n, [[0.5] * 3] * n, [[0.0]] * n)
+    plain = claim_along_rays(g, rays).extras[:, 0].numpy()
+    cells = PointCells(pts)
+    fast = claim_along_rays(g, [(*r, ray_bounds(*r)) for r in rays], cells=cells).extras[:, 0].numpy()
+    assert 0 < (plain > 0).sum() < n
+    assert np.array_equal(plain, fast)
+    assert np.array_equal(plain, claim_along_rays(g, rays, cells=cells).extras[:, 0].numpy())
+    pruned = [cells.rows(cam, rect, far + 1.0) for cam, _, _, (rect, far, _) in [(*r, ray_bounds(*r)) for r in rays]]
+    assert any(r is not None and 1 < len(r) < n for r in pruned)
+    tree = cKDTree(pts)
+    centres = np.array([c.position for c in cams] + [[300.0, 0.0, 2.0], [0.0, 95.0, 2.0]])
+    reach = rng.uniform(0.2, 40.0, len(centres))
+    each = [np.isfinite(tree.query(c, distance_upper_bound=r)[0]) for c, r in zip(centres, reach, strict=True)]
+    assert within(tree, centres, reach).tolist() == each
+    assert 0 < sum(each) < len(centres)

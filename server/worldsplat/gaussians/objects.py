@@ -321,31 +321,135 @@ def claim_reach(
     return zmax * math.sqrt(1.0 + tx * tx + ty * ty)
 
 
+# A camera's projection of a frame's Gaussians is computed only for those in cubes of PRUNE_CELL_M (metres) whose
+# bounds can reach the region the camera's test looks at (`PointCells.rows`): a long clip's keyframe cameras see a
+# frame's Gaussians mostly from afar or aside. The test itself is unchanged, on fewer points.
+PRUNE_CELL_M = 6.0
+
+
+class PointCells:
+    """Points (N,3) grouped into cubes of `size` metres, each with its points' exact bounds, to find the points a
+    camera's pixel rect and depth range can hold without projecting them all."""
+
+    def __init__(self, p: np.ndarray, size: float = PRUNE_CELL_M):
+        self.n = len(p)
+        if not self.n:
+            self.order, self.starts = np.zeros(0, np.int64), np.zeros(1, np.int64)
+            self.centre, self.half = np.zeros((0, 3)), np.zeros((0, 3))
+            return
+        keys = np.floor(p / size).astype(np.int64)
+        keys -= keys.min(0)
+        span = keys.max(0) + 1
+        flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+        self.order = np.argsort(flat, kind="stable")
+        sorted_keys = flat[self.order]
+        first = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
+        self.starts = np.r_[first, self.n]
+        ps = p[self.order]
+        lo, hi = np.minimum.reduceat(ps, first, axis=0), np.maximum.reduceat(ps, first, axis=0)
+        self.centre, self.half = (lo + hi) / 2, (hi - lo) / 2
+
+    def rows(self, camera, rect: tuple, zmax: float, zmin: float = -math.inf) -> np.ndarray | None:
+        """Sorted indices of the points in the cubes that may hold a point with camera depth in (max(zmin, 0), zmax)
+        projecting (pixel floor) into rect (row0, row1, col0, col1), with a pixel and a millimetre to spare (a
+        superset: the caller's own test decides); None for all of them. Never a single one: numpy projects a single
+        row by another path than a matrix's rows, a last bit apart (a subset of two or more rows projects as they
+        do in the whole)."""
+        r0, r1, c0, c1 = (float(x) for x in rect)
+        if not self.n or r1 <= r0 or c1 <= c0 or zmax <= max(zmin, 0.0):
+            return np.zeros(0, np.int64)
+        w2c = camera.world_to_camera
+        rot, tr = w2c[:3, :3], w2c[:3, 3]
+        # each test a linear function of camera (x, y, z), >= 0 where a point may pass; its largest value over a cube
+        # is at the centre plus the extent times |a|
+        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+        tests = [
+            ([0.0, 0.0, 1.0], -max(zmin, 0.0) + 1e-3),  # z > zmin (and before the camera)
+            ([fx, 0.0, cx - (c0 - 1.0)], 0.0),  # u >= c0
+            ([-fx, 0.0, (c1 + 1.0) - cx], 0.0),  # u < c1
+            ([0.0, fy, cy - (r0 - 1.0)], 0.0),  # v >= r0
+            ([0.0, -fy, (r1 + 1.0) - cy], 0.0),  # v < r1
+        ]
+        if math.isfinite(zmax):
+            tests.append(([0.0, 0.0, -1.0], zmax + 1e-3))  # z < zmax
+        keep = np.ones(len(self.centre), bool)
+        for a, b in tests:
+            aw = np.asarray(a) @ rot  # world coefficients
+            top = self.centre @ aw + np.abs(self.half) @ np.abs(aw) + (float(np.asarray(a) @ tr) + b)
+            keep &= top >= -1e-6 * (1.0 + np.abs(top))
+        if keep.all():
+            return None
+        cells = np.flatnonzero(keep)
+        if not len(cells):
+            return np.zeros(0, np.int64)
+        begin, length = self.starts[cells], self.starts[cells + 1] - self.starts[cells]
+        if int(length.sum()) == 1:
+            return None
+        at = np.repeat(begin - np.r_[0, np.cumsum(length)[:-1]], length) + np.arange(int(length.sum()))
+        return np.sort(self.order[at])
+
+
+def ray_bounds(camera, owner: np.ndarray, far: np.ndarray) -> tuple[tuple, float, np.ndarray]:
+    """The pixel rect (row0, row1, col0, col1) holding a `box_rays` camera's box pixels, the farthest depth where
+    one of their rays leaves a box, and the camera's centre."""
+    hit = owner >= 0
+    rows, cols = np.flatnonzero(hit.any(1)), np.flatnonzero(hit.any(0))
+    if not len(rows):
+        return (0, 0, 0, 0), float(far.max()), camera.position
+    return (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1), float(far.max()), camera.position
+
+
+def within(tree: cKDTree, points: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(K,) bool: whether `tree` has a point within reach[k] of points[k], as `tree.query(points[k],
+    distance_upper_bound=reach[k])` finds one, in one query for all (a distance within a hair of its reach asks
+    that query)."""
+    if not len(points):
+        return np.zeros(0, bool)
+    reach = np.asarray(reach, np.float64)
+    d = tree.query(points, distance_upper_bound=float(reach.max()) * (1 + 1e-6) + 1e-6)[0]
+    out = d < reach
+    close = np.isfinite(d) & (np.abs(d - reach) <= 1e-9 * np.maximum(reach, 1.0))
+    for k in np.flatnonzero(close):
+        out[k] = np.isfinite(tree.query(points[k], distance_upper_bound=float(reach[k]))[0])
+    return out
+
+
 def claim_along_rays(
     g: Gaussians,
     rays: list[tuple],
     tol_m: float = CLAIM_RAY_TOL_M,
     tol_share: float = CLAIM_RAY_TOL_SHARE,
     tree: cKDTree | None = None,
+    cells: PointCells | None = None,
 ) -> Gaussians:
     """A learned mode's Gaussians (scene frame) with those made dynamic that a camera of `rays` (`box_rays`) sees on
     a ray through an agent's box, before it or within tol_m (or tol_share of the depth, if more) behind where the
     ray leaves it. A decoded depth is blurred over an agent's edge and often far off on a small agent, so the
     model's agent lies before and behind its box (and, seen from another camera, before the box); left in the
-    scene, it covers the object. Road before a box is never on a ray through it."""
+    scene, it covers the object. Road before a box is never on a ray through it. `cells`: `PointCells` of the same
+    means, whose cubes out of a camera's boxes' pixels or depth are not projected (each ray tuple may carry its
+    `ray_bounds` fourth). Each Gaussian's test is the same either way."""
     if not len(g) or not rays:
         return g
     p = g.means.detach().double().cpu().numpy()
     take = np.zeros(len(p), bool)
     tree = cKDTree(p) if tree is None else tree  # `tree`: the caller's of the same means
-    for camera, owner, far in rays:
-        # a camera with no Gaussian within its claim reach claims none (a long clip's far frames): skipped before
-        # projecting every Gaussian
-        reach = claim_reach(camera, float(far.max()), tol_m, tol_share)
-        if not np.isfinite(tree.query(camera.position, distance_upper_bound=reach)[0]):
+    bounds = [r[3] if len(r) > 3 else ray_bounds(*r[:3]) for r in rays]
+    # a camera with no Gaussian within its claim reach claims none (a long clip's far frames): skipped before
+    # projecting every Gaussian
+    reach = [claim_reach(r[0], b[1], tol_m, tol_share) for r, b in zip(rays, bounds, strict=True)]
+    near = within(tree, np.array([b[2] for b in bounds]), np.array(reach))
+    for (camera, owner, far, *_), (rect, far_max, _), ok in zip(rays, bounds, near, strict=True):
+        if not ok:
             continue
+        sub, q = None, p
+        if cells is not None:
+            sub = cells.rows(camera, rect, far_max + float(claim_tolerance(far_max, tol_m, tol_share)))
+            if sub is not None and not len(sub):
+                continue
+            q = p if sub is None else p[sub]
         w2c = camera.world_to_camera
-        pc = p @ w2c[:3, :3].T + w2c[:3, 3]
+        pc = q @ w2c[:3, :3].T + w2c[:3, 3]
         z = pc[:, 2]
         rows = np.flatnonzero(z > 1e-3)
         u = np.floor(pc[rows, 0] / z[rows] * camera.fx + camera.cx).astype(np.int64)
@@ -353,7 +457,8 @@ def claim_along_rays(
         inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
         rows, u, v = rows[inside], u[inside], v[inside]
         hi = far[v, u]
-        take[rows[z[rows] < hi + claim_tolerance(hi, tol_m, tol_share)]] = True
+        rows = rows[z[rows] < hi + claim_tolerance(hi, tol_m, tol_share)]
+        take[rows if sub is None else sub[rows]] = True
     if not take.any():
         return g
     extras = torch.zeros(len(g), 1, dtype=g.means.dtype) if g.extras is None else g.extras.clone()
@@ -624,6 +729,8 @@ class ObjectBuilder:
         self.standing_cams = cams if claim_rays and standing else []
         self.standing_far = np.array([_farthest_corner(c.position, standing) for c in self.standing_cams])
         self._standing_cache: dict[int, tuple | None] = {}
+        self._standing_pos: np.ndarray | None = None  # the cameras' centres and claim reaches, once
+        self._standing_reach = np.zeros(0)
         self._standing_rects: dict[int, np.ndarray] = {}  # each camera's `_box_rects`, once
         # `narrow_spill`: static Gaussians before a moving box narrowed (`narrow_before_boxes`) as every drawn
         # frame's cameras see that frame's boxes; each camera's rays computed when first needed
@@ -685,8 +792,9 @@ class ObjectBuilder:
         return self._claim_rays_and_spill(t, g, shield)
 
     def _claim_rays_and_spill(self, t: int, g: Gaussians, shield: tuple | None) -> Gaussians:
-        tree = cKDTree(g.means.detach().double().cpu().numpy()) if len(g) else None
-        claimed = self._claim_rays(t, g, tree)
+        p = g.means.detach().double().cpu().numpy()
+        tree, cells = (cKDTree(p), PointCells(p)) if len(g) else (None, None)
+        claimed = self._claim_rays(t, g, tree, cells)
         if shield is not None and claimed is not g:
             keep = torch.from_numpy(pixels_of(g, *shield))
             if bool(keep.any()):
@@ -697,16 +805,20 @@ class ObjectBuilder:
             claimed = narrow_before_boxes(claimed, self._spill_rays(tree, claimed))
         return claimed
 
-    def _claim_rays(self, t: int, g: Gaussians, tree: cKDTree | None) -> Gaussians:
+    def _claim_rays(self, t: int, g: Gaussians, tree: cKDTree | None, cells: PointCells | None) -> Gaussians:
         key = -1 if self.claim_rays == "clip" else t
         if self._rays_key != key:  # the boxes as every frame's (or frame t's) cameras see them
             moving = [tr for tr in self.claimed if not tr.standing]
             frames = self.ray_frames if key == -1 else [t]
-            self._rays = [r for f in frames for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)]
+            self._rays = [
+                (*r, ray_bounds(*r))
+                for f in frames
+                for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)
+            ]
             self._rays_key = key
         if tree is None:
             return g
-        return claim_along_rays(g, self._rays + self._standing_rays(tree), tree=tree)
+        return claim_along_rays(g, self._rays + self._standing_rays(tree, cells), tree=tree, cells=cells)
 
     def _spill_rays(self, tree: cKDTree, g: Gaussians) -> list[tuple]:
         """The moving boxes' rays (`box_rays`, with `box_edges`) of every drawn frame's cameras that have a Gaussian
@@ -764,26 +876,43 @@ class ObjectBuilder:
                 reach.append(float(np.linalg.norm(corners - cam.position, axis=1).max()))
         return frames, cams, np.array(reach), centres
 
-    def _standing_rays(self, tree: cKDTree) -> list[tuple]:
+    @staticmethod
+    def _near_points(tree: cKDTree, cells: PointCells | None, cam, rects: np.ndarray) -> np.ndarray:
+        """The points of `tree` that `_near_rects(cam, ..., rects, math.inf, claim_tolerance)` can find near a rect:
+        those in the `cells` cubes that reach the rects' pixel bounds before their farthest depth plus its
+        tolerance (all without `cells`)."""
+        if cells is None or not len(rects):
+            return tree.data
+        zmax = float((rects[:, 5] + claim_tolerance(rects[:, 5])).max())
+        rect = (rects[:, 0].min(), rects[:, 1].max(), rects[:, 2].min(), rects[:, 3].max())
+        rows = cells.rows(cam, rect, zmax)
+        return tree.data if rows is None else tree.data[rows]
+
+    def _standing_rays(self, tree: cKDTree, cells: PointCells | None = None) -> list[tuple]:
         """The standing boxes' rays (`box_rays`) of the cameras that may claim one of the Gaussians in `tree`: those
         with a Gaussian within `claim_reach` of the boxes' farthest corner (a ray leaves a box before it), each
         camera's rays computed once."""
         out = []
-        for i, cam in enumerate(self.standing_cams):
-            if not np.isfinite(
-                tree.query(cam.position, distance_upper_bound=claim_reach(cam, self.standing_far[i]))[0]
-            ):
-                continue
+        if self._standing_pos is None:
+            self._standing_pos = np.array([c.position for c in self.standing_cams]).reshape(-1, 3)
+            self._standing_reach = np.array([claim_reach(c, f) for c, f in zip(self.standing_cams, self.standing_far)])
+        near = within(tree, self._standing_pos, self._standing_reach)
+        for i in np.flatnonzero(near):
+            cam = self.standing_cams[i]
             # a Gaussian `claim_along_rays` could take lies in a box's pixel rect, before its far side's tolerance
             if i not in self._standing_rects:
                 self._standing_rects[i] = _box_rects(cam, self.standing, 0)
             if i not in self._standing_cache and not _near_rects(
-                cam, tree.data, self._standing_rects[i], math.inf, claim_tolerance
+                cam,
+                self._near_points(tree, cells, cam, self._standing_rects[i]),
+                self._standing_rects[i],
+                math.inf,
+                claim_tolerance,
             ):
                 continue
             if i not in self._standing_cache:
                 r = box_rays([cam], self.standing, 0)
-                self._standing_cache[i] = r[0] if r else None
+                self._standing_cache[i] = (*r[0], ray_bounds(*r[0])) if r else None
             if self._standing_cache[i] is not None:
                 out.append(self._standing_cache[i])
         return out

@@ -128,12 +128,15 @@ def lifted_frame(rig, ego: np.ndarray, rgb, depth, dyn, shift: float, fit_iters:
     return np.stack([v.rgb for v in views]), np.stack([v.alpha for v in views])
 
 
-def fit_static(scene: Scene4D, targets: dict[int, np.ndarray], iters: int = STATIC_FIT_ITERS) -> Scene4D:
+def fit_static(
+    scene: Scene4D, targets: dict[int, np.ndarray], iters: int = STATIC_FIT_ITERS, ridge: float = 0.0
+) -> Scene4D:
     """`scene` with its static Gaussians' colours in [0, 1] fitted so that its renders at frame t's rig cameras are
     nearest `targets[t]` (V,H,W,3 in [0,1]) in squared error, all frames and views at once (one colour per
     Gaussian; `iters` FISTA steps as `lift.fit_colours`). Only the static Gaussians' weights are fitted, each pixel's target scaled
     by their share of its weights (the dynamic set's and the objects' bleed left as it renders); a static Gaussian
-    that reaches no pixel keeps its colour. The dynamic sets and objects are the scene's own."""
+    that reaches no pixel keeps its colour; `ridge` x the squared distance to its own colour is added (as the
+    lifting's `FIT_RIDGE`). The dynamic sets and objects are the scene's own."""
     from scipy.sparse import csr_matrix, vstack  # noqa: PLC0415 - heavy, needed by the fit only
 
     n = len(scene.static)
@@ -153,7 +156,7 @@ def fit_static(scene: Scene4D, targets: dict[int, np.ndarray], iters: int = STAT
         return scene
     W = vstack(blocks).tocsr()
     c0 = scene.static.colors.detach().cpu().numpy().astype(np.float64)
-    x, _ = solve_colours(W, np.concatenate(rhs), c0, iters)
+    x, _ = solve_colours(W, np.concatenate(rhs), c0, iters, ridge)
     s = scene.static
     colours = torch.as_tensor(x, dtype=s.colors.dtype, device=s.colors.device)
     static = Gaussians(s.means, s.quats, s.scales, s.opacities, colours, s.extras)

@@ -22,6 +22,7 @@ from worldsplat.gaussians.objects import (
     agent_tracks,
     assign_to_boxes,
     box_depths,
+    box_edges,
     box_rays,
     box_to_world,
     claim_along_rays,
@@ -30,6 +31,7 @@ from worldsplat.gaussians.objects import (
     lift_in_boxes,
     narrow_before_boxes,
     ray_bounds,
+    spill_bounds,
     within,
 )
 from worldsplat.gaussians.types import Gaussians
@@ -586,3 +588,56 @@ def test_the_claims_pruned_by_point_cells_claim_exactly_what_projecting_every_ga
     each = [np.isfinite(tree.query(c, distance_upper_bound=r)[0]) for c, r in zip(centres, reach, strict=True)]
     assert within(tree, centres, reach).tolist() == each
     assert 0 < sum(each) < len(centres)
+
+
+def test_the_spill_narrowing_pruned_by_point_cells_narrows_exactly_as_projecting_every_gaussian():
+    """`narrow_before_boxes` with `PointCells` (cubes out of reach of a camera's box pixels not projected) narrows
+    the same Gaussians by the same factors, bit for bit, as without; some are narrowed and the cells leave some out."""
+    tr = _track()
+    rng = np.random.default_rng(5)
+    cams = [rc.at(yaw_pose(x, y, 0.0, yaw)) for x, y, yaw in [(0, 0, 0), (-15, 4, 0.3), (60, 0, 3.1)]
+            for rc in default_rig(160, 90)]  # fmt: skip
+    rays = box_rays(cams, [tr], 0)
+    pts = rng.uniform(-1, 1, (6000, 3)) * [80.0, 60.0, 3.0] + [10.0, 0.0, 0.5]
+    n = len(pts)
+    sc = rng.uniform(0.05, 0.8, (n, 3))
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * n, sc, [0.9] * n, [[0.5] * 3] * n, [[0.0]] * n)
+    plain = narrow_before_boxes(g, rays).scales
+    cells = PointCells(pts)
+    with_bounds = [(*r, box_edges(r[1]), spill_bounds(r[1], r[2])) for r in rays]
+    fast = narrow_before_boxes(g, with_bounds, cells=cells).scales
+    assert not torch.equal(plain, g.scales)
+    assert torch.equal(plain, fast)
+    assert torch.equal(plain, narrow_before_boxes(g, rays, cells=cells).scales)
+    pad = cells.pad(SPILL_SIGMAS * sc.max(1))
+    pruned = [cells.rows(r[0], b[0], b[1], b[2] - SPILL_BEFORE_M, pad) for *r, _, b in with_bounds]
+    assert any(x is not None and 1 < len(x) < n for x in pruned)
+
+
+def test_the_builders_claims_with_point_cells_are_those_without(monkeypatch):
+    """`ObjectBuilder`'s claims (the standing and moving boxes' rays of every frame's cameras, the spill narrowing)
+    pick their cameras with `PointCells` and `within`; without cells every camera is tried on every Gaussian. Same
+    extras and scales, bit for bit, frame by frame; something is claimed and narrowed."""
+    import worldsplat.gaussians.objects as objects_module
+
+    moving = _track()
+    parked = AgentTrack(8, 12, SIZE, np.stack([box_to_world(14.0, -5.0, 0.4, SIZE[2])] * T), np.ones(T, bool),
+                        standing=True)  # fmt: skip
+    ego = np.stack([yaw_pose(3.0 * t, 0.0, 0.0, 0.0) for t in range(T)])
+    rng = np.random.default_rng(9)
+    pts = rng.uniform(-1, 1, (5000, 3)) * [40.0, 30.0, 3.0] + [12.0, 0.0, 0.8]
+    n = len(pts)
+    sc = rng.uniform(0.05, 0.6, (n, 3))
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * n, sc, [0.9] * n, [[0.5] * 3] * n, [[0.0]] * n)
+
+    def run():
+        b = ObjectBuilder([moving, parked], default_rig(160, 90), ego, claim_moving=True, claim_rays="clip",
+                          narrow_spill=True)  # fmt: skip
+        return [b.claim(t, g) for t in range(T)]
+
+    fast = run()
+    monkeypatch.setattr(objects_module, "PointCells", lambda p: None)
+    plain = run()
+    for f, p in zip(fast, plain, strict=True):
+        assert torch.equal(f.extras, p.extras) and torch.equal(f.scales, p.scales)
+    assert (plain[0].extras[:, 0] > 0).any() and not torch.equal(plain[0].scales, g.scales)

@@ -349,34 +349,73 @@ class PointCells:
         lo, hi = np.minimum.reduceat(ps, first, axis=0), np.maximum.reduceat(ps, first, axis=0)
         self.centre, self.half = (lo + hi) / 2, (hi - lo) / 2
 
-    def rows(self, camera, rect: tuple, zmax: float, zmin: float = -math.inf) -> np.ndarray | None:
+    def pad(self, per_point: np.ndarray) -> np.ndarray:
+        """Each cube's largest of `per_point` (N,)."""
+        return np.maximum.reduceat(per_point[self.order], self.starts[:-1]) if self.n else np.zeros(0)
+
+    @staticmethod
+    def _tests(camera, rect: tuple, zmax: float, zmin: float) -> tuple | None:
+        """`rows`' tests, each a linear function of world (x, y, z), >= 0 where a point may pass: (6,3) coefficients,
+        (6,) constants, the camera's larger focal length; None where nothing can pass."""
+        r0, r1, c0, c1 = (float(x) for x in rect)
+        if r1 <= r0 or c1 <= c0 or zmax <= max(zmin, 0.0):
+            return None
+        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+        a = np.array([
+            [0.0, 0.0, 1.0],  # z > zmin (and before the camera)
+            [fx, 0.0, cx - (c0 - 2.0)],  # u >= c0
+            [-fx, 0.0, (c1 + 2.0) - cx],  # u < c1
+            [0.0, fy, cy - (r0 - 2.0)],  # v >= r0
+            [0.0, -fy, (r1 + 2.0) - cy],  # v < r1
+            [0.0, 0.0, -1.0],  # z < zmax
+        ])  # fmt: skip
+        b = np.array([-max(zmin, 0.0) + 1e-3, 0.0, 0.0, 0.0, 0.0, zmax + 1e-3])
+        if not math.isfinite(zmax):
+            a[5], b[5] = 0.0, 1.0
+        w2c = camera.world_to_camera
+        return a @ w2c[:3, :3], a @ w2c[:3, 3] + b, max(fx, fy)
+
+    def _tops(self, a: np.ndarray, b: np.ndarray, f: np.ndarray, pad: np.ndarray | None) -> np.ndarray:
+        """(C,K,6): each cube's largest value of K cameras' tests (`_tests`: a (K,6,3), b (K,6), f (K,)): at the
+        centre plus the extent times |a|; the pixel tests grown by the cube's `pad` footprint
+        (u >= c0 - pad f / z: fx x + (cx - c0) z + pad f >= 0)."""
+        top = np.einsum("cj,ktj->ckt", self.centre, a) + np.einsum("cj,ktj->ckt", self.half, np.abs(a)) + b[None]
+        if pad is not None:
+            top[:, :, 1:5] += pad[:, None, None] * f[None, :, None]
+        return top
+
+    def reachable(self, items: list[tuple], pad: np.ndarray | None = None) -> np.ndarray:
+        """(K,) bool per (camera, rect, zmax, zmin) of `items`: whether `rows` can find a point (False: it finds
+        none), for all at once."""
+        out = np.zeros(len(items), bool)
+        tests = [self._tests(*it) for it in items]
+        live = [k for k, t in enumerate(tests) if t is not None]
+        if not self.n or not live:
+            return out
+        for i in range(0, len(live), 64):
+            ks = live[i : i + 64]
+            a = np.stack([tests[k][0] for k in ks])
+            b = np.stack([tests[k][1] for k in ks])
+            f = np.array([tests[k][2] for k in ks])
+            top = self._tops(a, b, f, pad)
+            out[ks] = (top >= -1e-6 * (1.0 + np.abs(top))).all(2).any(0)
+        return out
+
+    def rows(
+        self, camera, rect: tuple, zmax: float, zmin: float = -math.inf, pad: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """Sorted indices of the points in the cubes that may hold a point with camera depth in (max(zmin, 0), zmax)
-        projecting (pixel floor) into rect (row0, row1, col0, col1), with a pixel and a millimetre to spare (a
+        projecting (pixel floor) into rect (row0, row1, col0, col1), with two pixels and a millimetre to spare (a
         superset: the caller's own test decides); None for all of them. Never a single one: numpy projects a single
         row by another path than a matrix's rows, a last bit apart (a subset of two or more rows projects as they
-        do in the whole)."""
-        r0, r1, c0, c1 = (float(x) for x in rect)
-        if not self.n or r1 <= r0 or c1 <= c0 or zmax <= max(zmin, 0.0):
+        do in the whole). `pad` (per cube, `pad`): the rect grown by that many metres' footprint at each depth
+        (pad * max(fx, fy) / z pixels) for a cube's points."""
+        tests = self._tests(camera, rect, zmax, zmin)
+        if not self.n or tests is None:
             return np.zeros(0, np.int64)
-        w2c = camera.world_to_camera
-        rot, tr = w2c[:3, :3], w2c[:3, 3]
-        # each test a linear function of camera (x, y, z), >= 0 where a point may pass; its largest value over a cube
-        # is at the centre plus the extent times |a|
-        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
-        tests = [
-            ([0.0, 0.0, 1.0], -max(zmin, 0.0) + 1e-3),  # z > zmin (and before the camera)
-            ([fx, 0.0, cx - (c0 - 1.0)], 0.0),  # u >= c0
-            ([-fx, 0.0, (c1 + 1.0) - cx], 0.0),  # u < c1
-            ([0.0, fy, cy - (r0 - 1.0)], 0.0),  # v >= r0
-            ([0.0, -fy, (r1 + 1.0) - cy], 0.0),  # v < r1
-        ]
-        if math.isfinite(zmax):
-            tests.append(([0.0, 0.0, -1.0], zmax + 1e-3))  # z < zmax
-        keep = np.ones(len(self.centre), bool)
-        for a, b in tests:
-            aw = np.asarray(a) @ rot  # world coefficients
-            top = self.centre @ aw + np.abs(self.half) @ np.abs(aw) + (float(np.asarray(a) @ tr) + b)
-            keep &= top >= -1e-6 * (1.0 + np.abs(top))
+        a, b, f = tests
+        top = self._tops(a[None], b[None], np.array([f]), pad)[:, 0]
+        keep = (top >= -1e-6 * (1.0 + np.abs(top))).all(1)
         if keep.all():
             return None
         cells = np.flatnonzero(keep)
@@ -395,8 +434,8 @@ def ray_bounds(camera, owner: np.ndarray, far: np.ndarray) -> tuple[tuple, float
     hit = owner >= 0
     rows, cols = np.flatnonzero(hit.any(1)), np.flatnonzero(hit.any(0))
     if not len(rows):
-        return (0, 0, 0, 0), float(far.max()), camera.position
-    return (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1), float(far.max()), camera.position
+        return (0, 0, 0, 0), float(far.max()), None if camera is None else camera.position
+    return (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1), float(far.max()), None if camera is None else camera.position
 
 
 def within(tree: cKDTree, points: np.ndarray, reach: np.ndarray) -> np.ndarray:
@@ -439,6 +478,11 @@ def claim_along_rays(
     # projecting every Gaussian
     reach = [claim_reach(r[0], b[1], tol_m, tol_share) for r, b in zip(rays, bounds, strict=True)]
     near = within(tree, np.array([b[2] for b in bounds]), np.array(reach))
+    if cells is not None and near.any():  # and, all at once, those whose box pixels no cube of `cells` reaches
+        ks = np.flatnonzero(near)
+        items = [(rays[k][0], bounds[k][0], bounds[k][1] + float(claim_tolerance(bounds[k][1], tol_m, tol_share)),
+                  -math.inf) for k in ks]  # fmt: skip
+        near[ks] = cells.reachable(items)
     for (camera, owner, far, *_), (rect, far_max, _), ok in zip(rays, bounds, near, strict=True):
         if not ok:
             continue
@@ -493,12 +537,25 @@ def box_edges(owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return distance_transform_edt(owner < 0, return_indices=True)
 
 
-def narrow_before_boxes(g: Gaussians, rays: list[tuple], sigmas: float = SPILL_SIGMAS) -> Gaussians:
+def spill_bounds(owner: np.ndarray, far: np.ndarray) -> tuple[tuple, float, float]:
+    """The pixel rect holding a `box_rays` camera's box pixels (`ray_bounds`), and the farthest and the nearest depth
+    where one of their rays leaves a box."""
+    hit = owner >= 0
+    if not hit.any():
+        return (0, 0, 0, 0), -math.inf, math.inf
+    rect, far_max, _ = ray_bounds(None, owner, far)
+    return rect, far_max, float(far[hit].min())
+
+
+def narrow_before_boxes(
+    g: Gaussians, rays: list[tuple], sigmas: float = SPILL_SIGMAS, cells: PointCells | None = None
+) -> Gaussians:
     """A learned mode's Gaussians (scene frame) with each static one (extras[:, 0] <= DYNAMIC_THRESHOLD) that lies
     before a box (by less than SPILL_BEFORE_M) a camera of `rays` (`box_rays`, each optionally with its `box_edges`
     appended) sees, outside the box's pixels, and whose projected footprint reaches `sigmas` std into them, shrunk
     (all its scales alike) until that reach ends at their edge. Those on a box's pixels are `claim_along_rays`' to
-    take or leave."""
+    take or leave. `cells`: `PointCells` of the same means, whose cubes out of reach of a camera's box pixels or
+    depths are not projected (each ray tuple may carry its `spill_bounds` after its edges); the same result."""
     if not len(g) or not rays:
         return g
     p = g.means.detach().double().cpu().numpy()
@@ -506,14 +563,29 @@ def narrow_before_boxes(g: Gaussians, rays: list[tuple], sigmas: float = SPILL_S
     static = np.ones(len(p), bool) if g.extras is None else g.extras[:, 0].detach().cpu().numpy() <= DYNAMIC_THRESHOLD
     factor = np.ones(len(p))
     widest = scales.max(1)
-    for camera, owner, far, *edges in rays:
-        dist, (ir, ic) = edges[0] if edges else box_edges(owner)
+    pad = None if cells is None else cells.pad(sigmas * widest)
+    bounds = [r[4] if len(r) > 4 else spill_bounds(r[1], r[2]) for r in rays] if cells is not None else []
+    live = np.ones(len(rays), bool)
+    if cells is not None:  # all at once: a camera whose box pixels no cube of `cells` reaches narrows none
+        live = cells.reachable([(r[0], b[0], b[1], b[2] - SPILL_BEFORE_M) for r, b in zip(rays, bounds)], pad)
+    for k, (camera, owner, far, *extra) in enumerate(rays):
+        if not live[k]:
+            continue
+        sub, q = None, p
+        if cells is not None:
+            rect, far_max, far_min = bounds[k]
+            sub = cells.rows(camera, rect, far_max, far_min - SPILL_BEFORE_M, pad)
+            if sub is not None and not len(sub):
+                continue
+            q = p if sub is None else p[sub]
+        dist, (ir, ic) = extra[0] if extra else box_edges(owner)
         w2c = camera.world_to_camera
-        pc = p @ w2c[:3, :3].T + w2c[:3, 3]
+        pc = q @ w2c[:3, :3].T + w2c[:3, 3]
         z = pc[:, 2]
         f = max(camera.fx, camera.fy)
-        reach = sigmas * widest * f / np.maximum(z, 1e-3)  # pixels, an upper bound of the footprint's reach
-        rows = np.flatnonzero(static & (z > 1e-3) & (reach >= 1.0))
+        wq = widest if sub is None else widest[sub]
+        reach = sigmas * wq * f / np.maximum(z, 1e-3)  # pixels, an upper bound of the footprint's reach
+        rows = np.flatnonzero((static if sub is None else static[sub]) & (z > 1e-3) & (reach >= 1.0))
         u = pc[rows, 0] / z[rows] * camera.fx + camera.cx
         v = pc[rows, 1] / z[rows] * camera.fy + camera.cy
         ui, vi = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
@@ -529,18 +601,18 @@ def narrow_before_boxes(g: Gaussians, rays: list[tuple], sigmas: float = SPILL_S
         if not len(rows):
             continue
         # the footprint's std towards the nearest box pixel (its edge half a pixel nearer)
-        zr = z[rows]
+        zr, at = z[rows], rows if sub is None else sub[rows]
         jac = np.zeros((len(rows), 2, 3))
         jac[:, 0, 0], jac[:, 1, 1] = camera.fx / zr, camera.fy / zr
         jac[:, 0, 2], jac[:, 1, 2] = -pc[rows, 0] * camera.fx / zr**2, -pc[rows, 1] * camera.fy / zr**2
-        rot = w2c[:3, :3] @ _rotations(g.quats.detach().double().cpu().numpy()[rows])
-        m = jac @ rot * scales[rows][:, None, :]  # (n,2,3): J R S
+        rot = w2c[:3, :3] @ _rotations(g.quats.detach().double().cpu().numpy()[at])
+        m = jac @ rot * scales[at][:, None, :]  # (n,2,3): J R S
         towards = np.stack([near_c + 0.5 - u, near_r + 0.5 - v], 1)
         towards /= np.maximum(np.linalg.norm(towards, axis=1, keepdims=True), 1e-9)
         std = np.linalg.norm(np.einsum("ni,nij->nj", towards, m), axis=1)
         edge = np.maximum(d - 0.5, 0.5)
         over = sigmas * std > edge
-        np.minimum.at(factor, rows[over], edge[over] / (sigmas * std[over]))
+        np.minimum.at(factor, at[over], edge[over] / (sigmas * std[over]))
     if (factor >= 1.0).all():
         return g
     narrowed = g.scales * torch.from_numpy(factor).to(g.scales.dtype)[:, None]
@@ -737,6 +809,7 @@ class ObjectBuilder:
         self.narrow_spill = narrow_spill
         self._spill_cams: tuple | None = None
         self._spill_cache: dict[int, tuple | None] = {}
+        self._spill_pos: np.ndarray | None = None
         self._spill_rects: dict[int, np.ndarray] = {}
         self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
         for tr in self.tracks:
@@ -802,7 +875,7 @@ class ObjectBuilder:
                 extras[keep] = g.extras[keep] if g.extras is not None else 0.0
                 claimed = Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors, extras)
         if self.narrow_spill and tree is not None:  # the same means as `g`'s
-            claimed = narrow_before_boxes(claimed, self._spill_rays(tree, claimed))
+            claimed = narrow_before_boxes(claimed, self._spill_rays(tree, claimed, cells), cells=cells)
         return claimed
 
     def _claim_rays(self, t: int, g: Gaussians, tree: cKDTree | None, cells: PointCells | None) -> Gaussians:
@@ -820,7 +893,7 @@ class ObjectBuilder:
             return g
         return claim_along_rays(g, self._rays + self._standing_rays(tree, cells), tree=tree, cells=cells)
 
-    def _spill_rays(self, tree: cKDTree, g: Gaussians) -> list[tuple]:
+    def _spill_rays(self, tree: cKDTree, g: Gaussians, cells: PointCells | None = None) -> list[tuple]:
         """The moving boxes' rays (`box_rays`, with `box_edges`) of every drawn frame's cameras that have a Gaussian
         of `tree` (`g`'s means) nearer than the farthest corner of that frame's boxes (a Gaussian narrowed lies
         before a box) and near one of those boxes (`_spill_cameras`)."""
@@ -829,30 +902,75 @@ class ObjectBuilder:
         frames, cams, far, centres = self._spill_cams
         if not cams or not tree.n:
             return []
-        nearest = tree.query(np.array([c.position for c in cams]))[0]
-        near_box = {f: bool((tree.query(c)[0] < r).any()) for f, (c, r) in centres.items()}
+        if self._spill_pos is None:
+            self._spill_pos = np.array([c.position for c in cams])
+        nearest = tree.query(self._spill_pos)[0]
+        near_box: dict[int, bool] = {}  # per frame, asked when first needed
         moving = [tr for tr in self.claimed if not tr.standing]
         static = np.ones(len(g), bool) if g.extras is None else (g.extras[:, 0] <= DYNAMIC_THRESHOLD).cpu().numpy()
         p = tree.data[static]
-        reach = SPILL_SIGMAS * g.scales.detach().double().cpu().numpy()[static].max(1, initial=0.0)
+        widest = g.scales.detach().double().cpu().numpy().max(1, initial=0.0)
+        reach = SPILL_SIGMAS * widest[static]
         out = []
+        cand = []
         for i in np.flatnonzero(nearest < far):
-            if not near_box[frames[i]]:
+            f = frames[i]
+            if f not in near_box:
+                c, r = centres[f]
+                near_box[f] = bool((tree.query(c)[0] < r).any())
+            if not near_box[f]:
                 continue
             # a Gaussian `narrow_before_boxes` could narrow lies less than SPILL_BEFORE_M before a box, with its
             # footprint's reach (pixels) from the box's pixel rect
             if i not in self._spill_rects:
                 self._spill_rects[i] = _box_rects(cams[i], moving, frames[i])
-            if i not in self._spill_cache and not _near_rects(
-                cams[i], p, self._spill_rects[i], SPILL_BEFORE_M, 0.0, reach
-            ):
+            cand.append(i)
+        # the cameras not asked yet, all at once: one whose rects no cube of `cells` reaches finds no point
+        ask = [i for i in cand if i not in self._spill_cache]
+        hopeless = set()
+        pad = None if cells is None else cells.pad(SPILL_SIGMAS * widest)
+        if cells is not None and ask:
+            bounds = [self._spill_bounds(cams[i], self._spill_rects[i]) for i in ask]
+            hopeless = {i for i, ok in zip(ask, cells.reachable(bounds, pad), strict=True) if not ok}
+        for i in cand:
+            if i in hopeless:
                 continue
             if i not in self._spill_cache:
+                pi, ri = self._spill_points(cells, cams[i], self._spill_rects[i], static, p, reach, pad)
+                if not _near_rects(cams[i], pi, self._spill_rects[i], SPILL_BEFORE_M, 0.0, ri):
+                    continue
+            if i not in self._spill_cache:
                 r = box_rays([cams[i]], moving, frames[i])
-                self._spill_cache[i] = (*r[0], box_edges(r[0][1])) if r else None
+                self._spill_cache[i] = (*r[0], box_edges(r[0][1]), spill_bounds(r[0][1], r[0][2])) if r else None
             if self._spill_cache[i] is not None:
                 out.append(self._spill_cache[i])
         return out
+
+    @staticmethod
+    def _spill_points(cells, cam, rects, static, p, reach, pad) -> tuple[np.ndarray, np.ndarray]:
+        """The static points `p` (`static` of the cells' points) and their reaches that `_near_rects(cam, p, rects,
+        SPILL_BEFORE_M, 0.0, reach)` can find near a rect: those in the `cells` cubes that reach the rects' pixel
+        bounds grown by their reach, between the rects' nearest depth less SPILL_BEFORE_M and their farthest (all
+        without `cells`, or where one point alone would be left)."""
+        if cells is None or not len(rects):
+            return p, reach
+        rows = cells.rows(*ObjectBuilder._spill_bounds(cam, rects), pad)
+        if rows is None:
+            return p, reach
+        at = np.cumsum(static) - 1  # each static point's row in `p`
+        rows = at[rows[static[rows]]]
+        if len(rows) == 1:
+            return p, reach
+        return p[rows], reach[rows]
+
+    @staticmethod
+    def _spill_bounds(cam, rects: np.ndarray) -> tuple:
+        """(cam, the rects' pixel bounds, their farthest depth, their nearest less SPILL_BEFORE_M): `PointCells.rows`'
+        arguments for `_spill_points`; nothing where there are no rects (`_near_rects` finds nothing)."""
+        if not len(rects):
+            return cam, (0, 0, 0, 0), -math.inf, -math.inf
+        rect = (rects[:, 0].min(), rects[:, 1].max(), rects[:, 2].min(), rects[:, 3].max())
+        return cam, rect, float(rects[:, 5].max()), float(rects[:, 4].min()) - SPILL_BEFORE_M
 
     def _spill_cameras(self) -> tuple[list[int], list, np.ndarray, dict]:
         """Every drawn frame's cameras where a moving box is present: (their frames, the cameras, each one's
@@ -883,10 +1001,17 @@ class ObjectBuilder:
         tolerance (all without `cells`)."""
         if cells is None or not len(rects):
             return tree.data
-        zmax = float((rects[:, 5] + claim_tolerance(rects[:, 5])).max())
-        rect = (rects[:, 0].min(), rects[:, 1].max(), rects[:, 2].min(), rects[:, 3].max())
-        rows = cells.rows(cam, rect, zmax)
+        rows = cells.rows(*ObjectBuilder._near_bounds(cam, rects))
         return tree.data if rows is None else tree.data[rows]
+
+    @staticmethod
+    def _near_bounds(cam, rects: np.ndarray) -> tuple:
+        """(cam, the rects' pixel bounds, their farthest depth plus its tolerance, -inf): `PointCells.rows`'
+        arguments for `_near_points`; the whole image where there are no rects (`_near_rects` finds nothing)."""
+        if not len(rects):
+            return cam, (0, 0, 0, 0), -math.inf, -math.inf
+        zmax = float((rects[:, 5] + claim_tolerance(rects[:, 5])).max())
+        return cam, (rects[:, 0].min(), rects[:, 1].max(), rects[:, 2].min(), rects[:, 3].max()), zmax, -math.inf
 
     def _standing_rays(self, tree: cKDTree, cells: PointCells | None = None) -> list[tuple]:
         """The standing boxes' rays (`box_rays`) of the cameras that may claim one of the Gaussians in `tree`: those
@@ -896,12 +1021,21 @@ class ObjectBuilder:
         if self._standing_pos is None:
             self._standing_pos = np.array([c.position for c in self.standing_cams]).reshape(-1, 3)
             self._standing_reach = np.array([claim_reach(c, f) for c, f in zip(self.standing_cams, self.standing_far)])
-        near = within(tree, self._standing_pos, self._standing_reach)
-        for i in np.flatnonzero(near):
+        near = np.flatnonzero(within(tree, self._standing_pos, self._standing_reach))
+        for i in near:
+            if i not in self._standing_rects:
+                self._standing_rects[i] = _box_rects(self.standing_cams[i], self.standing, 0)
+        # the cameras not asked yet, all at once: one whose rects no cube of `cells` reaches finds no point
+        ask = [i for i in near if i not in self._standing_cache]
+        hopeless = set()
+        if cells is not None and ask:
+            bounds = [self._near_bounds(self.standing_cams[i], self._standing_rects[i]) for i in ask]
+            hopeless = {i for i, ok in zip(ask, cells.reachable(bounds), strict=True) if not ok}
+        for i in near:
             cam = self.standing_cams[i]
             # a Gaussian `claim_along_rays` could take lies in a box's pixel rect, before its far side's tolerance
-            if i not in self._standing_rects:
-                self._standing_rects[i] = _box_rects(cam, self.standing, 0)
+            if i in hopeless:
+                continue
             if i not in self._standing_cache and not _near_rects(
                 cam,
                 self._near_points(tree, cells, cam, self._standing_rects[i]),

@@ -28,11 +28,11 @@ try {
   }
   // Stack the three shots in one image: a blank page of <img>s, shot whole (no image library needed).
   const sheet = await browser.context.newPage();
-  await sheet.setContent(`<body style="margin:0;background:#000">${shots
-    .map((b) => `<img style="display:block" src="data:image/png;base64,${b}">`).join("")}</body>`);
+  await sheet.setContent(`<body style="margin:0;background:#000"><div id="sheet" style="display:inline-block">${shots
+    .map((b) => `<img style="display:block" src="data:image/png;base64,${b}">`).join("")}</div></body>`);
   await sheet.waitForFunction(() => [...document.images].every((i) => i.complete && i.naturalWidth > 0));
   const out = join(ROOT, "web/docs/img/page_modes.png");
-  await sheet.screenshot({ path: out, fullPage: true });
+  await sheet.locator("#sheet").screenshot({ path: out });
   console.log(`wrote ${out}`);
 } finally {
   await browser.close();

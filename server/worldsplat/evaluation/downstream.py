@@ -465,6 +465,16 @@ def domain_gap(
     }
 
 
+def parse_rows(parser, text: str, known: tuple[str, ...]) -> tuple[str, ...]:
+    """A judge command's `--rows` (comma list): GROUND_TRUTH first, then the named rows; a name not in `known` is a
+    usage error (`parser.error`) that lists the known ones."""
+    rows = (GROUND_TRUTH, *[x.strip() for x in text.split(",") if x.strip()])
+    unknown = [x for x in rows if x not in known]
+    if unknown:
+        parser.error(f"unknown rows {unknown}; rows are {', '.join(r for r in known if r != GROUND_TRUTH)}")
+    return rows
+
+
 def tile_sheet(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
     """The evaluation figures' sheet: rows of uint8 (H, W, 3) tiles (equal heights within a row, equal row widths)
     laid side by side with `gap`-pixel white lines between tiles and between rows."""

@@ -35,7 +35,15 @@ import torch
 
 import worldsplat.pipeline.inference as inference
 import worldsplat.pipeline.scene as scene_module
-from worldsplat.evaluation.downstream import GROUPS, confusion, save_sheet, summary, tile_sheet
+from worldsplat.evaluation.downstream import (
+    GROUND_TRUTH,
+    GROUPS,
+    confusion,
+    parse_rows,
+    save_sheet,
+    summary,
+    tile_sheet,
+)
 from worldsplat.gaussians.lift import FIT_ITERS, lift, solve_colours
 from worldsplat.gaussians.raster import pair_weights, render_view
 from worldsplat.gaussians.types import Gaussians, Scene4D
@@ -47,7 +55,6 @@ from worldsplat.world.dataset import clip_scenario
 from worldsplat_models.judge import load_judge, segment
 from worldsplat_models.weights import weights_dir
 
-GROUND_TRUTH = "ground truth"
 GENERATED = "generated images"
 VAE_WORLD = "world through the VAE"
 ROWS = (
@@ -325,10 +332,7 @@ def main(argv=None) -> int:
     )
     a = p.parse_args(argv)
     ints = lambda x: [int(v) for v in x.split(",")]  # noqa: E731
-    rows = (GROUND_TRUTH, *[x.strip() for x in a.rows.split(",") if x.strip()])
-    unknown = [x for x in rows if x not in ROWS]
-    if unknown:
-        p.error(f"unknown rows {unknown}; rows are {', '.join(ROWS[1:])}")
+    rows = parse_rows(p, a.rows, ROWS)
     shifts = [float(v) for v in a.shifts.split(",")]
     r = measure(ints(a.clips), ints(a.frames), shifts, rows, a.steps, a.png)
     md = markdown(r)

@@ -32,7 +32,16 @@ import numpy as np
 
 import worldsplat.pipeline.scene as scene_module
 from worldsplat.core.scenario import resolve_scenario
-from worldsplat.evaluation.downstream import GROUPS, NUM_CLASSES, confusion, save_sheet, summary, tile_sheet
+from worldsplat.evaluation.downstream import (
+    GROUND_TRUTH,
+    GROUPS,
+    NUM_CLASSES,
+    confusion,
+    parse_rows,
+    save_sheet,
+    summary,
+    tile_sheet,
+)
 from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.raster import aligned_weights, pair_weights, render_view
 from worldsplat.gaussians.types import Gaussians
@@ -43,7 +52,6 @@ from worldsplat.world.dataset import clip_scenario
 from worldsplat_models.judge import load_judge, segment
 from worldsplat_models.weights import weights_dir
 
-GROUND_TRUTH = "ground truth"
 ROWS = (GROUND_TRUTH, "oracle served", "oracle unfitted", "oracle fitted", "frame alone", "frame alone fitted")
 LUMA = np.array([0.299, 0.587, 0.114])
 
@@ -242,10 +250,7 @@ def main(argv=None) -> int:
               f"lift fitted / lift = {c['lift fitted'] / c['lift']:.1f}x")  # fmt: skip
         return 0
     ints = lambda x: [int(v) for v in x.split(",")]  # noqa: E731
-    rows = (GROUND_TRUTH, *[x.strip() for x in a.rows.split(",") if x.strip()])
-    unknown = [x for x in rows if x not in ROWS]
-    if unknown:
-        p.error(f"unknown rows {unknown}; rows are {', '.join(ROWS[1:])}")
+    rows = parse_rows(p, a.rows, ROWS)
     shifts = [float(v) for v in a.shifts.split(",")]
     print(markdown(measure(ints(a.clips), ints(a.frames), shifts, rows, a.png)))
     return 0

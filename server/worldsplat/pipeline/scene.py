@@ -4,8 +4,9 @@
 
 oracle      the world's exact RGB + depth + dynamic masks, lifted pixel-aligned with fitted colours (gaussians.lift) and
             aggregated (paper eq. 3 + economy). Training-free; always available.
-reconstruct ground-truth multi-view video -> VAE encoder -> latent Gaussian decoder (paper §3.5), via
-            `worldsplat.pipeline.inference`; needs shipped weights.
+reconstruct ground-truth multi-view video -> VAE -> its decoding lifted per pixel with fitted colours
+            (`worldsplat.pipeline.inference`, `pipeline.pixels`; the latent Gaussian decoder of paper §3.5 is
+            `gaussians="decoder"`); needs shipped weights.
 generate    world conditions -> 4D-aware DiT -> latent Gaussian decoder; needs shipped weights.
 `progress(stage, fraction)` is called as stages advance; `cancelled()` is checked between stages and frames and
 raises worldsplat.core.errors.Cancelled.

@@ -459,3 +459,62 @@ def test_deferring_first_then_adding_is_adding():
     static, dyn = a.add([0], first, deferred=True)
     assert torch.equal(static.means, ref_static.means) and torch.equal(dyn[0].means, ref_dyn[0].means)
     assert len(ref_static) == 3 and len(ref_dyn[0]) == 1
+
+
+def test_cell_table_keeps_each_key_once_with_its_smallest_scale():
+    """`CellTable.add` inserts into its sorted table: the same table as sorting every key it was ever given."""
+    from worldsplat.gaussians.aggregate import CellTable
+
+    rng = np.random.default_rng(5)
+    table, seen = CellTable(2.0), {}
+    for _ in range(6):
+        keys = rng.integers(-50, 50, 40).astype(np.int64)  # repeats within a call and across calls
+        ls = rng.normal(size=40)
+        table.add(keys, ls)
+        for k, v in zip(keys.tolist(), ls.tolist(), strict=True):
+            seen[k] = min(v, seen.get(k, np.inf))
+    assert table.keys.tolist() == sorted(seen) and table.log_scale.tolist() == [seen[k] for k in sorted(seen)]
+    probe = np.array([-51, -50, 0, 49, 50], np.int64)
+    assert table.holds(probe).tolist() == [k in seen for k in probe.tolist()]
+    assert not CellTable(2.0).holds(probe).any()
+
+
+def test_dropping_what_earlier_windows_emitted_first_then_adding_is_adding():
+    """`WindowAggregator.drop_emitted` (run before the deferral and the object claims) drops the static rows `add`
+    would merge into a cell an earlier window emitted and nothing else: the windows' static sets are the same."""
+    from worldsplat.gaussians.aggregate import WindowAggregator
+
+    T, V = 6, 2
+    rig = default_rig(32, 18, ("CAM_FRONT", "CAM_BACK"))
+    per_view = _views(T, V, 500, 7, dynamic_frac=0.2)
+    for t in range(T):  # a few transparent rows and one beyond the range cut, never counted as merged
+        per_view[t][0].opacities[:5] = 0.001
+        per_view[t][1].means[0] = torch.tensor([500.0, 0.0, 1.0])
+    ego = np.stack([yaw_pose(t * 0.5, 0, 0, 0) for t in range(T)])
+    eco = Economy.for_decoded(1.0)
+
+    def run(early):
+        agg = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32), economy=eco)
+        out, given = [], []
+        for w in ([0, 1], [2, 3], [4, 5]):
+            views = [per_view[t] for t in w]
+            if early:
+                views = agg.drop_emitted(w, views)
+            given.append(sum(len(g) for row in views for g in row))
+            out.append(agg.add(w, views))
+        return out, given, agg.stats
+
+    ref, ref_given, ref_stats = run(False)
+    got, given, stats = run(True)
+    for (rs, rd), (gs, gd) in zip(ref, got, strict=True):
+        assert torch.equal(rs.means, gs.means) and torch.equal(rs.scales, gs.scales)
+        assert torch.equal(rs.colors, gs.colors) and torch.equal(rs.opacities, gs.opacities)
+        assert all(torch.equal(rd[t].means, gd[t].means) for t in rd)
+    assert given[0] == ref_given[0] and given[1] < ref_given[1] and given[2] < ref_given[2]  # the later windows less
+    early = stats.extra.pop("emitted_early")
+    assert early == sum(ref_given) - sum(given) and stats.as_dict() == ref_stats.as_dict()
+    # the finest rule (lifted pixels) keeps no cells of its surfaces: nothing to drop
+    fin = WindowAggregator(np.arange(T) * 0.1, rig, ego, image_size=(18, 32), economy=Economy())
+    fin.add([0, 1], per_view[:2])
+    later = per_view[2:4]
+    assert fin.drop_emitted([2, 3], later) is later

@@ -434,11 +434,25 @@ class CellTable:
         return ~hit | (log_scale < self.log_scale[i] - self.log_finer)
 
     def add(self, keys: np.ndarray, log_scale: np.ndarray) -> None:
-        k, ls = np.concatenate([self.keys, keys]), np.concatenate([self.log_scale, log_scale])
-        order = np.lexsort((ls, k))
-        k, ls = k[order], ls[order]
+        """Each key once, with the smallest log scale it was given. The new keys are sorted and inserted into the
+        sorted table (a long clip's table holds a million keys: re-sorting it every window cost 2.6 s of a
+        200-frame clip with the grid refined 2x)."""
+        keys, log_scale = np.asarray(keys, np.int64), np.asarray(log_scale, np.float64)
+        order = np.lexsort((log_scale, keys))
+        k, ls = keys[order], log_scale[order]
         first = np.r_[True, k[1:] != k[:-1]] if len(k) else np.zeros(0, dtype=bool)
-        self.keys, self.log_scale = k[first], ls[first]
+        k, ls = k[first], ls[first]
+        i = np.searchsorted(self.keys, k)
+        hit = self.keys[np.minimum(i, len(self.keys) - 1)] == k if len(self.keys) else np.zeros(len(k), dtype=bool)
+        self.log_scale[i[hit]] = np.minimum(self.log_scale[i[hit]], ls[hit])
+        self.keys = np.insert(self.keys, i[~hit], k[~hit])
+        self.log_scale = np.insert(self.log_scale, i[~hit], ls[~hit])
+
+    def holds(self, keys: np.ndarray) -> np.ndarray:
+        """Per key: is it in the table."""
+        if not len(self.keys):
+            return np.zeros(len(keys), dtype=bool)
+        return self.keys[np.minimum(np.searchsorted(self.keys, keys), len(self.keys) - 1)] == keys
 
 
 # A later window re-emits a static cell it sees at least this many times finer. Measured (gaussians.md, "Window by
@@ -571,6 +585,56 @@ class WindowAggregator:
         drops = iter(drops)
         return [[g.subset(torch.as_tensor(~d)) if (d := next(drops)).any() else g for g in views] for views in per_view]
 
+    def drop_emitted(self, frames: list[int], per_view: list[list[Gaussians]]) -> list[list[Gaussians]]:
+        """`per_view` less the static rows `add` would merge away into a cell an earlier window emitted (under the
+        "merge" rule with `finer` infinite, every such row: `CellTable`), each row's cell found as `economize` finds
+        it; the rows it would drop as transparent, out of range or not finite, and the dynamic ones, are kept. A
+        caller runs it first where later work costs per Gaussian (the deferral, the object claims: a long clip's
+        windows see much of what the window before them emitted); the static Gaussians `add` returns are the same,
+        as long as a static row the later work makes dynamic is dropped there too (generate's claims)."""
+        eco = self.economy
+        merging = eco.enabled and eco.static_rule == "merge" and self.cells.log_finer == math.inf
+        if not (merging and len(self.cells.keys)):
+            return per_view
+        out, centres, gone = [], self.centres.reshape(-1, 3), 0
+        for t, views in zip(frames, per_view, strict=True):
+            row = []
+            for g in views:
+                drop = self._emitted_rows(transform(g, self.ego_to_world[t]) if self.in_ego_frame else g, centres)
+                if drop.any():
+                    gone += int(drop.sum())
+                    g = g.subset(torch.as_tensor(~drop))
+                row.append(g)
+            out.append(row)
+        st = self.stats  # counted as `add` counts them: given, static, merged away
+        st.lifted += gone
+        st.static_union += gone
+        st.merged_away += gone
+        st.extra["emitted_early"] = st.extra.get("emitted_early", 0) + gone
+        return out
+
+    def _emitted_rows(self, g: Gaussians, centres: np.ndarray) -> np.ndarray:
+        eco = self.economy
+        drop = np.zeros(len(g), dtype=bool)
+        if not len(g):
+            return drop
+        a = {k: v.astype(np.float64) for k, v in g.numpy().items()}
+        rows = _static_rows(g) & _finite_rows(a)
+        opac = np.clip(np.nan_to_num(a["opacities"]), 0, 1)
+        rows &= opac >= max(eco.min_opacity, C.ALPHA_MIN)
+        sky = a["extras"][:, SKY_CHANNEL] > 0.5 if "extras" in a and a["extras"].shape[1] > SKY_CHANNEL else None
+        sky = np.zeros(len(g), dtype=bool) if sky is None else sky
+        at = np.flatnonzero(rows)
+        if not len(at):
+            return drop
+        dist = nearest_distance(a["means"][at], centres)
+        near = (dist <= eco.max_range) | sky[at]
+        at, dist = at[near], dist[near]
+        cell = np.where(sky[at], eco.sky_cell_factor, eco.cell_factor) * np.maximum(dist, 0.1) / self.focal
+        level = np.round(np.log2(cell)).astype(np.int64)
+        drop[at] = self.cells.holds(_cell_keys(a["means"][at], level, sky[at]))
+        return drop
+
     def _other_cameras(self, frames: list[int]) -> tuple[list[list[Camera]], np.ndarray]:
         """The rig's cameras at the clip's frames outside `frames` (earlier and later), one frame each
         DEFER_SAMPLE_M of ego travel on either side, and those frames' ego positions."""
@@ -615,11 +679,19 @@ class WindowAggregator:
                 # (point, other frame) pairs whose ego lies within the point's reach, every frame at once (a frame
                 # view holds a few thousand points and the clip at most a few hundred sampled frames: a per-point
                 # ball query's Python lists cost more than the whole matrix)
-                r = near[rows] + reach
-                within = ((p[rows, None, :] - ego[None, :, :]) ** 2).sum(-1) <= (r * r)[:, None]
+                # |p - e|^2 as |p|^2 + |e|^2 - 2 p.e (one matrix product), the reach grown by a millimetre for its
+                # rounding: the pairs only choose whom to test, and a camera that sees a point `near` lies within
+                # near + reach of its ego
+                r = near[rows] + reach + 1e-3
+                q = p[rows]
+                d2 = (q * q).sum(1)[:, None] + (ego * ego).sum(1)[None, :] - 2.0 * (q @ ego.T)
+                within = d2 <= (r * r)[:, None]
                 for f in np.flatnonzero(within.any(0)):
                     pts = rows[within[:, f]]
                     for c in later[f]:
+                        pts = pts[~drop[pts]]  # a row once dropped stays dropped: not tested again
+                        if not len(pts):
+                            break
                         uv, z = c.project(p[pts])
                         with np.errstate(invalid="ignore"):
                             seen = (z > C.NEAR) & (uv[:, 0] >= 0) & (uv[:, 0] < c.width) & (uv[:, 1] >= 0)

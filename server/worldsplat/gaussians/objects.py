@@ -830,6 +830,11 @@ class ObjectBuilder:
                 self.sourced.add(i)
         self.unsent = set(self.sourced)
 
+    def drops_claimed(self, observed: bool = False) -> bool:
+        """Does a Gaussian the claims make dynamic leave the scene (`add`): no Gaussian in no box is kept, and every
+        agent's object comes from elsewhere (the source; `observed`: the observed pixels)."""
+        return not self.keep_unboxed and (observed or len(self.sourced) == len(self.tracks))
+
     @staticmethod
     def _box_centres(tr: AgentTrack, centres: np.ndarray) -> np.ndarray:
         present = np.flatnonzero(tr.present)

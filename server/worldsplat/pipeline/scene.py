@@ -322,7 +322,10 @@ class _Collect:
         `shields(builder)`: per frame, per view, (camera, the pixels that show an occluder before an agent,
         `objects.occluder_pixels`) whose Gaussians are not claimed along the rays through the boxes."""
         t0 = time.perf_counter()
-        # the deferral first: each Gaussian's own test, and the claims then look at what the window keeps
+        # what an earlier window's cells already hold first, then the deferral (each Gaussian's own test), and the
+        # claims look at what the window keeps; exact where what the claims take leaves the scene
+        if self.objects is None or self.objects.drops_claimed(observed is not None):
+            per_view = self.agg.drop_emitted(frames, per_view)
         per_view = self.agg.defer(frames, per_view)
         if self.objects is not None:
             sh = {} if shields is None else shields(self.objects)

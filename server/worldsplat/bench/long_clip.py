@@ -2,7 +2,8 @@
 of the default preset in generate mode, whose models draw only the keyframes (pipeline.frame_plan) while every frame
 poses the agent objects.
 
-    python -m worldsplat.bench.long_clip [--frames 200] [--fps 10] [--mode generate] [--preset NAME] [--out FILE.json]
+    python -m worldsplat.bench.long_clip [--frames 200] [--fps 10] [--mode generate] [--preset NAME]
+        [--gaussians SOURCE] [--out FILE.json]
 
 Warm: a fresh `worldsplat serve --no-warm` (the default mode's models and caption encoder loaded before it says
 ready) first streams a one-frame clip of the preset, then the long clip (another seed, so nothing is cached),
@@ -11,22 +12,70 @@ the first static chunk (`first_static_s`), frame 0 whole (the first POSE chunk, 
 window's STAT and OBJC chunks come before it, frame 0's DYNA in the same write; `frame0_s`), the whole file
 (`whole_s`); the file's bytes, per frame, per chunk tag, and the
 dynamic bytes (OBJC + POSE + DYNA) per moving agent per frame; the keyframes and windows the scene records. The server
-inherits this process's environment (OMP_NUM_THREADS: run it as `OMP_NUM_THREADS=1 nice -n 10` on a shared machine)."""
+inherits this process's environment (OMP_NUM_THREADS: run it as `OMP_NUM_THREADS=1 nice -n 10` on a shared machine).
+`--gaussians SOURCE`: the server builds the learned mode's scenes from that source of Gaussians
+(`inference.GAUSSIANS`, as `scene_quality --gaussians` does) instead of the one it serves."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
 import httpx
 
-from worldsplat.bench.stream_latency import IDENTITY, _server, chunk_tags
+from worldsplat.bench.stream_latency import IDENTITY, _free_port, _server, chunk_tags
 from worldsplat.core.scenario import default_preset_name, load_preset
 from worldsplat.gaussians import wsplat
 from worldsplat.gaussians.wsplat.objects_bytes import chunk_bytes
+
+# a server whose learned `mode` builds its scenes from another source of Gaussians (`--gaussians`)
+_SERVE_WITH = (
+    "import sys; from worldsplat.pipeline import inference; inference.gaussian_source(sys.argv[1], sys.argv[2]); "
+    "inference.GAUSSIANS[sys.argv[2]] = sys.argv[1]; from worldsplat.cli import main; main(sys.argv[3:])"
+)
+
+
+@contextlib.contextmanager
+def _server_with(gaussians: str, mode: str):
+    """(url, None) of a warm playground server on a fresh cache that builds `mode`'s scenes from `gaussians`."""
+    with tempfile.TemporaryDirectory() as tmp:
+        port = _free_port()
+        args = [
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--cache-dir",
+            str(Path(tmp) / "cache"),
+            "--no-warm",
+        ]
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _SERVE_WITH, gaussians, mode, *args],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        url = f"http://127.0.0.1:{port}"
+        try:
+            end = time.time() + 300
+            while True:
+                try:
+                    if httpx.get(f"{url}/api/health", timeout=2).json()["ready"]:
+                        break
+                except (httpx.HTTPError, ValueError):
+                    if time.time() > end or proc.poll() is not None:
+                        raise RuntimeError("worldsplat serve did not become ready") from None
+                    time.sleep(0.2)
+            yield url, None
+        finally:
+            proc.terminate()
+            proc.wait(30)
 
 
 def stream_scene(url: str, scenario: dict, mode: str) -> dict:
@@ -85,14 +134,17 @@ def main(argv=None) -> None:
     ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--mode", default="generate")
     ap.add_argument("--preset", default=default_preset_name())
+    ap.add_argument("--gaussians", default=None, help="the learned mode's source of Gaussians (default: as served)")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     base = load_preset(a.preset)
-    with _server(preload=True) as (url, _):
+    with _server(preload=True) if a.gaussians is None else _server_with(a.gaussians, a.mode) as (url, _):
         warm = base.with_updates(seed=base.seed + 1, clip={"frames": 1, "fps": base.clip.fps})
         stream_scene(url, warm.model_dump(mode="json"), a.mode)
         long = base.with_updates(seed=base.seed + 2, clip={"frames": a.frames, "fps": a.fps})
         row = {"preset": a.preset, "mode": a.mode, "fps": a.fps, "server": "warm"}
+        if a.gaussians is not None:
+            row["gaussians"] = a.gaussians
         row.update(summary(stream_scene(url, long.model_dump(mode="json"), a.mode)))
     print(json.dumps(row), flush=True)
     if a.out:

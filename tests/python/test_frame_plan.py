@@ -178,17 +178,22 @@ def test_the_long_clip_bench_reads_the_streamed_file_back():
 
 def test_the_long_clip_bench_serves_another_source_of_gaussians_when_asked():
     """`long_clip --gaussians`: the server's process sets the learned mode's source before the CLI starts, and a
-    source the pipeline does not know stops it before it serves anything."""
+    source the pipeline does not know stops it before it serves anything; `process_cpu_s` (the server's CPU seconds
+    over the clip) grows with the CPU a process spends."""
+    import os
     import subprocess
     import sys
 
-    from worldsplat.bench.long_clip import _SERVE_WITH
+    from worldsplat.bench.long_clip import _SERVE_WITH, process_cpu_s
 
     show = _SERVE_WITH.replace("from worldsplat.cli import main; main(sys.argv[3:])", "print(inference.GAUSSIANS)")
     out = subprocess.run([sys.executable, "-c", show, "decoder2x", "generate"], capture_output=True, text=True)
     assert out.returncode == 0 and "'generate': 'decoder2x'" in out.stdout
     bad = subprocess.run([sys.executable, "-c", _SERVE_WITH, "decoder3x", "generate", "--help"], capture_output=True)
     assert bad.returncode != 0 and b"decoder3x" in bad.stderr
+    spent = process_cpu_s(os.getpid())
+    sum(i * i for i in range(2_000_000))  # some CPU of its own
+    assert spent is not None and process_cpu_s(os.getpid()) > spent > 0
 
 
 def test_the_nearest_camera_distance_is_exact_over_a_long_clips_cameras():

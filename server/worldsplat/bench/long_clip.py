@@ -14,7 +14,8 @@ window's STAT and OBJC chunks come before it, frame 0's DYNA in the same write; 
 dynamic bytes (OBJC + POSE + DYNA) per moving agent per frame; the keyframes and windows the scene records. The server
 inherits this process's environment (OMP_NUM_THREADS: run it as `OMP_NUM_THREADS=1 nice -n 10` on a shared machine).
 `--gaussians SOURCE`: the server builds the learned mode's scenes from that source of Gaussians
-(`inference.GAUSSIANS`, as `scene_quality --gaussians` does) instead of the one it serves."""
+(`inference.GAUSSIANS`, as `scene_quality --gaussians` does) instead of the one it serves, and the row has the
+server's CPU seconds over the long clip (`server_cpu_s`, Linux)."""
 
 from __future__ import annotations
 
@@ -44,7 +45,8 @@ _SERVE_WITH = (
 
 @contextlib.contextmanager
 def _server_with(gaussians: str, mode: str):
-    """(url, None) of a warm playground server on a fresh cache that builds `mode`'s scenes from `gaussians`."""
+    """(url, its process) of a warm playground server on a fresh cache that builds `mode`'s scenes from
+    `gaussians`."""
     with tempfile.TemporaryDirectory() as tmp:
         port = _free_port()
         args = [
@@ -72,10 +74,20 @@ def _server_with(gaussians: str, mode: str):
                     if time.time() > end or proc.poll() is not None:
                         raise RuntimeError("worldsplat serve did not become ready") from None
                     time.sleep(0.2)
-            yield url, None
+            yield url, proc
         finally:
             proc.terminate()
             proc.wait(30)
+
+
+def process_cpu_s(pid: int) -> float | None:
+    """CPU seconds (user + system, all its threads) process `pid` has used so far (Linux /proc; None elsewhere): on a
+    shared machine the server's CPU time over a clip varies less than its wall time."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def stream_scene(url: str, scenario: dict, mode: str) -> dict:
@@ -138,14 +150,18 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     base = load_preset(a.preset)
-    with _server(preload=True) if a.gaussians is None else _server_with(a.gaussians, a.mode) as (url, _):
+    with _server(preload=True) if a.gaussians is None else _server_with(a.gaussians, a.mode) as (url, handle):
+        proc = handle if a.gaussians is not None else None  # `_server`'s is its scratch folder
         warm = base.with_updates(seed=base.seed + 1, clip={"frames": 1, "fps": base.clip.fps})
         stream_scene(url, warm.model_dump(mode="json"), a.mode)
         long = base.with_updates(seed=base.seed + 2, clip={"frames": a.frames, "fps": a.fps})
         row = {"preset": a.preset, "mode": a.mode, "fps": a.fps, "server": "warm"}
         if a.gaussians is not None:
             row["gaussians"] = a.gaussians
+        cpu0 = None if proc is None else process_cpu_s(proc.pid)
         row.update(summary(stream_scene(url, long.model_dump(mode="json"), a.mode)))
+        if cpu0 is not None and (cpu1 := process_cpu_s(proc.pid)) is not None:
+            row["server_cpu_s"] = round(cpu1 - cpu0, 1)
     print(json.dumps(row), flush=True)
     if a.out:
         a.out.write_text(json.dumps(row, indent=1) + "\n")

@@ -102,6 +102,8 @@ def stream_scene(url: str, scenario: dict, mode: str) -> dict:
         s.raise_for_status()
         for piece in s.iter_raw():
             buf += piece
+            if "frame0_s" in row:
+                continue  # both milestones seen: the framing is not parsed again (a client on the server's cores)
             tags = chunk_tags(buf)
             if "STAT" in tags:
                 row.setdefault("first_static_s", time.monotonic() - t0)

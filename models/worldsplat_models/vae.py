@@ -120,9 +120,12 @@ class MultiModalVAE(nn.Module):
         self.register_buffer("latent_std", torch.ones(n))
 
     # --- single modality (B, 3, H, W) in [-1, 1] <-> (B, c, H/8, W/8) -----------------------------------------
+    # The convolutions run in channels-last layout: on CPU (oneDNN) encode / decode take 0.64 / 0.69 of their time in
+    # the default layout at 112x200 (one thread), agreeing within 1e-5; results come back contiguous.
     def encode_dist(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         self._check_image(x)
-        mean, logvar = self.encoder(x).chunk(2, dim=1)
+        h = self.encoder(x.contiguous(memory_format=torch.channels_last)).contiguous()
+        mean, logvar = h.chunk(2, dim=1)
         return mean, logvar.clamp(*LOGVAR_RANGE)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
@@ -130,7 +133,7 @@ class MultiModalVAE(nn.Module):
         return self.encode_dist(x)[0]
 
     def decode(self, z: torch.Tensor) -> torch.Tensor:
-        return self.decoder(z)
+        return self.decoder(z.contiguous(memory_format=torch.channels_last)).contiguous()
 
     def forward(self, x: torch.Tensor, generator: torch.Generator | None = None):
         """Training pass: reconstruction, KL term per element."""

@@ -50,3 +50,25 @@ def test_joint_fit_raises_the_rig_over_the_served_scene(one_clip):
     # the static colours fitted to every frame's images at once: the rig's images are the fit's targets
     assert r["oracle_joint_psnr"] > r["oracle_psnr"] + 1.0
     assert r["model_joint_psnr"] > r["model_psnr"]
+
+
+def test_observed_clips_make_the_scenes_scored_at_the_data_image(one_clip, tmp_path):
+    """`--observed`: the scenes are made from the same clip at the playground's 200x112 image and scored at --data's
+    cameras and images (the oracle lifted from either scores within a dB or two there: the same world, aligned); a
+    dataset of other clips is refused by name."""
+    from worldsplat.evaluation.models import eval_reconstruct
+    from worldsplat.training.data import ShardDataset
+    from worldsplat.world.dataset import write_dataset
+
+    models, ds = one_clip
+    write_dataset(tmp_path / "served", "test", 1, width=200, height=112, progress=False)
+    observed = ShardDataset(tmp_path / "served", "test", models.data.max_boxes)
+    kw = dict(frames=(1,), shifts=(0.0, 2.0), model=False, oracle=True)
+    at_data = eval_reconstruct(models, ds, 1, **kw)
+    at_served = eval_reconstruct(models, ds, 1, observed=observed, **kw)
+    for sh in ("0.0", "2.0"):
+        a, b = at_data[sh]["oracle_psnr"], at_served[sh]["oracle_psnr"]
+        assert a != b and abs(a - b) < 2.0, (sh, a, b)
+    write_dataset(tmp_path / "other", "val", 1, width=200, height=112, progress=False)
+    with pytest.raises(ValueError, match="observed clip 0 is not --data's clip 0"):
+        eval_reconstruct(models, ds, 1, observed=ShardDataset(tmp_path / "other", "val", models.data.max_boxes), **kw)

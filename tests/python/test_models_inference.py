@@ -91,8 +91,27 @@ def test_reconstruct_is_deterministic_and_resamples_input_size(models):
     big.rgb = clip.rgb.repeat(2, axis=2).repeat(2, axis=3)
     big.depth = clip.depth.repeat(2, axis=2).repeat(2, axis=3)
     big.dynamic = clip.dynamic.repeat(2, axis=2).repeat(2, axis=3)
-    c = inf.reconstruct(big, models)  # 2x input resolution is area-resampled to the trained size
-    assert torch.allclose(c.latents, a.latents, atol=1e-4)
+    # the latent decoder reads latents of the trained size: 2x input is area-resampled to it
+    c, a2 = inf.reconstruct(big, models, gaussians="decoder"), inf.reconstruct(clip, models, gaussians="decoder")
+    assert torch.allclose(c.latents, a2.latents, atol=1e-4)
+    # lifted pixels (served) run the VAE at the clip's own image: twice the latents per side, and no resampling at all
+    # at the trained size
+    d = CFG.data
+    served = inf.reconstruct(big, models)
+    ds = models.vae.cfg.downsample
+    assert served.latents.shape[-2:] == (2 * d.height // ds, 2 * d.width // ds)
+    assert served.model_width == 2 * d.width
+    assert torch.allclose(a.latents, a2.latents, atol=1e-6)
+
+
+def test_reconstruct_size_keeps_the_clip_image_within_the_cap(models):
+    ds = models.vae.cfg.downsample
+    assert inf.reconstruct_size(models, (12 * ds, 20 * ds)) == (12 * ds, 20 * ds)  # within the cap: as it is
+    assert inf.reconstruct_size(models, (7 * ds + 1, 12 * ds + 3)) == (7 * ds, 12 * ds)  # rounded down to ds
+    h, w = inf.reconstruct_size(models, (900, 1600))
+    assert h % ds == 0 and w % ds == 0 and h * w <= inf.RECONSTRUCT_MAX_PIXELS
+    assert abs(w / h - 1600 / 900) < 0.1 and h * w > 0.9 * inf.RECONSTRUCT_MAX_PIXELS
+    assert inf.reconstruct_size(models, (2, 3)) == (ds, ds)  # never under one latent
 
 
 def test_generate_seed_steps_and_errors(models):
@@ -193,6 +212,14 @@ def test_onnx_backend_reconstruct_and_generate_match_torch(models, onnx_dir):
     a, b = inf.reconstruct(clip, models), inf.reconstruct(clip, ort_models)
     assert torch.allclose(a.latents, b.latents, atol=ox.PARITY_ATOL)
     assert torch.allclose(a.frame(1).means, b.frame(1).means, atol=1e-2)
+    # the VAE's graphs take any image size: reconstruct runs them at a clip's own (here 2x the trained) image
+    big = SimpleNamespace(**vars(clip))
+    big.rgb, big.depth, big.dynamic = (
+        x.repeat(2, axis=2).repeat(2, axis=3) for x in (clip.rgb, clip.depth, clip.dynamic)
+    )
+    a, b = inf.reconstruct(big, models), inf.reconstruct(big, ort_models)
+    assert a.latents.shape[-1] == 2 * CFG.data.width // models.vae.cfg.downsample
+    assert torch.allclose(a.latents, b.latents, atol=ox.PARITY_ATOL)
     boxes = [[{"corners": s["box_corners"][t, k], "cls": 12, "moving": True} for k in range(2)] for t in range(2)]
     cond = {"sketch": s["sketch"], "boxes": boxes, "ego_traj": clip.ego_to_world, "caption": "x"}
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -131,11 +132,14 @@ def eval_reconstruct(
     model: bool = True,
     gaussians: str | None = None,
     joint: bool = False,
+    observed: ShardDataset | None = None,
 ) -> dict:
     """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips. `gaussians`: "pixels" or
     "decoder" (None: served, `inference.GAUSSIANS`). `joint`: also each scene with its static colours fitted jointly
     to every frame's images it was made from (`generate_gap.fit_static`: the VAE's decoding for the model, the exact
-    images for the oracle), rows "model_joint" / "oracle_joint"."""
+    images for the oracle), rows "model_joint" / "oracle_joint". `observed`: the same clips at the image the product
+    observes (a dataset of the same split and seeds at another size): the scenes are made from them and rendered at
+    `ds`'s image, as the playground reconstructs its served 200x112 clip."""
     from worldsplat.evaluation.generate_gap import fit_static  # noqa: PLC0415 - the joint part only
 
     names = ["model", "oracle", "model_joint", "oracle_joint"]
@@ -145,18 +149,22 @@ def eval_reconstruct(
         by_shift = {0.0: base}
         for s in ds.shifted(i):
             by_shift[float(s["shift_m"])] = s
-        rig = rig_of(base)
+        src = base if observed is None else observed[i]
+        if observed is not None and (src["ego_to_world"].shape != base["ego_to_world"].shape
+                                     or not np.allclose(src["ego_to_world"], base["ego_to_world"])):  # fmt: skip
+            raise ValueError(f"observed clip {i} is not --data's clip {i} (another split, seed or length)")
+        rig = rig_of(src)
         scenes = {}
         if model:
-            dec = reconstruct(clip_view(base, rig), models, gaussians)
+            dec = reconstruct(clip_view(src, rig), models, gaussians)
             scenes["model"] = to_scene4d(dec)
             if joint:
                 vae_rgb = (pixel_guide(models, dec.latents)[:, :, :3].detach().permute(0, 1, 3, 4, 2).double() + 1) / 2
                 scenes["model_joint"] = fit_static(scenes["model"], dict(enumerate(vae_rgb.clamp(0, 1).numpy())))
         if oracle:
-            scenes["oracle"] = oracle_scene(clip_view(base, rig))
+            scenes["oracle"] = oracle_scene(clip_view(src, rig))
             if joint:
-                exact = np.asarray(base["rgb"], np.float64) / 255.0
+                exact = np.asarray(src["rgb"], np.float64) / 255.0
                 scenes["oracle_joint"] = fit_static(scenes["oracle"], dict(enumerate(exact)))
         T, V = base["rgb"].shape[:2]
         for sh in shifts:
@@ -166,7 +174,9 @@ def eval_reconstruct(
             for name, sc in scenes.items():
                 pv, sv = [], []
                 fs = list(frames or range(T))
-                track = render_scene_track(sc, sh, frames=fs).rgb
+                # at --data's own cameras (the rig's focal length follows the image width, so another image's
+                # cameras resized would not be these)
+                track = render_scene_track(dataclasses.replace(sc, rig=rig_of(base)), sh, frames=fs).rgb
                 for i, t in enumerate(fs):
                     for v in range(V):
                         img, tgt = _img(track[i, v]), _img(gt["rgb"][t, v])
@@ -565,6 +575,13 @@ def main(argv=None) -> int:
         "--snap-log-tol", type=float, default=None, help="generate: the ground snap's tolerance (default: served)"
     )
     p.add_argument("--frames", default="1,2", help="frames rendered per clip in the reconstruct/generate parts")
+    p.add_argument(
+        "--observed",
+        type=Path,
+        default=None,
+        help="reconstruct / oracle: make the scenes from this dataset's clips (the same split and seeds at the image "
+        "the product observes, e.g. `worldsplat dataset --width 200 --height 112`) and score them at --data's image",
+    )
     p.add_argument("--figure", type=Path, default=None, help="also write the qualitative PNG of test clip 0")
     p.add_argument(
         "--sampler-shifts",
@@ -593,6 +610,7 @@ def main(argv=None) -> int:
             oracle="oracle" in parts,
             joint="joint" in parts,
             gaussians=a.gaussians,
+            observed=None if a.observed is None else ShardDataset(a.observed, a.split, models.data.max_boxes),
         )
         prev = out.get("reconstruct", {})
         for sh, row in r.items():  # merge, so the oracle and the model can run separately

@@ -21,7 +21,8 @@ decoder's grid (served in generate); "decoder2x" / "decoder4x": that grid refine
 (`pipeline.pixels`; served in reconstruct); "pixels_decoder_depth": the same at the latent decoder's depth.
 
 The models run at their trained geometry (DataConfig: 64x112 per view, 6 views, 4-frame windows): inputs of other
-sizes are resampled to it (the Gaussians live in world metres, so they render at any resolution), and longer clips
+sizes are resampled to it (the Gaussians live in world metres, so they render at any resolution), except that
+reconstruct's lifted pixels run the convolutional VAE at the clip's own image (`reconstruct_size`), and longer clips
 are processed in consecutive 4-frame windows (the last one padded by repeating its final frame). The rig must have
 the 6 default cameras in order. Deterministic for a given seed; float32 on CPU; `torch.no_grad` throughout.
 """
@@ -320,7 +321,7 @@ def decode_gaussians(
         np.asarray(ego_to_world, np.float64),
         L,
         meta,
-        model_width=d.width,
+        model_width=L.shape[-1] * models.vae.cfg.downsample,
         windows=[sorted(set(w)) for w in wins],
         source=source,
     )
@@ -388,13 +389,31 @@ def _decoder_depth(models: Models, L, rig, ego_to_world, frames, decoder, guide,
 # --- modes -----------------------------------------------------------------------------------------------------------
 
 
+# Reconstruct encodes and decodes its observation at the clip's own image (`reconstruct_size`), not at the model
+# image: the VAE is convolutional and a mode that does not sample is not bound to the DiT's token count. The VAE's
+# round trip of frame 0 against the world's 200x112 images (test:0, test:1, test:2, the default preset): through the
+# 64x112 model image and up-sampled 25.27 / 24.10 / 20.74 / 23.15 dB, at 200x112 28.86 / 28.27 / 22.99 / 24.80 dB,
+# for ~4x the VAE's time (web/docs/models.md, "reconstruct at the served image"). The area is capped (a 1600x900 clip
+# would hold ~1 GB per activation of a window); larger clips are encoded at the largest size within the cap.
+RECONSTRUCT_MAX_PIXELS = 200 * 112
+
+
+def reconstruct_size(models: Models, hw: tuple[int, int]) -> tuple[int, int]:
+    """The image (H, W) reconstruct runs the VAE at for a clip of image `hw`: the clip's own, scaled down to at most
+    RECONSTRUCT_MAX_PIXELS, each side a multiple of the VAE's down-sampling (at least one latent)."""
+    ds = models.vae.cfg.downsample
+    s = min(1.0, (RECONSTRUCT_MAX_PIXELS / (hw[0] * hw[1])) ** 0.5)
+    return tuple(max(ds, int(n * s) // ds * ds) for n in hw)
+
+
 @torch.no_grad()
-def encode_clip(models: Models, rgb, depth, dynamic) -> torch.Tensor:
-    """(T,V,H,W,3) uint8, (T,V,H,W) metres, (T,V,H,W) bool -> normalised L (T,V,C,h,w) at the native size."""
+def encode_clip(models: Models, rgb, depth, dynamic, size: tuple[int, int] | None = None) -> torch.Tensor:
+    """(T,V,H,W,3) uint8, (T,V,H,W) metres, (T,V,H,W) bool -> normalised L (T,V,C,h,w), the images resampled to
+    `size` (H, W; None: the model image, `DataConfig`) first."""
     d = models.data
     rgb = torch.as_tensor(np.asarray(rgb))
     T, V = rgb.shape[:2]
-    hw = (d.height, d.width)
+    hw = (d.height, d.width) if size is None else tuple(size)
     x = _resize(rgb.reshape(T * V, *rgb.shape[2:]).permute(0, 3, 1, 2).float() / 127.5 - 1, hw, "area")
     dn = normalize_depth(torch.as_tensor(np.asarray(depth, np.float32)), d.depth_near, d.depth_far)
     dn = _resize(dn.reshape(T * V, 1, *dn.shape[2:]), hw, "area")
@@ -408,14 +427,17 @@ def encode_clip(models: Models, rgb, depth, dynamic) -> torch.Tensor:
 def reconstruct(clip, models: Models | None = None, gaussians: str | None = None) -> DecodedFrames:
     """Reconstruct mode (paper §3.5): multi-view video + depth + dynamic masks -> VAE encoder -> Gaussians
     (`gaussians`: "pixels" or "decoder", see `decode_gaussians`), bypassing diffusion. The world supplies exact depth
-    and masks where the paper used Metric3D and SegFormer."""
+    and masks where the paper used Metric3D and SegFormer. Lifted pixels ("pixels") run the VAE at the clip's own image
+    (`reconstruct_size`); the latent decoder's sources at the model image it was trained on."""
     models = _require(models, "reconstruct")
     for k in ("rgb", "depth", "dynamic", "rig", "ego_to_world"):
         if getattr(clip, k, None) is None:
             raise ValueError(f"reconstruct: the clip has no {k!r}")
     _check_rig(clip.rig, models.data.views)
+    source = gaussian_source(gaussians, "reconstruct")
+    size = reconstruct_size(models, np.shape(clip.rgb)[2:4]) if source == "pixels" else None
     t0 = time.perf_counter()
-    L = encode_clip(models, clip.rgb, clip.depth, clip.dynamic)
+    L = encode_clip(models, clip.rgb, clip.depth, clip.dynamic, size)
     t1 = time.perf_counter()
     dec = decode_gaussians(
         models,

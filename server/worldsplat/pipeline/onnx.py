@@ -1,8 +1,8 @@
 """ONNX export of the serving graphs and an onnxruntime runner, with parity and speed helpers.
 
-Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V views):
-    vae_encoder   image (N,3,H,W) in [-1,1]                         -> posterior mean (N,c,H/8,W/8)
-    vae_decoder   latent (N,c,h,w)                                  -> image (N,3,H,W)
+Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V views; the VAE's at any N, H, W):
+    vae_encoder   image (N,3,H,W) in [-1,1]                         -> posterior mean (N,c,H/d,W/d), d its down-sampling
+    vae_decoder   latent (N,c,h,w)                                  -> image (N,3,d h,d w)
     dit_step      z, s, box_corners, box_cls, box_moving, box_mask, traj, caption, control, drop -> velocity
     gs_decoder    L (1,T,V,C,h,w), intrinsics (1,T,V,4), cam_to_world (1,T,V,4,4) -> means, quats, scales,
                   opacities, colors, depth, dynamic_logit
@@ -32,7 +32,7 @@ from worldsplat.pipeline.conditions import rig_tensors
 
 PARITY_ATOL = 1e-3
 # Bumped when the exported files change form (not the weights): ensure_exported re-exports a folder stamped otherwise.
-EXPORT_REVISION = "compact-1"
+EXPORT_REVISION = "compact-2"
 GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder", "layout_prior", "gs_decoder_reconstruct")
 # the Gaussian decoder graphs and the Models field each one exports
 DECODER_GRAPHS = {"gs_decoder": "decoder", "gs_decoder_reconstruct": "decoder_reconstruct"}
@@ -193,9 +193,10 @@ def export(models, out_dir: str | Path, kinds=GRAPHS, compact_graphs: bool = Tru
         with atomic_path(path, suffix=".onnx") as tmp, torch.no_grad(), warnings.catch_warnings():
             # the shape checks in the models' forward are constants at the fixed export shapes, as intended
             warnings.simplefilter("ignore", torch.jit.TracerWarning)
+            # the VAE is convolutional: any batch and image size (reconstruct runs it at the clip's own image)
             dyn = {
-                "vae_encoder": {"image": {0: "n"}, "mean": {0: "n"}},
-                "vae_decoder": {"latent": {0: "n"}, "image": {0: "n"}},
+                "vae_encoder": {"image": {0: "n", 2: "H", 3: "W"}, "mean": {0: "n", 2: "h", 3: "w"}},
+                "vae_decoder": {"latent": {0: "n", 2: "h", 3: "w"}, "image": {0: "n", 2: "H", 3: "W"}},
             }.get(kind)
             torch.onnx.export(
                 wrapper(models, kind),

@@ -1,6 +1,7 @@
-"""Pixel-aligned Gaussians of decoded latents: the VAE's decoding of L (colour, depth and dynamic mask at the model
-image) up-sampled to the rig's image and lifted one opaque Gaussian per pixel by the oracle's lifting
-(`gaussians.lift`, the sky on its far shell, colours fitted to the decoded image), so a learned scene holds as many
+"""Pixel-aligned Gaussians of decoded latents: the VAE's decoding of L (colour, depth and dynamic mask at the image
+the VAE ran at: the model image, or reconstruct's clip image) up-sampled to the rig's image where smaller and
+lifted one opaque Gaussian per pixel by the oracle's lifting (`gaussians.lift`, the sky on its far shell, colours
+fitted to the decoded image), so a learned scene holds as many
 Gaussians per served pixel as the oracle's and its footprints tile the surface at any display size (the latent
 decoder's 2x2-model-pixel grid of translucent Gaussians shows as a cell grid; web/docs/models.md, "Served Gaussians
 per mode").

@@ -80,8 +80,9 @@ ORACLE_VERSION = "oracle-7"
 # headings and by the street lights and headlights on them; w16 generate's static Gaussians before a moving agent
 # narrowed off its pixels as every drawn frame's cameras see it (`objects.narrow_before_boxes`); w17 the learned
 # modes' decoded static Gaussians left to the frame that sees their place 1.5x nearer (`Economy.defer_nearer`); w18
-# reconstruct's lifted pixels with fitted colours (`pipeline.pixels.lift_views`, `gaussians.lift.fit_colours`)
-STREAM_VERSION = "w18"
+# reconstruct's lifted pixels with fitted colours (`pipeline.pixels.lift_views`, `gaussians.lift.fit_colours`); w19
+# reconstruct's VAE run at the clip's own image (`inference.reconstruct_size`), the VAE in channels-last layout
+STREAM_VERSION = "w19"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)

@@ -11,7 +11,7 @@ from scipy.sparse import csr_matrix
 from worldsplat.core.camera import Camera
 from worldsplat.core.scenario import load_preset
 from worldsplat.gaussians import lift, raster, rasterize
-from worldsplat.gaussians.lift import FIT_ITERS, fit_colours
+from worldsplat.gaussians.lift import FIT_ITERS, fit_colours, near_edge
 from worldsplat.gaussians.raster import aligned_weights, pair_weights, render_view
 from worldsplat.world import build_world, simulate
 
@@ -155,3 +155,29 @@ def test_fit_keeps_colours_of_gaussians_that_reach_no_pixel():
     g.means = behind
     out = fit_colours(g, cam, rgb / 255.0)
     assert torch.equal(out.colors[:5], g.colors[:5])
+
+
+def test_near_side_of_a_depth_edge_is_narrowed_except_agents():
+    """A bright barrier top before a dark car: lifted at the full footprint the barrier's splats spill over the car's
+    pixels above it; with `edge_footprint` the barrier's edge row is narrowed (only it: the far side, the interior
+    and an agent's own outline keep the full width) and the car renders darker where the world has a hard edge."""
+    W, H = 40, 30
+    cam = Camera(W, H, 30.0, 30.0, W / 2, H / 2, np.eye(4))
+    depth = np.full((H, W), 15.0, np.float32)  # the car, 15 m
+    depth[18:] = 10.0  # the barrier below it, 10 m
+    rgb = np.full((H, W, 3), 30, np.uint8)
+    rgb[18:] = 235
+    edge = near_edge(depth.astype(np.float64))
+    assert edge[18].all() and edge.sum() == W  # the barrier's top row only: the car is the farther side
+    assert near_edge(np.array([[5.0, np.inf]])).tolist() == [[True, False]]  # before the sky too
+    wide, narrow = lift(rgb, depth, None, cam), lift(rgb, depth, None, cam, edge_footprint=0.35)
+    ratio = (narrow.scales[:, 0] / wide.scales[:, 0]).reshape(H, W)
+    assert torch.allclose(ratio[18], torch.full((W,), 0.5, dtype=ratio.dtype))
+    assert torch.equal(ratio[:18], torch.ones_like(ratio[:18])) and torch.equal(ratio[19:], torch.ones_like(ratio[19:]))
+    car_rows = slice(15, 18)  # the car's three rows above the barrier
+    spill = lambda g: float(render_view(g, cam).rgb[car_rows].mean())  # noqa: E731
+    assert spill(narrow) < spill(wide) - 3.0, (spill(narrow), spill(wide))
+    agents = np.zeros((H, W), bool)
+    agents[18:] = True  # the same edge on an agent's outline keeps its width (its object's coverage)
+    kept = lift(rgb, depth, None, cam, edge_footprint=0.35, agents=agents)
+    assert torch.equal(kept.scales, wide.scales)

@@ -1,21 +1,24 @@
 """`evaluation.oracle_gap`: the served lifting forced to a fit setting and restored; the table of a known result."""
 
-import worldsplat.pipeline.scene as scene_module
+import numpy as np
+
+import worldsplat.pipeline.pixels as pixels
 from worldsplat.evaluation import oracle_gap
 from worldsplat.world.classes import CLASS_NAMES
 
 
 def test_lifting_forces_the_fit_and_restores_the_served_lift(monkeypatch):
     calls = []
-    monkeypatch.setattr(oracle_gap, "lift", lambda *a, **k: calls.append(k) or "g")
-    served = scene_module.lift
+    monkeypatch.setattr(pixels, "lift", lambda *a, **k: calls.append(k["fit_iters"]) or "g")
+    one = np.zeros((1, 2, 2))
+    served = pixels.FIT_ITERS
     with oracle_gap.lifting(7):
-        assert scene_module.lift is not served
-        assert scene_module.lift(1, 2, 3, 4, sky=False, fit_iters=0) == "g"
-    assert scene_module.lift is served
-    assert calls == [{"sky": False, "fit_iters": 7}]
+        assert pixels.lift_views(one, one, one, ["camera"]) == ["g"]
+    assert pixels.FIT_ITERS == served
+    pixels.lift_views(one, one, one, ["camera"])
     with oracle_gap.lifting(None):
-        assert scene_module.lift is served
+        pixels.lift_views(one, one, one, ["camera"])
+    assert calls == [7, served, served]
 
 
 def test_markdown_lists_every_row_and_present_class():

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+import worldsplat.pipeline.pixels as pixels_module
 import worldsplat.pipeline.scene as scene_module
 from worldsplat.core.scenario import resolve_scenario
 from worldsplat.evaluation.downstream import (
@@ -58,16 +59,17 @@ LUMA = np.array([0.299, 0.587, 0.114])
 
 @contextlib.contextmanager
 def lifting(fit_iters: int | None):
-    """`pipeline.scene` lifts with `fit_iters` forced (None: as served)."""
+    """The served lifting (`pipeline.pixels.lift_views`: the oracle's and reconstruct's) with `fit_iters` forced
+    (None: as served)."""
     if fit_iters is None:
         yield
         return
-    served = scene_module.lift
-    scene_module.lift = lambda *a, **k: lift(*a, **{**k, "fit_iters": fit_iters})
+    served = pixels_module.FIT_ITERS
+    pixels_module.FIT_ITERS = fit_iters
     try:
         yield
     finally:
-        scene_module.lift = served
+        pixels_module.FIT_ITERS = served
 
 
 def frame_alone(world, t: int, shift: float, fit_iters: int) -> tuple[np.ndarray, np.ndarray]:

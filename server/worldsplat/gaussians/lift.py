@@ -35,6 +35,12 @@ from worldsplat.gaussians.types import Gaussians
 from worldsplat_models.geometry import matrix_to_quaternion
 
 FOOTPRINT = 0.7  # px: splat std relative to the pixel pitch (tuned on the presets, see gaussians.md)
+# A static surface pixel on the near side of a depth edge (a 4-neighbour farther by more than EDGE_DEPTH_RATIO, or
+# sky) is lifted EDGE_FOOTPRINT wide where its caller asks (`lift(edge_footprint=)`): a full-width splat there spills
+# over what lies behind the edge (a barrier's white top over the car behind it) where the world's image has a hard
+# edge. An agent's own outline keeps the full width (narrowed, a small agent's object covered 0.53 of its pixels).
+EDGE_DEPTH_RATIO = 1.25
+EDGE_FOOTPRINT = 0.35
 OPACITY = 0.98
 MAX_DEPTH = 200.0  # m: farther pixels join the sky shell
 SKY_DISTANCE = 300.0  # m along the ray: the sky shell
@@ -67,12 +73,16 @@ def lift(
     sky_distance: float = SKY_DISTANCE,
     thickness: float | None = None,
     fit_iters: int = 0,
+    edge_footprint: float | None = None,
+    agents: np.ndarray | None = None,
 ) -> Gaussians:
     """rgb (H,W,3) uint8 or float in [0,1], depth (H,W) camera z (sky = +inf), dynamic (H,W) bool or None.
     Returns Gaussians in world coordinates with extras[:, 0] = dynamic mask, extras[:, 1] = sky flag.
     `sky=False` drops sky pixels instead of lifting them onto the shell. `thickness`: flatten each surface splat
     onto its surface, this thin across it (`_flatten`); None keeps every splat isotropic. `fit_iters` > 0: the
-    colours fitted so that the render at `camera` reproduces `rgb` (`fit_colours`, that many steps)."""
+    colours fitted so that the render at `camera` reproduces `rgb` (`fit_colours`, that many steps).
+    `edge_footprint`: the std (px) of surface pixels on the near side of a depth edge (`near_edge`), except the
+    `dynamic` and `agents` (H,W bool: an agent's pixels) ones; None: every pixel `footprint` wide."""
     H, W = camera.height, camera.width
     depth = np.asarray(depth, dtype=np.float64)
     if depth.shape != (H, W) or np.asarray(rgb).shape[:2] != (H, W):
@@ -89,7 +99,14 @@ def lift(
     d = np.where(surface, depth, sky_distance / np.linalg.norm(dirs, axis=-1).reshape(H, W))[keep]
     means = origin + d[:, None] * dirs[keep]
     f = np.sqrt(camera.fx * camera.fy)
-    scale = footprint * d / f
+    width = np.full((H, W), footprint)
+    if edge_footprint is not None:
+        narrow = near_edge(np.where(surface, depth, np.inf))
+        for own in (dynamic, agents):
+            if own is not None:
+                narrow &= ~np.asarray(own, dtype=bool)
+        width[narrow] = edge_footprint
+    scale = width[keep] * d / f
     n = len(d)
     dyn = np.zeros(n) if dynamic is None else np.asarray(dynamic, dtype=bool)[keep].astype(np.float64)
     dyn = np.where(is_sky[keep], 0.0, dyn)  # the sky never moves
@@ -118,6 +135,14 @@ def lift(
         return static[rows] & static[own[pix]]
 
     return fit_colours(g, camera, col, fit_iters, fitted, ridge=FIT_RIDGE)
+
+
+def near_edge(depth: np.ndarray, ratio: float = EDGE_DEPTH_RATIO) -> np.ndarray:
+    """(H, W) camera z (+inf: sky or nothing) -> (H, W) bool: finite pixels with a 4-neighbour more than `ratio`
+    times farther (the image border counts as no neighbour)."""
+    p = np.pad(depth, 1, mode="edge")
+    farthest = np.maximum.reduce([p[:-2, 1:-1], p[2:, 1:-1], p[1:-1, :-2], p[1:-1, 2:]])
+    return np.isfinite(depth) & (farthest > ratio * depth)
 
 
 def fit_colours(

@@ -298,10 +298,12 @@ def decode_gaussians(
     pad: bool = True,
     decoder: torch.nn.Module | None = None,
     gaussians: str | None = None,
+    agents: np.ndarray | None = None,
 ) -> DecodedFrames:
     """L (T,V,C,h,w) normalised -> DecodedFrames (window by window; `pad`: see `_windows`). `gaussians`: "pixels"
     (`_lift_pixels`) or "decoder" (None: the one meta["mode"] serves, GAUSSIANS); `decoder`: which Gaussian decoder
-    (default: the one for meta["mode"], `Models.decoder_for`)."""
+    (default: the one for meta["mode"], `Models.decoder_for`); `agents`: lifted pixels' observed agent pixels (T, V,
+    H, W) at the rig's image (`pipeline.pixels.lift_views`)."""
     d = models.data
     T = L.shape[0]
     wins = _windows(T, d.frames, pad)
@@ -309,7 +311,7 @@ def decode_gaussians(
     source = "decoder" if decoder is not None else gaussian_source(gaussians, mode)
     if source in LIFTED:
         dd = models.decoder_for(mode) if source == "pixels_decoder_depth" else None
-        gs, logits = _lift_pixels(models, L, rig, ego_to_world, wins, dd)
+        gs, logits = _lift_pixels(models, L, rig, ego_to_world, wins, dd, agents)
     else:
         refine = DECODER_REFINE[source]
         gs, logits = _decode_grid(models, L, rig, ego_to_world, wins, decoder or models.decoder_for(mode), refine)
@@ -353,10 +355,12 @@ def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder, refine: in
     return gs, logits
 
 
-def _lift_pixels(models: Models, L, rig, ego_to_world, wins, depth_decoder=None) -> tuple[list[list], list[list]]:
+def _lift_pixels(
+    models: Models, L, rig, ego_to_world, wins, depth_decoder=None, agents=None
+) -> tuple[list[list], list[list]]:
     """The VAE's decoding of L, up-sampled to the rig's image, its ground onto the plane (`pixels.snap_to_ground`)
     and lifted per pixel (`pipeline.pixels`): Gaussians [t][v] (H*W each, row-major) and dynamic logits (+-15 from
-    the lifted mask), window by window."""
+    the lifted mask), window by window. `agents`: (T, V, H, W) bool, the observed agents' pixels (`lift_views`)."""
     d, V = models.data, len(rig)
     size = (rig[0].height, rig[0].width)
     gs, logits = [[None] * V for _ in range(L.shape[0])], [[None] * V for _ in range(L.shape[0])]
@@ -368,7 +372,9 @@ def _lift_pixels(models: Models, L, rig, ego_to_world, wins, depth_decoder=None)
             depth = _decoder_depth(models, L, rig, ego_to_world, frames, depth_decoder, guide, size)
         cams = [rig[v].at(ego_to_world[t]) for t in frames for v in range(V)]
         depth = pixels.snap_to_ground(depth, dyn, cams)
-        views = pixels.lift_views(rgb, depth, dyn, cams)
+        views = pixels.lift_views(
+            rgb, depth, dyn, cams, None if agents is None else agents[frames].reshape(depth.shape)
+        )
         for i, t in enumerate(frames):
             for v in range(V):
                 g = views[i * V + v]
@@ -447,6 +453,7 @@ def reconstruct(clip, models: Models | None = None, gaussians: str | None = None
         clip.frame_times,
         {"mode": "reconstruct", "model_version": models.version, "caption": getattr(clip, "caption", "")},
         gaussians=gaussians,
+        agents=pixels.observed_agents(clip),
     )
     dec.meta["timing_s"] = {"vae_encode": t1 - t0, "gs_decoder": time.perf_counter() - t1}
     return dec

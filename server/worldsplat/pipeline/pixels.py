@@ -25,8 +25,9 @@ import torch
 import torch.nn.functional as F
 
 from worldsplat.core.camera import Camera
-from worldsplat.gaussians.lift import FIT_ITERS, MAX_DEPTH, SKY_CHANNEL, lift
+from worldsplat.gaussians.lift import EDGE_FOOTPRINT, FIT_ITERS, MAX_DEPTH, SKY_CHANNEL, lift
 from worldsplat.gaussians.types import Gaussians
+from worldsplat.world.classes import AGENT_CLASSES
 from worldsplat.world.layout_maps import LAYOUT_CHANNELS, LAYOUT_FAR, LAYOUT_NEAR, layout_depth_m
 
 # A decoded depth at or beyond this many metres is sky (lifted onto the sky shell). The VAE decodes the sky, whose
@@ -138,11 +139,42 @@ def snap_to_ground(depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera]
     return out
 
 
-def lift_views(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera]) -> list[Gaussians]:
+def lift_views(
+    rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera], agents: np.ndarray | None = None
+) -> list[Gaussians]:
     """`served_maps` of N views and their N world cameras (at the maps' size) -> one Gaussians per view, one per
     pixel in row-major order (the oracle's lifting: extras[:, 0] dynamic, extras[:, 1] sky; its colours fitted so
-    that each view renders its decoded image back, `lift(fit_iters=FIT_ITERS)`)."""
-    return [lift(rgb[i], depth[i], dynamic[i], cam, fit_iters=FIT_ITERS) for i, cam in enumerate(cameras)]
+    that each view renders its decoded image back, `lift(fit_iters=FIT_ITERS)`; the near side of depth edges
+    EDGE_FOOTPRINT wide except on `agents`, (N, H, W) bool: the observed agents' pixels, or None)."""
+    return [
+        lift(
+            rgb[i],
+            depth[i],
+            dynamic[i],
+            cam,
+            fit_iters=FIT_ITERS,
+            edge_footprint=EDGE_FOOTPRINT,
+            agents=None if agents is None else agents[i],
+        )
+        for i, cam in enumerate(cameras)
+    ]
+
+
+def observed_agents(clip) -> np.ndarray | None:
+    """(T, V, H, W) bool: the pixels a clip's segmentation (`semantic`; the paper's SegFormer) calls an agent; None
+    for a clip without one."""
+    semantic = getattr(clip, "semantic", None)
+    return None if semantic is None else np.isin(np.asarray(semantic), AGENT_CLASSES)
+
+
+def lift_observed(clip, t: int, v: int) -> Gaussians:
+    """The oracle's lifting of an observed view (`world.simulate.Clip`, frame t, view v: exact colour and depth):
+    `lift_views` of it, the agents' pixels from its segmentation."""
+    agents = observed_agents(clip)
+    one = None if agents is None else agents[t, v][None]
+    return lift_views(clip.rgb[t, v][None], clip.depth[t, v][None], clip.dynamic[t, v][None], [clip.camera(t, v)], one)[
+        0
+    ]
 
 
 def settle_sky(g: Gaussians, camera: Camera) -> Gaussians:

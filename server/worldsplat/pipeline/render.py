@@ -19,8 +19,8 @@ import numpy as np
 from worldsplat.core.camera import Camera
 from worldsplat.core.errors import check
 from worldsplat.gaussians import Gaussians, Scene4D
-from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.raster import View, render_view
+from worldsplat.pipeline.pixels import lift_observed
 
 
 @dataclass
@@ -100,14 +100,9 @@ def render_track(
 
 
 def single_frame_gaussians(clip, t: int) -> Gaussians:
-    """Ablation B: 3D Gaussians lifted from frame t's views only (no temporal aggregation), colours fitted as the
-    oracle's (`lift(fit_iters=FIT_ITERS)`)."""
-    return Gaussians.cat(
-        [
-            lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v), fit_iters=FIT_ITERS)
-            for v in range(clip.rgb.shape[1])
-        ]
-    )
+    """Ablation B: 3D Gaussians lifted from frame t's views only (no temporal aggregation) by the oracle's lifting
+    (`pixels.lift_observed`)."""
+    return Gaussians.cat([lift_observed(clip, t, v) for v in range(clip.rgb.shape[1])])
 
 
 def render_single_frame_track(clip, shift_m: float) -> TrackRender:

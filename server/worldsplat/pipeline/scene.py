@@ -36,7 +36,6 @@ from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
-from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.objects import (
     AGENT_MARGIN_M,
     AGENT_MODES,
@@ -51,7 +50,7 @@ from worldsplat.gaussians.objects import (
 )
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.pipeline.frame_plan import FIRST_WINDOW, KEYFRAME_STEP_M, KeyWindow, keyframe_plan
-from worldsplat.pipeline.pixels import served_maps
+from worldsplat.pipeline.pixels import lift_observed, served_maps
 from worldsplat.world import build_world, simulate
 from worldsplat.world.conditions import ego_trajectory
 
@@ -61,8 +60,9 @@ ALL_MODES = ("oracle", "reconstruct", "generate")
 # static surface point wins, unmerged (gaussians.aggregate.finest_observations). 5: every agent in the clip an
 # object, parked ones too (their static pixels claimed for it). 6: an object's Gaussians no wider than a pixel
 # footprint (objects.OBJECT_SCALE_CAP), only the standing agents' boxes claimed. 7: each view's colours fitted so
-# that it renders its own image back at its camera (`lift(fit_iters=FIT_ITERS)`, `gaussians.lift.fit_colours`).
-ORACLE_VERSION = "oracle-7"
+# that it renders its own image back at its camera (`lift(fit_iters=FIT_ITERS)`, `gaussians.lift.fit_colours`). 8: the
+# near side of a depth edge lifted narrower, agents' pixels excepted (`pipeline.pixels.lift_observed`).
+ORACLE_VERSION = "oracle-8"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's
@@ -81,7 +81,8 @@ ORACLE_VERSION = "oracle-7"
 # narrowed off its pixels as every drawn frame's cameras see it (`objects.narrow_before_boxes`); w17 the learned
 # modes' decoded static Gaussians left to the frame that sees their place 1.5x nearer (`Economy.defer_nearer`); w18
 # reconstruct's lifted pixels with fitted colours (`pipeline.pixels.lift_views`, `gaussians.lift.fit_colours`); w19
-# reconstruct's VAE run at the clip's own image (`inference.reconstruct_size`), the VAE in channels-last layout
+# reconstruct's VAE run at the clip's own image (`inference.reconstruct_size`), the VAE in channels-last layout, the
+# near side of a depth edge lifted narrower but on the observed agents' pixels (`pipeline.pixels.lift_views`)
 STREAM_VERSION = "w19"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
@@ -504,12 +505,7 @@ def _lift_clip(clip, prog: Callable[[float], None], cancelled: CancelCheck | Non
     per_view = []
     for t in range(T):
         prog(t / T)
-        per_view.append(
-            [
-                lift(clip.rgb[t, v], clip.depth[t, v], clip.dynamic[t, v], clip.camera(t, v), fit_iters=FIT_ITERS)
-                for v in range(V)
-            ]
-        )
+        per_view.append([lift_observed(clip, t, v) for v in range(V)])
         _check(cancelled)
     return per_view
 

@@ -70,12 +70,12 @@ SIZE = "small"
 # reconstruct's pixels (with the lifted decoding's economy, `Economy.for_lifted_decoding`) are denser, sharper and
 # score above the decoder in PSNR and SSIM; generate's VAE decoding of sampled latents is blotched (the first window's
 # 4 steps worst), which the decoder smooths over (default preset: pixels 13.65 dB / SSIM 0.481, the VAE's colour at
-# the decoder's depth the same, the decoder 15.13 / 0.540); the decoder's grid refined 2x keeps its numbers (test:0-2
-# + the default preset 16.91 dB / 0.481 against 16.88 / 0.479, agents seen 36 of 38 against 37, silhouette IoU 0.835
-# against 0.836) at 2.7x the density (2.20 Gaussians per served px, above the oracle's 1.36) without the cell grid at
-# 2x and 4x, but a 200-frame clip takes 1.28x as long (frame 0 3.54 against 3.00 s, whole 155.9 against 121.6 s at
-# load 1: 4x the static Gaussians through the aggregation and the sink), so generate serves "decoder".
-GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder"}
+# the decoder's depth the same, the decoder 15.13 / 0.540); generate serves the decoder's grid refined 2x: its numbers
+# are the grid's (test:0-2 + the default preset 16.91 dB / 0.481 against 16.88 / 0.479, agents seen 36 of 38 against
+# 37, silhouette IoU 0.835 against 0.836) at 2.7x the density (2.20 Gaussians per served px, above the oracle's 1.36)
+# without the cell grid at 2x and 4x; a 200-frame clip takes 1.14x the grid's time (frame 0 1.03x; 4x the static
+# Gaussians through the aggregation and the sink, `WindowAggregator.drop_emitted` keeping that within the clip's bar).
+GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder2x"}
 GAUSSIAN_SOURCES = ("pixels", "decoder", "decoder2x", "decoder4x", "pixels_decoder_depth")
 # The latent decoder's grid refined r x (`GaussianDecoder.forward(refine=r)`): its raw maps up-sampled bilinearly, the
 # pixel guide read at the finer grid, each cell r x r Gaussians of 1/r the footprint on the decoder's surface.

@@ -82,8 +82,9 @@ ORACLE_VERSION = "oracle-8"
 # modes' decoded static Gaussians left to the frame that sees their place 1.5x nearer (`Economy.defer_nearer`); w18
 # reconstruct's lifted pixels with fitted colours (`pipeline.pixels.lift_views`, `gaussians.lift.fit_colours`); w19
 # reconstruct's VAE run at the clip's own image (`inference.reconstruct_size`), the VAE in channels-last layout, the
-# near side of a depth edge lifted narrower but on the observed agents' pixels (`pipeline.pixels.lift_views`)
-STREAM_VERSION = "w19"
+# near side of a depth edge lifted narrower but on the observed agents' pixels (`pipeline.pixels.lift_views`); w20
+# generate serves the latent decoder's grid refined 2x (`inference.GAUSSIANS`, "decoder2x")
+STREAM_VERSION = "w20"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)

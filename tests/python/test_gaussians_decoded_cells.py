@@ -29,18 +29,18 @@ def test_the_cell_follows_the_model_image_on_the_served_image():
 
 def test_each_mode_serves_its_source_and_economy():
     """reconstruct lifts the VAE's decoding per pixel (finest rule, decoded tolerance, carving); generate serves the
-    latent decoder's grid (merged cells of one model pixel; refined 2x, of half one); an explicit source overrides
-    the mode's."""
+    latent decoder's grid refined 2x (merged cells of half a model pixel; the coarse grid's, of one); an explicit
+    source overrides the mode's."""
     from worldsplat.gaussians.aggregate import FINEST_DEPTH_TOL, LIFTED_DECODED_DEPTH_TOL
     from worldsplat.pipeline.inference import decoded_economy, gaussian_source
 
     assert gaussian_source(None, "reconstruct") == "pixels"
-    assert gaussian_source(None, "generate") == "decoder"
+    assert gaussian_source(None, "generate") == "decoder2x"
     assert gaussian_source("decoder", "reconstruct") == "decoder"
     rec, gen = decoded_economy(112, 200, mode="reconstruct"), decoded_economy(112, 200, mode="generate")
     assert rec.static_rule == "finest" and rec.carve and rec.finest_depth_tol == LIFTED_DECODED_DEPTH_TOL
     assert LIFTED_DECODED_DEPTH_TOL > FINEST_DEPTH_TOL and not Economy().carve
-    assert gen.static_rule == "merge" and gen == decoded_economy(112, 200, "decoder")
-    assert decoded_economy(112, 200, "decoder2x").cell_factor == pytest.approx(gen.cell_factor / 2)
+    assert gen.static_rule == "merge" and gen == decoded_economy(112, 200, "decoder2x")
+    assert decoded_economy(112, 200, "decoder").cell_factor == pytest.approx(2 * gen.cell_factor)
     with pytest.raises(ValueError, match="gaussians"):
         gaussian_source("grid", "generate")

@@ -45,8 +45,7 @@ from worldsplat.evaluation.downstream import (
 )
 from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.raster import aligned_weights, pair_weights, render_view
-from worldsplat.gaussians.types import Gaussians
-from worldsplat.pipeline.render import render_scene_track
+from worldsplat.pipeline.render import render_scene_track, single_frame_gaussians
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import AGENT_CLASSES, CLASS_NAMES, CURB, LANE_MARKING, PALETTE, ROAD, SIDEWALK
 from worldsplat.world.dataset import clip_scenario
@@ -73,15 +72,9 @@ def lifting(fit_iters: int | None):
 
 
 def frame_alone(world, t: int, shift: float, fit_iters: int) -> tuple[np.ndarray, np.ndarray]:
-    """Frame t's six views lifted (nothing else), rendered at frame t's cameras on the track: rgb, alpha (V, H, W)."""
-    clip = simulate(world, 0.0, frames=[t])
-    V = clip.rgb.shape[1]
-    g = Gaussians.cat(
-        [
-            lift(clip.rgb[0, v], clip.depth[0, v], clip.dynamic[0, v], clip.camera(0, v), fit_iters=fit_iters)
-            for v in range(V)
-        ]
-    )
+    """Frame t's six views lifted by the served lifting with `fit_iters` (nothing else), rendered at frame t's cameras on the track: rgb, alpha (V, H, W)."""
+    with lifting(fit_iters):
+        g = single_frame_gaussians(simulate(world, 0.0, frames=[t]), 0)
     views = [render_view(g, rc.at(world.ego_to_world[t], shift)) for rc in world.rig]
     return np.stack([v.rgb for v in views]), np.stack([v.alpha for v in views])
 

@@ -398,9 +398,10 @@ def _decoder_depth(models: Models, L, rig, ego_to_world, frames, decoder, guide,
 # Reconstruct encodes and decodes its observation at the clip's own image (`reconstruct_size`), not at the model
 # image: the VAE is convolutional and a mode that does not sample is not bound to the DiT's token count. The VAE's
 # round trip of frame 0 against the world's 200x112 images (test:0, test:1, test:2, the default preset): through the
-# 64x112 model image and up-sampled 25.27 / 24.10 / 20.74 / 23.15 dB, at 200x112 28.86 / 28.27 / 22.99 / 24.80 dB,
-# for ~4x the VAE's time (web/docs/models.md, "reconstruct at the served image"). The area is capped (a 1600x900 clip
-# would hold ~1 GB per activation of a window); larger clips are encoded at the largest size within the cap.
+# 64x112 model image and up-sampled 25.27 / 24.10 / 20.74 / 23.15 dB, at 200x112 28.86 / 28.27 / 22.99 / 24.80 dB;
+# the default reconstruct scene 1.8x the CPU time (web/docs/models.md, "reconstruct: the VAE at the clip's own
+# image"). The area is capped (a 1600x900 clip would hold ~1 GB per activation of a window); larger clips are encoded
+# at the largest size within the cap.
 RECONSTRUCT_MAX_PIXELS = 200 * 112
 
 

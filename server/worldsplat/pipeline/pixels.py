@@ -1,10 +1,10 @@
 """Pixel-aligned Gaussians of decoded latents: the VAE's decoding of L (colour, depth and dynamic mask at the image
 the VAE ran at: the model image, or reconstruct's clip image) up-sampled to the rig's image where smaller and
 lifted one opaque Gaussian per pixel by the oracle's lifting (`gaussians.lift`, the sky on its far shell, colours
-fitted to the decoded image), so a learned scene holds as many
-Gaussians per served pixel as the oracle's and its footprints tile the surface at any display size (the latent
-decoder's 2x2-model-pixel grid of translucent Gaussians shows as a cell grid; web/docs/models.md, "Served Gaussians
-per mode").
+fitted to the decoded image, the near side of depth edges narrowed), so a learned scene holds as many Gaussians per
+served pixel as the oracle's and its footprints tile the surface at any display size (the latent decoder's
+2x2-model-pixel grid of translucent Gaussians shows as a cell grid; web/docs/models.md, "Served Gaussians per
+mode"). `lift_observed` is the oracle's own lifting of an observed view, the same steps on exact colour and depth.
 
     rgb, depth, dynamic = served_maps(guide, (H, W), near, far)   # guide: inference.pixel_guide, (N, 5, h, w)
     depth = snap_to_ground(depth, dynamic, cameras)               # the road where the frames' decodings agree
@@ -172,9 +172,8 @@ def lift_observed(clip, t: int, v: int) -> Gaussians:
     `lift_views` of it, the agents' pixels from its segmentation."""
     agents = observed_agents(clip)
     one = None if agents is None else agents[t, v][None]
-    return lift_views(clip.rgb[t, v][None], clip.depth[t, v][None], clip.dynamic[t, v][None], [clip.camera(t, v)], one)[
-        0
-    ]
+    (g,) = lift_views(clip.rgb[t, v][None], clip.depth[t, v][None], clip.dynamic[t, v][None], [clip.camera(t, v)], one)
+    return g
 
 
 def settle_sky(g: Gaussians, camera: Camera) -> Gaussians:

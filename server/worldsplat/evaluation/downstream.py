@@ -33,7 +33,8 @@ from worldsplat.pipeline.refine import WEIGHTS as ENHANCER_WEIGHTS
 from worldsplat.pipeline.refine import load_refiner, refine_track
 from worldsplat.pipeline.render import render_scene_track
 from worldsplat.pipeline.scene import generate_scene, model_version
-from worldsplat.training.judge import load_images, shard_files
+from worldsplat.training.data import shard_files
+from worldsplat.training.judge import load_images
 from worldsplat.training.judge_bev import bev_logits, bev_targets, load_bev_data
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import (

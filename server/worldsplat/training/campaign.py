@@ -26,7 +26,7 @@ import torch.nn.functional as F
 
 from worldsplat.core.io import atomic_path
 from worldsplat.core.metrics import depth_abs_rel, iou_counts, pooled_iou, psnr, ssim_map
-from worldsplat.training.data import collate, sample_from_shard, vae_inputs
+from worldsplat.training.data import collate, sample_from_shard, shard_files, vae_inputs
 from worldsplat.training.loop import (
     COND_KEYS,
     decoder_step_fn,
@@ -128,13 +128,6 @@ def warm_start(model: torch.nn.Module, init: Path | None, kind: str) -> torch.nn
         flush=True,
     )
     return model
-
-
-def shard_files(data: Path, split: str, limit: int | None = None) -> list[Path]:
-    files = sorted((Path(data) / split).glob("clip_*.npz"))
-    if not files:
-        raise FileNotFoundError(f"no clip_*.npz shards in {Path(data) / split} (write them with `worldsplat dataset`)")
-    return files[:limit]
 
 
 def load_images(files) -> list[dict]:

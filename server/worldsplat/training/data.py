@@ -144,19 +144,23 @@ def sample_from_shard(z: dict, max_boxes: int, shift_index: int | None = None) -
     }
 
 
+def shard_files(root: str | os.PathLike, split: str, limit: int | None = None) -> list[Path]:
+    """The clip shards `ROOT/<split>/clip_*.npz` in index order (at most `limit`); a clear error when there are none."""
+    folder = Path(root) / split
+    files = sorted(folder.glob("clip_*.npz"))
+    if not files:
+        raise FileNotFoundError(
+            f"no clip_*.npz shards in {folder} (write them with `worldsplat dataset --split {split} --out {root}`)"
+        )
+    return files[:limit] if limit else files
+
+
 class ShardDataset:
     """Clips of `DIR/<split>/clip_*.npz` in index order, read lazily."""
 
     def __init__(self, root: str | os.PathLike, split: str, max_boxes: int = 32, limit: int | None = None):
         self.dir = Path(root) / split
-        if not self.dir.is_dir():
-            raise FileNotFoundError(
-                f"dataset split directory {self.dir} does not exist "
-                f"(make it with `worldsplat dataset --split {split} --out {root}`)"
-            )
-        self.files = sorted(self.dir.glob("clip_*.npz"))[:limit]
-        if not self.files:
-            raise FileNotFoundError(f"no clip_*.npz shards in {self.dir}")
+        self.files = shard_files(root, split, limit)
         self.max_boxes = max_boxes
 
     def __len__(self) -> int:

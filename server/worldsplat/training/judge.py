@@ -21,22 +21,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from worldsplat.training.data import shard_files
 from worldsplat.training.loop import train_loop
 from worldsplat.world.classes import CLASS_NAMES
 from worldsplat_models.configs import TrainConfig
 from worldsplat_models.judge import Judge, JudgeConfig, num_params, save_judge, to_input
 
 NUM_CLASSES = len(CLASS_NAMES)
-
-
-def shard_files(data: Path, split: str, limit: int | None = None) -> list[Path]:
-    """The clip shards of DATA/SPLIT in clip order (at most `limit`)."""
-    files = sorted((Path(data) / split).glob("clip_*.npz"))
-    if not files:
-        raise FileNotFoundError(
-            f"no clips in {Path(data) / split}; write them with `worldsplat dataset --split {split} --out {data}`"
-        )
-    return files[:limit] if limit else files
 
 
 def load_images(data: Path, split: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray]:

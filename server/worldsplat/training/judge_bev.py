@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 
 from worldsplat.core.camera import shifted_ego
-from worldsplat.training.judge import shard_files
+from worldsplat.training.data import shard_files
 from worldsplat.training.loop import train_loop
 from worldsplat.world.conditions import BEV_CHANNELS, BEV_RES, BEV_SIZE, bev_raster
 from worldsplat_models.configs import TrainConfig

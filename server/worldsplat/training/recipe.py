@@ -34,6 +34,7 @@ import torch
 from worldsplat.core.io import atomic_write_bytes, write_json_atomic
 from worldsplat.training import campaign
 from worldsplat.training import stack_stages as st
+from worldsplat.training.data import shard_files
 from worldsplat.training.device_data import (
     Images,
     attach_residuals,
@@ -153,8 +154,8 @@ def make_data(data: Path, size: StackSize, workers: int) -> None:
 
 
 def load_data(data: Path, size: StackSize, device, threads: int) -> tuple:
-    train = load_clips(campaign.shard_files(data, "train", size.clips), threads)
-    test = load_clips(campaign.shard_files(data, "test", size.test_clips), threads)
+    train = load_clips(shard_files(data, "train", size.clips), threads)
+    test = load_clips(shard_files(data, "test", size.test_clips), threads)
     return train, test, Images.of(train, device), Images.of(test, device)
 
 

@@ -1,4 +1,4 @@
-"""`worldsplat serve [--host] [--port] [--cache-dir]`: the playground (page, wasm viewer, API) with uvicorn."""
+"""`worldsplat serve [--host] [--port] [--cache-dir] [--backend]`: the playground (page, wasm viewer, API) with uvicorn."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import os
 from pathlib import Path
 
 from worldsplat.core.paths import cache_dir
+
+BACKENDS = ("auto", "onnx", "torch")  # pipeline.onnx.BACKENDS (not imported here: it imports torch)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -33,6 +35,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="largest scene accepted, in million pixels (frames x cameras x width x height; default 32: "
         "api.state.MAX_SCENE_PIXELS)",
     )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default=os.environ.get("WORLDSPLAT_BACKEND") or "auto",
+        help="how the models run: onnxruntime from models/weights/onnx (onnx), torch eager (torch), or auto: onnx "
+        "where those graphs are current, else torch with a log line (default $WORLDSPLAT_BACKEND or auto)",
+    )
     parser.add_argument("--no-warm", action="store_true", help="do not generate the default scene at start-up")
     parser.add_argument(
         "--no-preload",
@@ -53,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     # browser, other servers) a spinning thread starves its sibling, and one DiT window took 24-30 s instead of
     # 2.5 s (playground.md, "Threads"). Passive waiting, unless the caller chose; read when torch is imported (later).
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    os.environ["WORLDSPLAT_BACKEND"] = args.backend  # read by inference.load_models (pipeline.onnx.BACKEND_ENV)
     if not 1 <= args.port <= 65535:
         raise ValueError(f"--port must be in 1..65535, got {args.port}")
     if args.cache_max_mb <= 0 or args.max_queued <= 0 or not mpix > 0:

@@ -1,6 +1,7 @@
 """ONNX export of the serving graphs and an onnxruntime runner, with parity and speed helpers.
 
-Graphs (fixed shapes of the trained geometry, batch 1 window of T frames x V views; the VAE's at any N, H, W):
+Graphs (shapes of the trained geometry, batch 1 window of T frames x V views; the VAE's at any N, H, W, the DiT
+step's and the layout prior's at any window of t frames: DYNAMIC_AXES):
     vae_encoder   image (N,3,H,W) in [-1,1]                         -> posterior mean (N,c,H/d,W/d), d its down-sampling
     vae_decoder   latent (N,c,h,w)                                  -> image (N,3,d h,d w)
     dit_step      z, s, box_corners, box_cls, box_moving, box_mask, traj, caption, control, drop -> velocity
@@ -19,6 +20,8 @@ about half the bytes of the traced float32 graphs and computes the same numbers 
 
 from __future__ import annotations
 
+import logging
+import os
 import time
 import warnings
 from pathlib import Path
@@ -30,9 +33,10 @@ from worldsplat.core.camera import default_rig
 from worldsplat.core.io import atomic_path, atomic_write_bytes
 from worldsplat.pipeline.conditions import rig_tensors
 
+log = logging.getLogger(__name__)
 PARITY_ATOL = 1e-3
 # Bumped when the exported files change form (not the weights): ensure_exported re-exports a folder stamped otherwise.
-EXPORT_REVISION = "compact-2"
+EXPORT_REVISION = "compact-3"
 GRAPHS = ("vae_encoder", "vae_decoder", "dit_step", "gs_decoder", "layout_prior", "gs_decoder_reconstruct")
 # the Gaussian decoder graphs and the Models field each one exports
 DECODER_GRAPHS = {"gs_decoder": "decoder", "gs_decoder_reconstruct": "decoder_reconstruct"}
@@ -97,6 +101,18 @@ class _GSDec(torch.nn.Module):
 
 
 OUT_KEYS = ("means", "quats", "scales", "opacities", "colors", "depth", "dynamic_logit")
+_T = {1: "t"}
+# The VAE is convolutional: any batch and image size (reconstruct runs it at the clip's own image). The DiT step and
+# the layout prior take a window of any t <= T frames (generate's first window has 1 frame, a clip's last may be
+# short). The Gaussian decoders stay at the exported shapes (their adaptive pooling needs a constant size): other
+# shapes run in torch (`_Served`).
+DYNAMIC_AXES = {
+    "vae_encoder": {"image": {0: "n", 2: "H", 3: "W"}, "mean": {0: "n", 2: "h", 3: "w"}},
+    "vae_decoder": {"latent": {0: "n", 2: "h", 3: "w"}, "image": {0: "n", 2: "H", 3: "W"}},
+    "dit_step": {k: _T for k in ("z", "box_corners", "box_cls", "box_moving", "box_mask", "traj", "control")}
+    | {"velocity": _T},
+    "layout_prior": {"control": _T, "mu": _T},
+}
 
 
 def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -193,11 +209,7 @@ def export(models, out_dir: str | Path, kinds=GRAPHS, compact_graphs: bool = Tru
         with atomic_path(path, suffix=".onnx") as tmp, torch.no_grad(), warnings.catch_warnings():
             # the shape checks in the models' forward are constants at the fixed export shapes, as intended
             warnings.simplefilter("ignore", torch.jit.TracerWarning)
-            # the VAE is convolutional: any batch and image size (reconstruct runs it at the clip's own image)
-            dyn = {
-                "vae_encoder": {"image": {0: "n", 2: "H", 3: "W"}, "mean": {0: "n", 2: "h", 3: "w"}},
-                "vae_decoder": {"latent": {0: "n", 2: "h", 3: "w"}, "image": {0: "n", 2: "H", 3: "W"}},
-            }.get(kind)
+            dyn = DYNAMIC_AXES.get(kind)
             torch.onnx.export(
                 wrapper(models, kind),
                 tuple(inputs.values()),
@@ -268,18 +280,99 @@ def compact(path: str | Path, min_elements: int = 1024) -> dict:
     }
 
 
+# Appended to Models.version by `use_onnx`: the scene cache keys on the version (pipeline.scene.model_version) and
+# onnxruntime's scenes equal torch's within float noise, not bit for bit (a Gaussian or two of ~250,000 fall on the
+# other side of a threshold: web/docs/models.md, "ONNX serving"), so the two backends never share a cached scene.
+ONNX_VERSION_SUFFIX = "-onnx"
+
+
+def weights_version(models) -> str:
+    """The weights' hash (Models.version without the onnx backend's suffix): what onnx/VERSION records."""
+    return models.version.removesuffix(ONNX_VERSION_SUFFIX)
+
+
 def ensure_exported(models, onnx_dir: str | Path | None = None) -> dict[str, Path]:
     """The serving graphs of `models` in onnx_dir (default <weights>/onnx), exported unless onnx/VERSION already
     names these weights' version (a half-written export leaves no VERSION, so it is redone)."""
     onnx_dir = Path(onnx_dir) if onnx_dir is not None else Path(models.weights_dir) / "onnx"
     stamp = onnx_dir / "VERSION"
-    want = f"{models.version} {EXPORT_REVISION}"
+    want = f"{weights_version(models)} {EXPORT_REVISION}"
     if stamp.exists() and stamp.read_text().strip() == want:
         return {k: onnx_dir / f"{k}.onnx" for k in GRAPHS if (onnx_dir / f"{k}.onnx").exists()}
+    if models.version != weights_version(models):
+        raise RuntimeError(
+            f"{onnx_dir}: re-export from the torch models (load_models(backend='torch')), not served ones"
+        )
     stamp.unlink(missing_ok=True)
     paths = export(models, onnx_dir)
     atomic_write_bytes(stamp, (want + "\n").encode())
     return paths
+
+
+# --- which backend serves (inference.load_models) -------------------------------------------------------------------
+
+BACKEND_ENV = "WORLDSPLAT_BACKEND"  # `worldsplat serve --backend` sets it for the server's load_models()
+BACKENDS = ("auto", "onnx", "torch")
+
+
+def requested_backend(backend: str | None = None) -> str:
+    """`backend`, else $WORLDSPLAT_BACKEND, else "auto" (checked against BACKENDS)."""
+    backend = backend or os.environ.get(BACKEND_ENV) or "auto"
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (or ${BACKEND_ENV}), got {backend!r}")
+    return backend
+
+
+def needed_graphs(models) -> list[str]:
+    """The graphs `use_onnx` serves for the models that are loaded."""
+    have = {
+        "vae_encoder": models.vae,
+        "vae_decoder": models.vae,
+        "dit_step": models.dit,
+        "gs_decoder": models.decoder,
+        "layout_prior": getattr(models, "prior", None),
+        "gs_decoder_reconstruct": getattr(models, "decoder_reconstruct", None),
+    }
+    return [k for k in GRAPHS if have[k] is not None]
+
+
+def graphs_state(models, onnx_dir: str | Path | None = None) -> str:
+    """The graphs' state: "current" (onnx/VERSION names these weights and this EXPORT_REVISION, and every needed
+    graph is there), "stale" (a VERSION of other weights or another revision, or a graph missing) or "missing" (no
+    VERSION: never or half exported)."""
+    onnx_dir = Path(onnx_dir) if onnx_dir is not None else Path(models.weights_dir) / "onnx"
+    stamp = onnx_dir / "VERSION"
+    if not stamp.exists():
+        return "missing"
+    if stamp.read_text().strip() != f"{weights_version(models)} {EXPORT_REVISION}":
+        return "stale"
+    return "current" if all((onnx_dir / f"{k}.onnx").exists() for k in needed_graphs(models)) else "stale"
+
+
+def serving_backend(models, onnx_dir: str | Path | None = None) -> str:
+    """load_models' "auto": "onnx" where the graphs are current, or stale and re-exported here (the weights changed
+    since set-up); "torch" where they are missing (set-up's `worldsplat export-onnx` has not run), stale and not
+    writable, or onnxruntime is not installed: then one log line (warning) says so."""
+    onnx_dir = Path(onnx_dir) if onnx_dir is not None else Path(models.weights_dir) / "onnx"
+    if not needed_graphs(models):
+        return "torch"  # no weights: nothing to serve either way
+    why = None
+    try:
+        import onnxruntime  # noqa: F401, PLC0415 - only for the onnx backend
+    except ImportError:
+        why = "onnxruntime is not installed"
+    state = graphs_state(models, onnx_dir) if why is None else None
+    if state == "missing":
+        why = f"no graphs in {onnx_dir} (`worldsplat export-onnx` writes them)"
+    elif state == "stale":
+        try:
+            ensure_exported(models, onnx_dir)
+        except (OSError, ImportError) as e:  # a read-only install, or the onnx package missing
+            why = f"the graphs in {onnx_dir} are not these weights' and could not be re-exported ({e})"
+    if why is None:
+        return "onnx"
+    log.warning("worldsplat: serving the models with torch eager, not onnxruntime: %s", why)
+    return "torch"
 
 
 def session(path: str | Path, threads: int = 2):
@@ -288,6 +381,10 @@ def session(path: str | Path, threads: int = 2):
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1
+    if os.environ.get("OMP_WAIT_POLICY", "").upper() == "PASSIVE":
+        # onnxruntime's own pool waits passively too where torch's does (`worldsplat serve` sets it): on 2 shared
+        # cores a spinning thread starves its sibling (web/docs/playground.md, "Threads")
+        so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
 
 
@@ -338,59 +435,105 @@ def speed_ratio(models, onnx_dir: str | Path, kind: str, repeats: int = 5, threa
 # --- serving with onnxruntime (inference.load_models(backend="onnx")) ------------------------------------------------
 
 
-class OrtDiT:
-    """Callable like DiT4D(z, s, cond) for one 4-frame window, backed by dit_step.onnx."""
+def fits(sess, feed: dict[str, torch.Tensor]) -> bool:
+    """Whether every input of `feed` has the shape the graph was exported at (its fixed dimensions; the VAE's named
+    dynamic ones match anything)."""
+    shapes = {i.name: i.shape for i in sess.get_inputs()}
+    for k, v in feed.items():
+        want = shapes.get(k)
+        if want is None:
+            continue
+        if len(want) != v.dim() or any(isinstance(w, int) and w != n for w, n in zip(want, v.shape)):
+            return False
+    return True
 
-    def __init__(self, torch_dit, sess):
-        self.cfg, self.sess = torch_dit.cfg, sess
+
+class _Served:
+    """A graph served by onnxruntime at the shapes it was exported for (DYNAMIC_AXES) and by the torch module it was
+    traced from at any other: the Gaussian decoders' graphs take one window of the trained T frames, so generate's
+    first window of 1 frame and a clip's short last window decode in torch, as the torch backend does. `ort_calls`
+    and `torch_calls` count which one ran."""
+
+    def __init__(self, torch_module, sess):
+        self.cfg, self.sess, self.torch = torch_module.cfg, sess, torch_module
+        self.ort_calls = self.torch_calls = 0
+
+    def _run(self, feed: dict[str, torch.Tensor]) -> list[torch.Tensor] | None:
+        if not fits(self.sess, feed):
+            self.torch_calls += 1
+            return None
+        self.ort_calls += 1
+        return [torch.from_numpy(o) for o in run_ort(self.sess, feed)]
+
+
+class OrtDiT(_Served):
+    """Callable like DiT4D(z, s, cond), backed by dit_step.onnx (a window of any t <= T frames)."""
 
     def __call__(self, z, s, cond):
+        return self.forward(z, s, cond)  # as a torch module calls its forward (a test may wrap it)
+
+    def forward(self, z, s, cond):
         feed = {
             "z": z.float(),
             "s": s.float().reshape(1),
             **{k: cond[k] for k in _DiTStep.KEYS if k != "drop"},
             "drop": cond.get("drop", torch.tensor([False])),
         }
-        return torch.from_numpy(run_ort(self.sess, feed)[0])
+        out = self._run(feed)
+        return out[0] if out is not None else self.torch(z, s, cond)
 
 
-class OrtPrior:
-    """Callable like LayoutPrior.clip(control, caption) for one window, backed by layout_prior.onnx."""
-
-    def __init__(self, torch_prior, sess):
-        self.cfg, self.sess = torch_prior.cfg, sess
+class OrtPrior(_Served):
+    """Callable like LayoutPrior.clip(control, caption), backed by layout_prior.onnx (a window of any t <= T frames)."""
 
     def clip(self, control, caption):
-        return torch.from_numpy(run_ort(self.sess, {"control": control.float(), "caption": caption.float()})[0])
+        out = self._run({"control": control.float(), "caption": caption.float()})
+        return out[0] if out is not None else self.torch.clip(control, caption)
 
 
-class OrtGSDecoder:
-    """Callable like GaussianDecoder(L, intrinsics, cam_to_world, image_hw), backed by gs_decoder.onnx."""
+class OrtGSDecoder(_Served):
+    """Callable like GaussianDecoder(L, intrinsics, cam_to_world, image_hw), backed by gs_decoder.onnx for a window
+    of T frames at the trained image."""
 
-    def __init__(self, torch_dec, sess):
-        self.cfg, self.sess = torch_dec.cfg, sess
+    def __init__(self, torch_dec, sess, image_hw: tuple[int, int]):
+        super().__init__(torch_dec, sess)
+        self.image_hw = tuple(image_hw)
 
     def __call__(self, L, intrinsics, cam_to_world, image_hw, guide=None):
+        return self.forward(L, intrinsics, cam_to_world, image_hw, guide=guide)
+
+    def forward(self, L, intrinsics, cam_to_world, image_hw, guide=None):
         feed = {"L": L.float(), "intrinsics": intrinsics.float(), "cam_to_world": cam_to_world.float()}
         if guide is not None:
             feed["guide"] = guide.float()
-        out = run_ort(self.sess, feed)
-        return {k: torch.from_numpy(v) for k, v in zip(OUT_KEYS, out)}
+        out = self._run(feed) if tuple(image_hw) == self.image_hw else None
+        if out is None:
+            if tuple(image_hw) != self.image_hw:
+                self.torch_calls += 1
+            return self.torch(L, intrinsics, cam_to_world, image_hw, guide=guide)
+        return dict(zip(OUT_KEYS, out))
 
 
-def use_onnx(models, onnx_dir: str | Path, threads: int = 2):
-    """Swap the VAE's encode/decode, the DiT step and the Gaussian decoder of `models` for onnxruntime sessions
-    (in place; the torch modules keep their configs and latent statistics). Returns models."""
+def use_onnx(models, onnx_dir: str | Path, threads: int | None = None):
+    """Swap the VAE's encode/decode, the DiT step, the Gaussian decoders and the layout prior of `models` for
+    onnxruntime sessions (in place; the torch modules keep their configs and latent statistics and run the shapes
+    the graphs were not exported at). threads: each session's intra-op threads (default torch's own,
+    `torch.get_num_threads()`, so OMP_NUM_THREADS / torch.set_num_threads set both backends). Models.version gets
+    ONNX_VERSION_SUFFIX (the scene cache keeps the backends apart). Returns models."""
     onnx_dir = Path(onnx_dir)
+    threads = threads or torch.get_num_threads()
     if models.vae is not None:
         enc, dec = session(onnx_dir / "vae_encoder.onnx", threads), session(onnx_dir / "vae_decoder.onnx", threads)
         models.vae.encode = lambda x: torch.from_numpy(run_ort(enc, {"image": x.float()})[0])
         models.vae.decode = lambda z: torch.from_numpy(run_ort(dec, {"latent": z.float()})[0])
     if models.dit is not None:
         models.dit = OrtDiT(models.dit, session(onnx_dir / "dit_step.onnx", threads))
+    d = models.data
     for kind, role in DECODER_GRAPHS.items():
         if getattr(models, role, None) is not None:
-            setattr(models, role, OrtGSDecoder(getattr(models, role), session(onnx_dir / f"{kind}.onnx", threads)))
+            sess = session(onnx_dir / f"{kind}.onnx", threads)
+            setattr(models, role, OrtGSDecoder(getattr(models, role), sess, (d.height, d.width)))
     if getattr(models, "prior", None) is not None:
         models.prior = OrtPrior(models.prior, session(onnx_dir / "layout_prior.onnx", threads))
+    models.version = weights_version(models) + ONNX_VERSION_SUFFIX
     return models

@@ -15,7 +15,7 @@ def run(args: argparse.Namespace) -> int:
     from worldsplat.pipeline.inference import load_models
     from worldsplat.pipeline.onnx import ensure_exported
 
-    models = load_models(args.weights)
+    models = load_models(args.weights, backend="torch")  # the graphs are exported from the torch modules
     paths = ensure_exported(models)
     print(f"onnx graphs of weights {models.version}: {', '.join(sorted(p.name for p in paths.values())) or 'none'}")
     return 0

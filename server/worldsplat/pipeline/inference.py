@@ -91,7 +91,7 @@ class Models:
     decoder: torch.nn.Module | None
     dit: torch.nn.Module | None
     data: DataConfig
-    version: str  # short hash of the weight files (for cache keys)
+    version: str  # short hash of the weight files (for cache keys), "-onnx" appended where onnxruntime serves
     weights_dir: Path
     prior: torch.nn.Module | None = None  # the layout prior, for a DiT that generates its residual
     # A finer decoder for reconstruct mode only (one Gaussian per model pixel): its latents come from the VAE

@@ -32,5 +32,5 @@ def ship(
         meta = {k: v for k, v in m.meta.items() if k not in ("kind", "config")}
         written.append(save_weights(m, out_dir / src.name, ROLES[role], meta, dtype=torch.float16))
     if onnx:
-        written += list(ensure_exported(load_models(out_dir)).values())
+        written += list(ensure_exported(load_models(out_dir, backend="torch")).values())
     return written

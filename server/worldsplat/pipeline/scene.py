@@ -83,8 +83,9 @@ ORACLE_VERSION = "oracle-8"
 # reconstruct's lifted pixels with fitted colours (`pipeline.pixels.lift_views`, `gaussians.lift.fit_colours`); w19
 # reconstruct's VAE run at the clip's own image (`inference.reconstruct_size`), the VAE in channels-last layout, the
 # near side of a depth edge lifted narrower but on the observed agents' pixels (`pipeline.pixels.lift_views`); w20
-# generate serves the latent decoder's grid refined 2x (`inference.GAUSSIANS`, "decoder2x")
-STREAM_VERSION = "w20"
+# generate serves the latent decoder's grid refined 2x (`inference.GAUSSIANS`, "decoder2x"); w21 reconstruct's rays
+# through the boxes claim from each frame's own cameras (CLAIM_RAYS) and its VAE decoder fine-tuned at the clip's image
+STREAM_VERSION = "w21"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -270,11 +271,13 @@ def generated_object_source(world) -> ObjectSource | None:
     return draw
 
 
-# Which cameras' rays through the agents' boxes claim a learned mode's Gaussians (`ObjectBuilder.claim`). Test:0-2,
-# agents seen / silhouette IoU / static PSNR: reconstruct "frame" 19/26 / 0.778 / 21.92 dB, "clip" 22/26 / 0.825 /
-# 21.61 dB (its lifted decoding of later frames covered a following car at frame 0); generate "frame" 21/26 / 0.839
-# / 17.41 dB, "clip" 20/26 / 0.833 / 17.25 dB.
-CLAIM_RAYS = {"reconstruct": "clip", "generate": "frame"}
+# Which cameras' rays through the agents' boxes claim a learned mode's Gaussians (`ObjectBuilder.claim`): "frame",
+# each frame's own cameras; "clip", every keyframe's. "clip" drops what any later camera sees through a box, the road
+# and facades frame 0 sees beside it included. Test:0-2 + the default preset (scene_quality, frame 0), reconstruct
+# "clip" 22.47 dB / luma SSIM 0.699 / 36 of 38 agents, "frame" 22.88 / 0.710 / 36 of 38, none 22.87 / 0.709 / 25 of
+# 38 (web/docs/models.md, "What bounds reconstruct"); generate "frame" 21/26 / 0.839 / 17.41 dB, "clip" 20/26 /
+# 0.833 / 17.25 dB on test:0-2.
+CLAIM_RAYS = {"reconstruct": "frame", "generate": "frame"}
 # The modes whose static Gaussians before a moving agent are narrowed off its pixels (`objects.narrow_before_boxes`).
 NARROW_SPILL = {"generate"}
 

@@ -23,13 +23,18 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     assert [f["step"] for f in fig] == [1, 2] and all(0 < f["rgb_psnr"] < 60 for f in fig)
     vae = out / "vae.safetensors"
     # decoder-only fine-tune: the encoder (hence every cached latent) is untouched, the decoder moves
-    ft = tmp_path / "vae_ft"
-    c.train_vae_decoder(data, vae, ft, clips=2, steps=2, ckpt_every=1, test_clips=1, detail_weight=1.0)
+    # (at a second image size too, `also`: every third step, held out under "also_")
+    ft, big = tmp_path / "vae_ft", tmp_path / "data_big"
+    write_dataset(big, "train", 1, width=80, height=48, frames=2, progress=False)
+    write_dataset(big, "test", 1, width=80, height=48, frames=2, progress=False)
+    c.train_vae_decoder(big, vae, ft, clips=1, steps=3, ckpt_every=1, test_clips=1, detail_weight=1.0, also=data,
+                        also_clips=2, also_images=2)  # fmt: skip
     before, after = load_weights(vae, "vae").state_dict(), load_weights(ft / "vae.safetensors", "vae").state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before if k.startswith("encoder.") or "latent_" in k)
     assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith("decoder."))
     fig = [json.loads(line) for line in (ft / "vae_decoder_heldout.jsonl").read_text().splitlines()]
-    assert [f["step"] for f in fig] == [1, 2] and 0 <= fig[-1]["saturation_decoded"] <= 1
+    assert [f["step"] for f in fig] == [1, 2, 3] and 0 <= fig[-1]["saturation_decoded"] <= 1
+    assert 0 < fig[-1]["also_rgb_psnr"] < 60 and fig[-1]["also_rgb_psnr"] != fig[-1]["rgb_psnr"]
     c.build_cache(data, vae, out, "test")
     c.build_cache(data, vae, out, "train", clips=1)
     c.build_cache(data, vae, out, "train", start=1)  # the second part, as a second process would write it

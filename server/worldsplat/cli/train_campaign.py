@@ -43,6 +43,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="vae-decoder: weight of the edge + luma-SSIM term, brightness-normalised (training.loop.detail_loss)",
     )
     p.add_argument(
+        "--also-data",
+        type=Path,
+        default=None,
+        help="vae-decoder: a second dataset (e.g. the 64x112 model image beside --data at 200x112) for every third step",
+    )
+    p.add_argument(
         "--chroma-weight",
         type=float,
         default=4.0,
@@ -93,6 +99,7 @@ def run(a: argparse.Namespace) -> int:
             detail_weight=a.detail_weight,
             chroma_weight=a.chroma_weight,
             images=a.batch or 4,
+            also=a.also_data,
             **kw,
         )
     elif a.stage == "cache":

@@ -229,24 +229,46 @@ def train_vae_decoder(
     ckpt_every: int = 100,
     test_clips: int = 4,
     detail_weight: float = 0.0,
+    also: Path | None = None,
+    also_clips: int = 300,
+    also_images: int = 8,
 ) -> None:
     """Fine-tune the decoder of the VAE at `vae_path` (encoder, latent statistics frozen; see vae_decoder_step_fn,
     `detail_weight` its edge and luma-SSIM term); held-out figures per checkpoint incl. mean saturation (max - min
-    channel) of decoded vs true RGB."""
+    channel) of decoded vs true RGB. `also`: a second dataset (e.g. the model image, where `data` holds the clip's
+    image) whose `also_images` images make every third step, so the decoder keeps serving both sizes (reconstruct
+    decodes at the clip's image, generate at the model image); its held-out figures are logged with "also_"."""
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
     samples = load_images(shard_files(data, "train", clips))
     test = load_images(shard_files(data, "test", test_clips))
+    extra = load_images(shard_files(also, "train", also_clips)) if also is not None else None
+    extra_test = load_images(shard_files(also, "test", test_clips)) if also is not None else None
     vae = load_weights(vae_path, "vae")
     for p in vae.encoder.parameters():
         p.requires_grad_(False)
     tcfg = TrainConfig(steps=steps, lr=lr, warmup=20, ckpt_every=ckpt_every, log_every=20, threads=threads)
     t0 = time.time()
+    main_step = vae_decoder_step_fn(
+        samples, DCFG, images_per_step=images, chroma_weight=chroma_weight, detail_weight=detail_weight
+    )
+    extra_step = (
+        vae_decoder_step_fn(
+            extra, DCFG, images_per_step=also_images, chroma_weight=chroma_weight, detail_weight=detail_weight
+        )
+        if extra is not None
+        else None
+    )
+
+    def step(model, i, gen):  # whole images of one size per step (they are concatenated into one batch)
+        return extra_step(model, i, gen) if extra_step is not None and i % 3 == 2 else main_step(model, i, gen)
 
     @torch.no_grad()
     def on_ckpt(model, done):
         m = unwrap(model).eval()
         fig = vae_heldout(m, test) | saturation(m, test) | {"step": done, "wall_s": round(time.time() - t0, 1)}
+        if extra_test is not None:
+            fig |= {f"also_{k}": v for k, v in (vae_heldout(m, extra_test) | saturation(m, extra_test)).items()}
         print(json.dumps(fig), flush=True)
         with open(out / "vae_decoder_heldout.jsonl", "a") as f:
             f.write(json.dumps(fig) + "\n")
@@ -256,9 +278,7 @@ def train_vae_decoder(
     train_loop(
         "vae_decoder",
         vae,
-        vae_decoder_step_fn(
-            samples, DCFG, images_per_step=images, chroma_weight=chroma_weight, detail_weight=detail_weight
-        ),
+        step,
         tcfg,
         out,
         progress=False,

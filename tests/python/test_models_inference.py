@@ -2,19 +2,19 @@
 
 import copy
 import dataclasses
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 
+from tiny_models import tiny_models
 from worldsplat.gaussians import Gaussians
 from worldsplat.pipeline import inference as inf
 from worldsplat.pipeline import onnx as ox
 from worldsplat.training.data import synthetic_sample
 from worldsplat_models.configs import get_config
-from worldsplat_models.weights import build, load_weights, save_weights
+from worldsplat_models.weights import load_weights, save_weights
 
 torch.set_num_threads(1)
 CFG = get_config("tiny")
@@ -22,19 +22,7 @@ CFG = get_config("tiny")
 
 @pytest.fixture(scope="module")
 def models():
-    torch.manual_seed(0)
-    m = inf.Models(
-        build("vae", CFG.vae).eval(),
-        build("decoder", CFG.decoder).eval(),
-        build("dit", CFG.dit).eval(),
-        CFG.data,
-        "test",
-        Path("."),
-    )
-    with torch.no_grad():
-        for p in list(m.dit.parameters()) + list(m.decoder.head.parameters()):
-            p.add_(0.05 * torch.randn_like(p))
-    return m
+    return tiny_models()
 
 
 def tiny_clip(T=3, seed=0):

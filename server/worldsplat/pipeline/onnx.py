@@ -192,17 +192,10 @@ def export(models, out_dir: str | Path, kinds=GRAPHS, compact_graphs: bool = Tru
     """Write <out_dir>/<kind>.onnx for each graph whose model is loaded (`compact`ed unless told not to)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    need = {
-        "vae_encoder": models.vae,
-        "vae_decoder": models.vae,
-        "dit_step": models.dit,
-        "gs_decoder": models.decoder,
-        "layout_prior": getattr(models, "prior", None),
-        "gs_decoder_reconstruct": getattr(models, "decoder_reconstruct", None),
-    }
+    loaded = set(needed_graphs(models))
     paths = {}
     for kind in kinds:
-        if need[kind] is None:
+        if kind not in loaded:
             continue
         inputs = example_inputs(models, kind)
         path = out_dir / f"{kind}.onnx"
@@ -324,7 +317,7 @@ def requested_backend(backend: str | None = None) -> str:
 
 
 def needed_graphs(models) -> list[str]:
-    """The graphs `use_onnx` serves for the models that are loaded."""
+    """The graphs of the models that are loaded: what `export` writes and `use_onnx` serves."""
     have = {
         "vae_encoder": models.vae,
         "vae_decoder": models.vae,

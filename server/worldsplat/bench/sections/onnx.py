@@ -104,19 +104,27 @@ def run(quick: bool) -> Section:
     if not points:
         raise FileNotFoundError(f"onnx: no exported graph in {onnx_dir}")
     graph_diff = max(r[4] for r in rows if isinstance(r[4], float))
+    graphs = list(points)
     scenes = scene_times(pairs=1 if quick else 3)
     for s in scenes:
-        rows.append([f"scene: {s['mode']}", s["torch_wall_s"], s["onnx_wall_s"], s["wall_ratio"], s["means_max"]])
+        rows.append([f"scene: {s['mode']}", s["torch_wall_s"], s["onnx_wall_s"], s["wall_ratio"], s["nearest_p999_m"]])
+        points.append((f"scene: {s['mode']}", s["onnx_wall_s"], s["wall_ratio"]))
     return Section(
         key="onnx",
         title="onnxruntime vs torch eager (2 threads): each graph, and the default preset's scenes",
-        columns=["graph or scene", "torch s", "onnxruntime s", "speed ratio (torch / ORT)", "max abs difference"],
+        columns=[
+            "graph or scene",
+            "torch s",
+            "onnxruntime s",
+            "speed ratio (torch / ORT)",
+            "max abs difference (scene: 99.9th percentile of a Gaussian's offset, m)",
+        ],
         rows=rows,
         default="onnxruntime where its graphs are current (load_models' backend auto), else torch eager",
         why=(
             f"Every graph agrees with torch far below the 8-bit output quantization (max |diff| {graph_diff:.1e}). "
-            f"In this run onnxruntime was faster on {', '.join(p[0] for p in points if p[2] > 1) or 'no graph'} and "
-            f"slower on {', '.join(p[0] for p in points if p[2] <= 1) or 'no graph'}; one graph alone swings with "
+            f"In this run onnxruntime was faster on {', '.join(p[0] for p in graphs if p[2] > 1) or 'no graph'} and "
+            f"slower on {', '.join(p[0] for p in graphs if p[2] <= 1) or 'no graph'}; one graph alone swings with "
             "load on 2 shared cores. What a user waits for is the whole scene: "
             + "; ".join(
                 f"{s['mode']} {s['torch_wall_s']:.1f} s on torch, {s['onnx_wall_s']:.1f} s on onnxruntime "
@@ -128,9 +136,10 @@ def run(quick: bool) -> Section:
             "onnxruntime where the graphs are current and torch stays selectable (`backend=\"torch\"`, "
             "`worldsplat serve --backend torch`, $WORLDSPLAT_BACKEND)."
         ),
-        pareto=Pareto("onnxruntime seconds", "speed ratio (torch / ORT)", points, default=points[0][0], log_x=True),
+        # the marked point: what a user waits for served by the default backend (a graph alone is not a setting)
+        pareto=Pareto("onnxruntime seconds", "speed ratio (torch / ORT)", points, default=points[-1][0], log_x=True),
         notes=[f"{s['mode']} scene: {json.dumps(s)}" for s in scenes],
-        data={"ratios": {p[0]: p[2] for p in points}, "scenes": scenes},
+        data={"ratios": {p[0]: p[2] for p in graphs}, "scenes": scenes},
     )
 
 

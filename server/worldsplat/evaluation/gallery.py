@@ -33,6 +33,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from worldsplat.core.io import write_json_atomic
 from worldsplat.core.metrics import psnr
+from worldsplat.core.paths import source_root
 from worldsplat.core.scenario import resolve_scenario
 from worldsplat.evaluation.models import clip_view, rig_of, shard_condition_dict, vae_decode_rgb
 from worldsplat.pipeline.inference import Models, encode_clip, generate, layout_size, reconstruct, to_scene4d
@@ -238,8 +239,11 @@ def write_gallery(
     `gallery.json`. Returns that summary, with each case's Panel under "panels" (not written)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    version = f"weights {models.weights_dir} ({models.version})"
-    summary = {"weights": str(models.weights_dir), "version": models.version, "frame": t, "steps": steps, "cases": []}
+    # the weights folder as the checkout names it (the images and gallery.json are committed: no machine's path)
+    where = Path(models.weights_dir).resolve()
+    shown = where.relative_to(source_root()).as_posix() if where.is_relative_to(source_root()) else where.name
+    version = f"weights {shown} ({models.version})"
+    summary = {"weights": shown, "version": models.version, "frame": t, "steps": steps, "cases": []}
     small, panels = [], {}
     for case in cases:
         rows = case_rows(models, case, t=t, steps=steps, caption_embedding=caption_embedding)

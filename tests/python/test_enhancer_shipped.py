@@ -43,13 +43,14 @@ def test_shipped_enhancer_fills_holes_at_4m(monkeypatch):
     assert m_ref["psnr"] > m_raw["psnr"] + 0.3, (m_raw, m_ref)
 
 
-def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
+def test_shipped_enhancer_improves_reconstructs_render_at_4m(monkeypatch):
     """The render bridge refines what reconstruct serves: on the default preset (not a training or a pixel-mix scenario)
-    the learned decoder's 4D scene seen from +4 m, refined as the playground serves it (the file's default blend, the
-    pixel mix), scores above the raw render over all pixels and inside its holes, and above the "holes" blend,
-    against the world's exact view. Measured with the shipped weights: raw
-    19.50 dB, holes blend 19.81, pixel mix 19.93 (in the holes: 16.46 / 19.46 / 19.81); at -2 / +2 m the mix gains
-    +0.12 / +0.12 dB over the holes blend as well. The noise-source ablation model (`_nomix`) is skipped."""
+    reconstruct's served 4D scene seen from +4 m, refined as the playground serves it (the file's default blend, the
+    pixel mix), scores above the raw render over all pixels and inside its holes, and at least as well as the "holes"
+    blend over all pixels and above it inside the holes, against the world's exact view. Measured with the shipped
+    weights: raw 19.38 dB, holes blend 19.72, pixel mix 19.75 (in the holes: 14.68 / 19.04 / 19.24); at -2 / +2 m the
+    mix gains +0.02 / +0.01 dB over the holes blend (+0.57 / +0.46 in the holes). The noise-source ablation model
+    (`_nomix`) is skipped."""
     import worldsplat_models.conditions as cond
     from worldsplat.core.scenario import default_scenario
     from worldsplat.evaluation.nvs import image_metrics
@@ -66,7 +67,7 @@ def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
     monkeypatch.setattr(cond, "encode_captions", lambda caps: torch.zeros(len(caps), 384))
     sc = default_scenario().with_updates(image={"width": 112, "height": 64}, clip={"frames": 4})
     world = build_world(sc)
-    dec = reconstruct(simulate(world, 0.0), load_models(), gaussians="decoder")  # the decoder's scene, by name
+    dec = reconstruct(simulate(world, 0.0), load_models())  # the served source of reconstruct's Gaussians
     scene = to_scene4d(dec, {"scenario": sc.model_dump(mode="json")})
     raw = render_scene_track(scene, 4.0)
     out = refine_track(scene, 4.0, render=raw)  # the served blend
@@ -81,4 +82,5 @@ def test_shipped_enhancer_improves_the_decoders_render_at_4m(monkeypatch):
     m_holes = image_metrics(holes_blend.reshape(-1, H, W, 3), truth.reshape(-1, H, W, 3), holes)
     assert m_ref["psnr"] > m_raw["psnr"] + 0.25, (m_raw, m_ref)
     assert m_ref["psnr_holes"] > m_raw["psnr_holes"] + 1.5, (m_raw, m_ref)
-    assert m_ref["psnr"] > m_holes["psnr"] + 0.05, (m_holes, m_ref)
+    assert m_ref["psnr"] >= m_holes["psnr"], (m_holes, m_ref)
+    assert m_ref["psnr_holes"] > m_holes["psnr_holes"] + 0.1, (m_holes, m_ref)

@@ -9,12 +9,11 @@ import pytest
 import torch
 from PIL import Image
 
+from tiny_models import tiny_models
 from worldsplat.cli import build_parser
 from worldsplat.core.scenario import load_preset
 from worldsplat.evaluation import gallery
-from worldsplat.pipeline import inference as inf
 from worldsplat_models.configs import DataConfig, get_config
-from worldsplat_models.weights import build
 
 torch.set_num_threads(1)
 CFG = get_config("tiny")
@@ -24,7 +23,6 @@ DATA = DataConfig(height=32, width=48, views=6, frames=2, max_boxes=8)  # the 6-
 @pytest.fixture(scope="module")
 def models():
     """Tiny model stack (layout-map control, pixel-guided decoder) for the whole 6-camera rig."""
-    torch.manual_seed(0)
     vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)
     C = vae_cfg.joint_channels
     dit_cfg = dataclasses.replace(
@@ -33,18 +31,7 @@ def models():
     dec_cfg = dataclasses.replace(
         CFG.decoder, in_channels=C, patch=2, up_channels=(8, 8, 8), guide_channels=5, reread_latent=True, max_views=6
     )
-    m = inf.Models(
-        build("vae", vae_cfg).eval(),
-        build("decoder", dec_cfg).eval(),
-        build("dit", dit_cfg).eval(),
-        DATA,
-        "t",
-        Path("."),
-    )
-    with torch.no_grad():
-        for p in list(m.dit.parameters()) + list(m.decoder.head.parameters()):
-            p.add_(0.05 * torch.randn_like(p))
-    return m
+    return tiny_models(vae_cfg, dec_cfg, dit_cfg, DATA, version="t")
 
 
 def test_gallery_grid(models, tmp_path):

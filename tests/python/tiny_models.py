@@ -12,16 +12,16 @@ from worldsplat_models.weights import build
 CFG = get_config("tiny")
 
 
-def tiny_models() -> inf.Models:
-    """VAE, Gaussian decoder and DiT of the tiny config, seeded; the DiT and the decoder's head nudged off their
-    zero-initialised outputs so a wrong graph or a dropped input changes what they compute."""
+def tiny_models(vae=None, decoder=None, dit=None, data=None, version: str = "test") -> inf.Models:
+    """VAE, Gaussian decoder and DiT of the tiny config (or of the configs given), seeded; the DiT and the decoder's
+    head nudged off their zero-initialised outputs so a wrong graph or a dropped input changes what they compute."""
     torch.manual_seed(0)
     m = inf.Models(
-        build("vae", CFG.vae).eval(),
-        build("decoder", CFG.decoder).eval(),
-        build("dit", CFG.dit).eval(),
-        CFG.data,
-        "test",
+        build("vae", vae or CFG.vae).eval(),
+        build("decoder", decoder or CFG.decoder).eval(),
+        build("dit", dit or CFG.dit).eval(),
+        data or CFG.data,
+        version,
         Path("."),
     )
     with torch.no_grad():

@@ -88,7 +88,9 @@ def test_train_stack_tiny_end_to_end_resumes_rolls_back_and_serves(tmp_path):
     data = tmp_path / "data"
     # the reference: straight through the first four stages
     ref = train_stack(Plan(tmp_path / "ref", "tiny", "cpu", data, until="dit"))
-    assert set(ref["stages"]) == {"vae", "decoder", "prior", "dit"}
+    assert set(ref["stages"]) == {"vae", "vae_decoder", "decoder", "prior", "dit"}
+    assert ref["stages"]["vae_decoder"]["figures"]["rgb_psnr"] > 0  # at the clip's image (tiny: 80x48)
+    assert "model_image_rgb_psnr" in ref["stages"]["vae_decoder"]["figures"]
     # the full stack, stopped inside the DiT stage, then run again by the command; a huge enhancer lr is forced
     plan = Plan(tmp_path / "run", "tiny", "cpu", data, lr_override={"enhancer": 1e3}, stop_at=("dit", 2))
     with pytest.raises(StageStopped):
@@ -102,7 +104,7 @@ def test_train_stack_tiny_end_to_end_resumes_rolls_back_and_serves(tmp_path):
         assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a), role
     enh = card["stages"]["enhancer"]
     assert enh["diverged_at"] and enh["sweep"] == {"forced": 1000.0} and math.isfinite(enh["best"])
-    assert all(not card["stages"][s]["diverged_at"] for s in ("vae", "decoder", "prior", "dit", "mix"))
+    assert all(not card["stages"][s]["diverged_at"] for s in ("vae", "vae_decoder", "decoder", "prior", "dit", "mix"))
     for s in card["stages"].values():
         assert s["done"] and s["throughput"]["step_share"] > 0 and (tmp_path / "run" / "cards").exists()
     assert "| enhancer |" in (tmp_path / "run" / "MODEL_CARD.md").read_text()
@@ -116,6 +118,37 @@ def test_train_stack_tiny_end_to_end_resumes_rolls_back_and_serves(tmp_path):
     cond = shard_condition_dict(ds[0], ds.load(0))
     dec = generate(cond, steps=2, models=m, caption_embedding=torch.zeros(384), frame_times=np.arange(4) / 4.0)
     assert to_scene4d(dec).at_frame(0).means.shape[0] > 0
+
+
+def test_vae_decoder_stage_trains_the_decoder_alone_at_both_image_sizes(tmp_path):
+    """The fine-tune leaves the encoder (so every cached latent) bit-identical and moves the decoder; its batches are
+    whole images of the clip's size, every third step the model image's."""
+    from worldsplat.training import campaign
+    from worldsplat.training import stack_stages as st
+    from worldsplat.training.device_data import Images
+    from worldsplat_models.vae import MultiModalVAE
+
+    def images(n, h, w):
+        g = torch.Generator().manual_seed(h * w + n)
+        return Images(
+            torch.randint(0, 256, (n, 3, h, w), generator=g, dtype=torch.uint8),
+            torch.rand(n, h, w, generator=g) * 60 + 2,
+            torch.rand(n, h, w, generator=g) > 0.8,
+        )
+
+    torch.manual_seed(0)
+    vae = MultiModalVAE(campaign.vae_config((8, 16), 2, 1)).requires_grad_(False)  # as train_vae leaves it
+    enc0 = {k: v.clone() for k, v in vae.encoder.state_dict().items()}
+    dec0 = {k: v.clone() for k, v in vae.decoder.state_dict().items()}
+    clip, model = images(6, 48, 80), images(6, 32, 56)
+    stage = st.vae_decoder_stage(vae, clip, images(2, 48, 80), model, 2, 4, 4.0, 1.0, steps=6, lr=1e-3,
+                                 eval_every=3, warmup=1)  # fmt: skip
+    sizes = [stage.batch(i, torch.Generator().manual_seed(i))[0].shape for i in range(3)]
+    assert sizes == [(6, 3, 48, 80), (6, 3, 48, 80), (12, 3, 32, 56)]  # 3 modalities per image
+    record = run_stage(stage, Run(tmp_path, torch.device("cpu"), sweep_steps=2))
+    assert record["done"] and math.isfinite(record["best"])
+    assert all(torch.equal(v, enc0[k]) for k, v in vae.encoder.state_dict().items())
+    assert any(not torch.equal(v, dec0[k]) for k, v in vae.decoder.state_dict().items())
 
 
 def load_models_file(path):

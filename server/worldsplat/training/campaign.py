@@ -28,6 +28,7 @@ from worldsplat.core.io import atomic_path
 from worldsplat.core.metrics import depth_abs_rel, iou_counts, pooled_iou, psnr, ssim_map
 from worldsplat.training.data import collate, sample_from_shard, shard_files, vae_inputs
 from worldsplat.training.loop import (
+    ALSO_EVERY,
     COND_KEYS,
     decoder_step_fn,
     fit_latent_stats,
@@ -261,7 +262,8 @@ def train_vae_decoder(
     )
 
     def step(model, i, gen):  # whole images of one size per step (they are concatenated into one batch)
-        return extra_step(model, i, gen) if extra_step is not None and i % 3 == 2 else main_step(model, i, gen)
+        also_step = extra_step is not None and i % ALSO_EVERY == ALSO_EVERY - 1
+        return extra_step(model, i, gen) if also_step else main_step(model, i, gen)
 
     @torch.no_grad()
     def on_ckpt(model, done):

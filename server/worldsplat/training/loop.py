@@ -245,19 +245,33 @@ def vae_decoder_step_fn(
                 depth[j : j + 1].expand(-1, 3, -1, -1),
                 (mask[j : j + 1] * 2 - 1).expand(-1, 3, -1, -1),
             ]
-        x = torch.cat(xs)
-        with torch.no_grad():
-            z = model.encode(x)
-        recon = model.decode(z)
-        loss, logs = vae_loss(recon, x, torch.zeros(()), 0.0, images_per_step, chroma_weight)
-        if detail_weight:
-            detail, dlogs = detail_loss(recon[0::3], x[0::3])
-            depth_l1 = (recon[1::3].float() - x[1::3]).abs().mean()
-            loss = loss + detail_weight * (detail + depth_l1)
-            logs |= dlogs
-        return loss, logs
+        return vae_decoder_loss(model, torch.cat(xs), images_per_step, chroma_weight, detail_weight)
 
     return step
+
+
+# The decoder fine-tune's served settings (web/docs/models.md "The VAE's decoder at the clip's image"): the weights of
+# the chroma and detail terms, and every ALSO_EVERY-th step at the model image: reconstruct decodes at the clip's
+# image, generate and the Gaussian decoder's pixel guide at the model image, so the decoder must keep both.
+DECODER_CHROMA_WEIGHT = 4.0
+DECODER_DETAIL_WEIGHT = 1.0
+ALSO_EVERY = 3
+
+
+def vae_decoder_loss(vae, x: torch.Tensor, n: int, chroma_weight: float = 4.0, detail_weight: float = 0.0):
+    """The decoder-only fine-tune's objective on interleaved (rgb, depth, mask) images x: decoded from the posterior
+    mean (no gradient through the encoder), `vae_loss` with the chroma term, plus `detail_weight` x (`detail_loss` +
+    the depth images' L1) -> (loss, logs). Shared by `vae_decoder_step_fn` and train-stack's vae_decoder stage."""
+    with torch.no_grad():
+        z = vae.encode(x)
+    recon = vae.decode(z)
+    loss, logs = vae_loss(recon, x, torch.zeros((), device=x.device), 0.0, n, chroma_weight)
+    if detail_weight:
+        detail, dlogs = detail_loss(recon[0::3], x[0::3])
+        depth_l1 = (recon[1::3].float() - x[1::3]).abs().mean()
+        loss = loss + detail_weight * (detail + depth_l1)
+        logs |= dlogs
+    return loss, logs
 
 
 # A dim image's errors are small in absolute terms, so L1 barely pays for its detail although luma SSIM (which
@@ -274,7 +288,7 @@ def detail_loss(recon: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dic
     gain = (DETAIL_REF_BRIGHTNESS / t.mean(dim=(1, 2, 3)).clamp_min(1e-3)).clamp(1.0, DETAIL_MAX_GAIN)
     dx = ((r[..., 1:] - r[..., :-1]) - (t[..., 1:] - t[..., :-1])).abs().mean(dim=(1, 2, 3))
     dy = ((r[..., 1:, :] - r[..., :-1, :]) - (t[..., 1:, :] - t[..., :-1, :])).abs().mean(dim=(1, 2, 3))
-    lw = torch.tensor([0.299, 0.587, 0.114], dtype=r.dtype).view(1, 3, 1, 1)
+    lw = torch.tensor([0.299, 0.587, 0.114], dtype=r.dtype, device=r.device).view(1, 3, 1, 1)
     s = ssim_map((r * lw).sum(1, keepdim=True), (t * lw).sum(1, keepdim=True)).mean(dim=(1, 2, 3))
     per = gain * (dx + dy + (1 - s))
     return per.mean(), {"edge": float((dx + dy).mean().detach()), "luma_ssim": float(s.mean().detach())}

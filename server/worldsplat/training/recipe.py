@@ -1,9 +1,11 @@
 """The one training recipe of the served stack (`worldsplat train-stack`): VAE, layout prior, DiT, Gaussian decoder,
 enhancer and pixel mix, in the configurations the playground serves, on the CPU or unchanged on a GPU.
 
-    data      world clips (`worldsplat dataset` shards, one process per core), generated once and held on the
-              device as tensors (`device_data`); the enhancer's pairs rendered from the trained decoder
-    stages    vae -> cache (frozen latents) -> decoder -> prior -> residuals -> dit -> enhancer -> mix, each a
+    data      world clips (`worldsplat dataset` shards, one process per core) at the model image and at the clip's
+              image reconstruct encodes, generated once and held on the device as tensors (`device_data`); the
+              enhancer's pairs rendered from the trained decoder
+    stages    vae -> vae_decoder (at the clip's image) -> cache (frozen latents) -> decoder -> prior -> residuals ->
+              dit -> enhancer -> mix, each a
               `stage_runner.Stage` (`stack_stages`): lr sweep, warm-up + clipping, divergence guard with rollback,
               resume, throughput; `--until STAGE` stops after a stage; `--minutes` shares a wall budget among
               the stages left (what one leaves flows on; a stage out of time ends on its best checkpoint)
@@ -43,6 +45,7 @@ from worldsplat.training.device_data import (
     fit_stats,
     load_clips,
 )
+from worldsplat.training.loop import DECODER_CHROMA_WEIGHT, DECODER_DETAIL_WEIGHT
 from worldsplat.training.stage_runner import Run, fit_batch, run_stage
 from worldsplat.world.dataset import write_dataset
 from worldsplat_models.dit import DiT4D
@@ -53,13 +56,13 @@ from worldsplat_models.pixel_mix import PixelMix, PixelMixConfig
 from worldsplat_models.vae import MultiModalVAE
 from worldsplat_models.weights import save_weights
 
-STAGES = ("vae", "decoder", "prior", "dit", "enhancer", "mix")  # the order they train in
+STAGES = ("vae", "vae_decoder", "decoder", "prior", "dit", "enhancer", "mix")  # the order they train in
 
 
 @dataclass
 class StageSize:
     steps: int
-    batch: int  # images (vae, prior, mix) or clips (dit, decoder; the enhancer takes one clip a step)
+    batch: int  # images (vae, vae_decoder, prior, mix) or clips (dit, decoder; the enhancer takes one clip a step)
     lr: float  # the centre of the sweep
 
 
@@ -79,6 +82,8 @@ class StackSize:
     mix_width: int = 24
     pair_image: tuple = (112, 64)  # width, height of the pair clips (tiny: smaller, an untrained decoder's
     # Gaussians are large and slow to render on the CPU)
+    clip_image: tuple = (200, 112)  # width, height of the clip's image that reconstruct encodes (the playground's)
+    clip_image_clips: int = 250  # train clips at the clip's image (the decoder fine-tune's; test: test_clips)
     render_every: int = 4
     eval_every: int = 250
     sweep_steps: int = 50
@@ -89,22 +94,24 @@ SIZES = {
     "tiny": StackSize(
         clips=3, test_clips=1, pair_clips=1, val_clips=1, vae=((8, 16), 2, 1), prior=((8, 16, 16, 16), 1),
         dit=(32, 1, 2), decoder=(32, 1, 2, (16, 8)), enhancer=(32, 1, 2, 1), mix_width=8, render_every=2,
-        eval_every=2, sweep_steps=2, pair_image=(56, 32),
-        stages={"vae": StageSize(4, 4, 1e-3), "prior": StageSize(4, 4, 1e-3), "dit": StageSize(4, 1, 5e-4),
-                "decoder": StageSize(4, 1, 5e-4), "enhancer": StageSize(4, 1, 3e-4), "mix": StageSize(4, 8, 2e-3)},
+        eval_every=2, sweep_steps=2, pair_image=(56, 32), clip_image=(80, 48), clip_image_clips=2,
+        stages={"vae": StageSize(4, 4, 1e-3), "vae_decoder": StageSize(4, 2, 1e-4), "prior": StageSize(4, 4, 1e-3),
+                "dit": StageSize(4, 1, 5e-4), "decoder": StageSize(4, 1, 5e-4), "enhancer": StageSize(4, 1, 3e-4),
+                "mix": StageSize(4, 8, 2e-3)},
     ),
     "small": StackSize(
         clips=1200, test_clips=8, pair_clips=240, val_clips=6,
-        stages={"vae": StageSize(5000, 12, 1e-3), "prior": StageSize(3000, 16, 1e-3), "dit": StageSize(5000, 2, 3e-4),
-                "decoder": StageSize(2000, 1, 5e-4), "enhancer": StageSize(3000, 1, 3e-4),
-                "mix": StageSize(3000, 16, 2e-3)},
+        stages={"vae": StageSize(5000, 12, 1e-3), "vae_decoder": StageSize(1200, 4, 1e-4),
+                "prior": StageSize(3000, 16, 1e-3), "dit": StageSize(5000, 2, 3e-4), "decoder": StageSize(2000, 1, 5e-4),
+                "enhancer": StageSize(3000, 1, 3e-4), "mix": StageSize(3000, 16, 2e-3)},
     ),
     "large": StackSize(
         clips=800, test_clips=8, pair_clips=16, val_clips=4, vae=((64, 192), 8, 2), prior=((48, 96, 192, 256), 2),
         dit=(256, 8, 4), decoder=(128, 4, 4, (64, 32)), render_every=2, eval_every=100, sweep_steps=30,
-        stages={"vae": StageSize(1500, 64, 3e-4), "prior": StageSize(1500, 128, 5e-4), "dit": StageSize(1500, 32, 2e-4),
-                "decoder": StageSize(300, 4, 3e-4), "enhancer": StageSize(600, 1, 3e-4),
-                "mix": StageSize(1000, 64, 2e-3)},
+        clip_image_clips=400,
+        stages={"vae": StageSize(1500, 64, 3e-4), "vae_decoder": StageSize(600, 16, 1e-4),
+                "prior": StageSize(1500, 128, 5e-4), "dit": StageSize(1500, 32, 2e-4), "decoder": StageSize(300, 4, 3e-4),
+                "enhancer": StageSize(600, 1, 3e-4), "mix": StageSize(1000, 64, 2e-3)},
     ),
 }  # fmt: skip
 
@@ -133,18 +140,28 @@ class Plan:
 
 
 def _write_range(args) -> int:
-    data, split, start, count = args
-    write_dataset(Path(data), split, count, start=start, progress=False)
+    data, split, start, count, (width, height) = args
+    write_dataset(Path(data), split, count, width, height, start=start, progress=False)
     return count
 
 
+def clip_image_data(data: Path, size: StackSize) -> Path:
+    """Where the size's clips at the clip's image live: a folder of its own beside the model image's splits."""
+    w, h = size.clip_image
+    return data / f"clip_image_{w}x{h}"
+
+
 def make_data(data: Path, size: StackSize, workers: int) -> None:
-    """The world shards of the size's train and test clips (complete shards are kept: a restart continues), written
-    by `workers` processes, each a contiguous range."""
+    """The world shards of the size's train and test clips at the model image, and of its clip-image clips
+    (complete shards are kept: a restart continues), written by `workers` processes, each a contiguous range."""
+    model_image = (campaign.DCFG.width, campaign.DCFG.height)
+    sets = [(data, "test", size.test_clips, model_image), (data, "train", size.clips, model_image)]
+    clip = clip_image_data(data, size)
+    sets += [(clip, "test", size.test_clips, size.clip_image), (clip, "train", size.clip_image_clips, size.clip_image)]
     jobs = []
-    for split, n in (("test", size.test_clips), ("train", size.clips)):
+    for root, split, n, image in sets:
         chunk = max(1, -(-n // workers))
-        jobs += [(str(data), split, a, min(chunk, n - a)) for a in range(0, n, chunk)]
+        jobs += [(str(root), split, a, min(chunk, n - a), image) for a in range(0, n, chunk)]
     if workers <= 1:
         for j in jobs:
             _write_range(j)
@@ -157,6 +174,14 @@ def load_data(data: Path, size: StackSize, device, threads: int) -> tuple:
     train = load_clips(shard_files(data, "train", size.clips), threads)
     test = load_clips(shard_files(data, "test", size.test_clips), threads)
     return train, test, Images.of(train, device), Images.of(test, device)
+
+
+def load_clip_image(data: Path, size: StackSize, device, threads: int) -> tuple:
+    """(test clips, train Images, test Images) at the clip's image."""
+    clip = clip_image_data(data, size)
+    train = load_clips(shard_files(clip, "train", size.clip_image_clips), threads)
+    test = load_clips(shard_files(clip, "test", size.test_clips), threads)
+    return test, Images.of(train, device), Images.of(test, device)
 
 
 def serving_models(vae, dec):
@@ -245,6 +270,25 @@ def train_vae(size: StackSize, run: Run, imgs, test_imgs, cards: dict):
     cards["vae"] = run_stage(stage, run)
     vae.eval().requires_grad_(False)
     fit_stats(vae, imgs)
+    return vae
+
+
+def train_vae_decoder(size: StackSize, run: Run, vae, model_imgs, clip_data: tuple, model_test, cards: dict):
+    """The trained VAE's decoder fine-tuned at the clip's image (`st.vae_decoder_stage`); the card's figures at the
+    clip's image and (prefixed "model_image_") at the model image."""
+    test, imgs, test_imgs = clip_data
+    kw = stage_kw(size, "vae_decoder")
+
+    def build(n):
+        return st.vae_decoder_stage(vae, imgs, test_imgs, model_imgs, n, 2 * n, DECODER_CHROMA_WEIGHT,
+                                    DECODER_DETAIL_WEIGHT, **kw)  # fmt: skip
+
+    stage = fit_batch(build, size.stages["vae_decoder"].batch, run)
+    cards["vae_decoder"] = run_stage(stage, run)
+    vae.eval().requires_grad_(False)
+    figures = campaign.vae_heldout(vae, [{k: c[k] for k in ("rgb", "depth", "dynamic")} for c in test])
+    figures |= {f"model_image_{k}": v for k, v in campaign.vae_heldout(vae, model_test).items()}
+    cards["vae_decoder"]["figures"] = figures
     return vae
 
 
@@ -398,11 +442,14 @@ def train_stack(plan: Plan) -> dict:
         train, test, imgs, test_imgs = load_data(data, size, run.device, plan.workers)
         data_s = round(time.time() - t, 1)
         vae = train_vae(size, run, imgs, test_imgs, cards)
-        cards["vae"]["figures"] = campaign.vae_heldout(
-            vae, [{k: c[k] for k in ("rgb", "depth", "dynamic")} for c in test]
-        )
+        model_test = [{k: c[k] for k in ("rgb", "depth", "dynamic")} for c in test]
+        cards["vae"]["figures"] = campaign.vae_heldout(vae, model_test)
+        if "vae_decoder" in upto:
+            clip_data = load_clip_image(data, size, run.device, plan.workers)
+            vae = train_vae_decoder(size, run, vae, imgs, clip_data, model_test, cards)
+            del clip_data
         models = {"vae": vae}
-        if len(upto) > 1:
+        if "decoder" in upto:
             cache, test_cache = build_cache(vae, train, imgs), build_cache(vae, test, test_imgs)
             models["decoder"] = train_decoder(size, run, vae, (cache, imgs, test_cache, test_imgs), cards)
         if "prior" in upto:
@@ -437,7 +484,9 @@ def snapshot(models: dict, dest: Path, cards: dict) -> list[Path]:
     for role in ("vae", "prior", "dit", "decoder"):
         if models.get(role) is not None:
             m = copy.deepcopy(models[role]).float().cpu()
-            written.append(save_weights(m, dest / f"{role}_small.safetensors", role, _meta(cards[role]), torch.float16))
+            meta = _meta(cards[role]) | ({"decoder_finetune": _meta(cards["vae_decoder"])} if role == "vae" and
+                                         "vae_decoder" in cards else {})  # fmt: skip
+            written.append(save_weights(m, dest / f"{role}_small.safetensors", role, meta, torch.float16))
     if models.get("enhancer") is not None:
         enh = copy.deepcopy(models["enhancer"]).float().cpu()
         meta = {"enhancer": _meta(cards["enhancer"])}

@@ -3,6 +3,8 @@
 and the lower-is-better held-out figure its guard watches; `*_figures` are the card's figures of a trained stage.
 
     vae       loop.vae_loss on whole images of the three modalities        held-out: the same loss, posterior mean
+    vae_decoder  the VAE's decoder alone at the clip's image (every third step the model image's), encoder and
+              latent statistics frozen: loop.vae_decoder_loss             held-out: the same loss at the clip's image
     prior     MSE of the layout prior's mu against L                        held-out: MSE on the test clips
     dit       rectified flow on the prior's residual, layout at the input   held-out: flow loss, fixed noise and times
     decoder   loop.decoder_losses (eq. 5), the VAE's decoding as pixel guide held-out: the same losses, fixed draws
@@ -19,7 +21,7 @@ import torch.nn.functional as F
 from worldsplat.training import campaign
 from worldsplat.training.device_data import Cache, Images, device_generator
 from worldsplat.training.enhancer import batch_of
-from worldsplat.training.loop import decoder_losses, vae_loss
+from worldsplat.training.loop import ALSO_EVERY, decoder_losses, vae_decoder_loss, vae_loss
 from worldsplat.training.stage_runner import Stage
 from worldsplat.world.layout_maps import take_layout
 from worldsplat_models import rflow
@@ -49,6 +51,34 @@ def vae_stage(vae, imgs: Images, test: Images, n: int, seed: int, **kw) -> Stage
         return float(vae_loss(r, test_x, torch.zeros(()), 0.0, 1)[0])
 
     return Stage("vae", vae, batch, loss, heldout, items=n, channels_last=True, compile=True, **kw)
+
+
+def vae_decoder_stage(
+    vae, imgs: Images, test: Images, also: Images | None, n: int, also_n: int, chroma: float, detail: float, **kw
+) -> Stage:
+    """The VAE's decoder fine-tuned on whole images of `imgs` (the clip's image) and, every ALSO_EVERY-th step,
+    `also_n` of `also` (the model image); the encoder's parameters are frozen here, so every latent, and every
+    model trained on latents, stays valid."""
+    dev = imgs.rgb.device
+    vae.requires_grad_(True).encoder.requires_grad_(False)
+    test_x = test.modalities(torch.arange(min(len(test), 24), device=dev))
+
+    def batch(i, gen):
+        src, k = (also, also_n) if also is not None and i % ALSO_EVERY == ALSO_EVERY - 1 else (imgs, n)
+        return src.modalities(torch.randint(0, len(src), (k,), generator=gen).to(dev)), k
+
+    def loss(fwd, b, i):
+        return vae_decoder_loss(fwd, b[0], b[1], chroma, detail)
+
+    @torch.no_grad()
+    def heldout(m):
+        was = m.training
+        m.eval()
+        per = [float(vae_decoder_loss(m, test_x[a : a + 24], 8, chroma, detail)[0]) for a in range(0, len(test_x), 24)]
+        m.train(was)
+        return float(np.mean(per))
+
+    return Stage("vae_decoder", vae, batch, loss, heldout, items=n, channels_last=True, **kw)
 
 
 def prior_stage(prior, cache: Cache, test: Cache, n: int, **kw) -> Stage:

@@ -32,7 +32,16 @@ from worldsplat_models.configs import TrainConfig
 SWEEP_FACTORS = (0.3, 1.0, 3.0)
 # Shares of a budgeted run's wall time, in training order (the enhancer's includes its pair renders; the last
 # share is the snapshot's and the cards').
-SHARES = {"vae": 0.18, "decoder": 0.16, "prior": 0.1, "dit": 0.2, "enhancer": 0.2, "mix": 0.06, "snapshot": 0.1}
+SHARES = {
+    "vae": 0.13,
+    "vae_decoder": 0.05,
+    "decoder": 0.16,
+    "prior": 0.1,
+    "dit": 0.2,
+    "enhancer": 0.2,
+    "mix": 0.06,
+    "snapshot": 0.1,
+}
 
 
 class StageStopped(Exception):

@@ -65,6 +65,20 @@ def test_rows_at_judges_the_2d_rows_at_the_rig_only():
     two = generate_gap.rows_at(2.0)
     assert generate_gap.GENERATED not in two and generate_gap.VAE_WORLD not in two
     assert "served" in two and generate_gap.GROUND_TRUTH in two
+    assert not set(generate_gap.DETAIL_ROWS) & set(two)
+
+
+def test_world_at_removes_detail_finer_than_k_pixels_and_keeps_the_rest():
+    yy, xx = np.mgrid[0:32, 0:48]
+    stripes = np.where((xx // 1) % 2 == 0, 250, 10).astype(np.uint8)  # 1-px stripes: gone at k = 2
+    ramp = (xx * 5).astype(np.uint8)  # smooth: kept
+    img = np.stack([stripes, ramp, np.full_like(stripes, 77)], -1)[None, None]
+    out = generate_gap.world_at(img, 2.0)
+    assert out.shape == img.shape and out.dtype == np.uint8
+    assert np.abs(out[0, 0, 4:-4, 4:-4, 0].astype(int) - 130).max() <= 2  # the stripes averaged away
+    assert np.abs(out[0, 0, 4:-4, 4:-4, 1].astype(int) - img[0, 0, 4:-4, 4:-4, 1]).max() <= 3
+    assert (out[..., 2] == 77).all()
+    assert np.array_equal(generate_gap.world_at(img, 1.0), img)
 
 
 def test_recording_keeps_every_generate_call_and_restores(monkeypatch):

@@ -256,3 +256,30 @@ def test_gaussians_option_swaps_the_learned_modes_source_for_the_block_only():
         assert inf.GAUSSIANS == served  # the oracle lifts exact pixels; None is as served
     with pytest.raises(ValueError, match="gaussians must be one of"), sq.gaussians_from("generate", "voxels"):
         pass
+
+
+def test_own_gaussians_of_frame_0_recorded_before_the_aggregation_and_scored_beside_it():
+    """A one-frame oracle scene is its own lifting up to the economy: the served frame within 1 dB of it; frame 0's
+    views with four of six left out score far under the served frame (the gap is served minus own)."""
+    from worldsplat.pipeline import scene as scene_module
+
+    sc = load_preset("urban_straight")
+    sc = sc.model_copy(
+        update={
+            "image": sc.image.model_copy(update={"width": 64, "height": 36}),
+            "clip": sc.clip.model_copy(update={"frames": 1}),
+        }
+    )
+    served_window = scene_module._Collect.window
+    with sq.first_frame_views() as views:
+        scene = generate_scene(sc, mode="oracle")
+    assert scene_module._Collect.window is served_window and len(views) == 6
+    assert sum(len(v) for v in views) >= 6 * 64 * 36 * 0.9  # one lifted Gaussian per pixel, before any merge
+    world = build_world(sc)
+    served = sq.measure_scene(world, scene, [0])
+    whole = sq.measure_own(world, scene, views, served)
+    assert abs(whole["own_gap_db"]) < 1.0 and whole["own_luma_ssim_nonsky"] > 0.3
+    part = sq.measure_own(world, scene, views[:2], served)
+    assert part["own_gap_db"] > 3.0 and part["own_gap_db"] == pytest.approx(
+        served["static_psnr_db"] - part["own_static_psnr_db"]
+    )

@@ -10,6 +10,8 @@ is `pipeline.scene.generate_scene(mode="generate")` as served, its models' calls
 - ground truth: the world's own images;
 - world through the VAE: the world's images encoded and decoded by the VAE (`inference.encode_clip`, `pixel_guide`):
   what the latent space keeps of the world, the best a generator of latents could show (at the rig only);
+- world at 1/k: the world's images area-averaged to 1/k of their width and height and bilinearly up-sampled back
+  (`world_at`): how much of its detail the judge needs, the scale the VAE's row is read against (at the rig only);
 - generated images: the VAE's decoding of the generated latents (`inference.pixel_guide`, `pixels.served_maps`),
   the generator's own pictures of each keyframe's six views: its content with no 3D (at the rig only);
 - served: the served scene rendered on the track (`pipeline.render.render_scene_track`);
@@ -57,8 +59,10 @@ from worldsplat_models.weights import weights_dir
 
 GENERATED = "generated images"
 VAE_WORLD = "world through the VAE"
+DETAIL_ROWS = {"world at 1/1.5": 1.5, "world at 1/2": 2.0, "world at 1/3": 3.0}
 ROWS = (
     GROUND_TRUTH,
+    *DETAIL_ROWS,
     VAE_WORLD,
     GENERATED,
     "served",
@@ -71,7 +75,7 @@ ROWS = (
 STATIC_FIT_ITERS = 20
 EXACT = "exact labels"  # the figure's last line
 # rows with no 3D: judged at the rig (shift 0) only
-RIG_ONLY = (VAE_WORLD, GENERATED)
+RIG_ONLY = (*DETAIL_ROWS, VAE_WORLD, GENERATED)
 
 
 def rows_at(shift: float, rows=ROWS) -> list[str]:
@@ -125,6 +129,16 @@ def vae_round_trip(models, clip) -> np.ndarray:
     d = models.data
     rgb = pixels.served_maps(guide.reshape(-1, *guide.shape[2:]), (H, W), d.depth_near, d.depth_far)[0]
     return to_uint8(rgb).reshape(T, V, H, W, 3)
+
+
+def world_at(rgb: np.ndarray, k: float) -> np.ndarray:
+    """Images (..., H, W, 3) uint8 area-averaged to 1/k of their size and bilinearly up-sampled back: the world's own
+    content with the detail finer than k pixels removed."""
+    H, W = rgb.shape[-3:-1]
+    x = torch.from_numpy(rgb.reshape(-1, H, W, 3)).permute(0, 3, 1, 2).float()
+    low = torch.nn.functional.interpolate(x, size=(round(H / k), round(W / k)), mode="area")
+    y = torch.nn.functional.interpolate(low, size=(H, W), mode="bilinear", align_corners=False)
+    return y.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy().reshape(rgb.shape)
 
 
 def lifted_frame(rig, ego: np.ndarray, rgb, depth, dyn, shift: float, fit_iters: int) -> tuple[np.ndarray, ...]:
@@ -235,6 +249,8 @@ def measure(clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None =
             for row in rows_at(s, rows):
                 if row == GROUND_TRUTH:
                     rgb = clip.rgb
+                elif row in DETAIL_ROWS:
+                    rgb = world_at(clip.rgb, DETAIL_ROWS[row])
                 elif row == VAE_WORLD:
                     rgb = vae_round_trip(models, clip)
                 elif row == GENERATED:

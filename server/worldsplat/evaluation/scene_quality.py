@@ -27,6 +27,10 @@ renderer) at every rig camera on a canvas SCALE x the served image per side, aga
 `--gaussians SOURCE` builds the learned modes' scenes from that source of Gaussians instead of the one each serves
 (`pipeline.inference.GAUSSIANS`; "pixels", "decoder", "decoder2x", "decoder4x": `inference.GAUSSIAN_SOURCES`).
 
+`--own` adds frame 0's own Gaussians (its six views as the mode's lifting or models gave them, before the
+aggregation, the claims and the objects) rendered the same way: static PSNR and luma SSIM of frame 0 alone, and the
+served frame's gap to them (issue item "aggregation that keeps detail": within 1 dB).
+
 `--wire wsplat` measures the scene after the bytes the playground sends (.wsplat, `wsplat.SERVED_VERSION`, quantised),
 `--wire ply` after each frame's exported PLY: the same figures through the files another renderer would read.
 """
@@ -53,6 +57,7 @@ from worldsplat.gaussians import ply, wsplat
 from worldsplat.gaussians.project import Projected, project
 from worldsplat.gaussians.raster import composite_pairs, rasterize
 from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.pipeline import scene as scene_module
 from worldsplat.pipeline.scene import ALL_MODES, generate_scene, preload
 from worldsplat.world import build_world
 from worldsplat.world.classes import (
@@ -370,6 +375,39 @@ def gaussians_from(mode: str, source: str | None):
         inference.GAUSSIANS[mode] = was
 
 
+@contextlib.contextmanager
+def first_frame_views():
+    """Within: the list filled with frame 0's views' Gaussians as the scene's first window hands them to the
+    aggregation (`pipeline.scene._Collect.window`: the oracle's lifting, reconstruct's lifted pixels, generate's
+    decoded Gaussians), before it drops, defers, claims or merges anything; the scene is built unchanged."""
+    views: list[Gaussians] = []
+    served = scene_module._Collect.window
+
+    def window(self, frames, per_view, *a, **k):
+        if not views and frames and frames[0] == 0:
+            views.extend(per_view[0])
+        return served(self, frames, per_view, *a, **k)
+
+    scene_module._Collect.window = window
+    try:
+        yield views
+    finally:
+        scene_module._Collect.window = served
+
+
+def measure_own(world, scene: Scene4D, views: list[Gaussians], served: dict, scale: int = SCALE) -> dict:
+    """Frame 0's own Gaussians (`first_frame_views`) rendered at the served scene's frame-0 cameras on the canvas:
+    static PSNR, luma SSIM, and the served frame's gap to them (`served`: `measure_scene`'s figures)."""
+    rend_cams, exact_cams = canvas_cameras(world, scene, 0, scale)
+    truth = ground_truth(world, 0, exact_cams)
+    own = Gaussians.cat(views)
+    rgb, _ = render_frame(own, torch.zeros(len(own), 1), rend_cams)
+    out = {"own_static_psnr_db": static_psnr(rgb, truth), "own_luma_ssim_nonsky": luma_ssim(rgb, truth)}
+    out["own_gap_db"] = served["static_psnr_db"] - out["own_static_psnr_db"]
+    out["own_gap_ssim"] = served["luma_ssim_nonsky"] - out["own_luma_ssim_nonsky"]
+    return out
+
+
 def measure(
     spec: str,
     mode: str,
@@ -378,19 +416,24 @@ def measure(
     served: dict = SERVED,
     wire: str = "scene",
     gaussians: str | None = None,
+    own: bool = False,
 ) -> dict:
     """Build the served scene of one scenario in one mode (timed) and measure it (as built, or read back from `wire`);
-    `gaussians`: the learned modes' source of Gaussians (`gaussians_from`; None: the served one)."""
+    `gaussians`: the learned modes' source of Gaussians (`gaussians_from`; None: the served one); `own`: frame 0's
+    own Gaussians beside it (`measure_own`)."""
     sc = scenario_of(spec, served)
     preload(mode)
-    with gaussians_from(mode, gaussians):
+    with gaussians_from(mode, gaussians), first_frame_views() as views:
         t0 = time.perf_counter()
         scene = generate_scene(sc, mode=mode)
         secs = time.perf_counter() - t0
     row = {"scenario": spec, "mode": mode, "wire": wire, "scene_s": secs}
     if gaussians is not None and mode != "oracle":
         row["gaussians"] = gaussians
-    row.update(measure_scene(build_world(sc), on_the_wire(scene, wire), iou_frames, scale))
+    world = build_world(sc)
+    row.update(measure_scene(world, on_the_wire(scene, wire), iou_frames, scale))
+    if own:
+        row.update(measure_own(world, scene, views, row, scale))
     return row
 
 
@@ -445,6 +488,7 @@ def main(argv=None) -> int:
     p.add_argument("--scale", type=int, default=SCALE, help="canvas per side relative to the served image")
     p.add_argument("--wire", default="scene", choices=WIRES, help="measure the scene as built or read back from a file")
     p.add_argument("--gaussians", default=None, help="the learned modes' source of Gaussians (default: as served)")
+    p.add_argument("--own", action="store_true", help="also frame 0's own Gaussians, before the aggregation")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=None, help="write every row and the summary here (JSON)")
     a = p.parse_args(argv)
@@ -453,7 +497,7 @@ def main(argv=None) -> int:
     rows = []
     for mode in a.modes.split(","):
         for spec in a.scenarios.split(","):
-            r = measure(spec, mode, frames, a.scale, wire=a.wire, gaussians=a.gaussians)
+            r = measure(spec, mode, frames, a.scale, wire=a.wire, gaussians=a.gaussians, own=a.own)
             rows.append(r)
             print(json.dumps({k: v for k, v in r.items() if k != "agents"}), flush=True)
     summ = summary(rows)

@@ -120,6 +120,24 @@ def test_train_stack_tiny_end_to_end_resumes_rolls_back_and_serves(tmp_path):
     assert to_scene4d(dec).at_frame(0).means.shape[0] > 0
 
 
+def test_a_2x_latent_stack_trains_and_serves(tmp_path):
+    """The recipe at another latent space (the VAE down-sampling 2x, `tiny2x`): every stage runs, and the serving
+    code loads the files and generates a scene from them (one Gaussian per model pixel from the decoder)."""
+    from worldsplat.evaluation.models import shard_condition_dict
+    from worldsplat.pipeline.inference import generate, load_models, to_scene4d
+    from worldsplat.training.data import ShardDataset
+
+    card = train_stack(Plan(tmp_path / "run", "tiny2x", "cpu", tmp_path / "data", until="dit"))
+    assert all(s["done"] and math.isfinite(s["best"]) for s in card["stages"].values())
+    m = load_models(tmp_path / "run" / "weights", backend="torch")
+    assert m.vae.cfg.downsample == 2 and m.prior.cfg.downsample == 2
+    ds = ShardDataset(tmp_path / "data", "test", m.data.max_boxes)
+    cond = shard_condition_dict(ds[0], ds.load(0))
+    dec = generate(cond, steps=2, models=m, caption_embedding=torch.zeros(384), frame_times=np.arange(4) / 4.0)
+    assert dec.latents.shape[-2:] == (m.data.height // 2, m.data.width // 2)
+    assert to_scene4d(dec).at_frame(0).means.shape[0] > 0
+
+
 def test_vae_decoder_stage_trains_the_decoder_alone_at_both_image_sizes(tmp_path):
     """The fine-tune leaves the encoder (so every cached latent) bit-identical and moves the decoder; its batches are
     whole images of the clip's size, every third step the model image's."""
@@ -175,7 +193,7 @@ def test_small_is_the_served_configuration_and_every_size_builds():
     enh, _ = load_enhancer(weights_dir() / "enhancer_small.safetensors")
     assert served["enhancer"].dit == enh.cfg.dit and served["mix"] == enh.cfg.pixel_mix
     assert dataclasses.replace(enh.cfg, pixel_mix=None) == served["enhancer"]
-    for name in ("tiny", "large"):
+    for name in ("tiny", "large", "tiny2x", "large2x"):
         cfgs = stack_configs(SIZES[name])
         with torch.device("meta"):
             for kind in KINDS:

@@ -55,6 +55,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="vae-decoder: weight of the chroma term (training.loop.vae_loss)",
     )
     p.add_argument(
+        "--vae-channels",
+        default="32,96",
+        help="vae: channels per level, each level a 2x down-sampling (served 32,96: 4x; 64: 2x)",
+    )
+    p.add_argument("--vae-latent", type=int, default=8, help="vae: latent channels per modality")
+    p.add_argument(
         "--layout-channels",
         type=int,
         default=None,
@@ -86,7 +92,9 @@ def run(a: argparse.Namespace) -> int:
         kw["layout_channels"] = a.layout_channels
     if a.stage == "vae":
         need("data")
-        c.train_vae(a.data, a.out, clips=a.clips or 1500, steps=a.steps, threads=a.threads, **kw)
+        channels = tuple(int(x) for x in a.vae_channels.split(","))
+        c.train_vae(a.data, a.out, clips=a.clips or 1500, steps=a.steps, threads=a.threads, channels=channels,
+                    latent=a.vae_latent, **kw)  # fmt: skip
     elif a.stage == "vae-decoder":
         need("data", "vae")
         c.train_vae_decoder(

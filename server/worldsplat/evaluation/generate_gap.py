@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import time
 from pathlib import Path
 
@@ -55,7 +56,7 @@ from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import PALETTE
 from worldsplat.world.dataset import clip_scenario
 from worldsplat_models.judge import load_judge, segment
-from worldsplat_models.weights import weights_dir
+from worldsplat_models.weights import load_weights, weights_dir
 
 GENERATED = "generated images"
 VAE_WORLD = "world through the VAE"
@@ -216,9 +217,14 @@ class Scores:
         }
 
 
-def measure(clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None = None, progress=print) -> dict:
+def measure(
+    clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None = None, progress=print, vae: Path | None = None
+) -> dict:
+    """Every row of every clip (see the module); `vae`: the row "world through the VAE" through these VAE weights
+    instead of the served VAE (another down-sampling or latent width, `worldsplat train-campaign vae`)."""
     judge = load_judge(weights_dir() / "judge_small.safetensors")
     models = inference.load_models()
+    world_models = models if vae is None else dataclasses.replace(models, vae=load_weights(vae, "vae").eval())
     scores, tiles, timing = Scores(), {}, {}
     for ci in clips:
         sc = clip_scenario("test", ci, frames=4)
@@ -252,7 +258,7 @@ def measure(clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None =
                 elif row in DETAIL_ROWS:
                     rgb = world_at(clip.rgb, DETAIL_ROWS[row])
                 elif row == VAE_WORLD:
-                    rgb = vae_round_trip(models, clip)
+                    rgb = vae_round_trip(world_models, clip)
                 elif row == GENERATED:
                     rgb = np.stack([to_uint8(gen[t][0]) for t in frames])
                 elif row == "served":
@@ -279,6 +285,7 @@ def measure(clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None =
         "shifts": list(shifts),
         "rows": list(rows),
         "steps": steps,
+        "vae": None if vae is None else str(vae),
         "table": scores.table(rows, shifts),
         "timing": timing,
     }
@@ -339,6 +346,7 @@ def main(argv=None) -> int:
     p.add_argument("--shifts", default="0,2", help="lateral track shifts (m)")
     p.add_argument("--steps", type=int, default=8)
     p.add_argument("--rows", default=",".join(ROWS[1:]), help="rows beside the ground truth")
+    p.add_argument("--vae", type=Path, default=None, help='"world through the VAE" through these VAE weights')
     p.add_argument("--out", type=Path, default=None, help="write the table (markdown) and the rows (json) here")
     p.add_argument(
         "--png",
@@ -350,7 +358,7 @@ def main(argv=None) -> int:
     ints = lambda x: [int(v) for v in x.split(",")]  # noqa: E731
     rows = parse_rows(p, a.rows, ROWS)
     shifts = [float(v) for v in a.shifts.split(",")]
-    r = measure(ints(a.clips), ints(a.frames), shifts, rows, a.steps, a.png)
+    r = measure(ints(a.clips), ints(a.frames), shifts, rows, a.steps, a.png, vae=a.vae)
     md = markdown(r)
     print(md)
     if a.out is not None:

@@ -131,6 +131,7 @@ def test_a_2x_latent_stack_trains_and_serves(tmp_path):
     assert all(s["done"] and math.isfinite(s["best"]) for s in card["stages"].values())
     m = load_models(tmp_path / "run" / "weights", backend="torch")
     assert m.vae.cfg.downsample == 2 and m.prior.cfg.downsample == 2
+    assert m.dit.cfg.patch == 8  # a token per 16x16 image pixels, as the 4x stack's patch 4: the same token count
     ds = ShardDataset(tmp_path / "data", "test", m.data.max_boxes)
     cond = shard_condition_dict(ds[0], ds.load(0))
     dec = generate(cond, steps=2, models=m, caption_embedding=torch.zeros(384), frame_times=np.arange(4) / 4.0)

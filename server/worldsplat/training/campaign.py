@@ -70,11 +70,12 @@ def dit_config(
     ControlNet DiT trained from scratch had not learned to follow the layout after 600 steps); with a prior, the same network generating the
     layout prior's residual (target "prior_residual")."""
     C = vae.cfg.joint_channels
-    hint = vae.cfg.downsample * 4
+    patch = max(1, 16 // vae.cfg.downsample)  # a token per 16x16 image pixels at any latent grid (4x: patch 4)
+    hint = vae.cfg.downsample * patch  # the layout map read at the tokens' grid
     return DiTConfig(
         in_channels=C,
         out_channels=C,
-        patch=4,
+        patch=patch,
         control_channels=layout_channels,
         control_hint=hint,
         control_depth=0,

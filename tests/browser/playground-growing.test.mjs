@@ -77,8 +77,9 @@ test("a scene being generated grows in the viewer beside the progress bar", T, a
   while (!growing && Date.now() < end) {
     const st = await page.evaluate(() => ({ timing: window.playground.state.timing, id: window.playground.state.sceneId }));
     if (st.timing && st.timing.firstDraw != null && st.timing.whole == null) {
-      // a read between a chunk's upload and the sort worker's order for it draws no Gaussian (drawn 0: once in a
-      // fresh-clone CI run, the canvas blank); the next read of the same growing scene draws it
+      // a read between a chunk's upload and the sort worker's order for it draws no Gaussian (drawn 0); a fresh-clone
+      // CI run once read the growing view blank (lit 0, its first window shown in two steps, 4096 then 10000
+      // static), which this is taken to be: the next read of the same growing scene draws it
       const now = await drawnNow();
       if (now.drawn > 0) growing = now;
       else await new Promise((r) => setTimeout(r, 50));

@@ -29,7 +29,8 @@ renderer) at every rig camera on a canvas SCALE x the served image per side, aga
 
 `--own` adds frame 0's own Gaussians (its six views as the mode's lifting or models gave them, before the
 aggregation, the claims and the objects) rendered the same way: static PSNR and luma SSIM of frame 0 alone, and the
-served frame's gap to them (issue item "aggregation that keeps detail": within 1 dB).
+served frame's gap to them (an aggregation that keeps detail stays within 1 dB: web/docs/models.md "Served scene
+quality").
 
 `--wire wsplat` measures the scene after the bytes the playground sends (.wsplat, `wsplat.SERVED_VERSION`, quantised),
 `--wire ply` after each frame's exported PLY: the same figures through the files another renderer would read.

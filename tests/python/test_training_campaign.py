@@ -87,3 +87,22 @@ def test_campaign_stages_resume_and_snapshot(tmp_path):
     assert len(m1.decoder_reconstruct.ups) == len(m1.decoder.ups) + 1  # one more 2x up-sampling: per pixel
     (dest / "prior_small.safetensors").unlink()
     assert load_models(dest).modes == ["reconstruct"]  # a residual DiT without its prior cannot generate
+
+
+@pytest.mark.parametrize("channels", [(64,), (32, 96)])
+def test_campaign_prior_and_dit_follow_the_vae_down_sampling(channels):
+    """The campaign's prior and DiT fit a VAE that down-samples 2x as well as the served 4x one: the prior's mu has the
+    latent's shape, the DiT's tokens stay one per 16x16 image pixels."""
+    from worldsplat_models.configs import LayoutPriorConfig
+    from worldsplat_models.layout_prior import LayoutPrior
+    from worldsplat_models.vae import MultiModalVAE
+
+    vae = MultiModalVAE(c.vae_config(channels))
+    ds = vae.cfg.downsample
+    assert ds == 2 ** len(channels)
+    prior = LayoutPrior(c.prior_config(vae))
+    assert prior.cfg.widths == LayoutPriorConfig().widths[: len(channels) + 2]
+    mu = prior(torch.zeros(1, prior.cfg.in_channels, 64, 112), torch.zeros(1, 384), torch.zeros(1, dtype=torch.long))
+    assert mu.shape == (1, vae.cfg.joint_channels, 64 // ds, 112 // ds)
+    dit = c.dit_config(vae)
+    assert dit.patch * ds == 16 and dit.control_hint == 16

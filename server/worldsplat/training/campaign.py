@@ -88,9 +88,13 @@ def dit_config(
 
 
 def prior_config(vae, layout_channels: int = len(LAYOUT_CHANNELS)) -> LayoutPriorConfig:
-    """layout_channels: 7 (road and agents alone) or 11 (with the map layer): the first ones of LAYOUT_CHANNELS."""
+    """layout_channels: 7 (road and agents alone) or 11 (with the map layer): the first ones of LAYOUT_CHANNELS.
+    The U-Net's levels follow the VAE's down-sampling (the served widths cut to full resolution, one level per 2x
+    down to the latent grid, one below it: 4x four levels, 2x three)."""
+    levels = int(vae.cfg.downsample).bit_length() + 1
+    widths = LayoutPriorConfig().widths[:levels]
     return LayoutPriorConfig(
-        in_channels=layout_channels, out_channels=vae.cfg.joint_channels, downsample=vae.cfg.downsample
+        in_channels=layout_channels, out_channels=vae.cfg.joint_channels, downsample=vae.cfg.downsample, widths=widths
     )
 
 

@@ -2,6 +2,7 @@
 (`fit_static`), the rows judged per track, the recording of generate's calls, and the table of a known result."""
 
 import numpy as np
+import pytest
 import torch
 
 import worldsplat.pipeline.inference as inference
@@ -128,3 +129,16 @@ def test_figure_lines_per_row_white_where_not_judged(tmp_path):
     line = lambda i: fig[2 * i * 6 : 2 * i * 6 + 8]  # noqa: E731 - line i (4 px + 2 px gap, doubled)
     assert (line(1)[:, 2 * 24 :] == 255).all()  # the generated images off the rig: not judged, white
     assert (line(1)[:, :12] == 10).all() and (line(2)[:, 12:24] == 255).all()  # exact labels: no judge labels
+
+
+def test_measure_builds_generate_from_the_asked_gaussians_and_restores_the_served(monkeypatch):
+    seen = []
+    monkeypatch.setattr(generate_gap, "_measure", lambda *a: seen.append(inference.GAUSSIANS["generate"]))
+    served = inference.GAUSSIANS["generate"]
+    other = next(g for g in inference.GAUSSIAN_SOURCES if g != served)
+    generate_gap.measure([0], [1], [0.0], gaussians=other)
+    generate_gap.measure([0], [1], [0.0])
+    assert seen == [other, served] and inference.GAUSSIANS["generate"] == served
+    with pytest.raises(ValueError, match="gaussians must be one of"):
+        generate_gap.measure([0], [1], [0.0], gaussians="splats")
+    assert inference.GAUSSIANS["generate"] == served

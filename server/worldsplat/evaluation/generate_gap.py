@@ -47,6 +47,7 @@ from worldsplat.evaluation.downstream import (
     summary,
     tile_sheet,
 )
+from worldsplat.evaluation.scene_quality import gaussians_from
 from worldsplat.gaussians.lift import FIT_ITERS, lift, solve_colours
 from worldsplat.gaussians.raster import pair_weights, render_view
 from worldsplat.gaussians.types import Gaussians, Scene4D
@@ -218,11 +219,27 @@ class Scores:
 
 
 def measure(
-    clips, frames, shifts, rows=ROWS, steps: int = 8, png: Path | None = None, progress=print, vae: Path | None = None
+    clips,
+    frames,
+    shifts,
+    rows=ROWS,
+    steps: int = 8,
+    png: Path | None = None,
+    progress=print,
+    vae: Path | None = None,
+    gaussians: str | None = None,
+    judge: Path | None = None,
 ) -> dict:
     """Every row of every clip (see the module); `vae`: the row "world through the VAE" through these VAE weights
-    instead of the served VAE (another down-sampling or latent width, `worldsplat train-campaign vae`)."""
-    judge = load_judge(weights_dir() / "judge_small.safetensors")
+    instead of the served VAE (another down-sampling or latent width, `worldsplat train-campaign vae`); `gaussians`:
+    generate's scene built from that source of Gaussians (`inference.GAUSSIANS`; None: as served); `judge`: the
+    judge's weights (None: `weights_dir()`'s, where $WORLDSPLAT_WEIGHTS also points the models)."""
+    with gaussians_from("generate", gaussians):
+        return _measure(clips, frames, shifts, rows, steps, png, progress, vae, judge)
+
+
+def _measure(clips, frames, shifts, rows, steps, png, progress, vae, judge_path) -> dict:
+    judge = load_judge(judge_path or weights_dir() / "judge_small.safetensors")
     models = inference.load_models()
     world_models = models if vae is None else dataclasses.replace(models, vae=load_weights(vae, "vae").eval())
     scores, tiles, timing = Scores(), {}, {}
@@ -286,6 +303,8 @@ def measure(
         "rows": list(rows),
         "steps": steps,
         "vae": None if vae is None else str(vae),
+        "gaussians": inference.GAUSSIANS["generate"],
+        "models": str(models.weights_dir),
         "table": scores.table(rows, shifts),
         "timing": timing,
     }
@@ -347,6 +366,10 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=8)
     p.add_argument("--rows", default=",".join(ROWS[1:]), help="rows beside the ground truth")
     p.add_argument("--vae", type=Path, default=None, help='"world through the VAE" through these VAE weights')
+    p.add_argument("--gaussians", default=None, help="generate's source of Gaussians (default: as served)")
+    p.add_argument(
+        "--judge", type=Path, default=None, help="the judge's weights file (default: judge_small in the weights folder)"
+    )
     p.add_argument("--out", type=Path, default=None, help="write the table (markdown) and the rows (json) here")
     p.add_argument(
         "--png",
@@ -358,7 +381,8 @@ def main(argv=None) -> int:
     ints = lambda x: [int(v) for v in x.split(",")]  # noqa: E731
     rows = parse_rows(p, a.rows, ROWS)
     shifts = [float(v) for v in a.shifts.split(",")]
-    r = measure(ints(a.clips), ints(a.frames), shifts, rows, a.steps, a.png, vae=a.vae)
+    r = measure(ints(a.clips), ints(a.frames), shifts, rows, a.steps, a.png, vae=a.vae, gaussians=a.gaussians,
+                judge=a.judge)  # fmt: skip
     md = markdown(r)
     print(md)
     if a.out is not None:

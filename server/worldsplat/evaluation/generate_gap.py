@@ -19,7 +19,7 @@ is `pipeline.scene.generate_scene(mode="generate")` as served, its models' calls
   lifting, `gaussians.lift.lift`, no aggregation, no objects), unfitted and fitted at the lifting camera
   (`lift(fit_iters=FIT_ITERS)`), rendered at that frame's cameras on the track;
 - served fitted to generated: the served scene with its static Gaussians' colours fitted jointly to the generated
-  images at every keyframe's six cameras (`fit_static`: one colour per Gaussian, the objects untouched);
+  images at every keyframe's six cameras (`gaussians.colour_fit.fit_scene_static`: one colour per Gaussian, the objects untouched);
 - served fitted to world: the same fit to the world's images (what the served Gaussians could show with the
   world's colours: the representation's ceiling).
 "ground truth" vs "generated images" is the content's loss, "generated images" vs "served" the representation's.
@@ -48,9 +48,10 @@ from worldsplat.evaluation.downstream import (
     tile_sheet,
 )
 from worldsplat.evaluation.scene_quality import gaussians_from
-from worldsplat.gaussians.lift import FIT_ITERS, lift, solve_colours
-from worldsplat.gaussians.raster import pair_weights, render_view
-from worldsplat.gaussians.types import Gaussians, Scene4D
+from worldsplat.gaussians.colour_fit import fit_scene_static
+from worldsplat.gaussians.lift import FIT_ITERS, lift
+from worldsplat.gaussians.raster import render_view
+from worldsplat.gaussians.types import Gaussians
 from worldsplat.pipeline import pixels
 from worldsplat.pipeline.render import render_scene_track
 from worldsplat.world import build_world, simulate
@@ -73,8 +74,6 @@ ROWS = (
     "served fitted to generated",
     "served fitted to world",
 )
-# FISTA steps of `fit_static` (the served scene's static colours fitted at every keyframe camera)
-STATIC_FIT_ITERS = 20
 EXACT = "exact labels"  # the figure's last line
 # rows with no 3D: judged at the rig (shift 0) only
 RIG_ONLY = (*DETAIL_ROWS, VAE_WORLD, GENERATED)
@@ -151,42 +150,6 @@ def lifted_frame(rig, ego: np.ndarray, rgb, depth, dyn, shift: float, fit_iters:
     return np.stack([v.rgb for v in views]), np.stack([v.alpha for v in views])
 
 
-def fit_static(
-    scene: Scene4D, targets: dict[int, np.ndarray], iters: int = STATIC_FIT_ITERS, ridge: float = 0.0
-) -> Scene4D:
-    """`scene` with its static Gaussians' colours in [0, 1] fitted so that its renders at frame t's rig cameras are
-    nearest `targets[t]` (V,H,W,3 in [0,1]) in squared error, all frames and views at once (one colour per
-    Gaussian; `iters` FISTA steps as `lift.fit_colours`). Only the static Gaussians' weights are fitted, each pixel's target scaled
-    by their share of its weights (the dynamic set's and the objects' bleed left as it renders); a static Gaussian
-    that reaches no pixel keeps its colour; `ridge` x the squared distance to its own colour is added (as the
-    lifting's `FIT_RIDGE`). The dynamic sets and objects are the scene's own."""
-    from scipy.sparse import csr_matrix, vstack  # noqa: PLC0415 - heavy, needed by the fit only
-
-    n = len(scene.static)
-    blocks, rhs = [], []
-    for t, target in targets.items():
-        g = scene.at_frame(t)
-        for v in range(len(scene.rig)):
-            cam = scene.camera(t, v)
-            pix, rows, w = (x.cpu().numpy() for x in pair_weights(g, cam))
-            keep = rows < n
-            pix, rows, w = pix[keep], rows[keep], w[keep]
-            npix = cam.width * cam.height
-            blocks.append(csr_matrix((w, (pix, rows)), shape=(npix, n)))
-            share = np.bincount(pix, w, minlength=npix)[:, None]
-            rhs.append(np.asarray(target[v], np.float64).reshape(-1, 3) * share)
-    if not blocks or n == 0:
-        return scene
-    W = vstack(blocks).tocsr()
-    c0 = scene.static.colors.detach().cpu().numpy().astype(np.float64)
-    x, _ = solve_colours(W, np.concatenate(rhs), c0, iters, ridge)
-    s = scene.static
-    colours = torch.as_tensor(x, dtype=s.colors.dtype, device=s.colors.device)
-    static = Gaussians(s.means, s.quats, s.scales, s.opacities, colours, s.extras)
-    return Scene4D(static, scene.dynamic, scene.frame_times, scene.rig, scene.ego_to_world, dict(scene.meta),
-                   scene.objects)  # fmt: skip
-
-
 def to_uint8(rgb: np.ndarray) -> np.ndarray:
     return np.clip(np.round(np.asarray(rgb) * 255.0), 0, 255).astype(np.uint8)
 
@@ -259,10 +222,10 @@ def _measure(clips, frames, shifts, rows, steps, png, progress, vae, judge_path)
         t1 = time.perf_counter()
         fitted = {}
         if "served fitted to generated" in rows:
-            fitted["served fitted to generated"] = fit_static(scene, {t: gen[t][0] for t in gen})
+            fitted["served fitted to generated"] = fit_scene_static(scene, {t: gen[t][0] for t in gen})
         if "served fitted to world" in rows:
             rig_clip = simulate(world, 0.0, frames=sorted(gen))
-            fitted["served fitted to world"] = fit_static(
+            fitted["served fitted to world"] = fit_scene_static(
                 scene, {t: rig_clip.rgb[i].astype(np.float64) / 255.0 for i, t in enumerate(sorted(gen))}
             )
         t2 = time.perf_counter()

@@ -136,11 +136,11 @@ def eval_reconstruct(
 ) -> dict:
     """PSNR / SSIM per shift for the model (and the oracle lifting) over n test clips. `gaussians`: "pixels" or
     "decoder" (None: served, `inference.GAUSSIANS`). `joint`: also each scene with its static colours fitted jointly
-    to every frame's images it was made from (`generate_gap.fit_static`: the VAE's decoding for the model, the exact
+    to every frame's images it was made from (`gaussians.colour_fit.fit_scene_static`: the VAE's decoding for the model, the exact
     images for the oracle), rows "model_joint" / "oracle_joint". `observed`: the same clips at the image the product
     observes (a dataset of the same split and seeds at another size): the scenes are made from them and rendered at
     `ds`'s image, as the playground reconstructs its served 200x112 clip."""
-    from worldsplat.evaluation.generate_gap import fit_static  # noqa: PLC0415 - the joint part only
+    from worldsplat.gaussians.colour_fit import fit_scene_static  # noqa: PLC0415 - the joint part only
 
     names = ["model", "oracle", "model_joint", "oracle_joint"]
     res = {s: {f"{n}_{m}": [] for n in names for m in ("psnr", "ssim")} for s in shifts}
@@ -160,12 +160,12 @@ def eval_reconstruct(
             scenes["model"] = to_scene4d(dec)
             if joint:
                 vae_rgb = (pixel_guide(models, dec.latents)[:, :, :3].detach().permute(0, 1, 3, 4, 2).double() + 1) / 2
-                scenes["model_joint"] = fit_static(scenes["model"], dict(enumerate(vae_rgb.clamp(0, 1).numpy())))
+                scenes["model_joint"] = fit_scene_static(scenes["model"], dict(enumerate(vae_rgb.clamp(0, 1).numpy())))
         if oracle:
             scenes["oracle"] = oracle_scene(clip_view(src, rig))
             if joint:
                 exact = np.asarray(src["rgb"], np.float64) / 255.0
-                scenes["oracle_joint"] = fit_static(scenes["oracle"], dict(enumerate(exact)))
+                scenes["oracle_joint"] = fit_scene_static(scenes["oracle"], dict(enumerate(exact)))
         T, V = base["rgb"].shape[:2]
         for sh in shifts:
             if sh not in by_shift:

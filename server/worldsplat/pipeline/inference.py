@@ -130,6 +130,9 @@ class DecodedFrames:
     model_width: int | None = None  # the models' image width (the decoded economy's unit); None: the rig's
     windows: list[list[int]] | None = None  # the frame windows decoded together (None: one window of every frame)
     source: str = "decoder"  # how the Gaussians were made: GAUSSIAN_SOURCES (lifted per rig pixel, or a grid)
+    # lifted sources: per frame t, the images (V, H, W, 3) float in [0, 1] its views were lifted from (the targets
+    # of the scene's joint colour fit, `pipeline.scene`); None for a grid
+    images: dict[int, np.ndarray] | None = None
 
     def frame(self, t: int):
         return Gaussians.cat(self.gaussians[t])
@@ -320,9 +323,10 @@ def decode_gaussians(
     wins = _windows(T, d.frames, pad)
     mode = meta.get("mode", "generate")
     source = "decoder" if decoder is not None else gaussian_source(gaussians, mode)
+    images = None
     if source in LIFTED:
         dd = models.decoder_for(mode) if source == "pixels_decoder_depth" else None
-        gs, logits = _lift_pixels(models, L, rig, ego_to_world, wins, dd, agents)
+        gs, logits, images = _lift_pixels(models, L, rig, ego_to_world, wins, dd, agents)
     else:
         refine = DECODER_REFINE[source]
         gs, logits = _decode_grid(models, L, rig, ego_to_world, wins, decoder or models.decoder_for(mode), refine)
@@ -337,6 +341,7 @@ def decode_gaussians(
         model_width=L.shape[-1] * models.vae.cfg.downsample,
         windows=[sorted(set(w)) for w in wins],
         source=source,
+        images=images,
     )
 
 
@@ -368,13 +373,15 @@ def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder, refine: in
 
 def _lift_pixels(
     models: Models, L, rig, ego_to_world, wins, depth_decoder=None, agents=None
-) -> tuple[list[list], list[list]]:
+) -> tuple[list[list], list[list], dict[int, np.ndarray]]:
     """The VAE's decoding of L, up-sampled to the rig's image, its ground onto the plane (`pixels.snap_to_ground`)
-    and lifted per pixel (`pipeline.pixels`): Gaussians [t][v] (H*W each, row-major) and dynamic logits (+-15 from
-    the lifted mask), window by window. `agents`: (T, V, H, W) bool, the observed agents' pixels (`lift_views`)."""
+    and lifted per pixel (`pipeline.pixels`): Gaussians [t][v] (H*W each, row-major), dynamic logits (+-15 from
+    the lifted mask) and per frame the images lifted (V, H, W, 3), window by window. `agents`: (T, V, H, W) bool,
+    the observed agents' pixels (`lift_views`)."""
     d, V = models.data, len(rig)
     size = (rig[0].height, rig[0].width)
     gs, logits = [[None] * V for _ in range(L.shape[0])], [[None] * V for _ in range(L.shape[0])]
+    images = {}
     for win in wins:
         frames = sorted(set(win))
         guide = pixel_guide(models, L[frames])
@@ -387,10 +394,11 @@ def _lift_pixels(
             rgb, depth, dyn, cams, None if agents is None else agents[frames].reshape(depth.shape)
         )
         for i, t in enumerate(frames):
+            images[t] = rgb[i * V : (i + 1) * V]
             for v in range(V):
                 g = views[i * V + v]
                 gs[t][v], logits[t][v] = g, (g.extras[:, 0] * 30.0 - 15.0)
-    return gs, logits
+    return gs, logits, images
 
 
 def _decoder_depth(models: Models, L, rig, ego_to_world, frames, decoder, guide, size) -> np.ndarray:

@@ -36,6 +36,7 @@ from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
+from worldsplat.gaussians.colour_fit import JOINT_FIT_RIDGE, FitView, fit_static_colours
 from worldsplat.gaussians.objects import (
     AGENT_MARGIN_M,
     AGENT_MODES,
@@ -84,8 +85,14 @@ ORACLE_VERSION = "oracle-8"
 # reconstruct's VAE run at the clip's own image (`inference.reconstruct_size`), the VAE in channels-last layout, the
 # near side of a depth edge lifted narrower but on the observed agents' pixels (`pipeline.pixels.lift_views`); w20
 # generate serves the latent decoder's grid refined 2x (`inference.GAUSSIANS`, "decoder2x"); w21 reconstruct's rays
-# through the boxes claim from each frame's own cameras (CLAIM_RAYS) and its VAE decoder fine-tuned at the clip's image
-STREAM_VERSION = "w21"
+# through the boxes claim from each frame's own cameras (CLAIM_RAYS) and its VAE decoder fine-tuned at the clip's image;
+# w22 each window's new static colours fitted jointly to the window's lifted images (JOINT_FIT)
+STREAM_VERSION = "w22"
+# The learned modes whose windows' new static Gaussians get their colours fitted jointly to the images the window's
+# views were lifted from, at every keyframe camera of the window, with the earlier windows' static set held
+# (`gaussians.colour_fit`): the nearer frames' copies of a surface no longer blend frame t's view away
+# (web/docs/models.md, "What bounds reconstruct at 0 m"). Only lifted sources carry the images (`DecodedFrames.images`).
+JOINT_FIT = ("reconstruct", "generate")
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -322,11 +329,13 @@ class _Collect:
         timing: dict | None = None,
         observed: Callable[[ObjectBuilder], dict[int, Gaussians]] | None = None,
         shields: Callable[[ObjectBuilder], dict[int, list]] | None = None,
+        targets: dict[int, np.ndarray] | None = None,
     ) -> None:
         """A window's frames [i][v] (scene frame). `observed(builder)`: where the agents' objects come from
         instead of the frames' in-box Gaussians (`ObjectBuilder.add`), e.g. reconstruct's observed pixels.
         `shields(builder)`: per frame, per view, (camera, the pixels that show an occluder before an agent,
-        `objects.occluder_pixels`) whose Gaussians are not claimed along the rays through the boxes."""
+        `objects.occluder_pixels`) whose Gaussians are not claimed along the rays through the boxes. `targets`:
+        per keyframe t, the images (V, H, W, 3) in [0, 1] the window's static colours are fitted to (`_fit`)."""
         t0 = time.perf_counter()
         # what an earlier window's cells already hold first, then the deferral (each Gaussian's own test), and the
         # claims look at what the window keeps; exact where what the claims take leaves the scene
@@ -344,6 +353,9 @@ class _Collect:
         if self.objects is not None:
             obs = None if observed is None else observed(self.objects)
             dynamic, added = self.objects.add(frames, dynamic, obs)
+        t_fit = time.perf_counter()
+        if targets:
+            static = self._fit(static, dynamic, targets)
         t1 = time.perf_counter()
         self.statics.append(static)
         self.dynamic.update(dynamic)
@@ -353,8 +365,21 @@ class _Collect:
             else:
                 self.sink.window(frames, static, dynamic if added is None else self.objects.baked(frames, dynamic))
         # per window: the stages' seconds (the models' own, aggregation with the objects, the sink's writing)
-        row = {**(timing or {}), "aggregate": t1 - t0, "sink": time.perf_counter() - t1}
+        row = {**(timing or {}), "aggregate": t_fit - t0, "colour_fit": t1 - t_fit, "sink": time.perf_counter() - t1}
         self.timing.append({k: round(v, 4) for k, v in row.items()})
+
+    def _fit(self, static: Gaussians, dynamic: dict[int, Gaussians], targets: dict[int, np.ndarray]) -> Gaussians:
+        """The window's new static set with its colours fitted to `targets` at their frames' rig cameras, the
+        earlier windows' static set held and each frame's dynamic set and posed objects left as they render."""
+        frames = sorted(targets)
+        others = dynamic if self.objects is None else self.objects.baked(frames, {t: dynamic[t] for t in frames})
+        views = [
+            FitView(rc.at(self.agg.ego_to_world[t]), targets[t][v], others[t])
+            for t in frames
+            for v, rc in enumerate(self.agg.rig)
+        ]
+        held = Gaussians.cat(self.statics) if self.statics else None
+        return fit_static_colours(static, views, held=held, ridge=JOINT_FIT_RIDGE)
 
     def scene(self, timing: dict | None = None) -> tuple[Scene4D, AggregateStats]:
         """The whole scene; meta `timing_s`: the stage totals in `timing` and `windows`, each window's stages."""
@@ -426,8 +451,11 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
         _check(cancelled)
         prog("aggregate", (wi + 1) / len(wins))
         observes = mode == "reconstruct"
+        targets = None
+        if mode in JOINT_FIT and dec.images is not None:
+            targets = {t: dec.images[i] for i, t in enumerate(w.keys) if i in dec.images}
         out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
-                   observed if observes else None, shields if observes else None)  # fmt: skip
+                   observed if observes else None, shields if observes else None, targets)  # fmt: skip
     return out.scene(timing)
 
 

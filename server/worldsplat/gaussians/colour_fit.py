@@ -1,0 +1,113 @@
+"""Static colours fitted jointly to images at many cameras (one colour per Gaussian, all views at once).
+
+A scene aggregated from several frames' liftings holds each surface as the union of the frames' splats: from frame
+t the nearer frames' copies lie over frame t's own, each fitted for its own camera, and the render is their blend
+(web/docs/models.md, "What bounds reconstruct at 0 m": exact colour and depth lifted per view and aggregated 22.77 dB
+at 0 m, fitted jointly 25.25). Here the colours of the `free` static Gaussians are fitted so that the render at
+every given camera is nearest its target image, with the Gaussians already placed (`held`: an earlier window's
+static set) held as they are and each frame's non-static Gaussians (dynamic sets, posed objects: `FitView.others`)
+left as they render: their bleed over static pixels is not compensated (a halo through an agent), the target of a
+pixel is scaled by the static Gaussians' share of its weights, as `lift.fit_colours` does for one view.
+
+The render is linear in the colours with the weights `raster.pair_weights` (the served renderer's own alpha x
+transmittance, every Gaussian of the frame in depth order), the solver `lift.solve_colours` (FISTA, per-Gaussian
+diagonal step). The weights are what it costs (about one render per view); the steps are cheap sparse products.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from worldsplat.core.camera import Camera
+from worldsplat.gaussians.lift import solve_colours
+from worldsplat.gaussians.raster import pair_weights
+from worldsplat.gaussians.types import Gaussians, Scene4D
+
+# FISTA steps of the joint fit (its cost is the weights, not the steps: 5 steps against 20 moved the judge's figures
+# on generate by < 0.01, web/docs/downstream.md)
+JOINT_FIT_ITERS = 20
+# The pull towards each Gaussian's own colour in the served fit (as the lifting's FIT_RIDGE: an exact fit is a
+# deconvolution that rings when drawn larger than the images it was fitted to). Reconstruct's page scenes
+# (`evaluation.scene_quality`, 2x canvas), static PSNR / luma SSIM: unfitted 22.87 / 0.710, ridge 0 22.83 / 0.697,
+# 0.3 23.22 / 0.716, 1 23.27 / 0.718, 3 23.23 / 0.717.
+JOINT_FIT_RIDGE = 1.0
+
+
+@dataclass
+class FitView:
+    """One camera of the fit: its target image (H, W, 3) in [0, 1] and the frame's non-static Gaussians there."""
+
+    camera: Camera
+    target: np.ndarray
+    others: Gaussians | None = None
+
+
+def fit_static_colours(
+    free: Gaussians,
+    views: list[FitView],
+    held: Gaussians | None = None,
+    iters: int = JOINT_FIT_ITERS,
+    ridge: float = 0.0,
+) -> Gaussians:
+    """`free` with its colours in [0, 1] fitted so that the renders of held + free + each view's others at the views'
+    cameras are nearest their targets in squared error, plus `ridge` x the squared distance to free's own colours.
+    A free Gaussian that reaches no pixel keeps its colour; `held` and the others are not changed."""
+    from scipy.sparse import csr_matrix, vstack  # noqa: PLC0415 - heavy, needed by the fit only
+
+    n = len(free)
+    if n == 0 or iters <= 0 or not views:
+        return free
+    held = Gaussians.empty() if held is None else held
+    nh = len(held)
+    c_held = held.colors.detach().double().cpu().numpy()
+    blocks, rhs = [], []
+    for view in views:
+        cam = view.camera
+        parts = [held, free] + ([view.others] if view.others is not None and len(view.others) else [])
+        g = Gaussians.cat([_plain(p) for p in parts])
+        pix, rows, w = (x.cpu().numpy() for x in pair_weights(g, cam))
+        P = cam.width * cam.height
+        static = rows < nh + n
+        pix, rows, w = pix[static], rows[static], w[static]
+        share = np.bincount(pix, w, minlength=P)[:, None]
+        target = np.asarray(view.target, np.float64).reshape(-1, 3)
+        if target.shape[0] != P:
+            raise ValueError(
+                f"fit_static_colours: a target of {target.shape[0]} pixels for a {cam.width}x{cam.height} camera"
+            )
+        b = target * share
+        h = rows < nh
+        if h.any():
+            for c in range(3):
+                b[:, c] -= np.bincount(pix[h], w[h] * c_held[rows[h], c], minlength=P)
+        f = ~h
+        blocks.append(csr_matrix((w[f], (pix[f], rows[f] - nh)), shape=(P, n)))
+        rhs.append(b)
+    W = vstack(blocks).tocsr()
+    c0 = free.colors.detach().double().cpu().numpy()
+    x, _ = solve_colours(W, np.concatenate(rhs), c0, iters, ridge)
+    colours = torch.as_tensor(x, dtype=free.colors.dtype, device=free.colors.device)
+    return Gaussians(free.means, free.quats, free.scales, free.opacities, colours, free.extras)
+
+
+def _plain(g: Gaussians) -> Gaussians:
+    """g without its extras (sets with different extra channels concatenate; the weights do not read them)."""
+    return Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors)
+
+
+def fit_scene_static(
+    scene: Scene4D, targets: dict[int, np.ndarray], iters: int = JOINT_FIT_ITERS, ridge: float = 0.0
+) -> Scene4D:
+    """`scene` with its whole static set fitted (`fit_static_colours`) to `targets[t]` (V, H, W, 3 in [0, 1]) at
+    frame t's rig cameras, for every t given; its dynamic sets and objects are its own."""
+    views = [
+        FitView(scene.camera(t, v), np.asarray(target[v]), scene.dynamic_at(t))
+        for t, target in targets.items()
+        for v in range(len(scene.rig))
+    ]
+    static = fit_static_colours(scene.static, views, iters=iters, ridge=ridge)
+    return Scene4D(static, scene.dynamic, scene.frame_times, scene.rig, scene.ego_to_world, dict(scene.meta),
+                   scene.objects)  # fmt: skip

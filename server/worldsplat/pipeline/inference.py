@@ -12,7 +12,9 @@ Contract
                                                       #   caption); rig: list[RigCamera] (default: default_rig)
     scene = to_scene4d(dec, meta=None)                # paper eq. 3 as served, window by window (aggregate_windows)
 Weights: `<role>_small.safetensors` for role in vae | decoder | dit | prior, and optionally decoder_reconstruct (a
-per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`).
+per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`) and vae_reconstruct
+(reconstruct's own VAE for its lifted pixels: a VAE that down-samples less than the one the generator's latents are
+drawn in keeps more of the observation; the latent decoders' sources and, without it, the pixels use `vae`).
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
 `gaussians` says how L becomes Gaussians (None: the mode's served source, GAUSSIANS): "decoder": the latent Gaussian
@@ -32,7 +34,7 @@ from __future__ import annotations
 import hashlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +44,7 @@ import torch.nn.functional as F
 from worldsplat.core.camera import CAMERA_NAMES, default_rig
 from worldsplat.gaussians import Gaussians, Scene4D
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_windows
+from worldsplat.gaussians.lift import FIT_ITERS
 from worldsplat.pipeline import pixels
 from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
 from worldsplat.pipeline.onnx import ensure_exported, requested_backend, serving_backend, use_onnx
@@ -76,6 +79,12 @@ SIZE = "small"
 # without the cell grid at 2x and 4x; a 200-frame clip takes 1.14x the grid's time (frame 0 1.03x; 4x the static
 # Gaussians through the aggregation and the sink, `WindowAggregator.drop_emitted` keeping that within the clip's bar).
 GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder2x"}
+# The lifting's per-view colour fit (`gaussians.lift.fit_colours`, FISTA steps) per mode. Generate's window fit
+# (`pipeline.scene.JOINT_FIT`, no ridge) starts from the lifted colours and leaves nothing for it: on the 2x stack
+# (web/docs/downstream.md "A generator of the 2x latents") the judge read the same with and without it (0.63 of the
+# ground truth at the rig, test clips 0-7) at 2.5-3 s less a default scene.
+# Reconstruct's joint fit keeps a ridge towards these fitted colours (measured with them).
+VIEW_FIT = {"reconstruct": FIT_ITERS, "generate": 0}
 GAUSSIAN_SOURCES = ("pixels", "decoder", "decoder2x", "decoder4x", "pixels_decoder_depth")
 # The latent decoder's grid refined r x (`GaussianDecoder.forward(refine=r)`): its raw maps up-sampled bilinearly, the
 # pixel guide read at the finer grid, each cell r x r Gaussians of 1/r the footprint on the decoder's surface.
@@ -97,6 +106,8 @@ class Models:
     # A finer decoder for reconstruct mode only (one Gaussian per model pixel): its latents come from the VAE
     # encoder, so it may read the pixel guide closely; on generated latents it would read their noise as geometry.
     decoder_reconstruct: torch.nn.Module | None = None
+    # reconstruct's own VAE (its lifted pixels, `for_mode`): no generator draws its latents, no decoder reads them
+    vae_reconstruct: torch.nn.Module | None = None
 
     @property
     def modes(self) -> list[str]:
@@ -106,6 +117,12 @@ class Models:
             if self.dit is not None and (self.prior is not None or not needs_prior(self.dit)):
                 out.append("generate")
         return out
+
+    def for_mode(self, mode: str) -> Models:
+        """The models as `mode` runs them: reconstruct with its own VAE where one is shipped (`vae_reconstruct`)."""
+        if mode != "reconstruct" or self.vae_reconstruct is None:
+            return self
+        return replace(self, vae=self.vae_reconstruct, vae_reconstruct=None)
 
     def decoder_for(self, mode: str) -> torch.nn.Module:
         """The Gaussian decoder that serves `mode` ("reconstruct" | "generate")."""
@@ -142,7 +159,14 @@ _CACHE: dict[str, Models] = {}
 
 
 # role -> the model kind its file holds; `<role>_<SIZE>.safetensors` in the weights folder
-ROLES = {"vae": "vae", "decoder": "decoder", "dit": "dit", "prior": "prior", "decoder_reconstruct": "decoder"}
+ROLES = {
+    "vae": "vae",
+    "decoder": "decoder",
+    "dit": "dit",
+    "prior": "prior",
+    "decoder_reconstruct": "decoder",
+    "vae_reconstruct": "vae",
+}
 
 
 def weight_paths(weights_dir: str | Path | None = None) -> dict[str, Path]:
@@ -200,6 +224,7 @@ def load_models(weights_dir: str | Path | None = None, backend: str | None = Non
         folder,
         loaded["prior"],
         loaded["decoder_reconstruct"],
+        loaded["vae_reconstruct"],
     )
     if backend == "auto":
         backend = serving_backend(m)
@@ -326,7 +351,7 @@ def decode_gaussians(
     images = None
     if source in LIFTED:
         dd = models.decoder_for(mode) if source == "pixels_decoder_depth" else None
-        gs, logits, images = _lift_pixels(models, L, rig, ego_to_world, wins, dd, agents)
+        gs, logits, images = _lift_pixels(models, L, rig, ego_to_world, wins, dd, agents, VIEW_FIT[mode])
     else:
         refine = DECODER_REFINE[source]
         gs, logits = _decode_grid(models, L, rig, ego_to_world, wins, decoder or models.decoder_for(mode), refine)
@@ -372,12 +397,12 @@ def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder, refine: in
 
 
 def _lift_pixels(
-    models: Models, L, rig, ego_to_world, wins, depth_decoder=None, agents=None
+    models: Models, L, rig, ego_to_world, wins, depth_decoder=None, agents=None, fit_iters: int = FIT_ITERS
 ) -> tuple[list[list], list[list], dict[int, np.ndarray]]:
     """The VAE's decoding of L, up-sampled to the rig's image, its ground onto the plane (`pixels.snap_to_ground`)
     and lifted per pixel (`pipeline.pixels`): Gaussians [t][v] (H*W each, row-major), dynamic logits (+-15 from
     the lifted mask) and per frame the images lifted (V, H, W, 3), window by window. `agents`: (T, V, H, W) bool,
-    the observed agents' pixels (`lift_views`)."""
+    the observed agents' pixels (`lift_views`); `fit_iters`: the lifting's per-view colour fit."""
     d, V = models.data, len(rig)
     size = (rig[0].height, rig[0].width)
     gs, logits = [[None] * V for _ in range(L.shape[0])], [[None] * V for _ in range(L.shape[0])]
@@ -391,7 +416,7 @@ def _lift_pixels(
         cams = [rig[v].at(ego_to_world[t]) for t in frames for v in range(V)]
         depth = pixels.snap_to_ground(depth, dyn, cams)
         views = pixels.lift_views(
-            rgb, depth, dyn, cams, None if agents is None else agents[frames].reshape(depth.shape)
+            rgb, depth, dyn, cams, None if agents is None else agents[frames].reshape(depth.shape), fit_iters
         )
         for i, t in enumerate(frames):
             images[t] = rgb[i * V : (i + 1) * V]
@@ -461,6 +486,8 @@ def reconstruct(clip, models: Models | None = None, gaussians: str | None = None
             raise ValueError(f"reconstruct: the clip has no {k!r}")
     _check_rig(clip.rig, models.data.views)
     source = gaussian_source(gaussians, "reconstruct")
+    if source == "pixels":  # its own VAE where shipped; the latent decoders read the latents they were trained on
+        models = models.for_mode("reconstruct")
     size = reconstruct_size(models, np.shape(clip.rgb)[2:4]) if source == "pixels" else None
     t0 = time.perf_counter()
     L = encode_clip(models, clip.rgb, clip.depth, clip.dynamic, size)

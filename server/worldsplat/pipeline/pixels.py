@@ -140,11 +140,16 @@ def snap_to_ground(depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera]
 
 
 def lift_views(
-    rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray, cameras: list[Camera], agents: np.ndarray | None = None
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    dynamic: np.ndarray,
+    cameras: list[Camera],
+    agents: np.ndarray | None = None,
+    fit_iters: int = FIT_ITERS,
 ) -> list[Gaussians]:
     """`served_maps` of N views and their N world cameras (at the maps' size) -> one Gaussians per view, one per
     pixel in row-major order (the oracle's lifting: extras[:, 0] dynamic, extras[:, 1] sky; its colours fitted so
-    that each view renders its decoded image back, `lift(fit_iters=FIT_ITERS)`; the near side of depth edges
+    that each view renders its decoded image back, `lift(fit_iters=fit_iters)`; the near side of depth edges
     EDGE_FOOTPRINT wide except on `agents`, (N, H, W) bool: the observed agents' pixels, or None)."""
     return [
         lift(
@@ -152,7 +157,7 @@ def lift_views(
             depth[i],
             dynamic[i],
             cam,
-            fit_iters=FIT_ITERS,
+            fit_iters=fit_iters,
             edge_footprint=EDGE_FOOTPRINT,
             agents=None if agents is None else agents[i],
         )

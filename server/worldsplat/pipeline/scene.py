@@ -36,7 +36,7 @@ from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
-from worldsplat.gaussians.colour_fit import JOINT_FIT_RIDGE, FitView, fit_static_colours
+from worldsplat.gaussians.colour_fit import FitView, fit_static_colours
 from worldsplat.gaussians.objects import (
     AGENT_MARGIN_M,
     AGENT_MODES,
@@ -88,11 +88,15 @@ ORACLE_VERSION = "oracle-8"
 # through the boxes claim from each frame's own cameras (CLAIM_RAYS) and its VAE decoder fine-tuned at the clip's image;
 # w22 each window's new static colours fitted jointly to the window's lifted images (JOINT_FIT)
 STREAM_VERSION = "w22"
-# The learned modes whose windows' new static Gaussians get their colours fitted jointly to the images the window's
-# views were lifted from, at every keyframe camera of the window, with the earlier windows' static set held
-# (`gaussians.colour_fit`): the nearer frames' copies of a surface no longer blend frame t's view away
-# (web/docs/models.md, "What bounds reconstruct at 0 m"). Only lifted sources carry the images (`DecodedFrames.images`).
-JOINT_FIT = ("reconstruct", "generate")
+# Per learned mode, the ridge of the joint colour fit of each window's new static Gaussians (`gaussians.colour_fit`):
+# fitted to the images the window's views were lifted from, at every keyframe camera of the window, the earlier
+# windows' static set held, so the nearer frames' copies of a surface no longer blend frame t's view away
+# (web/docs/models.md, "What bounds reconstruct at 0 m"); a mode not named is not fitted. Only lifted sources carry
+# the images (`DecodedFrames.images`). Reconstruct's page scenes (`evaluation.scene_quality`, 2x canvas), static
+# PSNR / luma SSIM: unfitted 22.87 / 0.710, ridge 0 22.83 / 0.697, 0.3 23.22 / 0.716, 1 23.27 / 0.718, 3 23.23 /
+# 0.717. Generate's judge (`evaluation.generate_gap`, test clips 0-7 at the rig, / the ground truth): ridge 0 0.63,
+# 0.3 0.60, 1 0.59.
+JOINT_FIT = {"reconstruct": 1.0, "generate": 0.0}
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -313,8 +317,16 @@ class _Collect:
     """Gathers the windows into the served Scene4D (and forwards them to the caller's sink); with `objects`, the
     agents' Gaussians go into their objects (`gaussians.objects.ObjectBuilder`) as the windows come."""
 
-    def __init__(self, agg: WindowAggregator, meta: dict, sink: SceneSink | None, objects: _Objects | None = None):
+    def __init__(
+        self,
+        agg: WindowAggregator,
+        meta: dict,
+        sink: SceneSink | None,
+        objects: _Objects | None = None,
+        fit_ridge: float = 0.0,
+    ):
         self.agg, self.sink, self.statics, self.dynamic, self.timing = agg, sink, [], {}, []
+        self.fit_ridge = fit_ridge  # the joint colour fit's (`window(targets=)`)
         self.objects = None if objects is None else objects.builder(agg)
         self.skeleton = agg.scene([], {t: Gaussians.empty() for t in range(len(agg.frame_times))}, meta)
         if self.objects is not None:
@@ -379,7 +391,7 @@ class _Collect:
             for v, rc in enumerate(self.agg.rig)
         ]
         held = Gaussians.cat(self.statics) if self.statics else None
-        return fit_static_colours(static, views, held=held, ridge=JOINT_FIT_RIDGE)
+        return fit_static_colours(static, views, held=held, ridge=self.fit_ridge)
 
     def scene(self, timing: dict | None = None) -> tuple[Scene4D, AggregateStats]:
         """The whole scene; meta `timing_s`: the stage totals in `timing` and `windows`, each window's stages."""
@@ -417,7 +429,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     H, W = world.rig[0].height, world.rig[0].width
     eco = inf.decoded_economy(models.data.width, W, mode=mode) if economy is None else economy
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
-    out = _Collect(agg, meta, sink, objects)
+    out = _Collect(agg, meta, sink, objects, JOINT_FIT.get(mode, 0.0))
     timing: dict[str, float] = {}
     for wi, w in enumerate(wins):
         _check(cancelled)
@@ -486,7 +498,7 @@ def _observed_agents(inf, models, dec, clip, w: KeyWindow, builder: ObjectBuilde
     between keyframes observe nothing."""
     rig, frames = dec.rig, w.keys
     if OBSERVED_AGENTS == "vae":
-        guide = inf.pixel_guide(models, dec.latents[: len(frames)])
+        guide = inf.pixel_guide(models.for_mode("reconstruct"), dec.latents[: len(frames)])
         rgb, depth, _ = served_maps(guide.reshape(-1, *guide.shape[2:]), (rig[0].height, rig[0].width),
                                     models.data.depth_near, models.data.depth_far)  # fmt: skip
         tol = (1.0, 0.1)  # the decoded depth is blurred over an agent's edge

@@ -750,9 +750,12 @@ def aggregate_windows(
     meta: dict | None = None,
     image_size: tuple[int, int] | None = None,
     finer: float = WINDOW_FINER,
+    fit=None,
 ) -> tuple[Scene4D, AggregateStats]:
     """Paper eq. 3 window by window, as the playground builds a scene (`WindowAggregator.add` of each window of
-    `frame_windows` in order); `per_view[t][v]` as in `aggregate_4d`, which is one window of every frame."""
+    `frame_windows` in order); `per_view[t][v]` as in `aggregate_4d`, which is one window of every frame.
+    `fit(frames, static, earlier statics, dynamic)`: each window's static set as kept (a colour fit,
+    `gaussians.colour_fit.fit_window`), before the next window is added."""
     T = len(per_view)
     if T != len(ego_to_world) or T != len(frame_times):
         raise ValueError(
@@ -764,6 +767,8 @@ def aggregate_windows(
     statics, dynamics = [], {}
     for frames in frame_windows:
         static, dyn = agg.add(frames, [per_view[t] for t in frames])
+        if fit is not None:
+            static = fit(frames, static, statics, dyn)
         statics.append(static)
         dynamics.update(dyn)
     return agg.scene(statics, dynamics, meta), agg.stats

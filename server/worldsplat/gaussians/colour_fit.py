@@ -88,6 +88,26 @@ def fit_static_colours(
     return Gaussians(free.means, free.quats, free.scales, free.opacities, colours, free.extras)
 
 
+def fit_window(
+    static: Gaussians,
+    held: list[Gaussians],
+    rig: list,
+    ego_to_world: np.ndarray,
+    targets: dict[int, np.ndarray],
+    others: dict[int, Gaussians],
+    ridge: float = 0.0,
+) -> Gaussians:
+    """A streamed window's new static set fitted (`fit_static_colours`) to `targets[t]` (V, H, W, 3) at frame t's
+    rig cameras (`rig[v].at(ego_to_world[t])`), the earlier windows' static sets `held` and each frame's non-static
+    Gaussians `others[t]` as they render."""
+    views = [
+        FitView(rc.at(ego_to_world[t]), targets[t][v], others.get(t))
+        for t in sorted(targets)
+        for v, rc in enumerate(rig)
+    ]
+    return fit_static_colours(static, views, held=Gaussians.cat(held) if held else None, ridge=ridge)
+
+
 def _plain(g: Gaussians) -> Gaussians:
     """g without its extras (sets with different extra channels concatenate; the weights do not read them)."""
     return Gaussians(g.means, g.quats, g.scales, g.opacities, g.colors)

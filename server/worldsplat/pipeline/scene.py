@@ -36,7 +36,7 @@ from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
-from worldsplat.gaussians.colour_fit import FitView, fit_static_colours
+from worldsplat.gaussians.colour_fit import fit_window
 from worldsplat.gaussians.objects import (
     AGENT_MARGIN_M,
     AGENT_MODES,
@@ -86,17 +86,8 @@ ORACLE_VERSION = "oracle-8"
 # near side of a depth edge lifted narrower but on the observed agents' pixels (`pipeline.pixels.lift_views`); w20
 # generate serves the latent decoder's grid refined 2x (`inference.GAUSSIANS`, "decoder2x"); w21 reconstruct's rays
 # through the boxes claim from each frame's own cameras (CLAIM_RAYS) and its VAE decoder fine-tuned at the clip's image;
-# w22 each window's new static colours fitted jointly to the window's lifted images (JOINT_FIT)
+# w22 each window's new static colours fitted jointly to the window's lifted images (`inference.JOINT_FIT`)
 STREAM_VERSION = "w22"
-# Per learned mode, the ridge of the joint colour fit of each window's new static Gaussians (`gaussians.colour_fit`):
-# fitted to the images the window's views were lifted from, at every keyframe camera of the window, the earlier
-# windows' static set held, so the nearer frames' copies of a surface no longer blend frame t's view away
-# (web/docs/models.md, "What bounds reconstruct at 0 m"); a mode not named is not fitted. Only lifted sources carry
-# the images (`DecodedFrames.images`). Reconstruct's page scenes (`evaluation.scene_quality`, 2x canvas), static
-# PSNR / luma SSIM: unfitted 22.87 / 0.710, ridge 0 22.83 / 0.697, 0.3 23.22 / 0.716, 1 23.27 / 0.718, 3 23.23 /
-# 0.717. Generate's judge (`evaluation.generate_gap`, test clips 0-7 at the rig, / the ground truth): ridge 0 0.63,
-# 0.3 0.60, 1 0.59.
-JOINT_FIT = {"reconstruct": 1.0, "generate": 0.0}
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -385,13 +376,7 @@ class _Collect:
         earlier windows' static set held and each frame's dynamic set and posed objects left as they render."""
         frames = sorted(targets)
         others = dynamic if self.objects is None else self.objects.baked(frames, {t: dynamic[t] for t in frames})
-        views = [
-            FitView(rc.at(self.agg.ego_to_world[t]), targets[t][v], others[t])
-            for t in frames
-            for v, rc in enumerate(self.agg.rig)
-        ]
-        held = Gaussians.cat(self.statics) if self.statics else None
-        return fit_static_colours(static, views, held=held, ridge=self.fit_ridge)
+        return fit_window(static, self.statics, self.agg.rig, self.agg.ego_to_world, targets, others, self.fit_ridge)
 
     def scene(self, timing: dict | None = None) -> tuple[Scene4D, AggregateStats]:
         """The whole scene; meta `timing_s`: the stage totals in `timing` and `windows`, each window's stages."""
@@ -429,7 +414,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     H, W = world.rig[0].height, world.rig[0].width
     eco = inf.decoded_economy(models.data.width, W, mode=mode) if economy is None else economy
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
-    out = _Collect(agg, meta, sink, objects, JOINT_FIT.get(mode, 0.0))
+    out = _Collect(agg, meta, sink, objects, inf.JOINT_FIT.get(mode, 0.0))
     timing: dict[str, float] = {}
     for wi, w in enumerate(wins):
         _check(cancelled)
@@ -464,7 +449,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
         prog("aggregate", (wi + 1) / len(wins))
         observes = mode == "reconstruct"
         targets = None
-        if mode in JOINT_FIT and dec.images is not None:
+        if mode in inf.JOINT_FIT and dec.images is not None:
             targets = {t: dec.images[i] for i, t in enumerate(w.keys) if i in dec.images}
         out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
                    observed if observes else None, shields if observes else None, targets)  # fmt: skip

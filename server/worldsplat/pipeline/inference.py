@@ -45,7 +45,6 @@ from worldsplat.core.camera import CAMERA_NAMES, default_rig
 from worldsplat.gaussians import Gaussians, Scene4D
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_windows
 from worldsplat.gaussians.colour_fit import fit_window
-from worldsplat.gaussians.lift import FIT_ITERS
 from worldsplat.pipeline import pixels
 from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
 from worldsplat.pipeline.onnx import ensure_exported, requested_backend, serving_backend, use_onnx
@@ -80,12 +79,13 @@ SIZE = "small"
 # without the cell grid at 2x and 4x; a 200-frame clip takes 1.14x the grid's time (frame 0 1.03x; 4x the static
 # Gaussians through the aggregation and the sink, `WindowAggregator.drop_emitted` keeping that within the clip's bar).
 GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder2x"}
-# The lifting's per-view colour fit (`gaussians.lift.fit_colours`, FISTA steps) per mode. Generate's window fit
+# The lifting's per-view colour fit (`gaussians.lift.fit_colours`, FISTA steps) where a mode does not take the
+# lifting's own (`pipeline.pixels.FIT_ITERS`). Generate's window fit
 # (JOINT_FIT, no ridge) starts from the lifted colours and leaves nothing for it: on the 2x stack
 # (web/docs/downstream.md "A generator of the 2x latents") the judge read the same with and without it (0.63 of the
 # ground truth at the rig, test clips 0-7) at 2.5-3 s less a default scene.
-# Reconstruct's joint fit keeps a ridge towards these fitted colours (measured with them).
-VIEW_FIT = {"reconstruct": FIT_ITERS, "generate": 0}
+# Reconstruct's joint fit keeps a ridge towards the lifting's fitted colours (measured with them).
+VIEW_FIT = {"generate": 0}
 # Per learned mode, the ridge of the joint colour fit of each window's new static Gaussians
 # (`gaussians.colour_fit.fit_window`; in the served scene's windows, `pipeline.scene`, and in `aggregate_decoded`),
 # fitted to the images the window's views were lifted from, at every keyframe camera of the window, the earlier
@@ -362,7 +362,7 @@ def decode_gaussians(
     images = None
     if source in LIFTED:
         dd = models.decoder_for(mode) if source == "pixels_decoder_depth" else None
-        gs, logits, images = _lift_pixels(models, L, rig, ego_to_world, wins, dd, agents, VIEW_FIT[mode])
+        gs, logits, images = _lift_pixels(models, L, rig, ego_to_world, wins, dd, agents, VIEW_FIT.get(mode))
     else:
         refine = DECODER_REFINE[source]
         gs, logits = _decode_grid(models, L, rig, ego_to_world, wins, decoder or models.decoder_for(mode), refine)
@@ -408,12 +408,12 @@ def _decode_grid(models: Models, L, rig, ego_to_world, wins, decoder, refine: in
 
 
 def _lift_pixels(
-    models: Models, L, rig, ego_to_world, wins, depth_decoder=None, agents=None, fit_iters: int = FIT_ITERS
+    models: Models, L, rig, ego_to_world, wins, depth_decoder=None, agents=None, fit_iters: int | None = None
 ) -> tuple[list[list], list[list], dict[int, np.ndarray]]:
     """The VAE's decoding of L, up-sampled to the rig's image, its ground onto the plane (`pixels.snap_to_ground`)
     and lifted per pixel (`pipeline.pixels`): Gaussians [t][v] (H*W each, row-major), dynamic logits (+-15 from
     the lifted mask) and per frame the images lifted (V, H, W, 3), window by window. `agents`: (T, V, H, W) bool,
-    the observed agents' pixels (`lift_views`); `fit_iters`: the lifting's per-view colour fit."""
+    the observed agents' pixels (`lift_views`); `fit_iters`: the lifting's per-view colour fit (None: the lifting's own)."""
     d, V = models.data, len(rig)
     size = (rig[0].height, rig[0].width)
     gs, logits = [[None] * V for _ in range(L.shape[0])], [[None] * V for _ in range(L.shape[0])]

@@ -145,11 +145,11 @@ def lift_views(
     dynamic: np.ndarray,
     cameras: list[Camera],
     agents: np.ndarray | None = None,
-    fit_iters: int = FIT_ITERS,
+    fit_iters: int | None = None,
 ) -> list[Gaussians]:
     """`served_maps` of N views and their N world cameras (at the maps' size) -> one Gaussians per view, one per
     pixel in row-major order (the oracle's lifting: extras[:, 0] dynamic, extras[:, 1] sky; its colours fitted so
-    that each view renders its decoded image back, `lift(fit_iters=fit_iters)`; the near side of depth edges
+    that each view renders its decoded image back, `lift(fit_iters=)`, FIT_ITERS steps unless `fit_iters` says; the near side of depth edges
     EDGE_FOOTPRINT wide except on `agents`, (N, H, W) bool: the observed agents' pixels, or None)."""
     return [
         lift(
@@ -157,7 +157,7 @@ def lift_views(
             depth[i],
             dynamic[i],
             cam,
-            fit_iters=fit_iters,
+            fit_iters=FIT_ITERS if fit_iters is None else fit_iters,
             edge_footprint=EDGE_FOOTPRINT,
             agents=None if agents is None else agents[i],
         )

@@ -4,13 +4,13 @@ Also the scale floor every decoded Gaussian gets (`inference.scale_floor`)."""
 
 import copy
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from test_models_inference import tiny_clip
+from tiny_models import pixel_guided, pixel_guided_models
 from worldsplat.pipeline import inference as inf
 from worldsplat.pipeline import onnx as ox
 from worldsplat_models.configs import get_config
@@ -23,20 +23,7 @@ CFG = get_config("tiny")
 @pytest.fixture(scope="module")
 def models():
     """Tiny v2-style models (4x VAE, pixel guide); the generate decoder on a 2x2 grid, the reconstruct one per pixel."""
-    torch.manual_seed(0)
-    vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)
-    C = vae_cfg.joint_channels
-    dit_cfg = dataclasses.replace(CFG.dit, in_channels=C, out_channels=C, patch=2, control_channels=7, control_hint=8)
-    dec = dict(in_channels=C, patch=2, guide_channels=5, reread_latent=True)
-    m = inf.Models(
-        build("vae", vae_cfg).eval(),
-        build("decoder", dataclasses.replace(CFG.decoder, up_channels=(8, 8), **dec)).eval(),
-        build("dit", dit_cfg).eval(),
-        CFG.data,
-        "test-recon",
-        Path("."),
-        decoder_reconstruct=build("decoder", dataclasses.replace(CFG.decoder, up_channels=(8, 8, 8), **dec)).eval(),
-    )
+    m = pixel_guided_models("test-recon", decoder_reconstruct=build("decoder", pixel_guided((8, 8, 8))[1]).eval())
     with torch.no_grad():
         for p in list(m.decoder.head.parameters()) + list(m.decoder_reconstruct.head.parameters()):
             p.add_(0.05 * torch.randn_like(p))

@@ -4,12 +4,12 @@ the latent decoders' sources left on the generator's VAE."""
 
 import copy
 import dataclasses
-from pathlib import Path
 
 import pytest
 import torch
 
 from test_models_inference import tiny_clip
+from tiny_models import pixel_guided_models
 from worldsplat.pipeline import inference as inf
 from worldsplat.pipeline import onnx as ox
 from worldsplat_models.configs import get_config
@@ -22,22 +22,10 @@ CFG = get_config("tiny")
 @pytest.fixture(scope="module")
 def models():
     """Tiny models: the generator's VAE down-samples 4x, reconstruct's own 2x (other latent channels too)."""
-    torch.manual_seed(0)
-    vae_cfg = dataclasses.replace(CFG.vae, channels=(8, 16), unshuffle=1)
     own_cfg = dataclasses.replace(CFG.vae, channels=(8,), unshuffle=1, latent_channels=3)
-    assert build("vae", own_cfg).cfg.downsample == 2 and build("vae", vae_cfg).cfg.downsample == 4
-    C = vae_cfg.joint_channels
-    dit_cfg = dataclasses.replace(CFG.dit, in_channels=C, out_channels=C, patch=2, control_channels=7, control_hint=8)
-    dec = dict(in_channels=C, patch=2, guide_channels=5, reread_latent=True)
-    return inf.Models(
-        build("vae", vae_cfg).eval(),
-        build("decoder", dataclasses.replace(CFG.decoder, up_channels=(8, 8), **dec)).eval(),
-        build("dit", dit_cfg).eval(),
-        CFG.data,
-        "test-recon-vae",
-        Path("."),
-        vae_reconstruct=build("vae", own_cfg).eval(),
-    )
+    m = pixel_guided_models("test-recon-vae", vae_reconstruct=build("vae", own_cfg).eval())
+    assert m.vae_reconstruct.cfg.downsample == 2 and m.vae.cfg.downsample == 4
+    return m
 
 
 def test_reconstruct_encodes_with_its_own_vae_and_generate_keeps_the_other(models):

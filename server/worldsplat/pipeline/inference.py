@@ -91,9 +91,10 @@ VIEW_FIT = {"generate": 0}
 # fitted to the images the window's views were lifted from, at every keyframe camera of the window, the earlier
 # windows' static set held, so the nearer frames' copies of a surface no longer blend frame t's view away
 # (web/docs/models.md, "What bounds reconstruct at 0 m"); a mode not named is not fitted. Only lifted sources carry
-# the images (`DecodedFrames.images`). Reconstruct's page scenes (`evaluation.scene_quality`, 2x canvas), static
-# PSNR / luma SSIM: unfitted 22.87 / 0.710, ridge 0 22.83 / 0.697, 0.3 23.22 / 0.716, 1 23.27 / 0.718, 3 23.23 /
-# 0.717. Generate's judge (`evaluation.generate_gap`, test clips 0-7 at the rig, / the ground truth): ridge 0 0.63,
+# the images (`DecodedFrames.images`). The ridge was chosen on reconstruct's page scenes (`evaluation.scene_quality`,
+# 2x canvas) with the generator's 4x VAE, static PSNR / luma SSIM: unfitted 22.87 / 0.710, ridge 0 22.83 / 0.697,
+# 0.3 23.22 / 0.716, 1 23.27 / 0.718, 3 23.23 / 0.717; with its own 2x VAE (served) unfitted 24.52 / 0.742, ridge 1
+# 24.83 / 0.751 (web/docs/models.md "Reconstruct's own VAE"). Generate's judge (`evaluation.generate_gap`, test clips 0-7 at the rig, / the ground truth): ridge 0 0.63,
 # 0.3 0.60, 1 0.59.
 JOINT_FIT = {"reconstruct": 1.0, "generate": 0.0}
 GAUSSIAN_SOURCES = ("pixels", "decoder", "decoder2x", "decoder4x", "pixels_decoder_depth")

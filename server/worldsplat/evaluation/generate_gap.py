@@ -8,6 +8,9 @@ exact labels.
 Rows (test clips at the models' image, 112x64, 4 frames, as `worldsplat judge eval` makes them; generate's scene
 is `pipeline.scene.generate_scene(mode="generate")` as served, its models' calls recorded on the way):
 - ground truth: the world's own images;
+- world redrawn: the world with the appearance its seed drew (paints, lit windows, the sun's direction,
+  the rain) drawn again (`world.appearance.redraw_appearance`), its labels the same: what a generator that samples
+  the world's own distribution perfectly shows, the ceiling of a sampler of these conditions;
 - world through the VAE: the world's images encoded and decoded by the VAE (`inference.encode_clip`, `pixel_guide`):
   what the latent space keeps of the world, the best a generator of latents could show (at the rig only);
 - world at 1/k: the world's images area-averaged to 1/k of their width and height and bilinearly up-sampled back
@@ -55,16 +58,20 @@ from worldsplat.gaussians.types import Gaussians
 from worldsplat.pipeline import pixels
 from worldsplat.pipeline.render import render_scene_track
 from worldsplat.world import build_world, simulate
+from worldsplat.world.appearance import redraw_appearance
 from worldsplat.world.classes import PALETTE
 from worldsplat.world.dataset import clip_scenario
 from worldsplat_models.judge import load_judge, segment
 from worldsplat_models.weights import load_weights, weights_dir
 
 GENERATED = "generated images"
+REDRAWN = "world redrawn"
+REDRAW_SEED = 1  # the redraw's seed per clip is this + the clip's index
 VAE_WORLD = "world through the VAE"
 DETAIL_ROWS = {"world at 1/1.5": 1.5, "world at 1/2": 2.0, "world at 1/3": 3.0}
 ROWS = (
     GROUND_TRUTH,
+    REDRAWN,
     *DETAIL_ROWS,
     VAE_WORLD,
     GENERATED,
@@ -235,6 +242,8 @@ def _measure(clips, frames, shifts, rows, steps, png, progress, vae, judge_path)
             for row in rows_at(s, rows):
                 if row == GROUND_TRUTH:
                     rgb = clip.rgb
+                elif row == REDRAWN:
+                    rgb = simulate(redraw_appearance(world, REDRAW_SEED + ci), s, frames=list(frames)).rgb
                 elif row in DETAIL_ROWS:
                     rgb = world_at(clip.rgb, DETAIL_ROWS[row])
                 elif row == VAE_WORLD:

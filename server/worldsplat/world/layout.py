@@ -43,6 +43,14 @@ FACADES = (
     (0.62, 0.32, 0.24),
 )
 HOUSES = ((0.9, 0.88, 0.82), (0.82, 0.74, 0.6), (0.7, 0.78, 0.82), (0.86, 0.8, 0.7), (0.75, 0.55, 0.45))
+SIGN_COLOURS = ((0.1, 0.25, 0.7), (0.75, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.45, 0.2))
+
+
+def tree_green(u: float, v: float) -> tuple[float, float, float]:
+    """A tree crown's albedo from two uniform draws in [0, 1)."""
+    return (0.16 + 0.1 * u, 0.32 + 0.12 * v, 0.1)
+
+
 LAMP_HEIGHT = 7.0
 
 
@@ -166,7 +174,7 @@ class StaticBuilder:
         x, y, _ = self._pose(road_name, s, d)
         trunk = float(rng.uniform(1.8, 3.0)) * scale
         crown = float(rng.uniform(1.5, 2.8)) * scale
-        green = (0.16 + 0.1 * float(rng.random()), 0.32 + 0.12 * float(rng.random()), 0.1)
+        green = tree_green(float(rng.random()), float(rng.random()))
         self.b.box((x, y, trunk / 2), 0.0, (0.14, 0.14, trunk / 2), VEGETATION, (0.3, 0.22, 0.14), M_PLAIN)
         self.b.sphere((x, y, trunk + crown * 0.75), crown, VEGETATION, green, M_FOLIAGE, float(rng.random()))
 
@@ -230,7 +238,7 @@ class StaticBuilder:
             x, y, yaw = self._pose("main", s, d)
             h = 2.6
             self.b.box((x, y, h / 2), yaw, (0.05, 0.05, h / 2), POLE, (0.55, 0.56, 0.58))
-            colour = [(0.1, 0.25, 0.7), (0.75, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.45, 0.2)][int(rng.integers(4))]
+            colour = SIGN_COLOURS[int(rng.integers(len(SIGN_COLOURS)))]
             face_yaw = yaw if side < 0 else yaw + math.pi
             self.b.box((x, y, h + 0.35), face_yaw, (0.03, 0.4, 0.35), SIGN, colour, M_SIGN, float(rng.random()))
 

@@ -19,6 +19,7 @@ class Pareto:
     points: list[tuple[str, float, float]]  # (setting, x, y)
     default: str
     log_x: bool = False
+    curve: bool = True  # the points are one knob's settings in order (joined by a line); False: separate things
 
 
 @dataclass
@@ -56,7 +57,7 @@ def plot_pareto(p: Pareto, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(5, 3.4), dpi=110)
     xs = [x for _, x, _ in p.points]
     ys = [y for _, _, y in p.points]
-    ax.plot(xs, ys, "o-", color="#4477aa", lw=1.2, ms=4)
+    ax.plot(xs, ys, "o-" if p.curve else "o", color="#4477aa", lw=1.2, ms=4)
     for name, x, y in p.points:
         is_default = name == p.default
         ax.annotate(

@@ -251,7 +251,7 @@ def run(quick: bool) -> Section:
         "ground truth within 0.1 dB; v2 stores the same integers as byte planes (Morton deltas, zstd per plane; its "
         "dynamic records range-coded with adaptive context models), so it loses nothing more and is smaller than v1 "
         "with HTTP compression.",
-        pareto=Pareto("bytes per Gaussian", "PSNR vs ground truth (dB)", points, default="14/8 (default)"),
+        pareto=Pareto("bytes per Gaussian", "PSNR vs ground truth (dB)", points, default="14/8 (default)", curve=False),
         notes=[
             f"world rows: {n} static Gaussians of the urban_straight oracle scene, {len(cams)} view(s) at {w}x{h}, "
             f"float32 vs ground truth {psnr_gt_ref:.2f} dB; static rows count the STAT chunks, dynamic rows the "

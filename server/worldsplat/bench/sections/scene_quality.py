@@ -38,6 +38,6 @@ def run(quick: bool) -> Section:
         why=f"{len(specs)} held-out scenario(s) served at {size}, rendered by the reference rasterizer on a canvas "
         f"{sq.SCALE}x per side at every rig camera, frame 0 (silhouettes: every frame). generate is the "
         "playground's default; the oracle row lifts exact colour and depth (the representation's ceiling).",
-        pareto=Pareto("seconds to build the scene", "static-pixel PSNR (dB)", points, default=default),
+        pareto=Pareto("seconds to build the scene", "static-pixel PSNR (dB)", points, default=default, curve=False),
         data={"summary": summ},
     )

@@ -97,7 +97,13 @@ def run(quick: bool) -> Section:
         "playground's default (a scene from the scenario alone), refined with the served blend (mix) on a shifted "
         "track; the oracle row renders the lifting of exact colour and depth, the ground-truth row is the judge on "
         "the world's own images (the reference).",
-        pareto=Pareto("seconds per clip (scene + renders + refinement)", "judge mIoU vs exact labels", points, default, curve=False),
+        pareto=Pareto(
+            "seconds per clip (scene + renders + refinement)",
+            "judge mIoU vs exact labels",
+            points,
+            default,
+            curve=False,
+        ),
         notes=[f"judge Fréchet distance floor (world images, two random halves): {floor}"]
         + _gap_notes(r)
         + ([f"BEV mIoU: mean IoU of {', '.join(r['bev_layers'])} on the BEV head's grid"] if bev else []),

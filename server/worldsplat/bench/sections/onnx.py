@@ -145,7 +145,9 @@ def run(quick: bool) -> Section:
             "`worldsplat serve --backend torch`, $WORLDSPLAT_BACKEND)."
         ),
         # the marked point: what a user waits for served by the default backend (a graph alone is not a setting)
-        pareto=Pareto("onnxruntime seconds", "speed ratio (torch / ORT)", points, default=points[-1][0], log_x=True, curve=False),
+        pareto=Pareto(
+            "onnxruntime seconds", "speed ratio (torch / ORT)", points, default=points[-1][0], log_x=True, curve=False
+        ),
         notes=[f"{s['mode']} scene: {json.dumps(s)}" for s in scenes],
         data={"ratios": {p[0]: p[2] for p in graphs}, "scenes": scenes},
     )

@@ -296,7 +296,9 @@ def run(quick: bool) -> Section:
         "The PSNR column scores each image at the reference pose against the torch reference (this viewer through "
         "read_pixels; a peer's canvas, whose camera model differs by fractions of a pixel). The budget row is not "
         "an equal-image comparison: its PSNR is the drawn prefix against the whole scene (torch renders).",
-        pareto=Pareto("frame ms, synced (median)", "PSNR vs torch (dB)", points, default=OURS["ours"], log_x=True, curve=False)
+        pareto=Pareto(
+            "frame ms, synced (median)", "PSNR vs torch (dB)", points, default=OURS["ours"], log_x=True, curve=False
+        )
         if points
         else None,
         notes=[

@@ -52,6 +52,8 @@ def run(quick: bool) -> Section:
         why="float32 matches float64 far below one 8-bit level at about half the cost; fp16/bf16 storage halves "
         "memory but bf16's 8-bit mantissa moves means by centimetres at 50 m, a visible error, and on CPU "
         "the upcast makes neither faster.",
-        pareto=Pareto("seconds per view", "PSNR vs float64 (dB, capped at 150)", points, default="float32", curve=False),
+        pareto=Pareto(
+            "seconds per view", "PSNR vs float64 (dB, capped at 150)", points, default="float32", curve=False
+        ),
         data={"error_by_dtype": err},
     )

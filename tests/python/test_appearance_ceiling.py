@@ -1,6 +1,8 @@
 """`world.appearance.redraw_appearance` (the appearance drawn again, the geometry kept) and
 `evaluation.appearance_ceiling.figures` (a redraw's and the redraws' mean's figures against the ground truth)."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -78,3 +80,11 @@ def test_figures_remove_the_means_own_noise():
     assert abs(f["mean_inf_static_psnr_db"] - bias_only) < 0.5
     with pytest.raises(ValueError, match="at least 2"):
         figures(_truth(gt, sem), iter(draws[:1]))
+
+
+def test_the_bench_notes_what_a_generator_can_reach():
+    from worldsplat.bench.sections.scene_quality import ceiling_note
+
+    note = ceiling_note(["test:0"], {"width": 56, "height": 32, "frames": 1, "fps": 4.0})
+    redraw_db, redraw_ssim, mean_db, mean_ssim = (float(x) for x in re.findall(r"\d+\.\d+", note))
+    assert 8 < redraw_db < mean_db < 60 and 0 < redraw_ssim <= 1 and 0 < mean_ssim <= 1

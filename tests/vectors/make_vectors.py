@@ -982,7 +982,7 @@ def _write_v2_range(valid, bad) -> None:
     back = wsplat.decode(base)
     dl = wsplat.parse_layout(head["dynamic_layout"], 0, "dynamic_layout")
     a = wsplat._sanitized_numpy(back.dynamic[0], dl)
-    _, delta, cat = wsplat.v2_records(a, dl, head["block_size"], wsplat.dynamic_pos_precision_for(dl))
+    _, delta, cat, _ = wsplat.v2_records(a, dl, head["block_size"], wsplat.dynamic_pos_precision_for(dl))
     delta = np.full(len(delta), 1 << 38, dtype=np.uint64)
     words = context_coder.encode_chunk(context_coder.Models(dl.fields), delta, cat)
     bad("bad_v2_range_morton_overflow", with_words(words), "bad_payload", p0 + r["stream_at"], "DYNA.pos")

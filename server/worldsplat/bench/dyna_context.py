@@ -34,7 +34,7 @@ def records(d: Gaussians, dl: wsplat.Layout) -> tuple[int, dict[str, np.ndarray]
     a = wsplat._sanitized_numpy(d, dl)
     order = wsplat._block_order(a["means"])
     a = {k: v[order] for k, v in a.items()}
-    boxes, delta, cat = wsplat.v2_records(a, dl, BLOCK, wsplat.dynamic_pos_precision_for(dl))
+    boxes, delta, cat, _ = wsplat.v2_records(a, dl, BLOCK, wsplat.dynamic_pos_precision_for(dl))
     return len(boxes), cat, delta
 
 

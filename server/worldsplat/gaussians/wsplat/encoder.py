@@ -62,12 +62,13 @@ def layouts_for(static: Gaussians, dynamic: list[Gaussians], version: int | None
 
 def _blocks(
     a: dict[str, np.ndarray], layout: Layout, block_size: int, version: int, zstd: tuple = (), pos_precision=None
-) -> bytes:
-    """`zstd`: (level, search level) of a v2 chunk (default: ZSTD_LEVEL, SEARCH_LEVEL)."""
+) -> tuple[bytes, np.ndarray]:
+    """A chunk's blocks and the row of `a` of each record as stored (v2 sorts each block by Morton code).
+    `zstd`: (level, search level) of a v2 chunk (default: ZSTD_LEVEL, SEARCH_LEVEL)."""
     if version >= 2:
         level, search = (tuple(zstd) + (ZSTD_LEVEL, SEARCH_LEVEL)[len(zstd) :])[:2]
         return encode_blocks_v2(a, layout, block_size, level, search, pos_precision)
-    return encode_blocks(a, layout, block_size, pos_precision)
+    return encode_blocks(a, layout, block_size, pos_precision), np.arange(len(a["means"]))
 
 
 POS_PRECISION_OF_VERSION = "version"  # the default of `encode`'s pos_precision: v2's (pos_precision_for), v1 None
@@ -111,19 +112,21 @@ def _stat_chunks(
     version: int = 1,
     zstd: tuple = (),
     pos_precision: float | None = None,
-) -> tuple[list[bytes], int]:
+) -> tuple[list[bytes], int, np.ndarray]:
     """STAT chunks of importance-ordered sanitized statics: chunk k holds the next `size` * 2^k of them, Morton-ordered
-    inside so block boxes stay small. Returns the chunks and the size the next chunk would have. `pos_precision`:
-    the static blocks' position boxes (`quantize_block`)."""
-    out, n, s = [], len(st["means"]), 0
+    inside so block boxes stay small. Returns the chunks, the size the next chunk would have, and the row of `st` of
+    each record in decoded order (chunk after chunk, record after record). `pos_precision`: the static blocks'
+    position boxes (`quantize_block`)."""
+    out, rows, n, s = [], [], len(st["means"]), 0
     while s < n:
         part = {k: v[s : s + size] for k, v in st.items()}
         order = _block_order(part["means"])
         part = {k: v[order] for k, v in part.items()}
-        body = _blocks(part, sl, block_size, version, zstd, pos_precision)
+        body, stored = _blocks(part, sl, block_size, version, zstd, pos_precision)
         out.append(_chunk(b"STAT", struct.pack("<I", len(order)) + body))
+        rows.append(s + order[stored])
         s, size = s + size, min(MAX_CHUNK_RECORDS, size * 2)
-    return out, size
+    return out, size, np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
 
 
 def _dyna_chunks(
@@ -146,7 +149,7 @@ def _dyna_chunks(
         if models is not None:
             body = encode_dyna_range(part, dl, block_size, models, pos_precision)
         else:
-            body = _blocks(part, dl, block_size, version, zstd, pos_precision)
+            body = _blocks(part, dl, block_size, version, zstd, pos_precision)[0]
         out.append(_chunk(b"DYNA", struct.pack("<II", t, len(order)) + body))
     return out
 
@@ -207,9 +210,9 @@ def encode(
     dynamic_pos_precision: float | None | str = POS_PRECISION_OF_VERSION,
     dynamic_codec: str | None = None,
 ) -> bytes:
-    """Scene4D -> .wsplat bytes (`version` 1, 2 or 3, default DEFAULT_VERSION). Static Gaussians keep their
-    (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of them, Morton-ordered inside
-    so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL).
+    """Scene4D -> .wsplat bytes (`version` 1 to 4, default DEFAULT_VERSION; a whole v4 file is v3 with version 4).
+    Static Gaussians keep their (importance) order at chunk granularity: chunk k holds the next FIRST_CHUNK * 2^k of
+    them, Morton-ordered inside so block boxes stay small. `zstd`: v2's (level, filter search level), default (ZSTD_LEVEL, SEARCH_LEVEL).
     `pos_precision`: the static blocks' position step against their Gaussians' size (`position_box`; None: the
     points' own box), by default `pos_precision_for` the static layout in v2 and None in v1; `dynamic_pos_precision`
     the same for the dynamic blocks (default: `dynamic_pos_precision_for` the dynamic layout in v2, None in v1).

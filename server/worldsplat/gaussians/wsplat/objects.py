@@ -64,7 +64,7 @@ def encode_objc(index: int, obj: AgentObject, layout: Layout, block_size: int, p
     order = _block_order(a["means"])
     a = {k: v[order] for k, v in a.items()}
     level = tuple(zstd) + (1, 1)
-    return head + encode_blocks_v2(a, layout, block_size, level[0], level[1], pos_precision)
+    return head + encode_blocks_v2(a, layout, block_size, level[0], level[1], pos_precision)[0]
 
 
 def decode_objc(payload: memoryview, base: int, known: list[tuple], limit: int | None, layout: Layout, block_size: int):

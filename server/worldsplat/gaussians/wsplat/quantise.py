@@ -74,6 +74,11 @@ def canonical_rotation(q: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray, n
 def _sanitized_numpy(g: Gaussians, layout: Layout | None = None) -> dict[str, np.ndarray]:
     """Drop rows with non-finite fields or opacity < ALPHA_MIN (the renderer drops them too); clamp the rest;
     canonical rotations for a layout with qx qy qz."""
+    return _sanitize(g, layout)[0]
+
+
+def _sanitize(g: Gaussians, layout: Layout | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """`_sanitized_numpy` and the index in `g` of each row it keeps (a v4 writer recolours the rows it wrote)."""
     a = {k: v.astype(np.float64) for k, v in g.numpy().items() if k != "extras"}
     keep = np.ones(len(g), dtype=bool)
     for v in a.values():
@@ -86,7 +91,7 @@ def _sanitized_numpy(g: Gaussians, layout: Layout | None = None) -> dict[str, np
     a["quats"] = normalize_quaternion(a["quats"], C.QUAT_EPS)
     if layout is not None and layout.canonical and len(a["quats"]):
         a["quats"], a["scales"] = canonical_rotation(a["quats"], a["scales"])
-    return a
+    return a, np.flatnonzero(keep)
 
 
 def is_isotropic(g: Gaussians) -> bool:
@@ -140,9 +145,21 @@ def quantize_block(
         else:
             vals.update(_smallest_three(blk["quats"], bits))
     vals["o"] = _quantize(blk["opacities"], 0.0, 1.0, bits["o"])
-    for i, f in enumerate("rgb"):
-        vals[f] = _quantize(blk["colors"][:, i], 0.0, 1.0, bits[f])
+    vals.update(quantize_colours(blk["colors"], layout))
     return box, vals
+
+
+def quantize_colours(colors: np.ndarray, layout: Layout) -> dict[str, np.ndarray]:
+    """Colours (n, 3) in [0, 1] -> the stored r, g, b integers of `layout` (no box: a record's colour is its own, so
+    v4's SCOL chunk stores exactly what a STAT chunk would)."""
+    bits = dict(layout.fields)
+    return {f: _quantize(colors[:, i], 0.0, 1.0, bits[f]) for i, f in enumerate("rgb")}
+
+
+def dequantize_colours(v: dict[str, np.ndarray], layout: Layout) -> np.ndarray:
+    """The stored r, g, b integers -> colours (n, 3), float64 (`x / n`)."""
+    bits = dict(layout.fields)
+    return np.stack([v[f].astype(np.float64) / ((1 << bits[f]) - 1) for f in "rgb"], 1)
 
 
 def dequantize(v: dict[str, np.ndarray], box: np.ndarray, layout: Layout) -> dict[str, np.ndarray]:
@@ -182,5 +199,5 @@ def dequantize(v: dict[str, np.ndarray], box: np.ndarray, layout: Layout) -> dic
         "quats": quats,
         "scales": scales,
         "opacities": deq("o", 0.0, 1.0),
-        "colors": np.stack([deq(f, 0.0, 1.0) for f in "rgb"], 1),
+        "colors": dequantize_colours(v, layout),
     }

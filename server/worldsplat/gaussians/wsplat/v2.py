@@ -46,24 +46,27 @@ def _section_label(name: str, k: int, layout: Layout) -> str:
 
 def v2_records(
     a: dict[str, np.ndarray], layout: Layout, block_size: int, pos_precision: float | None = None
-) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
     """Sanitized Gaussians (block order) -> what a v2 chunk stores: the blocks' boxes ((B, 8) float32), and the
     records sorted by the Morton code of (px, py, pz) inside each block: their Morton deltas (the first of each block
-    from 0) and the stored integer of every layout field (uint64). `pos_precision`: as `quantize_block`."""
+    from 0), the stored integer of every layout field (uint64), and the row of `a` of each stored record (what a
+    decoder's record i is; v4's SCOL chunk names statics in that order). `pos_precision`: as `quantize_block`."""
     pb = dict(layout.fields)["px"]
-    boxes, codes, vals = [], [], {f: [] for f, _ in layout.fields}
+    boxes, codes, rows, vals = [], [], [], {f: [] for f, _ in layout.fields}
     for s in range(0, len(a["means"]), block_size):
         box, v = quantize_block({k: x[s : s + block_size] for k, x in a.items()}, layout, pos_precision)
         code = morton3(v["px"], v["py"], v["pz"], pb)
         order = np.argsort(code, kind="stable")
         code = code[order]
         codes.append(np.diff(code, prepend=np.uint64(0)))
+        rows.append(s + order)
         for f in vals:
             vals[f].append(v[f][order])
         boxes.append(box)
     delta = np.concatenate(codes) if codes else np.zeros(0, dtype=np.uint64)
     cat = {f: (np.concatenate(x) if x else np.zeros(0, dtype=np.uint64)) for f, x in vals.items()}
-    return np.asarray(boxes, dtype=np.float32).reshape(-1, 8), delta, cat
+    row = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
+    return np.asarray(boxes, dtype=np.float32).reshape(-1, 8), delta, cat, row
 
 
 def encode_dyna_range(
@@ -78,7 +81,7 @@ def encode_dyna_range(
     from the file's previous DYNA chunks (and are updated). Records as `v2_records`. A chunk whose records would
     decode to more than MAX_RATIO x its payload (degenerate data: every Gaussian the same) gets zero words after its
     stream (a decoder checks that the words after the last symbol are 0)."""
-    boxes, delta, cat = v2_records(a, layout, block_size, pos_precision)
+    boxes, delta, cat, _ = v2_records(a, layout, block_size, pos_precision)
     words = context_coder.encode_chunk(models, delta, cat)
     raw = v2_raw_size(len(delta), layout, block_size)
     size = 8 + boxes.nbytes + 4 + 4 * len(words)  # + the DYNA frame and count
@@ -94,29 +97,54 @@ def encode_blocks_v2(
     level: int = ZSTD_LEVEL,
     search: int | None = SEARCH_LEVEL,
     pos_precision: float | None = None,
-) -> bytes:
+) -> tuple[bytes, np.ndarray]:
     """Sanitized Gaussians (block order) -> the sections of a v2 chunk: boxes, then one byte plane per section, each
-    `filter u8, length u32, zstd frame`. Records are sorted by the Morton code of (px, py, pz) inside each block; the
-    encoder keeps the smallest of the filtered planes, chosen at zstd level `search` (None: each candidate at
-    `level`), then compressed at `level`. Every choice decodes to the same integers. `pos_precision`: as
+    `filter u8, length u32, zstd frame` (`encode_sections`), and the row of `a` of each stored record (`v2_records`).
+    Records are sorted by the Morton code of (px, py, pz) inside each block. `pos_precision`: as
     `quantize_block`."""
-    n = len(a["means"])
-    boxes, delta, cat = v2_records(a, layout, block_size, pos_precision)
-    byte = lambda x, k: ((x >> np.uint64(8 * k)) & np.uint64(255)).astype(np.uint8)  # noqa: E731
+    boxes, delta, cat, row = v2_records(a, layout, block_size, pos_precision)
+    planes = [("boxes", 0, np.frombuffer(boxes.astype("<f4").tobytes(), dtype=np.uint8))]
+    planes += [(f, k, byte_plane(delta if f == "pos" else cat[f], k)) for f, k in v2_planes(layout)]
+    raw = v2_raw_size(len(delta), layout, block_size)
+    return encode_sections(planes, layout, raw, 4, level, search), row  # + the STAT count (DYNA: + 8)
+
+
+def byte_plane(x: np.ndarray, k: int) -> np.ndarray:
+    """Byte k of every integer of x."""
+    return ((x >> np.uint64(8 * k)) & np.uint64(255)).astype(np.uint8)
+
+
+def encode_sections(
+    planes: list[tuple[str, int, np.ndarray]],
+    layout: Layout,
+    raw: int,
+    head: int,
+    level: int = ZSTD_LEVEL,
+    search: int | None = SEARCH_LEVEL,
+) -> bytes:
+    """v2 sections of byte planes (name, byte index, plane), each `filter u8, length u32, zstd frame`: the encoder
+    keeps the smallest of the filtered planes (boxes: never filtered; r / b also minus the g plane's same byte),
+    chosen at zstd level `search` (None: each candidate at `level`), then compressed at `level`. Every choice decodes
+    to the same integers. `raw`: the bytes the sections decode to; `head`: the payload's bytes before them. Sections
+    that would compress past MAX_RATIO x the payload (degenerate data, e.g. every Gaussian the same) are stored in
+    raw zstd blocks (still one valid frame per section, decoded by any zstd decoder)."""
 
     def coder(lv: int):
         return zstandard.ZstdCompressor(level=lv, write_checksum=False, write_content_size=True, write_dict_id=False)
 
     zc = coder(level)
     zs = coder(search) if search is not None and search != level else None
-    out, stored = bytearray(), []  # stored: each plane unfiltered (the raw fallback below)
-    box = zc.compress(boxes.astype("<f4").tobytes())  # boxes: never filtered
-    out += struct.pack("<BI", 0, len(box)) + box
-    for f, k in v2_planes(layout):
-        plane = byte(delta if f == "pos" else cat[f], k)
+    g_bytes = (dict(layout.fields)["g"] + 7) // 8
+    g_plane = {k: x for f, k, x in planes if f == "g"}
+    out = bytearray()
+    for f, k, plane in planes:
+        if f == "boxes":
+            box = zc.compress(plane.tobytes())
+            out += struct.pack("<BI", 0, len(box)) + box
+            continue
         cands = [(0, plane)]
-        if f in ("r", "b") and k < (dict(layout.fields)["g"] + 7) // 8:  # minus the green plane's same byte
-            cands.append((2, plane - byte(cat["g"], k)))
+        if f in ("r", "b") and k < g_bytes:  # minus the green plane's same byte
+            cands.append((2, plane - g_plane[k]))
         cands += [(c + 1, np.diff(x, prepend=np.uint8(0)).astype(np.uint8)) for c, x in cands]  # then delta
         if zs is None:
             filt, best = min(((c, zc.compress(x.tobytes())) for c, x in cands), key=lambda t: len(t[1]))
@@ -124,13 +152,10 @@ def encode_blocks_v2(
             filt, x = min(cands, key=lambda t: len(zs.compress(t[1].tobytes())))
             best = zc.compress(x.tobytes())
         out += struct.pack("<BI", filt, len(best)) + best
-        stored.append(plane)
-    if v2_raw_size(n, layout, block_size) > MAX_RATIO * (len(out) + 4):  # + the STAT count (DYNA: + 8)
-        # degenerate data (e.g. every Gaussian the same) would compress past what a decoder accepts: store every
-        # section as it is, in raw zstd blocks (still one valid frame per section, decoded by any zstd decoder)
+    if raw > MAX_RATIO * (len(out) + head):
         out = bytearray()
-        for x in [boxes.astype("<f4").tobytes(), *(p.tobytes() for p in stored)]:
-            frame = raw_zstd_frame(x)
+        for _, _, plane in planes:
+            frame = raw_zstd_frame(plane.tobytes())
             out += struct.pack("<BI", 0, len(frame)) + frame
     return bytes(out)
 
@@ -154,14 +179,32 @@ def decode_blocks_v2(
     """The sections of a v2 chunk from payload[pos:] -> float64 Gaussians. Every size is checked against the bytes
     present before anything is decompressed; a section decompresses to exactly its size or is refused."""
     nblocks = math.ceil(count / block_size)
-    planes = [("boxes", 0)] + v2_planes(layout)
+    planes = [("boxes", 0, nblocks * BLOCK_HEADER)] + [(f, k, count) for f, k in v2_planes(layout)]
+    raw, where = decode_sections(payload, pos, planes, layout, base, name)
+    boxes = raw[("boxes", 0)].view("<f4").reshape(nblocks, 8).astype(np.float64)
+    _check_boxes(boxes, where["boxes"], name)
+    v = field_values(raw, layout, [f for f, _ in layout.fields if f not in ("px", "py", "pz")], count, where, name)
+    pb = dict(layout.fields)["px"]
+    d = np.zeros(count, dtype=np.uint64)
+    for k in range((3 * pb + 7) // 8):
+        d |= raw[("pos", k)].astype(np.uint64) << np.uint64(8 * k)
+    v["px"], v["py"], v["pz"] = _morton_positions(d, block_size, pb, where["pos"], name)
+    box = np.repeat(boxes, block_size, axis=0)[:count]
+    return dequantize(v, box, layout)
+
+
+def decode_sections(
+    payload: memoryview, pos: int, planes: list[tuple[str, int, int]], layout: Layout, base: int, name: str
+) -> tuple[dict[tuple[str, int], np.ndarray], dict[str, int]]:
+    """v2 sections from payload[pos:] to the chunk's end: one per plane (name, byte index, size), each
+    decompressed to exactly its size, its filters undone (r / b minus g: once every section is in). Returns the
+    planes and the absolute offset of each field's first section (errors about its values)."""
     raw: dict[tuple[str, int], np.ndarray] = {}
-    where: dict[str, int] = {}  # absolute offset of each field's first section (errors about its values)
+    where: dict[str, int] = {}
     minus_g: list[tuple[str, int]] = []  # r / b planes stored minus the g plane's same byte
-    for f, k in planes:
+    for f, k, size in planes:
         where.setdefault(f, base + pos)
         label = f"{name}.{'boxes' if f == 'boxes' else _section_label(f, k, layout)}"
-        size = nblocks * BLOCK_HEADER if f == "boxes" else count
         if pos + 5 > len(payload):
             raise WsplatError("bad_payload", base + pos, label, "section header past the end of the chunk")
         filt, clen = struct.unpack_from("<BI", payload, pos)
@@ -213,13 +256,17 @@ def decode_blocks_v2(
         )
     for key in minus_g:
         raw[key] = raw[key] + raw[("g", key[1])]  # mod 256
-    boxes = raw[("boxes", 0)].view("<f4").reshape(nblocks, 8).astype(np.float64)
-    _check_boxes(boxes, where["boxes"], name)
+    return raw, where
+
+
+def field_values(
+    raw: dict[tuple[str, int], np.ndarray], layout: Layout, fields: list[str], count: int, where: dict, name: str
+) -> dict[str, np.ndarray]:
+    """The stored integer of each of `fields` from its byte planes, each checked to be < 2^bits."""
     bits = dict(layout.fields)
     v: dict[str, np.ndarray] = {}
-    for f, b in layout.fields:
-        if f in ("px", "py", "pz"):
-            continue
+    for f in fields:
+        b = bits[f]
         x = np.zeros(count, dtype=np.uint64)
         for k in range((b + 7) // 8):
             x |= raw[(f, k)].astype(np.uint64) << np.uint64(8 * k)
@@ -227,13 +274,7 @@ def decode_blocks_v2(
             i = int(np.argmax(x >> np.uint64(b)))
             raise WsplatError("bad_payload", where[f], f"{name}.{f}", f"record {i}: value {int(x[i])} >= 2^{b}")
         v[f] = x
-    pb = bits["px"]
-    d = np.zeros(count, dtype=np.uint64)
-    for k in range((3 * pb + 7) // 8):
-        d |= raw[("pos", k)].astype(np.uint64) << np.uint64(8 * k)
-    v["px"], v["py"], v["pz"] = _morton_positions(d, block_size, pb, where["pos"], name)
-    box = np.repeat(boxes, block_size, axis=0)[:count]
-    return dequantize(v, box, layout)
+    return v
 
 
 def _morton_positions(d: np.ndarray, block_size: int, pb: int, at: int, name: str):

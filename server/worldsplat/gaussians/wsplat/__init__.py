@@ -1,4 +1,5 @@
-""".wsplat v1, v2 and v3 encoders and decoders (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md), one module per concern:
+""".wsplat v1 to v4 encoders and decoders (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md, wsplat-v4.md), one module
+per concern:
 
 | module | what |
 |---|---|
@@ -8,6 +9,7 @@
 | `morton` | Morton order of blocks and v2's Morton codes |
 | `v1`, `v2` | chunk bodies of each version (v2: zstd byte planes, range-coded DYNA chunks) |
 | `objects` | v3's OBJC (an agent's canonical Gaussians) and POSE (a run of frames' poses) payloads |
+| `colours` | v4's SCOL payload (new colours of statics sent before) |
 | `chunks` | chunk framing, HEAD and END! |
 | `encoder` | `encode`, `write`, the default layouts of a scene |
 | `stream` | `StreamWriter` (a streamed file written while the scene is generated), `encode_streamed` |
@@ -18,6 +20,7 @@ are package internals that the benches and the test-vector generator also reach.
 """
 
 from worldsplat.gaussians.wsplat.chunks import _chunk, parse_end, parse_head
+from worldsplat.gaussians.wsplat.colours import colour_planes, decode_scol, encode_scol
 from worldsplat.gaussians.wsplat.decoder import ProgressiveDecoder, decode, read
 from worldsplat.gaussians.wsplat.encoder import (
     POS_PRECISION_OF_VERSION,
@@ -45,6 +48,7 @@ from worldsplat.gaussians.wsplat.quantise import (
 from worldsplat.gaussians.wsplat.spec import (
     BLOCK_HEADER,
     CODECS,
+    COLOUR_TAG,
     DEFAULT_BLOCK_SIZE,
     DEFAULT_VERSION,
     DYNAMIC_ANISO,
@@ -109,6 +113,10 @@ __all__ = [
     "decode_pose",
     "decode_objc",
     "code_quat",
+    "colour_planes",
+    "decode_scol",
+    "encode_scol",
+    "COLOUR_TAG",
     "OBJECT_TAGS",
     "BLOCK_HEADER",
     "CODECS",

@@ -4,18 +4,22 @@ bytes behind it are present); `decode(data) -> Scene4D` / `read(path)` validate 
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 import zlib
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from worldsplat.core.camera import RigCamera
 from worldsplat.gaussians import context_coder
 from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D
 from worldsplat.gaussians.wsplat.chunks import parse_end, parse_head
+from worldsplat.gaussians.wsplat.colours import decode_scol
 from worldsplat.gaussians.wsplat.objects import decode_objc, decode_pose
 from worldsplat.gaussians.wsplat.spec import (
+    COLOUR_TAG,
     FORMAT_FIELDS,
     MAGIC,
     MAX_CHUNK,
@@ -33,7 +37,8 @@ from worldsplat.gaussians.wsplat.v2 import decode_blocks_v2, decode_dyna_range, 
 class ProgressiveDecoder:
     """Feed bytes as they arrive; `feed` returns the events completed by them:
     ("header", dict), ("static", Gaussians), ("dynamic", (frame, Gaussians)), ("end", None); v3 also
-    ("object", (index, AgentObject with no poses yet)) and ("poses", (first frame, present (F, n), poses (F, n, 4, 4))).
+    ("object", (index, AgentObject with no poses yet)) and ("poses", (first frame, present (F, n), poses (F, n, 4, 4)));
+    v4 also ("colours", (first, colours (n, 3))): statics first.. (decoded order) recoloured (`static` holds them so).
     Malformed input raises WsplatError at the first bad byte; an unfinished stream is simply incomplete."""
 
     def __init__(self) -> None:
@@ -98,7 +103,8 @@ class ProgressiveDecoder:
         tag = bytes(self.buf[:4])
         (length,) = struct.unpack_from("<I", self.buf, 4)
         at = self.base
-        if tag not in TAGS + (OBJECT_TAGS if self.version >= 3 else ()):
+        known = TAGS + (OBJECT_TAGS if self.version >= 3 else ()) + ((COLOUR_TAG,) if self.version >= 4 else ())
+        if tag not in known:
             raise WsplatError("bad_tag", at, "chunk.tag", f"unknown chunk tag {tag!r}")
         if length > MAX_CHUNK:
             raise WsplatError("chunk_too_large", at + 4, "chunk.length", f"{length} bytes > MAX_CHUNK")
@@ -106,7 +112,7 @@ class ProgressiveDecoder:
             "head": (b"HEAD",),
             "stat": (b"STAT", b"OBJC", b"DYNA", b"POSE", b"END!"),
             "dyna": (b"DYNA", b"POSE", b"END!"),
-            "stream": (b"STAT", b"OBJC", b"DYNA", b"POSE", b"END!"),
+            "stream": (b"STAT", b"OBJC", b"DYNA", b"POSE", COLOUR_TAG, b"END!"),
         }[self.stage]
         if tag not in expect:
             raise WsplatError(
@@ -141,6 +147,8 @@ class ProgressiveDecoder:
         streamed = h["streamed"]
         if tag in OBJECT_TAGS:
             return self._object_chunk(tag, payload, pbase)
+        if tag == COLOUR_TAG:
+            return self._recolour(payload, pbase)
         if tag == b"END!":
             if streamed:
                 totals, src = parse_end(payload, pbase, len(h["frame_times"]), self.version), "END!"
@@ -248,6 +256,20 @@ class ProgressiveDecoder:
             o.present[first : first + len(present)] = present[:, i]
             o.poses[first : first + len(present)] = poses[:, i]
         return ("poses", (first, present, poses))
+
+    def _recolour(self, payload: memoryview, pbase: int):
+        """v4: a SCOL chunk: new colours of statics decoded before (the chunks that hold them are replaced, not
+        changed: a Gaussians an earlier event handed out keeps its colours)."""
+        first, colours = decode_scol(payload, pbase, self.num_static, self.header["static_layout"])
+        start = 0
+        for i, g in enumerate(self.static):
+            lo, hi = max(first, start), min(first + len(colours), start + len(g))
+            if lo < hi:
+                c = g.colors.clone()
+                c[lo - start : hi - start] = torch.as_tensor(colours[lo - first : hi - first], dtype=c.dtype)
+                self.static[i] = dataclasses.replace(g, colors=c)
+            start += len(g)
+        return ("colours", (first, colours))
 
     def scene(self) -> Scene4D:
         """The scene decoded so far (static prefix + complete dynamic chunks); requires the header."""

@@ -13,6 +13,8 @@ MAX_FRAMES = 1024
 BLOCK_HEADER = 32
 TAGS = (b"HEAD", b"STAT", b"DYNA", b"END!")
 OBJECT_TAGS = (b"OBJC", b"POSE")  # v3 (web/docs/wsplat-v3.md): an object's canonical Gaussians, a run of poses
+# v4 (web/docs/wsplat-v4.md): new colours of statics sent before (a streamed file's joint colour fit, once whole)
+COLOUR_TAG = b"SCOL"
 FIELDS = ("px", "py", "pz", "qi", "qa", "qb", "qc", "qx", "qy", "qz", "sx", "sy", "sz", "s", "o", "r", "g", "b")
 # Canonical rotation (qx qy qz): a covariance R S^2 R^T does not change when R is right-multiplied by one of the 24
 # rotations of the cube (axes permuted, scales permuted with them). The encoder picks the one closest to the
@@ -160,7 +162,7 @@ MAX_CHUNK_RECORDS = 262144
 ISOTROPY_TOL = 1e-3
 FAR_FACTOR = 4.0  # see _block_order
 # v2 (web/docs/wsplat-v2.md): planes per chunk, zstd per plane
-VERSIONS = (1, 2, 3)  # v3: v2 with agent objects (OBJC, POSE chunks)
+VERSIONS = (1, 2, 3, 4)  # v3: v2 with agent objects (OBJC, POSE chunks); v4: v3 with SCOL (statics recoloured)
 CODECS = ("zstd",)
 # v2's DYNA chunks: zstd byte planes as the STAT chunks (HEAD `dynamic_codec` absent or "zstd"), or one stream of the
 # adaptive context-modelling range coder (`context_coder`; "range": models carried from chunk to chunk). What v2

@@ -12,6 +12,7 @@ import torch
 from worldsplat.gaussians import context_coder
 from worldsplat.gaussians.types import AgentObject, Gaussians, Scene4D
 from worldsplat.gaussians.wsplat.chunks import _bounds, _chunk, _head
+from worldsplat.gaussians.wsplat.colours import encode_scol
 from worldsplat.gaussians.wsplat.encoder import (
     POS_PRECISION_OF_VERSION,
     _dyna_chunks,
@@ -27,12 +28,14 @@ from worldsplat.gaussians.wsplat.encoder import (
     pos_precision_for,
 )
 from worldsplat.gaussians.wsplat.layout import Layout, check_layout_v2, parse_layout
-from worldsplat.gaussians.wsplat.quantise import _sanitized_numpy
+from worldsplat.gaussians.wsplat.quantise import _sanitize
 from worldsplat.gaussians.wsplat.spec import (
+    COLOUR_TAG,
     DEFAULT_BLOCK_SIZE,
     DEFAULT_VERSION,
     FIRST_CHUNK,
     MAGIC,
+    MAX_CHUNK_RECORDS,
     V2_STATIC_ANISO,
     VERSIONS,
 )
@@ -46,12 +49,13 @@ class StreamWriter:
     chunks, so only END! closes the file and a file missing a chunk is refused.
 
         w = StreamWriter(skeleton, static_layout, dynamic_layout)   # skeleton: frames, rig, poses, meta
-        pieces = [w.head(), *w.static(g), *w.dynamic(t, g), ..., w.end(extra_meta)]
+        pieces = [w.head(), *w.static(g), *w.dynamic(t, g), ..., *w.recolour(colours), w.end(extra_meta)]
 
     The layouts are fixed by the HEAD (`layouts_for` the first window); static Gaussians given to an isotropic layout
     must be isotropic (an anisotropic one is written with its geometric-mean scale). A v2 writer range-codes the
     DYNA chunks by default (`dynamic_codec`): its models carry from chunk to chunk, so the pieces must reach the file
-    in the order they were returned (as they do)."""
+    in the order they were returned (as they do). A v4 writer may end with `recolour`: new colours of every static
+    written (SCOL chunks)."""
 
     def __init__(
         self,
@@ -80,6 +84,8 @@ class StreamWriter:
         self.block_size = block_size or DEFAULT_BLOCK_SIZE
         self.num_static, self.num_dynamic = 0, [0] * len(skeleton.frame_times)
         self._means: list[np.ndarray] = []
+        self._given = 0  # statics given to `static` so far
+        self._written: list[np.ndarray] = []  # per `static` call: the given index of each record, in decoded order
         self._next_size = FIRST_CHUNK
         self.closed = False
 
@@ -104,20 +110,23 @@ class StreamWriter:
                                                                 None, None, None, self.version, self.dynamic_codec,
                                                                 (self.ol, None))  # fmt: skip
 
-    def _numpy(self, g: Gaussians, layout: Layout) -> dict[str, np.ndarray]:
-        a = _sanitized_numpy(g, layout)
+    def _numpy(self, g: Gaussians, layout: Layout) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Sanitized Gaussians and the index in `g` of each row kept."""
+        a, kept = _sanitize(g, layout)
         if layout.isotropic and len(a["means"]):
             a["scales"] = np.repeat(np.exp(np.log(a["scales"]).mean(1, keepdims=True)), 3, axis=1)
         self._means.append(a["means"])
-        return a
+        return a, kept
 
     def static(self, g: Gaussians) -> list[bytes]:
         """STAT chunks of static Gaussians in importance order (the first chunk of the file is FIRST_CHUNK records,
         then they double)."""
-        st = self._numpy(g, self.sl)
-        chunks, self._next_size = _stat_chunks(
+        st, kept = self._numpy(g, self.sl)
+        chunks, self._next_size, rows = _stat_chunks(
             st, self.sl, self.block_size, self._next_size, self.version, pos_precision=self.pos_precision
         )
+        self._written.append(self._given + kept[rows])
+        self._given += len(g)
         self.num_static += len(st["means"])
         return chunks
 
@@ -125,7 +134,7 @@ class StreamWriter:
         """DYNA chunks of frame t's dynamic Gaussians (none when it has none)."""
         if not 0 <= t < len(self.num_dynamic):
             raise ValueError(f"wsplat: frame {t} out of range")
-        d = self._numpy(g, self.dl)
+        d, _ = self._numpy(g, self.dl)
         self.num_dynamic[t] += len(d["means"])
         return _dyna_chunks(t, d, self.dl, self.block_size, self.version, pos_precision=self.dynamic_pos_precision,
                             models=self.models)  # fmt: skip
@@ -150,6 +159,27 @@ class StreamWriter:
         if list(frames) != list(range(frames[0], frames[0] + len(frames))):
             raise ValueError("wsplat: a POSE chunk holds consecutive frames")
         return _pose_chunk(agents, list(frames))
+
+    def recolour(self, colours, chunk_records: int = MAX_CHUNK_RECORDS) -> list[bytes]:
+        """v4: SCOL chunks that give every static written so far a new colour (a joint colour fit over the whole
+        scene, which only its end allows): `colours` (N, 3) in [0, 1] (array or tensor), one per static given to
+        `static` so far, in the order given. The writer puts them in the order it wrote the statics (chunk after
+        chunk, each chunk's Morton order inside); a row sanitising dropped was not written and its colour is
+        ignored. At most `chunk_records` statics per chunk. Positions, shapes and opacities stay as written."""
+        if self.version < 4:
+            raise ValueError("wsplat: recolouring statics needs version 4")
+        if self.closed:
+            raise ValueError("wsplat: recolour after END!")
+        c = colours.detach().cpu().numpy() if isinstance(colours, torch.Tensor) else np.asarray(colours)
+        if c.shape != (self._given, 3):
+            raise ValueError(f"wsplat: colours of shape {c.shape}, {self._given} statics given")
+        rows = np.concatenate(self._written) if self._written else np.zeros(0, dtype=np.int64)
+        c = c[rows].astype(np.float64)
+        if not np.isfinite(c).all():
+            raise ValueError("wsplat: colours must be finite")
+        c = np.clip(c, 0, 1)
+        return [_chunk(COLOUR_TAG, encode_scol(s, c[s : s + chunk_records], self.sl))
+                for s in range(0, len(c), chunk_records)]  # fmt: skip
 
     def end(self, meta: dict | None = None) -> bytes:
         """END! with the totals, the bounds and `meta` (extra fields, ignored by readers)."""

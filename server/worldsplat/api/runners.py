@@ -227,6 +227,14 @@ class StreamSink:
         return [AgentObject(a, tracks[a].cls, tracks[a].size, g, tracks[a].poses, tracks[a].present)
                 for a, g in added.items()]  # fmt: skip
 
+    def recolour(self, colours) -> None:
+        """New colours (N, 3) of every static handed over so far, in the order handed over (`SceneSink`): SCOL
+        chunks, .wsplat v4 (web/docs/wsplat-v4.md). No caller yet: a joint colour fit would call it before `end`."""
+        if self.writer is None:
+            raise RuntimeError("recolour before the first window")
+        for piece in self.writer.recolour(colours):
+            self._put(piece)
+
     def end(self, scene) -> None:
         if self.writer is None:  # no window at all (cannot happen: a clip has >= 1 frame)
             raise RuntimeError("the pipeline handed over no window")

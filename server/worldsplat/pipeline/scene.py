@@ -152,7 +152,10 @@ class SceneSink(Protocol):
     dynamic set of each of its frames; all final). A sink that writes per-frame Gaussians only gets each frame's
     dynamic set with the agent objects built so far posed in; a sink with `takes_objects = True` is called
     `window(frames, static, dynamic, objects)` with the Gaussians in no box as `dynamic` and, per agent id, the
-    canonical Gaussians (box frame) this window adds to its object (append-only: an object is its parts in order)."""
+    canonical Gaussians (box frame) this window adds to its object (append-only: an object is its parts in order).
+    A sink may also have `recolour(colours)`: new colours (N, 3) of every static Gaussian handed over so far, in the
+    order handed over, once the scene is whole and before its end (a joint colour fit over every frame; .wsplat v4's
+    SCOL chunk). Nothing calls it yet."""
 
     def begin(self, skeleton: Scene4D) -> None: ...
 

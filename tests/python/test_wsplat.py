@@ -47,6 +47,9 @@ def test_shared_wsplat_vector(name):
         ):
             assert np.allclose(g[field][0], exp["first_static"][key], atol=tol[key], rtol=0), key
         assert np.allclose(g["means"].astype(np.float64).sum(0), exp["static_mean_sum"], atol=tol["static_mean_sum"])
+    if "static_color_sum" in exp:  # v4: every static colour as decoded, its SCOL chunks applied
+        got = scene.static.numpy()["colors"].astype(np.float64).sum(0)
+        assert np.allclose(got, exp["static_color_sum"], atol=tol["static_color_sum"], rtol=0)
     if exp.get("first_dynamic") is not None:  # first record of the first DYNA chunk
         g = next(d for d in scene.dynamic if len(d)).numpy()
         for key, field in (

@@ -456,7 +456,7 @@ def write_wsplat(out_dir: Path) -> list[str]:
         return join_chunks([(b"HEAD", json.dumps(h).encode())] + ch[1:])
 
     bad("bad_magic", b"WSPLAT\n\n" + base[8:], "bad_magic", 0, "magic")
-    bad("bad_version", base[:8] + struct.pack("<I", 4) + base[12:], "bad_version", 8, "version")
+    bad("bad_version", base[:8] + struct.pack("<I", 5) + base[12:], "bad_version", 8, "version")
     bad("truncated_file_header", base[:10], "truncated", 0, "file")
     bad("truncated_in_stat", base[: stat_at + 100], "truncated", stat_at, "file")
     bad("truncated_before_end", base[:end_at], "truncated", end_at, "file")
@@ -637,6 +637,9 @@ def write_wsplat(out_dir: Path) -> list[str]:
     from wsplat_v3 import write_v3
 
     write_v3(out_dir, valid, bad, split_chunks, join_chunks, chunk_offset)
+    from wsplat_v4 import write_v4
+
+    write_v4(out_dir, valid, bad, split_chunks, join_chunks, chunk_offset)
     return names
 
 
@@ -787,7 +790,7 @@ def _write_v2(valid_any_box, bad) -> None:
                           for f, k in wsplat.v2_planes(wsplat.parse_layout(head["static_layout"], 0, "s"))]  # fmt: skip
     n = struct.unpack_from("<I", stat)[0]
     o_i, pos_top = labels.index("o"), labels.index("pos[5]")
-    bad("bad_v2_version_4", base[:8] + struct.pack("<I", 4) + base[12:], "bad_version", 8, "version")
+    bad("bad_v2_version_5", base[:8] + struct.pack("<I", 5) + base[12:], "bad_version", 8, "version")
     bad("bad_v2_header_codec", with_head(codec="lz4"), "bad_header", 20, "HEAD.codec")
     bad("bad_v2_header_version", with_head(version=1), "bad_header", 20, "HEAD.version")
     bad(

@@ -7,6 +7,7 @@
 //! consistent), so the fuzzer reaches the range decoder, its models and the stream's end checks; the models carry on
 //! into the file's later DYNA chunks. v3's object records too: the input as the first OBJC payload and as the POSE
 //! payload of a valid v3 file, so the fuzzer reaches the object headers, their sections, the present bits and poses.
+//! v4's colour update: the input as the first SCOL payload of a valid v4 file (its range, bound and sections).
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use splat_format::scene::{read_wsplat, StreamingScene};
@@ -14,6 +15,7 @@ use splat_format::scene::{read_wsplat, StreamingScene};
 const V2: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_iso.wsplat");
 const RANGE: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v2_range_aniso.wsplat");
 const V3: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v3_objects.wsplat");
+const V4: &[u8] = include_bytes!("../../../tests/vectors/wsplat/valid_v4_recoloured.wsplat");
 
 fn check(data: &[u8]) {
     let whole = read_wsplat(data);
@@ -87,4 +89,5 @@ fuzz_target!(|data: &[u8]| {
     check(&as_range_stream(data));
     check(&replace_first(V3, b"OBJC", data));
     check(&replace_first(V3, b"POSE", data));
+    check(&replace_first(V4, b"SCOL", data));
 });

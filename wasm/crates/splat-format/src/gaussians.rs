@@ -106,16 +106,31 @@ impl Gaussian {
                 (((v + 1.0) / 2.0) * QUAT_STEPS).round() as u32
             })
             .collect();
-        let u8c = |v: f32| (v * 255.0).round().clamp(0.0, 255.0) as u32;
         Some(PackedSplat {
             mean: g.mean,
             shape: [ls[0] | (ls[1] << 11) | (rest[0] << 22), ls[2] | (rest[1] << 11) | (rest[2] << 20) | ((qi as u32) << 29)],
-            rgba: u8c(g.color[0]) | (u8c(g.color[1]) << 8) | (u8c(g.color[2]) << 16) | (u8c(g.opacity) << 24),
+            rgba: rgb8(g.color) | (unorm8(g.opacity) << 24),
         })
     }
 }
 
+/// A value in [0, 1] as 8 bits (clamped).
+fn unorm8(v: f32) -> u32 {
+    (v * 255.0).round().clamp(0.0, 255.0) as u32
+}
+
+/// A colour as the packed record's low 24 bits (R, G, B), clamped to [0, 1] as sanitizing does.
+fn rgb8(c: [f32; 3]) -> u32 {
+    let c = c.map(|v| unorm8(v.clamp(0.0, 1.0)));
+    c[0] | (c[1] << 8) | (c[2] << 16)
+}
+
 impl PackedSplat {
+    /// The record with a new colour (what `Gaussian::pack` gives the Gaussian with that colour; opacity kept).
+    pub fn recoloured(self, color: [f32; 3]) -> PackedSplat {
+        PackedSplat { rgba: (self.rgba & 0xff00_0000) | rgb8(color), ..self }
+    }
+
     /// Decode scale and unit quaternion (w, x, y, z) as the shader does.
     pub fn scale_quat(&self) -> ([f32; 3], [f32; 4]) {
         let [s0, s1] = self.shape;

@@ -3,7 +3,8 @@
 //! objects stay canonical (box frame) with their poses per frame: the viewer poses them on the GPU
 //! (`object_records` once, `object_pose_matrices` per frame; `splat_core::scene_upload`), and `dynamic_at(frame)`
 //! bakes them on the CPU (`bake_objects`: the reference, and scenes with more objects than the GPU pose table holds).
-//! New poses (an agent moved) need no new decode.
+//! New poses (an agent moved) need no new decode. A .wsplat v4 SCOL chunk recolours statics in place
+//! (`static_recolours` counts them, so the viewer rewrites them on the GPU).
 
 use std::borrow::Cow;
 
@@ -30,6 +31,13 @@ pub struct Scene {
     /// frame no POSE chunk covered yet, or an object defined after it, is absent there).
     pub objects: Vec<AgentObject>,
     pub object_poses: Vec<Vec<Option<Pose>>>,
+    /// The decoded index (a .wsplat's static order) of each static sanitizing dropped, ascending: `statics` skips
+    /// them, and a recolour names statics by decoded index.
+    pub static_dropped: Vec<usize>,
+    /// .wsplat v4: the recolours applied (SCOL chunks), and the lowest `statics` index any of them changed (what
+    /// the viewer rewrites from).
+    pub static_recolours: u64,
+    pub recoloured_from: usize,
 }
 
 /// The posed Gaussians of one frame's objects: object i posed by `poses[i]` where present.
@@ -118,9 +126,35 @@ impl Scene {
     }
 
     fn add_static(&mut self, gs: &[Gaussian]) {
-        let before = self.statics.len();
-        self.statics.extend(gs.iter().filter_map(Gaussian::pack));
-        self.dropped += (gs.len() - (self.statics.len() - before)) as u64;
+        let decoded = self.statics.len() + self.static_dropped.len();
+        for (i, g) in gs.iter().enumerate() {
+            match g.pack() {
+                Some(p) => self.statics.push(p),
+                None => {
+                    self.static_dropped.push(decoded + i);
+                    self.dropped += 1;
+                }
+            }
+        }
+    }
+
+    /// .wsplat v4: statics `first..` (decoded index) take `colours` (a dropped one has no record to change).
+    pub fn recolour_statics(&mut self, first: usize, colours: &[[f32; 3]]) {
+        let mut skipped = self.static_dropped.partition_point(|&d| d < first); // dropped before the static at hand
+        let mut lowest = None;
+        for (i, c) in (first..).zip(colours) {
+            if self.static_dropped.get(skipped) == Some(&i) {
+                skipped += 1;
+                continue;
+            }
+            let Some(rec) = self.statics.get_mut(i - skipped) else { break };
+            *rec = rec.recoloured(*c);
+            lowest.get_or_insert(i - skipped);
+        }
+        if let Some(from) = lowest {
+            self.recoloured_from = if self.static_recolours == 0 { from } else { self.recoloured_from.min(from) };
+            self.static_recolours += 1;
+        }
     }
 
     fn apply_header(&mut self, h: &Header) {
@@ -142,7 +176,7 @@ impl Scene {
         self.dynamic[frame].extend(packed);
     }
 
-    /// Apply decoded events; returns true if Gaussians were added.
+    /// Apply decoded events; returns true if Gaussians were added or changed.
     pub fn apply(&mut self, events: Vec<Event>) -> bool {
         let mut added = false;
         for e in events {
@@ -164,6 +198,10 @@ impl Scene {
                     for (f, row) in p.frames.into_iter().enumerate() {
                         self.object_poses[p.first + f] = row;
                     }
+                    added = true;
+                }
+                Event::StaticColours { first, colours } => {
+                    self.recolour_statics(first, &colours);
                     added = true;
                 }
                 Event::End => {}

@@ -1,6 +1,7 @@
 //! The progressive decoder: bytes in as they arrive, one `Event` per complete chunk, and a chunk's payload to its
 //! records (v1 bit-packed records here, v2 sections in `v2`).
 
+use super::colours::decode_scol;
 use super::dyna_range;
 use super::header::{DynamicCodec, Header, Totals};
 use super::layout::Layout;
@@ -23,6 +24,12 @@ pub enum Event {
     Object(AgentObject),
     /// v3: a run of frames' poses of the objects defined so far.
     Poses(Poses),
+    /// v4: new colours of statics `first..first + colours.len()` (decoded order: every Static event's Gaussians in
+    /// turn); the reader rewrites them (positions, shapes and opacities stay).
+    StaticColours {
+        first: usize,
+        colours: Vec<[f32; 3]>,
+    },
     End,
 }
 
@@ -32,7 +39,7 @@ enum Stage {
     Head,
     Static,
     Dynamic,
-    /// after the HEAD of a streamed file: STAT, DYNA or END!
+    /// after the HEAD of a streamed file: any chunk but HEAD (v4: SCOL only here)
     Stream,
     Done,
 }
@@ -185,7 +192,8 @@ impl Decoder {
             let tag: [u8; 4] = avail[..4].try_into().unwrap();
             let len = u32_at(avail, 4);
             let object_tag = self.version >= 3 && matches!(&tag, b"OBJC" | b"POSE");
-            if !matches!(&tag, b"HEAD" | b"STAT" | b"DYNA" | b"END!") && !object_tag {
+            let colour_tag = self.version >= 4 && &tag == b"SCOL";
+            if !matches!(&tag, b"HEAD" | b"STAT" | b"DYNA" | b"END!") && !object_tag && !colour_tag {
                 return err(ErrorKind::BadTag, off, format!("chunk tag: {:?} is not HEAD, STAT, DYNA or END!", String::from_utf8_lossy(&tag)));
             }
             if len > MAX_CHUNK {
@@ -276,6 +284,11 @@ impl Decoder {
                         self.stage = Stage::Dynamic;
                     }
                     events.push(Event::Poses(poses));
+                }
+                (b"SCOL", Stage::Stream) => {
+                    let h = self.header.as_ref().unwrap();
+                    let (first, colours) = decode_scol(payload, payload_off, self.static_count, &h.static_layout)?;
+                    events.push(Event::StaticColours { first, colours });
                 }
                 (b"END!", Stage::Static | Stage::Dynamic | Stage::Stream) => {
                     let h = self.header.as_mut().unwrap();

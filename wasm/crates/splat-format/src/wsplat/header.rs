@@ -35,7 +35,7 @@ pub struct Header {
     pub block_size: usize,
     pub static_layout: Layout,
     pub dynamic_layout: Layout,
-    /// The file's version (1, 2 or 3).
+    /// The file's version (1 to 4).
     pub version: u32,
     /// v3: the layout of the objects' canonical Gaussians (None before v3).
     pub object_layout: Option<Layout>,

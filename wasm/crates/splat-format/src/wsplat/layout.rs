@@ -60,6 +60,11 @@ impl Field {
     }
 }
 
+/// A stored integer `x` of `n` bits as a fraction of its range: `x / (2^n - 1)`.
+fn unit(x: f64, n: u32) -> f64 {
+    x / ((1u64 << n) - 1) as f64
+}
+
 /// A self-describing bit-packed record layout.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Layout {
@@ -158,6 +163,27 @@ impl Layout {
         out
     }
 
+    /// v4's SCOL planes: v2's planes of the colour fields r, g, b, in layout order.
+    pub(super) fn colour_planes(&self) -> Vec<(String, Option<usize>, u32)> {
+        let colour = |i: usize| matches!(self.fields[i].0, Field::R | Field::G | Field::B);
+        self.v2_planes().into_iter().filter(|(_, f, _)| f.is_some_and(colour)).collect()
+    }
+
+    /// A record's colour from its stored integers (`values`: one per field, in layout order), as `decode` gives it.
+    pub(super) fn colour(&self, values: &[u64]) -> [f32; 3] {
+        let mut c = [0f32; 3];
+        for (&(f, _, n), &x) in self.fields.iter().zip(values) {
+            let k = match f {
+                Field::R => 0,
+                Field::G => 1,
+                Field::B => 2,
+                _ => continue,
+            };
+            c[k] = unit(x as f64, n) as f32;
+        }
+        c
+    }
+
     pub(super) fn decode(&self, rec: &[u8], pos_lo: [f32; 3], pos_hi: [f32; 3], lsc: [f32; 2]) -> Gaussian {
         let mut word = [0u8; 16];
         word[..rec.len()].copy_from_slice(rec);
@@ -167,7 +193,7 @@ impl Layout {
         let mut qi = 0usize;
         for &(f, off, n) in &self.fields {
             let x = ((bits >> off) & ((1u128 << n) - 1)) as f64;
-            let t = x / ((1u64 << n) - 1) as f64;
+            let t = unit(x, n);
             let lerp = |lo: f32, hi: f32| (lo as f64 + (hi as f64 - lo as f64) * t) as f32;
             let scale = || (lsc[0] as f64 + (lsc[1] as f64 - lsc[0] as f64) * t).exp() as f32;
             match f {

@@ -1,5 +1,6 @@
-//! Progressive .wsplat v1 + v2 + v3 decoder (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md; the agent objects,
-//! OBJC and POSE chunks, in `objects`). Feed bytes as they arrive
+//! Progressive .wsplat v1 to v4 decoder (web/docs/wsplat-v1.md, wsplat-v2.md, wsplat-v3.md, wsplat-v4.md; the agent
+//! objects, OBJC and POSE chunks, in `objects`; v4's colour update of the statics, SCOL, in `colours`). Feed bytes as
+//! they arrive
 //! (`push`); each complete chunk becomes an `Event`. v2 chunks hold zstd-coded byte planes (ruzstd), each
 //! decompressed into exactly the size its count implies, after the count was bounded by the chunk's bytes; a v2 file
 //! whose HEAD says `dynamic_codec: "range"` holds its DYNA records in one range-coded stream per chunk
@@ -12,6 +13,7 @@
 //! `layout`: a bit-packed record layout; `v2`: v2 sections; `dyna_range`: the range coder; `encode` (feature
 //! `encode`): a minimal encoder for tests and fixtures.
 
+mod colours;
 mod decoder;
 pub mod dyna_range;
 #[cfg(feature = "encode")]
@@ -28,7 +30,7 @@ pub use layout::{Layout, Q_CANON};
 pub const MAGIC: &[u8; 8] = b"WSPLAT\r\n";
 pub const VERSION: u32 = 1;
 /// The versions this decoder reads.
-pub const VERSIONS: [u32; 3] = [1, 2, 3];
+pub const VERSIONS: [u32; 4] = [1, 2, 3, 4];
 /// A v2 chunk decodes to at most MAX_RATIO x its payload bytes (checked before anything is decompressed).
 pub const MAX_RATIO: u64 = 64;
 /// v2: px py pz share their bits, at most this many (the Morton code fits 63 bits).

@@ -181,10 +181,30 @@ pub(super) fn decode_records_v2(chunk: Chunk, name: &str) -> Result<Vec<Gaussian
     let Chunk { payload, payload_off, start, count, block_size, layout } = chunk;
     let blocks = count.div_ceil(block_size);
     let planes = layout.v2_planes();
-    let mut pos = start + 4;
+    let pos = start + 4;
     let boxes_at = payload_off + pos as u64;
     let (boxes, _, next) = v2_section(payload, payload_off, pos, blocks * BLOCK_HEADER, &format!("{name}.boxes"), 0)?;
-    pos = next;
+    let (data, field_at) = decode_planes(payload, payload_off, next, &planes, count, layout, name)?;
+    // checked in this order (as every decoder does): boxes, field values, Morton deltas
+    check_boxes(&boxes, blocks, boxes_at, name)?;
+    let mut values = plane_values(&planes, &data, &field_at, count, layout, name)?;
+    let wp = (3 * layout.pos_bits()).div_ceil(8) as usize;
+    let delta = |r: usize| (0..wp).fold(0u64, |acc, k| acc | (data[k][r] as u64) << (8 * k));
+    v2_gaussians(layout, &boxes, count, block_size, &mut values, delta, field_at[0], name)
+}
+
+/// v2 sections from `pos` to the chunk's end, one of `count` bytes per plane of `planes` (`Layout::v2_planes`, or
+/// a part of them), each filter undone (r / b minus g once every section is in). Returns the planes and the file
+/// offset of each section.
+pub(super) fn decode_planes(
+    payload: &[u8],
+    payload_off: u64,
+    mut pos: usize,
+    planes: &[(String, Option<usize>, u32)],
+    count: usize,
+    layout: &Layout,
+    name: &str,
+) -> Result<(Vec<Vec<u8>>, Vec<u64>), WsplatError> {
     let mut data: Vec<Vec<u8>> = Vec::with_capacity(planes.len());
     let mut field_at: Vec<u64> = Vec::with_capacity(planes.len());
     let g_bytes = layout.fields.iter().find(|x| x.0 == Field::G).map_or(0, |x| x.2.div_ceil(8));
@@ -210,12 +230,21 @@ pub(super) fn decode_records_v2(chunk: Chunk, name: &str) -> Result<Vec<Gaussian
     if pos != payload.len() {
         return err(ErrorKind::BadPayload, payload_off + pos as u64, format!("{name}.length: {} bytes after the last section", payload.len() - pos));
     }
-    // checked in this order (as every decoder does): boxes, field values, Morton deltas
-    check_boxes(&boxes, blocks, boxes_at, name)?;
-    // the stored integer of every field per record (positions from the Morton deltas, per block)
+    Ok((data, field_at))
+}
+
+/// The stored integer of every field with planes (count x fields, in layout order; the others 0), each checked to be
+/// below 2^bits (an error at the field's first section, naming the record).
+pub(super) fn plane_values(
+    planes: &[(String, Option<usize>, u32)],
+    data: &[Vec<u8>],
+    field_at: &[u64],
+    count: usize,
+    layout: &Layout,
+    name: &str,
+) -> Result<Vec<u64>, WsplatError> {
     let nf = layout.fields.len();
     let mut values = vec![0u64; count * nf];
-    let pos_at = field_at[0];
     for (p, (_, field, k)) in planes.iter().enumerate() {
         if let Some(i) = field {
             let bits = layout.fields[*i].2;
@@ -231,7 +260,5 @@ pub(super) fn decode_records_v2(chunk: Chunk, name: &str) -> Result<Vec<Gaussian
             }
         }
     }
-    let wp = (3 * layout.pos_bits()).div_ceil(8) as usize;
-    let delta = |r: usize| (0..wp).fold(0u64, |acc, k| acc | (data[k][r] as u64) << (8 * k));
-    v2_gaussians(layout, &boxes, count, block_size, &mut values, delta, pos_at, name)
+    Ok(values)
 }

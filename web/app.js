@@ -238,7 +238,7 @@ async function streamScene(url) {
   const total = Number(resp.headers.get("x-content-length")) || 0;
   const reader = resp.body.getReader();
   let got = 0;
-  const seen = { statics: 0, arrived: 0, dynamics: 0, windowFrom: 0, posed: true };  // see changesView
+  const seen = { statics: 0, arrived: 0, dynamics: 0, windowFrom: 0, posed: true, recolours: 0 };  // see changesView
   const stream = state.stream = { reads: 0, asks: 0, draws: 0, arriving: true };
   state.loaded = false;
   v.begin_stream();
@@ -276,7 +276,8 @@ async function streamScene(url) {
  * draws them), with agents (POSE rows, DYNA records) of the frames from the current window's first on when the frame on
  * screen is among them (windows come in frame order; a window's POSE chunk precedes its DYNA chunks), and, in a scene
  * with agent objects, from a window's STAT chunks up to its first POSE row: its OBJC chunks lie between, and the
- * progress does not count them. A read of later frames' agents, or of part of a chunk, changes nothing on screen. */
+ * progress does not count them; and with new colours of the statics (a .wsplat v4 SCOL chunk). A read of later
+ * frames' agents, or of part of a chunk, changes nothing on screen. */
 function changesView(seen, p, v) {
   let changed = false;
   if (p.static_loaded > seen.statics) {
@@ -284,6 +285,10 @@ function changesView(seen, p, v) {
     seen.statics = p.static_loaded;
     seen.windowFrom = seen.arrived;  // this window's frames are the ones from here on
     seen.posed = false;
+  }
+  if ((p.static_recolours || 0) !== seen.recolours) {
+    changed = true;
+    seen.recolours = p.static_recolours || 0;
   }
   const objects = !seen.posed && v.object_ids().length > 0;
   if (p.frames_arrived !== seen.arrived || p.dynamic_loaded !== seen.dynamics) {

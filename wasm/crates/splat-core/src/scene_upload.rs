@@ -2,7 +2,8 @@
 //! posed on the GPU (`Posing::Gpu`: the objects resident once, per frame only the pose table, `renderer/objects.rs`)
 //! or baked on the CPU into the frame's dynamic set (`Posing::Cpu`: `Scene::dynamic_at`, every new frame or moved
 //! agent uploads the posed records; scenes with more objects than the pose table holds, and the benchmark's
-//! comparison). One home for the browser viewer, the native CLI and the tests. Sits above the renderer.
+//! comparison), and the statics a .wsplat v4 SCOL chunk recoloured rewritten in place. One home for the browser
+//! viewer, the native CLI and the tests. Sits above the renderer.
 
 use crate::poses::MAX_GPU_OBJECTS;
 use crate::renderer::Renderer;
@@ -34,6 +35,8 @@ type RecordsKey = (usize, Option<usize>, (usize, usize), u64);
 pub struct SceneUpload {
     records: Option<RecordsKey>,
     objects: Option<(usize, usize)>,
+    /// The scene's recolour count (`Scene::static_recolours`) whose colours are resident.
+    recolours: u64,
     /// Bumped by whoever edits poses in the scene (a dragged agent): CPU posing bakes the frame again.
     pub pose_edits: u64,
 }
@@ -76,6 +79,11 @@ impl SceneUpload {
                     self.records = Some(key);
                 }
             }
+        }
+        // `update` uploads only statics it has not seen: recoloured ones are rewritten where they are.
+        if self.recolours != scene.static_recolours {
+            r.recolour_statics(&scene.statics, scene.recoloured_from);
+            self.recolours = scene.static_recolours;
         }
         Ok(())
     }

@@ -309,7 +309,7 @@ fn progress_json(p: &splat_format::wsplat::Progress, scene: &Scene) -> String {
     serde_json::json!({
         "bytes": p.bytes, "static_loaded": p.static_decoded, "static_total": p.static_total,
         "dynamic_loaded": p.dynamic_decoded, "dynamic_total": p.dynamic_total, "frames": scene.num_frames(),
-        "frames_arrived": scene.frames_arrived(), "done": p.done,
+        "frames_arrived": scene.frames_arrived(), "static_recolours": scene.static_recolours, "done": p.done,
     })
     .to_string()
 }

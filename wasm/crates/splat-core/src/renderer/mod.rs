@@ -362,6 +362,31 @@ impl Renderer {
         self.write_pose_table(); // the objects' first record follows the statics
     }
 
+    /// The resident statics from `from` on changed colour only (a .wsplat v4 recolour: the same positions, shapes
+    /// and indices): rewrite them where they are resident. No sort changes, so no version is bumped; the next render
+    /// draws the new colours (the instanced path writes the record textures now, as far as they hold the statics).
+    pub fn recolour_statics(&mut self, statics: &[PackedSplat], from: usize) {
+        let end = statics.len().min(self.num_static as usize);
+        if from >= end {
+            return;
+        }
+        let records = &statics[from..end];
+        match self.path {
+            DrawPath::Storage => {
+                self.queue.write_buffer(&self.splat_buf, (from * PACKED_SPLAT_BYTES) as u64, bytemuck::cast_slice(records));
+                self.uploaded_bytes += (records.len() * PACKED_SPLAT_BYTES) as u64;
+            }
+            DrawPath::Instanced => {
+                self.cpu_records[from..end].copy_from_slice(records);
+                let written = end.min(self.records_valid);
+                if let Some(t) = self.records.as_mut().filter(|_| from < written) {
+                    t.write(&self.queue, from, &records[..written - from]);
+                    self.uploaded_bytes += ((written - from) * PACKED_SPLAT_BYTES) as u64;
+                }
+            }
+        }
+    }
+
     fn ensure_accum(&mut self, size: [u32; 2]) {
         if self.accum.as_ref().is_some_and(|a| a.2 == size) {
             return;

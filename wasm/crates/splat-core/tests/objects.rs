@@ -3,9 +3,10 @@
 //! object's pixels move, an absent one is not drawn, the nearer object draws in front (the sort uses the posed
 //! depths), and a new pose uploads the pose table, not the records.
 
-use splat_core::cpu_sort::CpuSorter;
+mod common;
+use common::worker_sort;
 use splat_core::headless;
-use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, SortRequest, ViewRect};
+use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, ViewRect};
 use splat_core::scene_upload::{Posing, SceneUpload};
 use splat_format::camera::{Camera, IDENTITY};
 use splat_format::gaussians::Gaussian;
@@ -145,13 +146,6 @@ fn gpu_posed_objects_render_as_the_cpu_baked_scene_on_both_paths() {
         let p = at(&frames[1], 180, 121);
         assert!(p[2] > 2 * p[0], "{path:?}: where the objects overlap the pixel is {p:?}");
     }
-}
-
-/// The browser's Web Worker in miniature: positions of the request's records version, posed rows per view.
-fn worker_sort(positions: &[f32], req: &SortRequest) -> Vec<Vec<u32>> {
-    let means: Vec<[f32; 3]> = positions.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let mut sorter = CpuSorter::default();
-    req.keys.iter().zip(&req.posed).map(|(k, posed)| sorter.sort_means(means.iter().copied(), k.row2(), k.skip, posed).to_vec()).collect()
 }
 
 #[test]

@@ -2,9 +2,10 @@
 //! through the worker-sort protocol the scene then renders as the scene built with the new colours, and the recolour
 //! uploads the rewritten statics only: no new sort, no request to a worker.
 
-use splat_core::cpu_sort::CpuSorter;
+mod common;
+use common::worker_sort;
 use splat_core::headless;
-use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, SortRequest, ViewRect};
+use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, ViewRect};
 use splat_core::scene_upload::{Posing, SceneUpload};
 use splat_format::camera::{Camera, IDENTITY};
 use splat_format::gaussians::{Gaussian, PACKED_SPLAT_BYTES};
@@ -54,13 +55,6 @@ fn render(r: &mut Renderer) -> Vec<u8> {
 
 fn max_diff(a: &[u8], b: &[u8]) -> u8 {
     a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max().unwrap()
-}
-
-/// The browser's Web Worker in miniature (as tests/objects.rs).
-fn worker_sort(positions: &[f32], req: &SortRequest) -> Vec<Vec<u32>> {
-    let means: Vec<[f32; 3]> = positions.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let mut sorter = CpuSorter::default();
-    req.keys.iter().zip(&req.posed).map(|(k, posed)| sorter.sort_means(means.iter().copied(), k.row2(), k.skip, posed).to_vec()).collect()
 }
 
 #[test]

@@ -569,6 +569,19 @@ fn range_streams_are_the_words_the_python_encoder_wrote() {
     }
 }
 
+/// A streaming parse of `bytes` pushed in pieces of 1-2000 bytes, finished.
+fn pushed_in_random_pieces(bytes: &[u8], rng: &mut Rng) -> StreamingScene {
+    let mut s = StreamingScene::default();
+    let mut at = 0;
+    while at < bytes.len() {
+        let end = (at + 1 + rng.below(2000)).min(bytes.len());
+        s.push(&bytes[at..end]).unwrap();
+        at = end;
+    }
+    s.finish().unwrap();
+    s
+}
+
 #[test]
 fn range_progressive_parse_gives_the_same_scene_at_any_split() {
     for name in ["valid_v2_range_streamed", "valid_v2_range_iso"] {
@@ -576,14 +589,7 @@ fn range_progressive_parse_gives_the_same_scene_at_any_split() {
         let whole = read_wsplat(&bytes).unwrap();
         let mut rng = Rng(5);
         for _ in 0..10 {
-            let mut s = StreamingScene::default();
-            let mut at = 0;
-            while at < bytes.len() {
-                let end = (at + 1 + rng.below(2000)).min(bytes.len());
-                s.push(&bytes[at..end]).unwrap();
-                at = end;
-            }
-            s.finish().unwrap();
+            let s = pushed_in_random_pieces(&bytes, &mut rng);
             assert_eq!(s.scene.statics, whole.statics, "{name}");
             assert_eq!(s.scene.dynamic, whole.dynamic, "{name}");
         }
@@ -714,14 +720,7 @@ fn v4_recolours_reach_the_packed_statics_at_any_split() {
     }
     let mut rng = Rng(44);
     for _ in 0..10 {
-        let mut s = StreamingScene::default();
-        let mut at = 0;
-        while at < bytes.len() {
-            let end = (at + 1 + rng.below(2000)).min(bytes.len());
-            s.push(&bytes[at..end]).unwrap();
-            at = end;
-        }
-        s.finish().unwrap();
+        let s = pushed_in_random_pieces(&bytes, &mut rng);
         assert_eq!(s.scene.statics, whole.statics);
         assert_eq!(s.scene.static_recolours, scol);
     }

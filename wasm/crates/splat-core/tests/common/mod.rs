@@ -1,0 +1,11 @@
+//! Helpers the integration tests share.
+
+use splat_core::cpu_sort::CpuSorter;
+use splat_core::renderer::SortRequest;
+
+/// The browser's Web Worker in miniature: positions of the request's records version, posed rows per view.
+pub fn worker_sort(positions: &[f32], req: &SortRequest) -> Vec<Vec<u32>> {
+    let means: Vec<[f32; 3]> = positions.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let mut sorter = CpuSorter::default();
+    req.keys.iter().zip(&req.posed).map(|(k, posed)| sorter.sort_means(means.iter().copied(), k.row2(), k.skip, posed).to_vec()).collect()
+}

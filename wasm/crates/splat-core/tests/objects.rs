@@ -4,7 +4,7 @@
 //! depths), and a new pose uploads the pose table, not the records.
 
 mod common;
-use common::worker_sort;
+use common::{worker_sort, Rng};
 use splat_core::headless;
 use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, ViewRect};
 use splat_core::scene_upload::{Posing, SceneUpload};
@@ -18,14 +18,7 @@ const H: u32 = 240;
 const RED: [f32; 3] = [0.9, 0.1, 0.1];
 const BLUE: [f32; 3] = [0.1, 0.2, 0.9];
 
-struct Rng(u64);
 impl Rng {
-    fn f(&mut self) -> f32 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 40) as f32 / (1u64 << 24) as f32
-    }
     fn quat(&mut self) -> [f32; 4] {
         let q = [self.f() - 0.5, self.f() - 0.5, self.f() - 0.5, self.f() - 0.5];
         let n = q.iter().map(|x| x * x).sum::<f32>().sqrt();

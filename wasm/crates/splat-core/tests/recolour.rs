@@ -3,7 +3,7 @@
 //! uploads the rewritten statics only: no new sort, no request to a worker.
 
 mod common;
-use common::worker_sort;
+use common::{worker_sort, Rng};
 use splat_core::headless;
 use splat_core::renderer::{CpuSortSource, DrawPath, Renderer, ViewRect};
 use splat_core::scene_upload::{Posing, SceneUpload};
@@ -14,16 +14,6 @@ use splat_format::scene::Scene;
 const W: u32 = 160;
 const H: u32 = 120;
 const FIRST: usize = 700; // the first static recoloured (decoded index)
-
-struct Rng(u64);
-impl Rng {
-    fn f(&mut self) -> f32 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
 
 /// A grey ground of Gaussians in front of the camera; static 5 has opacity 0 (dropped when packed).
 fn statics() -> Vec<Gaussian> {

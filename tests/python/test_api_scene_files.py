@@ -50,13 +50,13 @@ def test_each_format_comes_back_as_the_wsplat_the_cli_writes(client, tmp_path, e
     r = post(client, src.read_bytes(), ext[1:])
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == "application/octet-stream"
-    assert int(r.headers["x-wsplat-version"]) == runners.WSPLAT_VERSION == 3
+    assert int(r.headers["x-wsplat-version"]) == runners.WSPLAT_VERSION == 4
     got = wsplat.decode(r.content)
-    assert got.meta["version"] == 3 and int(r.headers["x-gaussians"]) == len(got.static)
+    assert got.meta["version"] == 4 and int(r.headers["x-gaussians"]) == len(got.static)
     assert cli_main(["import", str(src), "--out", str(tmp_path / "cli.wsplat")]) == 0
     ref = wsplat.read(tmp_path / "cli.wsplat")
     assert len(ref.static) == len(got.static) and ref.meta["version"] == 1
-    # the served .wsplat v3 (statics as v2's) decodes to the Gaussians of the CLI's (v1) file written with v2's layouts
+    # the served .wsplat v4 (statics as v2's) decodes to the Gaussians of the CLI's (v1) file written with v2's layouts
     # (v2's static anisotropic default layout is not v1's: wsplat.V2_STATIC_ANISO, and its static position boxes
     # follow the Gaussians' size: wsplat.pos_precision_for)
     scene = scene_from_file(src)

@@ -87,3 +87,26 @@ def test_a_target_of_the_wrong_size_is_named():
     scene, truth, rig, ego = _scene()
     with pytest.raises(ValueError, match="target of 4 pixels"):
         fit_static_colours(truth, [FitView(rig[0].at(ego[0]), np.zeros((2, 2, 3)))])
+
+
+def test_pairs_under_the_weight_floor_are_left_out_of_the_fit():
+    """A Gaussian whose every pair weighs less than PAIR_WEIGHT_MIN is left out (keeps its colour); above the floor
+    it is fitted. The floor is what makes the whole-scene fit affordable (colour_fit.PAIR_WEIGHT_MIN)."""
+    from worldsplat.gaussians import colour_fit
+
+    scene, truth, rig, ego = _scene()
+    cam = rig[0].at(ego[0])
+    targets = [FitView(cam, render_view(truth, cam).rgb / 255.0)]
+    faint = lambda o: Gaussians(scene.static.means, scene.static.quats, scene.static.scales,  # noqa: E731
+                                torch.full_like(scene.static.opacities, o), scene.static.colors)  # fmt: skip
+    low = fit_static_colours(faint(0.5 * colour_fit.PAIR_WEIGHT_MIN), targets)
+    assert torch.equal(low.colors, scene.static.colors)
+    high = fit_static_colours(faint(4 * colour_fit.PAIR_WEIGHT_MIN), targets)
+    assert not torch.equal(high.colors[:-1], scene.static.colors[:-1])
+
+
+def test_a_joint_fit_of_an_unknown_scope_is_named():
+    from worldsplat.gaussians.colour_fit import JointFit
+
+    with pytest.raises(ValueError, match="scope 'frame', not one of window, scene"):
+        JointFit("frame")

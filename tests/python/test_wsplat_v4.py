@@ -135,7 +135,7 @@ def test_a_v3_decoder_refuses_a_v4_file_at_its_version(monkeypatch):
 
 
 def test_the_servers_stream_sink_writes_a_recolour():
-    """`runners.StreamSink.recolour` (no caller yet): SCOL chunks before END!, in a v4 stream."""
+    """`runners.StreamSink.recolour`: SCOL chunks before END!, in a v4 stream."""
     from worldsplat.api.runners import StreamSink
 
     class Ctx:
@@ -154,4 +154,50 @@ def test_the_servers_stream_sink_writes_a_recolour():
     sink.end(scene)
     got = decoded(buf.getvalue())
     want = decoded(recoloured_stream(with_colours(scene, colours)))
+    assert np.array_equal(np.sort(got["colors"], 0), np.sort(want["colors"], 0))
+
+
+def test_a_whole_scene_colour_fit_streams_as_a_recolour_of_what_the_windows_sent(monkeypatch):
+    """A mode whose joint fit is the whole scene's (`inference.JOINT_FIT`, scope "scene") hands its windows over as
+    lifted, then the fitted colours of every static (`SceneSink.recolour`): the stream the server writes decodes to
+    the scene `generate_scene` returns, whose colours are the fit's, not the windows'."""
+    from worldsplat.api.runners import StreamSink
+    from worldsplat.core.scenario import load_preset
+    from worldsplat.gaussians.colour_fit import JointFit
+    from worldsplat.pipeline import inference
+    from worldsplat.pipeline import scene as pipeline
+
+    if "generate" not in pipeline.available_modes():
+        pytest.skip("generate weights are not shipped here")
+    monkeypatch.setitem(inference.GAUSSIANS, "generate", "pixels")
+    monkeypatch.setitem(inference.JOINT_FIT, "generate", JointFit("scene"))
+
+    class Ctx:
+        def check(self):
+            pass
+
+    class Recording(StreamSink):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            self.sent, self.recoloured = [], []
+
+        def window(self, frames, static, dynamic, objects=None):
+            self.sent.append(static.colors.clone())
+            super().window(frames, static, dynamic, objects)
+
+        def recolour(self, colours):
+            self.recoloured.append(colours.clone())
+            super().recolour(colours)
+
+    sc = load_preset("urban_straight").with_updates(clip={"frames": 3}, image={"width": 64, "height": 36})
+    buf = io.BytesIO()
+    sink = Recording(lambda: buf, Ctx(), version=4)
+    scene = pipeline.generate_scene(sc, mode="generate", steps=1, sink=sink)
+    sink.end(scene)
+    assert len(sink.sent) >= 2 and len(sink.recoloured) == 1  # the first window, then the rest; one update at the end
+    sent, fitted = torch.cat(sink.sent), sink.recoloured[0]
+    assert fitted.shape == sent.shape == scene.static.colors.shape
+    assert torch.equal(scene.static.colors, fitted) and not torch.equal(fitted, sent)
+    assert "scene_colour_fit" in scene.meta["timing_s"]
+    got, want = decoded(buf.getvalue()), wsplat.decode(wsplat.encode(scene, version=4)).static.numpy()
     assert np.array_equal(np.sort(got["colors"], 0), np.sort(want["colors"], 0))

@@ -24,10 +24,10 @@ from .cache import ArtifactCache
 from .jobs import JobContext, JobError
 
 VIDEO_FORMATS = {"mp4": ".mp4", "webm": ".webm"}
-# The .wsplat version the server writes: `wsplat.SERVED_VERSION` (v3, tests/browser/wsplat-v3.test.mjs), repeated
+# The .wsplat version the server writes: `wsplat.SERVED_VERSION` (v4, tests/browser/wsplat-v4.test.mjs), repeated
 # here so that the API starts without importing torch; tests/python/test_one_home.py pins the two equal. v1 files
 # (older caches, dropped files) are still read everywhere.
-WSPLAT_VERSION = 3
+WSPLAT_VERSION = 4
 
 
 class Pipeline:
@@ -229,7 +229,7 @@ class StreamSink:
 
     def recolour(self, colours) -> None:
         """New colours (N, 3) of every static handed over so far, in the order handed over (`SceneSink`): SCOL
-        chunks, .wsplat v4 (web/docs/wsplat-v4.md). No caller yet: a joint colour fit would call it before `end`."""
+        chunks, .wsplat v4 (web/docs/wsplat-v4.md): a mode whose joint colour fit is the whole scene's calls it before `end`."""
         if self.writer is None:
             raise RuntimeError("recolour before the first window")
         for piece in self.writer.recolour(colours):

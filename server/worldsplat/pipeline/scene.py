@@ -36,7 +36,7 @@ from worldsplat.core.errors import check as _check_cancelled
 from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
-from worldsplat.gaussians.colour_fit import fit_window
+from worldsplat.gaussians.colour_fit import JointFit, fit_window
 from worldsplat.gaussians.objects import (
     AGENT_MARGIN_M,
     AGENT_MODES,
@@ -86,8 +86,9 @@ ORACLE_VERSION = "oracle-8"
 # near side of a depth edge lifted narrower but on the observed agents' pixels (`pipeline.pixels.lift_views`); w20
 # generate serves the latent decoder's grid refined 2x (`inference.GAUSSIANS`, "decoder2x"); w21 reconstruct's rays
 # through the boxes claim from each frame's own cameras (CLAIM_RAYS) and its VAE decoder fine-tuned at the clip's image;
-# w22 each window's new static colours fitted jointly to the window's lifted images (`inference.JOINT_FIT`)
-STREAM_VERSION = "w22"
+# w22 each window's new static colours fitted jointly to the window's lifted images (`inference.JOINT_FIT`); w23 the
+# joint fit's pairs under `colour_fit.PAIR_WEIGHT_MIN` left out, a mode's fit over the whole scene at its end
+STREAM_VERSION = "w23"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)
@@ -153,9 +154,9 @@ class SceneSink(Protocol):
     dynamic set with the agent objects built so far posed in; a sink with `takes_objects = True` is called
     `window(frames, static, dynamic, objects)` with the Gaussians in no box as `dynamic` and, per agent id, the
     canonical Gaussians (box frame) this window adds to its object (append-only: an object is its parts in order).
-    A sink may also have `recolour(colours)`: new colours (N, 3) of every static Gaussian handed over so far, in the
-    order handed over, once the scene is whole and before its end (a joint colour fit over every frame; .wsplat v4's
-    SCOL chunk). Nothing calls it yet."""
+    A sink may also have `recolour(colours)`: new colours (N, 3) of every static Gaussian handed over, in the order
+    handed over, once the scene is whole (a mode whose joint colour fit is the whole scene's, `inference.JOINT_FIT`;
+    .wsplat v4's SCOL chunk); a sink without it gets the windows' colours as they were."""
 
     def begin(self, skeleton: Scene4D) -> None: ...
 
@@ -317,10 +318,11 @@ class _Collect:
         meta: dict,
         sink: SceneSink | None,
         objects: _Objects | None = None,
-        fit_ridge: float = 0.0,
+        joint: JointFit | None = None,
     ):
         self.agg, self.sink, self.statics, self.dynamic, self.timing = agg, sink, [], {}, []
-        self.fit_ridge = fit_ridge  # the joint colour fit's (`window(targets=)`)
+        self.joint = joint  # the joint colour fit of `window(targets=)`
+        self.scene_targets: dict[int, np.ndarray] = {}  # a whole-scene fit's, gathered until `fit_scene`
         self.objects = None if objects is None else objects.builder(agg)
         self.skeleton = agg.scene([], {t: Gaussians.empty() for t in range(len(agg.frame_times))}, meta)
         if self.objects is not None:
@@ -360,8 +362,11 @@ class _Collect:
             obs = None if observed is None else observed(self.objects)
             dynamic, added = self.objects.add(frames, dynamic, obs)
         t_fit = time.perf_counter()
-        if targets:
-            static = self._fit(static, dynamic, targets)
+        if targets and self.joint is not None:
+            if self.joint.scope == "window":
+                static = self._fit(static, dynamic, targets)
+            else:
+                self.scene_targets.update(targets)
         t1 = time.perf_counter()
         self.statics.append(static)
         self.dynamic.update(dynamic)
@@ -379,7 +384,29 @@ class _Collect:
         earlier windows' static set held and each frame's dynamic set and posed objects left as they render."""
         frames = sorted(targets)
         others = dynamic if self.objects is None else self.objects.baked(frames, {t: dynamic[t] for t in frames})
-        return fit_window(static, self.statics, self.agg.rig, self.agg.ego_to_world, targets, others, self.fit_ridge)
+        return fit_window(static, self.statics, self.agg.rig, self.agg.ego_to_world, targets, others, self.joint.ridge)
+
+    def fit_scene(self) -> float:
+        """A whole-scene joint fit (`JointFit` scope "scene"): every static Gaussian handed over fitted to the
+        gathered targets at their keyframes' rig cameras, each frame's dynamic set and posed objects as they render;
+        the sink gets the new colours (`recolour`). Returns its seconds (0 with nothing to fit)."""
+        if not self.scene_targets or not self.statics:
+            return 0.0
+        t0 = time.perf_counter()
+        frames = sorted(self.scene_targets)
+        dyn = {t: self.dynamic.get(t, Gaussians.empty()) for t in frames}
+        others = dyn if self.objects is None else self.objects.baked(frames, dyn)
+        whole = fit_window(Gaussians.cat(self.statics), [], self.agg.rig, self.agg.ego_to_world, self.scene_targets,
+                           others, self.joint.ridge)  # fmt: skip
+        start, fitted = 0, []
+        for g in self.statics:
+            c = whole.colors[start : start + len(g)]
+            fitted.append(Gaussians(g.means, g.quats, g.scales, g.opacities, c, g.extras))
+            start += len(g)
+        self.statics = fitted
+        if self.sink is not None and hasattr(self.sink, "recolour"):
+            self.sink.recolour(whole.colors)
+        return time.perf_counter() - t0
 
     def scene(self, timing: dict | None = None) -> tuple[Scene4D, AggregateStats]:
         """The whole scene; meta `timing_s`: the stage totals in `timing` and `windows`, each window's stages."""
@@ -417,7 +444,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     H, W = world.rig[0].height, world.rig[0].width
     eco = inf.decoded_economy(models.data.width, W, mode=mode) if economy is None else economy
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
-    out = _Collect(agg, meta, sink, objects, inf.JOINT_FIT.get(mode, 0.0))
+    out = _Collect(agg, meta, sink, objects, inf.JOINT_FIT.get(mode))
     timing: dict[str, float] = {}
     for wi, w in enumerate(wins):
         _check(cancelled)
@@ -452,10 +479,14 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
         prog("aggregate", (wi + 1) / len(wins))
         observes = mode == "reconstruct"
         targets = None
-        if mode in inf.JOINT_FIT and dec.images is not None:
+        if out.joint is not None and dec.images is not None:
             targets = {t: dec.images[i] for i, t in enumerate(w.keys) if i in dec.images}
         out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
                    observed if observes else None, shields if observes else None, targets)  # fmt: skip
+    _check(cancelled)
+    if out.scene_targets:
+        prog("colour fit", 0.0)
+        timing["scene_colour_fit"] = out.fit_scene()
     return out.scene(timing)
 
 

@@ -154,9 +154,9 @@ V2_DYN_POS_PRECISION_ISO = 0.3
 V2_STATIC_ISO = STATIC_ISO
 DEFAULT_VERSION = 1  # what encode / StreamWriter write unless told
 # The version the server writes (scenes, streamed or whole, converted scene files) and `worldsplat export --out
-# X.wsplat` writes: v3 (v2's zstd byte planes with agent objects, web/docs/wsplat-v3.md), which the viewer reads
-# whole and streamed.
-SERVED_VERSION = 3
+# X.wsplat` writes: v4 (v2's zstd byte planes with agent objects, web/docs/wsplat-v3.md, and a streamed scene's
+# colour update of its statics, web/docs/wsplat-v4.md), which the viewer reads whole and streamed.
+SERVED_VERSION = 4
 FIRST_CHUNK = 4096  # the first static chunk is small so a browser draws early; chunks then double
 MAX_CHUNK_RECORDS = 262144
 ISOTROPY_TOL = 1e-3

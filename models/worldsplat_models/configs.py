@@ -97,6 +97,10 @@ class DiTConfig:
     # LayoutPrior's regression of L from the layout (layout_prior.py), so generation = mu + residual_scale * sample.
     target: str = "latent"
     residual_scale: float = 1.0
+    # The sampler's scale of a prior_residual DiT's sample (generation = mu + residual_scale * residual_temperature *
+    # sample): above 1 a draw lies farther from the prior's smooth mean (a sampler default, stored with the weights
+    # like cfg_scale; chosen for the shipped DiT in its card).
+    residual_temperature: float = 1.0
 
     def __post_init__(self):
         if self.target not in ("latent", "prior_residual"):

@@ -641,3 +641,22 @@ def test_the_builders_claims_with_point_cells_are_those_without(monkeypatch):
     for f, p in zip(fast, plain, strict=True):
         assert torch.equal(f.extras, p.extras) and torch.equal(f.scales, p.scales)
     assert (plain[0].extras[:, 0] > 0).any() and not torch.equal(plain[0].scales, g.scales)
+
+
+def test_frame_and_before_claims_what_lies_before_a_box_as_other_frames_see_it_and_keeps_what_is_beside_it():
+    """generate's Gaussians lifted at frame 3 that frame 0's camera sees before the crossing pedestrian's frame-0 box
+    cover it when the scene is drawn at frame 0: "frame_and_before" claims them as "clip" does; one just behind the
+    frame-0 box (the road frame 3 sees beside where the agent was) stays, which "clip" takes too."""
+    size = np.array([0.6, 0.6, 1.8])
+    poses = np.stack([box_to_world(10.0, -3.0 + 2.0 * t, 0.0, size[2]) for t in range(T)])
+    tr = AgentTrack(3, 15, size, poses, np.ones(T, bool))
+    cam = default_rig(160, 90)[0].at(np.eye(4))
+    owner, near, far = box_depths(cam, [tr], 0)
+    j, i = np.argwhere(owner == 0)[len(np.argwhere(owner == 0)) // 2]
+    ray = cam.pixel_rays()[1][j, i]
+    pts = [cam.position + ray * (near[j, i] - 3.0), cam.position + ray * (far[j, i] + 0.5)]
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 2, [[0.05] * 3] * 2, [0.9] * 2, [[0.4] * 3] * 2, [[0.0]] * 2)
+    kw = {"claim_moving": True, "keep_unboxed": False}
+    claimed = {m: _builder(tr, claim_rays=m, **kw).claim(3, g).extras[:, 0].tolist()
+               for m in ("frame", "frame_and_before", "clip")}  # fmt: skip
+    assert claimed == {"frame": [0.0, 0.0], "frame_and_before": [1.0, 0.0], "clip": [1.0, 1.0]}

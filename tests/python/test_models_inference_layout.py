@@ -107,6 +107,10 @@ def test_residual_sample_is_prior_plus_scaled_residual(layout_models):
     flow_only.dit.cfg = dataclasses.replace(layout_models.dit.cfg, target="latent")
     r = inf.sample_latents(flow_only, cond, steps=2, seed=3)
     assert torch.allclose(L, mu + 0.5 * r, atol=1e-5)
+    hot = dataclasses.replace(layout_models)  # residual_temperature scales the sample, not the prior's mean
+    hot.dit = copy.deepcopy(layout_models.dit)
+    hot.dit.cfg = dataclasses.replace(layout_models.dit.cfg, residual_temperature=1.5)
+    assert torch.allclose(inf.sample_latents(hot, cond, steps=2, seed=3), mu + 0.75 * r, atol=1e-5)
     assert "generate" not in dataclasses.replace(layout_models, prior=None).modes
     assert "generate" in layout_models.modes
 

@@ -856,7 +856,9 @@ class ObjectBuilder:
         from elsewhere (`source`, `observed`), give way to it; with `claim_rays`, those on the rays through a box,
         before it or near it, too (`claim_along_rays`): "frame", a moving agent's box at frame t as frame t's
         cameras see it; "clip", each agent's box at every frame as that frame's cameras see it, whatever frame the
-        Gaussians were lifted at (the static scene is drawn at every frame). A standing agent's box always as every
+        Gaussians were lifted at (the static scene is drawn at every frame); "frame_and_before", "frame" and, as every
+        other drawn frame's cameras see the box, only what lies before it (no tolerance behind: what frame t sees
+        beside the box stays). A standing agent's box always as every
         frame's cameras see it. `shield` (camera, (H,W) bool, `occluder_pixels`): the Gaussians lifted from those
         pixels of that camera are not claimed along the rays (what the observation shows stands before the agent)."""
         g = claim_in_boxes(g, self.claimed, t, self.claim_margin)
@@ -886,17 +888,23 @@ class ObjectBuilder:
     def _claim_rays(self, t: int, g: Gaussians, tree: cKDTree | None, cells: PointCells | None) -> Gaussians:
         key = -1 if self.claim_rays == "clip" else t
         if self._rays_key != key:  # the boxes as every frame's (or frame t's) cameras see them
-            moving = [tr for tr in self.claimed if not tr.standing]
             frames = self.ray_frames if key == -1 else [t]
-            self._rays = [
-                (*r, ray_bounds(*r))
-                for f in frames
-                for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)
-            ]
+            self._rays = self._moving_rays(frames)
             self._rays_key = key
         if tree is None:
             return g
-        return claim_along_rays(g, self._rays + self._standing_rays(tree, cells), tree=tree, cells=cells)
+        g = claim_along_rays(g, self._rays + self._standing_rays(tree, cells), tree=tree, cells=cells)
+        if self.claim_rays == "frame_and_before":  # and before the boxes as the other drawn frames' cameras see them
+            others = self._moving_rays([f for f in self.ray_frames if f != t])
+            g = claim_along_rays(g, others, tol_m=0.0, tol_share=0.0, tree=tree, cells=cells)
+        return g
+
+    def _moving_rays(self, frames: list[int]) -> list[tuple]:
+        """`box_rays` (with `ray_bounds`) of the moving claimed boxes at each of `frames` as its cameras see them."""
+        moving = [tr for tr in self.claimed if not tr.standing]
+        return [
+            (*r, ray_bounds(*r)) for f in frames for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)
+        ]
 
     def _spill_rays(self, tree: cKDTree, g: Gaussians, cells: PointCells | None = None) -> list[tuple]:
         """The moving boxes' rays (`box_rays`, with `box_edges`) of every drawn frame's cameras that have a Gaussian

@@ -582,7 +582,7 @@ def sample_latents(
     pad: bool = True,
 ) -> torch.Tensor:
     """Rectified-flow sampling of L (T,V,C,h,w), window by window; the noise depends only on (seed, window).
-    A DiT that generates the layout prior's residual gives L = mu + residual_scale * sample.
+    A DiT that generates the layout prior's residual gives L = mu + residual_scale * residual_temperature * sample.
     `pad` False: a clip shorter than a window (or its last window) is sampled at its own length (`_windows`)."""
     d, dcfg = models.data, models.dit.cfg
     T = cond["control"].shape[0]
@@ -603,7 +603,7 @@ def sample_latents(
             models.dit, noise, c, steps=steps, shift=shift, cfg_scale=cfg_scale, uncond=dropped(c), callback=cb
         )
         if needs_prior(models.dit):
-            z = prior_mean(models, layout, c["caption"]) + dcfg.residual_scale * z
+            z = prior_mean(models, layout, c["caption"]) + dcfg.residual_scale * dcfg.residual_temperature * z
         L[win] = z[0]
     return L
 

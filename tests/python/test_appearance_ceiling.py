@@ -86,5 +86,22 @@ def test_the_bench_notes_what_a_generator_can_reach():
     from worldsplat.bench.sections.scene_quality import ceiling_note
 
     note = ceiling_note(["test:0"], {"width": 56, "height": 32, "frames": 1, "fps": 4.0})
-    redraw_db, redraw_ssim, mean_db, mean_ssim = (float(x) for x in re.findall(r"\d+\.\d+", note))
-    assert 8 < redraw_db < mean_db < 60 and 0 < redraw_ssim <= 1 and 0 < mean_ssim <= 1
+    redraw_db, redraw_ssim, mean_db, mean_ssim, seen = (float(x) for x in re.findall(r"\d+\.\d+", note))
+    assert 8 < redraw_db < mean_db < 60 and 0 < redraw_ssim <= 1 and 0 < mean_ssim <= 1 and 0 <= seen <= 1
+
+
+def test_agents_seen_by_an_image_of_the_exact_geometry_is_decided_by_contrast():
+    """An agent at its exact pixels is covered; it is seen where its contrast against the ring around it is at
+    least CONTRAST_SHARE of the truth's: a redraw that paints the street the agent's colour does not show it."""
+    from worldsplat.evaluation.appearance_ceiling import agents_seen
+    from worldsplat.evaluation.scene_quality import Truth
+
+    rgb = np.full((1, 40, 60, 3), 200, np.uint8)
+    inst = np.full((1, 40, 60), -1)
+    inst[0, 15:25, 20:35], inst[0, 5:9, 45:55] = 0, 1
+    rgb[inst == 0], rgb[inst == 1] = 30, 40
+    truth = Truth(rgb, np.zeros((1, 40, 60), np.int64), inst)
+    assert agents_seen(truth, rgb, [0, 1], scale=1) == 2
+    blended = rgb.copy()
+    blended[0, :, :40] = 45  # agent 0's surroundings drawn near its colour; agent 1's as they were
+    assert agents_seen(truth, blended, [0, 1], scale=1) == 1

@@ -11,6 +11,9 @@ luma SSIM, frame 0, every rig camera, on the 400x224 canvas, the world's own ima
   squared error no predictor of these conditions beats the conditional mean, so its PSNR is the ceiling of any
   generator, however it is trained; `mse_mean_inf` removes the estimate's own noise (mse of the K mean minus the
   pixels' variance over the redraws / K, the unbiased form).
+- **agents seen by a redraw**: `scene_quality`'s test (cover and contrast against the exact image's) on each redraw,
+  every agent at its exact pixels (cover 1): what the contrast half of the test asks of a perfect sampler, whose
+  surroundings of an agent (paints, lit windows) are another draw than the ground truth's.
 
     python -m worldsplat.evaluation.appearance_ceiling [--scenarios test:0,test:1,test:2,preset:urban_straight]
         [--draws 16] [--parts materials,light] [--out FILE.json] [--png FILE.png [--views 0,1]]
@@ -34,6 +37,9 @@ from worldsplat.evaluation.scene_quality import (
     SCALE,
     STATIC_CLASSES,
     Truth,
+    agent_view,
+    candidates,
+    ground_truth,
     luma_ssim,
     scaled,
     scenario_of,
@@ -55,9 +61,20 @@ def ceiling(world, draws: int, parts: tuple[str, ...] = PARTS, scale: int = SCAL
     ground truth, frame 0 on the canvas."""
     if draws < 2:
         raise ValueError(f"appearance ceiling: draws must be >= 2 (the mean's noise is estimated), got {draws}")
-    gt = frame0_images(world, scale)
-    images = (frame0_images(redraw_appearance(world, seed * 100_003 + k, parts), scale)["rgb"] for k in range(draws))
-    return {"draws": draws, "parts": list(parts), **figures(Truth(gt["rgb"], gt["semantic"], None), images)}
+    truth = ground_truth(world, 0, [scaled(rc.at(world.ego_to_world[0]), scale) for rc in world.rig])
+    agents = candidates(world, 0, truth, scale)
+    images = [frame0_images(redraw_appearance(world, seed * 100_003 + k, parts), scale)["rgb"] for k in range(draws)]
+    seen = [agents_seen(truth, rgb, agents, scale) for rgb in images]
+    n = len(agents)
+    return {"draws": draws, "parts": list(parts), **figures(truth, images), "agents_eligible": n,
+            "redraw_agents_seen": float(np.mean(seen)), "redraw_agents_seen_range": [min(seen), max(seen)],
+            "redraw_agents_seen_share": float(np.mean(seen)) / n if n else float("nan")}  # fmt: skip
+
+
+def agents_seen(truth: Truth, rgb: np.ndarray, agents: list[int], scale: int = SCALE) -> int:
+    """How many of `agents` an image of the world's own geometry (every agent at its exact pixels) shows as seen by
+    `scene_quality`'s test: the cover is whole, so the contrast against the ring around the agent decides."""
+    return sum(agent_view(rgb, (truth.instance == k).astype(np.float32), truth, k, scale)["seen"] for k in agents)
 
 
 def figures(truth: Truth, images) -> dict:
@@ -98,6 +115,7 @@ FIGURES = (
     ("mean_static_psnr_db", "mean of K, static PSNR dB"),
     ("mean_inf_static_psnr_db", "mean (K -> inf), static PSNR dB"),
     ("mean_luma_ssim", "mean of K, luma SSIM"),
+    ("redraw_agents_seen_share", "a redraw, agents seen"),
 )
 
 
@@ -111,8 +129,13 @@ def table(rows: dict[str, dict]) -> str:
 
 
 def pooled(rows: dict[str, dict]) -> dict:
-    """The mean over scenarios of each figure (as `scene_quality.summary` pools the served scenes')."""
-    return {k: float(np.mean([r[k] for r in rows.values()])) for k, _ in FIGURES}
+    """The mean over scenarios of each figure (as `scene_quality.summary` pools the served scenes': agents seen over
+    the scenarios' agents)."""
+    out = {k: float(np.mean([r[k] for r in rows.values()])) for k, _ in FIGURES if k != "redraw_agents_seen_share"}
+    eligible = sum(r["agents_eligible"] for r in rows.values())
+    seen = sum(r["redraw_agents_seen"] for r in rows.values())
+    return {**out, "agents_eligible": eligible, "redraw_agents_seen": seen,
+            "redraw_agents_seen_share": seen / eligible if eligible else float("nan")}  # fmt: skip
 
 
 def sheet(specs: list[str], views: list[int], path: Path, seed: int = 1) -> None:

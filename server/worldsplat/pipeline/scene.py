@@ -285,7 +285,7 @@ def generated_object_source(world) -> ObjectSource | None:
 # 0.833 / 17.25 dB on test:0-2. "frame_and_before" adds what every other keyframe's cameras see before a box (not
 # behind it): on the 2x stack's lifted pixels (whole-scene fit) it keeps test:2's back-camera cars clear of the
 # generated barrier lifted at later frames (4 -> 6 of 6 seen; the four scenarios 33 -> 34 of 38, 17.36 dB both) but
-# the judge reads it 0.69 of the ground truth at the rig against "frame"'s 0.72 (CHANGELOG, session 28).
+# the judge reads it 0.69 of the ground truth at the rig against "frame"'s 0.72 (CHANGELOG.md).
 CLAIM_RAYS = {"reconstruct": "frame", "generate": "frame"}
 # The modes whose static Gaussians before a moving agent are narrowed off its pixels (`objects.narrow_before_boxes`).
 NARROW_SPILL = {"generate"}

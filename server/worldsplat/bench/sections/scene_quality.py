@@ -58,5 +58,6 @@ def ceiling_note(specs: list[str], served: dict) -> str:
         f"worldsplat.evaluation.appearance_ceiling`, {CEILING_DRAWS} redraws of each world's paints, lit windows, sun "
         f"and rain): a redraw (a perfect sampler) {m['redraw_static_psnr_db']:.2f} dB / SSIM "
         f"{m['redraw_luma_ssim']:.3f}; the redraws' mean (the conditional mean) "
-        f"{m['mean_inf_static_psnr_db']:.2f} dB / {m['mean_luma_ssim']:.3f}."
+        f"{m['mean_inf_static_psnr_db']:.2f} dB / {m['mean_luma_ssim']:.3f}; agents seen by a redraw "
+        f"{m['redraw_agents_seen_share']:.2f} (every agent where it is: the contrast against another draw decides)."
     )

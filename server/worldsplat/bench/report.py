@@ -73,6 +73,8 @@ def plot_pareto(p: Pareto, path: Path) -> None:
             ax.plot([x], [y], "*", color="#cc3311", ms=12, label=f"default: {name}")
     if p.log_x:
         ax.set_xscale("log")
+    else:  # at most 6 ticks: close values (0.0950, 0.0975, ...) otherwise run into each other
+        ax.xaxis.set_major_locator(plt.MaxNLocator(6))
     ax.set_xlabel(p.x_label)
     ax.set_ylabel(p.y_label)
     ax.grid(alpha=0.3)

@@ -31,7 +31,8 @@ from worldsplat.gaussians.types import Gaussians, Scene4D
 JOINT_FIT_ITERS = 20
 # The pairs whose weight is under this are left out of the fit: on the default preset's generate scene (2x stack,
 # 48 keyframe cameras, 182 k statics) they are 53 % of the pairs and 0.14 % of the weight; the fit's error against
-# its targets moves by < 1e-6 and it takes 6.6 s instead of 9.4 (the sparse products are the solver's cost).
+# its targets moves by < 1e-6 and it takes 6.6 s instead of 9.4 (the sparse products are the solver's cost; a
+# one-off run timing `fit_static_colours` with and without the floor, no command in the tree).
 PAIR_WEIGHT_MIN = 1e-3
 
 

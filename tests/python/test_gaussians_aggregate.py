@@ -13,7 +13,7 @@ from worldsplat_models.geometry import matrix_to_quaternion, quaternion_to_matri
 
 
 def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
-    from worldsplat.gaussians.lift import SKY_CHANNEL, SKY_DISTANCE
+    from worldsplat.gaussians.lift import SKY_CHANNEL, SKY_DISTANCE, sky_centre
 
     cam = default_rig(16, 9)[0].at(yaw_pose(2.0, 1.0, 0.0, 0.3))
     depth = np.full((9, 16), 7.5, np.float32)
@@ -32,7 +32,9 @@ def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
     assert int(sky.sum()) == 17
     uv, z = cam.project(g.means.double().numpy())
     assert np.allclose(z[~sky.numpy()], 7.5, atol=1e-4)
-    dist = np.linalg.norm(g.means.double().numpy()[sky.numpy()] - cam.camera_to_world[:3, 3], axis=1)
+    centre = sky_centre(cam.camera_to_world[:3, 3])
+    assert np.allclose(centre, 0.0)  # the grid point nearest the camera
+    dist = np.linalg.norm(g.means.double().numpy()[sky.numpy()] - centre, axis=1)
     assert np.allclose(dist, SKY_DISTANCE, rtol=1e-6)
     cols, rows = np.meshgrid(np.arange(16) + 0.5, np.arange(9) + 0.5)
     pix = np.stack([cols.ravel(), rows.ravel()], 1)
@@ -42,6 +44,28 @@ def test_lift_places_pixels_on_their_rays_and_sky_on_the_far_shell():
     assert g.extras[:, 0].sum() == 1
     assert np.allclose(g.scales[~sky][:, 0].numpy(), 0.7 * 7.5 / cam.fx, rtol=1e-5)
     assert len(lift(rgb, depth, dyn, cam, sky=False)) == 8 * 16 - 2
+
+
+def test_sky_of_every_camera_on_a_stretch_of_track_is_one_shell():
+    """Two frames 14 m apart see the same sky: their sky pixels land on one sphere (`lift.sky_centre`), so the
+    economy merges the second frame's sky into the first's cells instead of keeping a second shell (per camera, 300 m
+    from each, the union kept 2.0x one frame's sky Gaussians). A shell that does not enclose the camera is refused."""
+    from worldsplat.gaussians.lift import SKY_CHANNEL, SKY_DISTANCE, sky_centre
+
+    rig = default_rig(64, 36)[:1]
+    depth = np.full((36, 64), np.inf, np.float32)
+    rgb = np.full((36, 64, 3), 180, np.uint8)
+    views = [lift(rgb, depth, None, rig[0].at(yaw_pose(x, 0.0, 0.0, 0.0))) for x in (0.0, 14.0)]
+    for g in views:
+        assert bool((g.extras[:, SKY_CHANNEL] > 0.5).all())
+        assert np.allclose(np.linalg.norm(g.means.double().numpy(), axis=1), SKY_DISTANCE, rtol=1e-6)
+    centres = np.array([[0.0, 0, 0], [14.0, 0, 0]])
+    one = economize(views[0], Economy(), centres[:1], focal=rig[0].fx)
+    both = economize(Gaussians.cat(views), Economy(), centres, focal=rig[0].fx)
+    assert len(both) <= 1.15 * len(one), (len(both), len(one))
+    assert np.allclose(sky_centre([70.0, -30.0, 1.5]), [100.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="sky_distance"):
+        lift(rgb, depth, None, rig[0].at(yaw_pose(0.0, 0.0, 0.0, 0.0)), sky_distance=0.5)
 
 
 def test_lifted_view_rerenders_its_own_image():
@@ -518,3 +542,30 @@ def test_dropping_what_earlier_windows_emitted_first_then_adding_is_adding():
     fin.add([0, 1], per_view[:2])
     later = per_view[2:4]
     assert fin.drop_emitted([2, 3], later) is later
+
+
+def test_sky_shell_covers_an_open_sky_on_a_canvas_twice_the_image():
+    """The page draws the scene on a canvas several times the served image. Over the highway preset's open sky
+    (3 frames lifted and aggregated as the oracle serves them, frame 1 drawn at 2x per side, every camera) the sky
+    shell covers its pixels: alpha >= 0.97 at all but 1 % of them, away from the skyline. With the merged sky
+    Gaussians half a cell wide (SKY_COVER 0.5, cells of 2.7 footprints) the same percentile read 0.83-0.84, a dark
+    grid over the sky."""
+    from scipy import ndimage
+
+    from worldsplat.core.scenario import load_preset
+    from worldsplat.evaluation.scene_quality import scaled
+    from worldsplat.gaussians.economy import lift_clip
+    from worldsplat.world import build_world, simulate
+
+    world = build_world(load_preset("highway").with_updates(clip={"frames": 3}))
+    clip = simulate(world)
+    H, W = clip.depth.shape[2:]
+    args = (clip.frame_times, clip.rig, clip.ego_to_world)
+    scene, _ = aggregate_4d(lift_clip(clip), *args, economy=Economy(), image_size=(H, W))
+    for v in range(len(clip.rig)):
+        with torch.no_grad():
+            out = rasterize(scene.at_frame(1), scaled(scene.camera(1, v), 2), method="pairs")
+        sky = np.kron(~np.isfinite(clip.depth[1, v]), np.ones((2, 2), bool))
+        inner = ndimage.binary_erosion(sky, iterations=6)  # away from the skyline
+        assert inner.sum() > 5000, v
+        assert float(np.percentile(out["alpha"].numpy().reshape(2 * H, 2 * W)[inner], 1)) >= 0.97, v

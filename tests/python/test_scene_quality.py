@@ -74,6 +74,18 @@ def test_luma_ssim_ignores_the_sky():
     assert sq.luma_ssim(r, t) < 0.9
 
 
+def test_sky_cover_reads_a_see_through_grid_and_ignores_the_ground():
+    sem = np.full((1, 40, 40), sq.STATIC_CLASSES[0])
+    sem[:, :20] = SKY
+    truth = sq.Truth(np.zeros((1, 40, 40, 3), np.uint8), sem, np.full((1, 40, 40), -1))
+    alpha = np.ones((1, 40, 40))
+    alpha[:, 20:] = 0.0  # the ground's alpha does not count
+    assert sq.sky_cover(alpha, truth) == pytest.approx(1.0)
+    alpha[:, :20:4, :] = 0.85  # every 4th row of the sky see-through: a grid
+    assert sq.sky_cover(alpha, truth) == pytest.approx(0.85)
+    assert np.isnan(sq.sky_cover(alpha, sq.Truth(truth.rgb, np.zeros_like(sem) + sq.STATIC_CLASSES[0], truth.instance)))
+
+
 def test_ring_is_the_band_around_the_mask():
     m = np.zeros((1, 20, 20), bool)
     m[0, 8:12, 8:12] = True
@@ -154,6 +166,7 @@ def test_oracle_scene_measured_and_an_agent_removed_is_not_seen(small_oracle):
     assert r["agents_eligible"] >= 2 and r["agents_seen_share"] >= 0.5
     assert 15 < r["static_psnr_db"] < 60 and 0.3 < r["luma_ssim_nonsky"] < 1
     assert r["silhouette_iou"] > 0.5
+    assert r["sky_cover"] >= 0.97  # the sky shell closed on the 2x canvas
     k = next(a["agent"] for a in r["agents"] if a["seen"])
     flat = scene.baked()  # agent objects (if the scene has them) posed into the frame's dynamic set
     m = sq.agent_membership(world, flat, 0, flat.static.means, [k])[:, 0] > 0
@@ -175,7 +188,7 @@ def test_silhouettes_from_the_agents_boxes_only_equal_the_full_render(small_orac
     agents = sq.candidates(world, 0, truth)
     g = scene.at_frame(0)
     member = sq.agent_membership(world, scene, 0, g.means, agents)
-    _, chans = sq.render_frame(g, member, cams[:2])
+    _, chans, _ = sq.render_frame(g, member, cams[:2])
     for v in range(2):
         near = sq.render_channels_near(g, member, cams[v], truth.instance[v], agents)
         assert np.abs(near - chans[v]).max() < 1e-5
@@ -220,7 +233,9 @@ def test_summary_pools_agents_and_weights_silhouettes():
             "silhouette_pairs": 1,
         },
     ]
+    rows[1]["sky_cover"] = 0.8
     s = sq.summary(rows)["oracle"]
+    assert s["sky_cover"] == pytest.approx(0.8)  # the worst scenario's sky, not the mean
     assert s["agents_seen_share"] == pytest.approx(0.4)
     assert s["silhouette_iou"] == pytest.approx((0.9 * 3 + 0.4) / 4)
     assert "| oracle |" in sq.table({"oracle": s})

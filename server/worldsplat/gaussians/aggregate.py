@@ -36,11 +36,14 @@ import torch
 
 from worldsplat.core.camera import Camera, RigCamera
 from worldsplat.gaussians import constants as C
-from worldsplat.gaussians.lift import SKY_CHANNEL
+from worldsplat.gaussians.lift import MAX_DEPTH, SKY_CHANNEL
 from worldsplat.gaussians.types import Gaussians, Scene4D, transform
 
 DYNAMIC_THRESHOLD = 0.5  # extras[:, 0] (dynamic probability / mask) above this -> dynamic
-SKY_COVER = 0.5  # a merged sky Gaussian's std is at least this fraction of its cell
+# A merged sky Gaussian's std is at least this fraction of its cell. At 0.5 neighbouring cells' Gaussians cover
+# only 0.85 of the sky between their centres (alpha), and the backdrop behind them showed through as a dark cell
+# grid over an open sky on a canvas 2x the served image (test:2, the highway; web/docs/gaussians.md "Sky shell").
+SKY_COVER = 0.8
 DYNAMIC_CELL_FACTOR = 1.0  # cell of the per-frame dynamic sets, in pixel footprints (static: Economy.cell_factor)
 DYNAMIC_COVER = 0.0  # > 0: merged dynamic std = this x the patch width (see merged_variance; 0.7 = FOOTPRINT)
 # Static cells of *decoded* Gaussians (reconstruct / generate), in pixels of the models' image (64x112): the decoder
@@ -69,9 +72,12 @@ class Economy:
 
     enabled: bool = True
     min_opacity: float = 0.02  # "transparent": below this a Gaussian barely shows
-    max_range: float = 150.0  # m from the nearest camera position ("out of range")
+    max_range: float = MAX_DEPTH  # m from the nearest camera position ("out of range"; farther pixels are sky)
     cell_factor: float = 3.0  # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
-    sky_cell_factor: float = 3.0  # the same for the sky shell (far and smooth: may be coarser)
+    # The same for the sky shell. 3 (cells of 2.7 footprints after the power-of-two rounding, at the shell's fixed
+    # distance) blurred the clouds and the far horizon the shell holds; 1.5 (1.3 footprints) keeps them at about the
+    # surfaces' resolution, and with one shell per stretch of track (`lift.sky_centres`) costs no more Gaussians.
+    sky_cell_factor: float = 1.5
     # A frame's dynamic set is seen only from that frame's cameras, at the distance it was observed (a static
     # place is mostly seen from farther than its nearest camera), so its cells are one footprint. `dynamic_cover`
     # > 0 lets coarser dynamic cells stay closed (merged std = cover x the patch width; see merged_variance): a

@@ -4,9 +4,12 @@ Each pixel becomes one isotropic Gaussian on its ray, coloured by the pixel, wit
 pixels at its depth (`scale = FOOTPRINT * z / f`), so neighbouring splats overlap into a closed surface:
 - a surface pixel (finite depth < `max_depth`) sits at `origin + depth * dir` (dir has unit camera-z component, so
   `depth` is camera z);
-- a sky pixel (depth +inf, or beyond `max_depth`) sits on a far shell, SKY_DISTANCE metres along its ray, and is
-  flagged in extras[:, SKY_CHANNEL]: the sky is a static backdrop rendered by the same rasterizer (at 300 m a
-  +-4 m track shift moves it by ~1 % of the focal length in pixels, which is what "at infinity" looks like).
+- a sky pixel (depth +inf, or beyond `max_depth`) sits where its ray meets the sky shell, a sphere of SKY_DISTANCE
+  metres around the point of a SKY_GRID_M grid nearest the camera (`sky_centre`: one centre for every frame, view,
+  window and mode on a stretch of track, so their sky lands on one surface and the economy merges it instead of
+  layering a shell per camera), and is flagged in
+  extras[:, SKY_CHANNEL]: the sky is a static backdrop rendered by the same rasterizer (at 300 m a +-4 m track
+  shift moves it by ~1 % of the focal length in pixels, which is what "at infinity" looks like).
 
 With `fit_iters` > 0 the static pixels' colours are fitted at the lifting camera (`fit_colours`, on the render's
 weights computed on the lifted view's pixel stencil by `raster.aligned_weights`): each splat
@@ -42,8 +45,16 @@ FOOTPRINT = 0.7  # px: splat std relative to the pixel pitch (tuned on the prese
 EDGE_DEPTH_RATIO = 1.25
 EDGE_FOOTPRINT = 0.35
 OPACITY = 0.98
-MAX_DEPTH = 200.0  # m: farther pixels join the sky shell
-SKY_DISTANCE = 300.0  # m along the ray: the sky shell
+# m: farther pixels join the sky shell. The economy keeps no surface farther than this from the track
+# (`Economy.max_range`), so a farther pixel lifted as a surface left a hole in front of the shell (the oracle's
+# highway horizon showed the shell's sky colour where the world's far grass is: web/docs/gaussians.md "Sky shell").
+MAX_DEPTH = 150.0
+SKY_DISTANCE = 300.0  # m: the sky shell's radius around its centre
+# The shell's centre is the nearest point of this grid to the camera, a function of the position alone, so every
+# caller agrees without being told the track: a camera is at most sqrt(3) * 50 m from it (a sky point at least
+# ~213 m away, beyond MAX_DEPTH), and a track within 50 m of a grid point (a scene's first ego pose is its origin)
+# has one shell.
+SKY_GRID_M = 100.0
 DYNAMIC_CHANNEL = 0  # extras[:, 0]: 1.0 for moving-agent pixels
 SKY_CHANNEL = 1  # extras[:, 1]: 1.0 for sky-shell pixels (the economy keeps them beyond its range cut)
 # lift_surfels (anisotropic lifting, the bench's world PLY): the std across the surface relative to the isotropic
@@ -96,7 +107,7 @@ def lift(
     is_sky = (np.isposinf(depth) | (np.isfinite(depth) & (depth >= max_depth))) if sky else np.zeros_like(surface)
     keep = surface | is_sky
     origin, dirs = camera.pixel_rays()
-    d = np.where(surface, depth, sky_distance / np.linalg.norm(dirs, axis=-1).reshape(H, W))[keep]
+    d = np.where(surface, depth, _shell_depth(origin, dirs, sky_distance))[keep]
     means = origin + d[:, None] * dirs[keep]
     f = np.sqrt(camera.fx * camera.fy)
     width = np.full((H, W), footprint)
@@ -135,6 +146,25 @@ def lift(
         return static[rows] & static[own[pix]]
 
     return fit_colours(g, camera, col, fit_iters, fitted, ridge=FIT_RIDGE)
+
+
+def sky_centre(position: np.ndarray) -> np.ndarray:
+    """The sky shell's centre (3,) for a camera at `position` (3,) world: the nearest point of the SKY_GRID_M grid."""
+    return np.round(np.asarray(position, dtype=np.float64).reshape(3) / SKY_GRID_M) * SKY_GRID_M
+
+
+def _shell_depth(origin: np.ndarray, dirs: np.ndarray, radius: float) -> np.ndarray:
+    """Camera z (H,W) where each pixel's ray (`dirs`, unit camera-z) from `origin` meets the sky shell: the sphere
+    of `radius` around `sky_centre(origin)`."""
+    o = np.asarray(origin, dtype=np.float64) - sky_centre(origin)
+    if not np.linalg.norm(o) < radius:
+        raise ValueError(
+            f"lift: sky_distance {radius} m does not enclose the camera ({np.linalg.norm(o):.1f} m from its centre)"
+        )
+    norm = np.linalg.norm(dirs, axis=-1)
+    u = dirs / norm[..., None]
+    ou = u @ o
+    return (-ou + np.sqrt(ou * ou - o @ o + radius * radius)) / norm
 
 
 def near_edge(depth: np.ndarray, ratio: float = EDGE_DEPTH_RATIO) -> np.ndarray:

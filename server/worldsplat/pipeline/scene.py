@@ -87,8 +87,9 @@ ORACLE_VERSION = "oracle-8"
 # generate serves the latent decoder's grid refined 2x (`inference.GAUSSIANS`, "decoder2x"); w21 reconstruct's rays
 # through the boxes claim from each frame's own cameras (CLAIM_RAYS) and its VAE decoder fine-tuned at the clip's image;
 # w22 each window's new static colours fitted jointly to the window's lifted images (`inference.JOINT_FIT`); w23 the
-# joint fit's pairs under `colour_fit.PAIR_WEIGHT_MIN` left out, a mode's fit over the whole scene at its end
-STREAM_VERSION = "w23"
+# joint fit's pairs under `colour_fit.PAIR_WEIGHT_MIN` left out, a mode's fit over the whole scene at its end; w24 one
+# sky shell per stretch of track in finer, wider cells, pixels beyond the economy's range on it (`gaussians.lift`)
+STREAM_VERSION = "w24"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 30.3 dB on the served DiT (models.md)

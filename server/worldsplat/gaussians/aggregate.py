@@ -76,7 +76,7 @@ class Economy:
     cell_factor: float = 3.0  # voxel cell = cell_factor x the pixel footprint seen from the nearest camera
     # The same for the sky shell. 3 (cells of 2.7 footprints after the power-of-two rounding, at the shell's fixed
     # distance) blurred the clouds and the far horizon the shell holds; 1.5 (1.3 footprints) keeps them at about the
-    # surfaces' resolution, and with one shell per stretch of track (`lift.sky_centres`) costs no more Gaussians.
+    # surfaces' resolution, and with one shell per stretch of track (`lift.sky_centre`) costs no more Gaussians.
     sky_cell_factor: float = 1.5
     # A frame's dynamic set is seen only from that frame's cameras, at the distance it was observed (a static
     # place is mostly seen from farther than its nearest camera), so its cells are one footprint. `dynamic_cover`

@@ -7,9 +7,9 @@ pixels at its depth (`scale = FOOTPRINT * z / f`), so neighbouring splats overla
 - a sky pixel (depth +inf, or beyond `max_depth`) sits where its ray meets the sky shell, a sphere of SKY_DISTANCE
   metres around the point of a SKY_GRID_M grid nearest the camera (`sky_centre`: one centre for every frame, view,
   window and mode on a stretch of track, so their sky lands on one surface and the economy merges it instead of
-  layering a shell per camera), and is flagged in
-  extras[:, SKY_CHANNEL]: the sky is a static backdrop rendered by the same rasterizer (at 300 m a +-4 m track
-  shift moves it by ~1 % of the focal length in pixels, which is what "at infinity" looks like).
+  layering a shell per camera), and is flagged in extras[:, SKY_CHANNEL]: the sky is a static backdrop rendered
+  by the same rasterizer (at 300 m a +-4 m track shift moves it by ~1 % of the focal length in pixels, which is
+  what "at infinity" looks like).
 
 With `fit_iters` > 0 the static pixels' colours are fitted at the lifting camera (`fit_colours`, on the render's
 weights computed on the lifted view's pixel stencil by `raster.aligned_weights`): each splat

@@ -4,8 +4,8 @@
 # (default 7.5, so that the install, the start of Python and the packing stay inside a 10-minute budget) into a run
 # folder outside the tree. What comes back in $OUT: MODEL_CARD.md, card.json and the run's weights, cards, stage
 # states and logs as stack.tar.NN parts of at most 16 MB (here: `cat stack.tar.* | tar -x -C DIR`).
-# Written by package-config/accelerator-wheels.sh here first. SIZE: large (default: the served widths), large2x
-# (the stack on the 2x latent space, web/docs/models.md "The VAE's down-sampling"), small or tiny.
+# Written by package-config/accelerator-wheels.sh here first. SIZE: large (default: the served widths at a GPU's
+# batches), small or tiny.
 set -u
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
 export PYTHONPATH=/tmp/site:$PWD/server:$PWD/models

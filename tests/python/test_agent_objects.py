@@ -660,3 +660,9 @@ def test_frame_and_before_claims_what_lies_before_a_box_as_other_frames_see_it_a
     claimed = {m: _builder(tr, claim_rays=m, **kw).claim(3, g).extras[:, 0].tolist()
                for m in ("frame", "frame_and_before", "clip")}  # fmt: skip
     assert claimed == {"frame": [0.0, 0.0], "frame_and_before": [1.0, 0.0], "clip": [1.0, 1.0]}
+    # one builder claiming frame after frame (each frame's box rays computed once, `_moving_rays`) claims as a fresh
+    # builder at each frame does
+    one = _builder(tr, claim_rays="frame_and_before", **kw)
+    for t in (3, 0, 1, 3):
+        fresh = _builder(tr, claim_rays="frame_and_before", **kw).claim(t, g)
+        assert torch.equal(one.claim(t, g).extras, fresh.extras), t

@@ -59,3 +59,24 @@ def test_trend_checks_catch_regressions():
 def test_unknown_section_is_named(capsys):
     assert main(["bench", "--out", "/tmp/never", "--only", "nope"]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_scene_gap_matches_gaussians_by_position_not_index():
+    """Two backends' scenes hold the same Gaussians in another order (the aggregation's output order follows depths a
+    hair apart): the gap is nil; a moved Gaussian or a changed colour is measured."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from worldsplat.bench.sections.onnx import scene_gap
+    from worldsplat.gaussians.types import Gaussians
+
+    g = Gaussians.from_numpy(
+        [[0, 0, 5], [1, 0, 5], [0, 2, 9]], [[1, 0, 0, 0]] * 3, [[0.1] * 3] * 3, [0.9] * 3, [[0.1, 0.2, 0.3]] * 3
+    )
+    scene = lambda s: SimpleNamespace(static=s, dynamic=[], objects=[])  # noqa: E731
+    gap = scene_gap(scene(g), scene(g.subset(torch.tensor([2, 0, 1]))))
+    assert gap["gaussians"] == [3, 3] and gap["means_max"] == 0.0 and gap["colors_max"] == 0.0
+    moved = Gaussians(g.means + torch.tensor([0.0, 0.0, 0.25]), g.quats, g.scales, g.opacities, g.colors * 2)
+    gap = scene_gap(scene(g), scene(moved))
+    assert abs(gap["means_max"] - 0.25) < 1e-6 and abs(gap["colors_max"] - 0.3) < 1e-6

@@ -110,3 +110,5 @@ def test_a_joint_fit_of_an_unknown_scope_is_named():
 
     with pytest.raises(ValueError, match="scope 'frame', not one of window, scene"):
         JointFit("frame")
+    with pytest.raises(ValueError, match="iters must be >= 1, got 0"):
+        JointFit("scene", 0.0, 0)

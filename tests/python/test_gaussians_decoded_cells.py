@@ -28,19 +28,21 @@ def test_the_cell_follows_the_model_image_on_the_served_image():
 
 
 def test_each_mode_serves_its_source_and_economy():
-    """reconstruct lifts the VAE's decoding per pixel (finest rule, decoded tolerance, carving); generate serves the
-    latent decoder's grid refined 2x (merged cells of half a model pixel; the coarse grid's, of one); an explicit
-    source overrides the mode's."""
+    """Both modes lift the VAE's decoding per pixel (finest rule, decoded tolerance, carving); the latent decoder's
+    grid refined 2x merges in cells of half a model pixel (the coarse grid's, of one); an explicit source overrides
+    the mode's."""
     from worldsplat.gaussians.aggregate import FINEST_DEPTH_TOL, LIFTED_DECODED_DEPTH_TOL
     from worldsplat.pipeline.inference import decoded_economy, gaussian_source
 
     assert gaussian_source(None, "reconstruct") == "pixels"
-    assert gaussian_source(None, "generate") == "decoder2x"
+    assert gaussian_source(None, "generate") == "pixels"
     assert gaussian_source("decoder", "reconstruct") == "decoder"
     rec, gen = decoded_economy(112, 200, mode="reconstruct"), decoded_economy(112, 200, mode="generate")
     assert rec.static_rule == "finest" and rec.carve and rec.finest_depth_tol == LIFTED_DECODED_DEPTH_TOL
     assert LIFTED_DECODED_DEPTH_TOL > FINEST_DEPTH_TOL and not Economy().carve
-    assert gen.static_rule == "merge" and gen == decoded_economy(112, 200, "decoder2x")
-    assert decoded_economy(112, 200, "decoder").cell_factor == pytest.approx(2 * gen.cell_factor)
+    assert gen == rec
+    grid2x = decoded_economy(112, 200, "decoder2x", mode="generate")
+    assert grid2x.static_rule == "merge"
+    assert decoded_economy(112, 200, "decoder").cell_factor == pytest.approx(2 * grid2x.cell_factor)
     with pytest.raises(ValueError, match="gaussians"):
         gaussian_source("grid", "generate")

@@ -70,14 +70,17 @@ def test_generate_reads_layout_maps(layout_models):
     assert inf.layout_size(layout_models) == (CFG.data.width, CFG.data.height)
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
     cond = _cond(clip, s)
-    a = inf.generate(cond, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
+    a = inf.generate(
+        cond, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb, gaussians="decoder2x"
+    )
     ds = layout_models.vae.cfg.downsample
     assert a.latents.shape[-2:] == (CFG.data.height // ds, CFG.data.width // ds)
-    # the decoder's grid (one Gaussian per pixel at the model resolution) refined as generate serves it
-    r = inf.DECODER_REFINE[inf.GAUSSIANS["generate"]]
-    assert a.gaussians[0][0].means.shape[0] == CFG.data.height * CFG.data.width * r * r
+    # the decoder's grid (one Gaussian per pixel at the model resolution) refined 2x
+    assert a.gaussians[0][0].means.shape[0] == CFG.data.height * CFG.data.width * 2 * 2
     other = dict(cond, layout=np.zeros_like(cond["layout"]))
-    b = inf.generate(other, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb)
+    b = inf.generate(
+        other, steps=2, seed=1, models=layout_models, rig=clip.rig, caption_embedding=emb, gaussians="decoder2x"
+    )
     assert not torch.equal(a.latents, b.latents), "the layout maps must steer the sample"
     with pytest.raises(ValueError, match="layout maps"):
         inf.generate(_cond(clip, s, layout=False), steps=1, models=layout_models, rig=clip.rig, caption_embedding=emb)

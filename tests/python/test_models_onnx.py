@@ -113,7 +113,7 @@ def test_the_onnx_backend_runs_short_windows_too(models, tmp_path):
     boxes = [[{"corners": s["box_corners"][t, k], "cls": 12, "moving": True} for k in range(2)] for t in frames]
     cond = {"sketch": s["sketch"][frames], "boxes": boxes, "ego_traj": clip.ego_to_world, "caption": "x"}
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
-    kw = dict(steps=2, seed=1, rig=clip.rig, caption_embedding=emb, pad=False)
+    kw = dict(steps=2, seed=1, rig=clip.rig, caption_embedding=emb, pad=False, gaussians="decoder")
     ga, gb = inf.generate(cond, models=models, **kw), inf.generate(cond, models=ort, **kw)
     assert ort.dit.torch_calls == 0 and ort.dit.ort_calls > 0  # both windows (T frames, then 1) in onnxruntime
     assert ort.decoder.ort_calls == 1 and ort.decoder.torch_calls == 1  # the short window's decoder in torch

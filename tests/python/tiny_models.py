@@ -44,7 +44,7 @@ def pixel_guided(up_channels=(8, 8)):
 
 
 def pixel_guided_models(version: str, **fields) -> inf.Models:
-    """The `pixel_guided` stack built (seeded), with `fields` (e.g. decoder_reconstruct, vae_reconstruct) set."""
+    """The `pixel_guided` stack built (seeded), with `fields` (e.g. decoder_reconstruct) set."""
     torch.manual_seed(0)
     vae, dec, dit = pixel_guided()
     return inf.Models(

@@ -159,13 +159,7 @@ def eval_reconstruct(
             dec = reconstruct(clip_view(src, rig), models, gaussians)
             scenes["model"] = to_scene4d(dec)
             if joint:
-                vae_rgb = (
-                    pixel_guide(models.for_mode("reconstruct"), dec.latents)[:, :, :3]
-                    .detach()
-                    .permute(0, 1, 3, 4, 2)
-                    .double()
-                    + 1
-                ) / 2
+                vae_rgb = (pixel_guide(models, dec.latents)[:, :, :3].detach().permute(0, 1, 3, 4, 2).double() + 1) / 2
                 scenes["model_joint"] = fit_scene_static(scenes["model"], dict(enumerate(vae_rgb.clamp(0, 1).numpy())))
         if oracle:
             scenes["oracle"] = oracle_scene(clip_view(src, rig))

@@ -16,6 +16,7 @@ diagonal step). The weights are what it costs (about one render per view); the s
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,14 +46,17 @@ class JointFit:
     "window": each window's new static Gaussians at the window's keyframe cameras, the earlier windows' held (what a
     window streams is final; `fit_window`); "scene": the whole static set at every keyframe camera once the scene is
     whole (a streamed scene sends the new colours as an update of the statics it sent, .wsplat v4 SCOL). `ridge`
-    pulls each colour towards the lifted one."""
+    pulls each colour towards the lifted one; `iters` stops the fit early, which does the same."""
 
     scope: str
     ridge: float = 0.0
+    iters: int = JOINT_FIT_ITERS  # FISTA steps from the lifted colours
 
     def __post_init__(self) -> None:
         if self.scope not in FIT_SCOPES:
             raise ValueError(f"JointFit: scope {self.scope!r}, not one of {', '.join(FIT_SCOPES)}")
+        if self.iters < 1:
+            raise ValueError(f"JointFit: iters must be >= 1, got {self.iters}")
 
 
 @dataclass
@@ -82,8 +86,8 @@ def fit_static_colours(
     held = Gaussians.empty() if held is None else held
     nh = len(held)
     c_held = held.colors.detach().double().cpu().numpy()
-    blocks, rhs = [], []
-    for view in views:
+
+    def block(view: FitView):
         cam = view.camera
         parts = [held, free] + ([view.others] if view.others is not None and len(view.others) else [])
         g = Gaussians.cat([_plain(p) for p in parts])
@@ -104,8 +108,12 @@ def fit_static_colours(
             for c in range(3):
                 b[:, c] -= np.bincount(pix[h], w[h] * c_held[rows[h], c], minlength=P)
         f = ~h
-        blocks.append(csr_matrix((w[f], (pix[f], rows[f] - nh)), shape=(P, n)))
-        rhs.append(b)
+        return csr_matrix((w[f], (pix[f], rows[f] - nh)), shape=(P, n)), b
+
+    # the views' weights in threads: torch and numpy release the GIL in them, and one view's ops are too small to
+    # keep both cores busy on their own (the blocks are the same, in the views' order)
+    with ThreadPoolExecutor(max(1, torch.get_num_threads())) as pool:
+        blocks, rhs = zip(*pool.map(block, views))
     W = vstack(blocks).tocsr()
     c0 = free.colors.detach().double().cpu().numpy()
     x, _ = solve_colours(W, np.concatenate(rhs), c0, iters, ridge)
@@ -121,6 +129,7 @@ def fit_window(
     targets: dict[int, np.ndarray],
     others: dict[int, Gaussians],
     ridge: float = 0.0,
+    iters: int = JOINT_FIT_ITERS,
 ) -> Gaussians:
     """A streamed window's new static set fitted (`fit_static_colours`) to `targets[t]` (V, H, W, 3) at frame t's
     rig cameras (`rig[v].at(ego_to_world[t])`), the earlier windows' static sets `held` and each frame's non-static
@@ -130,7 +139,7 @@ def fit_window(
         for t in sorted(targets)
         for v, rc in enumerate(rig)
     ]
-    return fit_static_colours(static, views, held=Gaussians.cat(held) if held else None, ridge=ridge)
+    return fit_static_colours(static, views, held=Gaussians.cat(held) if held else None, iters=iters, ridge=ridge)
 
 
 def _plain(g: Gaussians) -> Gaussians:

@@ -812,6 +812,7 @@ class ObjectBuilder:
         self._spill_pos: np.ndarray | None = None
         self._spill_rects: dict[int, np.ndarray] = {}
         self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
+        self._frame_rays: dict[int, list[tuple]] = {}  # `_moving_rays` per frame: the boxes and cameras are fixed
         for tr in self.tracks:
             if len(tr.poses) != self.T:
                 raise ValueError(f"objects: agent {tr.agent_id} has {len(tr.poses)} poses, the clip {self.T} frames")
@@ -900,11 +901,14 @@ class ObjectBuilder:
         return g
 
     def _moving_rays(self, frames: list[int]) -> list[tuple]:
-        """`box_rays` (with `ray_bounds`) of the moving claimed boxes at each of `frames` as its cameras see them."""
+        """`box_rays` (with `ray_bounds`) of the moving claimed boxes at each of `frames` as its cameras see them,
+        each frame's computed once ("frame_and_before" asks for every other frame's at each frame)."""
         moving = [tr for tr in self.claimed if not tr.standing]
-        return [
-            (*r, ray_bounds(*r)) for f in frames for r in box_rays([rc.at(self.ego[f]) for rc in self.rig], moving, f)
-        ]
+        for f in frames:
+            if f not in self._frame_rays:
+                cams = [rc.at(self.ego[f]) for rc in self.rig]
+                self._frame_rays[f] = [(*r, ray_bounds(*r)) for r in box_rays(cams, moving, f)]
+        return [r for f in frames for r in self._frame_rays[f]]
 
     def _spill_rays(self, tree: cKDTree, g: Gaussians, cells: PointCells | None = None) -> list[tuple]:
         """The moving boxes' rays (`box_rays`, with `box_edges`) of every drawn frame's cameras that have a Gaussian

@@ -12,15 +12,13 @@ Contract
                                                       #   caption); rig: list[RigCamera] (default: default_rig)
     scene = to_scene4d(dec, meta=None)                # paper eq. 3 as served, window by window (aggregate_windows)
 Weights: `<role>_small.safetensors` for role in vae | decoder | dit | prior, and optionally decoder_reconstruct (a
-per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`) and vae_reconstruct
-(reconstruct's own VAE for its lifted pixels: a VAE that down-samples less than the one the generator's latents are
-drawn in keeps more of the observation; the latent decoders' sources and, without it, the pixels use `vae`).
+per-pixel Gaussian decoder serving reconstruct mode only; without it reconstruct uses `decoder`).
 `dec` is a DecodedFrames: gaussians[t][v] (worldsplat.gaussians.Gaussians, world metres, extras[:, 0] = dynamic
 probability) and dynamic_logits[t][v] (N,), plus frame_times, rig, ego_to_world and the normalised latent L.
 `gaussians` says how L becomes Gaussians (None: the mode's served source, GAUSSIANS): "decoder": the latent Gaussian
-decoder's grid (served in generate); "decoder2x" / "decoder4x": that grid refined (`gs_decoder.refine_fields`);
-"pixels": the VAE's decoding of L lifted one opaque Gaussian per pixel of the rig's image
-(`pipeline.pixels`; served in reconstruct); "pixels_decoder_depth": the same at the latent decoder's depth.
+decoder's grid; "decoder2x" / "decoder4x": that grid refined (`gs_decoder.refine_fields`); "pixels": the VAE's
+decoding of L lifted one opaque Gaussian per pixel of the rig's image (`pipeline.pixels`; served in both modes);
+"pixels_decoder_depth": the same at the latent decoder's depth.
 
 The models run at their trained geometry (DataConfig: 64x112 per view, 6 views, 4-frame windows): inputs of other
 sizes are resampled to it (the Gaussians live in world metres, so they render at any resolution), except that
@@ -34,7 +32,7 @@ from __future__ import annotations
 import hashlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -68,17 +66,12 @@ from worldsplat_models.weights import weights_dir as default_weights_dir
 SIZE = "small"
 # How latents become Gaussians, per mode: "pixels" lifts the VAE's decoded colour, depth and mask per pixel of the
 # rig's image (as many Gaussians per served pixel as the oracle, tiling at any display size); "decoder" is the latent
-# Gaussian decoder (one translucent Gaussian per 2x2 model pixels, a cell grid at 2x); "decoder2x" / "decoder4x" its
-# grid refined (`DECODER_REFINE`). Measured side by side in web/docs/models.md ("Served Gaussians per mode"):
-# reconstruct's pixels (with the lifted decoding's economy, `Economy.for_lifted_decoding`) are denser, sharper and
-# score above the decoder in PSNR and SSIM; generate's VAE decoding of sampled latents is blotched (the first window's
-# 4 steps worst), which the decoder smooths over (default preset: pixels 13.65 dB / SSIM 0.481, the VAE's colour at
-# the decoder's depth the same, the decoder 15.13 / 0.540); generate serves the decoder's grid refined 2x: its numbers
-# are the grid's (test:0-2 + the default preset 16.91 dB / 0.481 against 16.88 / 0.479, agents seen 36 of 38 against
-# 37, silhouette IoU 0.835 against 0.836) at 2.7x the density (2.20 Gaussians per served px, above the oracle's 1.36)
-# without the cell grid at 2x and 4x; a 200-frame clip takes 1.14x the grid's time (frame 0 1.03x; 4x the static
-# Gaussians through the aggregation and the sink, `WindowAggregator.drop_emitted` keeping that within the clip's bar).
-GAUSSIANS = {"reconstruct": "pixels", "generate": "decoder2x"}
+# Gaussian decoder's grid (one translucent Gaussian per model pixel on the 2x latents), "decoder2x" / "decoder4x" its
+# grid refined (`DECODER_REFINE`). Both modes serve pixels: the 2x VAE's decoding keeps what the page draws (generate
+# on the page's scenes 1.52 Gaussians per served px, 17.50 dB / SSIM 0.512, 36 of 38 agents seen; web/docs/models.md
+# "Served Gaussians per mode"). Generate served the grid while it drew 4x latents, whose decoding was blotched
+# (CHANGELOG.md).
+GAUSSIANS = {"reconstruct": "pixels", "generate": "pixels"}
 # The lifting's per-view colour fit (`gaussians.lift.fit_colours`, FISTA steps) where a mode does not take the
 # lifting's own (`pipeline.pixels.FIT_ITERS`). Generate's window fit
 # (JOINT_FIT) starts from the lifted colours and leaves nothing for it: on the 2x stack
@@ -91,13 +84,16 @@ VIEW_FIT = {"generate": 0}
 # cameras, so the nearer frames' copies of a surface no longer blend frame t's view away (web/docs/models.md, "What
 # bounds reconstruct at 0 m"); a mode not named is not fitted. Only lifted sources carry the images
 # (`DecodedFrames.images`). Reconstruct fits each window (its ridge chosen on its page scenes, `evaluation.scene_quality`,
-# 2x canvas, static PSNR / luma SSIM, the generator's 4x VAE: unfitted 22.87 / 0.710, ridge 0 22.83 / 0.697, 0.3
-# 23.22 / 0.716, 1 23.27 / 0.718, 3 23.23 / 0.717; its own 2x VAE, served: unfitted 24.52 / 0.742, ridge 1 24.83 /
+# 2x canvas, static PSNR / luma SSIM, a 4x VAE: unfitted 22.87 / 0.710, ridge 0 22.83 / 0.697, 0.3 23.22 /
+# 0.716, 1 23.27 / 0.718, 3 23.23 / 0.717; the served 2x VAE: unfitted 24.52 / 0.742, ridge 1 24.83 /
 # 0.751; the whole scene at the end 24.73 / 0.748). Generate fits the whole scene: its first window is frame 0 alone
 # and holds 60 % of the statics, which a window's fit would fix to frame 0 (the judge, `evaluation.generate_gap`,
 # test clips 0-7 at the rig, / the ground truth, the 2x stack: per window 0.61-0.63, whole scene 0.72-0.75;
-# web/docs/downstream.md "A generator of the 2x latents").
-JOINT_FIT = {"reconstruct": JointFit("window", 1.0), "generate": JointFit("scene", 0.0)}
+# web/docs/downstream.md "A generator of the 2x latents"), stopped after 10 FISTA steps (the page's scenes,
+# test:0-2 + the default preset, 5 / 10 / 20 steps: 17.55 / 17.50 / 17.43 dB, luma SSIM 0.528 / 0.512 / 0.489, the
+# judge at the rig 0.69 / 0.70 / 0.70 of the ground truth; the fit reads the sampled images' noise as colour the
+# longer it runs), about 1 s less a default scene than 20.
+JOINT_FIT = {"reconstruct": JointFit("window", 1.0), "generate": JointFit("scene", 0.0, 10)}
 GAUSSIAN_SOURCES = ("pixels", "decoder", "decoder2x", "decoder4x", "pixels_decoder_depth")
 # The latent decoder's grid refined r x (`GaussianDecoder.forward(refine=r)`): its raw maps up-sampled bilinearly, the
 # pixel guide read at the finer grid, each cell r x r Gaussians of 1/r the footprint on the decoder's surface.
@@ -119,8 +115,6 @@ class Models:
     # A finer decoder for reconstruct mode only (one Gaussian per model pixel): its latents come from the VAE
     # encoder, so it may read the pixel guide closely; on generated latents it would read their noise as geometry.
     decoder_reconstruct: torch.nn.Module | None = None
-    # reconstruct's own VAE (its lifted pixels, `for_mode`): no generator draws its latents, no decoder reads them
-    vae_reconstruct: torch.nn.Module | None = None
 
     @property
     def modes(self) -> list[str]:
@@ -130,12 +124,6 @@ class Models:
             if self.dit is not None and (self.prior is not None or not needs_prior(self.dit)):
                 out.append("generate")
         return out
-
-    def for_mode(self, mode: str) -> Models:
-        """The models as `mode` runs them: reconstruct with its own VAE where one is shipped (`vae_reconstruct`)."""
-        if mode != "reconstruct" or self.vae_reconstruct is None:
-            return self
-        return replace(self, vae=self.vae_reconstruct, vae_reconstruct=None)
 
     def decoder_for(self, mode: str) -> torch.nn.Module:
         """The Gaussian decoder that serves `mode` ("reconstruct" | "generate")."""
@@ -178,7 +166,6 @@ ROLES = {
     "dit": "dit",
     "prior": "prior",
     "decoder_reconstruct": "decoder",
-    "vae_reconstruct": "vae",
 }
 
 
@@ -237,7 +224,6 @@ def load_models(weights_dir: str | Path | None = None, backend: str | None = Non
         folder,
         loaded["prior"],
         loaded["decoder_reconstruct"],
-        loaded["vae_reconstruct"],
     )
     if backend == "auto":
         backend = serving_backend(m)
@@ -307,9 +293,10 @@ def layout_size(models: Models) -> tuple[int, int] | None:
 # The decoders were supervised at the model image only, so nothing finer than its pixel was ever seen: each decoded
 # Gaussian's std is widened by this many model pixels (in quadrature, as Mip-Splatting's 3D filter bounds a Gaussian
 # by its training sampling rate), so a display larger than the model image shows no gaps between them. The decoder's
-# grid is every second model pixel: at 0.3 its Gaussians showed as a square grid over facades and sky at 4x the
-# served image; wider, the road before an agent spills over it. Generate, test:0-2 + the default preset, frame 0 at
-# 2x (web/docs/models.md, "Scale floor of the served generate scene"), floor 0.3 / 0.6 / 0.8 / 1.0: luma SSIM 0.466 /
+# grid on the 4x latents was every second model pixel: at 0.3 its Gaussians showed as a square grid over facades and
+# sky at 4x the served image; wider, the road before an agent spills over it. Generate on the 4x latents, test:0-2 +
+# the default preset, frame 0 at 2x (web/docs/models.md, "Scale floor of the decoder's grid"), floor 0.3 / 0.6 / 0.8
+# / 1.0: luma SSIM 0.466 /
 # 0.481 / 0.486 / 0.488, agents seen 30 / 31 / 29 / 22 of 38, silhouette IoU 0.834 / 0.814 / 0.783 / 0.736.
 DECODED_SCALE_FLOOR_MODEL_PX = 0.6
 
@@ -499,8 +486,6 @@ def reconstruct(clip, models: Models | None = None, gaussians: str | None = None
             raise ValueError(f"reconstruct: the clip has no {k!r}")
     _check_rig(clip.rig, models.data.views)
     source = gaussian_source(gaussians, "reconstruct")
-    if source == "pixels":  # its own VAE where shipped; the latent decoders read the latents they were trained on
-        models = models.for_mode("reconstruct")
     size = reconstruct_size(models, np.shape(clip.rgb)[2:4]) if source == "pixels" else None
     t0 = time.perf_counter()
     L = encode_clip(models, clip.rgb, clip.depth, clip.dynamic, size)
@@ -745,7 +730,7 @@ def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tup
         def fit(frames, static, held, dynamic):
             targets = {t: images[t] for t in frames if t in images}
             return (
-                fit_window(static, held, dec.rig, dec.ego_to_world, targets, dynamic, joint.ridge)
+                fit_window(static, held, dec.rig, dec.ego_to_world, targets, dynamic, joint.ridge, joint.iters)
                 if targets
                 else static
             )
@@ -762,7 +747,7 @@ def aggregate_decoded(dec: DecodedFrames, economy: Economy | None = None) -> tup
         fit=fit,
     )
     if images is not None and joint.scope == "scene":
-        scene = fit_scene_static(scene, dict(images), ridge=joint.ridge)
+        scene = fit_scene_static(scene, dict(images), iters=joint.iters, ridge=joint.ridge)
     return scene, stats
 
 

@@ -9,7 +9,6 @@ step's and the layout prior's at any window of t frames: DYNAMIC_AXES):
                   opacities, colors, depth, dynamic_logit
     layout_prior  control (1,T,V,7,H,W), caption (1,384) -> mu (1,T,V,C,h,w)   (residual-DiT models only)
     gs_decoder_reconstruct   as gs_decoder, for reconstruct mode's own decoder where one is shipped
-    vae_reconstruct_encoder / vae_reconstruct_decoder   as the VAE's, for reconstruct mode's own VAE where one is shipped
 Parity tolerance (documented in web/docs/models.md): max |ORT - torch| <= 1e-3 (absolute) on every output at
 float32, checked by tests/python/test_models_onnx.py; `speed_ratio` times both side by side.
 
@@ -45,14 +44,7 @@ GRAPHS = (
     "gs_decoder",
     "layout_prior",
     "gs_decoder_reconstruct",
-    "vae_reconstruct_encoder",
-    "vae_reconstruct_decoder",
 )
-# the VAE graphs and the Models field each pair exports
-VAE_GRAPHS = {
-    "vae": ("vae_encoder", "vae_decoder"),
-    "vae_reconstruct": ("vae_reconstruct_encoder", "vae_reconstruct_decoder"),
-}
 # the Gaussian decoder graphs and the Models field each one exports
 DECODER_GRAPHS = {"gs_decoder": "decoder", "gs_decoder_reconstruct": "decoder_reconstruct"}
 
@@ -124,8 +116,6 @@ _T = {1: "t"}
 DYNAMIC_AXES = {
     "vae_encoder": {"image": {0: "n", 2: "H", 3: "W"}, "mean": {0: "n", 2: "h", 3: "w"}},
     "vae_decoder": {"latent": {0: "n", 2: "h", 3: "w"}, "image": {0: "n", 2: "H", 3: "W"}},
-    "vae_reconstruct_encoder": {"image": {0: "n", 2: "H", 3: "W"}, "mean": {0: "n", 2: "h", 3: "w"}},
-    "vae_reconstruct_decoder": {"latent": {0: "n", 2: "h", 3: "w"}, "image": {0: "n", 2: "H", 3: "W"}},
     "dit_step": {k: _T for k in ("z", "box_corners", "box_cls", "box_moving", "box_mask", "traj", "control")}
     | {"velocity": _T},
     "layout_prior": {"control": _T, "mu": _T},
@@ -139,10 +129,10 @@ def example_inputs(models, kind: str, seed: int = 0) -> dict[str, torch.Tensor]:
     T, V, H, W = d.frames, d.views, d.height, d.width
     ds = models.vae.cfg.downsample if models.vae is not None else 8
     h, w = H // ds, W // ds
-    if kind in ("vae_encoder", "vae_reconstruct_encoder"):
+    if kind == "vae_encoder":
         return {"image": torch.rand(2, 3, H, W, generator=g) * 2 - 1}
-    if kind in ("vae_decoder", "vae_reconstruct_decoder"):
-        vae = models.vae if kind == "vae_decoder" else models.vae_reconstruct
+    if kind == "vae_decoder":
+        vae = models.vae
         return {
             "latent": torch.randn(
                 2, vae.cfg.latent_channels, H // vae.cfg.downsample, W // vae.cfg.downsample, generator=g
@@ -196,8 +186,6 @@ def wrapper(models, kind: str) -> torch.nn.Module:
         "gs_decoder": lambda: _GSDec(models.decoder, (d.height, d.width)),
         "layout_prior": lambda: _Prior(models.prior),
         "gs_decoder_reconstruct": lambda: _GSDec(models.decoder_reconstruct, (d.height, d.width)),
-        "vae_reconstruct_encoder": lambda: _Enc(models.vae_reconstruct),
-        "vae_reconstruct_decoder": lambda: _Dec(models.vae_reconstruct),
     }[kind]().eval()
 
 
@@ -209,8 +197,6 @@ def output_names(kind: str) -> list[str]:
         "gs_decoder": list(OUT_KEYS),
         "layout_prior": ["mu"],
         "gs_decoder_reconstruct": list(OUT_KEYS),
-        "vae_reconstruct_encoder": ["mean"],
-        "vae_reconstruct_decoder": ["image"],
     }[kind]
 
 
@@ -351,8 +337,6 @@ def needed_graphs(models) -> list[str]:
         "gs_decoder": models.decoder,
         "layout_prior": getattr(models, "prior", None),
         "gs_decoder_reconstruct": getattr(models, "decoder_reconstruct", None),
-        "vae_reconstruct_encoder": getattr(models, "vae_reconstruct", None),
-        "vae_reconstruct_decoder": getattr(models, "vae_reconstruct", None),
     }
     return [k for k in GRAPHS if have[k] is not None]
 
@@ -543,12 +527,10 @@ def use_onnx(models, onnx_dir: str | Path, threads: int | None = None):
     ONNX_VERSION_SUFFIX (the scene cache keeps the backends apart). Returns models."""
     onnx_dir = Path(onnx_dir)
     threads = threads or torch.get_num_threads()
-    for role, (enc_kind, dec_kind) in VAE_GRAPHS.items():
-        vae = getattr(models, role, None)
-        if vae is not None:
-            enc, dec = session(onnx_dir / f"{enc_kind}.onnx", threads), session(onnx_dir / f"{dec_kind}.onnx", threads)
-            vae.encode = lambda x, enc=enc: torch.from_numpy(run_ort(enc, {"image": x.float()})[0])
-            vae.decode = lambda z, dec=dec: torch.from_numpy(run_ort(dec, {"latent": z.float()})[0])
+    if models.vae is not None:
+        enc, dec = session(onnx_dir / "vae_encoder.onnx", threads), session(onnx_dir / "vae_decoder.onnx", threads)
+        models.vae.encode = lambda x: torch.from_numpy(run_ort(enc, {"image": x.float()})[0])
+        models.vae.decode = lambda z: torch.from_numpy(run_ort(dec, {"latent": z.float()})[0])
     if models.dit is not None:
         models.dit = OrtDiT(models.dit, session(onnx_dir / "dit_step.onnx", threads))
     d = models.data

@@ -74,8 +74,9 @@ class StackSize:
     test_clips: int
     pair_clips: int  # train clips whose decoder renders the enhancer trains on
     val_clips: int  # held-out pair clips: the enhancer's figure and the pixel mix's data
-    vae: tuple = ((32, 96), 8, 1)  # channels, latent channels per modality, ResBlocks per level
-    prior: tuple = ((32, 64, 128, 192), 2)  # widths, blocks
+    # channels (one level: the VAE down-samples 2x, 32x56 latents), latent channels per modality, ResBlocks per level
+    vae: tuple = ((64,), 8, 1)
+    prior: tuple = ((32, 64, 128), 2)  # widths (one level per 2x down to the latent grid, one below it), blocks
     dit: tuple = (128, 6, 4)  # dim, depth, heads
     decoder: tuple = (128, 4, 4, (64, 32))  # dim, depth, heads, up-sampling channels
     enhancer: tuple = (96, 4, 4, 2)  # dim, depth, heads, control depth
@@ -92,7 +93,7 @@ class StackSize:
 
 SIZES = {
     "tiny": StackSize(
-        clips=3, test_clips=1, pair_clips=1, val_clips=1, vae=((8, 16), 2, 1), prior=((8, 16, 16, 16), 1),
+        clips=3, test_clips=1, pair_clips=1, val_clips=1, vae=((16,), 2, 1), prior=((8, 16, 16), 1),
         dit=(32, 1, 2), decoder=(32, 1, 2, (16, 8)), enhancer=(32, 1, 2, 1), mix_width=8, render_every=2,
         eval_every=2, sweep_steps=2, pair_image=(56, 32), clip_image=(80, 48), clip_image_clips=2,
         stages={"vae": StageSize(4, 4, 1e-3), "vae_decoder": StageSize(4, 2, 1e-4), "prior": StageSize(4, 4, 1e-3),
@@ -105,9 +106,8 @@ SIZES = {
                 "prior": StageSize(3000, 16, 1e-3), "dit": StageSize(5000, 2, 3e-4), "decoder": StageSize(2000, 1, 5e-4),
                 "enhancer": StageSize(3000, 1, 3e-4), "mix": StageSize(3000, 16, 2e-3)},
     ),
-    # the served widths at a GPU's batches: its files replace the shipped ones as they are (the 60 MB budget of the
-    # shipped weights and their graphs holds); twice small's widths (VAE (64, 192) x 2 blocks, prior (48, 96, 192,
-    # 256), DiT 256 x 8) are 32 M parameters, 64 MB in fp16 before their graphs
+    # the served widths at a GPU's batches: its files replace the shipped ones as they are (within the 60 MB budget
+    # of the shipped weights)
     "large": StackSize(
         clips=800, test_clips=8, pair_clips=16, val_clips=4, render_every=2, eval_every=100, sweep_steps=30,
         clip_image_clips=400,
@@ -116,11 +116,6 @@ SIZES = {
                 "enhancer": StageSize(600, 1, 3e-4), "mix": StageSize(1000, 64, 2e-3)},
     ),
 }  # fmt: skip
-# the latent space at half the image per side (VAE one level of 64 channels: 2x down-sampling, 32x56 latents; the
-# prior one level less): at the same training a VAE that reads at 0.88 of the ground truth's judge mIoU where the
-# served 4x one reads at 0.62 (web/docs/models.md "The VAE's down-sampling"); every other model retrains on its latents
-SIZES["large2x"] = dataclasses.replace(SIZES["large"], vae=((64,), 8, 1), prior=((32, 64, 128), 2))
-SIZES["tiny2x"] = dataclasses.replace(SIZES["tiny"], vae=((16,), 2, 1), prior=((8, 16, 16), 1))
 
 
 @dataclass

@@ -111,3 +111,27 @@ def test_server_preloads_the_default_mode_before_it_says_ready(tmp_path, preload
             time.sleep(0.05)
         assert c.get("/api/health").json()["ready"]
         assert pipe.loaded == (["generate"] if preload else [])  # before ready: the first request finds them loaded
+
+
+@needs_generate
+def test_generate_draws_the_next_window_while_one_aggregates(monkeypatch):
+    """Window k+1's models run while window k aggregates (`DRAW_AHEAD`): the scene is the one drawn window after
+    window, and a scene cancelled between windows leaves no window drawing behind it."""
+    import threading
+
+    from worldsplat.core.errors import Cancelled
+
+    sc = load_preset("urban_straight").with_updates(clip={"frames": 6}, image={"width": 64, "height": 36})
+    ahead = pipeline.generate_scene(sc, mode="generate", steps=1)
+    monkeypatch.setattr(pipeline, "DRAW_AHEAD", False)
+    plain = pipeline.generate_scene(sc, mode="generate", steps=1)
+    assert len(ahead.meta["windows"]) >= 2
+    for a, b in ((ahead.static, plain.static), *zip(ahead.dynamic, plain.dynamic, strict=True)):
+        assert torch.equal(a.means, b.means) and torch.equal(a.colors, b.colors)
+    monkeypatch.setattr(pipeline, "DRAW_AHEAD", True)
+    stages = []
+    with pytest.raises(Cancelled):
+        pipeline.generate_scene(sc, mode="generate", steps=1, progress=lambda s, f: stages.append(s),
+                                cancelled=lambda: "aggregate" in stages)  # fmt: skip
+    assert stages.count("aggregate") == 1
+    assert not [t for t in threading.enumerate() if t.name.startswith("worldsplat-window")]

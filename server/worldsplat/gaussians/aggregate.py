@@ -352,7 +352,9 @@ class SurfaceView:
         uv, z = self.camera.project(points)
         with np.errstate(invalid="ignore"):
             ok = (z > C.NEAR) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
-        u, v = np.where(ok, uv[:, 0], 0.5), np.where(ok, uv[:, 1], 0.5)
+        seen, past = np.zeros(len(points), dtype=bool), np.zeros(len(points), dtype=bool)
+        at = np.flatnonzero(ok)  # the tests on the points in view only (most of a view's pairs face apart)
+        u, v, zk = uv[at, 0], uv[at, 1], z[at]
         x0 = np.clip(np.floor(u - 0.5).astype(np.int64), 0, max(W - 2, 0))
         y0 = np.clip(np.floor(v - 0.5).astype(np.int64), 0, max(H - 2, 0))
         x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
@@ -361,10 +363,11 @@ class SurfaceView:
         near = self.depth[np.minimum(v.astype(np.int64), H - 1), np.minimum(u.astype(np.int64), W - 1)]
         with np.errstate(invalid="ignore"):
             smooth = np.isfinite(hi) & (hi < FINEST_SMOOTH * lo)
-            on_smooth = smooth & (z >= lo * (1 - tol)) & (z <= hi * (1 + tol))
-            at_edge = ~smooth & (np.abs(near - z) <= tol * z)
-            past = ok & np.isfinite(hi) & (z < lo * (1 - tol))
-        return ok & (on_smooth | at_edge), np.where(ok, z, np.inf) / self.focal, past
+            on_smooth = smooth & (zk >= lo * (1 - tol)) & (zk <= hi * (1 + tol))
+            at_edge = ~smooth & (np.abs(near - zk) <= tol * zk)
+            seen[at] = on_smooth | at_edge
+            past[at] = np.isfinite(hi) & (zk < lo * (1 - tol))
+        return seen, np.where(ok, z, np.inf) / self.focal, past
 
 
 def finest_observations(

@@ -28,6 +28,8 @@ capture's Gaussians): the world scene the .wsplat v2 / SOG size comparison is me
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import torch
 
@@ -192,8 +194,6 @@ def fit_colours(
     Gaussians that reach no pixel keep their colour. `fitted(pixels, rows)` -> bool per weight: with it only those
     weights are fitted, each pixel's share of them to its colour (sum of fitted w c = target x sum of fitted w); the other
     weights' colour (another surface's bleed) is left as it renders."""
-    from scipy.sparse import csr_matrix  # noqa: PLC0415 - heavy, needed by the fit only
-
     pix, rows, w = (t.cpu().numpy() for t in weights(g, camera))
     n, P = len(g), camera.width * camera.height
     if fitted is not None:
@@ -201,12 +201,7 @@ def fit_colours(
         pix, rows, w = pix[keep], rows[keep], w[keep]
     if iters <= 0 or len(w) == 0:
         return g
-    if np.all(pix[1:] >= pix[:-1]):  # in pixel order (aligned_weights): the CSR arrays as they are
-        indptr = np.zeros(P + 1, np.int64)
-        np.cumsum(np.bincount(pix, minlength=P), out=indptr[1:])
-        W = csr_matrix((w, rows, indptr), shape=(P, n))
-    else:
-        W = csr_matrix((w, (pix, rows)), shape=(P, n))
+    W = weights_matrix(pix, rows, w, P, n)
     target = np.asarray(target, np.float64).reshape(-1, 3)
     if fitted is not None:
         target = target * np.bincount(pix, w, minlength=len(target))[:, None]
@@ -216,25 +211,57 @@ def fit_colours(
     return Gaussians(g.means, g.quats, g.scales, g.opacities, colours, g.extras)
 
 
+def weights_matrix(pix: np.ndarray, rows: np.ndarray, w: np.ndarray, P: int, n: int):
+    """The (P pixels x n Gaussians) scipy CSR matrix of the render's weight triples (each (pixel, row) once, as
+    `raster.pair_weights` gives them); triples already in pixel order (one batch of pairs, `aligned_weights`) are
+    its CSR arrays as they are, without the sort."""
+    from scipy.sparse import csr_matrix  # noqa: PLC0415 - heavy, needed by the fits only
+
+    if np.all(pix[1:] >= pix[:-1]):
+        indptr = np.zeros(P + 1, np.int64)
+        np.cumsum(np.bincount(pix, minlength=P), out=indptr[1:])
+        return csr_matrix((w, rows, indptr), shape=(P, n))
+    return csr_matrix((w, (pix, rows)), shape=(P, n))
+
+
 def solve_colours(
     W, target: np.ndarray, c0: np.ndarray, iters: int, ridge: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """The colour fit's solver: colours x (n, 3) in [0, 1] minimising |W x - target|^2 + ridge |x - c0|^2 for a
     sparse non-negative W (pixels x Gaussians, the render's weights), `iters` FISTA steps from c0. Returns x and
     `reached` (n,) bool: the Gaussians with a weight (the others keep c0)."""
-    WT = W.T.tocsr()
+    # the steps' sparse products on torch's CSR kernels (both cores; scipy's run on one): W and its transpose
+    # (scipy's CSC arrays of W are the CSR arrays of W^T)
+    W = W.tocsr()
+    Wc = W.tocsc()
+    Wt = _torch_csr(W.indptr, W.indices, W.data, W.shape)
+    WTt = _torch_csr(Wc.indptr, Wc.indices, Wc.data, W.shape[::-1])
     # per-Gaussian step 1 / (D_i + ridge), D = W^T W 1: with W >= 0, diag(D) - W^T W is diagonally dominant, so D
     # majorizes the fit's curvature (a Gaussian that reaches few pixels takes long steps)
-    D = WT @ (W @ np.ones(W.shape[1]))
+    D = (WTt @ (Wt @ torch.ones(W.shape[1], 1, dtype=torch.float64)))[:, 0]
     reached = D > 0
-    step = np.where(reached, 1.0 / (np.where(reached, D, 1.0) + ridge), 0.0)[:, None]
-    x, y, tk = c0, c0, 1.0
+    step = torch.where(reached, 1.0 / (torch.where(reached, D, 1.0) + ridge), 0.0)[:, None]
+    c = torch.as_tensor(np.asarray(c0, np.float64))
+    b = torch.as_tensor(np.asarray(target, np.float64))
+    x, y, tk = c, c, 1.0
     for _ in range(iters):
-        xn = np.clip(y - step * (WT @ (W @ y - target) + ridge * (y - c0)), 0.0, 1.0)
+        xn = torch.clamp(y - step * (WTt @ (Wt @ y - b) + ridge * (y - c)), 0.0, 1.0)
         tn = (1 + (1 + 4 * tk * tk) ** 0.5) / 2
         y = xn + ((tk - 1) / tn) * (xn - x)
         x, tk = xn, tn
-    return np.where(reached[:, None], x, c0), reached
+    reached = reached.numpy()
+    return np.where(reached[:, None], x.numpy(), c0), reached
+
+
+def _torch_csr(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, shape) -> torch.Tensor:
+    """A float64 torch CSR matrix on scipy's CSR arrays (its sparse x dense product is threaded; with int32 indices,
+    where they fit, about twice as fast as with int64)."""
+    it = np.int32 if max(len(data), *shape) < 2**31 else np.int64
+    with warnings.catch_warnings():  # "sparse CSR support is in beta": the product used here is stable
+        warnings.simplefilter("ignore", UserWarning)
+        return torch.sparse_csr_tensor(torch.as_tensor(indptr.astype(it)), torch.as_tensor(indices.astype(it)),
+                                       torch.as_tensor(np.asarray(data, np.float64)), size=tuple(shape),
+                                       check_invariants=False)  # fmt: skip
 
 
 def lift_surfels(rgb: np.ndarray, depth: np.ndarray, dynamic: np.ndarray | None, camera: Camera) -> Gaussians:

@@ -85,11 +85,14 @@ def _pair_alpha(proj: Projected, k: torch.Tensor, px: torch.Tensor, py: torch.Te
     with `k`): the Mahalanobis distance d of the pixel centre, alpha = min(ALPHA_MAX, o exp(-d/2)) (differentiable)
     and `hit` (no gradient): the pair counts when d is inside the support and alpha >= ALPHA_MIN."""
     dt = proj.uv.dtype
-    dx = (px.to(dt) + 0.5) - proj.uv[k, 0]
-    dy = (py.to(dt) + 0.5) - proj.uv[k, 1]
-    con = proj.conic[k]
-    d = (con[..., 0] * dx + 2 * con[..., 1] * dy) * dx + con[..., 2] * dy * dy
-    alpha = torch.clamp_max(proj.opacity[k] * torch.exp(-0.5 * d), C.ALPHA_MAX)
+    # one gather of the Gaussian's row for all its fields: `index_select` (not `x[k]`, which takes torch's slower
+    # general indexing path on CPU: about half of `pair_weights`' time went there)
+    fields = torch.cat([proj.uv, proj.conic, proj.opacity[:, None]], 1)
+    row = fields[k] if isinstance(k, slice) else torch.index_select(fields, 0, k.reshape(-1)).reshape(*k.shape, 6)
+    dx = (px.to(dt) + 0.5) - row[..., 0]
+    dy = (py.to(dt) + 0.5) - row[..., 1]
+    d = (row[..., 2] * dx + 2 * row[..., 3] * dy) * dx + row[..., 4] * dy * dy
+    alpha = torch.clamp_max(row[..., 5] * torch.exp(-0.5 * d), C.ALPHA_MAX)
     with torch.no_grad():
         hit = (d <= C.EXTENT_SIGMA**2) & (alpha >= C.ALPHA_MIN)
     return d, alpha, hit
@@ -115,11 +118,11 @@ def _pair_boxes(proj: Projected, width: int, height: int):
 def _batch_pairs(start: int, stop: int, base: int, x0, y0, nx, counts, ends):
     """The (rank in depth order, pixel x, pixel y) pairs of the Gaussians start..stop-1 of `_pair_boxes`."""
     dev = x0.device
-    sel = torch.arange(start, stop, device=dev)
-    c = counts[sel]
-    rank = torch.repeat_interleave(sel, c)
-    local = torch.arange(int(c.sum()), device=dev) - torch.repeat_interleave(ends[sel] - c - base, c)
-    return rank, x0[rank] + local % nx[rank], y0[rank] + local // nx[rank]
+    c = counts[start:stop]
+    rank = torch.repeat_interleave(torch.arange(start, stop, device=dev), c)
+    local = torch.arange(int(c.sum()), device=dev) - torch.repeat_interleave(ends[start:stop] - c - base, c)
+    box = torch.index_select(torch.stack([x0, y0, nx], 1), 0, rank)
+    return rank, box[:, 0] + local % box[:, 2], box[:, 1] + local // box[:, 2]
 
 
 def composite_pairs(
@@ -200,27 +203,30 @@ def pair_weights(
             stop = max(int(torch.searchsorted(ends, base + pair_budget, right=True)), start + 1)
             rank, px, py = _batch_pairs(start, stop, base, x0, y0, nx, counts, ends)
             start = stop
+            # gathers by `index_select` and each mask turned into indices once (torch's general `x[i]` / `x[mask]`
+            # is several times slower on CPU at these sizes)
+            take = torch.index_select
             pix = py * width + px
-            live = Tv[pix] >= C.T_MIN
-            rank, pix, px, py = rank[live], pix[live], px[live], py[live]
-            if rank.numel() == 0:
+            live = (take(Tv, 0, pix) >= C.T_MIN).nonzero().squeeze(1)
+            if live.numel() == 0:
                 continue
-            k = order[rank]
+            if live.numel() < pix.numel():
+                rank, pix, px, py = (take(x, 0, live) for x in (rank, pix, px, py))
+            k = take(order, 0, rank)
             _, alpha, hit = _pair_alpha(proj, k, px, py)
             hit = hit.nonzero().squeeze(1)
-            pix_h = pix[hit]
-            grouped = torch.sort(pix_h, stable=True).indices  # by pixel, depth order kept inside
-            idx, pix_s = hit[grouped], pix_h[grouped]
+            pix_s, grouped = torch.sort(take(pix, 0, hit), stable=True)  # by pixel, depth order kept inside
+            idx = take(hit, 0, grouped)
             first = torch.ones_like(pix_s, dtype=torch.bool)
             first[1:] = pix_s[1:] != pix_s[:-1]
             seg_start = torch.cummax(torch.where(first, torch.arange(len(pix_s), device=dev), 0), 0).values
-            a = alpha[idx].to(torch.float64)
+            a = take(alpha, 0, idx).to(torch.float64)
             la = torch.log1p(-a)
-            cs = torch.cumsum(la, 0)
-            T_before = Tv[pix_s] * torch.exp(cs - la - (cs - la)[seg_start])
+            before = torch.cumsum(la, 0) - la  # sum of log(1 - alpha) over the pairs before, from the batch's start
+            T_before = take(Tv, 0, pix_s) * torch.exp(before - take(before, 0, seg_start))
             w = _stop_weights(a, T_before)
             out_p.append(pix_s)
-            out_r.append(proj.index[k[idx]])
+            out_r.append(take(proj.index, 0, take(k, 0, idx)))
             out_w.append(w)
             Tv = Tv * torch.exp(torch.zeros_like(Tv).index_add(0, pix_s, la))
         if not out_p:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Protocol
 
 import numpy as np
@@ -95,6 +96,11 @@ ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in 
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 35.5 dB on the served DiT (models.md)
 )
+
+# generate: the models of window k+1 run in a worker thread while window k aggregates (the models' kernels and numpy
+# release the GIL, and much of the aggregation is one core's Python): the default scene whole 1-2 s sooner on 2 cores
+# (playground.md, "Latency"). Each window draws with its own seed, so the scene is the same drawn ahead or not.
+DRAW_AHEAD = True
 
 Progress = Callable[[str, float], None]
 CancelCheck = Callable[[], bool]
@@ -456,43 +462,53 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     agg = WindowAggregator(world.frame_times, world.rig, ego_to_world, economy=eco, image_size=(H, W))
     out = _Collect(agg, meta, sink, objects, inf.JOINT_FIT.get(mode))
     timing: dict[str, float] = {}
-    for wi, w in enumerate(wins):
+
+    def draw(wi: int, live: bool):
+        """Window wi's generated views: its conditions and the models' pass (`live`: reporting its progress)."""
         _check(cancelled)
-        if mode == "generate":
-            prog("conditions", wi / len(wins))
-            t0 = time.perf_counter()  # a window's conditions only: a long clip's first window waits for no other's
-            cond = world.conditions(layout_size=inf.layout_size(models), frames=w.keys)
-            cond_s = time.perf_counter() - t0
-            prog("generate", wi / len(wins))
-            dec = inf.generate(
-                cond,
-                steps=int(plan[1]) if wi == 0 else steps,
-                seed=window_seed(seed, wi),
-                pad=False,
-                models=models,
-                rig=world.rig,
-                frame_times=world.frame_times[w.keys],
-                progress=lambda f, wi=wi: prog("generate", (wi + float(f)) / len(wins)),
-            )
-            dec.meta["timing_s"] = {"world_conditions": cond_s, **dec.meta.get("timing_s", {})}
-        else:
-            prog("simulate", wi / len(wins))
-            clip = simulate(world, frames=w.keys)
+        w = wins[wi]
+        t0 = time.perf_counter()  # a window's conditions only: a long clip's first window waits for no other's
+        cond = world.conditions(layout_size=inf.layout_size(models), frames=w.keys)
+        cond_s = time.perf_counter() - t0
+        report = (lambda f: prog("generate", (wi + float(f)) / len(wins))) if live else None
+        dec = inf.generate(cond, steps=int(plan[1]) if wi == 0 else steps, seed=window_seed(seed, wi), pad=False,
+                           models=models, rig=world.rig, frame_times=world.frame_times[w.keys], progress=report)  # fmt: skip
+        dec.meta["timing_s"] = {"world_conditions": cond_s, **dec.meta.get("timing_s", {})}
+        return dec
+
+    # generate: window k+1's models run in a worker while window k aggregates (DRAW_AHEAD); the worker reports no
+    # progress (a window drawn ahead reports when it is taken)
+    ahead = ThreadPoolExecutor(1, thread_name_prefix="worldsplat-window") if mode == "generate" and DRAW_AHEAD else None
+    pending = None
+    try:
+        for wi, w in enumerate(wins):
             _check(cancelled)
-            prog("reconstruct", wi / len(wins))
-            dec = inf.reconstruct(clip, models=models)
-            observed = lambda b, dec=dec, w=w, clip=clip: _observed_agents(inf, models, dec, clip, w, b)  # noqa: E731
-            shields = lambda b, dec=dec, w=w, clip=clip: _occluders(dec, clip, w, b)  # noqa: E731
-        for k, v in dec.meta.get("timing_s", {}).items():
-            timing[k] = timing.get(k, 0.0) + float(v)
-        _check(cancelled)
-        prog("aggregate", (wi + 1) / len(wins))
-        observes = mode == "reconstruct"
-        targets = None
-        if out.joint is not None and dec.images is not None:
-            targets = {t: dec.images[i] for i, t in enumerate(w.keys) if i in dec.images}
-        out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
-                   observed if observes else None, shields if observes else None, targets)  # fmt: skip
+            if mode == "generate":
+                prog("generate", wi / len(wins))
+                dec, pending = (draw(wi, live=True) if pending is None else pending.result()), None
+                if ahead is not None and wi + 1 < len(wins):
+                    pending = ahead.submit(draw, wi + 1, False)
+            else:
+                prog("simulate", wi / len(wins))
+                clip = simulate(world, frames=w.keys)
+                _check(cancelled)
+                prog("reconstruct", wi / len(wins))
+                dec = inf.reconstruct(clip, models=models)
+                observed = lambda b, dec=dec, w=w, clip=clip: _observed_agents(inf, models, dec, clip, w, b)  # noqa: E731
+                shields = lambda b, dec=dec, w=w, clip=clip: _occluders(dec, clip, w, b)  # noqa: E731
+            for k, v in dec.meta.get("timing_s", {}).items():
+                timing[k] = timing.get(k, 0.0) + float(v)
+            _check(cancelled)
+            prog("aggregate", (wi + 1) / len(wins))
+            observes = mode == "reconstruct"
+            targets = None
+            if out.joint is not None and dec.images is not None:
+                targets = {t: dec.images[i] for i, t in enumerate(w.keys) if i in dec.images}
+            out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
+                       observed if observes else None, shields if observes else None, targets)  # fmt: skip
+    finally:
+        if ahead is not None:  # a cancelled or failed scene leaves no window drawing behind it
+            ahead.shutdown(wait=True, cancel_futures=True)
     _check(cancelled)
     if out.scene_targets:
         prog("colour fit", 0.0)

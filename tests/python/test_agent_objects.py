@@ -28,6 +28,7 @@ from worldsplat.gaussians.objects import (
     claim_along_rays,
     claim_in_boxes,
     claim_reach,
+    claim_tolerance,
     lift_in_boxes,
     narrow_before_boxes,
     ray_bounds,
@@ -666,3 +667,16 @@ def test_frame_and_before_claims_what_lies_before_a_box_as_other_frames_see_it_a
     for t in (3, 0, 1, 3):
         fresh = _builder(tr, claim_rays="frame_and_before", **kw).claim(t, g)
         assert torch.equal(one.claim(t, g).extras, fresh.extras), t
+
+
+def test_claim_tolerance_of_a_pixel_no_box_covers_is_finite():
+    """`box_rays` marks the pixels no box covers -inf: their tolerance is tol_m, not 0 x inf = NaN (a "before only"
+    claim, tol_share 0, warned on every frame), and they claim nothing."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tol = claim_tolerance(np.array([-np.inf, 10.0]), 0.5, 0.0)
+        assert np.array_equal(tol, [0.5, 0.5])
+        assert np.array_equal(claim_tolerance(np.array([-np.inf, 10.0]), 0.5, 0.1), [0.5, 1.0])
+        assert not (1.0 < np.array([-np.inf]) + tol[:1]).any()

@@ -305,8 +305,10 @@ def _farthest_corner(point: np.ndarray, tracks: list[AgentTrack]) -> float:
 
 
 def claim_tolerance(depth, tol_m: float = CLAIM_RAY_TOL_M, tol_share: float = CLAIM_RAY_TOL_SHARE):
-    """How far behind where a ray leaves a box (camera depth `depth`) `claim_along_rays` still claims."""
-    return np.maximum(tol_m, tol_share * depth)
+    """How far behind where a ray leaves a box (camera depth `depth`) `claim_along_rays` still claims. A pixel no box
+    covers (depth -inf, `box_rays`) gets tol_m: it claims nothing either way, and 0 x inf would be NaN."""
+    d = np.asarray(depth, np.float64)
+    return np.maximum(tol_m, tol_share * np.where(np.isfinite(d), d, 0.0))
 
 
 def claim_reach(

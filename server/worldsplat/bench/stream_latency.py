@@ -7,7 +7,7 @@ the time to the first frame the page's viewer drew (headless Chromium, WebGL2: t
     python -m worldsplat.bench.stream_latency --profile [--modes ...]    # in-process stage times, warm, per window
     python -m worldsplat.bench.stream_latency --quality [--presets A,B] [--seeds 1,2]   # the finished generate
                                               # scene, first window of 1 frame vs the models' windows, vs exact GT
-    python -m worldsplat.bench.stream_latency --plan-times 3     # the whole scene's wall / CPU s per plan, ABBA
+    python -m worldsplat.bench.stream_latency --plan-times 3     # the whole scene per plan, one process, ratios
 
 Cold: a fresh `worldsplat serve --no-warm` process and an empty cache, its first request (the server loads the
 default mode's models and caption encoder before it says ready, unless `--no-preload`: then the request pays for them). Warm: the next request on the same server (another seed, so nothing is cached). Each row also gives the
@@ -244,25 +244,40 @@ def quality(presets: list[str], seeds: list[int], plans=QUALITY_PLANS) -> list[d
 
 
 def plan_times(preset: str, pairs: int = 3) -> list[dict]:
-    """Wall and CPU seconds of the whole generate scene, the models' windows (before) against the served plan (a
-    one-frame first window at FIRST_STEPS), interleaved A B B A ... in one warm process so load drifts hit both."""
-    from worldsplat.pipeline.scene import generate_scene  # noqa: PLC0415 - heavy (torch)
+    """Wall and CPU seconds of the whole generate scene per plan, in one warm process, the plans' order reversed
+    every other round so load drifts hit all: the models' windows of 4 (before the one-frame first window), the
+    served plan with each window drawn in turn (`scene.DRAW_AHEAD` off), and the served plan; then the median
+    wall of each and its ratio to the served plan's."""
+    from worldsplat.pipeline import scene as scene_module  # noqa: PLC0415 - heavy (torch)
 
     sc = load_preset(preset)
-    generate_scene(sc.with_updates(seed=0), mode="generate")  # warm
-    plans = {"windows of 4": {"first_window": 0, "first_steps": 8}, "served": {}}
-    order = [
-        k for i in range(pairs) for k in (("windows of 4", "served") if i % 2 == 0 else ("served", "windows of 4"))
-    ]
-    rows = []
-    for i, label in enumerate(order):
-        w0, c0 = time.perf_counter(), time.process_time()
-        scene = generate_scene(sc.with_updates(seed=500 + i // 2), mode="generate", **plans[label])
-        row = {"plan": label, "seed": 500 + i // 2, "windows": scene.meta.get("windows"), "load": os.getloadavg()[0]}
-        row.update(wall_s=round(time.perf_counter() - w0, 2), cpu_s=round(time.process_time() - c0, 2))
-        rows.append(row)
-        print(json.dumps(row), flush=True)
-    return rows
+    scene_module.generate_scene(sc.with_updates(seed=0), mode="generate")  # warm
+    plans = {
+        "windows of 4": ({"first_window": 0, "first_steps": 8}, True),
+        "drawn in turn": ({}, False),
+        "served": ({}, True),
+    }
+    order = [k for i in range(pairs) for k in (list(plans) if i % 2 == 0 else list(plans)[::-1])]
+    rows, ahead = [], scene_module.DRAW_AHEAD
+    try:
+        for i, label in enumerate(order):
+            kwargs, scene_module.DRAW_AHEAD = plans[label]
+            w0, c0 = time.perf_counter(), time.process_time()
+            scene = scene_module.generate_scene(sc.with_updates(seed=500 + i // len(plans)), mode="generate", **kwargs)
+            row = {"plan": label, "seed": 500 + i // len(plans), "windows": scene.meta.get("windows"),
+                   "load": os.getloadavg()[0]}  # fmt: skip
+            row.update(wall_s=round(time.perf_counter() - w0, 2), cpu_s=round(time.process_time() - c0, 2))
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    finally:
+        scene_module.DRAW_AHEAD = ahead
+    median = {k: float(np.median([r["wall_s"] for r in rows if r["plan"] == k])) for k in plans}
+    summary = {
+        "median_wall_s": median,
+        "wall_over_served": {k: round(v / median["served"], 2) for k, v in median.items()},
+    }
+    print(json.dumps(summary), flush=True)
+    return rows + [summary]
 
 
 def browser_rows(url: str, preset: str, mode: str, tmp: Path, shots: Path | None) -> list[dict]:

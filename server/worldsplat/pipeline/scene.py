@@ -99,7 +99,7 @@ FIRST_STEPS = (
 
 # generate: the models of window k+1 run in a worker thread while window k aggregates (the models' kernels and numpy
 # release the GIL, and much of the aggregation is one core's Python): the default scene whole 1-2 s sooner on 2 cores
-# (playground.md, "Latency"). Each window draws with its own seed, so the scene is the same drawn ahead or not.
+# (web/docs/playground.md, "Figures"). Each window draws with its own seed, so the scene is the same drawn ahead or not.
 DRAW_AHEAD = True
 
 Progress = Callable[[str, float], None]

@@ -161,10 +161,13 @@ def test_cached_renders_reuses_an_earlier_runs_file_only_when_asked(tmp_path):
     assert reused["gt_0.0"].sum() == 6.0
 
 
-def test_ordering_ground_truth_oracle_generate_on_the_shipped_judge():
+def test_ground_truth_above_oracle_and_generate_on_the_shipped_judge():
     """The physics promise on one held-out clip (one frame, the three front cameras, the rig's track): the judge
     scores the world's own images at least as well as the oracle scene's render (exact colour and depth lifted,
-    within the splatting's loss), and that render at least as well as the generated scene's."""
+    within the splatting's loss) and as the generated scene's, and the generated scene keeps the domain gap's 0.7 of
+    the ground truth. The oracle is no ceiling for generate: generate draws the open road at the layout prior's mean
+    (`inference.REGION_TEMPERATURE`), which the judge reads as road more often than the oracle's splatted exact road
+    (web/docs/downstream.md, "Where the sampler draws")."""
     judge = load_judge(weights_dir() / "judge_small.safetensors")
     r = downstream.domain_gap(
         judge,
@@ -179,7 +182,8 @@ def test_ordering_ground_truth_oracle_generate_on_the_shipped_judge():
     gt, oracle, gen = (r["table"][k]["0.0"]["miou"] for k in (downstream.GROUND_TRUTH, "oracle", "generate"))
     assert gt > 0.4, r["table"]
     assert gt >= oracle - 0.02, (gt, oracle)
-    assert oracle >= gen, (oracle, gen)  # measured 0.319 against 0.306
+    assert gt >= gen, (gt, gen)
+    assert gen >= 0.7 * gt, (gen, gt)  # measured 0.407 of 0.480 (0.85; the oracle 0.319)
     print(f"judge mIoU: ground truth {gt:.3f}, oracle {oracle:.3f}, generate {gen:.3f}")
 
 

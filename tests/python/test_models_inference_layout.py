@@ -103,7 +103,8 @@ def test_residual_sample_is_prior_plus_scaled_residual(layout_models):
     clip, s = tiny_clip(T=2)
     emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
     cond = inf.condition_tensors(layout_models, _cond(clip, s), clip.ego_to_world, emb)
-    L = inf.sample_latents(layout_models, cond, steps=2, seed=3)
+    flat = inf.RegionTemperature.parse("flat")  # the weights' residual_temperature everywhere
+    L = inf.sample_latents(layout_models, cond, steps=2, seed=3, temperature=flat)
     mu = layout_models.prior.clip(cond["control"][None].float(), emb[None])[0]
     flow_only = dataclasses.replace(layout_models, prior=None)
     flow_only.dit = copy.deepcopy(layout_models.dit)
@@ -113,9 +114,55 @@ def test_residual_sample_is_prior_plus_scaled_residual(layout_models):
     hot = dataclasses.replace(layout_models)  # residual_temperature scales the sample, not the prior's mean
     hot.dit = copy.deepcopy(layout_models.dit)
     hot.dit.cfg = dataclasses.replace(layout_models.dit.cfg, residual_temperature=1.5)
-    assert torch.allclose(inf.sample_latents(hot, cond, steps=2, seed=3), mu + 0.75 * r, atol=1e-5)
+    assert torch.allclose(inf.sample_latents(hot, cond, steps=2, seed=3, temperature=flat), mu + 0.75 * r, atol=1e-5)
     assert "generate" not in dataclasses.replace(layout_models, prior=None).modes
     assert "generate" in layout_models.modes
+
+
+def test_region_temperature_draws_the_road_and_sky_at_the_prior_mean(layout_models):
+    """Latent cells wholly on the open road or in the open sky are the prior's mean; a cell an agent's box touches
+    is sampled at the agents' temperature; the rest at `other`, or the weights' residual_temperature."""
+    if layout_models.prior is None:
+        pytest.skip("these DiTs generate L itself")
+    clip, s = tiny_clip(T=2)
+    emb = torch.nn.functional.normalize(torch.ones(384), dim=0)
+    raw = _cond(clip, s)
+    H, W = CFG.data.height, CFG.data.width
+    # (T, V, H, W, 7 channels: drivable, markings, sidewalk, vehicle, vulnerable, heading, depth): the lower half
+    # road with an agent's box at its left, the upper left open sky, the upper right a wall
+    lay = np.zeros_like(raw["layout"])
+    lay[:, :, H // 2 :, :, 0] = 1
+    lay[:, :, H // 2 :, :8, 3] = 1
+    lay[:, :, : H // 2, : W // 2, 6] = 1
+    cond = inf.condition_tensors(layout_models, dict(raw, layout=lay), clip.ego_to_world, emb)
+    mu = layout_models.prior.clip(cond["control"][None].float(), emb[None])[0]
+    flat = inf.sample_latents(layout_models, cond, steps=2, seed=3, temperature=inf.RegionTemperature.parse("flat"))
+    r = (flat - mu) / layout_models.dit.cfg.residual_temperature  # residual_scale * sample
+    h, w = flat.shape[-2:]
+    road = (slice(h // 2, None), slice(2, None))  # 4x down-sampling: the box's 8 columns are latent columns 0-1
+    sky = (slice(0, h // 2), slice(0, w // 2))
+    wall = (slice(0, h // 2), slice(w // 2, None))
+    agent = (slice(h // 2, None), slice(0, 2))
+    assert r[(..., *agent)].abs().mean() > 1e-3 and r[(..., *wall)].abs().mean() > 1e-3
+    for temps, at_wall in (
+        (inf.RegionTemperature(road=0.0, sky=0.0, agents=2.0), flat),
+        (inf.RegionTemperature.parse("road=0,sky=0,agents=2,other=0.3"), mu + 0.3 * r),
+    ):
+        L = inf.sample_latents(layout_models, cond, steps=2, seed=3, temperature=temps)
+        for cells in (road, sky):
+            assert torch.allclose(L[(..., *cells)], mu[(..., *cells)], atol=1e-5)
+        assert torch.allclose(L[(..., *wall)], at_wall[(..., *wall)], atol=1e-5)
+        assert torch.allclose(L[(..., *agent)], mu[(..., *agent)] + 2.0 * r[(..., *agent)], atol=1e-4)
+
+
+def test_region_temperature_parse():
+    assert inf.RegionTemperature.parse("road=0,sky=0,agents=1") == inf.RegionTemperature() == inf.REGION_TEMPERATURE
+    assert inf.RegionTemperature.parse("road=0.5,other=none") == inf.RegionTemperature(0.5, None, None, None)
+    assert inf.RegionTemperature.parse("flat") == inf.RegionTemperature(None, None, None, None)
+    with pytest.raises(ValueError, match="'grass=1'.*road, sky, agents, other"):
+        inf.RegionTemperature.parse("road=0,grass=1")
+    with pytest.raises(ValueError, match="'hot' is not a number"):
+        inf.RegionTemperature.parse("sky=hot")
 
 
 def test_layout_models_onnx_match_torch(layout_models, tmp_path):

@@ -3,23 +3,28 @@ world's own ground truth (semantics, depth) of the same cameras, at the rig and 
 
 import numpy as np
 import pytest
+import torch
 
 from worldsplat.core.scenario import load_preset
 from worldsplat.world import build_world, simulate
 from worldsplat.world.classes import (
+    AGENT_CLASSES,
     BARRIER,
     BUILDING,
     BUS,
     CAR,
     CROSSWALK,
+    CURB,
     LANE_MARKING,
     POLE,
     ROAD,
+    SIDEWALK,
     SIGN,
+    SKY,
     TRUCK,
     VEGETATION,
 )
-from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_maps, take_layout
+from worldsplat.world.layout_maps import LAYOUT_CHANNELS, layout_maps, layout_regions, take_layout
 
 SMALL = {"width": 112, "height": 64}
 
@@ -61,6 +66,22 @@ def test_road_and_markings_match_ground_truth(urban):
     marks = lm[..., 1] > 0.5
     gt_marks = np.isin(clip.semantic, [LANE_MARKING, CROSSWALK])
     assert _iou(marks, gt_marks) > 0.95  # measured 0.997: exactly the world's paint
+
+
+def test_regions_are_the_worlds_road_sky_and_agents(urban):
+    """The regions the sampler draws at their own temperatures: the open road is the world's road group, every sky
+    pixel is in the sky region (which also holds what lies past the maps' far range), the agents are their boxes."""
+    _, clip, lm, _ = urban
+    r = {k: v[..., 0, :, :].numpy() > 0.5 for k, v in layout_regions(torch.from_numpy(lm).movedim(-1, -3)).items()}
+    sem = clip.semantic
+    road = np.isin(sem, [ROAD, LANE_MARKING, CROSSWALK, SIDEWALK, CURB])
+    assert _iou(r["road"], road) > 0.93  # measured 0.965 / 0.971 at 0 / 2 m
+    assert road[r["road"]].mean() > 0.98  # measured 0.991 / 0.996
+    sky = sem == SKY
+    assert sky.sum() > 500 and r["sky"][sky].mean() > 0.99  # measured 1.0
+    assert sky[r["sky"]].mean() > 0.6  # measured 0.74: the rest lies past 80 m
+    assert _iou(r["agents"], np.isin(sem, AGENT_CLASSES)) > 0.7  # measured 0.80 / 0.81
+    assert not (r["road"] & r["agents"]).any()
 
 
 def test_layout_depth_is_exact_on_unoccluded_road(urban):

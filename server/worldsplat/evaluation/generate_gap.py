@@ -50,7 +50,7 @@ from worldsplat.evaluation.downstream import (
     summary,
     tile_sheet,
 )
-from worldsplat.evaluation.scene_quality import gaussians_from
+from worldsplat.evaluation.scene_quality import TEMPERATURE_HELP, gaussians_from
 from worldsplat.gaussians.colour_fit import fit_scene_static
 from worldsplat.gaussians.lift import FIT_ITERS, lift
 from worldsplat.gaussians.raster import render_view
@@ -276,6 +276,7 @@ def _measure(clips, frames, shifts, rows, steps, png, progress, vae, judge_path)
         "steps": steps,
         "vae": None if vae is None else str(vae),
         "gaussians": inference.GAUSSIANS["generate"],
+        "temperature": dataclasses.asdict(inference.REGION_TEMPERATURE),
         "models": str(models.weights_dir),
         "table": scores.table(rows, shifts),
         "timing": timing,
@@ -342,6 +343,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--judge", type=Path, default=None, help="the judge's weights file (default: judge_small in the weights folder)"
     )
+    p.add_argument("--temperature", default=None, help=TEMPERATURE_HELP)
     p.add_argument("--out", type=Path, default=None, help="write the table (markdown) and the rows (json) here")
     p.add_argument(
         "--png",
@@ -352,6 +354,11 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     ints = lambda x: [int(v) for v in x.split(",")]  # noqa: E731
     rows = parse_rows(p, a.rows, ROWS)
+    if a.temperature is not None:
+        try:
+            inference.REGION_TEMPERATURE = inference.RegionTemperature.parse(a.temperature)
+        except ValueError as e:
+            p.error(str(e))
     shifts = [float(v) for v in a.shifts.split(",")]
     r = measure(ints(a.clips), ints(a.frames), shifts, rows, a.steps, a.png, vae=a.vae, gaussians=a.gaussians,
                 judge=a.judge)  # fmt: skip

@@ -372,6 +372,12 @@ def on_the_wire(scene: Scene4D, wire: str) -> Scene4D:
     return Scene4D(Gaussians.empty(), frames, flat.frame_times, flat.rig, flat.ego_to_world, dict(flat.meta))
 
 
+TEMPERATURE_HELP = (
+    'generate\'s sampler temperature per layout region, e.g. "road=0,sky=0,agents=1,other=0.5" or "flat" (default: '
+    "as served, `inference.REGION_TEMPERATURE`)"
+)
+
+
 @contextlib.contextmanager
 def gaussians_from(mode: str, source: str | None):
     """Within the block a learned `mode` builds its scenes from `source` (`inference.GAUSSIANS`; None: as served)."""
@@ -506,9 +512,17 @@ def main(argv=None) -> int:
     p.add_argument("--wire", default="scene", choices=WIRES, help="measure the scene as built or read back from a file")
     p.add_argument("--gaussians", default=None, help="the learned modes' source of Gaussians (default: as served)")
     p.add_argument("--own", action="store_true", help="also frame 0's own Gaussians, before the aggregation")
+    p.add_argument("--temperature", default=None, help=TEMPERATURE_HELP)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=None, help="write every row and the summary here (JSON)")
     a = p.parse_args(argv)
+    if a.temperature is not None:
+        from worldsplat.pipeline import inference  # noqa: PLC0415 - the models' glue, only for the learned modes
+
+        try:
+            inference.REGION_TEMPERATURE = inference.RegionTemperature.parse(a.temperature)
+        except ValueError as e:
+            p.error(str(e))
     torch.set_num_threads(a.threads)
     frames = None if a.iou_frames == "all" else [int(x) for x in a.iou_frames.split(",")]
     rows = []

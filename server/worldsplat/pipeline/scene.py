@@ -90,8 +90,9 @@ ORACLE_VERSION = "oracle-8"
 # w22 each window's new static colours fitted jointly to the window's lifted images (`inference.JOINT_FIT`); w23 the
 # joint fit's pairs under `colour_fit.PAIR_WEIGHT_MIN` left out, a mode's fit over the whole scene at its end; w24 one
 # sky shell per stretch of track in finer, wider cells, pixels beyond the economy's range on it (`gaussians.lift`); w25
-# generate's 2x generator lifted per pixel (`inference.GAUSSIANS`), its rays claiming before every keyframe's boxes
-STREAM_VERSION = "w25"
+# generate's 2x generator lifted per pixel (`inference.GAUSSIANS`), its rays claiming before every keyframe's boxes;
+# w26 generate's sampler draws the open road and sky at the prior's mean (`inference.REGION_TEMPERATURE`)
+STREAM_VERSION = "w26"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 35.5 dB on the served DiT (models.md)

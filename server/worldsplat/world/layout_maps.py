@@ -114,6 +114,27 @@ def take_layout(control, channels: int):
     return control if have == channels else control[..., :channels, :, :]
 
 
+# `layout_regions`: a depth channel at or above this is open sky (+1 is the far range, 80 m; a resampled map's edge
+# reads a little under it).
+SKY_DEPTH = 0.99
+
+
+def layout_regions(control) -> dict[str, object]:
+    """Where torch layout maps (..., C, H, W) state the open road, the open sky and the agents: each (..., 1, H, W)
+    float, 1 or 0. road: drivable, marking or sidewalk with no agent box in front; sky: no road, box or (where the
+    maps carry the map layer) map surface within the maps' far range; agents: a vehicle or vulnerable-road-user box."""
+    ch = {k: i for i, k in enumerate(LAYOUT_CHANNELS[: control.shape[-3]])}
+
+    def layer(*names):
+        return control[..., [ch[n] for n in names], :, :].amax(-3, keepdim=True).clamp(0, 1)
+
+    agents = layer("vehicle", "vulnerable")
+    sky = control[..., ch["depth"] : ch["depth"] + 1, :, :] >= SKY_DEPTH
+    if "map_depth" in ch:
+        sky &= control[..., ch["map_depth"] : ch["map_depth"] + 1, :, :] >= SKY_DEPTH
+    return {"road": layer("drivable", "markings", "sidewalk") * (1 - agents), "sky": sky.float(), "agents": agents}
+
+
 def normalize_log_depth(z: np.ndarray, near: float, far: float) -> np.ndarray:
     d = np.clip(np.nan_to_num(z, nan=far, posinf=far), near, far)
     return np.clip(2.0 * (np.log(d) - math.log(near)) / (math.log(far) - math.log(near)) - 1.0, -1.0, 1.0)

@@ -647,7 +647,9 @@ def test_the_builders_claims_with_point_cells_are_those_without(monkeypatch):
 def test_frame_and_before_claims_what_lies_before_a_box_as_other_frames_see_it_and_keeps_what_is_beside_it():
     """generate's Gaussians lifted at frame 3 that frame 0's camera sees before the crossing pedestrian's frame-0 box
     cover it when the scene is drawn at frame 0: "frame_and_before" claims them as "clip" does; one just behind the
-    frame-0 box (the road frame 3 sees beside where the agent was) stays, which "clip" takes too."""
+    frame-0 box (the road frame 3 sees beside where the agent was) and one in it (the road under where the agent was,
+    which no frame with the agent there sees: claimed, it was a hole behind a car following the ego) stay, which
+    "clip" takes too."""
     size = np.array([0.6, 0.6, 1.8])
     poses = np.stack([box_to_world(10.0, -3.0 + 2.0 * t, 0.0, size[2]) for t in range(T)])
     tr = AgentTrack(3, 15, size, poses, np.ones(T, bool))
@@ -655,12 +657,13 @@ def test_frame_and_before_claims_what_lies_before_a_box_as_other_frames_see_it_a
     owner, near, far = box_depths(cam, [tr], 0)
     j, i = np.argwhere(owner == 0)[len(np.argwhere(owner == 0)) // 2]
     ray = cam.pixel_rays()[1][j, i]
-    pts = [cam.position + ray * (near[j, i] - 3.0), cam.position + ray * (far[j, i] + 0.5)]
-    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 2, [[0.05] * 3] * 2, [0.9] * 2, [[0.4] * 3] * 2, [[0.0]] * 2)
+    depths = (near[j, i] - 3.0, far[j, i] + 0.5, (near[j, i] + far[j, i]) / 2)
+    pts = [cam.position + ray * d for d in depths]
+    g = Gaussians.from_numpy(pts, [[1, 0, 0, 0]] * 3, [[0.05] * 3] * 3, [0.9] * 3, [[0.4] * 3] * 3, [[0.0]] * 3)
     kw = {"claim_moving": True, "keep_unboxed": False}
     claimed = {m: _builder(tr, claim_rays=m, **kw).claim(3, g).extras[:, 0].tolist()
                for m in ("frame", "frame_and_before", "clip")}  # fmt: skip
-    assert claimed == {"frame": [0.0, 0.0], "frame_and_before": [1.0, 0.0], "clip": [1.0, 1.0]}
+    assert claimed == {"frame": [0.0, 0.0, 0.0], "frame_and_before": [1.0, 0.0, 0.0], "clip": [1.0, 1.0, 1.0]}
     # one builder claiming frame after frame (each frame's box rays computed once, `_moving_rays`) claims as a fresh
     # builder at each frame does
     one = _builder(tr, claim_rays="frame_and_before", **kw)

@@ -283,13 +283,14 @@ def box_depths(camera, tracks: list[AgentTrack], t: int) -> tuple[np.ndarray, np
     return owner, near, far
 
 
-def box_rays(cameras: list, tracks: list[AgentTrack], t: int) -> list[tuple]:
-    """(camera, `box_depths` owner, leaving depth) of each camera that sees one of the boxes at frame t."""
+def box_rays(cameras: list, tracks: list[AgentTrack], t: int, entering: bool = False) -> list[tuple]:
+    """(camera, `box_depths` owner, leaving depth) of each camera that sees one of the boxes at frame t; `entering`:
+    the depth where the ray enters the box instead."""
     out = []
     for camera in cameras:
-        owner, _, far = box_depths(camera, tracks, t)
+        owner, near, far = box_depths(camera, tracks, t)
         if (owner >= 0).any():
-            out.append((camera, owner, np.where(owner >= 0, far, -np.inf)))
+            out.append((camera, owner, np.where(owner >= 0, near if entering else far, -np.inf)))
     return out
 
 
@@ -814,7 +815,9 @@ class ObjectBuilder:
         self._spill_pos: np.ndarray | None = None
         self._spill_rects: dict[int, np.ndarray] = {}
         self.rig, self.ego, self._rays, self._rays_key = list(rig), ego, [], None
-        self._frame_rays: dict[int, list[tuple]] = {}  # `_moving_rays` per frame: the boxes and cameras are fixed
+        self._frame_rays: dict[
+            tuple[int, bool], list[tuple]
+        ] = {}  # `_moving_rays` per frame: the boxes and cameras are fixed
         for tr in self.tracks:
             if len(tr.poses) != self.T:
                 raise ValueError(f"objects: agent {tr.agent_id} has {len(tr.poses)} poses, the clip {self.T} frames")
@@ -898,19 +901,21 @@ class ObjectBuilder:
             return g
         g = claim_along_rays(g, self._rays + self._standing_rays(tree, cells), tree=tree, cells=cells)
         if self.claim_rays == "frame_and_before":  # and before the boxes as the other drawn frames' cameras see them
-            others = self._moving_rays([f for f in self.ray_frames if f != t])
+            others = self._moving_rays([f for f in self.ray_frames if f != t], entering=True)
             g = claim_along_rays(g, others, tol_m=0.0, tol_share=0.0, tree=tree, cells=cells)
         return g
 
-    def _moving_rays(self, frames: list[int]) -> list[tuple]:
+    def _moving_rays(self, frames: list[int], entering: bool = False) -> list[tuple]:
         """`box_rays` (with `ray_bounds`) of the moving claimed boxes at each of `frames` as its cameras see them,
-        each frame's computed once ("frame_and_before" asks for every other frame's at each frame)."""
+        each frame's computed once ("frame_and_before" asks for every other frame's at each frame); `entering`: up to
+        where the rays enter the boxes (what lies in another frame's box, the road under it, is frame t's to keep)."""
         moving = [tr for tr in self.claimed if not tr.standing]
         for f in frames:
-            if f not in self._frame_rays:
+            if (f, entering) not in self._frame_rays:
                 cams = [rc.at(self.ego[f]) for rc in self.rig]
-                self._frame_rays[f] = [(*r, ray_bounds(*r)) for r in box_rays(cams, moving, f)]
-        return [r for f in frames for r in self._frame_rays[f]]
+                rays = box_rays(cams, moving, f, entering=entering)
+                self._frame_rays[(f, entering)] = [(*r, ray_bounds(*r)) for r in rays]
+        return [r for f in frames for r in self._frame_rays[(f, entering)]]
 
     def _spill_rays(self, tree: cKDTree, g: Gaussians, cells: PointCells | None = None) -> list[tuple]:
         """The moving boxes' rays (`box_rays`, with `box_edges`) of every drawn frame's cameras that have a Gaussian

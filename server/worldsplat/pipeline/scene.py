@@ -91,7 +91,8 @@ ORACLE_VERSION = "oracle-8"
 # joint fit's pairs under `colour_fit.PAIR_WEIGHT_MIN` left out, a mode's fit over the whole scene at its end; w24 one
 # sky shell per stretch of track in finer, wider cells, pixels beyond the economy's range on it (`gaussians.lift`); w25
 # generate's 2x generator lifted per pixel (`inference.GAUSSIANS`), its rays claiming before every keyframe's boxes;
-# w26 generate's sampler draws the open road and sky at the prior's mean (`inference.REGION_TEMPERATURE`)
+# w26 generate's sampler draws the open road and sky at the prior's mean (`inference.REGION_TEMPERATURE`), the other
+# frames' boxes claim only what lies before where the rays enter them (`objects.ObjectBuilder`)
 STREAM_VERSION = "w26"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
@@ -291,13 +292,14 @@ def generated_object_source(world) -> ObjectSource | None:
 # and facades frame 0 sees beside it included. Test:0-2 + the default preset (scene_quality, frame 0), reconstruct
 # "clip" 22.47 dB / luma SSIM 0.699 / 36 of 38 agents, "frame" 22.88 / 0.710 / 36 of 38, none 22.87 / 0.709 / 25 of
 # 38 (web/docs/models.md, "What bounds reconstruct"); generate "frame" 21/26 / 0.839 / 17.41 dB, "clip" 20/26 /
-# 0.833 / 17.25 dB on test:0-2. "frame_and_before" adds what every other keyframe's cameras see before a box (not
-# behind it): on the 2x stack's lifted pixels (whole-scene fit) it keeps test:2's back-camera cars clear of the
+# 0.833 / 17.25 dB on test:0-2. "frame_and_before" adds what every other keyframe's cameras see before a box (up to
+# where their rays enter it: the road in it, under where the agent was, stays; taken, it left black bands behind a
+# car following the ego in the back camera): on the 2x stack's lifted pixels (whole-scene fit) it keeps test:2's back-camera cars clear of the
 # generated barrier lifted at later frames (4 -> 6 of 6 seen; the four scenarios 33 -> 34 of 38, 17.36 dB both) but
 # the judge reads it 0.69 of the ground truth at the rig against "frame"'s 0.72 (`scene_quality --gaussians pixels`,
 # `generate_gap --rows served --gaussians pixels` with this set, a 2x weights folder of CHANGELOG.md). Generate serves
-# "frame_and_before": on the served stack (its prior trained longer, the DiT sampled at residual_temperature 0.8) it
-# sees 36 of 38 agents with the judge at 0.70 of the ground truth (web/docs/models.md, "Served scene quality").
+# "frame_and_before": on the served stack it sees 35 of 38 agents with the judge at 0.75 of the ground truth
+# (web/docs/models.md, "Served scene quality").
 CLAIM_RAYS = {"reconstruct": "frame", "generate": "frame_and_before"}
 # The modes whose static Gaussians before a moving agent are narrowed off its pixels (`objects.narrow_before_boxes`).
 NARROW_SPILL = {"generate"}

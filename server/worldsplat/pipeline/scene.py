@@ -93,7 +93,7 @@ ORACLE_VERSION = "oracle-8"
 # generate's 2x generator lifted per pixel (`inference.GAUSSIANS`), its rays claiming before every keyframe's boxes;
 # w26 generate's sampler draws the open road and sky at the prior's mean (`inference.REGION_TEMPERATURE`), the other
 # frames' boxes claim only what lies before where the rays enter them (`objects.ObjectBuilder`)
-STREAM_VERSION = "w26"
+STREAM_VERSION = "w27"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 35.5 dB on the served DiT (models.md)
@@ -298,7 +298,7 @@ def generated_object_source(world) -> ObjectSource | None:
 # generated barrier lifted at later frames (4 -> 6 of 6 seen; the four scenarios 33 -> 34 of 38, 17.36 dB both) but
 # the judge reads it 0.69 of the ground truth at the rig against "frame"'s 0.72 (`scene_quality --gaussians pixels`,
 # `generate_gap --rows served --gaussians pixels` with this set, a 2x weights folder of CHANGELOG.md). Generate serves
-# "frame_and_before": on the served stack it sees 35 of 38 agents with the judge at 0.75 of the ground truth
+# "frame_and_before": on the served stack it sees 37 of 38 agents with the judge at 0.76 of the ground truth
 # (web/docs/models.md, "Served scene quality").
 CLAIM_RAYS = {"reconstruct": "frame", "generate": "frame_and_before"}
 # The modes whose static Gaussians before a moving agent are narrowed off its pixels (`objects.narrow_before_boxes`).

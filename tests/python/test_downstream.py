@@ -183,7 +183,7 @@ def test_ground_truth_above_oracle_and_generate_on_the_shipped_judge():
     assert gt > 0.4, r["table"]
     assert gt >= oracle - 0.02, (gt, oracle)
     assert gt >= gen, (gt, gen)
-    assert gen >= 0.7 * gt, (gen, gt)  # measured 0.468 of 0.480 (0.97; the oracle 0.319)
+    assert gen >= 0.7 * gt, (gen, gt)  # measured 0.465 of 0.480 (0.97; the oracle 0.319)
     print(f"judge mIoU: ground truth {gt:.3f}, oracle {oracle:.3f}, generate {gen:.3f}")
 
 

@@ -22,10 +22,13 @@ RECON_PSNR_FLOOR = 21.0  # dB, reconstruct mode rendered at the rig cameras (0 m
 # decodings of neighbouring frames agree better, so averaging them in coarser cells loses less).
 DECODED_CELLS_GAIN_MIN = 0.5  # dB
 RECON_DEPTH_ABSREL_MAX = 0.35  # rendered depth vs GT depth
-# Per source of Gaussians: (rendered road depth AbsRel max, the snap's gain on it min), measured on this clip: lifted
-# pixels (served) 0.068 snapped (0.126 raw: every road Gaussian on the plane, what is left is the isotropic splats'
-# depth at grazing angles, as the oracle's lifting renders this road, 0.050); the latent decoder's grid 0.038 (0.073).
-GEN_ROAD = {"decoder": (0.06, 0.02), "pixels": (0.09, 0.04)}
+# Per source of Gaussians: (rendered road depth AbsRel max, the share of the raw road's error the snap removes at
+# least), measured on this clip: lifted pixels (served) 0.060 snapped, 0.068 raw (every road Gaussian on the plane,
+# what is left is the isotropic splats' depth at grazing angles, as the oracle's lifting renders this road, 0.050);
+# the latent decoder's grid 0.033 (0.039). The generator before the prior's and DiT's last round drew this road at
+# 0.126 / 0.073 raw, and the snap's gain was asked in absolute terms (0.04 / 0.02); its raw road is now near the plane
+# and the snap removes 12 % / 15 % of what is left (CHANGELOG.md).
+GEN_ROAD = {"decoder": (0.06, 0.05), "pixels": (0.09, 0.05)}
 GEN_DYNAMIC_IOU_MIN = 0.5  # rendered dynamic mask vs the exact one: on this clip 0.81 (pixels), 0.85 (the grid)
 
 pytestmark = pytest.mark.skipif(
@@ -146,7 +149,7 @@ def test_generate_mode_follows_the_layout(held_out, gaussians):
         return float(np.nanmean(road)), inter / union
 
     (road_raw, _), (road, iou) = scores(raw), scores(dec)
-    road_max, gain_min = GEN_ROAD[gaussians]
+    road_max, share_min = GEN_ROAD[gaussians]
     assert road <= road_max, road
-    assert road <= road_raw - gain_min, (road, road_raw)
+    assert road <= road_raw * (1.0 - share_min), (road, road_raw)
     assert iou >= GEN_DYNAMIC_IOU_MIN, iou

@@ -44,7 +44,7 @@ from worldsplat.core.camera import CAMERA_NAMES, default_rig
 from worldsplat.gaussians import Gaussians, Scene4D
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, aggregate_windows
 from worldsplat.gaussians.colour_fit import JointFit, fit_scene_static, fit_window
-from worldsplat.pipeline import pixels
+from worldsplat.pipeline import backdrop, pixels
 from worldsplat.pipeline.conditions import pack_boxes, rig_tensors, sketch_rgb
 from worldsplat.pipeline.onnx import ensure_exported, requested_backend, serving_backend, use_onnx
 from worldsplat.pipeline.snaps import (
@@ -69,7 +69,7 @@ SIZE = "small"
 # rig's image (as many Gaussians per served pixel as the oracle, tiling at any display size); "decoder" is the latent
 # Gaussian decoder's grid (one translucent Gaussian per model pixel on the 2x latents), "decoder2x" / "decoder4x" its
 # grid refined (`DECODER_REFINE`). Both modes serve pixels: the 2x VAE's decoding keeps what the page draws (generate
-# on the page's scenes 1.53 Gaussians per served px, 17.77 dB / SSIM 0.550, 37 of 38 agents seen; web/docs/models.md
+# on the page's scenes 1.55 Gaussians per served px, 17.77 dB / SSIM 0.560, 37 of 38 agents seen; web/docs/models.md
 # "Served Gaussians per mode"). Generate served the grid while it drew 4x latents, whose decoding was blotched
 # (CHANGELOG.md).
 GAUSSIANS = {"reconstruct": "pixels", "generate": "pixels"}
@@ -210,6 +210,9 @@ class DecodedFrames:
     # lifted sources: per frame t, the images (V, H, W, 3) float in [0, 1] its views were lifted from (the targets
     # of the scene's joint colour fit, `pipeline.scene`); None for a grid
     images: dict[int, np.ndarray] | None = None
+    # generate: [t][v] static Gaussians of what stands behind the agents (`pipeline.backdrop`), which the agents'
+    # claims leave alone; None where not drawn
+    backdrop: list[list] | None = None
 
     def frame(self, t: int):
         return Gaussians.cat(self.gaussians[t])
@@ -592,7 +595,7 @@ def condition_tensors(
     if caption_emb is None:
         caption_emb = encode_captions([str(conditions["caption"])])[0]
     traj = np.asarray(conditions.get("ego_traj", ego_to_world), np.float32)
-    return {
+    out = {
         "box_corners": torch.from_numpy(corners),
         "box_cls": torch.from_numpy(cls),
         "box_moving": torch.from_numpy(moving),
@@ -601,10 +604,15 @@ def condition_tensors(
         "caption": caption_emb.float(),
         "control": ctl.reshape(T, V, *ctl.shape[1:]),
     }
+    if "layout_behind" in conditions and layout_size(models) is not None:  # the backdrop's maps (`pipeline.backdrop`)
+        lay = torch.from_numpy(np.asarray(conditions["layout_behind"], np.float32))
+        behind = _resize(lay.reshape(T * V, *lay.shape[2:]).permute(0, 3, 1, 2), (d.height, d.width), "area")
+        out["control_behind"] = behind.reshape(T, V, *behind.shape[1:])
+    return out
 
 
 def window_cond(cond: dict, win: list[int]) -> dict:
-    out = {k: v[win][None] for k, v in cond.items() if k != "caption"}
+    out = {k: v[win][None] for k, v in cond.items() if k not in ("caption", "control_behind")}
     out["caption"] = cond["caption"][None]
     return out
 
@@ -696,7 +704,36 @@ def decode_generated(
         if dec.source in LIFTED:
             for t, row in enumerate(dec.gaussians):
                 row[:] = [pixels.settle_sky(g, dec.rig[v].at(dec.ego_to_world[t])) for v, g in enumerate(row)]
+            if snap_agents and BACKDROP and "control_behind" in cond:
+                dec.backdrop = draw_backdrop(cond, control, dec)
     return dec
+
+
+# Generate draws what stands behind its agents (`pipeline.backdrop`).
+BACKDROP = True
+
+
+@torch.no_grad()
+def draw_backdrop(cond: dict, control: torch.Tensor, dec: DecodedFrames) -> list[list]:
+    """[t][v] static Gaussians of what stands behind the agents of `dec`'s lifted views (`pipeline.backdrop`): at
+    the box pixels of `control` (the maps up-sampled to the rig's image), the surface the maps without the boxes
+    (cond["control_behind"]) put there, coloured as the same view shows it elsewhere."""
+    T, V = control.shape[:2]
+    size = tuple(control.shape[-2:])
+    flat = control.reshape(T * V, *control.shape[2:])
+    boxes = backdrop.box_pixels(flat)
+    out = [[Gaussians.empty() for _ in range(V)] for _ in range(T)]
+    pick = [i for i in range(T * V) if bool(boxes[i].any())]
+    if not pick or dec.images is None:
+        return out
+    behind = cond["control_behind"][:T]
+    behind = pixels.upsample_layout(behind.reshape(T * V, *behind.shape[2:])[pick].float(), size)
+    images = np.stack([dec.images[i // V][i % V] for i in pick])
+    rgb = backdrop.fill_behind(images, flat[pick].float(), behind, boxes[pick])
+    cams = [dec.rig[i % V].at(dec.ego_to_world[i // V]) for i in pick]
+    for i, g in zip(pick, backdrop.lift_behind(rgb, behind, boxes[pick], cams), strict=True):
+        out[i // V][i % V] = g
+    return out
 
 
 def _grid_size(dec: DecodedFrames, layout_hw) -> tuple[int, int] | None:

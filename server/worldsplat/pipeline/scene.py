@@ -92,8 +92,9 @@ ORACLE_VERSION = "oracle-8"
 # sky shell per stretch of track in finer, wider cells, pixels beyond the economy's range on it (`gaussians.lift`); w25
 # generate's 2x generator lifted per pixel (`inference.GAUSSIANS`), its rays claiming before every keyframe's boxes;
 # w26 generate's sampler draws the open road and sky at the prior's mean (`inference.REGION_TEMPERATURE`), the other
-# frames' boxes claim only what lies before where the rays enter them (`objects.ObjectBuilder`)
-STREAM_VERSION = "w27"
+# frames' boxes claim only what lies before where the rays enter them (`objects.ObjectBuilder`); w27 generate's layout
+# prior and DiT one training round further; w28 generate draws what stands behind its agents (`pipeline.backdrop`)
+STREAM_VERSION = "w28"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 35.5 dB on the served DiT (models.md)
@@ -298,7 +299,7 @@ def generated_object_source(world) -> ObjectSource | None:
 # generated barrier lifted at later frames (4 -> 6 of 6 seen; the four scenarios 33 -> 34 of 38, 17.36 dB both) but
 # the judge reads it 0.69 of the ground truth at the rig against "frame"'s 0.72 (`scene_quality --gaussians pixels`,
 # `generate_gap --rows served --gaussians pixels` with this set, a 2x weights folder of CHANGELOG.md). Generate serves
-# "frame_and_before": on the served stack it sees 37 of 38 agents with the judge at 0.76 of the ground truth
+# "frame_and_before": on the served stack it sees 37 of 38 agents with the judge at 0.79 of the ground truth
 # (web/docs/models.md, "Served scene quality").
 CLAIM_RAYS = {"reconstruct": "frame", "generate": "frame_and_before"}
 # The modes whose static Gaussians before a moving agent are narrowed off its pixels (`objects.narrow_before_boxes`).
@@ -355,12 +356,15 @@ class _Collect:
         observed: Callable[[ObjectBuilder], dict[int, Gaussians]] | None = None,
         shields: Callable[[ObjectBuilder], dict[int, list]] | None = None,
         targets: dict[int, np.ndarray] | None = None,
+        behind: list[list[Gaussians]] | None = None,
     ) -> None:
         """A window's frames [i][v] (scene frame). `observed(builder)`: where the agents' objects come from
         instead of the frames' in-box Gaussians (`ObjectBuilder.add`), e.g. reconstruct's observed pixels.
         `shields(builder)`: per frame, per view, (camera, the pixels that show an occluder before an agent,
         `objects.occluder_pixels`) whose Gaussians are not claimed along the rays through the boxes. `targets`:
-        per keyframe t, the images (V, H, W, 3) in [0, 1] the window's static colours are fitted to (`_fit`)."""
+        per keyframe t, the images (V, H, W, 3) in [0, 1] the window's static colours are fitted to (`_fit`).
+        `behind` [i][v]: static Gaussians of what stands behind the agents (`pipeline.backdrop`), joined to their
+        view after the claims (they lie in or behind a box on purpose)."""
         t0 = time.perf_counter()
         # what an earlier window's cells already hold first, then the deferral (each Gaussian's own test), and the
         # claims look at what the window keeps; exact where what the claims take leaves the scene
@@ -372,6 +376,11 @@ class _Collect:
             per_view = [
                 [self.objects.claim(t, g, sh[t][v] if t in sh else None) for v, g in enumerate(views)]
                 for t, views in zip(frames, per_view, strict=True)
+            ]
+        if behind is not None:
+            per_view = [
+                [Gaussians.cat([g, b]) if len(b) else g for g, b in zip(views, extra, strict=False)]
+                for views, extra in zip(per_view, behind, strict=True)
             ]
         static, dynamic = self.agg.add(frames, per_view, deferred=True)
         added = None
@@ -471,7 +480,7 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
         _check(cancelled)
         w = wins[wi]
         t0 = time.perf_counter()  # a window's conditions only: a long clip's first window waits for no other's
-        cond = world.conditions(layout_size=inf.layout_size(models), frames=w.keys)
+        cond = world.conditions(layout_size=inf.layout_size(models), frames=w.keys, behind=inf.BACKDROP)
         cond_s = time.perf_counter() - t0
         report = (lambda f: prog("generate", (wi + float(f)) / len(wins))) if live else None
         dec = inf.generate(cond, steps=int(plan[1]) if wi == 0 else steps, seed=window_seed(seed, wi), pad=False,
@@ -507,8 +516,9 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
             targets = None
             if out.joint is not None and dec.images is not None:
                 targets = {t: dec.images[i] for i, t in enumerate(w.keys) if i in dec.images}
+            behind = None if dec.backdrop is None else _per_frame(w, dec.backdrop)
             out.window(w.frames, _per_frame(w, dec.gaussians), dict(dec.meta.get("timing_s", {})),
-                       observed if observes else None, shields if observes else None, targets)  # fmt: skip
+                       observed if observes else None, shields if observes else None, targets, behind)  # fmt: skip
     finally:
         if ahead is not None:  # a cancelled or failed scene leaves no window drawing behind it
             ahead.shutdown(wait=True, cancel_futures=True)

@@ -199,16 +199,23 @@ def world_conditions(
     cameras: list[str] | None = None,
     layout_size: tuple[int, int] | None = None,
     frames: list[int] | None = None,
+    behind: bool = False,
 ) -> dict:
     """The models' conditions; with layout_size = (W, H) also the per-camera layout maps at that size
-    (`layout`, (T,V,H,W,7), see world.layout_maps), which the DiT reads as its layout control. `frames`: only these
-    frames (every per-frame entry in their order; `ego_traj` still relative to frame 0), None every frame."""
+    (`layout`, (T,V,H,W,C), see world.layout_maps), which the DiT reads as its layout control, and with `behind` the
+    same maps without the agents' boxes (`layout_behind`: what stands behind them, generate's backdrop). `frames`:
+    only these frames (every per-frame entry in their order; `ego_traj` still relative to frame 0), None every
+    frame."""
     frames = list(range(world.num_frames)) if frames is None else [int(t) for t in frames]
     with single_threaded_blas():
         out = _world_conditions(world, shift_m, cameras, frames)
         if layout_size is not None:
             out["layout"] = layout_maps(world, shift_m, cameras, size=tuple(layout_size), frames=frames)
             out["layout_channels"] = LAYOUT_CHANNELS
+            if behind:
+                out["layout_behind"] = layout_maps(
+                    world, shift_m, cameras, size=tuple(layout_size), frames=frames, agents=False
+                )
         return out
 
 

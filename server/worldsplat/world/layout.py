@@ -101,8 +101,9 @@ class World:
         cameras: list[str] | None = None,
         layout_size: tuple[int, int] | None = None,
         frames: list[int] | None = None,
+        behind: bool = False,
     ) -> dict:
-        return world_conditions(self, shift_m, cameras, layout_size, frames)
+        return world_conditions(self, shift_m, cameras, layout_size, frames, behind)
 
     def add_static(self, prims: Prims) -> None:
         """Add primitives to the static world (tests place markers at known points)."""

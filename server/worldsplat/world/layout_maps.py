@@ -146,11 +146,20 @@ def layout_depth_m(x, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR):
 
 
 def layout_map(
-    world, t: int, cam, near: float = LAYOUT_NEAR, far: float = LAYOUT_FAR, structure: Prims | None = None
+    world,
+    t: int,
+    cam,
+    near: float = LAYOUT_NEAR,
+    far: float = LAYOUT_FAR,
+    structure: Prims | None = None,
+    agents: bool = True,
 ) -> np.ndarray:
     """(H, W, 11) float32 layout map of frame t seen by `cam` (any pose, shifted tracks included); `structure`:
-    the world's `map_layer` (computed once per world by `layout_maps`)."""
+    the world's `map_layer` (computed once per world by `layout_maps`). `agents` False: the map without the agents'
+    boxes (what stands behind them: generate's backdrop, `pipeline.backdrop`)."""
     boxes = agent_boxes(world, t)
+    if not agents:
+        boxes = boxes.take(np.zeros(0, np.int64))
     hits, o, d = trace(cam, boxes, far=LAYOUT_RANGE)
     h, w = hits.t.shape
     out = np.zeros((h, w, len(LAYOUT_CHANNELS)), np.float32)
@@ -206,16 +215,20 @@ def layout_maps(
     far: float = LAYOUT_FAR,
     size=None,
     frames=None,
+    agents: bool = True,
 ) -> np.ndarray:
     """(T, V, H, W, 11) layout maps of every frame (or of `frames`, in their order) and rig camera, at the rig's
-    resolution or at size = (W, H) (the models' own, so the cast costs what the model reads)."""
+    resolution or at size = (W, H) (the models' own, so the cast costs what the model reads); `agents` False:
+    without the agents' boxes (`layout_map`)."""
     rig = world.rig if cameras is None else [world.rig_camera(n) for n in cameras]
     structure = map_layer(world)
     return np.stack(
         [
             np.stack(
                 [
-                    layout_map(world, t, resized(rc.at(world.ego_to_world[t], shift_m), size), near, far, structure)
+                    layout_map(
+                        world, t, resized(rc.at(world.ego_to_world[t], shift_m), size), near, far, structure, agents
+                    )
                     for rc in rig
                 ]
             )

@@ -69,7 +69,7 @@ SIZE = "small"
 # rig's image (as many Gaussians per served pixel as the oracle, tiling at any display size); "decoder" is the latent
 # Gaussian decoder's grid (one translucent Gaussian per model pixel on the 2x latents), "decoder2x" / "decoder4x" its
 # grid refined (`DECODER_REFINE`). Both modes serve pixels: the 2x VAE's decoding keeps what the page draws (generate
-# on the page's scenes 1.55 Gaussians per served px, 17.77 dB / SSIM 0.560, 37 of 38 agents seen; web/docs/models.md
+# on the page's scenes 1.63 Gaussians per served px, 17.77 dB / SSIM 0.560, 37 of 38 agents seen; web/docs/models.md
 # "Served Gaussians per mode"). Generate served the grid while it drew 4x latents, whose decoding was blotched
 # (CHANGELOG.md).
 GAUSSIANS = {"reconstruct": "pixels", "generate": "pixels"}

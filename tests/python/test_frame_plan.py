@@ -126,7 +126,8 @@ def test_a_200_frame_clip_keeps_each_agent_one_object():
     sink = _Parts()
     scene = pipeline.generate_scene(sc, mode="oracle", keyframe_step_m=KEYFRAME_STEP_M, sink=sink)
     assert scene.num_frames == 200 and [t for f in sink.frames for t in f] == list(range(200))
-    assert scene.meta["keyframes"] == list(range(0, 200, 3)) and len(sink.frames) == 17
+    # 17 windows, then the track fill (a part of no frames)
+    assert scene.meta["keyframes"] == list(range(0, 200, 3)) and len(sink.frames) == 18 and sink.frames[-1] == []
     _check_objects_keep_identity(scene, sink)
     assert all(len(scene.dynamic[t]) == 0 for t in range(200) if t % 3)  # between keyframes: only the objects
     back = wsplat.decode(wsplat.encode(scene, version=3))  # objects once, a pose per agent per frame
@@ -152,7 +153,7 @@ def test_generate_draws_the_keyframes_and_poses_the_agents_between():
     sink = _Parts()
     scene = pipeline.generate_scene(sc, mode="generate", steps=1, sink=sink)
     assert scene.meta["keyframes"] == list(range(0, 24, 3)) and scene.meta["windows"] == [1, 4, 3]
-    assert sink.frames == [[0, 1, 2], list(range(3, 15)), list(range(15, 24))]
+    assert sink.frames == [[0, 1, 2], list(range(3, 15)), list(range(15, 24)), []]  # then the track fill
     _check_objects_keep_identity(scene, sink)
     assert len(scene.objects) == len(sink.ids)  # every moving agent drawn by the appearance generator
     assert all(len(scene.dynamic[t]) == 0 for t in range(24) if t % 3)

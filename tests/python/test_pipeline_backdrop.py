@@ -98,10 +98,12 @@ def generated():
     scenes = {}
     for on in (False, True):
         inference.BACKDROP = on
+        pipeline.TRACK_FILL = False  # it would close the same pixels from the probes' side
         try:
             scenes[on] = pipeline.generate_scene(sc, mode="generate", steps=1)
         finally:
             inference.BACKDROP = True
+            pipeline.TRACK_FILL = True
     return sc, scenes
 
 

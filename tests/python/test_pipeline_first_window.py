@@ -82,9 +82,11 @@ def test_generate_hands_over_a_one_frame_first_window():
     sc = load_preset("urban_straight").with_updates(image={"width": 64, "height": 36})
     sink = Windows()
     scene = pipeline.generate_scene(sc, mode="generate", steps=2, sink=sink)
-    assert sink.frames == [[0], [1, 2, 3, 4], [5, 6, 7]] and scene.meta["windows"] == [1, 4, 3]
+    # the windows, then the layout part (the track fill: no frames)
+    assert sink.frames == [[0], [1, 2, 3, 4], [5, 6, 7], []] and scene.meta["windows"] == [1, 4, 3]
     assert sink.static[0] > 1000 and sum(sink.static) == len(scene.static)
     assert scene.meta["first_steps"] == 2 and len(scene.meta["timing_s"]["windows"]) == 3
+    assert "track_fill" in scene.meta["timing_s"]
     plain = pipeline.generate_scene(sc, mode="generate", steps=2, first_window=0, first_steps=1)
     assert plain.meta["windows"] == [4, 4] and plain.meta["first_steps"] == 1
     assert np.isfinite(plain.static.means.numpy()).all()

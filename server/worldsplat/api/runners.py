@@ -213,7 +213,7 @@ class StreamSink:
             for piece in self.writer.objects(parts):
                 self._put(piece)
             self.objects_sent += parts
-        if self.objects_sent:
+        if self.objects_sent and frames:  # a part with no frames (the track fill) poses nothing
             self._put(self.writer.poses(frames, self.objects_sent))
         for t in frames:
             for piece in self.writer.dynamic(t, dynamic[t]):

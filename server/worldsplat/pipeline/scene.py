@@ -53,6 +53,7 @@ from worldsplat.gaussians.objects import (
 from worldsplat.gaussians.types import Gaussians, Scene4D
 from worldsplat.pipeline.frame_plan import FIRST_WINDOW, KEYFRAME_STEP_M, KeyWindow, keyframe_plan
 from worldsplat.pipeline.pixels import lift_observed, served_maps
+from worldsplat.pipeline.track_fill import track_fill
 from worldsplat.world import build_world, simulate
 from worldsplat.world.conditions import ego_trajectory
 
@@ -63,8 +64,9 @@ ALL_MODES = ("oracle", "reconstruct", "generate")
 # object, parked ones too (their static pixels claimed for it). 6: an object's Gaussians no wider than a pixel
 # footprint (objects.OBJECT_SCALE_CAP), only the standing agents' boxes claimed. 7: each view's colours fitted so
 # that it renders its own image back at its camera (`lift(fit_iters=FIT_ITERS)`, `gaussians.lift.fit_colours`). 8: the
-# near side of a depth edge lifted narrower, agents' pixels excepted (`pipeline.pixels.lift_observed`).
-ORACLE_VERSION = "oracle-8"
+# near side of a depth edge lifted narrower, agents' pixels excepted (`pipeline.pixels.lift_observed`). 9: what the
+# shifted tracks see and no rig camera saw closed from the layout (`pipeline.track_fill`).
+ORACLE_VERSION = "oracle-9"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's
@@ -94,8 +96,9 @@ ORACLE_VERSION = "oracle-8"
 # w26 generate's sampler draws the open road and sky at the prior's mean (`inference.REGION_TEMPERATURE`), the other
 # frames' boxes claim only what lies before where the rays enter them (`objects.ObjectBuilder`); w27 generate's layout
 # prior and DiT one training round further; w28 generate draws what stands behind its agents (`pipeline.backdrop`);
-# w29 generate's later windows re-emit what they see 2x finer (GENERATE_WINDOW_FINER)
-STREAM_VERSION = "w29"
+# w29 generate's later windows re-emit what they see 2x finer (GENERATE_WINDOW_FINER); w30 every mode closes what the
+# shifted tracks see and no rig camera saw (`pipeline.track_fill`)
+STREAM_VERSION = "w30"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # Generate's first window is one frame (`frame_plan.FIRST_WINDOW`), and a later window re-emits no place an earlier
 # window's view saw (`aggregate.WINDOW_FINER`, inf): frame 0's far, coarse view of the road ahead stayed final, and
@@ -103,6 +106,12 @@ ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in 
 # 0.9; the oracle, whose first window holds 4 frames, none). Generate re-emits a place a later window sees this many
 # times finer: 2 % of those pixels, +13 % static Gaussians, frame 0 the same (web/docs/gaussians.md).
 GENERATE_WINDOW_FINER = 2.0
+# The oracle and generate close, from the layout, what a track shifted up to 4 m sees and no rig camera saw
+# (`pipeline.track_fill`)
+TRACK_FILL = True
+# The modes that take that part from the layout. Reconstruct serves what its observed frames show: its scene is
+# `inference.to_scene4d` of the decoded frames, which evaluation scores from a clip without its world.
+LAYOUT_PART_MODES = ("oracle", "generate")
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 35.5 dB on the served DiT (models.md)
 )
@@ -172,6 +181,8 @@ class SceneSink(Protocol):
     dynamic set with the agent objects built so far posed in; a sink with `takes_objects = True` is called
     `window(frames, static, dynamic, objects)` with the Gaussians in no box as `dynamic` and, per agent id, the
     canonical Gaussians (box frame) this window adds to its object (append-only: an object is its parts in order).
+    Once the windows are in, the oracle and generate hand over their layout part (`_Collect.layout_parts`: the
+    track fill) as `window([], static, {})` (with `{}` objects for an object sink).
     A sink may also have `recolour(colours)`: new colours (N, 3) of every static Gaussian handed over, in the order
     handed over, once the scene is whole (a mode whose joint colour fit is the whole scene's, `inference.JOINT_FIT`;
     .wsplat v4's SCOL chunk); a sink without it gets the windows' colours as they were."""
@@ -348,6 +359,7 @@ class _Collect:
         self.agg, self.sink, self.statics, self.dynamic, self.timing = agg, sink, [], {}, []
         self.joint = joint  # the joint colour fit of `window(targets=)`
         self.scene_targets: dict[int, np.ndarray] = {}  # a whole-scene fit's, gathered until `fit_scene`
+        self.layout_timing: dict[str, float] = {}  # seconds of the layout parts (`layout_part`)
         self.objects = None if objects is None else objects.builder(agg)
         self.skeleton = agg.scene([], {t: Gaussians.empty() for t in range(len(agg.frame_times))}, meta)
         if self.objects is not None:
@@ -412,6 +424,26 @@ class _Collect:
         row = {**(timing or {}), "aggregate": t_fit - t0, "colour_fit": t1 - t_fit, "sink": time.perf_counter() - t1}
         self.timing.append({k: round(v, 4) for k, v in row.items()})
 
+    def layout_part(self, stage: str, make: Callable[[Gaussians], Gaussians]) -> None:
+        """One more static part made from the layout and the static set so far (`make(static)`: the track fill),
+        handed over as a part of no frames and no dynamic sets; its seconds in `layout_timing`."""
+        t0 = time.perf_counter()
+        part = make(Gaussians.cat(self.statics))
+        if len(part):
+            self.statics.append(part)
+            if self.sink is not None:
+                objects = ({},) if getattr(self.sink, "takes_objects", False) else ()
+                self.sink.window([], part, {}, *objects)
+        self.layout_timing[stage] = time.perf_counter() - t0
+
+    def layout_parts(self, world, prog: Progress, cancelled: CancelCheck | None) -> None:
+        """What the oracle and generate take from the layout once their windows are in (LAYOUT_PART_MODES): the
+        track fill."""
+        if TRACK_FILL:
+            _check(cancelled)
+            prog("track fill", 0.0)
+            self.layout_part("track_fill", lambda s: track_fill(world, s, self.agg.ego_to_world, self.agg.rig))
+
     def _fit(self, static: Gaussians, dynamic: dict[int, Gaussians], targets: dict[int, np.ndarray]) -> Gaussians:
         """The window's new static set with its colours fitted to `targets` at their frames' rig cameras, the
         earlier windows' static set held and each frame's dynamic set and posed objects left as they render."""
@@ -446,7 +478,7 @@ class _Collect:
     def scene(self, timing: dict | None = None) -> tuple[Scene4D, AggregateStats]:
         """The whole scene; meta `timing_s`: the stage totals in `timing` and `windows`, each window's stages."""
         scene = self.agg.scene(self.statics, self.dynamic, self.skeleton.meta)
-        scene.meta["timing_s"] = {**(timing or {}), "windows": self.timing}
+        scene.meta["timing_s"] = {**(timing or {}), **self.layout_timing, "windows": self.timing}
         if self.objects is not None:
             scene.objects = self.objects.objects()
             scene.meta["agent_objects"] = {**self.objects.stats.as_dict(), "names": self.objects.names()}
@@ -530,6 +562,8 @@ def _learned(world, scenario, mode, steps, seed, meta, prog, cancelled, economy,
     finally:
         if ahead is not None:  # a cancelled or failed scene leaves no window drawing behind it
             ahead.shutdown(wait=True, cancel_futures=True)
+    if mode in LAYOUT_PART_MODES:
+        out.layout_parts(world, prog, cancelled)
     _check(cancelled)
     if out.scene_targets:
         prog("colour fit", 0.0)
@@ -607,6 +641,7 @@ def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy:
         t1 = time.perf_counter()
         per_view = _lift_clip(clip, lambda f, wi=wi: prog("lift", (wi + f) / len(wins)), cancelled)
         out.window(w.frames, _per_frame(w, per_view), {"simulate": t1 - t0, "lift": time.perf_counter() - t1})
+    out.layout_parts(world, prog, cancelled)
     return out.scene()
 
 
@@ -651,6 +686,7 @@ def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None,
         per_view = _lift_clip(clip, lambda f: None, None)
         for frames in windows(T, ORACLE_WINDOW):
             out.window(frames, [per_view[t] for t in frames])
+        out.layout_parts(world, lambda stage, f: None, None)
         scene, stats = out.scene()
     scene.meta.update(
         {

@@ -30,6 +30,19 @@ def test_coverage_is_the_half_alpha_box_of_each_footprint_and_the_nearest_centre
     assert not track_fill.coverage(track_fill.Splats.of(_one(0.0, 0.0, -5.0, 1.0)), cam)[0].any()  # behind
 
 
+def test_probe_frames_follow_the_track_every_step():
+    def track(xs):
+        poses = np.tile(np.eye(4), (len(xs), 1, 1))
+        poses[:, 0, 3] = xs
+        return poses
+
+    assert track_fill.probe_frames(track(np.arange(8) * 2.0)) == [0, 4, 7]  # the default preset's 2 m a frame
+    assert track_fill.probe_frames(track(np.zeros(5))) == [0, 4]  # a standing ego: the first and the last
+    assert track_fill.probe_frames(track([0.0])) == [0]
+    long = track_fill.probe_frames(track(np.arange(200) * 2.0))
+    assert long[:3] == [0, 4, 8] and long[-1] == 199 and len(long) == 51  # probed along all of its track
+
+
 @pytest.fixture(scope="module")
 def oracle_scenes():
     from worldsplat.pipeline import scene as pipeline

@@ -34,14 +34,25 @@ from worldsplat_models.geometry import normalize_quaternion, quaternion_to_matri
 TRACK_FILL_SHIFTS = (4.0, -4.0, 2.0, -2.0)
 # The probes' image as a fraction of the served image per side.
 TRACK_FILL_SCALE = 0.5
-# A probe pixel whose rendered alpha is under this is a hole.
-HOLE_ALPHA = 0.5
 
 
-def probe_frames(num_frames: int) -> list[int]:
-    """The frames the probes look from: the first, the middle and the last (a track moves forward; what the first
-    frame's shifted cameras miss ahead, the later ones see nearer)."""
-    return sorted({0, (num_frames - 1) // 2, num_frames - 1})
+# The probes look from the first frame, then each frame the ego has moved this far from the last probe frame, and
+# the last frame (the default preset's 14 m: frames 0, 4 and 7; a long clip is probed along all of its track).
+PROBE_STEP_M = 7.0
+
+
+def probe_frames(ego_to_world: np.ndarray, step_m: float = PROBE_STEP_M) -> list[int]:
+    """The frames the probes look from (`ego_to_world` (T,4,4) the ego's poses): what the first frame's shifted
+    cameras miss ahead, the later ones see nearer."""
+    pos = np.asarray(ego_to_world)[:, :3, 3]
+    frames, last = [0], pos[0]
+    for t in range(1, len(pos)):
+        if np.linalg.norm(pos[t] - last) >= step_m:
+            frames.append(t)
+            last = pos[t]
+    if frames[-1] != len(pos) - 1:
+        frames.append(len(pos) - 1)
+    return frames
 
 
 # The farthest a footprint box reaches from its centre pixel, in probe pixels (a wider splat is counted this wide).
@@ -144,7 +155,7 @@ def track_fill(
     """Static Gaussians (in the scene's frame, `ego_to_world` its ego poses) that close the holes the probes
     (`rig` at `frames` on the `shifts`' tracks, `scale` of the served image) see in `static`, on the surfaces the
     world's layout puts there (no sky, no agents)."""
-    frames = probe_frames(len(ego_to_world)) if frames is None else frames
+    frames = probe_frames(ego_to_world) if frames is None else frames
     structure = map_layer(world)
     added: list[Gaussians] = []
     splats = Splats.of(static)

@@ -146,12 +146,17 @@ async function saveRow(page, names, file) {
  * new one's), the rest (neither, with a 2 px margin). */
 function compare(page, old, live, fresh) {
   return page.evaluate(([a, b, c, level]) => {
-    const [o, ob, l, f, fb] = [a, `${a}-bare`, b, c, `${c}-bare`].map((n) => window.__px[n]);
+    const [o, ob, l, lb, f, fb] = [a, `${a}-bare`, b, `${b}-bare`, c, `${c}-bare`].map((n) => window.__px[n]);
     const w = document.getElementById("canvas").width, n = o.length / 4;
     const d = (x, y, i) => (Math.abs(x[4 * i] - y[4 * i]) + Math.abs(x[4 * i + 1] - y[4 * i + 1]) +
       Math.abs(x[4 * i + 2] - y[4 * i + 2])) / 3;
     const newCar = new Uint8Array(n), oldCar = new Uint8Array(n);
-    for (let i = 0; i < n; i++) { newCar[i] = d(f, fb, i) > level; oldCar[i] = d(o, ob, i) > level && !newCar[i]; }
+    // the new car: where the fresh scene draws it, and where the live frame draws it over the old scene (behind a
+    // car the fresh scene's bare frame shows what its track fill put there, which a dark car may match)
+    for (let i = 0; i < n; i++) {
+      newCar[i] = d(f, fb, i) > level || d(l, lb, i) > level;
+      oldCar[i] = d(o, ob, i) > level && !newCar[i];
+    }
     const near = (m, i) => {
       for (let dy = -2; dy <= 2; dy++) for (let dx = -2; dx <= 2; dx++) if (m[i + dy * w + dx]) return true;
       return false;

@@ -183,6 +183,7 @@ class StreamSink:
 
         self.wsplat, self.open_live, self.ctx, self.pause, self.version = wsplat, open_live, ctx, pause, version
         self.takes_objects = version >= 3
+        self.recolours = version >= 4  # SCOL chunks: a stream before .wsplat v4 cannot carry the whole-scene fit
         self.live = self.writer = self.skeleton = None
         self.head_meta: set[str] = set()
         self.objects_sent: list = []  # an AgentObject per OBJC chunk written (an agent's parts share its track)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from worldsplat.cli.eval import parse_shifts
@@ -108,6 +109,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="judge each clip's one image file in --cache even if made by other served models (an earlier run)",
     )
+    e.add_argument(
+        "--blur",
+        default="",
+        help="also the world's images blurred by a Gaussian of these sigmas (px of the judged image), e.g. 0.55,0.89: "
+        "the judge's reading of exact content seen through a splat render's blur",
+    )
     e.add_argument("--threads", type=int, default=2)
     e.add_argument("--out", type=Path, required=True, help="output directory (downstream.json/.md/.png)")
     a = sub.add_parser("ablation", help="the novel-view ablation versions A-E: judge Fréchet distances and mIoU")
@@ -172,10 +179,27 @@ def run(args: argparse.Namespace) -> int:
         blends=tuple(b for b in args.refine.split(",") if b.strip()),
         bev_head=None if args.no_bev else _bev_head(args.bev),
         reuse_renders=args.reuse_renders,
+        blurs=_blurs(args.blur),
     )
     downstream.write_domain_gap(result, args.out)
     print(downstream.domain_gap_markdown(result))
     return 0
+
+
+def _blurs(text: str) -> tuple[float, ...]:
+    """`--blur`: sigmas in px, each a finite number > 0."""
+    out = []
+    for x in (t.strip() for t in text.split(",")):
+        if not x:
+            continue
+        try:
+            v = float(x)
+        except ValueError:
+            raise ValueError(f"--blur: {x!r} is not a number (sigmas in px, comma-separated)") from None
+        if not math.isfinite(v) or v <= 0:
+            raise ValueError(f"--blur: a sigma must be a finite number > 0 px, got {x}")
+        out.append(v)
+    return tuple(out)
 
 
 def run_train(args: argparse.Namespace) -> int:

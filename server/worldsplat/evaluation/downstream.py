@@ -253,6 +253,23 @@ def write_heldout(r: dict, out: Path) -> None:
 # --- domain gap: the judge on renders of served scenes --------------------------------------------------------------
 
 
+def blurred_row(sigma: float) -> str:
+    """The row of the world's own images blurred by a Gaussian of `sigma` px (`blurred`)."""
+    return f"{GROUND_TRUTH} blurred {sigma:g} px"
+
+
+def blurred(images: np.ndarray, sigma: float) -> np.ndarray:
+    """uint8 images (..., H, W, 3) blurred by a Gaussian of `sigma` px over H and W: what the judge makes of the
+    world's exact content seen through a splat render's blur (the rasterizer's 0.3 px^2 dilation alone is 0.55 px;
+    with a lifted pixel's 0.7 px footprint, 0.89 px), the reference a render's gap is read against."""
+    from scipy.ndimage import gaussian_filter  # noqa: PLC0415 - heavy, needed by the blurred rows only
+
+    x = np.asarray(images, np.float32)
+    sig = [0.0] * x.ndim
+    sig[-3] = sig[-2] = float(sigma)
+    return np.clip(np.round(gaussian_filter(x, sig, mode="nearest")), 0, 255).astype(np.uint8)
+
+
 def refined_row(mode: str, blend: str) -> str:
     """The domain gap's row of a mode's scene refined on the track (`refine_track`) with a blend."""
     return f"{mode} refined {blend}"
@@ -392,6 +409,7 @@ def domain_gap(
     blends: tuple[str, ...] = (),
     bev_head=None,
     reuse_renders: bool = False,
+    blurs: tuple[float, ...] = (),
 ) -> dict:
     """The judge on world images (ground truth row) and on renders of each mode's served scene, clips
     start..start+count-1 of `split` (the dataset's scenarios at the model image, `clip_frames` frames), at each
@@ -400,9 +418,11 @@ def domain_gap(
     world's exact BEV raster. Returns per row and shift the `summary` (+ `bev_summary`), per row the judge Fréchet
     distance to the world images of the same clips and tracks, and the sampling floor of that distance (the world
     images split in two halves). With `cache`, each clip's images are kept there and reused; with `reuse_renders`,
-    the clip's images in `cache` are judged whatever the served models' versions they were made with."""
+    the clip's images in `cache` are judged whatever the served models' versions they were made with. With
+    `blurs` (px), also the world's images blurred by each (`blurred`; rows `blurred_row`)."""
     shifts, modes, blends = tuple(float(s) for s in shifts), tuple(modes), tuple(blends)
-    rows = (GROUND_TRUTH, *modes, *(refined_row(m, b) for m in modes for b in blends))
+    blur_rows = {blurred_row(b): float(b) for b in blurs}
+    rows = (GROUND_TRUTH, *blur_rows, *modes, *(refined_row(m, b) for m in modes for b in blends))
     layers = tuple(bev_head.cfg.layers) if bev_head is not None and cameras is None else ()
     scores = _Scores(rows, shifts, layers)
     timing = {m: {"scene_s": 0.0, "render_s": 0.0, "refine_s": 0.0} for m in modes}
@@ -424,7 +444,7 @@ def domain_gap(
         }
         make = lambda sc=sc: _clip_renders(sc, modes, shifts, frames, cameras, steps, blends)  # noqa: E731
         imgs = _cached_renders(cache, key, make, reuse_renders)
-        missing = [f"{r}_{s}" for r in rows[1:] for s in shifts if f"{r}_{s}" not in imgs]
+        missing = [f"{r}_{s}" for r in rows[1:] if r not in blur_rows for s in shifts if f"{r}_{s}" not in imgs]
         if missing:
             raise KeyError(f"clip {i}'s images lack {', '.join(missing[:4])}: made for other rows or tracks")
         if not examples:  # the first clip's first judged frame and camera: the figure's images
@@ -434,8 +454,11 @@ def domain_gap(
             targets = bev_targets(world, s, bev_head.cfg, frames) if layers else None
             centres = true_centres(world, s, bev_head.cfg, frames) if layers else None
             for row in rows:
-                k = f"gt_{s}" if row == GROUND_TRUTH else f"{row}_{s}"
-                scores.add(judge, bev_head, row, s, imgs[k], imgs[f"labels_{s}"], targets, centres)
+                if row in blur_rows:
+                    images = blurred(imgs[f"gt_{s}"], blur_rows[row])
+                else:
+                    images = imgs[f"gt_{s}"] if row == GROUND_TRUTH else imgs[f"{row}_{s}"]
+                scores.add(judge, bev_head, row, s, images, imgs[f"labels_{s}"], targets, centres)
         for m in modes:
             for k in timing[m]:
                 timing[m][k] += float(imgs.get(f"{m}_{k}", 0.0))
@@ -646,8 +669,9 @@ def plot_domain_gap(r: dict, path: Path) -> Path:
     for row in _rows(r):
         t = r["table"][row]
         mode, _, blend = row.partition(" refined ")
-        kw = dict(color="k", ls="--") if row == GROUND_TRUTH else {}
-        if row != GROUND_TRUTH:
+        if row.startswith(GROUND_TRUTH):  # the world's images, and blurred (grey)
+            kw = dict(color="k" if row == GROUND_TRUTH else "0.6", ls="--")
+        else:
             kw = dict(color=f"C{r['modes'].index(mode) + 1}", ls=blend_style.get(blend, "-"))
         axes[0].plot(shifts, [t[str(s)]["miou"] for s in shifts], marker="o", ms=3, label=row, **kw)
         for ax, g in zip(axes[1:], groups):

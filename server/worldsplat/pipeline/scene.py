@@ -38,6 +38,7 @@ from worldsplat.core.scenario import scenario_id
 from worldsplat.gaussians.agent_appearance import agent_gaussians, clip_headings, clip_lamps
 from worldsplat.gaussians.aggregate import AggregateStats, Economy, WindowAggregator, aggregate_windows, windows
 from worldsplat.gaussians.colour_fit import JointFit, fit_window
+from worldsplat.gaussians.lift import FIT_RIDGE
 from worldsplat.gaussians.objects import (
     AGENT_MARGIN_M,
     AGENT_MODES,
@@ -65,8 +66,9 @@ ALL_MODES = ("oracle", "reconstruct", "generate")
 # footprint (objects.OBJECT_SCALE_CAP), only the standing agents' boxes claimed. 7: each view's colours fitted so
 # that it renders its own image back at its camera (`lift(fit_iters=FIT_ITERS)`, `gaussians.lift.fit_colours`). 8: the
 # near side of a depth edge lifted narrower, agents' pixels excepted (`pipeline.pixels.lift_observed`). 9: what the
-# shifted tracks see and no rig camera saw closed from the layout (`pipeline.track_fill`).
-ORACLE_VERSION = "oracle-9"
+# shifted tracks see and no rig camera saw closed from the layout (`pipeline.track_fill`). 10: the static colours
+# fitted jointly to the world's images at every frame's rig cameras (ORACLE_JOINT_FIT).
+ORACLE_VERSION = "oracle-10"
 # enters the id of learned-mode scenes: w1 window-by-window aggregation and per-window noise; w2 generate's first
 # window of FIRST_WINDOW frames (then the models' windows from there, the last one not padded); w3 the decoded
 # economy (static cells of one model pixel, `Economy.for_decoded`); w4 generate's ground snapped onto the layout's
@@ -96,8 +98,8 @@ ORACLE_VERSION = "oracle-9"
 # w26 generate's sampler draws the open road and sky at the prior's mean (`inference.REGION_TEMPERATURE`), the other
 # frames' boxes claim only what lies before where the rays enter them (`objects.ObjectBuilder`); w27 generate's layout
 # prior and DiT one training round further; w28 generate draws what stands behind its agents (`pipeline.backdrop`);
-# w29 generate's later windows re-emit what they see 2x finer (GENERATE_WINDOW_FINER); w30 every mode closes what the
-# shifted tracks see and no rig camera saw (`pipeline.track_fill`)
+# w29 generate's later windows re-emit what they see 2x finer (GENERATE_WINDOW_FINER); w30 the oracle and generate close
+# what the shifted tracks see and no rig camera saw (`pipeline.track_fill`, LAYOUT_PART_MODES)
 STREAM_VERSION = "w30"
 ORACLE_WINDOW = 4  # frames per window of the oracle (the models' own window in the learned modes)
 # Generate's first window is one frame (`frame_plan.FIRST_WINDOW`), and a later window re-emits no place an earlier
@@ -112,6 +114,12 @@ TRACK_FILL = True
 # The modes that take that part from the layout. Reconstruct serves what its observed frames show: its scene is
 # `inference.to_scene4d` of the decoded frames, which evaluation scores from a clip without its world.
 LAYOUT_PART_MODES = ("oracle", "generate")
+# The oracle's static colours fitted jointly to the world's images at every frame's rig cameras once the scene is
+# whole, as generate's are to its decoded images (`inference.JOINT_FIT`): each view's own fit (`lift(fit_iters=)`)
+# makes its view render back, the union of the frames' copies does not. Held towards the lifted colours by the
+# per-view fit's ridge: without it the colours ring (the page's 2x canvas 0.3 dB lower, and a scene moved rigidly
+# measured 0.08 dB apart from float32 rounding alone); web/docs/downstream.md "The oracle's joint fit". None: no fit.
+ORACLE_JOINT_FIT: JointFit | None = JointFit("scene", FIT_RIDGE, 10)
 FIRST_STEPS = (
     4  # Euler steps of that first window (at most the scene's): 4 vs 64 steps is 35.5 dB on the served DiT (models.md)
 )
@@ -184,8 +192,9 @@ class SceneSink(Protocol):
     Once the windows are in, the oracle and generate hand over their layout part (`_Collect.layout_parts`: the
     track fill) as `window([], static, {})` (with `{}` objects for an object sink).
     A sink may also have `recolour(colours)`: new colours (N, 3) of every static Gaussian handed over, in the order
-    handed over, once the scene is whole (a mode whose joint colour fit is the whole scene's, `inference.JOINT_FIT`;
-    .wsplat v4's SCOL chunk); a sink without it gets the windows' colours as they were."""
+    handed over, once the scene is whole (a mode whose joint colour fit is the whole scene's, `inference.JOINT_FIT`,
+    ORACLE_JOINT_FIT; .wsplat v4's SCOL chunk); a sink without it gets the windows' colours as they were, and a sink
+    with `recolours = False` (a stream whose format cannot carry new colours) gets a scene without that fit."""
 
     def begin(self, skeleton: Scene4D) -> None: ...
 
@@ -458,8 +467,9 @@ class _Collect:
     def fit_scene(self) -> float:
         """A whole-scene joint fit (`JointFit` scope "scene"): every static Gaussian handed over fitted to the
         gathered targets at their keyframes' rig cameras, each frame's dynamic set and posed objects as they render;
-        the sink gets the new colours (`recolour`). Returns its seconds (0 with nothing to fit)."""
-        if not self.scene_targets or not self.statics:
+        the sink gets the new colours (`recolour`). Returns its seconds (0 with nothing to fit, or for a sink that
+        cannot take new colours: `recolours` False)."""
+        if not self.scene_targets or not self.statics or not getattr(self.sink, "recolours", True):
             return 0.0
         t0 = time.perf_counter()
         others = self._others(sorted(self.scene_targets), self.dynamic)
@@ -631,7 +641,7 @@ def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy:
     H, W = world.rig[0].height, world.rig[0].width
     agg = WindowAggregator(world.frame_times, world.rig, world.ego_to_world, economy=economy, image_size=(H, W))
     _note_keyframes(meta, wins, len(world.frame_times))
-    out = _Collect(agg, meta, sink, objects)
+    out = _Collect(agg, meta, sink, objects, ORACLE_JOINT_FIT)
     for wi, w in enumerate(wins):
         _check(cancelled)
         prog("simulate", wi / len(wins))
@@ -640,9 +650,21 @@ def _oracle(world, meta, prog: Progress, cancelled: CancelCheck | None, economy:
         _check(cancelled)
         t1 = time.perf_counter()
         per_view = _lift_clip(clip, lambda f, wi=wi: prog("lift", (wi + f) / len(wins)), cancelled)
-        out.window(w.frames, _per_frame(w, per_view), {"simulate": t1 - t0, "lift": time.perf_counter() - t1})
+        out.window(w.frames, _per_frame(w, per_view), {"simulate": t1 - t0, "lift": time.perf_counter() - t1},
+                   targets=_images(clip.rgb, w.keys))  # fmt: skip
     out.layout_parts(world, prog, cancelled)
-    return out.scene()
+    timing = {}
+    if out.scene_targets:
+        _check(cancelled)
+        prog("colour fit", 0.0)
+        timing["scene_colour_fit"] = out.fit_scene()
+    return out.scene(timing)
+
+
+def _images(rgb: np.ndarray, frames: list[int]) -> dict[int, np.ndarray]:
+    """A simulated clip's images of `frames` (rgb (len(frames), V, H, W, 3) uint8) in [0, 1] per scene frame: the
+    oracle's joint-fit targets."""
+    return {t: rgb[i].astype(np.float32) / 255.0 for i, t in enumerate(frames)}
 
 
 def _lift_clip(clip, prog: Callable[[float], None], cancelled: CancelCheck | None) -> list[list[Gaussians]]:
@@ -682,11 +704,12 @@ def oracle_scene(clip, meta: dict | None = None, economy: Economy | None = None,
             raise ValueError("oracle_scene: with `world`, the clip must hold every frame of it")
         T, V, H, W = clip.depth.shape
         agg = WindowAggregator(clip.frame_times, clip.rig, clip.ego_to_world, economy=economy, image_size=(H, W))
-        out = _Collect(agg, {"agents": "objects"}, None, _Objects(world, None, 0))
+        out = _Collect(agg, {"agents": "objects"}, None, _Objects(world, None, 0), ORACLE_JOINT_FIT)
         per_view = _lift_clip(clip, lambda f: None, None)
         for frames in windows(T, ORACLE_WINDOW):
-            out.window(frames, [per_view[t] for t in frames])
+            out.window(frames, [per_view[t] for t in frames], targets=_images(clip.rgb[frames], frames))
         out.layout_parts(world, lambda stage, f: None, None)
+        out.fit_scene()
         scene, stats = out.scene()
     scene.meta.update(
         {

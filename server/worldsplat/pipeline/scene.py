@@ -368,7 +368,7 @@ class _Collect:
         self.agg, self.sink, self.statics, self.dynamic, self.timing = agg, sink, [], {}, []
         self.joint = joint  # the joint colour fit of `window(targets=)`
         self.scene_targets: dict[int, np.ndarray] = {}  # a whole-scene fit's, gathered until `fit_scene`
-        self.layout_timing: dict[str, float] = {}  # seconds of the layout parts (`layout_part`)
+        self.layout_timing: dict[str, float] = {}  # seconds of the layout parts (`layout_parts`)
         self.objects = None if objects is None else objects.builder(agg)
         self.skeleton = agg.scene([], {t: Gaussians.empty() for t in range(len(agg.frame_times))}, meta)
         if self.objects is not None:
@@ -433,25 +433,22 @@ class _Collect:
         row = {**(timing or {}), "aggregate": t_fit - t0, "colour_fit": t1 - t_fit, "sink": time.perf_counter() - t1}
         self.timing.append({k: round(v, 4) for k, v in row.items()})
 
-    def layout_part(self, stage: str, make: Callable[[Gaussians], Gaussians]) -> None:
-        """One more static part made from the layout and the static set so far (`make(static)`: the track fill),
-        handed over as a part of no frames and no dynamic sets; its seconds in `layout_timing`."""
+    def layout_parts(self, world, prog: Progress, cancelled: CancelCheck | None) -> None:
+        """What the oracle and generate take from the layout once their windows are in (LAYOUT_PART_MODES): the
+        track fill, made from the layout and the static set so far and handed over as a part of no frames and no
+        dynamic sets; its seconds in `layout_timing`."""
+        if not TRACK_FILL:
+            return
+        _check(cancelled)
+        prog("track fill", 0.0)
         t0 = time.perf_counter()
-        part = make(Gaussians.cat(self.statics))
+        part = track_fill(world, Gaussians.cat(self.statics), self.agg.ego_to_world, self.agg.rig)
         if len(part):
             self.statics.append(part)
             if self.sink is not None:
                 objects = ({},) if getattr(self.sink, "takes_objects", False) else ()
                 self.sink.window([], part, {}, *objects)
-        self.layout_timing[stage] = time.perf_counter() - t0
-
-    def layout_parts(self, world, prog: Progress, cancelled: CancelCheck | None) -> None:
-        """What the oracle and generate take from the layout once their windows are in (LAYOUT_PART_MODES): the
-        track fill."""
-        if TRACK_FILL:
-            _check(cancelled)
-            prog("track fill", 0.0)
-            self.layout_part("track_fill", lambda s: track_fill(world, s, self.agg.ego_to_world, self.agg.rig))
+        self.layout_timing["track_fill"] = time.perf_counter() - t0
 
     def _fit(self, static: Gaussians, dynamic: dict[int, Gaussians], targets: dict[int, np.ndarray]) -> Gaussians:
         """The window's new static set with its colours fitted to `targets` at their frames' rig cameras, the
